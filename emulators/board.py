@@ -1,0 +1,175 @@
+"""Base classes for board emulators plugged into an emulated :class:`emulators.crate.Crate`.
+
+A board decodes ``size`` bytes from its base address. The crate converts the board's
+:class:`BoardAccessError` into a :class:`hal.vme.BusError` naming address, AM and width.
+:class:`RegisterBoard` dispatches accesses on the shared :class:`hal.vme.RegisterMap`.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from emulators.faults import FaultInjectable
+from hal.vme.errors import BusErrorCause
+from hal.vme.registers import Register, RegisterMap
+from hal.vme.types import AddressSpace, Width
+
+if TYPE_CHECKING:
+    from emulators.crate import Crate
+
+
+class BoardAccessError(Exception):
+    """Raised by a board to end the current cycle in BERR."""
+
+    def __init__(self, cause: BusErrorCause, detail: str = "") -> None:
+        self.cause = cause
+        self.detail = detail
+        super().__init__(detail or cause.value)
+
+
+class Board(FaultInjectable):
+    """An emulated VME board.
+
+    Attributes:
+        name: unique name in the crate.
+        size: bytes decoded from the base address.
+        base, space, slot: set when installed in a crate.
+        irq_release: ``"roak"`` (release on acknowledge) or ``"rora"`` (release on register
+            access: the board's own logic calls :meth:`release_irq`).
+        access_ns: data-transfer time of one cycle (address to DTACK) in nanoseconds.
+    """
+
+    TYPE: ClassVar[str] = "board"
+    irq_release: str = "roak"
+    access_ns: int = 300
+
+    def __init__(self, name: str, size: int) -> None:
+        self.name = name
+        self.size = int(size)
+        self.base = 0
+        self.space = AddressSpace.A16
+        self.slot: int = 0
+        self.crate: Crate | None = None
+        self._irq_level = 0
+        self._irq_vector = 0
+
+    # --- crate hooks ---------------------------------------------------------------------
+    def attach(self, crate: Crate) -> None:
+        """Called by the crate when the board is installed."""
+        self.crate = crate
+
+    def bus_read(self, offset: int, width: Width) -> int:
+        raise NotImplementedError
+
+    def bus_write(self, offset: int, width: Width, value: int) -> None:
+        raise NotImplementedError
+
+    def cycle_ns(self, width: Width, block: bool) -> int:
+        """Simulated duration of one data cycle at this board."""
+        t = self.access_ns + (100 if width is Width.D32 else 0)
+        return t * 2 // 3 if block else t
+
+    def reset(self) -> None:
+        """Power-up / SYSRESET state."""
+        self.release_irq()
+
+    def describe(self) -> dict[str, Any]:
+        """A short description for ``vmehil crate list``."""
+        return {"type": self.TYPE}
+
+    # --- interrupts ----------------------------------------------------------------------
+    def request_irq(self, level: int, vector: int) -> None:
+        """Assert IRQ ``level`` (1..7); answer IACK with ``vector``."""
+        if not 1 <= level <= 7:
+            raise ValueError(f"{self.name}: IRQ level {level} is not 1..7")
+        self._irq_level, self._irq_vector = level, vector & 0xFF
+        if self.crate is not None:
+            self.crate.irq.assert_line(self, level)
+
+    def release_irq(self) -> None:
+        if self._irq_level and self.crate is not None:
+            self.crate.irq.release_line(self)
+        self._irq_level = 0
+
+    @property
+    def irq_pending(self) -> bool:
+        return self._irq_level != 0
+
+    def iack(self, level: int) -> int:
+        """Answer an interrupt-acknowledge cycle with the status/ID vector."""
+        vector = self._irq_vector
+        if self.irq_release == "roak":
+            self.release_irq()
+        return vector
+
+    # --- time ----------------------------------------------------------------------------
+    @property
+    def now_ns(self) -> int:
+        return self.crate.clock.now_ns if self.crate is not None else 0
+
+
+class RegisterBoard(Board):
+    """A board whose window is described by a :class:`RegisterMap`.
+
+    Reads call ``read_<REG>()`` if the subclass defines it, else return the stored value;
+    writes call ``write_<REG>(value)`` if defined, else store the value. Widths other than the
+    register's own (plus ``Register.also``) end in BERR; so do reads of write-only and writes
+    of read-only registers and accesses to holes in the map. A D8 access listed in ``also``
+    reads/writes one byte of the register (big-endian: the lower address is the high byte).
+    """
+
+    REGMAP: ClassVar[RegisterMap]
+
+    def __init__(self, name: str) -> None:
+        super().__init__(name, self.REGMAP.size)
+        self.regs: dict[str, int] = {}
+        self.reset()
+
+    def reset(self) -> None:
+        super().reset()
+        self.regs = {r.name: r.reset for r in self.REGMAP.registers}
+
+    def _locate(self, offset: int, width: Width) -> tuple[Register, int]:
+        reg = self.REGMAP.containing(offset)
+        if reg is None:
+            raise BoardAccessError(BusErrorCause.NO_RESPONDER, f"{self.name}: no register at +0x{offset:X}")
+        if width is not reg.width and width not in reg.also:
+            raise BoardAccessError(
+                BusErrorCause.UNSUPPORTED_WIDTH,
+                f"{self.name}.{reg.name} is {reg.width.name}; {width.name} is not supported",
+            )
+        if int(width) > int(reg.width):
+            raise BoardAccessError(BusErrorCause.UNSUPPORTED_WIDTH, f"{self.name}.{reg.name} too wide")
+        return reg, offset - reg.offset
+
+    def bus_read(self, offset: int, width: Width) -> int:
+        reg, sub = self._locate(offset, width)
+        if not reg.access.readable:
+            raise BoardAccessError(BusErrorCause.ACCESS, f"{self.name}.{reg.name} is write-only")
+        handler = getattr(self, f"read_{reg.name}", None)
+        value = handler() if handler is not None else self.regs[reg.name]
+        return _slice(value, reg.width, sub, width)
+
+    def bus_write(self, offset: int, width: Width, value: int) -> None:
+        reg, sub = self._locate(offset, width)
+        if not reg.access.writable:
+            raise BoardAccessError(BusErrorCause.ACCESS, f"{self.name}.{reg.name} is read-only")
+        if width is not reg.width:
+            value = _merge(self.regs[reg.name], reg.width, sub, width, value)
+        handler = getattr(self, f"write_{reg.name}", None)
+        if handler is not None:
+            handler(value)
+        else:
+            self.regs[reg.name] = value
+
+
+def _slice(value: int, reg_width: Width, sub: int, width: Width) -> int:
+    """Bytes ``sub..sub+width`` of a big-endian register value."""
+    shift = 8 * (int(reg_width) - sub - int(width))
+    return (value >> shift) & width.max_value
+
+
+def _merge(old: int, reg_width: Width, sub: int, width: Width, value: int) -> int:
+    shift = 8 * (int(reg_width) - sub - int(width))
+    mask = width.max_value << shift
+    return (old & ~mask) | ((value << shift) & mask)

@@ -1,0 +1,67 @@
+"""Simulated time for the emulated crate: integer nanoseconds and a discrete-event queue.
+
+Integer nanoseconds keep lockstep runs bit-for-bit deterministic. Boards schedule future
+events (an ADC conversion finishing, a settling DAC) with :meth:`SimClock.schedule`; the
+events run in time order whenever the clock advances past them.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+from collections.abc import Callable
+
+NS_PER_S = 1_000_000_000
+
+
+def seconds_to_ns(seconds: float) -> int:
+    """Round a time in seconds to integer nanoseconds."""
+    return round(seconds * NS_PER_S)
+
+
+class SimClock:
+    """Monotonic simulated clock with an event queue."""
+
+    def __init__(self, start_ns: int = 0) -> None:
+        self._now = int(start_ns)
+        self._queue: list[tuple[int, int, Callable[[], None]]] = []
+        self._seq = itertools.count()
+        self._running = False
+
+    @property
+    def now_ns(self) -> int:
+        return self._now
+
+    @property
+    def now(self) -> float:
+        """Simulated time in seconds."""
+        return self._now / NS_PER_S
+
+    def schedule(self, at_ns: int, callback: Callable[[], None]) -> None:
+        """Run ``callback()`` when the clock reaches ``at_ns`` (immediately-due events run at
+        the next advance)."""
+        heapq.heappush(self._queue, (int(at_ns), next(self._seq), callback))
+
+    def schedule_in(self, delay_ns: int, callback: Callable[[], None]) -> None:
+        self.schedule(self._now + int(delay_ns), callback)
+
+    def advance(self, delta_ns: int) -> None:
+        """Advance by ``delta_ns`` (>= 0), running due events in time order."""
+        if delta_ns < 0:
+            raise ValueError("simulated time cannot go backwards")
+        self.advance_to(self._now + int(delta_ns))
+
+    def advance_to(self, t_ns: int) -> None:
+        """Advance to ``t_ns`` if it is later than now, running due events in order."""
+        t_ns = int(t_ns)
+        q = self._queue
+        while q and q[0][0] <= t_ns:
+            at, _, cb = heapq.heappop(q)
+            if at > self._now:
+                self._now = at
+            cb()
+        if t_ns > self._now:
+            self._now = t_ns
+
+    def pending(self) -> int:
+        return len(self._queue)

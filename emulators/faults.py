@@ -1,0 +1,55 @@
+"""Named fault injection shared by every board emulator.
+
+Each emulator declares the faults it supports (name → one-line description). Tests and,
+later, ``vmehil`` scenarios switch them on with parameters and off again.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+
+class UnknownFaultError(KeyError):
+    """The board has no fault of that name."""
+
+
+class FaultInjectable:
+    """Mixin: ``inject(name, **params)``, ``clear_fault(name)``, ``active_faults``."""
+
+    FAULTS: ClassVar[dict[str, str]] = {}
+
+    def _faults(self) -> dict[str, dict[str, Any]]:
+        f = self.__dict__.get("_active_faults")
+        if f is None:
+            f = self.__dict__["_active_faults"] = {}
+        return f
+
+    def inject(self, name: str, **params: Any) -> None:
+        """Switch fault ``name`` on with its parameters (see the board's ``FAULTS``)."""
+        if name not in self.FAULTS:
+            known = ", ".join(sorted(self.FAULTS)) or "none"
+            raise UnknownFaultError(f"{type(self).__name__} has no fault {name!r} (known: {known})")
+        self._faults()[name] = dict(params)
+        self._fault_changed(name)
+
+    def clear_fault(self, name: str | None = None) -> None:
+        """Switch one fault (or all, with ``None``) off."""
+        if name is None:
+            names = list(self._faults())
+            self._faults().clear()
+            for n in names:
+                self._fault_changed(n)
+        else:
+            self._faults().pop(name, None)
+            self._fault_changed(name)
+
+    def fault(self, name: str) -> dict[str, Any] | None:
+        """The parameters of an active fault, or ``None`` if it is off."""
+        return self._faults().get(name)
+
+    @property
+    def active_faults(self) -> dict[str, dict[str, Any]]:
+        return dict(self._faults())
+
+    def _fault_changed(self, name: str) -> None:
+        """Hook for boards that must react when a fault toggles."""

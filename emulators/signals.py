@@ -1,0 +1,77 @@
+"""The rack's connector panel: named nets between the boards and the rest of the rig.
+
+Board pins (an ADC input, a DAC output, a PIO line, a decoder's A/B/Z input) are wired to
+named nets by the rig's wiring table. The harness that couples the electronics to the plant
+writes sensor nets and reads command nets once per servo period, in-process or over CAN; the
+boards never know which.
+
+Units: analog nets in volts; digital nets as logic levels (``True`` = high); quadrature nets
+carry :class:`QuadratureEvents` summaries of what the decoder's input sampler saw.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class QuadratureEvents:
+    """What a quadrature decoder's input sampler saw during one interval.
+
+    Attributes:
+        counts: net valid x4 transitions (+ = A leads B), as the sampler decoded them; counts
+            lost to illegal transitions are *not* included.
+        illegal: number of samples in which A and B both changed (direction unknown).
+        index_offsets: for each index pulse seen, the decoded x4 count offset from the start
+            of the interval at which it occurred (the board latches ``count + offset``).
+        phase: the quadrature state (0..3, Gray order 00,01,11,10) at the end of the interval.
+    """
+
+    counts: int = 0
+    illegal: int = 0
+    index_offsets: tuple[int, ...] = ()
+    phase: int = 0
+
+
+Listener = Callable[[str, Any], None]
+
+
+class Signals:
+    """Named analog, digital and quadrature nets with change listeners."""
+
+    def __init__(self) -> None:
+        self.analog: dict[str, float] = {}
+        self.digital: dict[str, bool] = {}
+        self._listeners: dict[str, list[Listener]] = defaultdict(list)
+
+    def subscribe(self, net: str, listener: Listener) -> None:
+        """Call ``listener(net, value)`` whenever ``net`` is set or published."""
+        self._listeners[net].append(listener)
+
+    def _notify(self, net: str, value: Any) -> None:
+        for cb in self._listeners.get(net, ()):
+            cb(net, value)
+
+    def set_analog(self, net: str, volts: float) -> None:
+        self.analog[net] = float(volts)
+        self._notify(net, volts)
+
+    def get_analog(self, net: str, default: float = 0.0) -> float:
+        return self.analog.get(net, default)
+
+    def set_digital(self, net: str, level: bool) -> None:
+        level = bool(level)
+        changed = self.digital.get(net) != level
+        self.digital[net] = level
+        if changed:
+            self._notify(net, level)
+
+    def get_digital(self, net: str, default: bool = False) -> bool:
+        return self.digital.get(net, default)
+
+    def publish_quadrature(self, net: str, events: QuadratureEvents) -> None:
+        """Deliver one interval's encoder events to the decoder channel wired to ``net``."""
+        self._notify(net, events)

@@ -1,0 +1,119 @@
+"""The VME bus interface that every driver talks to, and nothing else.
+
+A :class:`VmeBus` is either an emulated crate (``emulators.crate.Crate``) or, later, a real
+VME master. Drivers call :meth:`VmeBus.read`/:meth:`VmeBus.write` with an address, an address
+space or modifier and a data width; values are unsigned integers in the bus's big-endian byte
+order (the 68020 host is big-endian, so a D32 at address A is bytes A..A+3, most significant
+first). Failed cycles raise :class:`hal.vme.errors.BusError`; they never read as 0.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+
+from hal.vme.errors import BusError, BusErrorCause
+from hal.vme.types import AddressModifier, AddressSpace, Width, am_for, resolve_am
+
+IrqHandler = Callable[[int], None]
+"""An interrupt handler; called with the 8-bit status/ID vector it was registered for."""
+
+SpaceLike = AddressSpace | AddressModifier | int | str
+
+
+class VmeBus(ABC):
+    """Abstract VME bus master.
+
+    Subclasses implement :meth:`_read`, :meth:`_write`, :meth:`now` and :meth:`delay`. The
+    base class normalizes arguments, checks alignment and value range, and keeps the
+    per-vector interrupt handler table.
+    """
+
+    def __init__(self) -> None:
+        self._irq_handlers: dict[int, IrqHandler] = {}
+
+    # --- single cycles -------------------------------------------------------------------
+    def read(self, address: int, *, space: SpaceLike = AddressSpace.A16, width: Width = Width.D16) -> int:
+        """Read one value (unsigned int) of ``width`` at ``address`` in ``space``."""
+        am, width = self._check(address, space, width, write=False)
+        return self._read(am, address, width)
+
+    def write(
+        self, address: int, value: int, *, space: SpaceLike = AddressSpace.A16, width: Width = Width.D16
+    ) -> None:
+        """Write ``value`` (unsigned, must fit ``width``) at ``address`` in ``space``."""
+        am, width = self._check(address, space, width, write=True)
+        if not 0 <= int(value) <= width.max_value:
+            raise ValueError(f"value {value} does not fit {width.name} (0..{width.max_value})")
+        self._write(am, address, width, int(value))
+
+    # --- block transfers -----------------------------------------------------------------
+    def read_block(
+        self, address: int, count: int, *, space: SpaceLike = AddressSpace.A24, width: Width = Width.D32
+    ) -> list[int]:
+        """Read ``count`` consecutive values with block (BLT) cycles where the space has them."""
+        am, width = self._check(address, space, width, write=False)
+        am = self._block_am(am)
+        return [self._read(am, address + i * width, width) for i in range(count)]
+
+    def write_block(
+        self, address: int, values: Sequence[int], *, space: SpaceLike = AddressSpace.A24,
+        width: Width = Width.D32,
+    ) -> None:
+        """Write consecutive values with block (BLT) cycles where the space has them."""
+        am, width = self._check(address, space, width, write=True)
+        am = self._block_am(am)
+        for i, v in enumerate(values):
+            if not 0 <= int(v) <= width.max_value:
+                raise ValueError(f"value {v} at index {i} does not fit {width.name}")
+            self._write(am, address + i * width, width, int(v))
+
+    # --- interrupts ----------------------------------------------------------------------
+    def register_irq_handler(self, vector: int, handler: IrqHandler) -> None:
+        """Call ``handler(vector)`` when an interrupter answers IACK with ``vector`` (0..255)."""
+        if not 0 <= vector <= 0xFF:
+            raise ValueError(f"interrupt vector {vector} is not an 8-bit status/ID")
+        if vector in self._irq_handlers:
+            raise ValueError(f"interrupt vector 0x{vector:02X} already has a handler")
+        self._irq_handlers[vector] = handler
+
+    def unregister_irq_handler(self, vector: int) -> None:
+        """Remove the handler of ``vector`` (no error if there is none)."""
+        self._irq_handlers.pop(vector, None)
+
+    def irq_handler(self, vector: int) -> IrqHandler | None:
+        return self._irq_handlers.get(vector)
+
+    # --- time ----------------------------------------------------------------------------
+    @abstractmethod
+    def now(self) -> float:
+        """Bus time in seconds: simulated time on an emulated crate, monotonic time on hardware."""
+
+    @abstractmethod
+    def delay(self, seconds: float) -> None:
+        """Let ``seconds`` of bus time pass (emulation advances its clock; hardware sleeps)."""
+
+    # --- backend hooks -------------------------------------------------------------------
+    @abstractmethod
+    def _read(self, am: AddressModifier, address: int, width: Width) -> int: ...
+
+    @abstractmethod
+    def _write(self, am: AddressModifier, address: int, width: Width, value: int) -> None: ...
+
+    # --- helpers -------------------------------------------------------------------------
+    def _check(self, address: int, space: SpaceLike, width: Width | str | int, *, write: bool):
+        am = resolve_am(space)
+        width = Width.parse(width)
+        if not 0 <= address < am.space.size:
+            raise ValueError(
+                f"address 0x{address:X} is outside {am.space.name} (0..0x{am.space.size - 1:X})"
+            )
+        if address % int(width):
+            raise BusError(address, am, width, BusErrorCause.MISALIGNED, write=write)
+        return am, width
+
+    @staticmethod
+    def _block_am(am: AddressModifier) -> AddressModifier:
+        if am.space is AddressSpace.A16 or am.block:
+            return am
+        return am_for(am.space, supervisory=am.supervisory, block=True)

@@ -1,0 +1,54 @@
+"""A driver's view of one board: registers accessed by name at ``base`` in ``space``."""
+
+from __future__ import annotations
+
+from hal.vme.bus import SpaceLike, VmeBus
+from hal.vme.registers import Register, RegisterMap
+from hal.vme.types import AddressModifier, Width, resolve_am
+
+
+class BoardWindow:
+    """Register access for a driver: ``win.read("CSR")``, ``win.write_field("CSR", "start", 1)``."""
+
+    def __init__(
+        self, bus: VmeBus, base: int, regmap: RegisterMap, space: SpaceLike | None = None
+    ) -> None:
+        self.bus = bus
+        self.base = base
+        self.regmap = regmap
+        self.am: AddressModifier = resolve_am(space if space is not None else regmap.space)
+
+    def _reg(self, reg: str | Register) -> Register:
+        return reg if isinstance(reg, Register) else self.regmap[reg]
+
+    def read(self, reg: str | Register, width: Width | None = None) -> int:
+        r = self._reg(reg)
+        return self.bus.read(self.base + r.offset, space=self.am, width=width or r.width)
+
+    def write(self, reg: str | Register, value: int, width: Width | None = None) -> None:
+        r = self._reg(reg)
+        self.bus.write(self.base + r.offset, value, space=self.am, width=width or r.width)
+
+    def read_field(self, reg: str | Register, name: str) -> int:
+        r = self._reg(reg)
+        return r.field(name).get(self.read(r))
+
+    def write_fields(self, reg: str | Register, **fields: int) -> None:
+        """Write a register built from named fields (other bits 0)."""
+        r = self._reg(reg)
+        self.write(r, r.pack(**fields))
+
+    def modify(self, reg: str | Register, **fields: int) -> int:
+        """Read-modify-write the named fields; returns the value written."""
+        r = self._reg(reg)
+        value = self.read(r)
+        for name, v in fields.items():
+            value = r.field(name).put(value, int(v))
+        self.write(r, value)
+        return value
+
+    def read_offset(self, offset: int, width: Width) -> int:
+        return self.bus.read(self.base + offset, space=self.am, width=width)
+
+    def write_offset(self, offset: int, value: int, width: Width) -> None:
+        self.bus.write(self.base + offset, value, space=self.am, width=width)

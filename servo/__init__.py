@@ -1,0 +1,1 @@
+"""The 125 Hz servo loop, control objects, trajectories, runners, tools and the CLI."""

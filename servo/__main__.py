@@ -1,0 +1,5 @@
+import sys
+
+from servo.cli import main
+
+sys.exit(main())

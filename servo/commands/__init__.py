@@ -1,0 +1,1 @@
+"""``vmehil`` subcommands, one module each."""

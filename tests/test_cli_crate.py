@@ -1,0 +1,33 @@
+"""`vmehil crate`: list, demo, read/write, shell and error reporting."""
+
+from __future__ import annotations
+
+import io
+import json
+
+from emulators.crate_file import load_crate
+from emulators.presets import resolve_rig
+from servo.cli import main
+from servo.commands.crate import shell
+
+
+def test_crate_demo_probes_every_board(capsys) -> None:
+    assert main(["crate", "--json", "demo"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert {p["board"] for p in out["probes"]} == {b["name"] for b in out["boards"]}
+    assert all(p["ok"] for p in out["probes"])
+
+
+def test_crate_read_unmapped_is_an_error_without_traceback(capsys) -> None:
+    assert main(["crate", "read", "A24", "0xF00000"]) == 2
+    err = capsys.readouterr().err
+    assert "bus error" in err and "Traceback" not in err
+
+
+def test_crate_shell_runs_commands_and_reports_errors() -> None:
+    crate = load_crate(resolve_rig(None))
+    out = io.StringIO()
+    status = shell(crate, io.StringIO("write A24 0x200000 0xBEEF; read A24 0x200000\nread A24 0x200001\n"), out)
+    lines = out.getvalue().splitlines()
+    assert lines[:2] == ["ok", "0xBEEF"]
+    assert lines[2].startswith("error: bus error") and status == 1
