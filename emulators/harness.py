@@ -1,0 +1,147 @@
+"""The harness: one explicit exchange per servo period between the electronics and the plant.
+
+The boards see only nets (:class:`emulators.signals.Signals`). Once per servo period the
+harness reads the command nets (amplifier command volts, enables, PWM, direction, brake,
+fault reset) into a :class:`PlantCommand`, hands it to a :class:`PlantLink` — a function call
+in-process, frames on CAN for the plant node — and publishes the returned
+:class:`PlantSensors` (pot, tach and current-monitor volts at the next sampling instant, the
+encoder's quadrature events during the period, fault lines) on the sensor nets at the start
+of the next tick. Both links pass values through the same :class:`ExchangeCodec`, so the two
+modes give the same results by construction.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from emulators.plant import Plant, PlantCommand, PlantSensors
+from emulators.signals import QuadratureEvents, Signals
+
+
+class ExchangeCodec:
+    """Quantizes the exchanged values to the resolution of the wire encoding.
+
+    The identity codec here is replaced by the CAN message set's scaling (DBC) where the
+    CAN node is in use; in-process runs use the same codec so both modes agree.
+    """
+
+    def command(self, cmd: PlantCommand) -> PlantCommand:
+        return cmd
+
+    def sensors(self, s: PlantSensors) -> PlantSensors:
+        return s
+
+
+class PlantLink(ABC):
+    """Where the plant runs. ``exchange`` advances it exactly one servo period (lockstep)."""
+
+    names: list[str]
+
+    @abstractmethod
+    def exchange(self, cmd: PlantCommand, period_s: float, delay_s: float) -> PlantSensors: ...
+
+    def close(self) -> None:
+        """Release transports (no-op in-process)."""
+
+
+class InProcessLink(PlantLink):
+    """The embedded default: the plant is a Python object in this process."""
+
+    def __init__(self, plant: Plant, codec: ExchangeCodec | None = None) -> None:
+        self.plant = plant
+        self.codec = codec or ExchangeCodec()
+        self.names = list(plant.names)
+
+    def exchange(self, cmd: PlantCommand, period_s: float, delay_s: float) -> PlantSensors:
+        return self.codec.sensors(self.plant.step_period(self.codec.command(cmd), period_s, delay_s))
+
+
+@dataclass(frozen=True)
+class JointNets:
+    """Which nets of a joint are wired (``None`` = not wired)."""
+
+    name: str
+    amp_command: str | None = None
+    amp_enable: str | None = None
+    amp_reset: str | None = None
+    amp_fault: str | None = None
+    pwm: str | None = None
+    direction: str | None = None
+    brake: str | None = None
+    pot: str | None = None
+    tach: str | None = None
+    imon: str | None = None
+    encoder: str | None = None
+
+
+class Harness:
+    """Couples a crate's :class:`Signals` to a :class:`PlantLink`, once per servo period."""
+
+    def __init__(self, signals: Signals, joints: Sequence[JointNets], link: PlantLink) -> None:
+        self.signals = signals
+        self.joints = list(joints)
+        self.link = link
+        self.n = len(self.joints)
+        self.pending: PlantSensors | None = None
+        self.last: PlantSensors | None = None
+        self.exchanges = 0
+
+    def collect(self) -> PlantCommand:
+        """Read the command nets into a :class:`PlantCommand`."""
+        s = self.signals
+        n = self.n
+        cmd_v = np.zeros(n)
+        enable = np.zeros(n, bool)
+        reset = np.zeros(n, bool)
+        duty = np.zeros(n)
+        direction = np.zeros(n, bool)
+        brake = np.zeros(n, bool)
+        for i, j in enumerate(self.joints):
+            if j.amp_command:
+                cmd_v[i] = s.get_analog(j.amp_command)
+            # An unwired enable is tied high on the amplifier (always enabled).
+            enable[i] = s.get_digital(j.amp_enable) if j.amp_enable else True
+            if j.amp_reset:
+                reset[i] = s.get_digital(j.amp_reset)
+            if j.pwm:
+                duty[i] = s.get_analog(j.pwm)
+            if j.direction:
+                direction[i] = s.get_digital(j.direction)
+            if j.brake:
+                brake[i] = s.get_digital(j.brake)
+        return PlantCommand(
+            amp_command_v=cmd_v, amp_enable=enable, fault_reset=reset,
+            pwm_duty=duty, pwm_direction=direction, brake=brake,
+        )
+
+    def step(self, period_s: float, delay_s: float) -> PlantSensors:
+        """Exchange once: send the commands, advance the plant one period, keep its answer."""
+        self.pending = self.link.exchange(self.collect(), period_s, delay_s)
+        self.exchanges += 1
+        return self.pending
+
+    def publish(self) -> None:
+        """Put the last answer on the sensor nets (call at the start of the next tick)."""
+        sensors = self.pending
+        if sensors is None:
+            return
+        s = self.signals
+        for i, j in enumerate(self.joints):
+            if j.pot:
+                s.set_analog(j.pot, float(sensors.pot_v[i]))
+            if j.tach:
+                s.set_analog(j.tach, float(sensors.tach_v[i]))
+            if j.imon:
+                s.set_analog(j.imon, float(sensors.imon_v[i]))
+            if j.amp_fault:
+                s.set_digital(j.amp_fault, bool(sensors.amp_fault[i]))
+            if j.encoder:
+                ev = sensors.encoder[i]
+                if isinstance(ev, QuadratureEvents):
+                    s.publish_quadrature(j.encoder, ev)
+        self.last = sensors
+        self.pending = None

@@ -1,0 +1,7 @@
+"""Amplifier drivers: a linear transconductance amplifier (DAC command, PIO enable/fault,
+ADC current monitor) and an H-bridge (PIO PWM, direction, brake, faults, ADC monitor)."""
+
+from hal.amplifiers.hbridge import HBridgeAmp, HBridgeConfig
+from hal.amplifiers.linear import AmplifierFault, LinearAmp, LinearAmpConfig
+
+__all__ = ["AmplifierFault", "HBridgeAmp", "HBridgeConfig", "LinearAmp", "LinearAmpConfig"]

@@ -1,0 +1,141 @@
+"""Rig files: the crate, the plant, the wiring and the servo settings of one robot.
+
+A rig file is TOML with these top-level tables (presets: ``emulators/presets/*.toml``)::
+
+    [rig]        name, description, servo_rate_hz (125), computation_delay_s (0..1 period)
+    [crate]      boards (see emulators.crate_file)
+    [plant]      plant-wide settings (see docs/plant.md)
+    [[joint]]    one per joint: name, amplifier ("linear" | "hbridge"), plant subtables,
+                 [joint.wiring] and [joint.servo]
+
+``[joint.wiring]`` names board pins as ``"board:channel"`` (ADC/DAC/decoder channel numbers)
+or ``"board:PA0"`` (PIO lines)::
+
+    amp_command = "dac0:0"   amp_enable = "pio0:PA0"   amp_fault = "pio0:PB0"
+    amp_reset = "pio0:PC0"   pot = "adc0:0"            tach = "adc0:8"
+    imon = "adc1:0"          encoder = "quad0:0"
+    pwm = "pio0:PWM"         direction = "pio0:PA6"    brake = "pio0:PA7"   # H-bridge joints
+
+Each wired signal becomes the net ``<joint>.<signal>`` between the boards and the plant.
+
+``[joint.servo]``: ``position = "pot" | "encoder"``, ``velocity = "tach" | "encoder"``,
+``gains = {kp, kpi, kv, kvi}``, ``switch_off = {...}``, ``max_velocity_deg_s``,
+``torque_limit_nm``, ``following_error_limit_deg``, ``controller = {objects = [...]}``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from hal.config import ConfigError, ConfigTable, load_toml
+
+ANALOG_INPUTS = ("pot", "tach", "imon")
+DIGITAL_OUTPUTS = ("amp_enable", "amp_reset", "direction", "brake")
+DIGITAL_INPUTS = ("amp_fault",)
+WIRING_KEYS = ("amp_command", "encoder", "pwm", *ANALOG_INPUTS, *DIGITAL_OUTPUTS, *DIGITAL_INPUTS)
+
+
+@dataclass(frozen=True)
+class Pin:
+    """A board pin: board name and channel number or line name (``"PA0"``, ``"PWM"``)."""
+
+    board: str
+    channel: int | str
+
+    @property
+    def index(self) -> int:
+        if not isinstance(self.channel, int):
+            raise TypeError(f"{self.board}:{self.channel} is a line, not a channel number")
+        return self.channel
+
+    def __str__(self) -> str:
+        return f"{self.board}:{self.channel}"
+
+
+@dataclass
+class JointSpec:
+    """One joint of a rig (the plant parameters stay in ``table`` for the plant to read)."""
+
+    index: int
+    name: str
+    amplifier: str
+    wiring: dict[str, Pin]
+    servo: ConfigTable
+    table: ConfigTable
+
+    def net(self, signal: str) -> str:
+        """The net name that carries ``signal`` of this joint (``"j1.pot"``)."""
+        return f"{self.name}.{signal}"
+
+
+@dataclass
+class RigSpec:
+    """A parsed rig file."""
+
+    name: str
+    path: Path
+    table: ConfigTable
+    servo_rate_hz: float
+    computation_delay_s: float
+    joints: list[JointSpec] = field(default_factory=list)
+    description: str = ""
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.servo_rate_hz
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joints)
+
+    def joint(self, number: int) -> JointSpec:
+        """Joint by 1-based number, as the papers number links."""
+        if not 1 <= number <= len(self.joints):
+            raise ValueError(f"rig {self.name} has joints 1..{len(self.joints)}; there is no joint {number}")
+        return self.joints[number - 1]
+
+
+def parse_pin(cfg: ConfigTable, key: str) -> Pin:
+    text = cfg.str(key)
+    board, sep, chan = text.partition(":")
+    if not sep or not board or not chan:
+        raise cfg.error(key, 'a pin "board:channel" such as "adc0:3" or "pio0:PA0"', text)
+    return Pin(board, int(chan) if chan.isdigit() else chan.upper())
+
+
+def load_rig(path: str | Path) -> RigSpec:
+    """Parse a rig file (a preset path from :func:`emulators.presets.resolve_rig` or any path)."""
+    table = load_toml(path)
+    rig = table.table("rig", {})
+    period_hz = rig.float("servo_rate_hz", 125.0, min=1.0, max=10_000.0)
+    delay = rig.float("computation_delay_s", 0.001, min=0.0)
+    if delay > 1.0 / period_hz:
+        raise rig.error("computation_delay_s", f"a delay of at most one servo period ({1 / period_hz} s)", delay)
+    spec = RigSpec(
+        name=rig.str("name", Path(path).stem),
+        path=Path(path),
+        table=table,
+        servo_rate_hz=period_hz,
+        computation_delay_s=delay,
+        description=rig.str("description", ""),
+    )
+    names: set[str] = set()
+    for i, jt in enumerate(table.tables("joint", [])):
+        name = jt.str("name")
+        if name in names:
+            raise jt.error("name", "a joint name not used before", name)
+        names.add(name)
+        amp = jt.str("amplifier", "linear", choices=("linear", "hbridge"))
+        wt = jt.table("wiring", {})
+        wiring = {k: parse_pin(wt, k) for k in wt.keys() if k in WIRING_KEYS}
+        for k in wt.keys():
+            if k not in WIRING_KEYS:
+                raise wt.error(k, "a wiring key (" + ", ".join(WIRING_KEYS) + ")", "unknown key")
+        if amp == "linear" and "amp_command" not in wiring:
+            raise wt.error("amp_command", 'the DAC pin driving the amplifier (e.g. "dac0:0")')
+        servo = jt.table("servo", {})
+        spec.joints.append(JointSpec(i, name, amp, wiring, servo, jt))
+    if not spec.joints:
+        raise ConfigError(str(path), "joint", "at least one [[joint]] table")
+    return spec
