@@ -431,6 +431,10 @@ def test_scan_of_a_channel_list_with_per_channel_gains() -> None:
     assert got[1] == pytest.approx(0.3, abs=adc_lsb(AdcRange.BIPOLAR_10V, 8) / 2)
     assert rd(c, "SCAN_LAST") == 5
     assert rd(c, "SCAN_GAIN0") & 0x3 == 3  # channel 0 at gain 8
+    c.signals.set_analog("in12", 2.0)  # clips at gain 8 (±1.25 V), not at gain 4 (±2.5 V)
+    assert adc.scan_counts([12], gain={12: 4})[0] == adc_volts_to_code(2.0, AdcRange.BIPOLAR_10V, 4)
+    assert rd(c, "SCAN_GAIN1") == 2 << 8  # channel 12 at gain code 2
+    assert adc.scan_counts([12], gain={12: 8})[0] == CODE_MAX
     with pytest.raises(ValueError, match="channel 16"):
         adc.scan([16])
     with pytest.raises(ValueError, match="gain"):
