@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from emulators.adc import adc_factory
+from emulators.dac import dac_factory
 from emulators.ram import RamBoard
 from emulators.registry import BuildContext, register_board_type
 from hal.config import ConfigTable
@@ -12,3 +14,5 @@ def _ram(name: str, cfg: ConfigTable, ctx: BuildContext) -> RamBoard:
 
 
 register_board_type("ram", _ram)
+register_board_type("adc", adc_factory)
+register_board_type("dac", dac_factory)

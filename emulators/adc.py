@@ -1,0 +1,275 @@
+"""Register-level emulator of the 16-channel 12-bit ADC board (map: :mod:`hal.adc_dac.adc_regs`).
+
+Behaviour (as the real boards of the era: see ``docs/boards/adc.md``):
+
+* A conversion takes ``conversion_time_ns`` of simulated time (default 15 µs); a scan of
+  channels 0..LAST takes (LAST+1) conversions back to back.
+* Sample-and-hold: each channel's analog net is sampled at *its* conversion start; the code
+  appears in DATA (single) or BUFn (scan) at its conversion end.
+* Reading DATA or a BUF word while BUSY returns the stale word and sets CSR.EARLY; a start or
+  scan while BUSY is ignored and sets CSR.OVERRUN.
+* End of conversion/scan sets DONE and, with IRQ_EN and IRQ_LEVEL ≠ 0, IRQ_PEND and an
+  interrupt with the VECTOR register's status/ID. Release is **RORA**: the request stays until
+  the host writes 1 to CSR.IRQ_PEND (or clears IRQ_EN, starts again, or resets).
+* Analog front end per sample: ``v = net + noise`` (Gaussian; rms = √(noise_rms_v² + burst² +
+  Σ extra sources²)), then the channel's error ``v·(1 + gain_error) + offset_v``, then the PGA
+  and quantizer (:func:`hal.adc_dac.conversions.adc_volts_to_code`: round, clip at the rails).
+
+Faults: ``stuck_channel(channel, code)``, ``noise_burst(rms_v, channels=None)``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, ClassVar
+
+from emulators.board import RegisterBoard
+from emulators.registry import BuildContext
+from emulators.rng import rng_for
+from hal.adc_dac.adc_regs import ADC_BOARD_ID, ADC_CHANNELS, ADC_REGMAP, CSR_CONFIG_MASK, CSR_W1C_MASK
+from hal.adc_dac.conversions import CODE_MAX, AdcRange, adc_volts_to_code, gain_from_code
+from hal.config import ConfigTable
+
+_CSR = ADC_REGMAP["CSR"]
+_F = {f.name: f for f in _CSR.fields}
+_BIT = {name: f.mask for name, f in _F.items()}
+
+DEFAULT_CONVERSION_TIME_NS = 15_000
+
+NoiseSource = Callable[[], float]
+
+
+class AdcBoard(RegisterBoard):
+    """Emulated ADC board.
+
+    Args:
+        name: board name in the crate.
+        wiring: channel → analog net name; unwired channels read 0 V.
+        noise_rms_v: input-referred Gaussian noise (V rms) on every conversion.
+        offset_v: per-channel offset error (V), 16 values (default 0).
+        gain_error: per-channel gain error (fraction, 0.001 = +0.1 %), 16 values (default 0).
+        conversion_time_ns: time of one conversion.
+        seed: run seed; the noise stream is ``rng_for(seed, name, "noise")``.
+    """
+
+    TYPE = "adc"
+    REGMAP = ADC_REGMAP
+    irq_release = "rora"
+    FAULTS: ClassVar[dict[str, str]] = {
+        "stuck_channel": "channel=N, code=C: channel N always converts to code C (0..0xFFF)",
+        "noise_burst": "rms_v=V[, channels=[...]]: extra Gaussian noise (V rms) on all or listed channels",
+    }
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        wiring: Mapping[int, str] | None = None,
+        noise_rms_v: float = 0.0,
+        offset_v: Sequence[float] | None = None,
+        gain_error: Sequence[float] | None = None,
+        conversion_time_ns: int = DEFAULT_CONVERSION_TIME_NS,
+        seed: int = 0,
+    ) -> None:
+        self.wiring: dict[int, str] = {}
+        for ch, net in (wiring or {}).items():
+            if not 0 <= int(ch) < ADC_CHANNELS:
+                raise ValueError(f"{name}: wiring channel {ch} is not 0..{ADC_CHANNELS - 1}")
+            self.wiring[int(ch)] = str(net)
+        if noise_rms_v < 0:
+            raise ValueError(f"{name}: noise_rms_v must be >= 0 V, got {noise_rms_v}")
+        self.noise_rms_v = float(noise_rms_v)
+        self.offset_v = _per_channel(name, "offset_v", offset_v, 0.0)
+        self.gain_error = _per_channel(name, "gain_error", gain_error, 0.0)
+        if conversion_time_ns <= 0:
+            raise ValueError(f"{name}: conversion_time_ns must be > 0")
+        self.conversion_time_ns = int(conversion_time_ns)
+        self._rng = rng_for(seed, name, "noise")
+        self._noise_sources: list[NoiseSource] = []
+        self._gen = 0  # bumped on reset: events of an aborted conversion are ignored
+        self._busy = False
+        self.conversions = 0  #: number of channel conversions completed (diagnostic)
+        super().__init__(name)
+
+    # --- power-up / reset ---------------------------------------------------------------
+    def reset(self) -> None:
+        super().reset()
+        self._gen += 1
+        self._busy = False
+
+    # --- analog front end ---------------------------------------------------------------
+    def add_noise_source(self, fn: NoiseSource) -> None:
+        """Add a noise contributor: ``fn()`` returns extra rms volts at the conversion instant
+        (e.g. H-bridge switching noise coupling into the inputs while the bridge runs)."""
+        self._noise_sources.append(fn)
+
+    def input_volts(self, channel: int) -> float:
+        """The noiseless voltage at ``channel``'s input pin now (0 V if unwired)."""
+        net = self.wiring.get(channel)
+        if net is None or self.crate is None:
+            return 0.0
+        return self.crate.signals.get_analog(net)
+
+    def _noise_rms(self, channel: int) -> float:
+        var = self.noise_rms_v**2
+        burst = self.fault("noise_burst")
+        if burst is not None:
+            chans = burst.get("channels")
+            if chans is None or channel in chans:
+                var += float(burst.get("rms_v", 0.0)) ** 2
+        for fn in self._noise_sources:
+            var += float(fn()) ** 2
+        return math.sqrt(var)
+
+    def sample(self, channel: int, gain: int, rng: AdcRange) -> int:
+        """Sample-and-hold plus conversion of ``channel`` now: the 12-bit code."""
+        stuck = self.fault("stuck_channel")
+        if stuck is not None and int(stuck.get("channel", -1)) == channel:
+            return int(stuck.get("code", 0)) & CODE_MAX
+        v = self.input_volts(channel)
+        sigma = self._noise_rms(channel)
+        if sigma > 0:
+            v += sigma * float(self._rng.standard_normal())
+        v = v * (1.0 + self.gain_error[channel]) + self.offset_v[channel]
+        return adc_volts_to_code(v, rng, gain)
+
+    # --- registers ----------------------------------------------------------------------
+    @property
+    def _range(self) -> AdcRange:
+        return AdcRange.UNIPOLAR_10V if self.regs["CSR"] & _BIT["RANGE"] else AdcRange.BIPOLAR_10V
+
+    def read_CSR(self) -> int:
+        return self.regs["CSR"] | (_BIT["BUSY"] if self._busy else 0)
+
+    def write_CSR(self, value: int) -> None:
+        if value & _BIT["RESET"]:
+            self.reset()
+            return
+        csr = self.regs["CSR"]
+        csr &= ~(value & CSR_W1C_MASK)
+        csr = (csr & ~CSR_CONFIG_MASK) | (value & CSR_CONFIG_MASK)
+        self.regs["CSR"] = csr
+        if (value & _BIT["IRQ_PEND"]) or not (csr & _BIT["IRQ_EN"]):
+            self._drop_irq()
+        if value & (_BIT["START"] | _BIT["SCAN"]):
+            if self._busy:
+                self.regs["CSR"] |= _BIT["OVERRUN"]
+            elif value & _BIT["SCAN"]:
+                self._start(list(range((self.regs["SCAN_LAST"] & 0xF) + 1)), scan=True)
+            else:
+                self._start([self.regs["CHAN"] & 0xF], scan=False)
+
+    def write_CHAN(self, value: int) -> None:
+        self.regs["CHAN"] = value & 0x3F
+
+    def write_VECTOR(self, value: int) -> None:
+        self.regs["VECTOR"] = value & 0xFF
+
+    def write_SCAN_LAST(self, value: int) -> None:
+        self.regs["SCAN_LAST"] = value & 0xF
+
+    def read_DATA(self) -> int:
+        self._note_read()
+        return self.regs["DATA"]
+
+    def bus_read(self, offset: int, width) -> int:
+        value = super().bus_read(offset, width)
+        reg = self.REGMAP.containing(offset)
+        if reg is not None and reg.name.startswith("BUF"):
+            self._note_read()
+        return value
+
+    def _note_read(self) -> None:
+        if self._busy:
+            self.regs["CSR"] |= _BIT["EARLY"]
+
+    # --- conversion sequencing ----------------------------------------------------------
+    def _gain_of(self, channel: int, scan: bool) -> int:
+        if not scan:
+            return gain_from_code(self.regs["CHAN"] >> 4)
+        reg = self.regs["SCAN_GAIN0" if channel < 8 else "SCAN_GAIN1"]
+        return gain_from_code(reg >> (2 * (channel % 8)))
+
+    def _start(self, channels: list[int], *, scan: bool) -> None:
+        self._busy = True
+        self.regs["CSR"] &= ~_BIT["DONE"]
+        self._drop_irq()
+        self._begin(channels, 0, scan, self._gen)
+
+    def _begin(self, channels: list[int], i: int, scan: bool, gen: int) -> None:
+        ch = channels[i]
+        code = self.sample(ch, self._gain_of(ch, scan), self._range)  # S/H at conversion start
+        word = (ch << 12) | code
+        assert self.crate is not None
+        self.crate.clock.schedule_in(self.conversion_time_ns, lambda: self._end(channels, i, scan, gen, word))
+
+    def _end(self, channels: list[int], i: int, scan: bool, gen: int, word: int) -> None:
+        if gen != self._gen:
+            return  # reset while converting
+        self.conversions += 1
+        ch = channels[i]
+        self.regs[f"BUF{ch}" if scan else "DATA"] = word
+        if i + 1 < len(channels):
+            self._begin(channels, i + 1, scan, gen)
+            return
+        self._busy = False
+        self.regs["CSR"] |= _BIT["DONE"]
+        csr = self.regs["CSR"]
+        level = _F["IRQ_LEVEL"].get(csr)
+        if csr & _BIT["IRQ_EN"] and level:
+            self.regs["CSR"] |= _BIT["IRQ_PEND"]
+            self.request_irq(level, self.regs["VECTOR"])
+
+    def _drop_irq(self) -> None:
+        self.regs["CSR"] &= ~_BIT["IRQ_PEND"]
+        self.release_irq()
+
+    # --- crate hooks ---------------------------------------------------------------------
+    def describe(self) -> dict[str, Any]:
+        return {
+            "type": self.TYPE,
+            "id": f"0x{ADC_BOARD_ID:04X}",
+            "channels": ADC_CHANNELS,
+            "wired": len(self.wiring),
+            "conversion_us": self.conversion_time_ns / 1000,
+        }
+
+
+def _per_channel(name: str, key: str, values: Sequence[float] | None, default: float) -> tuple[float, ...]:
+    if values is None:
+        return (default,) * ADC_CHANNELS
+    if len(values) != ADC_CHANNELS:
+        raise ValueError(f"{name}: {key} needs {ADC_CHANNELS} values (one per channel), got {len(values)}")
+    return tuple(float(v) for v in values)
+
+
+def wiring_from_config(cfg: ConfigTable, channels: int) -> dict[int, str]:
+    """Read a ``[crate.board.wiring]`` table (``"3" = "pot1"``) into ``{3: "pot1"}``."""
+    if "wiring" not in cfg:
+        return {}
+    table = cfg.table("wiring")
+    out: dict[int, str] = {}
+    for key in table.keys():
+        if not key.isdigit() or not 0 <= int(key) < channels:
+            raise table.error(key, f"a channel number 0..{channels - 1}", key)
+        out[int(key)] = table.str(key)
+    return out
+
+
+def adc_factory(name: str, cfg: ConfigTable, ctx: BuildContext) -> AdcBoard:
+    """Crate-file factory for ``type = "adc"``.
+
+    Keys: ``wiring`` (table channel → net), ``noise_rms_v``, ``offset_v`` and ``gain_error``
+    (16 numbers each), ``conversion_time_us``. The noise seed is the crate build seed.
+    """
+    return AdcBoard(
+        name,
+        wiring=wiring_from_config(cfg, ADC_CHANNELS),
+        noise_rms_v=cfg.float("noise_rms_v", 0.0, min=0.0, max=10.0),
+        offset_v=cfg.floats("offset_v", None, length=ADC_CHANNELS) if "offset_v" in cfg else None,
+        gain_error=cfg.floats("gain_error", None, length=ADC_CHANNELS) if "gain_error" in cfg else None,
+        conversion_time_ns=round(cfg.float("conversion_time_us", DEFAULT_CONVERSION_TIME_NS / 1000,
+                                           min=0.1, max=10_000.0) * 1000),
+        seed=ctx.seed,
+    )

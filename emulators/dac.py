@@ -1,0 +1,223 @@
+"""Register-level emulator of the 8-channel 12-bit double-buffered DAC (map: :mod:`hal.adc_dac.dac_regs`).
+
+Behaviour (see ``docs/boards/dac.md``):
+
+* Power-up and reset: every holding and output register is 0x800, every output 0 V (plus the
+  channel's offset error).
+* Writing ``DATAn`` loads the holding register only. ``UPDATE`` bit *n* (or ``CSR.UPDATE_ALL``)
+  copies holding → output for all selected channels in the same instant.
+* Output: ``v = ideal(code)·(1 + gain_error) + offset_v``, clipped at the ±``rail_v`` output
+  stage rails. It settles first-order: :meth:`DacBoard.output_volts` gives the exponential
+  approach at any instant (τ = settling time / ln 8192, i.e. a full-scale step is within
+  ½ LSB at the settling time); the wired analog net is set to the final value one settling
+  time after the strobe (a newer strobe supersedes). ``CSR.SETTLING`` reads 1 meanwhile.
+
+Fault: ``dead_channel(channel, volts=0.0)`` — the output pin sits at ``volts`` whatever is
+written (the registers still read back what was written, as on a board with a blown output
+buffer).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar
+
+from emulators.adc import wiring_from_config
+from emulators.board import RegisterBoard
+from emulators.registry import BuildContext
+from hal.adc_dac.conversions import CODE_MAX, dac_code_to_volts
+from hal.adc_dac.dac_regs import DAC_BOARD_ID, DAC_CHANNELS, DAC_POWER_UP_CODE, DAC_REGMAP
+from hal.config import ConfigTable
+
+DEFAULT_SETTLING_NS = 10_000
+_CSR = DAC_REGMAP["CSR"]
+_UPDATE_ALL = _CSR.field("UPDATE_ALL").mask
+_SETTLING = _CSR.field("SETTLING").mask
+_RESET = _CSR.field("RESET").mask
+
+
+class DacBoard(RegisterBoard):
+    """Emulated DAC board.
+
+    Args:
+        name: board name in the crate.
+        wiring: channel → analog net the output drives.
+        offset_v: per-channel offset error (V), 8 values.
+        gain_error: per-channel gain error (fraction), 8 values.
+        settling_time_ns: time from the update strobe to the final value on the net.
+        rail_v: output stage saturation (± volts).
+    """
+
+    TYPE = "dac"
+    REGMAP = DAC_REGMAP
+    FAULTS: ClassVar[dict[str, str]] = {
+        "dead_channel": "channel=N[, volts=V]: output N stuck at V (default 0 V) whatever is written",
+    }
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        wiring: Mapping[int, str] | None = None,
+        offset_v: Sequence[float] | None = None,
+        gain_error: Sequence[float] | None = None,
+        settling_time_ns: int = DEFAULT_SETTLING_NS,
+        rail_v: float = 10.5,
+    ) -> None:
+        self.wiring: dict[int, str] = {}
+        for ch, net in (wiring or {}).items():
+            if not 0 <= int(ch) < DAC_CHANNELS:
+                raise ValueError(f"{name}: wiring channel {ch} is not 0..{DAC_CHANNELS - 1}")
+            self.wiring[int(ch)] = str(net)
+        self.offset_v = _per_channel(name, "offset_v", offset_v)
+        self.gain_error = _per_channel(name, "gain_error", gain_error)
+        if settling_time_ns < 0:
+            raise ValueError(f"{name}: settling_time_ns must be >= 0")
+        self.settling_time_ns = int(settling_time_ns)
+        self.tau_ns = self.settling_time_ns / math.log(2 * (CODE_MAX + 1))
+        self.rail_v = float(rail_v)
+        # per channel: (strobe time ns, converter volts at the strobe, final volts)
+        self._step: list[tuple[int, float, float]] = []
+        self._gen = [0] * DAC_CHANNELS
+        self.updates = 0  #: number of update strobes (diagnostic)
+        super().__init__(name)
+
+    # --- power-up / reset ---------------------------------------------------------------
+    def reset(self) -> None:
+        super().reset()
+        v0 = [self._analog(ch, DAC_POWER_UP_CODE) for ch in range(DAC_CHANNELS)]
+        self._step = [(self.now_ns, v, v) for v in v0]
+        self._gen = [g + 1 for g in self._gen]
+        for ch in range(DAC_CHANNELS):
+            self._drive(ch)
+
+    def attach(self, crate) -> None:
+        super().attach(crate)
+        self._step = [(self.now_ns, v, v) for _, _, v in self._step]
+        for ch in range(DAC_CHANNELS):
+            self._drive(ch)
+
+    # --- analog output ------------------------------------------------------------------
+    def _analog(self, ch: int, code: int) -> float:
+        v = dac_code_to_volts(code) * (1.0 + self.gain_error[ch]) + self.offset_v[ch]
+        return min(max(v, -self.rail_v), self.rail_v)
+
+    def _dead_volts(self, ch: int) -> float | None:
+        f = self.fault("dead_channel")
+        if f is not None and int(f.get("channel", -1)) == ch:
+            return float(f.get("volts", 0.0))
+        return None
+
+    def output_volts(self, channel: int, t_ns: int | None = None) -> float:
+        """The voltage at output pin ``channel`` at ``t_ns`` (default now), settling included."""
+        dead = self._dead_volts(channel)
+        if dead is not None:
+            return dead
+        return self._converter_volts(channel, self.now_ns if t_ns is None else t_ns)
+
+    def _converter_volts(self, channel: int, t_ns: int) -> float:
+        """The converter's own (settling) output, before any pin fault."""
+        t0, v_start, v_final = self._step[channel]
+        if self.tau_ns <= 0 or t_ns - t0 >= self.settling_time_ns:
+            return v_final
+        return v_final + (v_start - v_final) * math.exp(-(t_ns - t0) / self.tau_ns)
+
+    def _drive(self, ch: int) -> None:
+        """Put the settled (or dead) output of ``ch`` on its net."""
+        net = self.wiring.get(ch)
+        if net is None or self.crate is None:
+            return
+        dead = self._dead_volts(ch)
+        self.crate.signals.set_analog(net, dead if dead is not None else self._step[ch][2])
+
+    def _fault_changed(self, name: str) -> None:
+        for ch in range(DAC_CHANNELS):
+            self._drive(ch)
+
+    def _update(self, mask: int) -> None:
+        now = self.now_ns
+        for ch in range(DAC_CHANNELS):
+            if not mask & (1 << ch):
+                continue
+            v_now = self._converter_volts(ch, now)
+            code = self.regs[f"DATA{ch}"]
+            self.regs[f"OUT{ch}"] = code
+            self._step[ch] = (now, v_now, self._analog(ch, code))
+            self._gen[ch] += 1
+            gen = self._gen[ch]
+            if self.settling_time_ns == 0 or self.crate is None:
+                self._drive(ch)
+            else:
+                self.crate.clock.schedule_in(self.settling_time_ns, lambda ch=ch, gen=gen: self._settled(ch, gen))
+        self.updates += 1
+
+    def _settled(self, ch: int, gen: int) -> None:
+        if gen == self._gen[ch]:
+            self._drive(ch)
+
+    @property
+    def settling(self) -> bool:
+        now = self.now_ns
+        return any(now - t0 < self.settling_time_ns and vs != vf for t0, vs, vf in self._step)
+
+    # --- registers ----------------------------------------------------------------------
+    def read_CSR(self) -> int:
+        return _SETTLING if self.settling else 0
+
+    def write_CSR(self, value: int) -> None:
+        if value & _RESET:
+            self.reset()
+            return
+        if value & _UPDATE_ALL:
+            self._update((1 << DAC_CHANNELS) - 1)
+
+    def write_UPDATE(self, value: int) -> None:
+        mask = value & ((1 << DAC_CHANNELS) - 1)
+        if mask:
+            self._update(mask)
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "type": self.TYPE,
+            "id": f"0x{DAC_BOARD_ID:04X}",
+            "channels": DAC_CHANNELS,
+            "wired": len(self.wiring),
+            "settling_us": self.settling_time_ns / 1000,
+        }
+
+
+def _data_writer(ch: int):
+    def write(self: DacBoard, value: int) -> None:
+        self.regs[f"DATA{ch}"] = value & CODE_MAX  # 12 bits; bits 15:12 ignored, read 0
+
+    write.__name__ = f"write_DATA{ch}"
+    return write
+
+
+for _ch in range(DAC_CHANNELS):  # write_DATA0..write_DATA7
+    setattr(DacBoard, f"write_DATA{_ch}", _data_writer(_ch))
+
+
+def _per_channel(name: str, key: str, values: Sequence[float] | None) -> tuple[float, ...]:
+    if values is None:
+        return (0.0,) * DAC_CHANNELS
+    if len(values) != DAC_CHANNELS:
+        raise ValueError(f"{name}: {key} needs {DAC_CHANNELS} values (one per channel), got {len(values)}")
+    return tuple(float(v) for v in values)
+
+
+def dac_factory(name: str, cfg: ConfigTable, ctx: BuildContext) -> DacBoard:
+    """Crate-file factory for ``type = "dac"``.
+
+    Keys: ``wiring`` (table channel → net), ``offset_v`` and ``gain_error`` (8 numbers each),
+    ``settling_time_us``.
+    """
+    return DacBoard(
+        name,
+        wiring=wiring_from_config(cfg, DAC_CHANNELS),
+        offset_v=cfg.floats("offset_v", None, length=DAC_CHANNELS) if "offset_v" in cfg else None,
+        gain_error=cfg.floats("gain_error", None, length=DAC_CHANNELS) if "gain_error" in cfg else None,
+        settling_time_ns=round(cfg.float("settling_time_us", DEFAULT_SETTLING_NS / 1000, min=0.0, max=10_000.0)
+                               * 1000),
+    )

@@ -1,0 +1,314 @@
+"""Driver of the 16-channel 12-bit ADC board (register map :mod:`hal.adc_dac.adc_regs`).
+
+Talks only to a :class:`hal.vme.VmeBus`. Volts at the API (calibration applied), raw 12-bit
+codes on request. Single conversions are polled by default; after :meth:`AdcDriver.enable_interrupts`
+they wait for the end-of-conversion interrupt instead. :meth:`AdcDriver.scan` uses the board's
+sequencer and reads the result buffer with one block transfer — the fast path for the servo
+loop (one start, one wait, one block read per tick).
+
+Example::
+
+    adc = AdcDriver(crate, 0x6000)
+    v = adc.read_volts(3)                  # ±10 V range, gain 1, calibrated volts
+    pots = adc.scan(5)                     # channels 0..5, numpy array of volts
+    code = adc.read_counts(3, gain=4)      # raw 12-bit code
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from hal.adc_dac.adc_regs import (
+    ADC_BOARD_ID,
+    ADC_BUFFER_OFFSET,
+    ADC_CHANNELS,
+    ADC_REGMAP,
+    CSR_CONFIG_MASK,
+)
+from hal.adc_dac.calibration import Calibration
+from hal.adc_dac.conversions import (
+    AdcDacError,
+    AdcRange,
+    BoardIdError,
+    adc_code_to_volts,
+    adc_codes_to_volts,
+    check_gain,
+    gain_code,
+)
+from hal.vme.bus import SpaceLike, VmeBus
+from hal.vme.types import Width
+from hal.vme.window import BoardWindow
+
+_CSR = ADC_REGMAP["CSR"]
+_B = {f.name: f.mask for f in _CSR.fields}
+_LEVEL = _CSR.field("IRQ_LEVEL")
+_CSR_LOW = ADC_REGMAP["CSR"].offset + 1  # D8 address of the action/status byte
+
+
+class AdcError(AdcDacError):
+    """Base class of ADC driver errors."""
+
+
+class AdcTimeoutError(AdcError):
+    """The board never reported the end of a conversion/scan within the timeout."""
+
+    def __init__(self, what: str, timeout_s: float, csr: int) -> None:
+        self.timeout_s = timeout_s
+        self.csr = csr
+        super().__init__(
+            f"ADC {what} did not finish within {timeout_s * 1e6:.0f} µs (CSR=0x{csr:04X}); "
+            "check the board's clock/conversion time, the IRQ level and vector, or raise timeout_s"
+        )
+
+
+@dataclass(frozen=True)
+class AdcStatus:
+    """Decoded CSR."""
+
+    busy: bool
+    done: bool
+    early_read: bool
+    overrun: bool
+    irq_pending: bool
+    irq_enabled: bool
+    irq_level: int
+    range: AdcRange
+
+    @classmethod
+    def decode(cls, csr: int) -> AdcStatus:
+        return cls(
+            busy=bool(csr & _B["BUSY"]),
+            done=bool(csr & _B["DONE"]),
+            early_read=bool(csr & _B["EARLY"]),
+            overrun=bool(csr & _B["OVERRUN"]),
+            irq_pending=bool(csr & _B["IRQ_PEND"]),
+            irq_enabled=bool(csr & _B["IRQ_EN"]),
+            irq_level=_LEVEL.get(csr),
+            range=AdcRange.UNIPOLAR_10V if csr & _B["RANGE"] else AdcRange.BIPOLAR_10V,
+        )
+
+
+class AdcDriver:
+    """Driver of one ADC board.
+
+    Args:
+        bus: the VME bus.
+        base: board base address (A16 by default).
+        space: address space or AM of the board window.
+        calibration: per-channel offset/gain (16 channels), applied to volts; identity if None.
+        range: input range programmed at start-up (±10 V or 0..10 V).
+        conversion_time_s: nominal time per channel; the driver waits this long before its
+            first status poll (a hint for efficiency, not a correctness requirement).
+        poll_interval_s: time between status polls after that.
+        timeout_s: extra time allowed beyond the nominal conversion time before
+            :class:`AdcTimeoutError`.
+
+    Raises:
+        BoardIdError: the ID register does not read 0xAD16 (wrong base address or board).
+    """
+
+    CHANNELS = ADC_CHANNELS
+
+    def __init__(
+        self,
+        bus: VmeBus,
+        base: int,
+        *,
+        space: SpaceLike = "A16",
+        calibration: Calibration | None = None,
+        range: AdcRange | str = AdcRange.BIPOLAR_10V,
+        conversion_time_s: float = 15e-6,
+        poll_interval_s: float = 2e-6,
+        timeout_s: float = 1e-3,
+    ) -> None:
+        self.bus = bus
+        self.win = BoardWindow(bus, base, ADC_REGMAP, space)
+        ident = self.win.read("ID")
+        if ident != ADC_BOARD_ID:
+            raise BoardIdError(
+                f"no ADC at 0x{base:X}: ID register reads 0x{ident:04X}, expected 0x{ADC_BOARD_ID:04X}; "
+                "check the base address in the crate/rig file"
+            )
+        self.calibration = calibration or Calibration.identity(ADC_CHANNELS)
+        if self.calibration.channels != ADC_CHANNELS:
+            raise ValueError(f"ADC calibration has {self.calibration.channels} channels, the board has 16")
+        self.conversion_time_s = float(conversion_time_s)
+        self.poll_interval_s = float(poll_interval_s)
+        self.timeout_s = float(timeout_s)
+        self._vector: int | None = None
+        self._irq_count = 0
+        self._irq_csr = 0
+        self._scan_cfg: tuple[int, int, int] | None = None
+        self.win.write("CSR", _B["RESET"])
+        self.range = AdcRange.parse(range)
+        self._config = _B["RANGE"] if self.range is AdcRange.UNIPOLAR_10V else 0
+        self._write_config()
+
+    # --- configuration --------------------------------------------------------------------
+    def _write_config(self) -> None:
+        self.win.write("CSR", self._config & CSR_CONFIG_MASK)
+
+    def set_range(self, rng: AdcRange | str) -> None:
+        """Program the input range (affects the next conversion)."""
+        self.range = AdcRange.parse(rng)
+        self._config = (self._config & ~_B["RANGE"]) | (_B["RANGE"] if self.range is AdcRange.UNIPOLAR_10V else 0)
+        self._write_config()
+
+    def enable_interrupts(self, level: int, vector: int) -> None:
+        """Interrupt-driven waits: program ``VECTOR``, ``IRQ_LEVEL`` and ``IRQ_EN``, and register
+        the driver's handler for ``vector`` on the bus. The handler releases the board's RORA
+        request by writing 1 to ``CSR.IRQ_PEND``."""
+        if not 1 <= level <= 7:
+            raise ValueError(f"IRQ level {level} is not 1..7")
+        self.disable_interrupts()
+        self.bus.register_irq_handler(vector, self._on_irq)
+        self._vector = vector
+        self.win.write("VECTOR", vector & 0xFF)
+        self._config = _LEVEL.put(self._config, level) | _B["IRQ_EN"]
+        self._write_config()
+
+    def disable_interrupts(self) -> None:
+        """Back to polled waits; unregisters the handler."""
+        self._config &= ~(_B["IRQ_EN"] | _LEVEL.mask)
+        self._write_config()
+        if self._vector is not None:
+            self.bus.unregister_irq_handler(self._vector)
+            self._vector = None
+
+    @property
+    def interrupts_enabled(self) -> bool:
+        return self._vector is not None
+
+    @property
+    def interrupts_taken(self) -> int:
+        """Number of end-of-conversion interrupts the handler has serviced."""
+        return self._irq_count
+
+    def _on_irq(self, vector: int) -> None:
+        csr = self.win.read("CSR")
+        self._irq_csr = csr
+        self.win.write_offset(_CSR_LOW, _B["IRQ_PEND"], Width.D8)  # RORA release
+        self._irq_count += 1
+
+    # --- status -----------------------------------------------------------------------------
+    def status(self) -> AdcStatus:
+        return AdcStatus.decode(self.win.read("CSR"))
+
+    def clear_flags(self) -> None:
+        """Clear the sticky EARLY and OVERRUN flags."""
+        self.win.write_offset(_CSR_LOW, _B["EARLY"] | _B["OVERRUN"], Width.D8)
+
+    # --- single conversions -----------------------------------------------------------------
+    def start_conversion(self, channel: int, gain: int = 1) -> None:
+        """Select ``channel``/``gain`` and start one conversion; does not wait."""
+        self._check_channel(channel)
+        self.win.write("CHAN", (gain_code(gain) << 4) | channel)
+        self.win.write_offset(_CSR_LOW, _B["START"], Width.D8)
+
+    def read_data(self) -> tuple[int, int]:
+        """Read DATA now: ``(channel, code)``. Before the conversion is done this is the stale
+        word and the board sets its EARLY flag (see :meth:`status`)."""
+        word = self.win.read("DATA")
+        return word >> 12, word & 0xFFF
+
+    def read_counts(self, channel: int, gain: int = 1) -> int:
+        """Convert ``channel`` at ``gain`` and return the raw 12-bit code (no calibration)."""
+        self.start_conversion(channel, gain)
+        self._wait(1, f"conversion of channel {channel}")
+        ch, code = self.read_data()
+        if ch != channel:
+            raise AdcError(f"ADC DATA holds channel {ch}, expected {channel}: another master started a conversion")
+        return code
+
+    def read_volts(self, channel: int, gain: int = 1) -> float:
+        """Convert ``channel`` at ``gain``; calibrated input volts."""
+        code = self.read_counts(channel, gain)
+        return self.calibration.correct(channel, adc_code_to_volts(code, self.range, gain))
+
+    # --- scans ------------------------------------------------------------------------------
+    def scan_counts(self, channels: int | Sequence[int], gain: int | Mapping[int, int] = 1) -> np.ndarray:
+        """Raw codes of a scan (see :meth:`scan`), in the order of ``channels``."""
+        chans, last = self._scan_channels(channels)
+        gains = self._scan_gains(gain)
+        self._configure_scan(last, gains)
+        self.win.write_offset(_CSR_LOW, _B["SCAN"], Width.D8)
+        self._wait(last + 1, f"scan of channels 0..{last}")
+        words = self.bus.read_block(self.win.base + ADC_BUFFER_OFFSET, last + 1, space=self.win.am, width=Width.D16)
+        codes = np.asarray(words, dtype=np.int64) & 0xFFF
+        return codes[np.asarray(chans, dtype=int)]
+
+    def scan(self, channels: int | Sequence[int], gain: int | Mapping[int, int] = 1) -> np.ndarray:
+        """Scan with the board's sequencer and return calibrated volts.
+
+        ``channels`` is either the last channel (scan 0..last, result index = channel) or a
+        list of channels (the board scans 0..max(list); the result follows the list order).
+        ``gain`` is one gain for all channels or ``{channel: gain}`` (others at 1).
+        """
+        chans, _ = self._scan_channels(channels)
+        codes = self.scan_counts(channels, gain)
+        gains = self._scan_gains(gain)
+        volts = adc_codes_to_volts(codes, self.range, [gains[c] for c in chans])
+        return self.calibration.correct_array(chans, volts)
+
+    def _scan_channels(self, channels: int | Sequence[int]) -> tuple[list[int], int]:
+        if isinstance(channels, int | np.integer):
+            self._check_channel(int(channels))
+            chans = list(range(int(channels) + 1))
+        else:
+            chans = [int(c) for c in channels]
+            if not chans:
+                raise ValueError("scan needs at least one channel")
+            for c in chans:
+                self._check_channel(c)
+        return chans, max(chans)
+
+    @staticmethod
+    def _scan_gains(gain: int | Mapping[int, int]) -> list[int]:
+        if isinstance(gain, Mapping):
+            g = [1] * ADC_CHANNELS
+            for ch, v in gain.items():
+                AdcDriver._check_channel(int(ch))
+                g[int(ch)] = check_gain(v)
+            return g
+        return [check_gain(gain)] * ADC_CHANNELS
+
+    def _configure_scan(self, last: int, gains: list[int]) -> None:
+        g0 = sum(gain_code(gains[i]) << (2 * i) for i in range(8))
+        g1 = sum(gain_code(gains[8 + i]) << (2 * i) for i in range(8))
+        cfg = (last, g0, g1)
+        if cfg == self._scan_cfg:
+            return  # registers already hold it: save three bus cycles per tick
+        self.win.write("SCAN_LAST", last)
+        self.win.write("SCAN_GAIN0", g0)
+        self.win.write("SCAN_GAIN1", g1)
+        self._scan_cfg = cfg
+
+    # --- waiting ----------------------------------------------------------------------------
+    def _wait(self, conversions: int, what: str) -> None:
+        nominal = conversions * self.conversion_time_s
+        deadline = self.bus.now() + nominal + self.timeout_s
+        if self._vector is not None:
+            seen = self._irq_count
+            self.bus.delay(nominal)
+            while self._irq_count == seen:
+                if self.bus.now() >= deadline:
+                    raise AdcTimeoutError(f"{what} (interrupt-driven)", nominal + self.timeout_s,
+                                          self.win.read("CSR"))
+                self.bus.delay(self.poll_interval_s)
+            return
+        self.bus.delay(nominal)
+        while True:
+            csr = self.win.read_offset(_CSR_LOW, Width.D8)
+            if csr & _B["DONE"] and not csr & _B["BUSY"]:
+                return
+            if self.bus.now() >= deadline:
+                raise AdcTimeoutError(what, nominal + self.timeout_s, self.win.read("CSR"))
+            self.bus.delay(self.poll_interval_s)
+
+    @staticmethod
+    def _check_channel(channel: int) -> None:
+        if not 0 <= channel < ADC_CHANNELS:
+            raise ValueError(f"ADC channel {channel} is not 0..{ADC_CHANNELS - 1}")

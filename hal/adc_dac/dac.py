@@ -1,0 +1,177 @@
+"""Driver of the 8-channel 12-bit double-buffered DAC board (register map :mod:`hal.adc_dac.dac_regs`).
+
+Volts at the API (±10 V, calibration applied). Writes go to the holding registers; an update
+strobe moves them to the outputs — one strobe for all channels written by
+:meth:`DacDriver.write_many`, so several joints' commands change in the same instant.
+
+Out-of-range commands raise :class:`DacRangeError` by default. With ``clamp=True`` the command
+is clamped to the nearest end code instead, and that is reported: the returned
+:class:`DacWriteResult` lists the clamped channels and :attr:`DacDriver.clamp_events` counts them.
+
+Example::
+
+    dac = DacDriver(crate, 0x7000)
+    dac.write_volts(0, 2.5)                          # load and update channel 0
+    dac.write_many({0: 1.0, 1: -1.0, 2: 0.25})       # one simultaneous strobe
+    dac.write_volts(3, 4.0, update=False); dac.update([3])
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+from hal.adc_dac.calibration import Calibration
+from hal.adc_dac.conversions import (
+    DAC_V_MAX,
+    DAC_V_MIN,
+    AdcDacError,
+    BoardIdError,
+    dac_volts_to_code,
+)
+from hal.adc_dac.dac_regs import DAC_BOARD_ID, DAC_CHANNELS, DAC_REGMAP
+from hal.vme.bus import SpaceLike, VmeBus
+from hal.vme.window import BoardWindow
+
+_CSR = DAC_REGMAP["CSR"]
+
+
+class DacRangeError(AdcDacError, ValueError):
+    """A DAC command is outside what the converter can output."""
+
+    def __init__(self, channel: int, volts: float, command_v: float) -> None:
+        self.channel = channel
+        self.volts = volts
+        self.command_v = command_v
+        cal = "" if command_v == volts else f" (calibrated command {command_v:+.4f} V)"
+        super().__init__(
+            f"DAC channel {channel}: {volts:+.4f} V{cal} is outside the output range "
+            f"{DAC_V_MIN:+.4f}..{DAC_V_MAX:+.4f} V; limit the command upstream or open the driver with clamp=True"
+        )
+
+
+@dataclass(frozen=True)
+class DacWriteResult:
+    """What a write did: the code loaded per channel, and which channels were clamped."""
+
+    codes: dict[int, int]
+    clamped: tuple[int, ...] = ()
+    updated: bool = True
+
+
+class DacDriver:
+    """Driver of one DAC board.
+
+    Args:
+        bus: the VME bus.
+        base: board base address.
+        space: address space or AM of the board window.
+        calibration: per-channel offset/gain (8 channels) of the outputs; identity if None.
+        clamp: clamp out-of-range commands (and report them) instead of raising.
+
+    Raises:
+        BoardIdError: the ID register does not read 0xDA08.
+    """
+
+    CHANNELS = DAC_CHANNELS
+
+    def __init__(
+        self,
+        bus: VmeBus,
+        base: int,
+        *,
+        space: SpaceLike = "A16",
+        calibration: Calibration | None = None,
+        clamp: bool = False,
+    ) -> None:
+        self.bus = bus
+        self.win = BoardWindow(bus, base, DAC_REGMAP, space)
+        ident = self.win.read("ID")
+        if ident != DAC_BOARD_ID:
+            raise BoardIdError(
+                f"no DAC at 0x{base:X}: ID register reads 0x{ident:04X}, expected 0x{DAC_BOARD_ID:04X}; "
+                "check the base address in the crate/rig file"
+            )
+        self.calibration = calibration or Calibration.identity(DAC_CHANNELS)
+        if self.calibration.channels != DAC_CHANNELS:
+            raise ValueError(f"DAC calibration has {self.calibration.channels} channels, the board has 8")
+        self.clamp = clamp
+        self.clamp_events = 0  #: number of channel writes that were clamped (clamp=True)
+
+    # --- conversion -----------------------------------------------------------------------
+    def code_for(self, channel: int, volts: float) -> tuple[int, bool]:
+        """The code that makes output ``channel`` produce ``volts`` (calibration applied) and
+        whether it had to be clamped. Raises :class:`DacRangeError` unless ``clamp``."""
+        self._check_channel(channel)
+        command = self.calibration.correct(channel, float(volts))
+        code, clipped = dac_volts_to_code(command)
+        if clipped and not self.clamp:
+            raise DacRangeError(channel, float(volts), command)
+        return code, clipped
+
+    # --- writes -----------------------------------------------------------------------------
+    def write_volts(self, channel: int, volts: float, update: bool = True) -> DacWriteResult:
+        """Load ``volts`` into ``channel``'s holding register; strobe it to the output if ``update``."""
+        return self.write_many({channel: volts}, update=update)
+
+    def write_many(self, commands: Mapping[int, float], update: bool = True) -> DacWriteResult:
+        """Load several channels, then (if ``update``) move them all to the outputs with one
+        strobe. Every command is checked before any register is written."""
+        codes: dict[int, int] = {}
+        clamped: list[int] = []
+        for ch, v in commands.items():
+            codes[ch], c = self.code_for(ch, v)
+            if c:
+                clamped.append(ch)
+        for ch, code in codes.items():
+            self.win.write(f"DATA{ch}", code)
+        if update and codes:
+            self.update(codes)
+        self.clamp_events += len(clamped)
+        return DacWriteResult(codes, tuple(clamped), update and bool(codes))
+
+    def write_counts(self, channel: int, code: int, update: bool = True) -> None:
+        """Load a raw offset-binary code (no calibration, no range check beyond 12 bits)."""
+        self._check_channel(channel)
+        if not 0 <= code <= 0xFFF:
+            raise ValueError(f"DAC code {code} is outside 0..0xFFF")
+        self.win.write(f"DATA{channel}", code)
+        if update:
+            self.update([channel])
+
+    def update(self, channels: Iterable[int] | None = None) -> None:
+        """Strobe holding → output: all channels (``None``) or the given ones, simultaneously."""
+        if channels is None:
+            self.win.write("CSR", _CSR.pack(UPDATE_ALL=1))
+            return
+        mask = 0
+        for ch in channels:
+            self._check_channel(ch)
+            mask |= 1 << ch
+        if mask:
+            self.win.write("UPDATE", mask)
+
+    def reset(self) -> None:
+        """Board reset: all holding registers and outputs to 0 V (0x800)."""
+        self.win.write("CSR", _CSR.pack(RESET=1))
+
+    # --- readback ---------------------------------------------------------------------------
+    def read_back_counts(self, channel: int) -> int:
+        """The code driving output ``channel`` now (OUTn readback)."""
+        self._check_channel(channel)
+        return self.win.read(f"OUT{channel}") & 0xFFF
+
+    def read_holding_counts(self, channel: int) -> int:
+        """The code waiting in ``channel``'s holding register (DATAn)."""
+        self._check_channel(channel)
+        return self.win.read(f"DATA{channel}") & 0xFFF
+
+    @property
+    def settling(self) -> bool:
+        """``True`` while an output is still settling after an update."""
+        return bool(self.win.read_field("CSR", "SETTLING"))
+
+    @staticmethod
+    def _check_channel(channel: int) -> None:
+        if not 0 <= channel < DAC_CHANNELS:
+            raise ValueError(f"DAC channel {channel} is not 0..{DAC_CHANNELS - 1}")
