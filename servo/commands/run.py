@@ -1,0 +1,117 @@
+"""``vmehil run``: the main job — the servo loop moving emulated joints through the full stack.
+
+    vmehil run [--rig NAME|PATH] [--motion PATH] [--duration S] [--realtime] [--seed N]
+               [--no-integrator-switch-off] [--gains kp=..,kpi=..,kv=..,kvi=..]
+               [--json PATH] [--report DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from servo.files import write_json
+
+
+def parse_gains(text: str | None) -> dict[str, float]:
+    """``"kp=100,kv=50"`` → ``{"kp": 100.0, "kv": 50.0}``; clear errors for anything else."""
+    if not text:
+        return {}
+    out: dict[str, float] = {}
+    for part in text.split(","):
+        key, sep, value = part.partition("=")
+        key = key.strip().lower()
+        if not sep or key not in ("kp", "kpi", "kv", "kvi"):
+            raise ValueError(f"--gains: {part!r} is not kp=…, kpi=…, kv=… or kvi=…")
+        try:
+            v = float(value)
+        except ValueError:
+            raise ValueError(f"--gains: {key} = {value!r} is not a number") from None
+        if not math.isfinite(v) or v < 0:
+            raise ValueError(f"--gains: {key} = {value} must be a finite number >= 0")
+        out[key] = v
+    return out
+
+
+def add_rig_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--rig", default=None, help="rig preset name or TOML path (default jpl-arm)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every noise source (default 0)")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("run", help="run the servo loop on a rig (the main job)")
+    add_rig_args(p)
+    p.add_argument("--motion", default=None, help="motion file (TOML); default: a coordinated demo move + 10 s hold")
+    p.add_argument("--duration", type=float, default=None, help="seconds to run (default: the motion, +1 s)")
+    p.add_argument("--realtime", action="store_true", help="pace ticks by the wall clock at the servo rate")
+    p.add_argument("--no-integrator-switch-off", action="store_true", help="keep the integrators fed at rest")
+    p.add_argument("--gains", default=None, help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=..")
+    p.add_argument("--json", default=None, help="write the machine-readable summary here")
+    p.add_argument("--report", default=None, help="write plots and summary.md into this folder")
+    p.add_argument("--quiet", action="store_true", help="no progress display")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from servo.motion import default_demo_motion, load_motion
+    from servo.run_report import summarize, table, write_report
+    from servo.runner import LockstepRunner, RealtimeRunner
+    from servo.session import build_loop
+    from servo.system import build_emulated_rig
+
+    gains = parse_gains(args.gains)
+    system = build_emulated_rig(args.rig, seed=args.seed)
+    n = system.rig.n_joints
+    motion = load_motion(args.motion, n) if args.motion else default_demo_motion(n)
+    probe = build_loop(system, motion=motion, n_ticks=1)
+    planned = _planned_duration(probe)
+    duration = args.duration if args.duration is not None else planned + 1.0
+    if duration <= 0:
+        raise ValueError("--duration must be > 0")
+    n_ticks = round(duration * system.rig.servo_rate_hz)
+    system = build_emulated_rig(args.rig, seed=args.seed)
+    loop = build_loop(system, motion=motion, gains=gains, n_ticks=n_ticks,
+                      switch_off=False if args.no_integrator_switch_off else None)
+    loop.start()
+    runner = RealtimeRunner(system, loop) if args.realtime else LockstepRunner(system, loop)
+    progress = None if args.quiet or not sys.stderr.isatty() else _progress_bar()
+    runner.run(n_ticks, progress=progress)
+    if progress is not None:
+        sys.stderr.write("\n")
+    timing = runner.timing.summary(system.rig.period_s) if args.realtime else None
+    summary = summarize(loop, rig=system.rig.name, seed=args.seed, realtime=args.realtime,
+                        overruns=runner.overruns, timing=timing)
+    print(table(summary))
+    if timing:
+        print(f"timing: compute p50 {timing['compute_p50_ms']:.3f} ms, p99 {timing['compute_p99_ms']:.3f} ms; "
+              f"lateness p99 {timing['lateness_p99_ms']:.3f} ms, max {timing['lateness_max_ms']:.3f} ms")
+    if args.json:
+        write_json(args.json, summary)
+    if args.report:
+        files = write_report(loop, summary, args.report)
+        print(f"report: {len(files)} files in {args.report}")
+    system.close()
+    return 1 if summary["faults"] else 0
+
+
+def _planned_duration(loop) -> float:
+    """Plan every move once (on a throw-away sequencer) to learn the motion's length."""
+    seq = loop.sequencer
+    t = 0.0
+    seq.sample(0.0)
+    while not seq.finished and t < 3600.0:
+        t += max(seq.current.duration, 1e-3)
+        seq.sample(t)
+    return float(seq.total_duration or t)
+
+
+def _progress_bar():
+    def show(i: int, n: int) -> None:
+        if i % 25 and i != n:
+            return
+        frac = i / n
+        bar = "#" * int(30 * frac)
+        sys.stderr.write(f"\r[{bar:<30s}] {frac * 100:5.1f}%  tick {i}/{n}")
+        sys.stderr.flush()
+    return show

@@ -1,0 +1,275 @@
+"""Joint I/O through the drivers: the servo loop's only window on the rig.
+
+:class:`JointIO` opens one driver per board named in the rig's ``[crate]`` table (base
+addresses and spaces come from there, for emulated and real crates alike) and, once per tick,
+
+* reads every sensor it needs with one ADC sequencer scan per board and one latched read of
+  each quadrature decoder, and the PIO ports for amplifier fault lines;
+* converts volts and counts to SI with each joint's nominal scaling (``SensorScaling``) and
+  the loaded calibration (piecewise-linear potentiometer tables);
+* writes all amplifier commands of a DAC board with one simultaneous update strobe.
+
+It imports ``hal`` only: it cannot tell an emulated crate from real hardware.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hal.adc_dac.adc import AdcDriver
+from hal.adc_dac.conversions import DAC_V_MAX, DAC_V_MIN
+from hal.adc_dac.dac import DacDriver
+from hal.pio.pio import PioDriver
+from hal.quadrature.quad import QuadratureDriver
+from hal.vme.bus import VmeBus
+from servo.rig import RigSpec
+
+
+@dataclass
+class SensorScaling:
+    """Nominal (datasheet) scaling of one joint's sensors and actuator, SI units.
+
+    Attributes:
+        pot_v_per_rad: potentiometer gradient (V/rad of joint angle).
+        pot_zero_v: pot volts at joint angle 0.
+        tach_v_per_rad_s: tachometer gradient (V per rad/s of joint velocity); 0 = no tach.
+        encoder_counts_per_rev: decoder x4 counts per JOINT revolution (lines·4·ratio).
+        ratio: gear ratio N; kt_nm_per_a: motor torque constant.
+        amp_gain_a_per_v: transconductance amplifier gain; monitor_v_per_a: current monitor.
+        current_limit_a: amplifier current limit.
+        supply_v, resistance_ohm, ke_v_s_per_rad: H-bridge voltage command model.
+    """
+
+    pot_v_per_rad: float = 1.0
+    pot_zero_v: float = 0.0
+    tach_v_per_rad_s: float = 0.0
+    encoder_counts_per_rev: float = 0.0
+    ratio: float = 1.0
+    kt_nm_per_a: float = 1.0
+    amp_gain_a_per_v: float = 1.0
+    monitor_v_per_a: float = 1.0
+    current_limit_a: float = 1.0
+    supply_v: float = 24.0
+    resistance_ohm: float = 1.0
+    ke_v_s_per_rad: float = 0.0
+
+
+@dataclass
+class Measurement:
+    """One tick's sensor readings in SI units (arrays over joints; NaN where not wired)."""
+
+    theta_pot: np.ndarray
+    theta_enc: np.ndarray
+    omega_tach: np.ndarray
+    omega_enc: np.ndarray
+    current: np.ndarray
+    pot_v: np.ndarray
+    fault: np.ndarray
+    theta: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    omega: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+class PotCalibration:
+    """Piecewise-linear pot volts → joint angle (the paper's nine points, eight segments)."""
+
+    def __init__(self, volts: list[float], angles_rad: list[float]) -> None:
+        v = np.asarray(volts, float)
+        a = np.asarray(angles_rad, float)
+        if v.shape != a.shape or v.size < 2:
+            raise ValueError("a pot calibration needs matching volts and angles, at least two points")
+        order = np.argsort(v)
+        self.volts, self.angles = v[order], a[order]
+        if np.any(np.diff(self.volts) <= 0):
+            raise ValueError("pot calibration volts must be distinct")
+
+    def angle(self, volts: float) -> float:
+        """Interpolate inside the table; extrapolate the end segments linearly outside it."""
+        v, a = self.volts, self.angles
+        if volts <= v[0]:
+            return float(a[0] + (volts - v[0]) * (a[1] - a[0]) / (v[1] - v[0]))
+        if volts >= v[-1]:
+            return float(a[-1] + (volts - v[-1]) * (a[-1] - a[-2]) / (v[-1] - v[-2]))
+        return float(np.interp(volts, v, a))
+
+
+class JointIO:
+    """All joints' sensors and amplifiers through the board drivers."""
+
+    def __init__(self, bus: VmeBus, rig: RigSpec, scaling: list[SensorScaling]) -> None:
+        self.bus = bus
+        self.rig = rig
+        self.n = rig.n_joints
+        self.scaling = scaling
+        self.period_s = rig.period_s
+        boards = {b.str("name"): b for b in rig.table.table("crate").tables("board", [])}
+        self._types = {name: b.str("type") for name, b in boards.items()}
+
+        def loc(name: str) -> tuple[int, str]:
+            if name not in boards:
+                raise ValueError(f"rig {rig.name}: wiring names board {name!r}, which is not in [crate]")
+            return boards[name].int("base"), boards[name].str("space")
+
+        self.adc: dict[str, AdcDriver] = {}
+        self.dac: dict[str, DacDriver] = {}
+        self.pio: dict[str, PioDriver] = {}
+        self.quad: dict[str, QuadratureDriver] = {}
+        pio_lines: dict[str, dict[str, str]] = {}
+        quad_cpr: dict[str, dict[int, float]] = {}
+        for j in rig.joints:
+            for sig, pin in j.wiring.items():
+                kind = self._types.get(pin.board)
+                if kind is None:
+                    loc(pin.board)
+                if kind == "pio":
+                    pio_lines.setdefault(pin.board, {})[j.net(sig)] = str(pin.channel)
+                elif kind == "quad":
+                    quad_cpr.setdefault(pin.board, {})[pin.index] = scaling[j.index].encoder_counts_per_rev
+        for name, kind in self._types.items():
+            base, space = loc(name)
+            used = any(p.board == name for j in rig.joints for p in j.wiring.values())
+            if not used:
+                continue
+            if kind == "adc":
+                self.adc[name] = AdcDriver(bus, base, space=space)
+            elif kind == "dac":
+                self.dac[name] = DacDriver(bus, base, space=space, clamp=True)
+            elif kind == "pio":
+                lines = {k: v for k, v in pio_lines.get(name, {}).items() if v != "PWM"}
+                self.pio[name] = PioDriver(bus, base, space=space, lines=lines)
+            elif kind == "quad":
+                cpr = quad_cpr[name]
+                self.quad[name] = QuadratureDriver(bus, base, space=space, counts_per_rev=cpr,
+                                                   channels=sorted(cpr), errors="report")
+        # Configure PIO output lines (enables, resets, direction, brake) low = safe.
+        for pname, drv in self.pio.items():
+            outs = [j.net(s) for j in rig.joints for s, p in j.wiring.items()
+                    if p.board == pname and s in ("amp_enable", "amp_reset", "direction", "brake")]
+            drv.configure(outputs=outs, initial={o: False for o in outs})
+        # ADC scan plans: per board, the last channel to convert.
+        self._adc_last = {name: max(p.index for j in rig.joints for p in j.wiring.values() if p.board == name)
+                          for name in self.adc}
+        self.pot_cal: dict[int, PotCalibration] = {}
+        self.position_source = [j.servo.str("position", "pot", choices=("pot", "encoder")) for j in rig.joints]
+        self.velocity_source = [j.servo.str("velocity", "tach", choices=("tach", "encoder")) for j in rig.joints]
+        for j in rig.joints:
+            for src, sig in ((self.position_source[j.index], "pot"), (self.velocity_source[j.index], "tach")):
+                need = "encoder" if src == "encoder" else sig
+                if need not in j.wiring:
+                    raise ValueError(f"rig {rig.name} joint {j.name}: servo uses {src} but '{need}' is not wired")
+        self.last_dac_volts = np.zeros(self.n)
+
+    # --- calibration ------------------------------------------------------------------------
+    def set_pot_calibration(self, joint: int, cal: PotCalibration | None) -> None:
+        if cal is None:
+            self.pot_cal.pop(joint, None)
+        else:
+            self.pot_cal[joint] = cal
+
+    def pot_angle(self, joint: int, volts: float) -> float:
+        cal = self.pot_cal.get(joint)
+        if cal is not None:
+            return cal.angle(volts)
+        s = self.scaling[joint]
+        return (volts - s.pot_zero_v) / s.pot_v_per_rad
+
+    # --- per tick ---------------------------------------------------------------------------
+    def read(self) -> Measurement:
+        """Read every wired sensor once (one scan per ADC, one latch per decoder)."""
+        n = self.n
+        nan = np.full(n, np.nan)
+        m = Measurement(nan.copy(), nan.copy(), nan.copy(), nan.copy(), nan.copy(), nan.copy(), np.zeros(n, bool))
+        volts = {name: drv.scan(self._adc_last[name]) for name, drv in self.adc.items()}
+        readings = {name: drv.update(self.period_s) for name, drv in self.quad.items()}
+        ports: dict[tuple[str, str], bool] = {}
+        for j in self.rig.joints:
+            i, s, w = j.index, self.scaling[j.index], j.wiring
+            if "pot" in w:
+                v = float(volts[w["pot"].board][w["pot"].index])
+                m.pot_v[i] = v
+                m.theta_pot[i] = self.pot_angle(i, v)
+            if "tach" in w and s.tach_v_per_rad_s:
+                m.omega_tach[i] = float(volts[w["tach"].board][w["tach"].index]) / s.tach_v_per_rad_s
+            if "imon" in w:
+                m.current[i] = float(volts[w["imon"].board][w["imon"].index]) / s.monitor_v_per_a
+            if "encoder" in w:
+                r = readings[w["encoder"].board][w["encoder"].index]
+                m.theta_enc[i] = r.position_rad
+                m.omega_enc[i] = r.velocity_rad_s
+            if "amp_fault" in w:
+                key = (w["amp_fault"].board, j.net("amp_fault"))
+                if key not in ports:
+                    ports[key] = self.pio[key[0]].get_line(key[1])
+                m.fault[i] = ports[key]
+        m.theta = np.where([p == "pot" for p in self.position_source], m.theta_pot, m.theta_enc)
+        m.omega = np.where([v == "tach" for v in self.velocity_source], m.omega_tach, m.omega_enc)
+        return m
+
+    def write_torque(self, torque_nm: np.ndarray, omega: np.ndarray | None = None) -> np.ndarray:
+        """Command joint torques (N·m). Linear amps: DAC volts = τ/(N·Kt·gain), one strobe per
+        DAC board. H-bridges: V = R·i + Ke·ω_motor as PWM duty. Returns the commanded current (A)."""
+        current = np.zeros(self.n)
+        per_dac: dict[str, dict[int, float]] = {}
+        for j in self.rig.joints:
+            i, s = j.index, self.scaling[j.index]
+            amps = float(torque_nm[i]) / (s.ratio * s.kt_nm_per_a)
+            amps = max(-s.current_limit_a, min(s.current_limit_a, amps))
+            if j.amplifier == "linear":
+                volts = min(DAC_V_MAX, max(DAC_V_MIN, amps / s.amp_gain_a_per_v))
+                pin = j.wiring["amp_command"]
+                per_dac.setdefault(pin.board, {})[pin.index] = volts
+                self.last_dac_volts[i] = volts
+                current[i] = volts * s.amp_gain_a_per_v
+            else:
+                w_m = 0.0 if omega is None or not np.isfinite(omega[i]) else float(omega[i]) * s.ratio
+                duty = max(-1.0, min(1.0, (s.resistance_ohm * amps + s.ke_v_s_per_rad * w_m) / s.supply_v))
+                self._set_hbridge(j, duty)
+                current[i] = amps
+        for board, cmds in per_dac.items():
+            self.dac[board].write_many(cmds, update=True)
+        return current
+
+    def _set_hbridge(self, j, duty: float) -> None:
+        pwm = j.wiring.get("pwm")
+        if pwm is None:
+            return
+        drv = self.pio[pwm.board]
+        direction = j.net("direction") if "direction" in j.wiring else None
+        drv.set_pwm(duty, direction_line=direction)
+
+    def enable(self, on: bool = True) -> None:
+        """Drive every amplifier enable line (and the PWM timers)."""
+        for j in self.rig.joints:
+            if "amp_enable" in j.wiring:
+                self.pio[j.wiring["amp_enable"].board].set_line(j.net("amp_enable"), on)
+            if "pwm" in j.wiring:
+                self.pio[j.wiring["pwm"].board].pwm_enable(on)
+
+    def clear_faults(self) -> None:
+        for j in self.rig.joints:
+            if "amp_reset" in j.wiring:
+                drv = self.pio[j.wiring["amp_reset"].board]
+                drv.set_line(j.net("amp_reset"), True)
+                drv.set_line(j.net("amp_reset"), False)
+
+    def safe_stop(self) -> list[str]:
+        """Amplifiers disabled, DAC outputs to 0 V, PWM off. Keeps going past driver errors
+        (a safe stop must do as much as it can) and returns what failed."""
+        failures: list[str] = []
+        for name, drv in self.dac.items():
+            try:
+                drv.write_many({ch: 0.0 for ch in range(drv.CHANNELS)}, update=True)
+            except Exception as e:
+                failures.append(f"{name}: {e}")
+        for j in self.rig.joints:
+            try:
+                if "pwm" in j.wiring:
+                    self._set_hbridge(j, 0.0)
+                    self.pio[j.wiring["pwm"].board].pwm_enable(False)
+                if "amp_enable" in j.wiring:
+                    self.pio[j.wiring["amp_enable"].board].set_line(j.net("amp_enable"), False)
+            except Exception as e:
+                failures.append(f"{j.name}: {e}")
+        self.last_dac_volts[:] = 0.0
+        return failures

@@ -1,0 +1,284 @@
+"""The 125 Hz servo loop: sensors → control law → amplifiers, with a watchdog and a recorder.
+
+One :meth:`ServoLoop.tick` per servo period. The loop sees the joints only through
+:class:`servo.io.JointIO` (the drivers). Runners (:mod:`servo.runner`) decide when ticks happen
+(lockstep or wall-clock paced) and advance the rig between them.
+
+Live changes (gains, controller swaps, new motions, stop/enable — from MAVLink, the console or
+the API) are submitted with :meth:`ServoLoop.submit` from any thread and applied at the start
+of the next tick, never mid-tick.
+
+Watchdog → safe stop (amplifiers disabled, DAC outputs 0 V, the reason recorded) on:
+
+* a driver error (bus error, ADC timeout, decoder error, …) while reading or writing;
+* implausible sensor data: non-finite values, a potentiometer at the ADC rail (open wiper), a
+  position jump larger than ``max_jump_rad`` in one tick;
+* stale data: a position sensor whose reading has not changed by one bit for ``stale_ticks``
+  ticks while its joint is commanded to move;
+* an amplifier fault line;
+* a following error beyond the joint's limit.
+"""
+
+from __future__ import annotations
+
+import queue
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from servo.control.objects import Controller, SwitchableController
+from servo.io import JointIO, Measurement
+from servo.trajectory.sequencer import Sequencer
+
+LiveCommand = Callable[["ServoLoop"], Any]
+
+
+@dataclass
+class WatchdogConfig:
+    """Limits of the watchdog (SI units; arrays over joints where per joint)."""
+
+    following_error_rad: np.ndarray
+    max_jump_rad: float = 0.2
+    pot_rail_v: float = 9.95
+    stale_ticks: int = 250
+    enabled: bool = True
+
+
+@dataclass
+class Fault:
+    """Why the loop stopped."""
+
+    tick: int
+    time_s: float
+    cause: str
+    joint: str | None
+    detail: str
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"tick": self.tick, "time_s": self.time_s, "cause": self.cause, "joint": self.joint,
+                "detail": self.detail}
+
+
+@dataclass
+class Recorder:
+    """Per-tick arrays (preallocated; ``n_ticks`` × joints)."""
+
+    n_ticks: int
+    n: int
+    count: int = 0
+    data: dict[str, np.ndarray] = field(default_factory=dict)
+
+    FIELDS = ("theta_d", "omega_d", "theta", "omega", "theta_pot", "theta_enc", "omega_tach", "omega_enc",
+              "torque", "current_cmd", "current", "integrating", "kp_eff", "theta_true", "omega_true")
+
+    def __post_init__(self) -> None:
+        for f in self.FIELDS:
+            self.data[f] = np.full((self.n_ticks, self.n), np.nan)
+        self.data["t"] = np.full(self.n_ticks, np.nan)
+        self.data["compute_s"] = np.full(self.n_ticks, np.nan)
+
+    def row(self, k: int) -> int | None:
+        return k if 0 <= k < self.n_ticks else None
+
+    def put(self, k: int, **values: Any) -> None:
+        if not 0 <= k < self.n_ticks:
+            return
+        for name, v in values.items():
+            self.data[name][k] = v
+        self.count = max(self.count, k + 1)
+
+    def trimmed(self) -> dict[str, np.ndarray]:
+        return {k: v[: self.count] for k, v in self.data.items()}
+
+
+class ServoLoop:
+    """Per-tick control of all joints of a rig."""
+
+    def __init__(self, io: JointIO, controller: Controller, sequencer: Sequencer, watchdog: WatchdogConfig,
+                 *, recorder: Recorder | None = None, names: list[str] | None = None) -> None:
+        self.io = io
+        self.n = io.n
+        self.period_s = io.period_s
+        self.controller = SwitchableController(controller)
+        self.sequencer = sequencer
+        self.watchdog = watchdog
+        self.recorder = recorder
+        self.names = names or [f"j{i + 1}" for i in range(self.n)]
+        self.fault: Fault | None = None
+        self.enabled = False
+        self.tick_count = 0
+        self._inbox: queue.SimpleQueue[tuple[LiveCommand, Callable[[Any, BaseException | None], None] | None]] = (
+            queue.SimpleQueue())
+        self._t_motion0 = 0.0
+        self._last_raw: np.ndarray | None = None
+        self._same_count = np.zeros(self.n, int)
+        self._last_theta: np.ndarray | None = None
+        self.last: dict[str, Any] = {}
+        self.log: list[tuple[float, str, str]] = []  # (time, source, message)
+
+    # --- live interface ------------------------------------------------------------------------
+    def submit(self, command: LiveCommand,
+               done: Callable[[Any, BaseException | None], None] | None = None) -> None:
+        """Queue ``command(loop)`` for the next tick boundary (thread-safe). ``done(result, error)``
+        is called after it ran."""
+        self._inbox.put((command, done))
+
+    def _drain(self) -> None:
+        while True:
+            try:
+                command, done = self._inbox.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                result = command(self)
+            except Exception as e:
+                if done is not None:
+                    done(None, e)
+                continue
+            if done is not None:
+                done(result, None)
+
+    def note(self, source: str, message: str) -> None:
+        """Log a change with simulated time and its source (``mavlink``, ``console``, ``api``)."""
+        self.log.append((self.tick_count * self.period_s, source, message))
+
+    def set_motion(self, sequencer: Sequencer) -> None:
+        """Start a new motion at the current tick (call inside a live command)."""
+        self.sequencer = sequencer
+        self._t_motion0 = self.tick_count * self.period_s
+
+    @property
+    def law(self):
+        return self.controller.active.law
+
+    # --- start / stop -----------------------------------------------------------------------------
+    def start(self) -> None:
+        """Clear amplifier faults, zero the outputs and enable the amplifiers."""
+        self.io.clear_faults()
+        self.io.write_torque(np.zeros(self.n))
+        self.io.enable(True)
+        self.enabled = True
+
+    def safe_stop(self, cause: str, detail: str, joint: int | None = None) -> None:
+        failures = self.io.safe_stop()
+        if failures:
+            detail += " (safe stop incomplete: " + "; ".join(failures) + ")"
+        if self.fault is None:
+            self.fault = Fault(self.tick_count, self.tick_count * self.period_s, cause,
+                               self.names[joint] if joint is not None else None, detail)
+        self.enabled = False
+
+    # --- one tick ---------------------------------------------------------------------------------
+    def tick(self, truth: dict[str, np.ndarray] | None = None) -> None:
+        """Run one servo period's work at tick ``self.tick_count``."""
+        k = self.tick_count
+        t0 = time.perf_counter()
+        self._drain()
+        t = k * self.period_s
+        if self.fault is not None or not self.enabled:
+            self._record(k, t, None, None, None, truth, t0)
+            self.tick_count += 1
+            return
+        try:
+            m = self.io.read()
+        except Exception as e:
+            self.safe_stop("driver_error", f"{type(e).__name__}: {e}")
+            self._record(k, t, None, None, None, truth, t0)
+            self.tick_count += 1
+            return
+        sample = self.sequencer.sample(max(0.0, t - self._t_motion0))
+        if self._check(m, sample):
+            self._record(k, t, m, sample, None, truth, t0)
+            self.tick_count += 1
+            return
+        out = self.controller.update(self._context(k, t, m, sample))
+        try:
+            current = self.io.write_torque(out.torque, m.omega)
+        except Exception as e:
+            self.safe_stop("driver_error", f"{type(e).__name__}: {e}")
+            current = None
+        self._record(k, t, m, sample, (out, current), truth, t0)
+        self.tick_count += 1
+
+    def _context(self, k: int, t: float, m: Measurement, sample):
+        from servo.control.objects import ControlContext
+
+        ctrl = self.controller.active
+        return ControlContext(
+            tick=k, t=t, dt=self.period_s, theta=m.theta, omega=m.omega, theta_d=sample.theta_d,
+            omega_d=sample.omega_d, alpha_d=np.broadcast_to(np.asarray(sample.alpha_d, float), (self.n,)),
+            motion_done=sample.done, chain=ctrl.chain)
+
+    def _check(self, m: Measurement, sample) -> bool:
+        """Watchdog checks; returns True when it stopped the loop."""
+        wd = self.watchdog
+        if not wd.enabled:
+            return False
+        for i in range(self.n):
+            if m.fault[i]:
+                self.safe_stop("amplifier_fault", "amplifier fault line asserted", i)
+                return True
+        bad = ~np.isfinite(m.theta) | ~np.isfinite(m.omega)
+        if bad.any():
+            i = int(np.argmax(bad))
+            self.safe_stop("implausible_sensor", "non-finite position or velocity reading", i)
+            return True
+        rail = np.isfinite(m.pot_v) & (np.abs(m.pot_v) >= wd.pot_rail_v)
+        if rail.any():
+            i = int(np.argmax(rail))
+            self.safe_stop("implausible_sensor", f"potentiometer at the ADC rail ({m.pot_v[i]:+.3f} V): open wiper?", i)
+            return True
+        if self._last_theta is not None:
+            jump = np.abs(m.theta - self._last_theta)
+            if (jump > wd.max_jump_rad).any():
+                i = int(np.argmax(jump))
+                self.safe_stop("implausible_sensor", f"position jumped {jump[i]:.3f} rad in one tick", i)
+                return True
+        self._last_theta = m.theta.copy()
+        raw = np.where(np.isfinite(m.pot_v), m.pot_v, m.theta_enc)
+        if self._last_raw is not None:
+            moving = np.abs(np.asarray(sample.omega_d)) > 1e-3
+            same = (raw == self._last_raw) & moving
+            self._same_count = np.where(same, self._same_count + 1, 0)
+            if (self._same_count >= wd.stale_ticks).any():
+                i = int(np.argmax(self._same_count))
+                self.safe_stop("stale_sensor",
+                               f"position reading unchanged for {self._same_count[i]} ticks while moving", i)
+                return True
+        self._last_raw = raw
+        err = np.abs(np.asarray(sample.theta_d) - m.theta)
+        over = err > wd.following_error_rad
+        if over.any():
+            i = int(np.argmax(over))
+            self.safe_stop("following_error",
+                           f"following error {err[i]:.4f} rad > limit {wd.following_error_rad[i]:.4f} rad", i)
+            return True
+        return False
+
+    def _record(self, k, t, m, sample, out, truth, t0) -> None:
+        rec = self.recorder
+        law = self.law
+        row: dict[str, Any] = {"t": t}
+        if m is not None:
+            row.update(theta=m.theta, omega=m.omega, theta_pot=m.theta_pot, theta_enc=m.theta_enc,
+                       omega_tach=m.omega_tach, omega_enc=m.omega_enc, current=m.current)
+        if sample is not None:
+            row.update(theta_d=sample.theta_d, omega_d=sample.omega_d)
+        if out is not None:
+            o, current = out
+            row.update(torque=o.torque, integrating=o.integrating.astype(float))
+            if current is not None:
+                row["current_cmd"] = current
+        elif self.fault is not None:
+            row.update(torque=np.zeros(self.n), current_cmd=np.zeros(self.n))
+        if law is not None:
+            row["kp_eff"] = law.kp_eff
+        if truth is not None:
+            row.update(theta_true=truth.get("theta_joint"), omega_true=truth.get("omega_joint"))
+        row = {k2: v for k2, v in row.items() if v is not None}
+        self.last = {**row, "tick": k, "fault": self.fault.as_dict() if self.fault else None}
+        if rec is not None:
+            rec.put(k, compute_s=time.perf_counter() - t0, **row)

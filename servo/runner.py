@@ -1,0 +1,124 @@
+"""Runners: when ticks happen, and what advances between them.
+
+Both runners execute the same tick: align the crate's clock to the tick time, publish the
+plant's answer on the sensor nets, run :meth:`servo.loop.ServoLoop.tick` (drivers → law →
+drivers), then exchange with the plant for one servo period. They differ only in pacing:
+
+* :class:`LockstepRunner` — simulated time only, as fast as the CPU allows, deterministic for
+  a seed.
+* :class:`RealtimeRunner` — ticks start at absolute wall-clock deadlines ``t0 + k·T`` (hybrid
+  sleep, then spin for the last ``spin_s``). It records per-tick compute time, wake-up lateness
+  and overruns. **Overrun policy:** a tick is never skipped and deadlines never slip: a tick
+  that ends after the next deadline counts as an overrun and the next tick starts at once,
+  late; the loop catches up when later ticks are shorter. Because the plant advances exactly
+  one period per tick, a real-time run computes the same numbers as a lockstep run with the
+  same seed — only the timing statistics differ.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from servo.loop import ServoLoop
+from servo.system import EmulatedRig
+
+Progress = Callable[[int, int], None]
+
+
+@dataclass
+class TimingStats:
+    """Real-time pacing figures (seconds)."""
+
+    compute_s: list[float] = field(default_factory=list)
+    lateness_s: list[float] = field(default_factory=list)
+    overruns: int = 0
+
+    def summary(self, period_s: float) -> dict[str, float | int]:
+        c = np.asarray(self.compute_s) if self.compute_s else np.zeros(1)
+        late = np.asarray(self.lateness_s) if self.lateness_s else np.zeros(1)
+        return {
+            "ticks": len(self.compute_s),
+            "overruns": self.overruns,
+            "compute_p50_ms": float(np.percentile(c, 50) * 1e3),
+            "compute_p99_ms": float(np.percentile(c, 99) * 1e3),
+            "compute_max_ms": float(c.max() * 1e3),
+            "compute_p99_fraction_of_period": float(np.percentile(c, 99) / period_s),
+            "lateness_p50_ms": float(np.percentile(late, 50) * 1e3),
+            "lateness_p99_ms": float(np.percentile(late, 99) * 1e3),
+            "lateness_max_ms": float(late.max() * 1e3),
+        }
+
+
+class LockstepRunner:
+    """Simulated time only; ``run(n)`` executes ``n`` ticks back to back."""
+
+    def __init__(self, system: EmulatedRig, loop: ServoLoop) -> None:
+        self.system = system
+        self.loop = loop
+        self.period_s = system.rig.period_s
+        self.period_ns = system.period_ns
+        self.delay_s = system.rig.computation_delay_s
+        self.overruns = 0
+        self.after_tick: list[Callable[[ServoLoop], None]] = []
+
+    def tick(self) -> None:
+        sys_ = self.system
+        k = self.loop.tick_count
+        sys_.crate.advance_to(k * self.period_ns)
+        sys_.harness.publish()
+        self.loop.tick(truth=sys_.truth())
+        sys_.harness.step(self.period_s, self.delay_s)
+        for cb in self.after_tick:
+            cb(self.loop)
+
+    def run(self, n_ticks: int, progress: Progress | None = None, stop: Callable[[], bool] | None = None) -> int:
+        for i in range(n_ticks):
+            if stop is not None and stop():
+                return i
+            self.tick()
+            if progress is not None:
+                progress(i + 1, n_ticks)
+        return n_ticks
+
+
+class RealtimeRunner(LockstepRunner):
+    """Paced by the wall clock at the rig's servo rate with absolute deadlines."""
+
+    def __init__(self, system: EmulatedRig, loop: ServoLoop, *, spin_s: float = 0.0005,
+                 clock: Callable[[], float] = time.perf_counter,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
+        super().__init__(system, loop)
+        self.spin_s = spin_s
+        self.clock = clock
+        self.sleep = sleep
+        self.timing = TimingStats()
+
+    def run(self, n_ticks: int, progress: Progress | None = None, stop: Callable[[], bool] | None = None) -> int:
+        t0 = self.clock() + self.period_s
+        for i in range(n_ticks):
+            if stop is not None and stop():
+                return i
+            deadline = t0 + i * self.period_s
+            self._wait_until(deadline)
+            woke = self.clock()
+            self.tick()
+            done = self.clock()
+            self.timing.compute_s.append(done - woke)
+            self.timing.lateness_s.append(max(0.0, woke - deadline))
+            if done > deadline + self.period_s:
+                self.timing.overruns += 1
+            if progress is not None:
+                progress(i + 1, n_ticks)
+        self.overruns = self.timing.overruns
+        return n_ticks
+
+    def _wait_until(self, deadline: float) -> None:
+        remaining = deadline - self.clock()
+        if remaining > self.spin_s:
+            self.sleep(remaining - self.spin_s)
+        while self.clock() < deadline:
+            pass
