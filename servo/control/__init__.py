@@ -13,7 +13,13 @@ from servo.control.law import (
     SwitchEvent,
     SwitchOffConfig,
 )
-from servo.control.linear import closed_loop_poly, continuous_poles, sampled_loop_matrix
+from servo.control.linear import (
+    closed_loop_poly,
+    continuous_poles,
+    sampled_loop_matrix,
+    sampled_loop_ss,
+    simulate_sampled_loop,
+)
 from servo.control.normalize import NormalizingChain, normalizing_chain, per_joint, unit_chain
 from servo.control.objects import (
     CONTROL_OBJECTS,
@@ -60,5 +66,7 @@ __all__ = [
     "per_joint",
     "register_control_object",
     "sampled_loop_matrix",
+    "sampled_loop_ss",
+    "simulate_sampled_loop",
     "unit_chain",
 ]
