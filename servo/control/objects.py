@@ -244,6 +244,10 @@ def parse_switch_off(cfg: ConfigTable, n: int) -> SwitchOffConfig:
                                     settle_time=settle, zero_crossing=zero_crossing)
     except GainError as e:
         key = e.name.split(".", 1)[-1]
+        if key in ("inner_band", "outer_band"):
+            key += "_deg" if f"{key}_deg" in cfg else "_rad"
+        elif key == "settle_time":
+            key = "settle_time_s"
         where = f" (joint {e.joint})" if e.joint is not None else ""
         raise ConfigError(cfg.source, cfg.key(key), e.expected + where, e.value) from None
 
