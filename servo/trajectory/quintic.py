@@ -21,6 +21,7 @@ from servo.trajectory.base import JointLimits, Sample, TrajectoryError, as_posit
 
 PEAK_VELOCITY_FACTOR = 1.875  # max g'(u)
 PEAK_ACCEL_FACTOR = 10.0 / math.sqrt(3.0)  # max |g''(u)|
+MIN_DURATION_S = 1e-9  #: moves shorter than this are a step to the target (done at once)
 
 
 def g(u: float) -> tuple[float, float, float]:
@@ -61,7 +62,7 @@ class Quintic:
 
     def sample(self, t: float) -> Sample:
         T = self.duration
-        if T <= 0.0 or t >= T:
+        if T < MIN_DURATION_S or t >= T:
             z = np.zeros_like(self.start)
             return Sample(self.end.copy(), z, z.copy(), True)
         u = max(t, 0.0) / T
