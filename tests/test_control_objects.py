@@ -229,3 +229,30 @@ def test_live_gain_change_through_the_controller():
     c.law.set_gains(kp=0.0, kpi=0.0, kv=0.0, kvi=0.0)
     out = c.step(0, np.zeros(1), np.zeros(1), np.array([1.0]), np.zeros(1))
     assert out.torque[0] == 0.0
+
+
+def test_demo_motion_closed_loop_on_an_ideal_plant():
+    """Sequencer → controller → ZOH double integrator: tight tracking, then the switch-off engages."""
+    from servo.motion import default_demo_motion
+    from servo.trajectory import JointLimits, PlanContext
+
+    n = 3
+    ch = jpl_chain(n)
+    c = build_controller({"objects": ["pid", "torque_limit"], "torque_limit": {"current_max_a": 6.0}}, ch)
+    seq = default_demo_motion(n).sequencer(np.zeros(n), PlanContext(JointLimits.make(n, 0.5)))
+    th, w = np.zeros(n), np.zeros(n)
+    err, done_at = [], None
+    for k in range(int(4.0 / T)):
+        s = seq.sample(k * T)
+        if s.done and done_at is None:
+            done_at = k
+        err.append(s.theta_d - th)
+        out = c.step(k, th, w, s.theta_d, s.omega_d, s.alpha_d, s.done)
+        acc = out.torque / ch.j_eff  # the ideal plant: θ'' = τ/J
+        th, w = th + T * w + 0.5 * T * T * acc, w + T * acc
+    err = np.abs(np.array(err))
+    assert done_at is not None and np.degrees(err.max()) < 1e-3  # αd feedforward: tracks the quintic closely
+    offs = [e for e in c.events if not e.integrating]
+    assert sorted(e.joint for e in offs) == list(range(n))
+    assert all(e.tick >= done_at and e.reason == "settled" for e in offs)
+    assert not c.law.integrating.any()
