@@ -67,6 +67,8 @@ def test_speed_factor_scales_the_duration():
     ta = quintic_duration(d, lim_a, 1.0)
     assert ta == pytest.approx(np.sqrt(10 / np.sqrt(3) * 0.9 / 0.2))
     assert quintic_duration(d, lim_a, 0.25) == pytest.approx(4 * ta)
+    still = Quintic.plan(np.ones(2), np.ones(2), lim)
+    assert still.duration == 0.0 and still.sample(0.0).done
     with pytest.raises(TrajectoryError, match="speed factor"):
         quintic_duration(d, lim, 0.0)
     with pytest.raises(TrajectoryError, match="speed factor"):
