@@ -1,0 +1,72 @@
+"""Control law, normalizing chain and control objects (pure numpy; drivers are wired in by the runners).
+
+See docs/control.md.
+"""
+
+from servo.control.errors import ControlError, GainError
+from servo.control.law import (
+    DEFAULT_GAINS,
+    DEFAULT_PERIOD_S,
+    Gains,
+    LawState,
+    PidLaw,
+    SwitchEvent,
+    SwitchOffConfig,
+)
+from servo.control.linear import (
+    closed_loop_poly,
+    continuous_poles,
+    sampled_loop_matrix,
+    sampled_loop_ss,
+    simulate_sampled_loop,
+)
+from servo.control.normalize import NormalizingChain, normalizing_chain, per_joint, unit_chain
+from servo.control.objects import (
+    CONTROL_OBJECTS,
+    BaseControlObject,
+    ControlContext,
+    Controller,
+    ControlObject,
+    ControlOutput,
+    FrictionComp,
+    GravityComp,
+    PidObject,
+    SwitchableController,
+    TorqueLimit,
+    build_controller,
+    register_control_object,
+)
+
+__all__ = [
+    "CONTROL_OBJECTS",
+    "DEFAULT_GAINS",
+    "DEFAULT_PERIOD_S",
+    "BaseControlObject",
+    "ControlContext",
+    "ControlError",
+    "ControlObject",
+    "ControlOutput",
+    "Controller",
+    "FrictionComp",
+    "GainError",
+    "Gains",
+    "GravityComp",
+    "LawState",
+    "NormalizingChain",
+    "PidLaw",
+    "PidObject",
+    "SwitchEvent",
+    "SwitchOffConfig",
+    "SwitchableController",
+    "TorqueLimit",
+    "build_controller",
+    "closed_loop_poly",
+    "continuous_poles",
+    "normalizing_chain",
+    "per_joint",
+    "register_control_object",
+    "sampled_loop_matrix",
+    "sampled_loop_ss",
+    "simulate_sampled_loop",
+    "unit_chain",
+]

@@ -1,0 +1,353 @@
+"""The JPL servo law, vectorised over joints, with integrator switch-off and anti-windup hooks.
+
+Per joint, every period T (8 ms at 125 Hz)::
+
+    e_k  = θd_k − θ_k                  rad
+    ė_k  = ωd_k − ω_k                  rad/s
+    Ie_k = Ie_{k−1} + T·e_k            rad·s     (backward Euler, only while integrating)
+    Iv_k = Iv_{k−1} + T·ė_k            rad
+    a_k  = Kp_eff·e_k + Kpi·Ie_k + Kv·ė_k + KvI·Iv_k + αd_k      rad/s² (normalized acceleration)
+
+``Kp_eff`` is ``Kp`` while integrating and the boosted gain while the integrators are switched off.
+On the ideal plant θ'' = a the continuous closed loop is s³ + Kv·s² + (Kp+KvI)·s + Kpi.
+
+Integrator switch-off (per joint, see :class:`SwitchOffConfig`) — states ``integrating`` and
+``switched off``::
+
+    integrating  → off   when the motion is done and |e| ≤ inner band (or e changed sign since the
+                         previous tick) for at least settle_time
+    off → integrating    when a motion is running (done is false)        reason "new_motion"
+                         or |e| > outer band                             reason "error_outside_band"
+                         or the switch-off is disabled                   reason "disabled"
+
+While off the integrators keep their values (they are not fed) and Kp is multiplied by the boost.
+The default boost (``None`` = "auto") is (Kp+KvI)/Kp: frozen, the KvI·Iv term no longer follows the
+position error (∫ė dt = e), so the loop would lose KvI of its position stiffness; the boost puts it
+back, as the paper says ("increasing the position gain to compensate for the loss in loop gain").
+The static error left by a friction torque T_F is then T_F/(J·Kp_eff).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from servo.control.errors import GainError
+from servo.control.normalize import per_joint
+
+DEFAULT_PERIOD_S = 0.008
+DEFAULT_GAINS: dict[str, float] = {"kp": 100.0, "kpi": 5000.0, "kv": 50.0, "kvi": 1000.0}
+GAIN_NAMES = ("kp", "kpi", "kv", "kvi")
+
+DEFAULT_INNER_BAND_RAD = math.radians(0.1)
+DEFAULT_OUTER_BAND_RAD = math.radians(1.0)
+
+
+@dataclass(frozen=True)
+class Gains:
+    """Per-joint normalized gains (arrays of length n): Kp 1/s², Kpi 1/s³, Kv 1/s, KvI 1/s²."""
+
+    kp: np.ndarray
+    kpi: np.ndarray
+    kv: np.ndarray
+    kvi: np.ndarray
+
+    @classmethod
+    def make(cls, n: int, kp: float | np.ndarray | list[float] = DEFAULT_GAINS["kp"],
+             kpi: float | np.ndarray | list[float] = DEFAULT_GAINS["kpi"],
+             kv: float | np.ndarray | list[float] = DEFAULT_GAINS["kv"],
+             kvi: float | np.ndarray | list[float] = DEFAULT_GAINS["kvi"]) -> Gains:
+        """Validated gains for ``n`` joints (scalars broadcast); raises :class:`GainError`."""
+        return cls(per_joint("kp", kp, n), per_joint("kpi", kpi, n), per_joint("kv", kv, n),
+                   per_joint("kvi", kvi, n))
+
+    @property
+    def n(self) -> int:
+        return int(self.kp.shape[0])
+
+    def as_dict(self) -> dict[str, list[float]]:
+        return {name: [float(x) for x in getattr(self, name)] for name in GAIN_NAMES}
+
+
+@dataclass(frozen=True)
+class SwitchOffConfig:
+    """Per-joint integrator switch-off settings (arrays of length n).
+
+    ``enabled`` bool; ``inner_band`` rad (switch off at or below); ``outer_band`` rad (switch back on
+    above; must exceed inner_band); ``kp_boost`` factor ≥ 1 applied to Kp while off, NaN = auto
+    ((Kp+KvI)/Kp); ``settle_time`` s the error must stay in the inner band before switching off;
+    ``zero_crossing`` bool: a sign change of e between two ticks counts as "in the band" (a fast
+    limit cycle can step over a narrow band between samples).
+    """
+
+    enabled: np.ndarray
+    inner_band: np.ndarray
+    outer_band: np.ndarray
+    kp_boost: np.ndarray
+    settle_time: np.ndarray
+    zero_crossing: np.ndarray
+
+    @classmethod
+    def make(cls, n: int, enabled: bool | list[bool] | np.ndarray = True,
+             inner_band: float | list[float] | np.ndarray = DEFAULT_INNER_BAND_RAD,
+             outer_band: float | list[float] | np.ndarray = DEFAULT_OUTER_BAND_RAD,
+             kp_boost: float | list[float | None] | np.ndarray | None = None,
+             settle_time: float | list[float] | np.ndarray = 0.0,
+             zero_crossing: bool | list[bool] | np.ndarray = True) -> SwitchOffConfig:
+        """Validated settings for ``n`` joints (scalars broadcast); raises :class:`GainError`."""
+        en = _bools("switch_off.enabled", enabled, n)
+        zc = _bools("switch_off.zero_crossing", zero_crossing, n)
+        inner = per_joint("switch_off.inner_band", inner_band, n)
+        outer = per_joint("switch_off.outer_band", outer_band, n, positive=True)
+        if isinstance(kp_boost, list):
+            kp_boost = [np.nan if b is None else b for b in kp_boost]
+        boost = per_joint("switch_off.kp_boost", np.nan if kp_boost is None else kp_boost, n, allow_nan=True)
+        settle = per_joint("switch_off.settle_time", settle_time, n)
+        for j in range(n):
+            if not outer[j] > inner[j]:
+                raise GainError("switch_off.outer_band", float(outer[j]),
+                                f"a band wider than inner_band ({inner[j]!r} rad) for hysteresis", j)
+            if not np.isnan(boost[j]) and boost[j] < 1.0:
+                raise GainError("switch_off.kp_boost", float(boost[j]), "a factor >= 1 (or auto)", j)
+        return cls(en, inner, outer, boost, settle, zc)
+
+    @classmethod
+    def disabled(cls, n: int) -> SwitchOffConfig:
+        return cls.make(n, enabled=False)
+
+
+def _bools(name: str, value: bool | list[bool] | np.ndarray, n: int) -> np.ndarray:
+    arr = np.array(value)
+    if arr.ndim == 0:
+        arr = np.full(n, arr.item())
+    if arr.shape != (n,) or arr.dtype != np.bool_:
+        raise GainError(name, value, f"true/false or a list of {n} of them")
+    return arr.astype(bool)
+
+
+@dataclass(frozen=True)
+class SwitchEvent:
+    """An integrator switch-off state change: at ``tick`` joint ``joint`` started (``integrating``
+    True) or stopped (False) feeding its integrators, for ``reason``."""
+
+    tick: int
+    joint: int
+    integrating: bool
+    reason: str
+
+
+@dataclass
+class LawState:
+    """The law's memory (arrays of length n): integrator values and switch-off state."""
+
+    ie: np.ndarray  # ∫e dt, rad·s
+    iv: np.ndarray  # ∫ė dt, rad
+    integrating: np.ndarray  # bool: integrators fed (switch-off state "on")
+    in_band_time: np.ndarray  # s spent settled in the inner band while integrating
+    e_prev: np.ndarray  # rad, NaN before the first tick
+    events: list[SwitchEvent] = field(default_factory=list)
+
+    @classmethod
+    def zeros(cls, n: int) -> LawState:
+        return cls(np.zeros(n), np.zeros(n), np.ones(n, bool), np.zeros(n), np.full(n, np.nan))
+
+    def copy(self) -> LawState:
+        return LawState(self.ie.copy(), self.iv.copy(), self.integrating.copy(), self.in_band_time.copy(),
+                        self.e_prev.copy(), list(self.events))
+
+
+class PidLaw:
+    """The normalized JPL law for ``n`` joints with period ``period`` s.
+
+    Use :meth:`update` for a one-shot step (no anti-windup), or the three-phase :meth:`begin`,
+    :meth:`evaluate`, :meth:`commit` (what :class:`servo.control.objects.PidObject` does so that the
+    torque limiter can veto integration in the direction of saturation).
+    """
+
+    def __init__(self, n: int, period: float = DEFAULT_PERIOD_S, gains: Gains | None = None,
+                 switch_off: SwitchOffConfig | None = None) -> None:
+        if not (isinstance(n, int) and n > 0):
+            raise GainError("n_joints", n, "a positive integer")
+        if not (math.isfinite(period) and period > 0):
+            raise GainError("period", period, "a positive number of seconds")
+        self.n = n
+        self.period = float(period)
+        self.gains = gains if gains is not None else Gains.make(n)
+        if self.gains.n != n:
+            raise GainError("gains", self.gains.n, f"gains for {n} joints")
+        self.switch_off = switch_off if switch_off is not None else SwitchOffConfig.make(n)
+        self.state = LawState.zeros(n)
+        self._pending_gains: Gains | None = None
+        self._pending_switch_off: SwitchOffConfig | None = None
+        self._tick = -1
+        # per-tick scratch (set by begin/evaluate)
+        self._e = np.zeros(n)
+        self._edot = np.zeros(n)
+        self._feed = np.zeros(n, bool)
+        self._ie_new = np.zeros(n)
+        self._iv_new = np.zeros(n)
+        self.last_accel = np.zeros(n)
+
+    # ---- live tuning ---------------------------------------------------------------------------
+    def set_gains(self, kp: float | list[float] | np.ndarray | None = None,
+                  kpi: float | list[float] | np.ndarray | None = None,
+                  kv: float | list[float] | np.ndarray | None = None,
+                  kvi: float | list[float] | np.ndarray | None = None,
+                  joint: int | None = None) -> Gains:
+        """Stage new gains; they take effect at the next tick (next :meth:`begin` / :meth:`update`).
+
+        Each argument is a scalar (all joints, or only ``joint`` when given) or a per-joint list;
+        ``None`` keeps the current value. Values must be finite and ≥ 0, else :class:`GainError`
+        naming the gain and joint is raised and nothing changes. Returns the staged gains.
+        """
+        base = self._pending_gains or self.gains
+        new: dict[str, np.ndarray] = {}
+        for name, value in (("kp", kp), ("kpi", kpi), ("kv", kv), ("kvi", kvi)):
+            cur = getattr(base, name).copy()
+            if value is None:
+                new[name] = cur
+                continue
+            if joint is not None:
+                if not (isinstance(joint, int) and 0 <= joint < self.n):
+                    raise GainError("joint", joint, f"a joint index in 0..{self.n - 1}")
+                if np.ndim(value) != 0:
+                    raise GainError(name, value, "a single number when a joint is given")
+                try:
+                    cur[joint] = per_joint(name, [value], 1)[0]
+                except GainError as e:
+                    raise GainError(name, e.value, "a finite non-negative number", joint) from None
+                new[name] = cur
+            else:
+                new[name] = per_joint(name, value, self.n)
+        staged = Gains(**new)
+        self._pending_gains = staged
+        return staged
+
+    def set_switch_off(self, config: SwitchOffConfig) -> None:
+        """Stage a new switch-off configuration (takes effect at the next tick)."""
+        if config.enabled.shape != (self.n,):
+            raise GainError("switch_off", config.enabled.shape, f"settings for {self.n} joints")
+        self._pending_switch_off = config
+
+    # ---- derived quantities ----------------------------------------------------------------------
+    def kp_off(self) -> np.ndarray:
+        """Kp used while the integrators are switched off (boosted), per joint, 1/s²."""
+        g, so = self.gains, self.switch_off
+        auto = g.kp + g.kvi
+        return np.where(np.isnan(so.kp_boost), auto, g.kp * np.nan_to_num(so.kp_boost, nan=1.0))
+
+    def kp_eff(self) -> np.ndarray:
+        """The position gain in force for each joint now (boosted where switched off)."""
+        return np.where(self.state.integrating, self.gains.kp, self.kp_off())
+
+    @property
+    def integrating(self) -> np.ndarray:
+        """Per joint: True while the integrators are fed (switch-off state "on")."""
+        return self.state.integrating.copy()
+
+    @property
+    def events(self) -> list[SwitchEvent]:
+        """All switch-off events so far (tick, joint, integrating, reason)."""
+        return list(self.state.events)
+
+    def reset(self) -> None:
+        """Clear integrators and switch-off state (keeps gains and configuration)."""
+        self.state = LawState.zeros(self.n)
+
+    # ---- the three phases of a tick ----------------------------------------------------------------
+    def begin(self, tick: int, theta: np.ndarray, omega: np.ndarray, theta_d: np.ndarray,
+              omega_d: np.ndarray, motion_done: bool | np.ndarray) -> None:
+        """Start tick ``tick``: apply staged gains, compute errors, run the switch-off state machine."""
+        if self._pending_gains is not None:
+            self.gains, self._pending_gains = self._pending_gains, None
+        if self._pending_switch_off is not None:
+            self.switch_off, self._pending_switch_off = self._pending_switch_off, None
+        self._tick = int(tick)
+        e = np.asarray(theta_d, float) - np.asarray(theta, float)
+        edot = np.asarray(omega_d, float) - np.asarray(omega, float)
+        self._e, self._edot = e, edot
+        self._switch_off_step(e, np.broadcast_to(np.asarray(motion_done, bool), (self.n,)))
+        self.state.e_prev = e.copy()
+
+    def _switch_off_step(self, e: np.ndarray, done: np.ndarray) -> None:
+        st, so, T = self.state, self.switch_off, self.period
+        abs_e = np.abs(e)
+        crossed = so.zero_crossing & np.isfinite(st.e_prev) & (e * np.nan_to_num(st.e_prev) < 0)
+        for j in range(self.n):
+            if not so.enabled[j]:
+                if not st.integrating[j]:
+                    self._event(j, True, "disabled")
+                st.in_band_time[j] = 0.0
+                continue
+            if st.integrating[j]:
+                if done[j] and (abs_e[j] <= so.inner_band[j] or crossed[j]):
+                    if st.in_band_time[j] + 1e-12 >= so.settle_time[j]:
+                        self._event(j, False, "settled")
+                        st.in_band_time[j] = 0.0
+                    else:
+                        st.in_band_time[j] += T
+                else:
+                    st.in_band_time[j] = 0.0
+            else:
+                if not done[j]:
+                    self._event(j, True, "new_motion")
+                elif abs_e[j] > so.outer_band[j]:
+                    self._event(j, True, "error_outside_band")
+
+    def _event(self, j: int, integrating: bool, reason: str) -> None:
+        self.state.integrating[j] = integrating
+        self.state.events.append(SwitchEvent(self._tick, j, integrating, reason))
+
+    def evaluate(self, alpha_d: np.ndarray | float = 0.0, block: np.ndarray | None = None) -> np.ndarray:
+        """The normalized acceleration a_k (rad/s²) for this tick, integrating where fed and not blocked.
+
+        ``block`` (bool per joint) withholds this tick's integration (anti-windup). Pure: may be
+        called again with another ``block`` before :meth:`commit`.
+        """
+        g, st, T = self.gains, self.state, self.period
+        feed = st.integrating.copy()
+        if block is not None:
+            feed &= ~np.asarray(block, bool)
+        self._feed = feed
+        self._ie_new = st.ie + np.where(feed, T * self._e, 0.0)
+        self._iv_new = st.iv + np.where(feed, T * self._edot, 0.0)
+        a = self.kp_eff() * self._e + g.kpi * self._ie_new + g.kv * self._edot + g.kvi * self._iv_new + alpha_d
+        self.last_accel = a
+        return a
+
+    def integration_push(self) -> np.ndarray:
+        """The change of a_k (rad/s²) this tick's integration makes for joints being fed (0 elsewhere):
+        T·(Kpi·e + KvI·ė). Its sign is the direction integration drives the output."""
+        g, T = self.gains, self.period
+        return np.where(self.state.integrating, T * (g.kpi * self._e + g.kvi * self._edot), 0.0)
+
+    def commit(self) -> None:
+        """Store the integrator values of the last :meth:`evaluate`."""
+        self.state.ie = self._ie_new.copy()
+        self.state.iv = self._iv_new.copy()
+
+    @property
+    def fed(self) -> np.ndarray:
+        """Per joint: whether the integrators were fed in the last evaluated tick."""
+        return self._feed.copy()
+
+    # ---- one-shot ---------------------------------------------------------------------------------
+    def update(self, theta: np.ndarray, omega: np.ndarray, theta_d: np.ndarray, omega_d: np.ndarray,
+               alpha_d: np.ndarray | float = 0.0, motion_done: bool | np.ndarray = False,
+               tick: int | None = None) -> np.ndarray:
+        """One whole tick without a limiter: returns a_k in rad/s² (see the module docstring)."""
+        self.begin(self._tick + 1 if tick is None else tick, theta, omega, theta_d, omega_d, motion_done)
+        a = self.evaluate(alpha_d)
+        self.commit()
+        return a
+
+    # ---- state transfer (controller swap) -----------------------------------------------------------
+    def export_state(self) -> LawState:
+        return self.state.copy()
+
+    def import_state(self, state: LawState) -> None:
+        if state.ie.shape != (self.n,):
+            raise GainError("state", state.ie.shape, f"a law state for {self.n} joints")
+        self.state = state.copy()

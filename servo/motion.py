@@ -1,0 +1,192 @@
+"""Motion files (TOML): a list of moves played by :class:`servo.trajectory.Sequencer`.
+
+Format (angles in degrees at this edge, or radians with the ``_rad`` keys)::
+
+    name = "demo"                      # optional
+    [[move]]                           # type defaults to "quintic"
+    targets_deg = [10, -20, 30, 0, 0, 0]
+    speed = 0.5                        # speed factor in (0, 1]: 0.5 → twice as long
+    [[move]]
+    deltas_deg = [5, 0, 0, 0, 0, 0]    # relative to where the move starts
+    [[move]]
+    type = "wait"                      # hold the current target ("stay" is an alias)
+    duration_s = 8
+    [[move]]
+    type = "lspb"
+    via_deg = [[0, 10, 0, 0, 0, 0], [20, 0, 10, 0, 0, 0]]   # the last via is the target
+    speed = 1.0
+
+Move types are looked up in :data:`MOVE_TYPES`; :func:`register_move_type` adds one (a visual-servo
+move will register ``"vservo"``). A parser receives the move's :class:`hal.config.ConfigTable`
+(whose errors name the file and key, e.g. ``move[2].duration_s``) and the number of joints, and
+returns a :class:`servo.trajectory.MoveSpec`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hal.config import ConfigError, ConfigTable, load_toml
+from hal.units import deg_to_rad
+from servo.trajectory import Lspb, MoveSpec, PlanContext, Quintic, Sequencer, Stay, Trajectory
+
+MoveParser = Callable[[ConfigTable, int], MoveSpec]
+MOVE_TYPES: dict[str, MoveParser] = {}
+
+
+def register_move_type(name: str, parser: MoveParser) -> None:
+    """Make ``type = name`` available in motion files (raises if the name is taken)."""
+    if name in MOVE_TYPES:
+        raise ValueError(f"move type {name!r} is already registered")
+    MOVE_TYPES[name] = parser
+
+
+# ---- the built-in moves ------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class QuinticMove:
+    """Coordinated quintic move to ``target`` (rad), or by ``delta`` (rad) from the start."""
+
+    target: np.ndarray | None
+    delta: np.ndarray | None
+    speed: float = 1.0
+    kind: str = "quintic"
+
+    def build(self, start: np.ndarray, ctx: PlanContext) -> Trajectory:
+        target = self.target if self.target is not None else start + self.delta
+        return Quintic.plan(start, target, ctx.limits, self.speed)
+
+
+@dataclass(frozen=True)
+class LspbMove:
+    """LSPB path from the start through ``vias`` (rad; the last one is the target)."""
+
+    vias: tuple[np.ndarray, ...]
+    speed: float = 1.0
+    kind: str = "lspb"
+
+    def build(self, start: np.ndarray, ctx: PlanContext) -> Trajectory:
+        return Lspb([start, *self.vias], ctx.limits, self.speed)
+
+
+@dataclass(frozen=True)
+class WaitMove:
+    """Hold the current target for ``duration`` s (``done`` is True: the motion has ended)."""
+
+    duration: float
+    kind: str = "wait"
+
+    def build(self, start: np.ndarray, ctx: PlanContext) -> Trajectory:
+        return Stay(start, self.duration)
+
+
+def _angles(cfg: ConfigTable, base: str, n: int, required: bool = True) -> np.ndarray | None:
+    """``base_deg`` or ``base_rad`` (exactly one) as n angles in rad."""
+    has_deg, has_rad = f"{base}_deg" in cfg, f"{base}_rad" in cfg
+    if has_deg and has_rad:
+        raise cfg.error(f"{base}_deg", f"either {base}_deg or {base}_rad, not both")
+    if has_deg:
+        return deg_to_rad(np.array(cfg.floats(f"{base}_deg", length=n)))
+    if has_rad:
+        return np.array(cfg.floats(f"{base}_rad", length=n))
+    if required:
+        raise cfg.error(f"{base}_deg", f"a list of {n} angles in degrees (or {base}_rad in radians)")
+    return None
+
+
+def _speed(cfg: ConfigTable) -> float:
+    s = cfg.float("speed", 1.0)
+    if not 0.0 < s <= 1.0:
+        raise cfg.error("speed", "a speed factor in (0, 1] (0.5 makes the move twice as long)", s)
+    return s
+
+
+def parse_quintic(cfg: ConfigTable, n: int) -> MoveSpec:
+    target = _angles(cfg, "targets", n, required=False)
+    delta = _angles(cfg, "deltas", n, required=False)
+    if (target is None) == (delta is None):
+        raise cfg.error("targets_deg", f"exactly one of targets_deg/targets_rad/deltas_deg/deltas_rad ({n} angles)")
+    move = QuinticMove(target, delta, _speed(cfg))
+    cfg.check_unknown({"type", "targets_deg", "targets_rad", "deltas_deg", "deltas_rad", "speed"})
+    return move
+
+
+def parse_lspb(cfg: ConfigTable, n: int) -> MoveSpec:
+    if ("via_deg" in cfg) == ("via_rad" in cfg):
+        raise cfg.error("via_deg", f"exactly one of via_deg/via_rad: a list of points of {n} angles")
+    key = "via_deg" if "via_deg" in cfg else "via_rad"
+    raw = cfg.raw(key)
+    if not isinstance(raw, list) or not raw:
+        raise cfg.error(key, f"a non-empty list of points of {n} angles", raw)
+    vias = []
+    for i, p in enumerate(raw):
+        if (not isinstance(p, list) or len(p) != n
+                or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in p)):
+            raise cfg.error(f"{key}[{i}]", f"a list of {n} numbers", p)
+        arr = np.array(p, float)
+        vias.append(deg_to_rad(arr) if key == "via_deg" else arr)
+    move = LspbMove(tuple(vias), _speed(cfg))
+    cfg.check_unknown({"type", "via_deg", "via_rad", "speed"})
+    return move
+
+
+def parse_wait(cfg: ConfigTable, n: int) -> MoveSpec:
+    move = WaitMove(cfg.float("duration_s", min=0.0))
+    cfg.check_unknown({"type", "duration_s"})
+    return move
+
+
+register_move_type("quintic", parse_quintic)
+register_move_type("lspb", parse_lspb)
+register_move_type("wait", parse_wait)
+register_move_type("stay", parse_wait)
+
+
+# ---- files --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Motion:
+    """A parsed motion: its ``moves``, ``name`` and ``source`` (file path or "<demo>")."""
+
+    moves: tuple[MoveSpec, ...]
+    name: str
+    source: str
+
+    def sequencer(self, start: np.ndarray, ctx: PlanContext) -> Sequencer:
+        """A fresh :class:`~servo.trajectory.Sequencer` playing this motion from ``start`` (rad)."""
+        return Sequencer(list(self.moves), start, ctx)
+
+
+def parse_motion(cfg: ConfigTable, n_joints: int) -> Motion:
+    """Parse a motion table; :class:`hal.config.ConfigError` names the file and key on any problem."""
+    moves: list[MoveSpec] = []
+    for mv in cfg.tables("move"):
+        kind = mv.str("type", "quintic")
+        if kind not in MOVE_TYPES:
+            raise mv.error("type", "one of " + ", ".join(sorted(MOVE_TYPES)), kind)
+        moves.append(MOVE_TYPES[kind](mv, n_joints))
+    if not moves:
+        raise cfg.error("move", "at least one [[move]]")
+    name = cfg.str("name", Path(cfg.source).stem)
+    cfg.check_unknown({"move", "name", "description"})
+    return Motion(tuple(moves), name, cfg.source)
+
+
+def load_motion(path: str | Path, n_joints: int) -> Motion:
+    """Read and parse a motion file for a rig with ``n_joints`` joints."""
+    return parse_motion(load_toml(path), n_joints)
+
+
+DEMO_DELTAS_DEG = (20.0, -15.0, 10.0, -10.0, 15.0, -20.0)
+
+
+def default_demo_motion(n_joints: int, hold_s: float = 10.0, speed: float = 0.5) -> Motion:
+    """The default demo: one coordinated quintic move of every joint (by 20, −15, 10, −10, 15, −20°,
+    repeated for more joints, relative to where it starts) at ``speed``, then a hold of ``hold_s``
+    (≥ 8 s, long enough to measure a limit cycle)."""
+    if hold_s < 8.0:
+        raise ConfigError("<demo>", "hold_s", "a hold of at least 8 s", hold_s)
+    deltas = deg_to_rad(np.array([DEMO_DELTAS_DEG[j % len(DEMO_DELTAS_DEG)] for j in range(n_joints)]))
+    return Motion((QuinticMove(None, deltas, speed), WaitMove(hold_s)), "demo", "<demo>")

@@ -1,0 +1,96 @@
+"""Run a list of moves (quintic, LSPB, wait, …) one after the other.
+
+Each move is a :class:`MoveSpec`: something that, given the position where it starts and the
+planning context, builds a :class:`~servo.trajectory.base.Trajectory`. Moves are planned when they
+start (from the previous move's end target, so plans do not depend on measurement noise), and a
+move ends when its trajectory's ``duration`` has elapsed. After the last move the final target is
+held with ``done`` True.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from servo.trajectory.base import JointLimits, Sample, Trajectory
+from servo.trajectory.stay import Stay
+
+
+@dataclass
+class PlanContext:
+    """What a move may need to plan itself: joint ``limits`` and ``extras`` (e.g. a vision link for a
+    visual-servo move, added by the runner under a documented key)."""
+
+    limits: JointLimits
+    extras: dict[str, Any] = field(default_factory=dict)
+
+
+class MoveSpec(Protocol):
+    """A planned-on-start move: ``kind`` (its motion-file type) and ``build(start, ctx)``."""
+
+    kind: str
+
+    def build(self, start: np.ndarray, ctx: PlanContext) -> Trajectory: ...
+
+
+@dataclass(frozen=True)
+class MoveRecord:
+    """When each move ran: ``index`` in the list, ``kind``, ``t_start`` s, ``duration`` s."""
+
+    index: int
+    kind: str
+    t_start: float
+    duration: float
+
+
+class Sequencer:
+    """Plays ``moves`` from ``start`` (rad). Call :meth:`sample` with non-decreasing ``t`` (s since
+    the sequence started). ``motion_id`` increases each time a new move starts."""
+
+    def __init__(self, moves: list[MoveSpec], start: np.ndarray, ctx: PlanContext) -> None:
+        self.moves = list(moves)
+        self.ctx = ctx
+        self.index = -1
+        self.motion_id = 0
+        self.records: list[MoveRecord] = []
+        self._t0 = 0.0
+        self._current: Trajectory = Stay(np.asarray(start, float), 0.0)
+        self._last_t = -np.inf
+        self.finished = not self.moves
+
+    @property
+    def current(self) -> Trajectory:
+        return self._current
+
+    def _advance(self, t_start: float) -> None:
+        start = self._current.end
+        self.index += 1
+        if self.index >= len(self.moves):
+            self._current = Stay(start)
+            self.finished = True
+            return
+        move = self.moves[self.index]
+        self._current = move.build(start, self.ctx)
+        self._t0 = t_start
+        self.motion_id += 1
+        self.records.append(MoveRecord(self.index, move.kind, t_start, float(self._current.duration)))
+
+    def sample(self, t: float) -> Sample:
+        if t < self._last_t:
+            raise ValueError(f"sequencer time went backwards: {t!r} < {self._last_t!r}")
+        self._last_t = t
+        if self.index < 0 and self.moves:
+            self._advance(0.0)
+        # zero-length moves are skipped at once; a move ends when its duration has elapsed
+        while not self.finished and t - self._t0 >= self._current.duration:
+            self._advance(self._t0 + self._current.duration)
+        return self._current.sample(t - self._t0)
+
+    @property
+    def total_duration(self) -> float | None:
+        """Sum of the durations of the moves planned so far, or None before all are planned."""
+        if not self.finished:
+            return None
+        return float(sum(r.duration for r in self.records))
