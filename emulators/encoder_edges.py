@@ -118,18 +118,24 @@ def quadrature_events(
     f_first = math.floor(x4_start + slope * t0)
     if abs(slope) * ts < 1.0 and abs(f_first - state.position) <= 1:
         # At most one state change per sample: every change is legal and the sampler visits
-        # every state in between, so the count is the net change of floor(x).
+        # every state in between, so the count is the net change of floor(x). The first
+        # sample may step against the interval's direction (the previous interval moved the
+        # other way); after it the motion is monotonic.
         f_last = math.floor(x4_start + slope * (t0 + (n - 1) / sample_hz))
         counts = f_last - state.position
+        first = f_first - state.position
         offsets: tuple[int, ...] = ()
-        if period and counts:
-            p0 = state.position
-            if counts > 0:
-                m0 = p0 + 1 + (ph - p0 - 1) % period
-                offsets = tuple(m - p0 for m in range(m0, f_last + 1, period))
-            else:
-                m0 = p0 - 1 - (p0 - 1 - ph) % period
-                offsets = tuple(m - p0 for m in range(m0, f_last - 1, -period))
+        if period:
+            found: list[int] = []
+            if first and _is_index(f_first, period, ph) and not state.index_high:
+                found.append(first)
+            if f_last > f_first:
+                m0 = f_first + 1 + (ph - f_first - 1) % period
+                found += [first + m - f_first for m in range(m0, f_last + 1, period)]
+            elif f_last < f_first:
+                m0 = f_first - 1 - (f_first - 1 - ph) % period
+                found += [first + m - f_first for m in range(m0, f_last - 1, -period)]
+            offsets = tuple(found)
         z_last = _is_index(f_last, period, ph)
         return QuadratureEvents(counts, 0, offsets, f_last % 4), SamplerState(f_last, next_s, z_last)
     # Fast shaft: evaluate every sample (same float expressions as the closed form).
