@@ -350,3 +350,10 @@ def test_crate_file_builds_a_wired_pio_board() -> None:
                                             "lines": {"PD0": "x"}}]}}, "<test>")
     with pytest.raises(ConfigError, match="PD0"):
         build_crate(bad)
+
+
+def test_docs_page_carries_the_current_register_table() -> None:
+    from pathlib import Path
+
+    page = Path(__file__).resolve().parents[1] / "docs" / "boards" / "pio.md"
+    assert PIO_REGS.markdown_table() in page.read_text()

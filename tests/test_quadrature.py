@@ -559,3 +559,10 @@ def test_crate_file_builds_a_wired_decoder() -> None:
                                             "channels": ["a", "b", "c", "d", "e"]}]}}, "<test>")
     with pytest.raises(ConfigError, match="channels"):
         build_crate(bad)
+
+
+def test_docs_page_carries_the_current_register_table() -> None:
+    from pathlib import Path
+
+    page = Path(__file__).resolve().parents[1] / "docs" / "boards" / "quadrature.md"
+    assert QUAD_REGS.markdown_table() in page.read_text()
