@@ -221,10 +221,13 @@ class PioDriver:
         """Call ``callback`` from the interrupt handler when an input changes.
 
         ``target`` is a line (logical or pin name; ``callback(name, level)``) or a port
-        ``"A"``/``"B"``/``"C"`` (``callback(port, changed_mask, pin_levels)``). Stale status
-        bits are cleared before the line's interrupt is enabled.
+        ``"A"``/``"B"``/``"C"`` or ``"PA"``.. (``callback(port, changed_mask, pin_levels)``; a
+        wiring-table name takes precedence). Stale status bits are cleared before the
+        interrupt is enabled. Callbacks run in the interrupt handler, at the next bus cycle or
+        ``bus.delay()`` after the change.
         """
-        if target.strip().upper().removeprefix("P") in PORTS and len(target.strip()) <= 2:
+        is_port = target not in self.lines and len(target.strip()) <= 2
+        if is_port and target.strip().upper().removeprefix("P") in PORTS:
             port = self._port(target)
             mask = ~self._ddr[port] & 0xFF
             self._port_cbs.setdefault(port, []).append(callback)  # type: ignore[arg-type]

@@ -160,6 +160,10 @@ class QuadratureDriver:
             :class:`CountJumpError`.
         low_speed_counts: below this many counts per tick the 1/T estimator is used.
         stop_ticks: ticks without a count after which the velocity estimate is 0.
+
+    Construction latches and reads every channel in use (the unbounded count starts at the
+    counter value sign-extended from 24 bits) and clears its OVERFLOW/UNDERFLOW flags; it
+    does not change modes, presets or the index arm.
     """
 
     def __init__(
