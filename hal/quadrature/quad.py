@@ -1,0 +1,475 @@
+"""Driver for the 4-channel quadrature decoder board (register map: :mod:`hal.quadrature.quad_regs`).
+
+Counts are read through the output latch (LATCH command, then ``OL_HI``/``OL_LO``), never from
+the live counter, so a read cannot tear. The 24-bit count is unwrapped to an unbounded
+integer by taking each read's difference modulo 2**24 into ``[-2**23, 2**23)``: the driver
+must read each channel at least once per half range of travel (2**23 counts: 4194 motor
+revolutions of a 500-line encoder in x4). Travel of more than a quarter range between reads
+is cross-checked against the board's OVERFLOW/UNDERFLOW flags and a contradiction raises
+:class:`TrackingLostError` rather than silently picking the wrong branch.
+
+Units: counts in the channel's current mode (x1/x2/x4); ``counts_per_rev`` is given in **x4
+counts per revolution** (encoder lines × 4) and scaled by the mode; positions in radians,
+velocities in rad/s, ``dt`` in seconds.
+
+Velocity: each tick (:meth:`QuadratureDriver.update` or :meth:`QuadratureDriver.velocity`)
+takes the count difference ``Δ`` since the previous tick. When ``|Δ| >= low_speed_counts`` the
+estimate is ``Δ/dt``. Below, it is the 1/T estimate ``n/(m·dt)``: ``n`` counts since the last
+tick at which the count changed ``m`` ticks ago. While the count does not change the estimate
+is bounded by one count per elapsed time, ``sign·min(|v|, 1/(m·dt))``, and reaches 0 after
+``stop_ticks`` ticks without a count.
+
+Errors are never hidden: ILLEGAL (A and B changed in one sample: counts were lost) is sticky
+in the board and raises :class:`IllegalTransitionError` on every read until
+:meth:`QuadratureDriver.clear_errors`; with ``errors="report"`` the flags are returned in
+each :class:`ChannelReading` instead.
+
+Example::
+
+    qd = QuadratureDriver(bus, 0x5000, counts_per_rev=2000.0)   # 500-line encoders, x4
+    qd.arm_index(0)
+    ...                                  # move slowly until qd.index_seen(0)
+    qd.home_at_index(0)                  # position 0 rad at the index
+    r = qd.update(0.008)                 # every servo tick: readings for all channels
+    theta, omega = r[0].position_rad, r[0].velocity_rad_s
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from hal.quadrature.quad_regs import (
+    CHANNELS,
+    CMD_CLEAR,
+    CMD_LATCH,
+    CMD_PRESET,
+    COUNTER_MASK,
+    COUNTER_MODULUS,
+    MODE_CODES,
+    MODE_HOLD,
+    QUAD_REGS,
+    ST_ILLEGAL,
+    ST_INDEX,
+    ST_OVERFLOW,
+    ST_UNDERFLOW,
+    reg_name,
+)
+from hal.vme.bus import SpaceLike, VmeBus
+from hal.vme.window import BoardWindow
+
+_HALF = COUNTER_MODULUS // 2
+_QUARTER = COUNTER_MODULUS // 4
+TWO_PI = 2.0 * math.pi
+
+
+class QuadratureError(Exception):
+    """Base class of quadrature decoder errors; ``channel`` names the channel."""
+
+    def __init__(self, channel: int, message: str) -> None:
+        self.channel = channel
+        self.readings: dict[int, ChannelReading] = {}
+        super().__init__(f"quadrature channel {channel}: {message}")
+
+
+class IllegalTransitionError(QuadratureError):
+    """A and B changed in one sample: the shaft outran the decoder (or noise); counts were lost."""
+
+
+class TrackingLostError(QuadratureError):
+    """The unwrapped count cannot be trusted: too much travel between reads (wrap flags disagree)."""
+
+
+class CountJumpError(QuadratureError):
+    """The count changed more in one tick than the configured plausibility limit."""
+
+
+class IndexNotSeenError(QuadratureError):
+    """Homing or an index check needs a captured index, and none was captured."""
+
+
+class IndexMismatchError(QuadratureError):
+    """The index was captured at a count that disagrees with the homed revolution grid."""
+
+    def __init__(self, channel: int, error_counts: float) -> None:
+        self.error_counts = error_counts
+        super().__init__(
+            channel,
+            f"index captured {error_counts:+g} counts off the homed grid: counts were missed or "
+            "gained (check encoder wiring, speed vs decoder sampling rate); re-home the axis",
+        )
+
+
+@dataclass(frozen=True)
+class ChannelStatus:
+    """The STATUS register of one channel, decoded."""
+
+    index: bool
+    illegal: bool
+    overflow: bool
+    underflow: bool
+    a: bool
+    b: bool
+    raw: int
+
+    @classmethod
+    def decode(cls, raw: int) -> ChannelStatus:
+        return cls(bool(raw & ST_INDEX), bool(raw & ST_ILLEGAL), bool(raw & ST_OVERFLOW),
+                   bool(raw & ST_UNDERFLOW), bool(raw >> 8 & 1), bool(raw >> 9 & 1), raw)
+
+
+@dataclass(frozen=True)
+class ChannelReading:
+    """One channel after a servo tick (SI units)."""
+
+    channel: int
+    raw: int  #: latched 24-bit counter value
+    counts: int  #: unwrapped count (mode units)
+    position_rad: float
+    velocity_counts_s: float
+    velocity_rad_s: float
+    status: ChannelStatus
+
+
+class _Track:
+    def __init__(self, raw: int, mode: int) -> None:
+        self.raw = raw
+        self.counts = raw - COUNTER_MODULUS if raw >= _HALF else raw
+        self.mode = mode
+        self.zero = 0.0
+        self.home_index: int | None = None
+        # velocity estimator
+        self.tick_counts: int | None = None
+        self.change_counts = 0
+        self.ticks_since_change = 0
+        self.velocity = 0.0
+
+
+class QuadratureDriver:
+    """Quadrature decoder driver.
+
+    Args:
+        bus: the VME bus.
+        base: board base address.
+        space: address space (A16 short I/O normally).
+        counts_per_rev: x4 counts per revolution (lines·4), one number or per channel.
+        channels: channels in use (default all four).
+        errors: ``"raise"`` (default) or ``"report"`` (flags only in the readings).
+        max_counts_per_tick: plausibility limit on ``|Δ|`` per tick (``None``: off), raising
+            :class:`CountJumpError`.
+        low_speed_counts: below this many counts per tick the 1/T estimator is used.
+        stop_ticks: ticks without a count after which the velocity estimate is 0.
+
+    Construction latches and reads every channel in use (the unbounded count starts at the
+    counter value sign-extended from 24 bits) and clears its OVERFLOW/UNDERFLOW flags; it
+    does not change modes, presets or the index arm.
+    """
+
+    def __init__(
+        self,
+        bus: VmeBus,
+        base: int,
+        *,
+        space: SpaceLike = "A16",
+        counts_per_rev: dict[int, float] | float,
+        channels: Iterable[int] = range(CHANNELS),
+        errors: str = "raise",
+        max_counts_per_tick: int | None = None,
+        low_speed_counts: int = 4,
+        stop_ticks: int = 125,
+    ) -> None:
+        self.win = BoardWindow(bus, base, QUAD_REGS, space)
+        self.channels = tuple(sorted(set(channels)))
+        for ch in self.channels:
+            self._check_ch(ch)
+        if isinstance(counts_per_rev, dict):
+            missing = [ch for ch in self.channels if ch not in counts_per_rev]
+            if missing:
+                raise ValueError(f"counts_per_rev has no entry for channel(s) {missing}")
+            cpr = {ch: float(counts_per_rev[ch]) for ch in self.channels}
+        else:
+            cpr = {ch: float(counts_per_rev) for ch in self.channels}
+        for ch, v in cpr.items():
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"counts_per_rev for channel {ch} must be > 0 (got {v})")
+        self.counts_per_rev_x4 = cpr
+        if errors not in ("raise", "report"):
+            raise ValueError(f"errors must be 'raise' or 'report' (got {errors!r})")
+        self.errors = errors
+        self.max_counts_per_tick = max_counts_per_tick
+        self.low_speed_counts = max(1, int(low_speed_counts))
+        self.stop_ticks = max(1, int(stop_ticks))
+        self._latch_mask = sum(1 << ch for ch in self.channels)
+        self._track: dict[int, _Track] = {}
+        for ch in self.channels:
+            self.win.write(reg_name(ch, "CMD"), CMD_LATCH)
+            self._track[ch] = _Track(self._read_ol(ch), self._read_mode(ch))
+            self.win.write(reg_name(ch, "STATUS"), ST_OVERFLOW | ST_UNDERFLOW)
+
+    # --- helpers -------------------------------------------------------------------------
+    @staticmethod
+    def _check_ch(ch: int) -> None:
+        if not isinstance(ch, int) or not 0 <= ch < CHANNELS:
+            raise ValueError(f"quadrature channel {ch!r} is not 0..{CHANNELS - 1}")
+
+    def _t(self, ch: int) -> _Track:
+        try:
+            return self._track[ch]
+        except KeyError:
+            raise ValueError(f"quadrature channel {ch!r} is not in use (channels {self.channels})") from None
+
+    def _read_mode(self, ch: int) -> int:
+        code = self.win.read_field(reg_name(ch, "CTL"), "mode")
+        return {v: k for k, v in MODE_CODES.items()}.get(code, 4)
+
+    def _read_ol(self, ch: int) -> int:
+        hi = self.win.read(reg_name(ch, "OL_HI")) & 0xFF
+        return hi << 16 | self.win.read(reg_name(ch, "OL_LO"))
+
+    def counts_per_rev(self, ch: int) -> float:
+        """Counts per revolution in the channel's current mode."""
+        return self.counts_per_rev_x4[ch] * self._t(ch).mode / 4.0
+
+    # --- raw access ----------------------------------------------------------------------
+    def read_count(self, ch: int) -> int:
+        """Latch and read the 24-bit counter (0..0xFFFFFF); cannot tear."""
+        self._t(ch)
+        self.win.write(reg_name(ch, "CMD"), CMD_LATCH)
+        return self._read_ol(ch)
+
+    def read_count_unlatched(self, ch: int) -> int:
+        """Read the live counter high part then low part, without latching — may tear when
+        counts arrive between the two cycles (diagnostics and demonstrations only)."""
+        hi = self.win.read(reg_name(ch, "CNT_HI")) & 0xFF
+        return hi << 16 | self.win.read(reg_name(ch, "CNT_LO"))
+
+    def status(self, ch: int) -> ChannelStatus:
+        self._check_ch(ch)
+        return ChannelStatus.decode(self.win.read(reg_name(ch, "STATUS")))
+
+    def clear_errors(self, ch: int) -> None:
+        """Clear ILLEGAL, OVERFLOW and UNDERFLOW of a channel (after dealing with the cause)."""
+        self._check_ch(ch)
+        self.win.write(reg_name(ch, "STATUS"), ST_ILLEGAL | ST_OVERFLOW | ST_UNDERFLOW)
+
+    def set_mode(self, ch: int, mode: int) -> None:
+        """Counting mode 1, 2 or 4 (counts per quadrature cycle). The position in radians is
+        kept continuous across the change (to the new resolution); :meth:`check_index` needs a
+        new :meth:`home_at_index` afterwards."""
+        if mode not in MODE_CODES:
+            raise ValueError(f"quadrature mode {mode!r} is not 1, 2 or 4")
+        t = self._t(ch)
+        rad = self.position_rad(ch)
+        self.win.modify(reg_name(ch, "CTL"), mode=MODE_CODES[mode])
+        t.mode = mode
+        t.zero = t.counts - rad * self.counts_per_rev(ch) / TWO_PI
+        t.home_index = None  # the index grid is in old-mode counts: re-home before check_index()
+        t.tick_counts = None
+
+    def hold(self, ch: int) -> None:
+        """Inhibit counting (CTL mode 3); :meth:`set_mode` resumes."""
+        self._t(ch)
+        self.win.modify(reg_name(ch, "CTL"), mode=MODE_HOLD)
+
+    def preset(self, ch: int, value: int) -> None:
+        """Load the counter with ``value`` (0..0xFFFFFF). The unwrapped count jumps with it and
+        the zero moves along, so :meth:`position_rad` is unchanged (use :meth:`set_zero` to
+        re-define the position)."""
+        if not 0 <= value <= COUNTER_MASK:
+            raise ValueError(f"preset {value} is not a 24-bit count")
+        t = self._t(ch)
+        self.win.write(reg_name(ch, "PRE_HI"), value >> 16)
+        self.win.write(reg_name(ch, "PRE_LO"), value & 0xFFFF)
+        self.win.write(reg_name(ch, "CMD"), CMD_PRESET | CMD_LATCH)  # latch the old, then preset
+        self._resync(ch, t, self._read_ol(ch), value)
+
+    def clear(self, ch: int) -> None:
+        """Set the counter to 0 (like :meth:`preset` with 0; the position in radians is unchanged)."""
+        t = self._t(ch)
+        self.win.write(reg_name(ch, "CMD"), CMD_CLEAR | CMD_LATCH)
+        self._resync(ch, t, self._read_ol(ch), 0)
+
+    def _resync(self, ch: int, t: _Track, old_raw: int, new_raw: int) -> None:
+        self._unwrap(ch, t, old_raw, 0)
+        shift = ((new_raw - old_raw + _HALF) % COUNTER_MODULUS) - _HALF
+        t.counts += shift
+        t.zero += shift
+        if t.home_index is not None:
+            t.home_index += shift
+        if t.tick_counts is not None:
+            t.tick_counts += shift
+        t.raw = new_raw
+        self.win.write(reg_name(ch, "STATUS"), ST_OVERFLOW | ST_UNDERFLOW)
+
+    # --- unwrapping ----------------------------------------------------------------------
+    def _unwrap(self, ch: int, t: _Track, raw: int, status: int) -> int:
+        d = ((raw - t.raw + _HALF) % COUNTER_MODULUS) - _HALF
+        if abs(d) > _QUARTER:
+            crossing = 1 if t.raw + d > COUNTER_MASK else (-1 if t.raw + d < 0 else 0)
+            ovf, unf = bool(status & ST_OVERFLOW), bool(status & ST_UNDERFLOW)
+            ok = (crossing == 1 and ovf) or (crossing == -1 and unf) or (crossing == 0 and ovf == unf)
+            if not ok:
+                t.counts += d  # keep tracking from here (best guess); the home is no longer valid
+                t.raw = raw
+                t.home_index = None
+                raise TrackingLostError(
+                    ch,
+                    f"count moved {d:+d} (more than a quarter of the 24-bit range) since the last read and the "
+                    f"wrap flags (overflow={ovf}, underflow={unf}) disagree: more than half a range of travel "
+                    "between reads; read the channel more often and re-home",
+                )
+        t.counts += d
+        t.raw = raw
+        return d
+
+    def _read_tracked(self, ch: int, *, latch: bool = True) -> tuple[int, ChannelStatus]:
+        t = self._t(ch)
+        if latch:
+            self.win.write(reg_name(ch, "CMD"), CMD_LATCH)
+        st = self.win.read(reg_name(ch, "STATUS"))
+        raw = self._read_ol(ch)
+        wrap = st & (ST_OVERFLOW | ST_UNDERFLOW)
+        if wrap:
+            self.win.write(reg_name(ch, "STATUS"), wrap)
+        self._unwrap(ch, t, raw, st)
+        return raw, ChannelStatus.decode(st)
+
+    def _raise_flags(self, ch: int, status: ChannelStatus) -> None:
+        if status.illegal and self.errors == "raise":
+            raise IllegalTransitionError(
+                ch,
+                "illegal transition (A and B changed in one decoder sample): counts were lost — the shaft "
+                "outran the decoder's sampling rate or the signals are noisy; re-home, then clear_errors()",
+            )
+
+    def position_counts(self, ch: int) -> int:
+        """Unwrapped, unbounded count (mode units). Call at least once per 2**23 counts of travel."""
+        _, st = self._read_tracked(ch)
+        self._raise_flags(ch, st)
+        return self._t(ch).counts
+
+    def position_rad(self, ch: int) -> float:
+        """Position in radians relative to the home (zero) set by :meth:`home_at_index`/:meth:`set_zero`."""
+        counts = self.position_counts(ch)
+        return (counts - self._t(ch).zero) * TWO_PI / self.counts_per_rev(ch)
+
+    def set_zero(self, ch: int, position_rad: float = 0.0) -> None:
+        """Define the current position as ``position_rad``."""
+        counts = self.position_counts(ch)
+        self._t(ch).zero = counts - position_rad * self.counts_per_rev(ch) / TWO_PI
+
+    # --- velocity ------------------------------------------------------------------------
+    def _velocity_step(self, ch: int, t: _Track, dt: float) -> float:
+        if not dt > 0:
+            raise ValueError(f"dt must be > 0 s (got {dt})")
+        if t.tick_counts is None:
+            t.tick_counts = t.change_counts = t.counts
+            t.ticks_since_change = 0
+            t.velocity = 0.0
+            return 0.0
+        delta = t.counts - t.tick_counts
+        t.tick_counts = t.counts
+        t.ticks_since_change += 1
+        if self.max_counts_per_tick is not None and abs(delta) > self.max_counts_per_tick:
+            t.change_counts, t.ticks_since_change = t.counts, 0
+            raise CountJumpError(
+                ch,
+                f"count changed by {delta:+d} in one tick (limit {self.max_counts_per_tick}): a counter jump or "
+                "noise burst; check the encoder and re-home",
+            )
+        if delta != 0:
+            if abs(delta) >= self.low_speed_counts:
+                v = delta / dt
+            else:
+                v = (t.counts - t.change_counts) / (t.ticks_since_change * dt)
+            t.change_counts, t.ticks_since_change = t.counts, 0
+        elif t.ticks_since_change >= self.stop_ticks:
+            v = 0.0
+        else:
+            bound = 1.0 / (t.ticks_since_change * dt)
+            v = math.copysign(min(abs(t.velocity), bound), t.velocity) if t.velocity else 0.0
+        t.velocity = v
+        return v
+
+    def velocity(self, ch: int, dt: float) -> float:
+        """One estimator tick for ``ch`` (call once per servo period ``dt``); rad/s."""
+        t = self._t(ch)
+        _, st = self._read_tracked(ch)
+        v = self._velocity_step(ch, t, dt)
+        self._raise_flags(ch, st)
+        return v * TWO_PI / self.counts_per_rev(ch)
+
+    def update(self, dt: float) -> dict[int, ChannelReading]:
+        """Latch all channels at one instant, read them, unwrap and estimate velocity.
+
+        Call once per servo tick. Every channel is processed before an error is raised; the
+        error carries all readings in ``err.readings``.
+        """
+        self.win.write_fields("GCMD", latch=self._latch_mask)
+        out: dict[int, ChannelReading] = {}
+        first_error: QuadratureError | None = None
+        for ch in self.channels:
+            t = self._t(ch)
+            try:
+                raw, st = self._read_tracked(ch, latch=False)
+                v = self._velocity_step(ch, t, dt)
+                self._raise_flags(ch, st)
+            except QuadratureError as e:
+                first_error = first_error or e
+                st = ChannelStatus.decode(self.win.read(reg_name(ch, "STATUS")))
+                raw, v = t.raw, t.velocity
+            cpr = self.counts_per_rev(ch)
+            out[ch] = ChannelReading(ch, raw, t.counts, (t.counts - t.zero) * TWO_PI / cpr, v, v * TWO_PI / cpr, st)
+        if first_error is not None:
+            first_error.readings = out
+            raise first_error
+        return out
+
+    # --- index and homing ----------------------------------------------------------------
+    def arm_index(self, ch: int) -> None:
+        """Clear STATUS.index and arm the index latch for the next index pulse."""
+        self._t(ch)
+        self.win.write(reg_name(ch, "STATUS"), ST_INDEX)
+        self.win.modify(reg_name(ch, "CTL"), index_arm=1)
+
+    def index_seen(self, ch: int) -> bool:
+        """True once an armed index pulse has been captured."""
+        return self.status(ch).index
+
+    def _index_counts(self, ch: int) -> int:
+        t = self._t(ch)
+        if not self.index_seen(ch):
+            raise IndexNotSeenError(ch, "no index captured; arm_index() and move through the index first")
+        self.position_counts(ch)
+        hi = self.win.read(reg_name(ch, "IDX_HI")) & 0xFF
+        idx = hi << 16 | self.win.read(reg_name(ch, "IDX_LO"))
+        return t.counts + ((idx - t.raw + _HALF) % COUNTER_MODULUS) - _HALF
+
+    def home_at_index(self, ch: int, position_rad: float = 0.0) -> int:
+        """Define the captured index as ``position_rad`` (0 by default); returns the unwrapped
+        index count. Re-arms the index latch so :meth:`check_index` can verify later passes."""
+        idx = self._index_counts(ch)
+        t = self._t(ch)
+        t.zero = idx - position_rad * self.counts_per_rev(ch) / TWO_PI
+        t.home_index = idx
+        self.arm_index(ch)
+        return idx
+
+    def check_index(self, ch: int, tolerance_counts: float = 0.5) -> float | None:
+        """If the index was captured since the last check, compare it with the homed grid
+        (a whole number of revolutions from the home index) and re-arm. Returns the error in
+        counts (``None`` if no index was seen); raises :class:`IndexMismatchError` beyond
+        ``tolerance_counts``."""
+        t = self._t(ch)
+        if t.home_index is None:
+            raise IndexNotSeenError(ch, "the axis is not homed; call home_at_index() first")
+        if not self.index_seen(ch):
+            return None
+        idx = self._index_counts(ch)
+        cpr = self.counts_per_rev(ch)
+        err = (idx - t.home_index + cpr / 2) % cpr - cpr / 2
+        self.arm_index(ch)
+        if abs(err) > tolerance_counts:
+            raise IndexMismatchError(ch, err)
+        return err
