@@ -44,7 +44,7 @@ class PlantLink(ABC):
     @abstractmethod
     def exchange(self, cmd: PlantCommand, period_s: float, delay_s: float) -> PlantSensors: ...
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - optional hook, not abstract
         """Release transports (no-op in-process)."""
 
 
