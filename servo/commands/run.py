@@ -13,6 +13,11 @@ import sys
 
 from servo.files import write_json
 
+# Modules that extend `vmehil run` (live tuning over MAVLink, the operator console, ...). Each
+# defines ``add_arguments(parser)`` and ``attach(args, system, loop, runner)``, which returns
+# ``None`` when its options are unused, or an object with ``close()`` called after the run.
+RUN_EXTENSIONS: list[str] = []
+
 
 def parse_gains(text: str | None) -> dict[str, float]:
     """``"kp=100,kv=50"`` → ``{"kp": 100.0, "kv": 50.0}``; clear errors for anything else."""
@@ -50,7 +55,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", default=None, help="write the machine-readable summary here")
     p.add_argument("--report", default=None, help="write plots and summary.md into this folder")
     p.add_argument("--quiet", action="store_true", help="no progress display")
+    for ext in _extensions():
+        ext.add_arguments(p)
     p.set_defaults(func=run)
+
+
+def _extensions():
+    import importlib
+
+    return [importlib.import_module(name) for name in RUN_EXTENSIONS]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,8 +88,13 @@ def run(args: argparse.Namespace) -> int:
                       switch_off=False if args.no_integrator_switch_off else None)
     loop.start()
     runner = RealtimeRunner(system, loop) if args.realtime else LockstepRunner(system, loop)
+    attached = [a for a in (ext.attach(args, system, loop, runner) for ext in _extensions()) if a is not None]
     progress = None if args.quiet or not sys.stderr.isatty() else _progress_bar()
-    runner.run(n_ticks, progress=progress)
+    try:
+        runner.run(n_ticks, progress=progress)
+    finally:
+        for a in attached:
+            a.close()
     if progress is not None:
         sys.stderr.write("\n")
     timing = runner.timing.summary(system.rig.period_s) if args.realtime else None
