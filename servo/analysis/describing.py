@@ -327,54 +327,75 @@ def predict_lure(G: ct.StateSpace | ct.TransferFunction, nl: Nonlinearity,
 # --------------------------------------------------------------- the servo loop itself
 
 
-def hybrid_response(cfg: LoopConfig, f_hz: np.ndarray, location: str = "friction") -> tuple[np.ndarray, np.ndarray]:
-    """(G, θ/v) of the sampled loop for a continuous-time nonlinearity, to the fundamental harmonic.
+def hybrid_response_fn(cfg: LoopConfig, location: str = "friction") -> Callable[[np.ndarray], tuple]:
+    """f (Hz) → (G, θ/v) of the sampled loop for a continuous-time nonlinearity, to the
+    fundamental harmonic.
 
     The sampled controller acts through sampler → K(e^{jωT}) → hold·delay, reduced to
     H(jω) = (1 − e^{−jωT})/(jωT)·e^{−jωdT}; the plant is the continuous one. Only ``friction``
     and ``actuator`` are supported (the others act on samples: use :func:`linear_response`).
     """
-    f = np.atleast_1d(np.asarray(f_hz, dtype=float))
+    if location not in ("friction", "actuator"):
+        raise ValueError(f"hybrid_response supports friction and actuator, not {location!r}")
     T, dly = cfg.sample_period_s, cfg.delay_s
-    w = 2 * np.pi * f
     P = continuous_plant(cfg.replace(velocity_source="tach"))
     K = sampled_controller(cfg.gains, T, cfg.velocity_source)
-    Pj = _eval_ss(P.A, P.B, P.C, P.D, 1j * w)  # (4, 2, n): [ths, ws, th, om] × [u, w]
-    Kz = _eval_ss(K.A, K.B, K.C, K.D, np.exp(1j * w * T))[0, 2:4]  # (2, n): ∂a/∂[thin, win]
-    with np.errstate(all="ignore"):
-        H = np.where(w > 0, (1 - np.exp(-1j * w * T)) / (1j * w * T), 1.0) * np.exp(-1j * w * dly)
-        M = H * Kz  # (2, n): per-frequency gain from the sensor outputs [ths, ws] to u (encoder: ws unused)
-        KPu = M[0] * Pj[0, 0] + M[1] * Pj[1, 0]
-        if location == "friction":
-            KPw = M[0] * Pj[0, 1] + M[1] * Pj[1, 1]
-            u_per_w = KPw / (1 - KPu)
-            om_per_w = Pj[3, 0] * u_per_w + Pj[3, 1]
-            th_per_w = Pj[2, 0] * u_per_w + Pj[2, 1]
-            return om_per_w, -th_per_w  # friction acceleration is −v
-        if location == "actuator":
-            G = -KPu  # x = a = M·y,  y = P_u·v  →  x/v = KPu, G = −x/v
-            return G, Pj[2, 0]
-    raise ValueError(f"hybrid_response supports friction and actuator, not {location!r}")
+
+    def fn(f_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        w = 2 * np.pi * np.atleast_1d(np.asarray(f_hz, dtype=float))
+        Pj = _eval_ss(P.A, P.B, P.C, P.D, 1j * w)  # (4, 2, n): [ths, ws, th, om] × [u, w]
+        Kz = _eval_ss(K.A, K.B, K.C, K.D, np.exp(1j * w * T))[0, 2:4]  # (2, n): ∂a/∂[thin, win]
+        with np.errstate(all="ignore"):
+            H = np.where(w > 0, (1 - np.exp(-1j * w * T)) / (1j * w * T), 1.0) * np.exp(-1j * w * dly)
+            M = H * Kz  # (2, n): gain from the sensor outputs [ths, ws] to u (encoder: ws unused)
+            KPu = M[0] * Pj[0, 0] + M[1] * Pj[1, 0]
+            if location == "friction":
+                KPw = M[0] * Pj[0, 1] + M[1] * Pj[1, 1]
+                u_per_w = KPw / (1 - KPu)
+                om_per_w = Pj[3, 0] * u_per_w + Pj[3, 1]
+                th_per_w = Pj[2, 0] * u_per_w + Pj[2, 1]
+                return om_per_w, -th_per_w  # friction acceleration is −v
+            return -KPu, Pj[2, 0]  # actuator: x = a = M·y, y = P_u·v, G = −x/v
+
+    return fn
+
+
+def hybrid_response(cfg: LoopConfig, f_hz: np.ndarray, location: str = "friction") -> tuple[np.ndarray, np.ndarray]:
+    """(G, θ/v) at ``f_hz`` — see :func:`hybrid_response_fn`."""
+    return hybrid_response_fn(cfg, location)(f_hz)
+
+
+def linear_response_fn(cfg: LoopConfig, location: str, sampled: bool) -> Callable[[np.ndarray], tuple]:
+    """f (Hz) → (G, θ/v) seen by a nonlinearity at ``location`` (the loop is built once)."""
+    if sampled and location == "friction":
+        return hybrid_response_fn(cfg, location)
+    br = build_loop(cfg, sampled, location)
+    iv = br.input_labels.index("v")
+    ix, ith = br.output_labels.index("x"), br.output_labels.index("th")
+    A, B, C, D = br.A, br.B[:, [iv]], br.C[[ix, ith]], br.D[[ix, ith]][:, [iv]]
+    T = cfg.sample_period_s
+
+    def fn(f_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        w = 2 * np.pi * np.atleast_1d(np.asarray(f_hz, dtype=float))
+        H = _eval_ss(A, B, C, D, np.exp(1j * w * T) if sampled else 1j * w)
+        return -H[0, 0], H[1, 0]
+
+    return fn
 
 
 def linear_response(cfg: LoopConfig, location: str, f_hz: np.ndarray, sampled: bool) -> tuple[np.ndarray, np.ndarray]:
     """(G, θ/v) seen by a nonlinearity at ``location`` at the frequencies ``f_hz`` (Hz)."""
-    if sampled and location == "friction":
-        return hybrid_response(cfg, f_hz, location)
-    br = build_loop(cfg, sampled, location)
-    w = 2 * np.pi * np.atleast_1d(np.asarray(f_hz, dtype=float))
-    x = np.exp(1j * w * cfg.sample_period_s) if sampled else 1j * w
-    iv = br.input_labels.index("v")
-    B = br.B[:, [iv]]
-    H = _eval_ss(br.A, B, br.C, br.D[:, [iv]], x)
-    return -H[br.output_labels.index("x"), 0], H[br.output_labels.index("th"), 0]
+    return linear_response_fn(cfg, location, sampled)(f_hz)
 
 
 def gain_loop_poles(cfg: LoopConfig, location: str, k: float, sampled: bool) -> np.ndarray:
     """Closed-loop poles with the nonlinearity at ``location`` replaced by the linear gain k."""
     if location == "friction" and sampled:
         return closed_loop_poles(cfg.replace(viscous_damping=cfg.viscous_damping + k), True)
-    br = build_loop(cfg, sampled, location)
+    return _gain_poles(build_loop(cfg, sampled, location), k)
+
+
+def _gain_poles(br: ct.StateSpace, k: float) -> np.ndarray:
     iv = br.input_labels.index("v")
     ix = br.output_labels.index("x")
     d = float(br.D[ix, iv])
@@ -389,19 +410,16 @@ def predict_cycles(cfg: LoopConfig, nl: Nonlinearity, sampled: bool = True,
         f_max_hz = cfg.nyquist_hz if sampled else 200.0
     if sampled and nl.location == "friction":
         f_max_hz = min(f_max_hz, 0.5 * cfg.nyquist_hz)  # the fundamental-harmonic reduction needs ω ≪ π/T
-
-    def G(f: np.ndarray) -> np.ndarray:
-        return linear_response(cfg, nl.location, f, sampled)[0]
-
-    def theta_per_v(f: float) -> complex:
-        return complex(linear_response(cfg, nl.location, np.array([f]), sampled)[1][0])
+    resp = linear_response_fn(cfg, nl.location, sampled)
+    br = None if (sampled and nl.location == "friction") else build_loop(cfg, sampled, nl.location)
 
     def n_unstable(k: float) -> int:
-        p = gain_loop_poles(cfg, nl.location, k, sampled)
+        p = gain_loop_poles(cfg, nl.location, k, sampled) if br is None else _gain_poles(br, k)
         return int(np.sum(np.abs(p) >= 1.0) if sampled else np.sum(p.real >= 0))
 
     include_end = sampled and nl.location != "friction"
-    return solve_cycles(G, nl, n_unstable, f_max_hz, include_f_max=include_end, theta_per_v=theta_per_v)
+    return solve_cycles(lambda f: resp(f)[0], nl, n_unstable, f_max_hz, include_f_max=include_end,
+                        theta_per_v=lambda f: complex(resp(np.array([f]))[1][0]))
 
 
 def headline(cycles: list[Cycle]) -> Cycle | None:

@@ -31,6 +31,7 @@ disturbances and accurate below a few Hz for smooth ones.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field, replace
 from typing import Literal
@@ -253,6 +254,12 @@ def sampled_plant(cfg: LoopConfig) -> ct.StateSpace:
         Φ = e^{AT}, Γ0 = ∫₀^{T−dT} e^{As}ds B_u, Γ1 = e^{A(T−dT)} ∫₀^{dT} e^{As}ds B_u,
         Γw = ∫₀^T e^{As}ds B_w
     """
+    Ad, Bd, Cd = _sampled_plant_arrays(cfg.replace(gains=Gains.paper(), velocity_source="tach"))
+    return ct.ss(Ad, Bd, Cd, np.zeros((4, 2)), cfg.sample_period_s, name="P", **_PLANT_IO)
+
+
+@functools.lru_cache(maxsize=256)
+def _sampled_plant_arrays(cfg: LoopConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     A, B, C = _plant_matrices(cfg, ideal_velocity=False)
     T, d = cfg.sample_period_s, cfg.delay_fraction
     n = A.shape[0]
@@ -268,7 +275,9 @@ def sampled_plant(cfg: LoopConfig) -> ct.StateSpace:
         Cd = np.hstack([C, np.zeros((4, 1))])
     else:
         Ad, Bd, Cd = Phi, np.hstack([G0, Gw]), C
-    return ct.ss(Ad, Bd, Cd, np.zeros((4, 2)), T, name="P", **_PLANT_IO)
+    for arr in (Ad, Bd, Cd):
+        arr.setflags(write=False)
+    return Ad, Bd, Cd
 
 
 # ----------------------------------------------------------------------- controller
