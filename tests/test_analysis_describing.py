@@ -21,7 +21,9 @@ from servo.analysis.describing import (
     linear_response,
     measure_cycle,
     predict_cycles,
+    predict_joint_velocity,
     predict_lure,
+    simulate_joint,
     simulate_sampled,
 )
 from servo.analysis.loop import Gains, LoopConfig
@@ -173,3 +175,37 @@ def test_coulomb_friction_alone_predicts_no_isolated_cycle() -> None:
     frequency — the integrator hunting is a stick-slip effect outside single-harmonic balance."""
     for sampled in (False, True):
         assert predict_cycles(LoopConfig(), Relay(4.24 / 3.0), sampled=sampled) == []
+
+
+def test_equivalent_gain_solver_matches_harmonic_balance_for_one_nonlinearity() -> None:
+    for sampled in (False, True):
+        (a,) = predict_cycles(LoopConfig(), DeadZone(0.15), sampled=sampled)
+        (b,) = predict_joint_velocity(LoopConfig(), [DeadZone(0.15)], sampled=sampled)
+        assert b.frequency_hz == pytest.approx(a.frequency_hz, rel=1e-6)
+        assert b.amplitude_x == pytest.approx(a.amplitude_x, rel=1e-6)
+        assert b.amplitude_rad == pytest.approx(a.amplitude_rad, rel=0.005)
+        assert a.stable and b.stable
+
+
+JOINT1 = [DeadZone(0.15, name="tach dead band"), Relay(4.24 / 3.0, name="Coulomb friction")]
+
+
+def test_dead_band_with_friction_cycle_matches_the_reduced_joint_simulation() -> None:
+    """Paper gains: ±¾° at 1–3 Hz (DESIGN section 9), predicted and simulated."""
+    cfg = LoopConfig()
+    c = headline(predict_joint_velocity(cfg, JOINT1, sampled=True))
+    assert c is not None and 0.6 < c.amplitude_deg < 0.85 and 2.0 < c.frequency_hz < 3.2
+    sim = simulate_joint(cfg, 30.0, deadband_rad_s=0.15, coulomb_accel=4.24 / 3.0)
+    amp, freq = measure_cycle(sim["t"], sim["theta"])
+    assert c.amplitude_rad == pytest.approx(amp, rel=0.15)
+    assert c.frequency_hz == pytest.approx(freq, rel=0.15)
+
+
+def test_switch_off_with_friction_predicts_and_simulates_no_cycle() -> None:
+    """Integrators frozen, Kp raised: no cycle predicted; the reduced joint stops within T_F/(J·Kp)."""
+    cfg = LoopConfig(gains=Gains(kp=1100, kpi=0, kv=50, kvi=0))
+    assert headline(predict_joint_velocity(cfg, JOINT1, sampled=True)) is None
+    sim = simulate_joint(cfg, 20.0, deadband_rad_s=0.15, coulomb_accel=4.24 / 3.0)
+    tail = sim["theta"][len(sim["theta"]) // 2:]
+    assert np.ptp(tail) < 1e-9  # stuck: no motion at all in the second half
+    assert abs(tail[-1]) <= (4.24 / 3.0) / 1100 * (1 + 1e-9)

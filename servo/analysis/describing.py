@@ -234,11 +234,15 @@ class Cycle:
         return None if self.amplitude_rad is None else math.degrees(self.amplitude_rad)
 
     def as_dict(self) -> dict:
+        def num(v: float | None) -> float | None:
+            return None if v is None or not math.isfinite(v) else float(v)
+
         return {
             "nonlinearity": self.nonlinearity, "location": self.location,
-            "frequency_hz": self.frequency_hz, "amplitude_x": self.amplitude_x,
-            "amplitude_rad": self.amplitude_rad, "amplitude_deg": self.amplitude_deg,
-            "equivalent_gain": self.equivalent_gain, "g_at_crossing": self.g_real, "stable": self.stable,
+            "frequency_hz": num(self.frequency_hz), "amplitude_x": num(self.amplitude_x),
+            "amplitude_rad": num(self.amplitude_rad), "amplitude_deg": num(self.amplitude_deg),
+            "equivalent_gain": num(self.equivalent_gain), "g_at_crossing": num(self.g_real),
+            "stable": bool(self.stable),
         }
 
 
@@ -422,6 +426,59 @@ def predict_cycles(cfg: LoopConfig, nl: Nonlinearity, sampled: bool = True,
                         theta_per_v=lambda f: complex(resp(np.array([f]))[1][0]))
 
 
+def predict_joint_velocity(cfg: LoopConfig, nls: list[Nonlinearity], sampled: bool = True,
+                           a_range: tuple[float, float] = (1e-4, 20.0), n: int = 48) -> list[Cycle]:
+    """Cycles with several nonlinearities driven by the joint velocity at once (equivalent gains).
+
+    ``nls``: a tach dead zone (``velocity_sensor``) and/or Coulomb friction (``friction``). For a
+    joint-velocity amplitude A each is replaced by its describing-function gain — the dead zone
+    scales the sampled tach reading by N₁(A), friction becomes viscous damping N₂(A) in the
+    continuous plant (so the sampled model stays exact). A cycle is where the resulting linear
+    loop is marginally stable: the dominant closed-loop pole pair is on the unit circle (sampled)
+    or the imaginary axis (continuous); its angle gives the frequency and θ = A/ω the joint-angle
+    amplitude. Stable when the loop is stable just above A and unstable just below (Loeb). With a
+    single nonlinearity this is the same harmonic balance as :func:`predict_cycles`.
+    """
+    dz = [x for x in nls if x.location == "velocity_sensor"]
+    fr = [x for x in nls if x.location == "friction"]
+    if len(dz) > 1 or len(fr) > 1 or len(dz) + len(fr) != len(nls) or not nls:
+        raise ValueError("predict_joint_velocity takes at most one velocity-sensor and one friction nonlinearity")
+    if dz and cfg.velocity_source != "tach":
+        raise ValueError("a velocity-sensor nonlinearity needs velocity_source='tach'")
+    name = " + ".join(x.name for x in nls)
+    location = "+".join(x.location for x in nls)
+    T = cfg.sample_period_s
+
+    def dominant(a: float) -> tuple[float, complex]:
+        c = sum(x.df(a) for x in fr)
+        cfg_a = cfg.replace(viscous_damping=cfg.viscous_damping + c)
+        if dz:
+            p = _gain_poles(build_loop(cfg_a, sampled, "velocity_sensor"), dz[0].df(a))
+        else:
+            p = closed_loop_poles(cfg_a, sampled)
+        if sampled:
+            i = int(np.argmax(np.abs(p)))
+            return float(abs(p[i]) - 1.0), complex(p[i])
+        i = int(np.argmax(p.real))
+        return float(p[i].real), complex(p[i])
+
+    amps = np.logspace(math.log10(a_range[0]), math.log10(a_range[1]), n)
+    r = np.array([dominant(a)[0] for a in amps])
+    cycles = []
+    for i in range(n - 1):
+        if not (r[i] * r[i + 1] < 0):
+            continue
+        a0 = float(brentq(lambda a: dominant(a)[0], amps[i], amps[i + 1], xtol=1e-12, rtol=1e-8))
+        _, p = dominant(a0)
+        w = abs(np.angle(p)) / T if sampled else abs(p.imag)
+        if w < 1e-6:
+            continue  # a real pole crossing: drift, not an oscillation
+        stable = dominant(a0 * 1.02)[0] < 0 and dominant(a0 * 0.98)[0] > 0
+        k = dz[0].df(a0) if dz else 1.0
+        cycles.append(Cycle(name, location, float(w / (2 * math.pi)), a0, k, float("nan"), stable, float(a0 / w)))
+    return cycles
+
+
 def headline(cycles: list[Cycle]) -> Cycle | None:
     """The cycle to report first: the largest stable one (None when no stable cycle is predicted)."""
     stable = [c for c in cycles if c.stable and c.amplitude_rad is not None]
@@ -485,3 +542,48 @@ def measure_cycle(t: np.ndarray, y: np.ndarray, settle_fraction: float = 0.5) ->
         return amp, None
     tc = tt[idx] - z[idx] * (tt[idx + 1] - tt[idx]) / (z[idx + 1] - z[idx])
     return amp, float((idx.size - 1) / (tc[-1] - tc[0]))
+
+
+def simulate_joint(cfg: LoopConfig, seconds: float, deadband_rad_s: float = 0.0, coulomb_accel: float = 0.0,
+                   breakout_accel: float | None = None, kick: float = 1.0, r0: float = 0.0,
+                   substeps: int = 32) -> dict[str, np.ndarray]:
+    """Reduced nonlinear joint: the sampled servo law driving 1/s² with Coulomb friction and stiction.
+
+    Normalized units: friction as accelerations (torque/J, rad/s²). The tach reading is the joint
+    velocity through a dead zone of ``deadband_rad_s``. Friction is Karnopp-style: a stopped joint
+    stays stuck while the commanded acceleration is below ``breakout_accel`` (default: the Coulomb
+    level); a velocity crossing zero inside a sub-step is captured at zero. The plant is integrated
+    with ``substeps`` steps per servo period (the command changes after the computation delay).
+    This is a check on the describing function, not the plant emulator: no motor, gearing, sensor
+    noise or amplifier dynamics (``cfg`` analog options are ignored).
+    """
+    T, d = cfg.sample_period_s, cfg.delay_fraction
+    K = sampled_controller(cfg.gains, T, cfg.velocity_source)
+    Ka, Kb, Kc, Kd = K.A, K.B, K.C[0], K.D[0]
+    h = T / substeps
+    j_switch = round(d * substeps)
+    stick = coulomb_accel if breakout_accel is None else breakout_accel
+    n = round(seconds / T)
+    xk = np.zeros(Ka.shape[0])
+    th, om, a_prev = 0.0, float(kick), 0.0
+    out = np.empty(n)
+    for k in range(n):
+        w_meas = om - deadband_rad_s * math.copysign(1.0, om) if abs(om) > deadband_rad_s else 0.0
+        q = np.array([r0, 0.0, th, w_meas])
+        a = float(Kc @ xk + Kd @ q)
+        xk = Ka @ xk + Kb @ q
+        out[k] = th
+        for j in range(substeps):
+            acc = a_prev if j < j_switch else a
+            if om == 0.0 and abs(acc) <= stick:
+                continue  # stuck
+            sgn = math.copysign(1.0, om) if om != 0.0 else math.copysign(1.0, acc)
+            om_new = om + h * (acc - coulomb_accel * sgn)
+            if om != 0.0 and om_new * om < 0.0:
+                om_new = 0.0  # captured at zero velocity; stiction decides on the next sub-step
+            elif om == 0.0 and om_new * sgn < 0.0:
+                om_new = 0.0
+            th += 0.5 * h * (om + om_new)
+            om = om_new
+        a_prev = a
+    return {"t": np.arange(n) * T, "theta": out}

@@ -339,17 +339,20 @@ def limit_cycle_text(r: dict[str, Any]) -> str:
         head = (f"±{p['amplitude_deg']:.3f}° at {p['frequency_hz']:.2f} Hz ({p['nonlinearity']})"
                 if p["amplitude_deg"] is not None else "no stable cycle")
         lines.append(f"{label}: predicted (sampled DF) {head}")
+        for c in p["combined_cycles"]:
+            lines.append(f"    {c['nonlinearity']:40s} {c['amplitude_deg']:8.3f}° {c['frequency_hz']:6.2f} Hz  "
+                         f"{_stab(c)}")
+        for c in p["combined_continuous_cycles"]:
+            lines.append(f"    {'(continuous ideal) ' + c['nonlinearity']:40s} {c['amplitude_deg']:8.3f}° "
+                         f"{c['frequency_hz']:6.2f} Hz  {_stab(c)}")
         for c in p["cycles"]:
-            lines.append(f"    {c['nonlinearity']:24s} {c['amplitude_deg']:9.3f}° {c['frequency_hz']:7.2f} Hz  "
-                         f"{'stable' if c['stable'] else 'unstable (divergence threshold)'}")
-        for c in p["continuous_cycles"]:
-            lines.append(f"    (continuous ideal) {c['nonlinearity']:13s} {c['amplitude_deg']:9.3f}° "
-                         f"{c['frequency_hz']:7.2f} Hz")
+            lines.append(f"    {c['nonlinearity'] + ' alone':40s} {c['amplitude_deg']:8.3f}° "
+                         f"{c['frequency_hz']:6.2f} Hz  {_stab(c)}")
         mc = block.get("model_check")
         if mc:
-            lines.append(f"    linear sampled model + {mc['nonlinearity']} simulated: "
-                         + (f"±{mc['amplitude_deg']:.3f}° at {mc['frequency_hz']:.2f} Hz"
-                            if mc["amplitude_deg"] is not None else "no cycle"))
+            got = (f"±{mc['amplitude_deg']:.3f}° at {mc['frequency_hz']:.2f} Hz" if mc["amplitude_deg"] is not None
+                   else f"no cycle (stops {mc['final_error_deg']:.4f}° from the target)")
+            lines.append(f"    reduced nonlinear joint simulated: {got}")
         sim = block.get("simulated")
         if sim:
             got = (f"±{sim['amplitude_deg']:.3f}° at {sim['frequency_hz']:.2f} Hz"
@@ -363,6 +366,10 @@ def limit_cycle_text(r: dict[str, Any]) -> str:
     if r.get("notes"):
         lines += ["", "assumed (not in the rig file):"] + [f"  - {n}" for n in r["notes"]]
     return "\n".join(lines)
+
+
+def _stab(c: dict) -> str:
+    return "stable" if c["stable"] else "unstable (threshold)"
 
 
 def _nl_line(n: dict) -> str:

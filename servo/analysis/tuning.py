@@ -15,7 +15,14 @@ from typing import Any
 
 import numpy as np
 
-from servo.analysis.describing import Cycle, headline, measure_cycle, predict_cycles, simulate_sampled
+from servo.analysis.describing import (
+    Cycle,
+    headline,
+    measure_cycle,
+    predict_cycles,
+    predict_joint_velocity,
+    simulate_joint,
+)
 from servo.analysis.loop import Gains, LoopConfig
 from servo.analysis.margins import compute_margins, equivalent_s_poles
 from servo.analysis.rigparams import JointParams
@@ -47,33 +54,49 @@ def _cycles(cfg: LoopConfig, jp: JointParams, sampled: bool) -> list[Cycle]:
     return cycles
 
 
+def _velocity_nls(jp: JointParams) -> list:
+    return [n for n in jp.nonlinearities() if n.location in ("velocity_sensor", "friction")]
+
+
 def _prediction(cfg: LoopConfig, jp: JointParams) -> dict[str, Any]:
-    sampled = _cycles(cfg, jp, True)
-    cont = _cycles(cfg, jp, False)
-    h = headline(sampled)
+    """Single-nonlinearity DF cycles, the combined joint-velocity cycles (tach dead band and
+    friction together), and the headline: the largest stable cycle of the combined analysis and
+    of the nonlinearities it does not cover (quantization, saturation)."""
+    single = _cycles(cfg, jp, True)
+    single_c = _cycles(cfg, jp, False)
+    vel = _velocity_nls(jp)
+    combined = predict_joint_velocity(cfg, vel, sampled=True) if vel else []
+    combined_c = predict_joint_velocity(cfg, vel, sampled=False) if vel else []
+    covered = {n.location for n in vel}
+    h = headline(combined + [c for c in single if c.location not in covered])
     return {
         "amplitude_deg": None if h is None else h.amplitude_deg,
         "frequency_hz": None if h is None else h.frequency_hz,
         "nonlinearity": None if h is None else h.nonlinearity,
         "stable": None if h is None else h.stable,
-        "cycles": [c.as_dict() for c in sampled],
-        "continuous_cycles": [c.as_dict() for c in cont],
+        "combined_cycles": [c.as_dict() for c in combined],
+        "combined_continuous_cycles": [c.as_dict() for c in combined_c],
+        "cycles": [c.as_dict() for c in single],
+        "continuous_cycles": [c.as_dict() for c in single_c],
     }
 
 
-def model_check(cfg: LoopConfig, jp: JointParams, seconds: float = 40.0) -> dict[str, Any] | None:
-    """Simulate the sampled linear loop with the tach dead band alone (the cycle's mechanism), as a
-    check on the describing function; None when the joint has no tach dead band."""
-    nl = next((n for n in jp.nonlinearities() if n.location == "velocity_sensor"), None)
-    if nl is None:
+def model_check(cfg: LoopConfig, jp: JointParams, seconds: float = 30.0) -> dict[str, Any] | None:
+    """Simulate the reduced nonlinear joint (sampled servo law, 1/s², tach dead band, Coulomb
+    friction with stiction) as a check on the describing function. Starts with a 1 rad/s kick."""
+    dz = jp.tach_deadband_rad_s or 0.0
+    fr = jp.coulomb_nm / jp.inertia_kg_m2
+    if not dz and not fr:
         return None
-    n = int(seconds / cfg.sample_period_s)
-    sim = simulate_sampled(cfg, nl, n, kick=1.0)
+    sim = simulate_joint(cfg, seconds, deadband_rad_s=dz, coulomb_accel=fr, kick=1.0)
     amp, freq = measure_cycle(sim["t"], sim["theta"])
+    cyc = amp is not None and freq is not None
+    tail = sim["theta"][len(sim["theta"]) // 2:]
     return {
-        "nonlinearity": nl.name,
-        "amplitude_deg": None if amp is None or freq is None else math.degrees(amp),
-        "frequency_hz": None if amp is None else freq,
+        "model": "sampled servo law + 1/s² + tach dead band + Coulomb friction/stiction",
+        "amplitude_deg": math.degrees(amp) if cyc else None,
+        "frequency_hz": freq if cyc else None,
+        "final_error_deg": None if cyc else float(math.degrees(abs(tail[-1]))),
         "t_s": sim["t"].tolist(), "theta_deg": np.degrees(sim["theta"]).tolist(),
     }
 

@@ -147,11 +147,12 @@ def run_limit_cycle(args: argparse.Namespace) -> int:
             if nl is None:
                 continue
             cyc = [c for c in block["cycles"] if c["nonlinearity"] == nl.name]
-            fig = report.nyquist_df_figure(cfg, nl, cyc, title=f"{nl.name} — {label} ({report._gain_text(cfg)})")
+            title = f"{nl.name} alone — {label}\n({report._gain_text(cfg)})"
+            fig = report.nyquist_df_figure(cfg, nl, cyc, title=title)
             files += report.save_figure_both(fig, d, stem)
             imgs.append(f"{stem}.png")
-        traces = [("integrators on: linear model + tach dead band", result.get("model_check")),
-                  ("switched off: linear model + tach dead band", result["switch_off"].get("model_check")),
+        traces = [("integrators on: reduced nonlinear joint", result.get("model_check")),
+                  ("switched off: reduced nonlinear joint", result["switch_off"].get("model_check")),
                   ("integrators on: full-stack simulation", result.get("simulated")),
                   ("switched off: full-stack simulation", result["switch_off"].get("simulated"))]
         fig = report.cycle_time_figure(traces, f"Limit cycle, {jp.rig} joint {jp.joint}")
@@ -169,12 +170,14 @@ def run_limit_cycle(args: argparse.Namespace) -> int:
 
 
 def _headline_nl(jp: JointParams, block: dict):
-    name = block.get("nonlinearity")
+    """The nonlinearity whose Nyquist/DF picture is drawn: the headline one when it is a single
+    nonlinearity, else the tach dead band (the mechanism of the JPL cycle), else the first."""
     nls = jp.nonlinearities()
-    if name is None:
-        # no stable cycle: still show the first nonlinearity's picture (usually the tach dead band)
-        return nls[0] if nls else None
-    return next((n for n in nls if n.name == name), None)
+    name = block.get("nonlinearity")
+    match = next((n for n in nls if n.name == name), None)
+    if match is not None:
+        return match
+    return next((n for n in nls if n.location == "velocity_sensor"), nls[0] if nls else None)
 
 
 def _strip_traces(result: dict) -> dict:
