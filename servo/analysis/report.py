@@ -277,7 +277,7 @@ def _gain_text(cfg: LoopConfig) -> str:
 def fmt(v: Any, spec: str = ".2f", unit: str = "", none: str = "∞") -> str:
     if v is None:
         return none
-    return f"{v:{spec}}{unit}"
+    return f"{v + 0.0:{spec}}{unit}"  # (+ 0.0 turns −0.0 into 0.0)
 
 
 def bode_text(r: dict[str, Any]) -> str:
