@@ -362,7 +362,7 @@ def limit_cycle_text(r: dict[str, Any]) -> str:
     bound = r["switch_off"]["predicted"]["static_error_bound_deg"]
     lines.append(f"switch-off static error bound T_F/(J·Kp): {bound:.3f}°")
     if r["simulated"] is None:
-        lines.append("simulated (full driver stack): not run (--predict-only)")
+        lines.append("simulated (full driver stack): not run")
     if r.get("notes"):
         lines += ["", "assumed (not in the rig file):"] + [f"  - {n}" for n in r["notes"]]
     return "\n".join(lines)
