@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from emulators.bit3 import bit3_factory
 from emulators.ram import RamBoard
 from emulators.registry import BuildContext, register_board_type
 from hal.config import ConfigTable
@@ -12,3 +13,4 @@ def _ram(name: str, cfg: ConfigTable, ctx: BuildContext) -> RamBoard:
 
 
 register_board_type("ram", _ram)
+register_board_type("bit3", bit3_factory)
