@@ -12,6 +12,7 @@ from hal.vme.errors import VmeError
 # Subcommand modules; each defines ``register(subparsers)`` that sets ``func`` on its parser.
 COMMAND_MODULES = [
     "servo.commands.crate",
+    "servo.commands.vision",
 ]
 
 
