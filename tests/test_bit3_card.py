@@ -236,3 +236,10 @@ def test_crate_file_builds_a_bit3_card_with_its_window() -> None:
     assert drv.read(0x1FFC) == 0xDEADBEEF
     with pytest.raises(ValueError):
         drv.read(0x2000)
+
+
+def test_docs_register_table_matches_the_register_map() -> None:
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "bit3.md").read_text()
+    assert BIT3_CSR.markdown_table() in doc

@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 from emulators.bit3 import Bit3Board, Bit3Link, Bit3RemotePort
 from emulators.crate import Crate
 from emulators.vision import VisionParams, VisionSystem
-from hal.bit3 import Bit3Driver
+from hal.bit3 import Bit3Driver, BufferMemory
 from hal.bit3.arm import ArmModel
 from hal.bit3.protocol import (
     EndReason,
@@ -213,3 +213,80 @@ def test_closed_loop_with_vision_emulator_as_a_separate_process() -> None:
                 proc.kill()
                 proc.wait()
         link.close(unlink=True)
+
+
+def test_killed_vision_process_leaves_the_robot_holding_after_peer_timeout() -> None:
+    link = Bit3Link.create_shared(0x1000)
+    proc = None
+    try:
+        crate, _, drv = _robot_rig(link, poll=100e-6)
+        T = Timeouts(peer_timeout_s=0.3, accept_timeout_s=3.0, ending_timeout_s=0.2)
+        theta = np.array([0.2, 0.5, -1.0])
+        far = ARM.position(theta) + np.array([0.3, 0.0, 0.0])  # takes a while: still servoing when killed
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "servo", "vision", "--shm", link.shm_name, "--target",
+             ",".join(f"{x:.6f}" for x in far), "--max-step-mm", "0.5", "--duration", "20"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        t0 = time.monotonic()
+        while not drv.status().link_up:
+            assert proc.poll() is None, proc.stderr.read()
+            assert time.monotonic() - t0 < 15, "vision process did not come up"
+            time.sleep(0.01)
+        drv.reset_link()
+        robot = VisionServoClient(drv.memory(), T)
+        robot.publish_joints(theta, crate.now())
+        robot.request(crate.now())
+        killed_at = None
+        while time.monotonic() - t0 < 20 and robot.state is not RobotState.IDLE:
+            crate.advance_to(round((time.monotonic() - t0) * 1e9))
+            t = crate.now()
+            cmd = robot.step(t)
+            if cmd is not None:
+                theta += ARM.ee_delta_to_joint_delta(theta, cmd.dp)
+                if killed_at is None and robot.commands >= 3:
+                    proc.kill()
+                    proc.wait(timeout=5)
+                    killed_at = t
+            robot.publish_joints(theta, t)
+            time.sleep(0.005)
+        assert killed_at is not None
+        assert robot.state is RobotState.IDLE and robot.holding
+        assert robot.end_reason is EndReason.PEER_TIMEOUT
+        assert link.remote_power  # a killed process cannot power off: only the heartbeat tells
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        link.close(unlink=True)
+
+
+def test_vision_process_exits_cleanly_on_sigterm() -> None:
+    link = Bit3Link.create_shared(0x1000)
+    proc = subprocess.Popen([sys.executable, "-m", "servo", "vision", "--shm", link.shm_name, "--duration", "20"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        t0 = time.monotonic()
+        while not link.remote_power:
+            assert proc.poll() is None, proc.stderr.read()
+            assert time.monotonic() - t0 < 15, "vision process did not come up"
+            time.sleep(0.01)
+        proc.terminate()
+        out, err = proc.communicate(timeout=10)
+        assert proc.returncode == 0, err
+        assert json.loads(out.strip().splitlines()[-1])["tasks"] == 0
+        assert not link.remote_power
+        probe = VisionServoClient(BufferMemory(link.mem))  # the vision side formatted its memory
+        probe.step(0.0)
+        assert probe.peer is not None and probe.peer.state == VisionState.IDLE
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        link.close(unlink=True)
+
+
+def test_vision_command_reports_a_missing_segment() -> None:
+    from servo.cli import main
+
+    assert main(["vision", "--shm", "vmehil-test-no-such-segment"]) == 2
