@@ -124,18 +124,26 @@ class Bit3Link:
         return self._shm.name if self._shm is not None else None
 
     def close(self, unlink: bool | None = None) -> None:
-        """Release the views; close the segment; unlink it if ``unlink`` (default: if owner)."""
+        """Unlink the segment if ``unlink`` (default: if owner), release the views, close it.
+
+        The unlink happens first, so the segment is removed even if closing fails because
+        views are still exported (release ``BufferMemory``/``Bit3RemotePort`` objects first)."""
+        shm, self._shm = self._shm, None
+        if shm is not None and (self._owner if unlink is None else unlink):
+            try:
+                shm.unlink()
+            except FileNotFoundError:
+                pass
+            _CREATED_HERE.discard(shm.name)
         self.mem.release()
         self._buf.release()
-        if self._shm is not None:
-            self._shm.close()
-            if self._owner if unlink is None else unlink:
-                try:
-                    self._shm.unlink()
-                except FileNotFoundError:
-                    pass
-                _CREATED_HERE.discard(self._shm.name)
-            self._shm = None
+        if shm is not None:
+            try:
+                shm.close()
+            except BufferError as e:
+                self._shm = shm  # keep it alive (and closable) while the views are in use
+                raise BufferError(f"BIT3 link {shm.name}: views of the memory are still in use; "
+                                  "release BufferMemory/Bit3RemotePort objects before close()") from e
 
     # --- header --------------------------------------------------------------------------
     def _get(self, off: int) -> int:

@@ -243,3 +243,19 @@ def test_docs_register_table_matches_the_register_map() -> None:
 
     doc = (Path(__file__).resolve().parents[1] / "docs" / "bit3.md").read_text()
     assert BIT3_CSR.markdown_table() in doc
+
+
+def test_creator_close_unlinks_even_while_views_are_still_exported() -> None:
+    from multiprocessing import shared_memory
+
+    from hal.bit3 import BufferMemory
+
+    link = Bit3Link.create_shared(0x100)
+    name = link.shm_name
+    view = BufferMemory(link.mem)
+    with pytest.raises(BufferError, match="still in use"):
+        link.close()
+    with pytest.raises(FileNotFoundError):
+        shared_memory.SharedMemory(name=name)
+    view.release()
+    link.close()  # now the mapping closes too
