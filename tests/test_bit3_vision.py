@@ -276,9 +276,11 @@ def test_vision_process_exits_cleanly_on_sigterm() -> None:
         assert proc.returncode == 0, err
         assert json.loads(out.strip().splitlines()[-1])["tasks"] == 0
         assert not link.remote_power
-        probe = VisionServoClient(BufferMemory(link.mem))  # the vision side formatted its memory
+        view = BufferMemory(link.mem)
+        probe = VisionServoClient(view)  # the vision side formatted its memory
         probe.step(0.0)
         assert probe.peer is not None and probe.peer.state == VisionState.IDLE
+        view.release()
     finally:
         if proc.poll() is None:
             proc.kill()
