@@ -14,6 +14,7 @@ COMMAND_MODULES = [
     "servo.commands.crate",
     "servo.commands.run",
     "servo.commands.tune",
+    "servo.commands.vision",
 ]
 
 
