@@ -151,6 +151,7 @@ class MavlinkEndpoint:
         self._armed_request = False
         self._fault_reported = False
         self._closed = False
+        self._text_id = 0
 
     # --- the time base --------------------------------------------------------------------------------
     def after_tick(self, loop: Any) -> None:
@@ -163,10 +164,13 @@ class MavlinkEndpoint:
             self.send_heartbeat()
             self._statustext(self.ml.MAV_SEVERITY_CRITICAL,
                              f"servo loop stopped: {f.cause}" + (f" ({f.joint})" if f.joint else ""))
-        if (k - 1) % self.hb_every == 0:
-            self.send_heartbeat()
-        if self.tm_every and (k - 1) % self.tm_every == 0:
-            self.send_telemetry()
+        try:
+            if (k - 1) % self.hb_every == 0:
+                self.send_heartbeat()
+            if self.tm_every and (k - 1) % self.tm_every == 0:
+                self.send_telemetry()
+        except Exception as e:  # the link must never stop the loop
+            self._error(f"streams: {type(e).__name__}: {e}")
 
     def wait_for_start(self, timeout_s: float, clock: Callable[[], float] = time.monotonic,
                        sleep: Callable[[float], None] = time.sleep) -> bool:
@@ -311,20 +315,27 @@ class MavlinkEndpoint:
             return
         old = self.table.value(spec)
 
+        def logged(loop: Any) -> float:
+            # at the tick boundary: apply, then log with the time the change takes effect
+            result = command(loop)
+            unit = f" {spec.unit}" if spec.unit else ""
+            loop.note(self.source, f"{spec.name} {old:g} -> {float(result):g}{unit} ({origin})")
+            return result
+
         def done(result: Any, error: BaseException | None) -> None:
             # runs in the loop's thread at the tick boundary: hand the reply to the service
             self._results.put(lambda: self._set_done(index, spec, value, old, origin, result, error, msg))
 
         if self._direct:
             try:
-                result = command(self.loop)
+                result = logged(self.loop)
             except Exception as e:
                 done(None, e)
             else:
                 done(result, None)
             self.service_results()
         else:
-            self.loop.submit(command, done)
+            self.loop.submit(logged, done)
 
     def service_results(self) -> None:
         while True:
@@ -338,7 +349,6 @@ class MavlinkEndpoint:
                   error: BaseException | None, msg: Any) -> None:
         if error is None:
             self.stats.sets_applied += 1
-            self.loop.note(self.source, f"{spec.name} {old:g} -> {float(result):g} {spec.unit} ({origin})".strip())
             self._send_param_value(index, float(result))
             return
         e = error if isinstance(error, ParamRefused) else ParamRefused(P.OUT_OF_RANGE, spec.name, str(error))
@@ -383,7 +393,17 @@ class MavlinkEndpoint:
         self.stats.param_errors_sent += 1
 
     def _statustext(self, severity: int, text: str) -> None:
-        self.conn.mav.statustext_send(severity, text.encode("ascii", errors="replace")[:50])
+        """STATUSTEXT; texts over 50 characters go out in chunks (MAVLink 2 ``id``/``chunk_seq``)."""
+        raw = text.encode("ascii", errors="replace")
+        if len(raw) <= 50:
+            self.conn.mav.statustext_send(severity, raw)
+            return
+        self._text_id = self._text_id % 65535 + 1
+        chunks = [raw[i:i + 50] for i in range(0, len(raw), 50)]
+        for seq, chunk in enumerate(chunks):
+            self.conn.mav.statustext_send(severity, chunk, self._text_id, seq)
+        if len(raw) % 50 == 0:  # a chunk shorter than 50 (here empty) ends the text
+            self.conn.mav.statustext_send(severity, b"", self._text_id, len(chunks))
 
     # --- commands --------------------------------------------------------------------------------------
     def _on_command_long(self, msg: Any) -> None:

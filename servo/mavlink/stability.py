@@ -20,18 +20,25 @@ import numpy as np
 from servo.control.linear import sampled_loop_matrix
 
 
-def _kept_states(kpi: float, kvi: float, delay: float) -> list[int]:
-    """States that feed back. An integrator with a zero gain is only fed (never read): it adds an
-    eigenvalue 1 that does not belong to the loop, so it is left out (the matrix is block
-    triangular in that state)."""
-    keep = [0, 1]
-    if kpi != 0.0:
-        keep.append(2)
-    if kvi != 0.0:
-        keep.append(3)
-    if delay > 0.0:
-        keep.append(4)
-    return keep
+def _reduced(A: np.ndarray, kpi: float, kvi: float) -> np.ndarray:
+    """The loop matrix without its unobservable modes.
+
+    The integrators enter the law only as ``Kpi·Ie + KvI·Iv``; the other combination (and an
+    integrator with a zero gain) is fed but never read back, which adds an eigenvalue exactly 1
+    that does not belong to the loop (see tests/test_control_law.py). With
+    ``P = [θ, ω, Kpi·Ie + KvI·Iv, (a_prev)]`` the kernel of P is A-invariant, so the reduced
+    matrix is ``P·A·P⁺`` and its eigenvalues are the loop's poles.
+    """
+    n = A.shape[0]
+    rows = [np.eye(n)[0], np.eye(n)[1]]
+    if kpi != 0.0 or kvi != 0.0:
+        z = np.zeros(n)
+        z[2], z[3] = kpi, kvi
+        rows.append(z)
+    if n == 5:
+        rows.append(np.eye(n)[4])
+    P = np.array(rows)
+    return P @ A @ np.linalg.pinv(P)
 
 
 def sampled_margin(kp: float, kpi: float, kv: float, kvi: float, period_s: float, delay: float = 0.0) -> float:
@@ -43,9 +50,7 @@ def sampled_margin(kp: float, kpi: float, kv: float, kvi: float, period_s: float
     if not all(math.isfinite(v) for v in values):
         return -math.inf
     A = sampled_loop_matrix(kp, kpi, kv, kvi, period_s, delay)
-    keep = _kept_states(kpi, kvi, delay)
-    sub = A[np.ix_(keep, keep)]
-    rho = float(np.max(np.abs(np.linalg.eigvals(sub))))
+    rho = float(np.max(np.abs(np.linalg.eigvals(_reduced(A, kpi, kvi)))))
     return 1.0 - rho
 
 

@@ -45,6 +45,8 @@ def joint_rows(loop: Any) -> tuple[int, np.ndarray]:
 
     def get(name: str) -> np.ndarray:
         v = last.get(name)
+        if callable(v):  # tolerate a method stored instead of its value
+            v = v()
         return nan if v is None else np.broadcast_to(np.asarray(v, float), (n,))
 
     law = loop.law
