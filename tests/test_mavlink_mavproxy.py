@@ -26,11 +26,11 @@ TIMEOUT_S = 25.0
 class MavProxy:
     """MAVProxy in its own process group, loopback only, param + signing modules only."""
 
-    def __init__(self, port: int, home) -> None:
+    def __init__(self, port: int, home, modules: str = "param,signing") -> None:
         env = {**os.environ, "MAVLINK20": "1", "HOME": str(home)}
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "MAVProxy.mavproxy", f"--master=udpout:127.0.0.1:{port}",
-             "--default-modules=param,signing", "--no-state", "--nowait", "--mav20"],
+             f"--default-modules={modules}", "--no-state", "--nowait", "--mav20"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
             cwd=str(home), start_new_session=True)
         self.lines: list[str] = []
@@ -128,3 +128,33 @@ def test_mavproxy_signed_set_accepted_unsigned_refused(served):
     until(lambda: float(loop.law.gains.kv[0]) == 45.0, "the signed set to take effect")
     assert ep.stats.unsigned_refused >= 1
     assert any("J1_KV 50 -> 45" in t and ", signed)" in t for _, _, t in loop.log)
+
+
+def test_mavproxy_sets_a_gain_before_tick_zero_and_arms_the_run(tmp_path):
+    """The lockstep flow (``--mavlink-wait``): set while waiting, ``arm throttle`` starts the run."""
+    loop, _, runner = fake_loop(1)
+    port = free_udp_port()
+    ep = MavlinkEndpoint(loop, f"udpin:127.0.0.1:{port}")
+    mp = MavProxy(port, tmp_path, modules="param,signing,arm")
+    feeder = threading.Thread(target=lambda: _feed(mp, ep), daemon=True)
+    feeder.start()
+    try:
+        assert ep.wait_for_start(TIMEOUT_S), mp.text()
+        runner.run(1)
+        assert float(loop.law.gains.kp[0]) == 120.0
+        notes = [text for _, _, text in loop.log]
+        assert notes[0].startswith("J1_KP 100 -> 120") and notes[1].startswith("armed")
+    finally:
+        mp.close()
+        ep.close()
+
+
+def _feed(mp: MavProxy, ep: MavlinkEndpoint) -> None:
+    """Type into MAVProxy: the set once it has the parameters, the arm once the set was applied."""
+    t_end = time.monotonic() + TIMEOUT_S
+    steps = (("param set J1_KP 120", lambda: "Received" in mp.text()),
+             ("arm throttle", lambda: ep.stats.sets_applied >= 1))
+    for command, ready in steps:
+        while time.monotonic() < t_end and not ready():
+            time.sleep(0.05)
+        mp.send(command)

@@ -29,14 +29,14 @@ def _diverges(kp, kpi, kv, kvi, delay=0.0, ticks=4000) -> bool:
 
 @pytest.mark.parametrize("delay", [0.0, 0.5])
 @pytest.mark.parametrize("kp,kpi,kv,kvi", [
-    (100, 5000, 50, 1000), (1000, 5000, 20, 1000), (100, 5000, 5, 1000), (1000, 5000, 5, 1000),
-    (20000, 0, 50, 0), (60000, 0, 200, 0), (100, 5000, 240, 1000), (100, 5000, 260, 1000), (3000, 5000, 5, 1000),
+    (100, 5000, 50, 1000), (1000, 5000, 20, 1000), (100, 5000, 10, 1000), (1000, 5000, 5, 1000),
+    (2000, 0, 50, 0), (20000, 0, 50, 0), (60000, 0, 200, 0), (100, 5000, 240, 1000), (100, 5000, 260, 1000),
+    (3000, 5000, 5, 1000),
 ])
 def test_stability_verdict_agrees_with_a_simulation_of_the_sampled_loop(kp, kpi, kv, kvi, delay):
     margin = sampled_margin(kp, kpi, kv, kvi, T, delay)
     VERDICTS.add(margin > 0)
-    if abs(margin) < 2e-3:
-        pytest.skip("too close to the boundary for a finite simulation")
+    assert abs(margin) > 2e-3  # cases chosen away from the boundary, where a finite simulation decides
     assert (margin > 0) == (not _diverges(kp, kpi, kv, kvi, delay))
 
 
