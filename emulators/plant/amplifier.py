@@ -11,7 +11,8 @@ Linear transconductance amplifier (``amplifier = "linear"``)
     Latched faults: over-temperature (first-order I²t: ``x' = (i²/I_cont² − x)/τ_th``, trips at
     ``x > 1``) and compliance saturation held for ``saturation_fault_s`` (a stalled or overspeed
     output stage). A latched fault disables the output until a rising edge of ``fault_reset``
-    (the thermal state is physical and re-trips at once if still above 1).
+    (the thermal state is physical and re-trips at once if still above 1). Over-temperature and
+    held saturation are checked once per servo period (their time scales are ≥ 0.1 s).
 
 H-bridge (``amplifier = "hbridge"``), sign-magnitude PWM averaged over the PWM period
     drive (enabled, not braking, duty > 0): ``V = ±supply·max(d − t_dead·f_pwm, 0)`` by the
@@ -29,8 +30,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
-from emulators.plant.motor import open_circuit_decay, rl_step
 
 FAULT_THERMAL = 1  #: I²t over-temperature
 FAULT_COMPLIANCE = 2  #: compliance (voltage) saturation held too long (linear amplifier)
@@ -116,13 +115,18 @@ def prepare_drive(
     )
 
 
-@dataclass
 class AmpConsts:
-    """Step-dependent decay factors, computed once per step length."""
+    """Step-dependent factors for one step length ``h``, computed once."""
 
-    rl: np.ndarray  #: exp(−h·R/L)
-    loop: np.ndarray  #: exp(−h·2π·bw)
-    thermal: np.ndarray  #: exp(−h/τ_th)
+    def __init__(self, amp: AmpArrays, resistance: np.ndarray, inductance: np.ndarray, ke: np.ndarray, h: float):
+        self.h = float(h)
+        self.rl = np.exp(-h * resistance / inductance)  #: exp(−h·R/L)
+        self.rl_gain = (1.0 - self.rl) / resistance  #: (1 − e)/R: volts → end-of-step current
+        self.emf_gain = ke * self.rl_gain  #: back-emf per rad/s → current
+        self.rail_gain = amp.supply * self.rl_gain  #: supply rail → current
+        self.loop = np.exp(-h * amp.bw_rad_s)  #: exp(−h·2π·bw)
+        self.thermal = np.exp(-h / amp.tau_th)  #: exp(−h/τ_th)
+        self.thermal_gain = (1.0 - self.thermal) / (amp.i_cont * amp.i_cont)
 
 
 class AmpState:
@@ -141,51 +145,79 @@ class AmpState:
         self.cause = np.where(mask, 0, self.cause)
         self.sat_time = np.where(mask, 0.0, self.sat_time)
 
+    def latch(self, trip: np.ndarray, cause: int) -> None:
+        new = trip & ~self.fault
+        self.cause = np.where(new, self.cause | cause, self.cause)
+        self.fault = self.fault | trip
+
+
+def check_slow_faults(amp: AmpArrays, st: AmpState) -> None:
+    """Latch over-temperature and held compliance saturation (evaluated once per period)."""
+    trip_th = st.thermal > 1.0
+    trip_sat = amp.is_lin & (amp.sat_fault_s > 0.0) & (st.sat_time >= amp.sat_fault_s)
+    if trip_th.any():
+        st.latch(trip_th, FAULT_THERMAL)
+    if trip_sat.any():
+        st.latch(trip_sat, FAULT_COMPLIANCE)
+
+
+def current_step_linear(
+    st: AmpState, i_ref_term: np.ndarray, i0: np.ndarray, omega: np.ndarray, k: AmpConsts
+) -> np.ndarray:
+    """Fast path when every joint is an enabled, unfaulted linear amplifier (returns A).
+
+    ``i_ref_term`` is ``i_ref·(1 − loop)``.
+    """
+    i0d = i0 * k.rl
+    g = omega * k.emf_gain
+    i_up = i0d + k.rail_gain - g
+    i_dn = i0d - k.rail_gain - g
+    i_loop = i0 * k.loop + i_ref_term
+    i1 = np.minimum(np.maximum(i_loop, i_dn), i_up)
+    sat = i1 != i_loop
+    st.saturated = sat
+    st.sat_time = (st.sat_time + k.h) * sat
+    st.thermal = st.thermal * k.thermal + (i1 * i1) * k.thermal_gain
+    return i1
+
 
 def current_step(
     amp: AmpArrays,
     st: AmpState,
     drv: AmpDrive,
     i0: np.ndarray,
-    back_emf: np.ndarray,
-    resistance: np.ndarray,
+    omega: np.ndarray,
     k: AmpConsts,
-    h: float,
 ) -> np.ndarray:
-    """Advance the winding current one step and update the fault state (returns A)."""
+    """Advance the winding current one step, any mix of amplifier states (returns A).
+
+    Updates the thermal state and saturation timers and latches H-bridge overcurrent at once;
+    over-temperature and held saturation latch in :func:`check_slow_faults`.
+    """
     lin_active = drv.lin_on & ~st.fault
     hb_ok = ~st.fault
     brake = drv.hb_brake & hb_ok
     drive = drv.hb_drive & hb_ok
-    supply = amp.supply
-    # linear amplifier: first-order loop clipped by the rail solutions
+    i0d = i0 * k.rl
+    g = omega * k.emf_gain
+    # linear amplifier: first-order loop clipped by the rail solutions (V = ±supply)
     i_loop = drv.i_ref + (i0 - drv.i_ref) * k.loop
-    i_up = rl_step(i0, supply, back_emf, resistance, k.rl)
-    i_dn = rl_step(i0, -supply, back_emf, resistance, k.rl)
+    i_up = i0d + k.rail_gain - g
+    i_dn = i0d - k.rail_gain - g
     i_lin = np.minimum(np.maximum(i_loop, i_dn), i_up)
-    sat = lin_active & ((i_loop > i_up) | (i_loop < i_dn))
+    sat = lin_active & (i_lin != i_loop)
     # H-bridge drive / brake (brake: V = 0)
-    i_hb = rl_step(i0, drv.hb_v, back_emf, resistance, k.rl)
+    i_hb = i0d + drv.hb_v * k.rl_gain - g
     chop = drive & (drv.hb_sign * i_hb > amp.hb_limit)
     i_hb = np.where(chop, drv.hb_sign * amp.hb_limit, i_hb)
-    i_off = open_circuit_decay(i0, supply, back_emf, resistance, k.rl)
+    # off: the current commutates into the diodes against the rail and stops at zero
+    i_off = i0d - np.sign(i0) * k.rail_gain - g
+    i_off = np.where(i_off * i0 > 0.0, i_off, 0.0)
     i1 = np.where(lin_active, i_lin, np.where(brake | drive, i_hb, i_off))
-    # faults
-    q = i1 / amp.i_cont
-    st.thermal = st.thermal * k.thermal + q * q * (1.0 - k.thermal)
     st.saturated = sat
-    st.sat_time = np.where(sat, st.sat_time + h, 0.0)
-    trip_th = st.thermal > 1.0
-    trip_sat = amp.is_lin & (amp.sat_fault_s > 0.0) & (st.sat_time >= amp.sat_fault_s)
+    st.sat_time = np.where(sat, st.sat_time + k.h, 0.0)
+    st.thermal = st.thermal * k.thermal + (i1 * i1) * k.thermal_gain
     trip_oc = ~amp.is_lin & (np.abs(i1) > amp.hb_trip)
-    trip = trip_th | trip_sat | trip_oc
-    if trip.any():
-        new = trip & ~st.fault
-        st.cause = np.where(
-            new,
-            np.where(trip_th, FAULT_THERMAL, 0) | np.where(trip_sat, FAULT_COMPLIANCE, 0)
-            | np.where(trip_oc, FAULT_OVERCURRENT, 0),
-            st.cause,
-        )
-        st.fault = st.fault | trip
+    if trip_oc.any():
+        st.latch(trip_oc, FAULT_OVERCURRENT)
     return i1

@@ -77,6 +77,105 @@ class FrictionArrays:
         return np.sign(omega) * self.kinetic(omega, r) + self.viscous * r * omega
 
 
+class StickSlipStepper:
+    """:func:`stick_slip_step` with the per-step constants precomputed (the plant's hot path).
+
+    Calling it returns ``(omega_new, dtheta)`` and keeps what the friction torque at the end of
+    the step needs; :meth:`friction_torque` evaluates it on demand.
+    """
+
+    def __init__(self, fr: FrictionArrays, inertia: np.ndarray, h: float) -> None:
+        self.fr = fr
+        self.h = float(h)
+        self.inertia = np.asarray(inertia, float)
+        self.inv_j = 1.0 / self.inertia
+        self.bjh = fr.viscous * self.inv_j * self.h
+        #: direct (1−e^{−x})/x formulas are accurate when every x = b·r·h/J exceeds 1e-4
+        self.direct = bool(np.all(self.bjh * (1.0 - fr.ripple) > 1e-4))
+        self.inv_ws = 1.0 / fr.stribeck_w
+        self.d_ts = fr.breakout - fr.coulomb
+        self._last: tuple[np.ndarray, ...] | None = None
+
+    def __call__(self, omega: np.ndarray, theta_m: np.ndarray, t_drive: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        fr = self.fr
+        h = self.h
+        r = 1.0 + fr.ripple * np.sin(2.0 * theta_m + fr.ripple_phase)
+        stuck0 = omega == 0.0
+        s = np.sign(omega) + stuck0 * np.sign(t_drive)
+        q = omega * self.inv_ws
+        tk = (fr.coulomb + self.d_ts * np.exp(-(q * q))) * r
+        x = self.bjh * r
+        e = np.exp(-x)
+        if self.direct:
+            p1 = (1.0 - e) / x
+            p2 = (x - 1.0 + e) / (x * x)
+        else:
+            p1 = phi1(x)
+            p2 = phi2(x)
+        acc0 = (t_drive - s * tk) * self.inv_j
+        w1 = omega * e + acc0 * (h * p1)
+        dth = h * (omega * p1 + acc0 * (h * p2))
+        hold = stuck0 & (np.abs(t_drive) <= fr.breakout * r)
+        cross = (w1 * s <= 0.0) & ~stuck0
+        moving = ~hold
+        w1 = w1 * moving
+        dth = dth * moving
+        self._last = (hold, t_drive, s, tk, r, w1, cross)
+        if cross.any():
+            w1, dth = self._crossing(omega, theta_m, t_drive, acc0, x, w1, dth, cross)
+        return w1, dth
+
+    def _crossing(self, omega, theta_m, t_drive, acc0, x, w1, dth, cross):
+        """Zero-crossing capture for the joints whose speed would change sign in the step."""
+        fr = self.fr
+        h = self.h
+        om = omega[cross]
+        ac = acc0[cross]
+        ac = np.where(ac == 0.0, -np.sign(om) * 1e-300, ac)
+        ai = x[cross] / h
+        y = -ai * om / ac
+        tc = np.clip((-om / ac) * _log1p_over(np.maximum(y, 0.0)), 0.0, h)
+        xc = ai * tc
+        dth_c = om * tc * phi1(xc) + ac * tc * tc * phi2(xc)
+        th_c = theta_m[cross] + dth_c
+        td = t_drive[cross]
+        rc = 1.0 + fr.ripple[cross] * np.sin(2.0 * th_c + fr.ripple_phase[cross])
+        brk_c = fr.breakout[cross] * rc
+        rev = np.abs(td) > brk_c
+        rem = h - tc
+        s2 = np.sign(td)
+        acc2 = (td - s2 * brk_c) * self.inv_j[cross]
+        x2 = self.bjh[cross] * rc * (rem / h)
+        w2 = np.where(rev, acc2 * rem * phi1(x2), 0.0)
+        d2 = np.where(rev, acc2 * rem * rem * phi2(x2), 0.0)
+        # breakaway means net torque along s2 at ω = 0, so w2 cannot change sign; guard round-off
+        bad = rev & (w2 * s2 < 0.0)
+        w2 = np.where(bad, 0.0, w2)
+        d2 = np.where(bad, 0.0, d2)
+        w1 = w1.copy()
+        dth = dth.copy()
+        w1[cross] = w2
+        dth[cross] = dth_c + d2
+        hold, _, s, tk, r, _, _ = self._last
+        hold = hold.copy()
+        s = s.copy()
+        tk = tk.copy()
+        r = r.copy()
+        hold[cross] = ~rev | bad
+        s[cross] = s2
+        tk[cross] = brk_c
+        r[cross] = rc
+        self._last = (hold, t_drive, s, tk, r, w1, cross)
+        return w1, dth
+
+    def friction_torque(self) -> np.ndarray:
+        """Friction torque at the end of the last step (N·m; ``J·dω/dt = T_drive − T_f``)."""
+        if self._last is None:
+            return np.zeros_like(self.inertia)
+        hold, t_drive, s, tk, r, w1, _ = self._last
+        return np.where(hold, t_drive, s * tk + self.fr.viscous * r * w1)
+
+
 def stick_slip_step(
     omega: np.ndarray,
     theta_m: np.ndarray,
@@ -100,54 +199,6 @@ def stick_slip_step(
         increment (rad) and the friction torque acting at the end of the step (N·m, sign
         convention ``J·dω/dt = T_drive − T_f``).
     """
-    r = fr.ripple_factor(theta_m)
-    brk = fr.breakout * r
-    stuck0 = omega == 0.0
-    hold = stuck0 & (np.abs(t_drive) <= brk)
-    s = np.where(stuck0, np.sign(t_drive), np.sign(omega))
-    tk = fr.kinetic(omega, r)
-    a = fr.viscous * r / inertia
-    acc0 = (t_drive - s * tk) / inertia
-    x = a * h
-    p1 = phi1(x)
-    w1 = omega * np.exp(-x) + acc0 * h * p1
-    dth = omega * h * p1 + acc0 * (h * h) * phi2(x)
-    t_f = s * tk + fr.viscous * r * w1
-    cross = (~hold) & (w1 * s <= 0.0) & (omega != 0.0)
-    if cross.any():
-        om = omega[cross]
-        ac = acc0[cross]
-        ac = np.where(ac == 0.0, -np.sign(om) * 1e-300, ac)
-        ai = a[cross]
-        y = -ai * om / ac
-        tc = np.clip((-om / ac) * _log1p_over(np.maximum(y, 0.0)), 0.0, h)
-        xc = ai * tc
-        dth_c = om * tc * phi1(xc) + ac * tc * tc * phi2(xc)
-        th_c = theta_m[cross] + dth_c
-        td = t_drive[cross]
-        inn = inertia[cross]
-        rc = 1.0 + fr.ripple[cross] * np.sin(2.0 * th_c + fr.ripple_phase[cross])
-        brk_c = fr.breakout[cross] * rc
-        rev = np.abs(td) > brk_c
-        rem = h - tc
-        s2 = np.sign(td)
-        acc2 = (td - s2 * brk_c) / inn
-        a2 = fr.viscous[cross] * rc / inn
-        x2 = a2 * rem
-        w2 = np.where(rev, acc2 * rem * phi1(x2), 0.0)
-        d2 = np.where(rev, acc2 * rem * rem * phi2(x2), 0.0)
-        # a reversal that itself would cross zero again within the remainder cannot happen
-        # (breakaway means net torque along s2 at ω = 0), but guard against round-off:
-        bad = rev & (w2 * s2 < 0.0)
-        w2 = np.where(bad, 0.0, w2)
-        d2 = np.where(bad, 0.0, d2)
-        w1 = w1.copy()
-        dth = dth.copy()
-        t_f = t_f.copy()
-        w1[cross] = w2
-        dth[cross] = dth_c + d2
-        t_f[cross] = np.where(rev & ~bad, s2 * brk_c + fr.viscous[cross] * rc * w2, td)
-    w1 = np.where(hold, 0.0, w1)
-    dth = np.where(hold, 0.0, dth)
-    t_f = np.where(hold, t_drive, t_f)
-    return w1, dth, t_f
+    st = StickSlipStepper(fr, inertia, h)
+    w1, dth = st(np.asarray(omega, float), np.asarray(theta_m, float), np.asarray(t_drive, float))
+    return w1, dth, st.friction_torque()

@@ -22,12 +22,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from emulators.plant.amplifier import AmpArrays, AmpConsts, AmpState, current_step, prepare_drive
+from emulators.plant.amplifier import (
+    AmpArrays,
+    AmpConsts,
+    AmpDrive,
+    AmpState,
+    check_slow_faults,
+    current_step,
+    current_step_linear,
+    prepare_drive,
+)
 from emulators.plant.encoder import encoder_events
-from emulators.plant.friction import FrictionArrays, stick_slip_step
+from emulators.plant.friction import FrictionArrays, StickSlipStepper
 from emulators.plant.link import gravity_torque, hard_stop_overshoot
 from emulators.plant.params import AMP_LINEAR, PlantParams, plant_params_from_config
-from emulators.plant.sensors import NoiseStreams, PotArrays, TachArrays, encoder_x4
+from emulators.plant.sensors import NoiseStreams, PotArrays, TachArrays
 from emulators.signals import QuadratureEvents
 from hal.config import ConfigTable
 
@@ -78,7 +87,7 @@ class PlantSensors:
         switching: H-bridge PWM switching during the period (bool; for noise coupling into ADCs).
         truth: ground truth for reports/tests (SI): ``theta_joint``, ``omega_joint``,
             ``theta_motor``, ``omega_motor``, ``current_a``, ``friction_torque_nm`` (motor shaft,
-            end of period), ``friction_torque_mean_nm`` (period mean), ``motor_torque_nm``,
+            end of period), ``motor_torque_nm``,
             ``stuck``, ``at_stop``, ``amp_thermal``, ``amp_fault_cause``, ``time_s``; and
             ``encoder_x4`` (float encoder position at the end).
     """
@@ -90,6 +99,17 @@ class PlantSensors:
     encoder: list[QuadratureEvents]
     switching: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     truth: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+class _StepConsts:
+    """Everything that depends only on the step length ``h``."""
+
+    def __init__(self, plant: Plant, h: float) -> None:
+        self.h = h
+        self.amp = AmpConsts(plant.amp, plant.R, plant.L, plant.Ke, h)
+        tau = plant.tach.tau
+        self.tach_decay = np.where(tau > 0.0, np.exp(-h / np.maximum(tau, 1e-300)), 0.0)
+        self.stick_slip = StickSlipStepper(plant.fr, plant.J_m, h)
 
 
 def _stack(joints: list, path: str, dtype: type = float) -> np.ndarray:
@@ -198,7 +218,11 @@ class Plant:
         self.enc_counts_per_rev = 4 * _stack(js, "encoder.lines_per_rev", np.int64)
         self.enc_index_phase = _stack(js, "encoder.index_phase_x4", np.int64)
         self.enc_sample_hz = _stack(js, "encoder.decoder_sample_hz")
-        self._consts: dict[float, tuple[AmpConsts, np.ndarray]] = {}
+        self.inv_N = 1.0 / self.N
+        self.has_tach = bool(self.tach.present.any())
+        self.has_tach_ripple = bool(np.any(self.tach.ripple != 0.0))
+        self.enc_scale = self.enc_counts_per_rev / (2.0 * math.pi)  #: x4 counts per motor radian
+        self._consts: dict[float, _StepConsts] = {}
         self.reset()
 
     # ---- construction helpers -----------------------------------------------------------
@@ -236,7 +260,6 @@ class Plant:
         self.i = np.zeros(n)
         self.tach_state = np.zeros(n)
         self.amp_state = AmpState(n)
-        self.t_friction = np.zeros(n)
         self.at_stop = np.zeros(n, dtype=bool)
         self.time_s = 0.0
         self._prev_cmd = PlantCommand.idle(n)
@@ -260,61 +283,61 @@ class Plant:
         return np.where(self.compliant, self.omega_l, self.omega_m / self.N)
 
     # ---- integration ---------------------------------------------------------------------
-    def _step_consts(self, h: float) -> tuple[AmpConsts, np.ndarray]:
+    def _step_consts(self, h: float) -> _StepConsts:
         c = self._consts.get(h)
         if c is None:
-            k = AmpConsts(
-                rl=np.exp(-h * self.R / self.L),
-                loop=np.exp(-h * self.amp.bw_rad_s),
-                thermal=np.exp(-h / self.amp.tau_th),
-            )
-            tach_decay = np.where(self.tach.tau > 0.0, np.exp(-h / np.maximum(self.tach.tau, 1e-300)), 0.0)
-            c = self._consts[h] = (k, tach_decay)
+            c = self._consts[h] = _StepConsts(self, h)
         return c
 
-    def _substep(self, drv, k: AmpConsts, tach_decay: np.ndarray, h: float) -> None:
-        self.i = current_step(self.amp, self.amp_state, drv, self.i, self.Ke * self.omega_m, self.R, k, h)
+    def _substep(self, c: _StepConsts, drv: AmpDrive, fast_amp: bool, i_ref_term: np.ndarray) -> None:
+        """One fixed step of every joint (state updated in place)."""
+        if fast_amp:
+            self.i = current_step_linear(self.amp_state, i_ref_term, self.i, self.omega_m, c.amp)
+        else:
+            self.i = current_step(self.amp, self.amp_state, drv, self.i, self.omega_m, c.amp)
         t_drive = self.Kt * self.i
         if self.any_compliant:
             th_out = self._theta_out(self.theta_m)
-            tau_s = np.where(
-                self.compliant,
-                self.K_flex * (th_out - self.theta_l) + self.C_flex * (self.omega_m / self.N - self.omega_l),
-                0.0,
+            tau_s = self.compliant * (
+                self.K_flex * (th_out - self.theta_l) + self.C_flex * (self.omega_m * self.inv_N - self.omega_l)
             )
-            load = np.where(self.compliant, tau_s, 0.0)
+            load = tau_s
             if self.has_gravity:
-                load = load + np.where(self.compliant, 0.0, gravity_torque(th_out, self.G, self.G_phase))
-            t_drive = t_drive - load / self.N
+                load = load + ~self.compliant * gravity_torque(th_out, self.G, self.G_phase)
+            t_drive = t_drive - load * self.inv_N
         elif self.has_gravity:
-            t_drive = t_drive - gravity_torque(self._theta_out(self.theta_m), self.G, self.G_phase) / self.N
-        w1, dth, self.t_friction = stick_slip_step(self.omega_m, self.theta_m, t_drive, self.J_m, self.fr, h)
+            t_drive = t_drive - gravity_torque(self._theta_out(self.theta_m), self.G, self.G_phase) * self.inv_N
+        w1, dth = c.stick_slip(self.omega_m, self.theta_m, t_drive)
         self.theta_m = self.theta_m + dth
         self.omega_m = w1
         if self.any_compliant:
             acc_l = (tau_s - gravity_torque(self.theta_l, self.G, self.G_phase)) / self.J_link
-            self.omega_l = np.where(self.compliant, self.omega_l + h * acc_l, self.omega_m / self.N)
-            self.theta_l = np.where(self.compliant, self.theta_l + h * self.omega_l, self._theta_out(self.theta_m))
-            over = hard_stop_overshoot(self.theta_l, self.lower, self.upper)
-            hit = over != 0.0
-            if hit.any():
-                rigid_hit = hit & ~self.compliant
-                self.theta_m = np.where(rigid_hit, self.theta_m - over * self.N, self.theta_m)
-                self.omega_m = np.where(rigid_hit, 0.0, self.omega_m)
-                self.theta_l = self.theta_l - over
-                self.omega_l = np.where(hit, 0.0, self.omega_l)
-            self.at_stop = hit
+            self.omega_l = np.where(self.compliant, self.omega_l + c.h * acc_l, self.omega_m * self.inv_N)
+            self.theta_l = np.where(self.compliant, self.theta_l + c.h * self.omega_l, self._theta_out(self.theta_m))
+            th_j = self.theta_l
         else:
-            over = hard_stop_overshoot(self._theta_out(self.theta_m), self.lower, self.upper)
-            hit = over != 0.0
-            if hit.any():
-                self.theta_m = self.theta_m - over * self.N
-                self.omega_m = np.where(hit, 0.0, self.omega_m)
-            self.at_stop = hit
-        # tachometer generator (joint axis) and its ripple filter
-        if self.tach.present.any():
-            g = self.tach.generator_volts(self.joint_speed(), self.joint_angle())
-            self.tach_state = g + (self.tach_state - g) * tach_decay
+            th_j = self._theta_out(self.theta_m) if self.has_ke else self.theta_m * self.inv_N
+        hit = (th_j > self.upper) | (th_j < self.lower)
+        if hit.any():
+            over = hard_stop_overshoot(th_j, self.lower, self.upper)
+            rigid_hit = hit & ~self.compliant
+            self.theta_m = self.theta_m - rigid_hit * over * self.N
+            self.omega_m = self.omega_m * ~rigid_hit
+            if self.any_compliant:
+                self.theta_l = self.theta_l - over
+                self.omega_l = self.omega_l * ~hit
+            th_j = th_j - over
+        self.at_stop = hit
+        # tachometer generator on the joint axis, then its ripple filter
+        if self.has_tach:
+            w_j = self.omega_m * self.inv_N
+            if self.any_compliant:
+                w_j = np.where(self.compliant, self.omega_l, w_j)
+            emf = self.tach.gradient * w_j
+            if self.has_tach_ripple:
+                emf = emf * (1.0 + self.tach.ripple * np.sin(self.tach.cycles * th_j))
+            g = (emf - np.minimum(np.maximum(emf, -self.tach.brush_drop), self.tach.brush_drop)) * self.tach.present
+            self.tach_state = g + (self.tach_state - g) * c.tach_decay
 
     def step_period(self, cmd: PlantCommand, period_s: float, delay_s: float = 0.0) -> PlantSensors:
         """Integrate one servo period and return the sensors at its end.
@@ -328,35 +351,44 @@ class Plant:
         n_sub = max(1, round(period_s * self.rate_hz))
         h = period_s / n_sub
         n_old = min(n_sub, max(0, round(delay_s / h)))
-        k, tach_decay = self._step_consts(h)
+        c = self._step_consts(h)
         prev = self._prev_cmd
-        drv_old = prepare_drive(self.amp, prev.amp_command_v, prev.amp_enable, prev.pwm_duty,
-                                prev.pwm_direction, prev.brake)
-        drv_new = prepare_drive(self.amp, cmd.amp_command_v, cmd.amp_enable, cmd.pwm_duty,
-                                cmd.pwm_direction, cmd.brake)
+        drv_old = self._drive(prev)
+        drv_new = self._drive(cmd)
         reset_edge = np.asarray(cmd.fault_reset, dtype=bool) & ~np.asarray(prev.fault_reset, dtype=bool)
         x4 = np.empty((n_sub + 1, self.n_joints))
-        x4[0] = encoder_x4(self.theta_m, self.enc_counts_per_rev)
-        f_sum = np.zeros(self.n_joints)
+        x4[0] = self.theta_m * self.enc_scale
         switching = np.zeros(self.n_joints, dtype=bool)
-        for s in range(n_sub):
+        drv = drv_old
+        for s in range(n_sub + 1):
             if s == n_old:
                 if reset_edge.any():
                     self.amp_state.reset_latches(reset_edge)
                 drv = drv_new
-            elif s == 0:
-                drv = drv_old
-            self._substep(drv, k, tach_decay, h)
-            f_sum += self.t_friction
-            switching |= drv.hb_drive & ~self.amp_state.fault & (np.abs(drv.hb_v) < self.amp.hb_supply)
-            x4[s + 1] = encoder_x4(self.theta_m, self.enc_counts_per_rev)
-        if n_old == n_sub and reset_edge.any():
-            self.amp_state.reset_latches(reset_edge)
+            if s == n_old or s == 0:
+                fast = bool(np.all(drv.lin_on & ~self.amp_state.fault))
+                i_ref_term = drv.i_ref * (1.0 - c.amp.loop)
+                if not drv.hb_drive.any():
+                    sw = None
+                else:
+                    sw = drv.hb_drive & (np.abs(drv.hb_v) < self.amp.hb_supply)
+            if s == n_sub:
+                break
+            self._substep(c, drv, fast, i_ref_term)
+            if sw is not None:
+                switching |= sw & ~self.amp_state.fault
+            x4[s + 1] = self.theta_m * self.enc_scale
+        check_slow_faults(self.amp, self.amp_state)
         self._prev_cmd = cmd
         self.time_s += period_s
-        return self._sense(x4, h, f_sum / n_sub, switching)
+        return self._sense(x4, h, c, switching)
 
-    def _sense(self, x4: np.ndarray, h: float, f_mean: np.ndarray, switching: np.ndarray) -> PlantSensors:
+    def _drive(self, cmd: PlantCommand) -> AmpDrive:
+        return prepare_drive(
+            self.amp, cmd.amp_command_v, cmd.amp_enable, cmd.pwm_duty, cmd.pwm_direction, cmd.brake
+        )
+
+    def _sense(self, x4: np.ndarray, h: float, c: _StepConsts, switching: np.ndarray) -> PlantSensors:
         th_j = self.joint_angle()
         w_j = self.joint_speed()
         pot_v = self.pot.volts(th_j) + self.pot.noise * self._noise["pot"].draw()
@@ -375,8 +407,7 @@ class Plant:
             "omega_motor": self.omega_m.copy(),
             "current_a": self.i.copy(),
             "motor_torque_nm": self.Kt * self.i,
-            "friction_torque_nm": self.t_friction.copy(),
-            "friction_torque_mean_nm": f_mean,
+            "friction_torque_nm": c.stick_slip.friction_torque(),
             "stuck": self.omega_m == 0.0,
             "at_stop": self.at_stop.copy(),
             "amp_thermal": self.amp_state.thermal.copy(),
