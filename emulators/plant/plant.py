@@ -261,11 +261,19 @@ class Plant:
         self.tach_state = np.zeros(n)
         self.amp_state = AmpState(n)
         self.at_stop = np.zeros(n, dtype=bool)
+        self.external_torque_nm = np.zeros(n)
+        self.has_external = False
         self.time_s = 0.0
         self._prev_cmd = PlantCommand.idle(n)
         self._noise = {
             src: NoiseStreams(self.seed, self.names, src) for src in ("pot", "tach", "imon")
         }
+
+    def set_external_torque(self, torque_nm: np.ndarray) -> None:
+        """Torque applied to the links by the environment (N·m at the joint; + pushes +),
+        e.g. a torque gauge or a contact load. Held until changed; :meth:`reset` clears it."""
+        self.external_torque_nm = np.broadcast_to(np.asarray(torque_nm, dtype=float), (self.n_joints,)).copy()
+        self.has_external = bool(np.any(self.external_torque_nm != 0.0))
 
     # ---- kinematics ----------------------------------------------------------------------
     def _theta_out(self, theta_m: np.ndarray) -> np.ndarray:
@@ -296,6 +304,8 @@ class Plant:
         else:
             self.i = current_step(self.amp, self.amp_state, drv, self.i, self.omega_m, c.amp)
         t_drive = self.Kt * self.i
+        if self.has_external:
+            t_drive = t_drive + ~self.compliant * self.external_torque_nm * self.inv_N
         if self.any_compliant:
             th_out = self._theta_out(self.theta_m)
             tau_s = self.compliant * (
@@ -311,7 +321,7 @@ class Plant:
         self.theta_m = self.theta_m + dth
         self.omega_m = w1
         if self.any_compliant:
-            acc_l = (tau_s - gravity_torque(self.theta_l, self.G, self.G_phase)) / self.J_link
+            acc_l = (tau_s - gravity_torque(self.theta_l, self.G, self.G_phase) + self.external_torque_nm) / self.J_link
             self.omega_l = np.where(self.compliant, self.omega_l + c.h * acc_l, self.omega_m * self.inv_N)
             self.theta_l = np.where(self.compliant, self.theta_l + c.h * self.omega_l, self._theta_out(self.theta_m))
             th_j = self.theta_l
