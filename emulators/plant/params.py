@@ -143,8 +143,8 @@ class PotParams:
     v_low: float = -10.0
     v_high: float = 10.0
     bow_fraction: float = 0.003  #: smooth independent non-linearity, fraction of span
-    periodic_fraction: float = 0.0004
-    periodic_cycles: float = 5.0
+    periodic_fraction: float = 0.0001
+    periodic_cycles: float = 3.0
     noise_v: float = 0.0015
 
 
