@@ -31,6 +31,7 @@ def _trajectory(rate_hz: float, seconds: float = 10.0, seed: int = 0, params=Non
     return out
 
 
+@pytest.mark.slow
 def test_halving_the_step_changes_a_10s_trajectory_by_less_than_the_tolerance():
     a = np.array([s.truth["theta_joint"] for s in _trajectory(4000.0)])
     b = np.array([s.truth["theta_joint"] for s in _trajectory(8000.0)])
@@ -92,6 +93,29 @@ def test_command_takes_effect_after_the_computation_delay():
     q = Plant(PlantParams(joints=[j]))
     s = q.step_period(c, T, delay_s=T - 1.0 / q.rate_hz)  # on for the last substep only
     assert math.isclose(s.truth["current_a"][0], 1.5 * (1 - math.exp(-2 * math.pi * 1000 / q.rate_hz)))
+
+
+def test_a_command_mutated_in_place_still_gets_its_delay_and_reset_edge():
+    j = load_plant_params("jpl-arm").joints[0]
+    j = replace(j, linear_amp=replace(j.linear_amp, continuous_current_a=1.0, thermal_time_constant_s=0.01))
+    p = Plant(PlantParams(joints=[j]))
+    c = p.idle_command()
+    c.amp_enable[0] = True
+    c.amp_command_v[0] = 0.1
+    p.step_period(c, T)
+    c.amp_command_v[0] = 0.2  # mutate the same object: the old 0.1 V must hold during the delay
+    s = p.step_period(c, T, delay_s=T)
+    assert math.isclose(s.truth["current_a"][0], 0.3, rel_tol=1e-9)
+    c.amp_command_v[0] = 2.0  # 6 A on a 1 A rating: trips
+    for _ in range(5):
+        s = p.step_period(c, T)
+    assert bool(s.amp_fault[0])
+    c.amp_command_v[0] = 0.0
+    for _ in range(20):
+        p.step_period(c, T)  # cool down
+    c.fault_reset[0] = True
+    s = p.step_period(c, T)
+    assert not bool(s.amp_fault[0])
 
 
 def test_hard_stop_is_an_inelastic_clamp():

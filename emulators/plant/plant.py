@@ -61,6 +61,17 @@ class PlantCommand:
     pwm_direction: np.ndarray
     brake: np.ndarray
 
+    def copy(self) -> PlantCommand:
+        """A copy with its own arrays."""
+        return PlantCommand(
+            amp_command_v=np.array(self.amp_command_v, dtype=float),
+            amp_enable=np.array(self.amp_enable, dtype=bool),
+            fault_reset=np.array(self.fault_reset, dtype=bool),
+            pwm_duty=np.array(self.pwm_duty, dtype=float),
+            pwm_direction=np.array(self.pwm_direction, dtype=bool),
+            brake=np.array(self.brake, dtype=bool),
+        )
+
     @classmethod
     def idle(cls, n: int) -> PlantCommand:
         """All amplifiers disabled, zero command, no brake."""
@@ -389,7 +400,7 @@ class Plant:
                 switching |= sw & ~self.amp_state.fault
             x4[s + 1] = self.theta_m * self.enc_scale
         check_slow_faults(self.amp, self.amp_state)
-        self._prev_cmd = cmd
+        self._prev_cmd = cmd.copy()  # callers may mutate their command in place
         self.time_s += period_s
         return self._sense(x4, h, c, switching)
 
