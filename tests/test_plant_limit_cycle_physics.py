@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from emulators.plant import Plant, PlantParams, load_plant_params
+from emulators.plant.analysis import deadband_limit_cycle
 
 T = 0.008
 LSB = 1.45e-3
@@ -105,13 +106,30 @@ def _cycle(ts: np.ndarray, th: np.ndarray, t0: float) -> tuple[float, float]:
     return amp, float(f[int(np.argmax(spec))])
 
 
+def _df_prediction(j):
+    return deadband_limit_cycle(
+        kp=GAINS["Kp"], kpi=GAINS["Kpi"], kv=GAINS["Kv"], kvi=GAINS["KvI"],
+        inertia_kg_m2=j.inertia_at_joint(), ratio=j.gear.ratio,
+        viscous_input=j.friction.viscous_nm_s_per_rad, coulomb_input=j.friction.coulomb_nm,
+        deadband_rad_s=j.tach.brush_drop_v / j.tach.gradient_v_per_rad_s,
+    )
+
+
 def test_link1_limit_cycles_about_three_quarter_degree_at_1_to_3_hz():
-    plant = Plant(PlantParams(joints=[_joint1()]), seed=3)
+    j = _joint1()
+    plant = Plant(PlantParams(joints=[j]), seed=3)
     ts, th = _run(MiniServo(plant), T_MOVE + 10.0)
     amp, freq = _cycle(ts, th, T_MOVE + 1.0)
-    print(f"limit cycle: ±{amp:.3f} deg at {freq:.2f} Hz")
+    df = _df_prediction(j)
+    print(
+        f"limit cycle: ±{amp:.3f} deg at {freq:.2f} Hz; describing function: "
+        f"±{math.degrees(df.amplitude_rad):.3f} deg at {df.frequency_hz:.2f} Hz"
+    )
     assert 0.5 <= amp <= 1.0
     assert 1.0 <= freq <= 3.0
+    # the mechanism is the one analysed: harmonic balance of the dead band with friction
+    assert amp == pytest.approx(math.degrees(df.amplitude_rad), rel=0.1)
+    assert freq == pytest.approx(df.frequency_hz, rel=0.1)
 
 
 def test_without_the_tach_dead_band_only_tiny_hunting_remains():

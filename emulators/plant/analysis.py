@@ -26,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import brentq
 
 
 @dataclass
@@ -108,3 +109,61 @@ def breakout_from_ramp(torque_nm: np.ndarray, moved: np.ndarray) -> float:
     if not moved.any():
         raise ValueError("the joint never moved during the ramp; raise the ramp's end torque")
     return float(np.abs(np.asarray(torque_nm, float)[int(np.argmax(moved))]))
+
+
+@dataclass
+class DeadbandCycle:
+    """Describing-function prediction of the velocity-dead-band limit cycle."""
+
+    amplitude_rad: float  #: joint position amplitude (half peak-to-peak)
+    frequency_hz: float
+    speed_amplitude_rad_s: float  #: joint speed amplitude V (just above the dead band)
+    deadzone_gain: float  #: N(V), the dead zone's describing function at V
+
+
+def deadzone_df(v: float, d: float) -> float:
+    """Describing function of a unit-slope dead zone of half-width ``d`` at amplitude ``v``."""
+    if v <= d:
+        return 0.0
+    r = d / v
+    return 1.0 - (2.0 / np.pi) * (np.arcsin(r) + r * np.sqrt(1.0 - r * r))
+
+
+def deadband_limit_cycle(
+    *,
+    kp: float,
+    kpi: float,
+    kv: float,
+    kvi: float,
+    inertia_kg_m2: float,
+    ratio: float,
+    viscous_input: float,
+    coulomb_input: float,
+    deadband_rad_s: float,
+) -> DeadbandCycle | None:
+    """Harmonic balance of the normalized JPL loop with a velocity-sensor dead band and friction.
+
+    The velocity terms see ``N(V)·ω`` (dead zone DF at speed amplitude ``V``); the joint friction
+    acts as damping ``c = b·N²/J + 4·N·T_c/(π·V·J)`` (viscous + Coulomb first harmonic, input-shaft
+    parameters referred to the joint). The loop ``s³ + (Kv·N + c)s² + (Kp + KvI·N)s + Kpi`` has a
+    sustained oscillation where ``(Kv·N + c)(Kp + KvI·N) = Kpi``, at ``ω² = Kp + KvI·N``; the
+    position amplitude is ``V/ω``. Sampling, quantization and stiction are ignored. Returns
+    ``None`` when friction alone keeps the blind loop stable (no crossing).
+    """
+    d = deadband_rad_s
+    j = inertia_kg_m2
+
+    def balance(v: float) -> float:
+        n = deadzone_df(v, d)
+        c = kv * n + viscous_input * ratio**2 / j + 4.0 * ratio * coulomb_input / (np.pi * v * j)
+        return c * (kp + kvi * n) - kpi
+
+    vs = d * (1.0 + np.geomspace(1e-7, 10.0, 4000))
+    vals = np.array([balance(v) for v in vs])
+    idx = np.flatnonzero((vals[:-1] < 0.0) & (vals[1:] >= 0.0))
+    if len(idx) == 0:
+        return None
+    v = float(brentq(balance, vs[idx[0]], vs[idx[0] + 1]))
+    n = deadzone_df(v, d)
+    w = float(np.sqrt(kp + kvi * n))
+    return DeadbandCycle(amplitude_rad=v / w, frequency_hz=w / (2.0 * np.pi), speed_amplitude_rad_s=v, deadzone_gain=n)
