@@ -11,8 +11,8 @@ periods of 8 ms with a new amplifier command each period, as a HIL loop must:
   stiction capture, no sensors).
 
 Prints plant substeps per second, simulated seconds per wall second for both, and the ratio
-(plant ÷ solve_ivp; > 1 means the plant is faster). Run: ``python -m benchmarks bench_plant``
-or ``python benchmarks/bench_plant.py``.
+(plant ÷ solve_ivp; > 1 means the plant is faster), and the full jpl-arm rig's speed.
+Run: ``python -m benchmarks bench_plant`` or ``python benchmarks/bench_plant.py``.
 """
 
 from __future__ import annotations
@@ -41,12 +41,14 @@ def _commands(n: int, periods: int) -> np.ndarray:
     return 2.0 * np.sin(2 * math.pi * 0.5 * t + np.arange(n)[None, :])  # volts, ±6 A
 
 
-def bench_plant(n: int, periods: int) -> tuple[float, float]:
+def bench_plant(n: int, periods: int, params: PlantParams | None = None) -> tuple[float, float]:
     """(substeps per wall second, simulated seconds per wall second)."""
-    p = Plant(_params(n))
+    p = Plant(params or _params(n))
+    n = p.n_joints
     cmds = _commands(n, periods)
     c = p.idle_command()
     c.amp_enable[:] = True
+    c.pwm_duty[:] = 0.3
     t0 = time.perf_counter()
     for k in range(periods):
         c.amp_command_v = cmds[k]
@@ -96,6 +98,8 @@ def main(quick: bool = False) -> list[str]:
         lines.append(
             f"{n:>6} {steps_s:>17,.0f} {sim_plant:>14.2f} {sim_ivp:>18.2f} {nfev:>14,} {sim_plant / sim_ivp:>6.1f}x"
         )
+    steps_s, sim_plant = bench_plant(7, periods, load_plant_params("jpl-arm"))
+    lines.append(f"jpl-arm rig (6 linear + H-bridge hand): {steps_s:,.0f} substeps/s, {sim_plant:.2f} sim-s/s")
     for line in lines:
         print(line, flush=True)
     return lines

@@ -209,3 +209,7 @@ def test_mixed_amplifier_types_step_together():
     assert s.truth["current_a"][6] > 0.0
     assert np.all(s.truth["current_a"][:6] > 0.0)
     assert not s.switching[:6].any() and bool(s.switching[6])
+    assert np.all(s.switching_noise_v[:6] == 0.0) and s.switching_noise_v[6] == 0.02
+    c.pwm_duty[6] = 0.0
+    s = p.step_period(c, T)
+    assert not bool(s.switching[6]) and s.switching_noise_v[6] == 0.0

@@ -128,6 +128,7 @@ class HBridgeParams:
     monitor_v_per_a: float = 1.0
     monitor_offset_v: float = 0.003
     monitor_noise_v: float = 0.002
+    switching_noise_v: float = 0.02  #: rms noise it couples into ADC inputs while switching
 
 
 @dataclass

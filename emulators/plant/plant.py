@@ -96,6 +96,8 @@ class PlantSensors:
         amp_fault: amplifier fault line (bool, latched).
         encoder: one :class:`QuadratureEvents` per joint: what the decoder input saw in the period.
         switching: H-bridge PWM switching during the period (bool; for noise coupling into ADCs).
+        switching_noise_v: rms noise each joint's H-bridge couples into ADC inputs during the
+            period (V; 0 where not switching). The ADC side adds it to its readings.
         truth: ground truth for reports/tests (SI): ``theta_joint``, ``omega_joint``,
             ``theta_motor``, ``omega_motor``, ``current_a``, ``friction_torque_nm`` (motor shaft,
             end of period), ``motor_torque_nm``,
@@ -109,6 +111,7 @@ class PlantSensors:
     amp_fault: np.ndarray
     encoder: list[QuadratureEvents]
     switching: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    switching_noise_v: np.ndarray = field(default_factory=lambda: np.zeros(0))
     truth: dict[str, np.ndarray] = field(default_factory=dict)
 
 
@@ -226,6 +229,7 @@ class Plant:
             offset=_stack(js, "tach.offset_v"),
             noise=_stack(js, "tach.noise_v"),
         )
+        self.hb_switching_noise = np.where(is_lin, 0.0, _stack(js, "hbridge.switching_noise_v"))
         self.enc_counts_per_rev = 4 * _stack(js, "encoder.lines_per_rev", np.int64)
         self.enc_index_phase = _stack(js, "encoder.index_phase_x4", np.int64)
         self.enc_sample_hz = _stack(js, "encoder.decoder_sample_hz")
@@ -442,5 +446,6 @@ class Plant:
             amp_fault=self.amp_state.fault.copy(),
             encoder=events,
             switching=switching,
+            switching_noise_v=np.where(switching, self.hb_switching_noise, 0.0),
             truth=truth,
         )
