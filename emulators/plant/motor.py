@@ -5,7 +5,9 @@ and the speed ``ω`` held over a step ``h`` the solution is exact::
 
     i(h) = i_ss + (i0 − i_ss)·exp(−h·R/L),   i_ss = (V − Ke·ω)/R
 
-so the electrical pole (L/R ≈ 1 ms) never limits the integration step.
+so the electrical pole (L/R ≈ 1 ms) never limits the integration step. The amplifier models
+(:mod:`emulators.plant.amplifier`) evaluate this same solution with the factors ``e^{−hR/L}`` and
+``(1 − e^{−hR/L})/R`` precomputed per step length; :func:`rl_step` is the reference form.
 """
 
 from __future__ import annotations
@@ -25,18 +27,3 @@ def rl_step(i0: np.ndarray, v: np.ndarray, back_emf: np.ndarray, r: np.ndarray, 
     """
     i_ss = (v - back_emf) / r
     return i_ss + (i0 - i_ss) * decay
-
-
-def open_circuit_decay(
-    i0: np.ndarray, rail_v: np.ndarray, back_emf: np.ndarray, r: np.ndarray, decay: np.ndarray
-) -> np.ndarray:
-    """Current after one step with the drive switched off (A).
-
-    The inductive current commutates into the freewheel diodes and is driven against the
-    supply rail (``V = −sign(i)·rail_v``) until it reaches zero, where the open winding keeps
-    it. (Regeneration through the diodes when ``|Ke·ω|`` exceeds the rail, i.e. overspeed, is
-    not modelled.)
-    """
-    v = -np.sign(i0) * rail_v
-    i1 = rl_step(i0, v, back_emf, r, decay)
-    return np.where(i1 * i0 > 0.0, i1, 0.0)
