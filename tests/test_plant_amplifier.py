@@ -213,3 +213,24 @@ def test_mixed_amplifier_types_step_together():
     c.pwm_duty[6] = 0.0
     s = p.step_period(c, T)
     assert not bool(s.switching[6]) and s.switching_noise_v[6] == 0.0
+
+
+def test_fast_linear_path_equals_the_general_amplifier_step():
+    from emulators.plant.amplifier import AmpState, current_step, current_step_linear
+
+    p = Plant(load_plant_params("jpl-arm"), seed=1)
+    lin = p.amp.is_lin
+    rng = np.random.default_rng(0)
+    c = p.idle_command()
+    c.amp_enable[:] = True
+    k = p._step_consts(1.0 / p.rate_hz).amp
+    for _ in range(200):
+        c.amp_command_v = rng.uniform(-12, 12, p.n_joints)
+        drv = p._drive(c)
+        i0 = rng.uniform(-35, 35, p.n_joints)
+        w = rng.uniform(-900, 900, p.n_joints)
+        a, b = AmpState(p.n_joints), AmpState(p.n_joints)
+        i_gen = current_step(p.amp, a, drv, i0, w, k)
+        i_fast = current_step_linear(b, drv.i_ref * (1.0 - k.loop), i0, w, k)
+        assert np.allclose(i_gen[lin], i_fast[lin], rtol=1e-12, atol=1e-12)
+        assert np.array_equal(a.saturated[lin], b.saturated[lin])
