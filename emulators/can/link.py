@@ -209,6 +209,10 @@ class CanPlantLink(PlantLink):
             if int(r["NJoints"]) != self.n:
                 raise PlantLinkError(f"the plant node has {int(r['NJoints'])} joints, this rig {self.n}: "
                                      "start both sides with the same --rig")
+            if bool(r["FreeRunning"]) != self.free_running:
+                mode = "free-running" if r["FreeRunning"] else "lockstep"
+                raise PlantLinkError(f"the plant node runs {mode}; start this side with the same mode "
+                                     "(--plant-mode) or restart the node")
             self.peer_boot = int(r["BootId"])
             self._reset_acked = True
             self._sens.clear()

@@ -134,6 +134,10 @@ class PlantNode:
             MissingCmd=c.missing_cmd, Dropped=c.dropped + self._codec_dropped(), SeqJumps=c.seq_jumps,
             Steps=c.steps & 0xFFFF))
 
+    def dropped_total(self) -> int:
+        """Frames dropped: malformed, unknown, out of range (codec) and foreign (node)."""
+        return self.counters.dropped + self._codec_dropped()
+
     def _codec_dropped(self) -> int:
         k = self.codec.counters
         return k.unknown_id + k.wrong_length + k.undecodable + k.out_of_range

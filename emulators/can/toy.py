@@ -106,3 +106,38 @@ class ToyPlant:
             truth={"theta_joint": theta_j, "omega_joint": omega_j, "current_a": self.i.copy(),
                    "friction_torque_mean_nm": np.zeros(self.n_joints), "time_s": np.full(self.n_joints, self.time_s)},
         )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m emulators.can.toy``: serve a :class:`ToyPlant` as a plant node (tests, benchmarks)."""
+    import argparse
+
+    from emulators.can.bus import Endpoint, open_bus
+    from emulators.can.node import PLANT_IDS, PlantNode
+
+    p = argparse.ArgumentParser(prog="python -m emulators.can.toy")
+    p.add_argument("--interface", default=None)
+    p.add_argument("--channel", default=None)
+    p.add_argument("--port", type=int, default=None, help="udp_multicast port")
+    p.add_argument("--joints", type=int, default=3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--free-running", action="store_true")
+    p.add_argument("--duration", type=float, default=None)
+    p.add_argument("--can-log", default=None)
+    args = p.parse_args(argv)
+    kw = {"port": args.port} if args.port else {}
+    ep = Endpoint(open_bus(args.interface, args.channel, **kw), PLANT_IDS, log_path=args.can_log)
+    node = PlantNode(ep, lambda s: ToyPlant(args.joints, seed=s), args.joints, seed=args.seed,
+                     free_running=args.free_running, command_type=ToyCommand)
+    print(f"toy plant node ready, boot id {node.boot_id:#06x}", flush=True)
+    try:
+        node.serve(duration_s=args.duration)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.close()
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

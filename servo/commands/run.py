@@ -16,7 +16,9 @@ from servo.files import write_json
 # Modules that extend `vmehil run` (live tuning over MAVLink, the operator console, ...). Each
 # defines ``add_arguments(parser)`` and ``attach(args, system, loop, runner)``, which returns
 # ``None`` when its options are unused, or an object with ``close()`` called after the run.
-RUN_EXTENSIONS: list[str] = []
+# An extension may also define ``make_link(args, rig) -> PlantLink | None`` to run the plant
+# elsewhere (the CAN plant node): the first link returned replaces the in-process plant.
+RUN_EXTENSIONS: list[str] = ["emulators.can.extension"]
 
 
 def parse_gains(text: str | None) -> dict[str, float]:
@@ -83,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     if duration <= 0:
         raise ValueError("--duration must be > 0")
     n_ticks = round(duration * system.rig.servo_rate_hz)
-    system = build_emulated_rig(args.rig, seed=args.seed)
+    system = build_emulated_rig(args.rig, seed=args.seed, link=_make_link(args, system.rig))
     loop = build_loop(system, motion=motion, gains=gains, n_ticks=n_ticks,
                       switch_off=False if args.no_integrator_switch_off else None)
     loop.start()
@@ -111,6 +113,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"report: {len(files)} files in {args.report}")
     system.close()
     return 1 if summary["faults"] else 0
+
+
+def _make_link(args: argparse.Namespace, rig):
+    """The plant link an extension asks for (``--plant can``), else ``None`` (in-process)."""
+    for ext in _extensions():
+        make = getattr(ext, "make_link", None)
+        link = make(args, rig) if make is not None else None
+        if link is not None:
+            return link
+    return None
 
 
 def _planned_duration(loop) -> float:
