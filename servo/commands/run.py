@@ -18,7 +18,7 @@ from servo.files import write_json
 # ``None`` when its options are unused, or an object with ``close()`` called after the run.
 # An extension may also define ``make_link(args, rig) -> PlantLink | None`` to run the plant
 # elsewhere (the CAN plant node): the first link returned replaces the in-process plant.
-RUN_EXTENSIONS: list[str] = ["emulators.can.extension"]
+RUN_EXTENSIONS: list[str] = ["servo.mavlink.extension", "emulators.can.extension"]
 
 
 def parse_gains(text: str | None) -> dict[str, float]:
