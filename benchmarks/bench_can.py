@@ -90,14 +90,12 @@ def lockstep_rate(rig: str, interface: str, channel: str, n: int) -> tuple[float
     """(lockstep ticks/s, in-process ticks/s, joints)."""
     from emulators.can.codec import DbcExchangeCodec
     from emulators.can.link import CONTROLLER_IDS, CanPlantLink
-    from emulators.can.node import PLANT_IDS, PlantNode
+    from emulators.can.node import PLANT_IDS, PlantNode, node_spec
     from emulators.harness import InProcessLink
     from emulators.plant import Plant
-    from emulators.presets import resolve_rig
-    from servo.rig import load_rig
 
-    spec = load_rig(resolve_rig(rig))
-    period, delay = spec.period_s, spec.computation_delay_s
+    spec = node_spec(rig)
+    period, delay = spec.period_s, spec.delay_s
     plant = Plant.from_config(spec.table, seed=0)
     cmd = plant.idle_command()
     cmd.amp_enable[:] = True
@@ -116,7 +114,7 @@ def lockstep_rate(rig: str, interface: str, channel: str, n: int) -> tuple[float
         node = PlantNode(Endpoint(open_bus(interface, channel), PLANT_IDS),
                          lambda s: Plant.from_config(spec.table, seed=s), spec.n_joints)
         thread, stop = node.start_thread()
-    link = CanPlantLink(Endpoint(open_bus(interface, channel), CONTROLLER_IDS), [j.name for j in spec.joints],
+    link = CanPlantLink(Endpoint(open_bus(interface, channel), CONTROLLER_IDS), spec.names,
                         connect_timeout_s=30.0)
     try:
         for _ in range(20):
@@ -137,26 +135,42 @@ def lockstep_rate(rig: str, interface: str, channel: str, n: int) -> tuple[float
     return rate, inproc, spec.n_joints
 
 
-def main(argv: list[str] | None = None) -> int:
+HEADER = (f"{'transport':<14} {'rig':<12} {'joints':>6} {'raw rt/s':>10} {'in-proc/s':>10} {'lockstep/s':>11} "
+          f"{'/raw':>6} {'/in-proc':>9}")
+
+
+def main(argv: list[str] | None = None, *, quick: bool = False) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--rigs", default="jpl-arm,melmalec-16")
     p.add_argument("--transports", default="virtual,udp_multicast")
-    p.add_argument("--ticks", type=int, default=500)
+    p.add_argument("--ticks", type=int, default=200 if quick else 1000)
+    p.add_argument("--no-header", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--echo", default=None, help=argparse.SUPPRESS)  # internal: run the echo peer
-    args = p.parse_args(argv)
+    args = p.parse_args([] if argv is None and quick else argv)
     if args.echo:
         echo(args.echo, GROUP, port=ECHO_PORT)
         return 0
     transports = [t for t in args.transports.split(",") if t]
+    if not args.no_header:
+        print(HEADER, flush=True)
+    netns = None
     if "udp_multicast" in transports and not private_multicast_namespace():
-        if os.geteuid() == 0 and shutil.which("unshare") and not os.environ.get("VMEHIL_BENCH_NETNS"):
-            os.environ["VMEHIL_BENCH_NETNS"] = "1"
-            inner = "ip link set lo up && ip route add 224.0.0.0/4 dev lo && exec \"$0\" \"$@\""
-            os.execvp("unshare", ["unshare", "-n", "sh", "-c", inner, sys.executable, __file__, *sys.argv[1:]])
-        print("udp_multicast: skipped (needs a private network namespace; run as root to re-exec under unshare)")
         transports.remove("udp_multicast")
-    print(f"{'transport':<14} {'rig':<12} {'joints':>6} {'raw rt/s':>10} {'in-proc/s':>10} {'lockstep/s':>11} "
-          f"{'/raw':>6} {'/in-proc':>9}")
+        if os.geteuid() == 0 and shutil.which("unshare") and shutil.which("ip"):
+            # run the udp_multicast part in a private loopback-only network namespace
+            inner = "ip link set lo up && ip route add 224.0.0.0/4 dev lo && exec \"$0\" \"$@\""
+            netns = ["unshare", "-n", "sh", "-c", inner, sys.executable, __file__, "--transports", "udp_multicast",
+                     "--rigs", args.rigs, "--ticks", str(args.ticks), "--no-header"]
+        else:
+            print("udp_multicast: skipped (needs a private network namespace: run as root)")
+    _run(transports, args)
+    if netns is not None:
+        sys.stdout.flush()
+        subprocess.run(netns, check=False, cwd=ROOT)
+    return 0
+
+
+def _run(transports: list[str], args: argparse.Namespace) -> None:
     for transport in transports:
         if transport == "udp_multicast":
             peer = _spawn([__file__, "--echo", transport])
@@ -176,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
                 stop.set()
                 t.join(5)
             channel = "bench-plant"
-        print(f"{transport:<14} {'(raw)':<12} {'':>6} {raw:>10.0f}")
+        print(f"{transport:<14} {'(raw)':<12} {'':>6} {raw:>10.0f}", flush=True)
         for rig in [r for r in args.rigs.split(",") if r]:
             try:
                 rate, inproc, nj = lockstep_rate(rig, transport, channel, args.ticks)
@@ -184,8 +198,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{transport:<14} {rig:<12} skipped: {e}")
                 continue
             print(f"{transport:<14} {rig:<12} {nj:>6} {raw:>10.0f} {inproc:>10.0f} {rate:>11.0f} "
-                  f"{rate / raw:>6.3f} {rate / inproc:>9.3f}")
-    return 0
+                  f"{rate / raw:>6.3f} {rate / inproc:>9.3f}", flush=True)
 
 
 if __name__ == "__main__":

@@ -137,6 +137,7 @@ class Endpoint:
     def send(self, msg: can.Message) -> None:
         msg.timestamp = time.time()
         msg.channel = msg.channel or "vmehil"
+        msg.is_rx = False
         self.bus.send(msg)
         self.sent += 1
         if self.logger is not None:

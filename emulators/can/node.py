@@ -25,10 +25,12 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import can
@@ -48,6 +50,37 @@ STATE_READY, STATE_RUNNING, STATE_STOPPED, STATE_FAULT = 1, 2, 3, 4
 def new_boot_id() -> int:
     """A 16-bit identifier that differs between node starts (process id and start time)."""
     return (os.getpid() * 7919 ^ time.time_ns() // 1000) & 0xFFFF
+
+
+@dataclass
+class NodeSpec:
+    """What a plant node needs from a rig file: the plant tables, joint names and timing."""
+
+    name: str
+    table: Any
+    names: list[str]
+    period_s: float
+    delay_s: float
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.names)
+
+
+def node_spec(rig: str | None) -> NodeSpec:
+    """Read a rig preset name or file for the plant node (``[rig]``, ``[plant]``, ``[[joint]]``;
+    the wiring and servo tables are the controller's business)."""
+    from emulators.plant import plant_params_from_config
+    from emulators.presets import resolve_rig
+    from hal.config import load_toml
+
+    path = resolve_rig(rig)
+    table = load_toml(path)
+    r = table.table("rig", {})
+    rate = r.float("servo_rate_hz", 125.0, min=1.0, max=10_000.0)
+    params = plant_params_from_config(table)
+    return NodeSpec(r.str("name", Path(path).stem), table, [j.name for j in params.joints], 1.0 / rate,
+                    r.float("computation_delay_s", 0.001, min=0.0))
 
 
 @dataclass
@@ -252,3 +285,12 @@ class PlantNode:
 
     def close(self) -> None:
         self.ep.close()
+
+
+def exit_on_sigterm() -> None:
+    """Turn SIGTERM into ``SystemExit`` so a terminated node still closes its bus and its log."""
+
+    def _exit(signum: int, frame: Any) -> None:
+        raise SystemExit(0)
+
+    signal.signal(signal.SIGTERM, _exit)

@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
 
     from emulators.can.bus import Endpoint, open_bus
-    from emulators.can.node import PLANT_IDS, PlantNode
+    from emulators.can.node import PLANT_IDS, PlantNode, exit_on_sigterm
 
     p = argparse.ArgumentParser(prog="python -m emulators.can.toy")
     p.add_argument("--interface", default=None)
@@ -129,6 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     ep = Endpoint(open_bus(args.interface, args.channel, **kw), PLANT_IDS, log_path=args.can_log)
     node = PlantNode(ep, lambda s: ToyPlant(args.joints, seed=s), args.joints, seed=args.seed,
                      free_running=args.free_running, command_type=ToyCommand)
+    exit_on_sigterm()
     print(f"toy plant node ready, boot id {node.boot_id:#06x}", flush=True)
     try:
         node.serve(duration_s=args.duration)

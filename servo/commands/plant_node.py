@@ -28,20 +28,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from emulators.can.bus import Endpoint, open_bus
-    from emulators.can.node import PLANT_IDS, PlantNode
+    from emulators.can.bus import Endpoint, open_bus, resolve
+    from emulators.can.node import PLANT_IDS, PlantNode, exit_on_sigterm, node_spec
     from emulators.plant import Plant
-    from emulators.presets import resolve_rig
-    from servo.rig import load_rig
 
-    spec = load_rig(resolve_rig(args.rig))
+    spec = node_spec(args.rig)
     Plant.from_config(spec.table, seed=args.seed)  # fail early on a bad rig file
     bus = open_bus(args.interface, args.channel)
     ep = Endpoint(bus, PLANT_IDS, log_path=args.can_log)
     node = PlantNode(ep, lambda seed: Plant.from_config(spec.table, seed=seed), spec.n_joints, seed=args.seed,
-                     free_running=args.free_running, period_s=spec.period_s, delay_s=spec.computation_delay_s)
+                     free_running=args.free_running, period_s=spec.period_s, delay_s=spec.delay_s)
     mode = "free-running" if args.free_running else "lockstep"
-    print(f"plant node: rig {spec.name} ({spec.n_joints} joints), {mode}, {bus.channel_info}, "
+    iface, chan = resolve(args.interface, args.channel)
+    exit_on_sigterm()
+    print(f"plant node: rig {spec.name} ({spec.n_joints} joints), {mode}, {iface} {chan}, "
           f"boot id {node.boot_id:#06x}", file=sys.stderr, flush=True)
     try:
         node.serve(duration_s=args.duration)
