@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from emulators.harness import PlantLinkError
 from servo.loop import ServoLoop
 from servo.system import EmulatedRig
 
@@ -71,7 +72,12 @@ class LockstepRunner:
         sys_.crate.advance_to(k * self.period_ns)
         sys_.harness.publish()
         self.loop.tick(truth=sys_.truth())
-        sys_.harness.step(self.period_s, self.delay_s)
+        try:
+            sys_.harness.step(self.period_s, self.delay_s)
+        except PlantLinkError as e:
+            # A remote plant (CAN node) gave no fresh data, vanished or restarted: the watchdog's
+            # answer is a safe stop in this tick; the link then returns held values without waiting.
+            self.loop.safe_stop(e.cause, str(e))
         for cb in self.after_tick:
             cb(self.loop)
 

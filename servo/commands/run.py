@@ -17,8 +17,10 @@ from servo.files import write_json
 # defines ``add_arguments(parser)`` and ``attach(args, system, loop, runner)``, which returns
 # ``None`` when its options are unused, or an object with ``close()`` called after the run.
 # An extension may also define ``prepare(args, rig) -> dict | None``, called before the rig is
-# built: it may adjust the rig table and return defaults ``{"motion": Motion, "duration": s}``.
-RUN_EXTENSIONS: list[str] = ["servo.mavlink.extension", "servo.vservo_extension"]
+# built: it may adjust the rig table and return defaults ``{"motion": Motion, "duration": s}``;
+# and ``make_link(args, rig) -> PlantLink | None`` to run the plant elsewhere (the CAN plant
+# node): the first link returned replaces the in-process plant.
+RUN_EXTENSIONS: list[str] = ["servo.mavlink.extension", "servo.vservo_extension", "emulators.can.extension"]
 
 
 def parse_gains(text: str | None) -> dict[str, float]:
@@ -107,7 +109,7 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     if not duration > 0:
         raise ValueError("--duration must be > 0")
     n_ticks = round(duration * rig.servo_rate_hz)
-    system = build_emulated_rig(rig, seed=args.seed)
+    system = build_emulated_rig(rig, seed=args.seed, link=_make_link(args, rig))
     loop = build_loop(system, motion=motion, gains=gains, n_ticks=n_ticks,
                       switch_off=False if args.no_integrator_switch_off else None)
     loop.start()
@@ -135,6 +137,16 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
         print(f"report: {len(files)} files in {args.report}")
     system.close()
     return 1 if summary["faults"] else 0
+
+
+def _make_link(args: argparse.Namespace, rig):
+    """The plant link an extension asks for (``--plant can``), else ``None`` (in-process)."""
+    for ext in _extensions():
+        make = getattr(ext, "make_link", None)
+        link = make(args, rig) if make is not None else None
+        if link is not None:
+            return link
+    return None
 
 
 def _planned_duration(loop) -> float:
