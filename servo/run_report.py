@@ -89,7 +89,8 @@ def table(summary: dict[str, Any]) -> str:
     vis = [] if v is None else [
         f"vision: {v['commands']} commands, robot {v['robot_state']} ({v['end_reason']}), "
         f"end effector {_f(v['final_distance_mm'], 2)} mm from the target"]
-    tail = [*vis] + [f"fault: {f['cause']} at {f['time_s']:.3f} s ({f['joint']}): {f['detail']}" for f in summary["faults"]]
+    tail = [*vis] + [f"fault: {f['cause']} at {f['time_s']:.3f} s ({f['joint']}): {f['detail']}"
+                     for f in summary["faults"]]
     return "\n".join([head, "", *lines, *tail])
 
 
