@@ -6,6 +6,7 @@ A change is accepted only if, for every joint it touches,
 * the sampled closed loop with the new gains is stable: every pole of
   :func:`servo.control.linear.sampled_loop_matrix` (ZOH double integrator, period ``period_s``,
   computation delay ``delay`` periods) lies strictly inside the unit circle;
+* not Kpi = 0 with KvI > 0 (a pole at exactly z = 1: marginal, the KvI integrator keeps an offset);
 * where the joint's integrator switch-off is enabled, the switched-off loop (integrators frozen,
   ``Kp_eff`` = the boosted Kp, see :mod:`servo.control.law`) is stable as well.
 
@@ -122,6 +123,11 @@ def check_gain_change(law: Any, joint: int | None, changes: Mapping[str, float],
     shown = ", ".join(f"{k}={v:g}" for k, v in clean.items())
     for j in joints:
         g = {name: clean.get(name, float(getattr(gains, name)[j])) for name in GAIN_NAMES}
+        if g["kpi"] == 0.0 and g["kvi"] > 0.0:
+            raise GainRejected(
+                shown, None, "Kpi = 0 with KvI > 0 leaves a closed-loop pole at z = 1 (the KvI integrator would "
+                "hold whatever offset it has, nothing brings the joint back to its target); set kvi=0 as well, "
+                "or keep kpi > 0", j)
         r = spectral_radius(g["kp"], g["kpi"], g["kv"], g["kvi"], period_s, delay)
         if not r < STABLE_RADIUS:
             raise GainRejected(

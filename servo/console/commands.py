@@ -116,7 +116,8 @@ Runner = Callable[[Session, dict[str, Any]], Outcome]
 
 @dataclass(frozen=True)
 class Atom:
-    """An atomic command: typed ``params`` and ``run(session, bound_args)``; ``on_line`` / ``in_files``: where it may be used; ``varargs``: arguments are passed unchecked."""
+    """An atomic command: typed ``params`` and ``run(session, bound_args)``; ``on_line`` /
+    ``in_files``: where it may be used; ``varargs``: arguments are passed unchecked."""
 
     name: str
     params: tuple[Param, ...]
