@@ -598,7 +598,7 @@ class Executor:
 
     def _run_strand(self, inv: Invocation, st: _Strand, budget: int) -> int:
         loop = self.session.loop
-        while True:
+        while inv.id in self.active:
             if st.until is not None:
                 if st.until(loop):
                     st.until = None
@@ -638,6 +638,7 @@ class Executor:
                 inv.strands.append(child)
                 continue
             self._call(inv, st, stmt)
+        return budget
 
     def _call(self, inv: Invocation, st: _Strand, call: Call) -> None:
         s = self.session
