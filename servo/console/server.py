@@ -432,6 +432,8 @@ class Console:
 
     def close(self) -> None:
         self._closing.set()
+        with contextlib.suppress(queue.Full):
+            self._outbox.put_nowait(b"")  # wake the writer
         for t in self._threads:
             t.join(timeout=2.0)
         if self.transport is not None:
@@ -591,6 +593,8 @@ class Console:
             try:
                 data = self._outbox.get(timeout=0.2)
             except queue.Empty:
+                continue
+            if not data:
                 continue
             try:
                 self.transport.write(data)
