@@ -159,7 +159,7 @@ def test_async_block_runs_beside_the_sequence_and_sync_waits_for_it():
 
 
 def test_parameters_flow_into_calls_and_nested_commands():
-    loop, ex, events = _exec('command go(float a, vector v) = { move(v); move_joint(2, -a); }\n'
+    loop, ex, _events = _exec('command go(float a, vector v) = { move(v); move_joint(2, -a); }\n'
                              'command outer(float x) = { go(x, [x, 0]); echo("ok"); }')
     ex.start(ex.session.library["outer"], {"x": 4.0})
     _run(loop, ex)
