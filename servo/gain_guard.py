@@ -2,8 +2,10 @@
 
 A change is accepted only if, for every joint it touches,
 
-* each new gain is a finite number ≥ 0 and one of ``kp``, ``kpi``, ``kv``, ``kvi``;
-* the sampled closed loop with the new gains is stable: every pole of
+* each new gain is one of ``kp``, ``kpi``, ``kv``, ``kvi``: a finite number ≥ 0 and at most
+  :data:`GAIN_MAX` (the ranges the MAVLink parameters advertise);
+* the sampled closed loop with the new gains is stable (margin 1 − ρ > ``min_margin``, default 0):
+  every pole of
   :func:`servo.control.linear.sampled_loop_matrix` (ZOH double integrator, period ``period_s``,
   computation delay ``delay`` periods) lies strictly inside the unit circle;
 * not Kpi = 0 with KvI > 0 (a pole at exactly z = 1: marginal, the KvI integrator keeps an offset);
@@ -34,9 +36,11 @@ import numpy as np
 from servo.control.law import GAIN_NAMES
 from servo.control.linear import sampled_loop_matrix
 
-# A pole radius at or above this is rejected (strictly inside the unit circle, with a hair of margin
-# for rounding: 1 − 1e-12 per tick is a time constant of ~250 million years at 125 Hz).
-STABLE_RADIUS = 1.0 - 1e-12
+# The stability margin 1 − ρ must exceed this at least (strictly inside the unit circle, with a hair
+# for rounding: 1e-12 per tick is a time constant of ~250 million years at 125 Hz).
+MIN_MARGIN_FLOOR = 1e-12
+# Upper limits (the ranges the MAVLink parameters advertise, servo.mavlink.params.GAIN_RANGES).
+GAIN_MAX = {"kp": 1e5, "kpi": 1e7, "kv": 1e4, "kvi": 1e6}
 
 
 class GainRejected(ValueError):
@@ -88,14 +92,16 @@ def _staged(law: Any, attr: str) -> Any:
 
 
 def check_gain_change(law: Any, joint: int | None, changes: Mapping[str, float], period_s: float,
-                      delay: float = 0.0) -> None:
+                      delay: float = 0.0, *, min_margin: float = 0.0) -> None:
     """Raise :class:`GainRejected` unless ``changes`` (gain name → value) may be applied.
 
     ``law`` is a :class:`servo.control.law.PidLaw` (its ``gains``, ``n`` and ``switch_off`` are
     read; staged-but-not-yet-applied gains count as current). ``joint`` is a joint index, or None
     for every joint. ``period_s`` is the servo period (s), ``delay`` the computation delay in
-    periods (0..1). Returns None when the change is acceptable; never modifies ``law``.
+    periods (0..1), ``min_margin`` the stability margin 1 − ρ the new set must keep (> it).
+    Returns None when the change is acceptable; never modifies ``law``.
     """
+    need = max(float(min_margin), MIN_MARGIN_FLOOR)
     if not changes:
         raise GainRejected("gains", {}, "no gain given (use kp=, kpi=, kv=, kvi=)")
     n = int(law.n)
@@ -116,6 +122,8 @@ def check_gain_change(law: Any, joint: int | None, changes: Mapping[str, float],
             raise GainRejected(name, value, "gains must be finite", joint)
         if v < 0.0:
             raise GainRejected(name, value, "gains must be >= 0", joint)
+        if v > GAIN_MAX[name]:
+            raise GainRejected(name, value, f"{name} is limited to {GAIN_MAX[name]:g}", joint)
         clean[name] = v
     gains = _staged(law, "gains")
     switch_off = _staged(law, "switch_off")
@@ -129,16 +137,15 @@ def check_gain_change(law: Any, joint: int | None, changes: Mapping[str, float],
                 "hold whatever offset it has, nothing brings the joint back to its target); set kvi=0 as well, "
                 "or keep kpi > 0", j)
         r = spectral_radius(g["kp"], g["kpi"], g["kv"], g["kvi"], period_s, delay)
-        if not r < STABLE_RADIUS:
+        if not 1.0 - r > need:
             raise GainRejected(
-                shown, None, f"the sampled loop would be unstable (pole radius {r:.4f} >= 1 at "
-                f"T = {period_s * 1e3:g} ms, delay {delay:g} T); lower the gains or change them in smaller steps",
-                j)
+                shown, None, f"the sampled loop would be unstable (pole radius {r:.4f}, margin 1-rho must exceed "
+                f"{need:g}; T = {period_s * 1e3:g} ms, delay {delay:g} T); lower the gains", j)
         if switch_off is not None and bool(switch_off.enabled[j]):
             boost = float(switch_off.kp_boost[j])
             kp_off = g["kp"] + g["kvi"] if math.isnan(boost) else g["kp"] * boost
             r_off = spectral_radius(kp_off, 0.0, g["kv"], 0.0, period_s, delay)
-            if not r_off < STABLE_RADIUS:
+            if not 1.0 - r_off > need:
                 raise GainRejected(
                     shown, None, f"the loop would be unstable with its integrators switched off (Kp_eff = "
-                    f"{kp_off:g}, pole radius {r_off:.4f} >= 1); lower kp/kvi or the kp_boost", j)
+                    f"{kp_off:g}, pole radius {r_off:.4f}); lower kp/kvi or the kp_boost", j)

@@ -117,7 +117,8 @@ def test_gains_show_set_and_reject(console_driver):
     tick(drv.loop, drv.console, 2)
     assert list(drv.loop.law.gains.kp) == [100.0, 120.0] and drv.loop.law.gains.kv[1] == 55.0
     before = drv.loop.law.gains.as_dict()
-    assert "unstable" in err(drv.ask("gains all kp=1e6"), "GAIN")
+    assert "unstable" in err(drv.ask("gains all kp=5e4"), "GAIN")
+    assert "limited" in err(drv.ask("gains all kp=1e6"), "GAIN")
     err(drv.ask("gains 1 kv=-3"), "GAIN")
     err(drv.ask("gains 1 kpi=0"), "GAIN")
     err(drv.ask("gains 1 kq=3"), "ARGS")
