@@ -81,13 +81,17 @@ def tick(loop: ServoLoop, console=None, n: int = 1) -> None:
             console.on_tick(loop)
 
 
-def until(pred, loop: ServoLoop, console=None, max_ticks: int = 400, pause_s: float = 0.002) -> int:
+def until(pred, loop: ServoLoop, console=None, max_ticks: int = 400, pause_s: float = 0.002, step=None) -> int:
     """Tick until ``pred()`` (checked after each tick, with a short pause so the reader thread can
-    run); returns the number of ticks; fails the test after ``max_ticks``."""
+    run); returns the number of ticks; fails the test after ``max_ticks``. ``step()`` replaces the
+    plain tick (e.g. a runner's tick, which calls the console's hook itself)."""
     for k in range(max_ticks):
         if pred():
             return k
-        tick(loop, console)
+        if step is not None:
+            step()
+        else:
+            tick(loop, console)
         time.sleep(pause_s)
     raise AssertionError(f"condition not met within {max_ticks} ticks")
 
@@ -118,7 +122,8 @@ class Driver:
     """Talks to a console the way a script does: ``ask(line)`` sends one line, runs ticks until the
     whole reply arrived and returns its lines (EVT lines go to ``events``)."""
 
-    def __init__(self, loop: ServoLoop, console, send, poll) -> None:
+    def __init__(self, loop: ServoLoop, console, send, poll, step=None) -> None:
+        self.step = step
         self.loop = loop
         self.console = console
         self.send = send
@@ -150,7 +155,7 @@ class Driver:
                 got.append(r)
             return bool(got)
 
-        until(ready, self.loop, self.console, max_ticks)
+        until(ready, self.loop, self.console, max_ticks, step=self.step)
         return got[0]
 
     def ask(self, line: str, max_ticks: int = 400) -> list[str]:
@@ -169,7 +174,7 @@ class Driver:
                     return True
             return False
 
-        until(seen, self.loop, self.console, max_ticks, pause_s=0.0005)
+        until(seen, self.loop, self.console, max_ticks, pause_s=0.0005, step=self.step)
         return found[0]
 
 
