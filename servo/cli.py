@@ -16,6 +16,7 @@ COMMAND_MODULES = [
     "servo.commands.tune",
     "servo.commands.vision",
     "servo.commands.plant_node",
+    "servo.commands.console",
 ]
 
 

@@ -20,7 +20,12 @@ from servo.files import write_json
 # built: it may adjust the rig table and return defaults ``{"motion": Motion, "duration": s}``;
 # and ``make_link(args, rig) -> PlantLink | None`` to run the plant elsewhere (the CAN plant
 # node): the first link returned replaces the in-process plant.
-RUN_EXTENSIONS: list[str] = ["servo.mavlink.extension", "servo.vservo_extension", "emulators.can.extension"]
+RUN_EXTENSIONS: list[str] = [
+    "servo.mavlink.extension",
+    "servo.vservo_extension",
+    "emulators.can.extension",
+    "servo.console.extension",
+]
 
 
 def parse_gains(text: str | None) -> dict[str, float]:
