@@ -13,6 +13,7 @@ from hal.vme.errors import VmeError
 COMMAND_MODULES = [
     "servo.commands.crate",
     "servo.commands.run",
+    "servo.commands.calibrate",
 ]
 
 
