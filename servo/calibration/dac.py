@@ -33,7 +33,7 @@ class DacProcedure:
     offset_plausible_v = 0.050
     gain_plausible = 0.02
     inl_limit_lsb = 1.0
-    verify_limit_v = 0.5 * DAC_LSB_V + 0.001  #: half a DAC LSB plus the ADC calibration's uncertainty
+    verify_limit_v = 0.5 * DAC_LSB_V + 0.0015  #: half a DAC LSB plus the ADC calibration's uncertainty
 
     def __init__(self, samples: int = 32) -> None:
         self.samples = samples
