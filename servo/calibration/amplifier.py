@@ -13,8 +13,11 @@ amplifier command for one servo period at a time (:meth:`Positioner.override_com
 2. Fit ``i`` against ``v`` (least squares): ``gain_a_per_v`` and ``offset_a``. The command
    path is measured end to end — DAC channel errors included — which is what the servo uses.
    The monitor scaling (V/A, from the rig) is the reference: it is a precision shunt.
-3. Current limit: command full scale (10 V) for one period each way; the monitored current
-   must not exceed the rated limit by more than ``limit_tolerance``.
+3. Current limit: command the rated limit (``limit / nominal gain``, at most the DAC's 10 V)
+   for one period each way; the monitored current must reach the rated limit and not exceed
+   it, both within ``limit_tolerance``. On jpl-arm the monitor's full scale equals the limit,
+   so a current above it would read as the ADC's full scale: the upper check cannot see
+   beyond ~100 %; the lower one catches a limit set too low.
 
 H-bridge joints are skipped (their current is not commanded by a DAC).
 """
@@ -101,7 +104,10 @@ class AmplifierProcedure:
                 Check(f"{j.name} offset", float(offset), "A", self.offset_limit_fraction * limit),
                 Check(f"{j.name} fit residual", resid, "A", self.fit_residual_fraction * limit),
                 Check(f"{j.name} current at full command", max(peak), "A", limit * (1 + self.limit_tolerance),
-                      note="current limit check"),
+                      note="current limit: not exceeded"),
+                Check(f"{j.name} current at full command (reached)", max(peak), "A",
+                      min(limit, gain_n * full_v) * (1 - self.limit_tolerance), kind="min",
+                      note="current limit: the rated current is delivered"),
             ]
             values = {"gain_a_per_v": float(gain), "offset_a": float(offset), "monitor_v_per_a": mon,
                       "current_limit_a": limit, "peak_current_a": float(max(peak))}
