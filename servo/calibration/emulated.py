@@ -13,8 +13,6 @@ a real-hardware positioner (the same loop under the real-time runner) slots in u
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from servo.calibration.base import TickHook
@@ -61,7 +59,8 @@ class EmulatedPositioner:
     def _tick(self, on_tick: TickHook | None) -> None:
         sys_ = self.system
         k = self.loop.tick_count
-        sys_.crate.advance_to(max(self._t0_ns + k * sys_.period_ns, sys_.crate.clock.now_ns))
+        t_tick = self._t0_ns + k * sys_.period_ns
+        sys_.crate.advance_to(max(t_tick, sys_.crate.clock.now_ns))
         sys_.harness.publish()
         if on_tick is not None:
             on_tick()
@@ -74,6 +73,10 @@ class EmulatedPositioner:
             for board, cmds in per_dac.items():
                 self.io.dac[board].write_many(cmds, update=True)
         self._override = {}
+        # The command reaches the amplifier at the computation delay: let the crate run to that
+        # instant so the DAC outputs have settled onto their nets before the exchange reads them.
+        delay_ns = round(sys_.rig.computation_delay_s * 1e9)
+        sys_.crate.advance_to(max(t_tick + delay_ns, sys_.crate.clock.now_ns))
         sys_.harness.step(self.period_s, sys_.rig.computation_delay_s)
 
     def hold(self, seconds: float, *, on_tick: TickHook | None = None) -> None:
@@ -113,7 +116,7 @@ class EmulatedPositioner:
 
     def position(self, joint: int) -> float:
         theta = self.loop.last.get("theta")
-        return float(theta[joint]) if theta is not None else math.nan
+        return float(theta[joint]) if theta is not None else float(self._theta_d[joint])
 
     def faulted(self) -> str | None:
         f = self.loop.fault

@@ -38,6 +38,20 @@ def encoder_nominal(joint) -> tuple[float, float]:
     return 4.0 * enc.float("lines_per_rev", 500.0, min=1.0), gear.float("ratio", 1.0, min=1e-6)
 
 
+def _group_indices(counts: np.ndarray, tolerance: float) -> list[list[int]]:
+    """Capture numbers grouped by index (sorted by count; a new group past ``tolerance`` counts)."""
+    groups: list[list[int]] = []
+    last = None
+    for i in np.argsort(counts, kind="stable"):
+        if last is None or counts[i] - last > tolerance:
+            groups.append([])
+        groups[-1].append(int(i))
+        last = counts[i]
+    for g in groups:
+        g.sort()
+    return groups
+
+
 class EncoderProcedure:
     name = "encoder"
     version = 1
@@ -86,21 +100,27 @@ class EncoderProcedure:
             fault = pos.faulted()
             if fault:
                 raise CalibrationAbort(f"{j.name}: the servo loop stopped while moving: {fault}")
-            fwd = [c for c in captures if c[2] > 0]
-            back = [c for c in captures if c[2] < 0]
-            if len(fwd) < 2:
-                raise CalibrationAbort(f"{j.name}: saw {len(fwd)} index pulse(s) moving forward, need 2: "
-                                       "check the index wiring and the gear ratio in the rig file")
-            counts = np.array([c[0] for c in fwd], dtype=float)
-            angles = np.array([c[1] for c in fwd])
+            # A joint at rest may dither across an index (limit cycle, noise): the same index is
+            # then captured again and again, from either side (±1 count). Group the captures
+            # by index (within a quarter of the nominal revolution) and use one count per index.
+            counts_all = np.array([c[0] for c in captures], dtype=float)
+            angles_all = np.array([c[1] for c in captures])
+            groups = _group_indices(counts_all, nominal / 4)
+            if len(groups) < 2:
+                raise CalibrationAbort(f"{j.name}: saw {len(groups)} distinct index pulse(s), need 2: check the index "
+                                       "wiring and the gear ratio in the rig file")
+            firsts = [g[0] for g in groups]  # first capture of each index
+            counts = counts_all[firsts]
+            angles = angles_all[firsts]
             diffs = np.diff(counts)
-            cpr = float(abs(np.median(diffs)))
-            spread = float(np.max(np.abs(np.abs(diffs) - cpr)))
-            sign = 1 if np.median(diffs) * np.sign(angles[-1] - angles[0]) > 0 else -1
-            backlash = None
-            if back:
-                grid = counts[0] + np.round((back[-1][0] - counts[0]) / cpr) * cpr
-                backlash = float(back[-1][0] - grid)
+            cpr = float(np.median(diffs))
+            spread = float(np.max(np.abs(diffs - cpr)))
+            sign = 1 if np.polyfit(angles_all, counts_all, 1)[0] > 0 else -1
+            order = np.argsort(angles)
+            counts, angles = counts[order], angles[order]
+            # hysteresis: the same index captured moving back vs moving forward
+            hyst = [counts_all[i] - counts_all[g[0]] for g in groups for i in g if captures[i][2] < 0]
+            backlash = float(np.median(hyst)) if hyst else None
             ctx.say(f"  {j.name}: {cpr:.0f} counts/motor rev over {len(diffs)} revolutions (spread {spread:.0f}), "
                     f"direction {'+' if sign > 0 else '−'}, first index at {math.degrees(angles[0]):+.3f}°")
             res.checks += [
