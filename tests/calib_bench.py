@@ -116,7 +116,7 @@ def write_rig(folder: Path, text: str = RIG_TOML, name: str = "bench.toml") -> R
     return load_rig(p)
 
 
-def pot_volts(theta: float, bow: float, periodic: float, centre: float = 0.0, cycles: float = 5.0) -> float:
+def pot_volts(theta: float, bow: float, periodic: float, centre: float = 0.0, cycles: float = 3.0) -> float:
     """Wire-wound pot: a bow (fraction of span) and a winding-pitch ripple, across ±10 V."""
     x = min(max((theta - centre) / POT_SPAN + 0.5, 0.0), 1.0)
     f = x + bow * 4 * x * (1 - x) + periodic * math.sin(2 * math.pi * cycles * x)
@@ -133,7 +133,8 @@ class Errors:
     dac_offset_v: tuple[float, ...] = (0.0,) * 8
     dac_gain_error: tuple[float, ...] = (0.0,) * 8
     pot_bow: tuple[float, ...] = (0.003, 0.0025)
-    pot_periodic: tuple[float, ...] = (0.0004, 0.0004)
+    pot_periodic: tuple[float, ...] = (0.0001, 0.0001)  # the plant's jpl-arm pots (3 cycles over the span)
+    pot_cycles: float = 3.0
     pot_centre: tuple[float, ...] = (0.0, 0.8)
     pot_noise_v: float = 0.0015
     amp_gain: tuple[float, ...] = (3.0, 2.0)
@@ -166,7 +167,7 @@ class Bench:
         rng = self._rng
         for j in self.rig.joints:
             i = j.index
-            v = pot_volts(self.theta[i], e.pot_bow[i], e.pot_periodic[i], e.pot_centre[i])
+            v = pot_volts(self.theta[i], e.pot_bow[i], e.pot_periodic[i], e.pot_centre[i], e.pot_cycles)
             s.set_analog(j.net("pot"), v + e.pot_noise_v * float(rng.standard_normal()))
             s.set_analog(j.net("imon"), currents[i] * e.monitor_v_per_a[i])
             ev = self.samplers[i].step(e.encoder_sign[i] * self.theta[i] * self.ratio, dt)

@@ -145,13 +145,16 @@ def test_pot_residual_after_calibration_is_below_the_stated_figure(tmp_path):
     assert len(j1["volts"]) == 9 and np.all(np.diff(j1["angles_rad"]) > 0)
 
 
-def test_pot_more_points_shrink_the_residual(tmp_path):
+def test_pot_ripple_that_eight_segments_cannot_follow_fails_and_more_points_fix_it(tmp_path):
+    """A coarse winding ripple (8 arcmin at a 68° period) defeats nine points on a 324° travel."""
+    harsh = Errors(pot_periodic=(0.0004, 0.0004), pot_cycles=5.0)
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
-    nine = PotProcedure().run(build_bench(tmp_path / "a", ERRORS).context(joints=[0]))
-    seventeen = PotProcedure(points=17).run(build_bench(tmp_path / "b", ERRORS).context(joints=[0]))
-    assert (seventeen.data["joints"]["j1"]["residual_rms_arcmin"]
-            < 0.6 * nine.data["joints"]["j1"]["residual_rms_arcmin"])
+    nine = PotProcedure().run(build_bench(tmp_path / "a", harsh).context(joints=[0]))
+    seventeen = PotProcedure(points=17).run(build_bench(tmp_path / "b", harsh).context(joints=[0]))
+    assert not nine.passed
+    assert nine.data["residual_rms_arcmin"] > PotProcedure.residual_rms_limit_arcmin
+    assert seventeen.data["residual_rms_arcmin"] < 0.6 * nine.data["residual_rms_arcmin"]
 
 
 def test_pot_manual_mode_prompts_the_operator(tmp_path):
