@@ -129,6 +129,18 @@ class RegisterBoard(Board):
         super().reset()
         self.regs = {r.name: r.reset for r in self.REGMAP.registers}
 
+    def _hook(self, prefix: str, name: str) -> Any:
+        """The bound ``read_<REG>``/``write_<REG>`` hook (or None), looked up once per board
+        (hooks may be methods or per-instance attributes set in ``__init__``)."""
+        cache = self.__dict__.get("_hook_cache")
+        if cache is None:
+            cache = self.__dict__["_hook_cache"] = {}
+        key = prefix + name
+        if key not in cache:
+            h = getattr(self, key, None)
+            cache[key] = h if callable(h) else None
+        return cache[key]
+
     def _locate(self, offset: int, width: Width) -> tuple[Register, int]:
         reg = self.REGMAP.containing(offset)
         if reg is None:
@@ -146,7 +158,7 @@ class RegisterBoard(Board):
         reg, sub = self._locate(offset, width)
         if not reg.access.readable:
             raise BoardAccessError(BusErrorCause.ACCESS, f"{self.name}.{reg.name} is write-only")
-        handler = getattr(self, f"read_{reg.name}", None)
+        handler = self._hook("read_", reg.name)
         value = handler() if handler is not None else self.regs[reg.name]
         return _slice(value, reg.width, sub, width)
 
@@ -156,7 +168,7 @@ class RegisterBoard(Board):
             raise BoardAccessError(BusErrorCause.ACCESS, f"{self.name}.{reg.name} is read-only")
         if width is not reg.width:
             value = _merge(self.regs[reg.name], reg.width, sub, width, value)
-        handler = getattr(self, f"write_{reg.name}", None)
+        handler = self._hook("write_", reg.name)
         if handler is not None:
             handler(value)
         else:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from emulators.adc import adc_factory
+from emulators.bit3 import bit3_factory
 from emulators.dac import dac_factory
 from emulators.pio import pio_from_config
 from emulators.quadrature import quad_from_config
@@ -20,3 +21,4 @@ register_board_type("adc", adc_factory)
 register_board_type("dac", dac_factory)
 register_board_type("pio", pio_from_config)
 register_board_type("quad", quad_from_config)
+register_board_type("bit3", bit3_factory)

@@ -13,6 +13,8 @@ from hal.vme.errors import VmeError
 COMMAND_MODULES = [
     "servo.commands.crate",
     "servo.commands.run",
+    "servo.commands.tune",
+    "servo.commands.vision",
     "servo.commands.calibrate",
 ]
 

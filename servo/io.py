@@ -48,6 +48,7 @@ class SensorScaling:
             current at 0 V command (A); monitor_v_per_a: current monitor.
         current_limit_a: amplifier current limit.
         supply_v, resistance_ohm, ke_v_s_per_rad: H-bridge voltage command model.
+        pwm_period_s: H-bridge PWM period programmed into the PIO timer.
     """
 
     pot_v_per_rad: float = 1.0
@@ -63,6 +64,7 @@ class SensorScaling:
     supply_v: float = 24.0
     resistance_ohm: float = 1.0
     ke_v_s_per_rad: float = 0.0
+    pwm_period_s: float = 50e-6
 
 
 @dataclass
@@ -163,6 +165,9 @@ class JointIO:
             outs = [j.net(s) for j in rig.joints for s, p in j.wiring.items()
                     if p.board == pname and s in ("amp_enable", "amp_reset", "direction", "brake")]
             drv.configure(outputs=outs, initial={o: False for o in outs})
+        for j in rig.joints:
+            if "pwm" in j.wiring:
+                self.pio[j.wiring["pwm"].board].set_pwm_period(scaling[j.index].pwm_period_s)
         # ADC scan plans: per board, the last channel to convert.
         self._adc_last = {name: max(p.index for j in rig.joints for p in j.wiring.values() if p.board == name)
                           for name in self.adc}

@@ -275,7 +275,7 @@ class ServoLoop:
         elif self.fault is not None:
             row.update(torque=np.zeros(self.n), current_cmd=np.zeros(self.n))
         if law is not None:
-            row["kp_eff"] = law.kp_eff
+            row["kp_eff"] = law.kp_eff()
         if truth is not None:
             row.update(theta_true=truth.get("theta_joint"), omega_true=truth.get("omega_joint"))
         row = {k2: v for k2, v in row.items() if v is not None}

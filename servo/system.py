@@ -39,6 +39,7 @@ def scaling_from_params(p: JointParams) -> SensorScaling:
         supply_v=p.hbridge.supply_v,
         resistance_ohm=p.motor.resistance_ohm,
         ke_v_s_per_rad=p.motor.ke_v_s_per_rad,
+        pwm_period_s=1.0 / p.hbridge.pwm_hz,
     )
 
 
@@ -131,8 +132,9 @@ def build_emulated_rig(rig: str | Path | RigSpec | None = None, *, seed: int = 0
     _couple_hbridge_noise(crate, spec)
     io = JointIO(crate, spec, [scaling_from_params(p) for p in params], calibration=calibration)
     system = EmulatedRig(spec, crate, plant, link, harness, io, params, seed)
-    # Prime the sensor nets with the plant's state at t = 0 (zero command, zero-length step).
-    harness.pending = link.exchange(harness.collect(), 0.0, 0.0)
+    # Power-up: the plant runs one servo period with the rack's power-up outputs (DACs at 0 V,
+    # amplifiers disabled) so that the sensor nets hold real readings when the loop starts.
+    harness.pending = link.exchange(harness.collect(), spec.period_s, 0.0)
     harness.publish()
     return system
 

@@ -116,6 +116,7 @@ class RegisterMap:
     doc: str = ""
     _by_name: dict[str, Register] = field(default_factory=dict, init=False, repr=False, compare=False)
     _by_offset: dict[int, Register] = field(default_factory=dict, init=False, repr=False, compare=False)
+    _by_byte: dict[int, Register] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         spans: list[tuple[int, int, str]] = []
@@ -132,6 +133,8 @@ class RegisterMap:
             spans.append((r.offset, r.offset + int(r.width), r.name))
             self._by_name[r.name] = r
             self._by_offset[r.offset] = r
+            for b in range(r.offset, r.offset + int(r.width)):
+                self._by_byte[b] = r
 
     def __getitem__(self, name: str) -> Register:
         try:
@@ -145,10 +148,7 @@ class RegisterMap:
 
     def containing(self, offset: int) -> Register | None:
         """The register whose bytes include ``offset``, or ``None``."""
-        for r in self.registers:
-            if r.offset <= offset < r.offset + int(r.width):
-                return r
-        return None
+        return self._by_byte.get(offset)
 
     def markdown_table(self) -> str:
         """The register table as Markdown (offset, width, access, name, fields, description)."""

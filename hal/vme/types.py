@@ -69,7 +69,7 @@ class Width(enum.IntEnum):
     @classmethod
     def parse(cls, text: str | int | Width) -> Width:
         """Parse ``"D16"``, ``16`` (bits) or a :class:`Width`."""
-        if isinstance(text, Width):
+        if type(text) is Width:
             return text
         if isinstance(text, int):
             for w in cls:
@@ -140,6 +140,19 @@ def am_for(
 
 def resolve_am(space: AddressSpace | AddressModifier | int | str) -> AddressModifier:
     """Accept a space (supervisory data AM), an AM code, an :class:`AddressModifier` or ``"A24"``."""
+    cached = _RESOLVED.get(space)  # the hot path: a space or AM object seen before
+    if cached is not None:
+        return cached
+    am = _resolve(space)
+    if isinstance(space, AddressSpace | AddressModifier | str):
+        _RESOLVED[space] = am
+    return am
+
+
+_RESOLVED: dict[object, AddressModifier] = {}
+
+
+def _resolve(space: AddressSpace | AddressModifier | int | str) -> AddressModifier:
     if isinstance(space, AddressModifier):
         return space
     if isinstance(space, AddressSpace):

@@ -16,7 +16,7 @@ from servo.files import write_json
 # Modules that extend `vmehil run` (live tuning over MAVLink, the operator console, ...). Each
 # defines ``add_arguments(parser)`` and ``attach(args, system, loop, runner)``, which returns
 # ``None`` when its options are unused, or an object with ``close()`` called after the run.
-RUN_EXTENSIONS: list[str] = []
+RUN_EXTENSIONS: list[str] = ["servo.mavlink.extension"]
 
 
 def parse_gains(text: str | None) -> dict[str, float]:

@@ -1,0 +1,27 @@
+"""Run every ``benchmarks/bench_*.py`` and print its figures: ``python -m benchmarks [--quick] [NAME...]``."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+from pathlib import Path
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__)
+    ap.add_argument("names", nargs="*", help="benchmark module names (default: all bench_*)")
+    ap.add_argument("--quick", action="store_true", help="shorter runs (rougher figures)")
+    args = ap.parse_args(argv)
+    here = Path(__file__).parent
+    names = args.names or sorted(m.name for m in pkgutil.iter_modules([str(here)]) if m.name.startswith("bench_"))
+    for name in names:
+        mod = importlib.import_module(f"benchmarks.{name}")
+        print(f"== {name} ==", flush=True)
+        mod.main(quick=args.quick)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

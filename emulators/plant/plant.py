@@ -1,0 +1,451 @@
+"""The joint plant: amplifiers, DC motors, Harmonic Drives, links and sensors, vectorised.
+
+One call of :meth:`Plant.step_period` integrates one servo period at the fixed plant rate
+(default 4 kHz: 32 substeps of 250 µs per 8 ms period). Per substep, for every joint:
+
+1. amplifier → winding current (exact exponential solutions, speed held; see
+   :mod:`emulators.plant.amplifier`);
+2. motor torque ``Kt·i`` less the reflected load (gravity, or the flexspline spring) →
+   exact stick/slip step of the motor shaft (:func:`emulators.plant.friction.stick_slip_step`);
+3. link update (compliant joints), inelastic hard stops;
+4. tachometer generator and its filter; encoder x4 position recorded.
+
+Sensor outputs are taken at the end of the period (the next sampling instant), with seeded
+noise; the encoder reports what happened during the period as ``QuadratureEvents``.
+Ground truth (``PlantSensors.truth``) is for reports and tests only — never for the servo.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from emulators.plant.amplifier import (
+    AmpArrays,
+    AmpConsts,
+    AmpDrive,
+    AmpState,
+    check_slow_faults,
+    current_step,
+    current_step_linear,
+    prepare_drive,
+)
+from emulators.plant.encoder import encoder_events
+from emulators.plant.friction import FrictionArrays, StickSlipStepper
+from emulators.plant.link import gravity_torque, hard_stop_overshoot
+from emulators.plant.params import AMP_LINEAR, PlantParams, plant_params_from_config
+from emulators.plant.sensors import NoiseStreams, PotArrays, TachArrays
+from emulators.signals import QuadratureEvents
+from hal.config import ConfigTable
+
+
+@dataclass
+class PlantCommand:
+    """What the electronics drive into the plant for one period (per-joint arrays, held ZOH).
+
+    Attributes:
+        amp_command_v: transconductance amplifier input (V, from a DAC channel).
+        amp_enable: amplifier enable line (bool); for an H-bridge, disabled = coast.
+        fault_reset: amplifier fault reset line (bool); a rising edge clears latched faults.
+        pwm_duty: H-bridge PWM duty 0..1.
+        pwm_direction: H-bridge direction line (True = positive voltage).
+        brake: H-bridge brake line (True = winding shorted through the low-side switches).
+    """
+
+    amp_command_v: np.ndarray
+    amp_enable: np.ndarray
+    fault_reset: np.ndarray
+    pwm_duty: np.ndarray
+    pwm_direction: np.ndarray
+    brake: np.ndarray
+
+    def copy(self) -> PlantCommand:
+        """A copy with its own arrays."""
+        return PlantCommand(
+            amp_command_v=np.array(self.amp_command_v, dtype=float),
+            amp_enable=np.array(self.amp_enable, dtype=bool),
+            fault_reset=np.array(self.fault_reset, dtype=bool),
+            pwm_duty=np.array(self.pwm_duty, dtype=float),
+            pwm_direction=np.array(self.pwm_direction, dtype=bool),
+            brake=np.array(self.brake, dtype=bool),
+        )
+
+    @classmethod
+    def idle(cls, n: int) -> PlantCommand:
+        """All amplifiers disabled, zero command, no brake."""
+        return cls(
+            amp_command_v=np.zeros(n),
+            amp_enable=np.zeros(n, dtype=bool),
+            fault_reset=np.zeros(n, dtype=bool),
+            pwm_duty=np.zeros(n),
+            pwm_direction=np.ones(n, dtype=bool),
+            brake=np.zeros(n, dtype=bool),
+        )
+
+
+@dataclass
+class PlantSensors:
+    """Sensor outputs at the end of a period (the next sampling instant).
+
+    Attributes:
+        pot_v: joint potentiometer wiper (V).
+        tach_v: joint tachometer (V; 0 where a joint has none).
+        imon_v: amplifier current monitor (V).
+        amp_fault: amplifier fault line (bool, latched).
+        encoder: one :class:`QuadratureEvents` per joint: what the decoder input saw in the period.
+        switching: H-bridge PWM switching during the period (bool; for noise coupling into ADCs).
+        switching_noise_v: rms noise each joint's H-bridge couples into ADC inputs during the
+            period (V; 0 where not switching). The ADC side adds it to its readings.
+        truth: ground truth for reports/tests (SI): ``theta_joint``, ``omega_joint``,
+            ``theta_motor``, ``omega_motor``, ``current_a``, ``friction_torque_nm`` (motor shaft,
+            end of period), ``motor_torque_nm``,
+            ``stuck``, ``at_stop``, ``amp_thermal``, ``amp_fault_cause``, ``time_s``; and
+            ``encoder_x4`` (float encoder position at the end).
+    """
+
+    pot_v: np.ndarray
+    tach_v: np.ndarray
+    imon_v: np.ndarray
+    amp_fault: np.ndarray
+    encoder: list[QuadratureEvents]
+    switching: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    switching_noise_v: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    truth: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+class _StepConsts:
+    """Everything that depends only on the step length ``h``."""
+
+    def __init__(self, plant: Plant, h: float) -> None:
+        self.h = h
+        self.amp = AmpConsts(plant.amp, plant.R, plant.L, plant.Ke, h)
+        tau = plant.tach.tau
+        self.tach_decay = np.where(tau > 0.0, np.exp(-h / np.maximum(tau, 1e-300)), 0.0)
+        self.stick_slip = StickSlipStepper(plant.fr, plant.J_m, h)
+
+
+def _stack(joints: list, path: str, dtype: type = float) -> np.ndarray:
+    out = []
+    for j in joints:
+        v = j
+        for part in path.split("."):
+            v = getattr(v, part)
+        out.append(v)
+    return np.array(out, dtype=dtype)
+
+
+class Plant:
+    """Vectorised plant of ``n_joints`` joints with their amplifiers and sensors.
+
+    Args:
+        params: the joints (see :mod:`emulators.plant.params`).
+        seed: seed of all noise streams (``emulators.rng.rng_for(seed, "plant", joint, source)``).
+        rate_hz: integration rate; ``None`` takes ``params.rate_hz`` (4 kHz by default). Each
+            period is split into ``round(period·rate)`` equal substeps.
+    """
+
+    def __init__(self, params: PlantParams, *, seed: int = 0, rate_hz: float | None = None) -> None:
+        params.validate()
+        self.params = params
+        self.seed = int(seed)
+        self.rate_hz = float(rate_hz if rate_hz is not None else params.rate_hz)
+        if not self.rate_hz > 0:
+            raise ValueError("rate_hz must be > 0")
+        js = params.joints
+        self.names: list[str] = [j.name for j in js]
+        self.n_joints = len(js)
+        # motor and gear
+        self.R = _stack(js, "motor.resistance_ohm")
+        self.L = _stack(js, "motor.inductance_h")
+        self.Kt = _stack(js, "motor.kt_nm_per_a")
+        self.Ke = _stack(js, "motor.ke_v_s_per_rad")
+        self.N = _stack(js, "gear.ratio")
+        self.compliant = _stack(js, "gear.compliant", bool)
+        self.any_compliant = bool(self.compliant.any())
+        self.K_flex = _stack(js, "gear.stiffness_nm_per_rad")
+        self.C_flex = _stack(js, "gear.damping_nm_s_per_rad")
+        self.ke_amp = _stack(js, "gear.kinematic_error_rad")
+        self.ke_phase = _stack(js, "gear.kinematic_error_phase_rad")
+        self.has_ke = bool(np.any(self.ke_amp != 0.0))
+        j_rotor = _stack(js, "motor.rotor_inertia_kg_m2") + _stack(js, "gear.wave_generator_inertia_kg_m2")
+        self.J_link = _stack(js, "link.inertia_kg_m2")
+        #: inertia at the motor shaft seen by the stick/slip step (rotor only when compliant)
+        self.J_m = np.where(self.compliant, j_rotor, j_rotor + self.J_link / self.N**2)
+        self.G = _stack(js, "link.gravity_torque_nm")
+        self.G_phase = _stack(js, "link.gravity_phase_rad")
+        self.has_gravity = bool(np.any(self.G != 0.0))
+        self.lower = _stack(js, "link.lower_stop_rad")
+        self.upper = _stack(js, "link.upper_stop_rad")
+        self.fr = FrictionArrays(
+            breakout=_stack(js, "friction.breakout_nm"),
+            coulomb=_stack(js, "friction.coulomb_nm"),
+            stribeck_w=_stack(js, "friction.stribeck_velocity_rad_s"),
+            viscous=_stack(js, "friction.viscous_nm_s_per_rad"),
+            ripple=_stack(js, "friction.ripple_fraction"),
+            ripple_phase=_stack(js, "friction.ripple_phase_rad"),
+        )
+        is_lin = np.array([j.amplifier == AMP_LINEAR for j in js])
+        self.amp = AmpArrays(
+            is_lin=is_lin,
+            gain=_stack(js, "linear_amp.gain_a_per_v"),
+            bw_rad_s=2.0 * math.pi * _stack(js, "linear_amp.bandwidth_hz"),
+            lin_limit=_stack(js, "linear_amp.current_limit_a"),
+            lin_supply=_stack(js, "linear_amp.supply_v"),
+            lin_monitor=_stack(js, "linear_amp.monitor_v_per_a"),
+            lin_monitor_offset=_stack(js, "linear_amp.monitor_offset_v"),
+            lin_monitor_noise=_stack(js, "linear_amp.monitor_noise_v"),
+            sat_fault_s=_stack(js, "linear_amp.saturation_fault_s"),
+            hb_supply=_stack(js, "hbridge.supply_v"),
+            hb_deadtime_duty=_stack(js, "hbridge.dead_time_s") * _stack(js, "hbridge.pwm_hz"),
+            hb_limit=_stack(js, "hbridge.current_limit_a"),
+            hb_trip=_stack(js, "hbridge.overcurrent_trip_a"),
+            hb_monitor=_stack(js, "hbridge.monitor_v_per_a"),
+            hb_monitor_offset=_stack(js, "hbridge.monitor_offset_v"),
+            hb_monitor_noise=_stack(js, "hbridge.monitor_noise_v"),
+            i_cont=np.where(is_lin, _stack(js, "linear_amp.continuous_current_a"),
+                            _stack(js, "hbridge.continuous_current_a")),
+            tau_th=np.where(is_lin, _stack(js, "linear_amp.thermal_time_constant_s"),
+                            _stack(js, "hbridge.thermal_time_constant_s")),
+        )
+        self.pot = PotArrays(
+            span=_stack(js, "pot.span_rad"),
+            center=_stack(js, "pot.center_rad"),
+            v_low=_stack(js, "pot.v_low"),
+            v_high=_stack(js, "pot.v_high"),
+            bow=_stack(js, "pot.bow_fraction"),
+            periodic=_stack(js, "pot.periodic_fraction"),
+            cycles=_stack(js, "pot.periodic_cycles"),
+            noise=_stack(js, "pot.noise_v"),
+        )
+        self.tach = TachArrays(
+            present=_stack(js, "tach.present", bool),
+            gradient=_stack(js, "tach.gradient_v_per_rad_s"),
+            brush_drop=_stack(js, "tach.brush_drop_v"),
+            ripple=_stack(js, "tach.ripple_fraction"),
+            cycles=_stack(js, "tach.ripple_cycles_per_rev"),
+            tau=_stack(js, "tach.filter_time_constant_s"),
+            offset=_stack(js, "tach.offset_v"),
+            noise=_stack(js, "tach.noise_v"),
+        )
+        self.hb_switching_noise = np.where(is_lin, 0.0, _stack(js, "hbridge.switching_noise_v"))
+        self.enc_counts_per_rev = 4 * _stack(js, "encoder.lines_per_rev", np.int64)
+        self.enc_index_phase = _stack(js, "encoder.index_phase_x4", np.int64)
+        self.enc_sample_hz = _stack(js, "encoder.decoder_sample_hz")
+        self.inv_N = 1.0 / self.N
+        self.has_tach = bool(self.tach.present.any())
+        self.has_tach_ripple = bool(np.any(self.tach.ripple != 0.0))
+        self.enc_scale = self.enc_counts_per_rev / (2.0 * math.pi)  #: x4 counts per motor radian
+        self._consts: dict[float, _StepConsts] = {}
+        self.reset()
+
+    # ---- construction helpers -----------------------------------------------------------
+    @classmethod
+    def from_config(cls, cfg: ConfigTable, *, seed: int = 0, rate_hz: float | None = None) -> Plant:
+        """Build from a rig file's root table (reads ``[plant]`` and ``[[joint]]``)."""
+        return cls(plant_params_from_config(cfg), seed=seed, rate_hz=rate_hz)
+
+    def index_of(self, name: str) -> int:
+        """Position of joint ``name`` in the arrays."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise KeyError(f"no joint named {name!r} (joints: {', '.join(self.names)})") from None
+
+    def idle_command(self) -> PlantCommand:
+        return PlantCommand.idle(self.n_joints)
+
+    # ---- state ---------------------------------------------------------------------------
+    def reset(self, theta_joint: np.ndarray | None = None) -> None:
+        """Return to rest at ``theta_joint`` (rad; default each link's ``initial_angle_rad``),
+        currents zero, amplifiers disabled with faults cleared, noise streams restarted."""
+        n = self.n_joints
+        if theta_joint is None:
+            theta = _stack(self.params.joints, "link.initial_angle_rad")
+        else:
+            theta = np.broadcast_to(np.asarray(theta_joint, dtype=float), (n,)).copy()
+        theta = np.clip(theta, self.lower, self.upper)
+        self.theta_m = theta * self.N
+        if self.has_ke:  # one fixed-point pass so θm/N + ε(θm) ≈ θ
+            self.theta_m = (theta - self.ke_amp * np.sin(2.0 * self.theta_m + self.ke_phase)) * self.N
+        self.omega_m = np.zeros(n)
+        self.theta_l = theta.copy()
+        self.omega_l = np.zeros(n)
+        self.i = np.zeros(n)
+        self.tach_state = np.zeros(n)
+        self.amp_state = AmpState(n)
+        self.at_stop = np.zeros(n, dtype=bool)
+        self.external_torque_nm = np.zeros(n)
+        self.has_external = False
+        self.time_s = 0.0
+        self._prev_cmd = PlantCommand.idle(n)
+        self._noise = {
+            src: NoiseStreams(self.seed, self.names, src) for src in ("pot", "tach", "imon")
+        }
+
+    def set_external_torque(self, torque_nm: np.ndarray) -> None:
+        """Torque applied to the links by the environment (N·m at the joint; + pushes +),
+        e.g. a torque gauge or a contact load. Held until changed; :meth:`reset` clears it."""
+        self.external_torque_nm = np.broadcast_to(np.asarray(torque_nm, dtype=float), (self.n_joints,)).copy()
+        self.has_external = bool(np.any(self.external_torque_nm != 0.0))
+
+    # ---- kinematics ----------------------------------------------------------------------
+    def _theta_out(self, theta_m: np.ndarray) -> np.ndarray:
+        th = theta_m / self.N
+        if self.has_ke:
+            th = th + self.ke_amp * np.sin(2.0 * theta_m + self.ke_phase)
+        return th
+
+    def joint_angle(self) -> np.ndarray:
+        """True joint (link) angle (rad)."""
+        return np.where(self.compliant, self.theta_l, self._theta_out(self.theta_m))
+
+    def joint_speed(self) -> np.ndarray:
+        """True joint (link) speed (rad/s)."""
+        return np.where(self.compliant, self.omega_l, self.omega_m / self.N)
+
+    # ---- integration ---------------------------------------------------------------------
+    def _step_consts(self, h: float) -> _StepConsts:
+        c = self._consts.get(h)
+        if c is None:
+            c = self._consts[h] = _StepConsts(self, h)
+        return c
+
+    def _substep(self, c: _StepConsts, drv: AmpDrive, fast_amp: bool, i_ref_term: np.ndarray) -> None:
+        """One fixed step of every joint (state updated in place)."""
+        if fast_amp:
+            self.i = current_step_linear(self.amp_state, i_ref_term, self.i, self.omega_m, c.amp)
+        else:
+            self.i = current_step(self.amp, self.amp_state, drv, self.i, self.omega_m, c.amp)
+        t_drive = self.Kt * self.i
+        if self.has_external:
+            t_drive = t_drive + ~self.compliant * self.external_torque_nm * self.inv_N
+        if self.any_compliant:
+            th_out = self._theta_out(self.theta_m)
+            tau_s = self.compliant * (
+                self.K_flex * (th_out - self.theta_l) + self.C_flex * (self.omega_m * self.inv_N - self.omega_l)
+            )
+            load = tau_s
+            if self.has_gravity:
+                load = load + ~self.compliant * gravity_torque(th_out, self.G, self.G_phase)
+            t_drive = t_drive - load * self.inv_N
+        elif self.has_gravity:
+            t_drive = t_drive - gravity_torque(self._theta_out(self.theta_m), self.G, self.G_phase) * self.inv_N
+        w1, dth = c.stick_slip(self.omega_m, self.theta_m, t_drive)
+        self.theta_m = self.theta_m + dth
+        self.omega_m = w1
+        if self.any_compliant:
+            acc_l = (tau_s - gravity_torque(self.theta_l, self.G, self.G_phase) + self.external_torque_nm) / self.J_link
+            self.omega_l = np.where(self.compliant, self.omega_l + c.h * acc_l, self.omega_m * self.inv_N)
+            self.theta_l = np.where(self.compliant, self.theta_l + c.h * self.omega_l, self._theta_out(self.theta_m))
+            th_j = self.theta_l
+        else:
+            th_j = self._theta_out(self.theta_m) if self.has_ke else self.theta_m * self.inv_N
+        hit = (th_j > self.upper) | (th_j < self.lower)
+        if hit.any():
+            over = hard_stop_overshoot(th_j, self.lower, self.upper)
+            rigid_hit = hit & ~self.compliant
+            self.theta_m = self.theta_m - rigid_hit * over * self.N
+            self.omega_m = self.omega_m * ~rigid_hit
+            if self.any_compliant:
+                self.theta_l = self.theta_l - over
+                self.omega_l = self.omega_l * ~hit
+            th_j = th_j - over
+        self.at_stop = hit
+        # tachometer generator on the joint axis, then its ripple filter
+        if self.has_tach:
+            w_j = self.omega_m * self.inv_N
+            if self.any_compliant:
+                w_j = np.where(self.compliant, self.omega_l, w_j)
+            emf = self.tach.gradient * w_j
+            if self.has_tach_ripple:
+                emf = emf * (1.0 + self.tach.ripple * np.sin(self.tach.cycles * th_j))
+            g = (emf - np.minimum(np.maximum(emf, -self.tach.brush_drop), self.tach.brush_drop)) * self.tach.present
+            self.tach_state = g + (self.tach_state - g) * c.tach_decay
+
+    def step_period(self, cmd: PlantCommand, period_s: float, delay_s: float = 0.0) -> PlantSensors:
+        """Integrate one servo period and return the sensors at its end.
+
+        The previous period's command holds for the first ``delay_s`` seconds (computation
+        delay, rounded to the substep grid), then ``cmd`` takes effect; a rising edge of
+        ``cmd.fault_reset`` clears latched amplifier faults at that moment.
+        """
+        if not period_s > 0:
+            raise ValueError(f"period_s must be > 0, got {period_s}")
+        n_sub = max(1, round(period_s * self.rate_hz))
+        h = period_s / n_sub
+        n_old = min(n_sub, max(0, round(delay_s / h)))
+        c = self._step_consts(h)
+        prev = self._prev_cmd
+        drv_old = self._drive(prev)
+        drv_new = self._drive(cmd)
+        reset_edge = np.asarray(cmd.fault_reset, dtype=bool) & ~np.asarray(prev.fault_reset, dtype=bool)
+        x4 = np.empty((n_sub + 1, self.n_joints))
+        x4[0] = self.theta_m * self.enc_scale
+        switching = np.zeros(self.n_joints, dtype=bool)
+        drv = drv_old
+        for s in range(n_sub + 1):
+            if s == n_old:
+                if reset_edge.any():
+                    self.amp_state.reset_latches(reset_edge)
+                drv = drv_new
+            if s == n_old or s == 0:
+                fast = bool(np.all(drv.lin_on & ~self.amp_state.fault))
+                i_ref_term = drv.i_ref * (1.0 - c.amp.loop)
+                if not drv.hb_drive.any():
+                    sw = None
+                else:
+                    sw = drv.hb_drive & (np.abs(drv.hb_v) < self.amp.hb_supply)
+            if s == n_sub:
+                break
+            self._substep(c, drv, fast, i_ref_term)
+            if sw is not None:
+                switching |= sw & ~self.amp_state.fault
+            x4[s + 1] = self.theta_m * self.enc_scale
+        check_slow_faults(self.amp, self.amp_state)
+        self._prev_cmd = cmd.copy()  # callers may mutate their command in place
+        self.time_s += period_s
+        return self._sense(x4, h, c, switching)
+
+    def _drive(self, cmd: PlantCommand) -> AmpDrive:
+        return prepare_drive(
+            self.amp, cmd.amp_command_v, cmd.amp_enable, cmd.pwm_duty, cmd.pwm_direction, cmd.brake
+        )
+
+    def _sense(self, x4: np.ndarray, h: float, c: _StepConsts, switching: np.ndarray) -> PlantSensors:
+        th_j = self.joint_angle()
+        w_j = self.joint_speed()
+        pot_v = self.pot.volts(th_j) + self.pot.noise * self._noise["pot"].draw()
+        tach_v = np.where(
+            self.tach.present,
+            self.tach_state + self.tach.offset + self.tach.noise * self._noise["tach"].draw(),
+            0.0,
+        )
+        imon_v = self.amp.monitor_volts(self.i) + self.amp.monitor_noise * self._noise["imon"].draw()
+        events = encoder_events(x4, h, self.enc_sample_hz, self.enc_counts_per_rev, self.enc_index_phase)
+        truth = {
+            "time_s": np.full(self.n_joints, self.time_s),
+            "theta_joint": th_j,
+            "omega_joint": w_j,
+            "theta_motor": self.theta_m.copy(),
+            "omega_motor": self.omega_m.copy(),
+            "current_a": self.i.copy(),
+            "motor_torque_nm": self.Kt * self.i,
+            "friction_torque_nm": c.stick_slip.friction_torque(),
+            "stuck": self.omega_m == 0.0,
+            "at_stop": self.at_stop.copy(),
+            "amp_thermal": self.amp_state.thermal.copy(),
+            "amp_fault_cause": self.amp_state.cause.copy(),
+            "encoder_x4": x4[-1].copy(),
+        }
+        return PlantSensors(
+            pot_v=pot_v,
+            tach_v=tach_v,
+            imon_v=imon_v,
+            amp_fault=self.amp_state.fault.copy(),
+            encoder=events,
+            switching=switching,
+            switching_noise_v=np.where(switching, self.hb_switching_noise, 0.0),
+            truth=truth,
+        )

@@ -1,0 +1,68 @@
+"""``vmehil vision``: run the emulated vision system as its own process on a BIT3 link.
+
+The robot side creates the shared-memory segment (``emulators.bit3.Bit3Link.create_shared``)
+and unlinks it when done; this command attaches to it by name, formats the protocol layout if
+the memory is blank, powers the remote crate on, serves visual-servoing tasks until
+SIGTERM/SIGINT (or ``--duration`` / ``--exit-after-task``), then writes IDLE, powers off and
+detaches. It never unlinks the segment.
+
+Example::
+
+    vmehil vision --shm vmehil-bit3 --rate-hz 30 --latency-ms 30 --target 0.8,0.2,0.5
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+
+from emulators.vision import VisionParams, run_vision_process
+from hal.bit3.arm import ArmModel
+from hal.bit3.protocol import Timeouts
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("vision", help="run the emulated vision system on a shared-memory BIT3 link")
+    p.add_argument("--shm", required=True, help="name of the shared-memory segment the robot side created")
+    p.add_argument("--target", type=_xyz, default=(0.8, 0.2, 0.5), help="target x,y,z in metres (base frame)")
+    p.add_argument("--rate-hz", type=float, default=30.0, help="camera frame rate (Hz)")
+    p.add_argument("--latency-ms", type=float, default=30.0, help="frame-to-command latency (ms)")
+    p.add_argument("--gain", type=float, default=0.5, help="fraction of the error commanded per frame")
+    p.add_argument("--max-step-mm", type=float, default=10.0, help="saturation of one command (mm)")
+    p.add_argument("--tolerance-mm", type=float, default=2.0, help="target reached within this (mm)")
+    p.add_argument("--hold-frames", type=int, default=3, help="frames within tolerance before ending (0: never)")
+    p.add_argument("--fov-deg", type=float, default=180.0, help="half angle of the field of view (deg)")
+    p.add_argument("--arm", type=_xyz, default=None, help="arm lengths d1,a2,a3 in metres (default 0.30,0.60,0.55)")
+    p.add_argument("--offset", type=lambda s: int(s, 0), default=0, help="protocol base offset in the memory")
+    p.add_argument("--peer-timeout-ms", type=float, default=250.0, help="robot silent this long: end the task")
+    p.add_argument("--duration", type=float, default=None, help="exit after this many seconds")
+    p.add_argument("--exit-after-task", action="store_true", help="exit when the first task has ended")
+    p.add_argument("-v", "--verbose", action="store_true", help="log to stderr")
+    p.set_defaults(func=run)
+
+
+def _xyz(text: str) -> tuple[float, float, float]:
+    parts = [float(x) for x in text.split(",")]
+    if len(parts) != 3 or not all(math.isfinite(x) for x in parts):
+        raise argparse.ArgumentTypeError(f"expected three numbers x,y,z, got {text!r}")
+    return parts[0], parts[1], parts[2]
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.verbose:
+        logging.basicConfig(level=logging.INFO, format="%(message)s")
+    params = VisionParams(
+        rate_hz=args.rate_hz, latency_s=args.latency_ms * 1e-3, gain=args.gain,
+        max_step_m=args.max_step_mm * 1e-3, tolerance_m=args.tolerance_mm * 1e-3,
+        hold_frames=args.hold_frames, fov_half_angle_rad=math.radians(args.fov_deg),
+    )
+    arm = ArmModel() if args.arm is None else ArmModel(*args.arm)
+    summary = run_vision_process(
+        args.shm, args.target, params=params, arm=arm,
+        timeouts=Timeouts(peer_timeout_s=args.peer_timeout_ms * 1e-3), offset=args.offset,
+        duration_s=args.duration, exit_after_task=args.exit_after_task,
+    )
+    print(json.dumps(summary))
+    return 0

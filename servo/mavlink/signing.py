@@ -1,0 +1,90 @@
+"""MAVLink 2 signing: the key file and the policy for unsigned messages.
+
+Key file: one line of 64 hexadecimal digits (the 32-byte secret key), nothing else but
+whitespace and ``#`` comment lines. The file must not be readable or writable by group or others
+(``chmod 600``); anything else is refused. Keys are never taken from the command line.
+
+MAVProxy derives its key from a passphrase as SHA-256(passphrase); :func:`key_from_passphrase`
+does the same, so ``signing key PASSPHRASE`` typed into MAVProxy's console matches a key file
+written with ``vmehil``'s :func:`write_key_file` (or by hand: ``sha256sum`` of the passphrase).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import stat
+from pathlib import Path
+
+KEY_LEN = 32
+
+
+class KeyFileError(ValueError):
+    """The signing key file is missing, too open, or not a 32-byte hex key."""
+
+
+def key_from_passphrase(passphrase: str) -> bytes:
+    """MAVProxy's key derivation: SHA-256 of the UTF-8 passphrase (32 bytes)."""
+    return hashlib.sha256(passphrase.encode("utf-8")).digest()
+
+
+def write_key_file(path: str | Path, key: bytes) -> Path:
+    """Write ``key`` (32 bytes) as hex to a new file created with mode 0600."""
+    if len(key) != KEY_LEN:
+        raise KeyFileError(f"a signing key is {KEY_LEN} bytes, got {len(key)}")
+    p = Path(path)
+    fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(key.hex() + "\n")
+    os.chmod(p, 0o600)
+    return p
+
+
+def load_key_file(path: str | Path) -> bytes:
+    """Read a signing key (see the module docstring). Raises :class:`KeyFileError` saying what to fix."""
+    p = Path(path)
+    try:
+        st = p.stat()
+    except FileNotFoundError:
+        raise KeyFileError(f"signing key file {p} does not exist") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise KeyFileError(f"signing key file {p} is not a regular file")
+    if st.st_mode & 0o077:
+        raise KeyFileError(f"signing key file {p} is accessible by group or others (mode "
+                           f"{stat.S_IMODE(st.st_mode):04o}); run: chmod 600 {p}")
+    lines = [ln.strip() for ln in p.read_text(encoding="ascii", errors="replace").splitlines()]
+    lines = [ln for ln in lines if ln and not ln.startswith("#")]
+    if len(lines) != 1:
+        raise KeyFileError(f"signing key file {p}: expected one line of {2 * KEY_LEN} hex digits")
+    try:
+        key = bytes.fromhex(lines[0])
+    except ValueError:
+        raise KeyFileError(f"signing key file {p}: the key is not hexadecimal") from None
+    if len(key) != KEY_LEN:
+        raise KeyFileError(f"signing key file {p}: the key has {len(key)} bytes, expected {KEY_LEN} "
+                           f"({2 * KEY_LEN} hex digits)")
+    return key
+
+
+class UnsignedPolicy:
+    """``allow_unsigned_callback`` for pymavlink with a key configured.
+
+    Unsigned (or badly signed) messages are let through the parser only for the types in
+    ``passed`` — HEARTBEAT, the parameter messages and COMMAND_LONG — so that the endpoint can
+    answer a refused PARAM_SET/READ with PARAM_ERROR (PERMISSION_DENIED) instead of silence.
+    The endpoint looks at each message's ``_signed`` flag and only heartbeats (and reads, when
+    ``allow_unsigned_read``) are honoured unsigned. Everything else unsigned is dropped by pymavlink.
+    """
+
+    def __init__(self, mavlink_module) -> None:
+        m = mavlink_module
+        self.passed = {m.MAVLINK_MSG_ID_HEARTBEAT, m.MAVLINK_MSG_ID_PARAM_REQUEST_LIST,
+                       m.MAVLINK_MSG_ID_PARAM_REQUEST_READ, m.MAVLINK_MSG_ID_PARAM_SET,
+                       m.MAVLINK_MSG_ID_COMMAND_LONG}
+        self.dropped = 0
+
+    def __call__(self, mav, msg_id: int) -> bool:
+        if msg_id in self.passed:
+            return True
+        self.dropped += 1
+        return False

@@ -1,0 +1,294 @@
+"""Arm model, emulated vision system and closed-loop visual servoing over the BIT3 link.
+
+The closed loops integrate the commanded joint increments directly (a kinematic arm; the
+servo loop is not needed here): in one process in lockstep through the full driver stack,
+and with the vision system as its own process (``python -m servo vision``) over
+``multiprocessing.shared_memory``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from emulators.bit3 import Bit3Board, Bit3Link, Bit3RemotePort
+from emulators.crate import Crate
+from emulators.vision import VisionParams, VisionSystem
+from hal.bit3 import Bit3Driver, BufferMemory
+from hal.bit3.arm import ArmModel
+from hal.bit3.protocol import (
+    EndReason,
+    RobotState,
+    Timeouts,
+    VisionServoClient,
+    VisionServoServer,
+    VisionState,
+    format_layout,
+)
+
+ARM = ArmModel()
+angles = st.floats(-2.5, 2.5)
+
+
+# --- arm model ---------------------------------------------------------------------------
+def test_default_arm_reaches_1_15_m_at_full_extension() -> None:
+    assert ARM.reach == pytest.approx(1.15)
+    p = ARM.position([0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    assert p == pytest.approx([1.15, 0.0, ARM.d1])
+
+
+@given(q=st.tuples(angles, angles, angles))
+def test_jacobian_matches_finite_differences(q) -> None:
+    J = ARM.jacobian(q)
+    h = 1e-6
+    for i in range(3):
+        dq = np.zeros(3)
+        dq[i] = h
+        num = (ARM.position(np.add(q, dq)) - ARM.position(np.subtract(q, dq))) / (2 * h)
+        assert np.allclose(J[:, i], num, atol=1e-6)
+
+
+@given(q=st.tuples(angles, angles, angles))
+def test_camera_frame_is_a_rotation_with_x_along_the_forearm(q) -> None:
+    R = ARM.rotation(q)
+    assert np.allclose(R.T @ R, np.eye(3), atol=1e-12) and np.linalg.det(R) == pytest.approx(1.0)
+    # moving the elbow joint's tip along x_e: the forearm direction
+    fore = ARM.position(q) - ARM.position((q[0], q[1], q[2])) + R[:, 0] * ARM.a3
+    assert np.allclose(fore / ARM.a3, R[:, 0])
+
+
+@given(q=st.tuples(st.floats(-2, 2), st.floats(0.2, 1.2), st.floats(-2.2, -0.4)),
+       d=st.tuples(*[st.floats(-1e-5, 1e-5)] * 3))
+def test_ee_increment_maps_to_joint_increment_that_realizes_it(q, d) -> None:
+    theta = [*q, 0.3, -0.1, 0.0]  # wrist joints do not move the camera in this model
+    dq = ARM.ee_delta_to_joint_delta(theta, d, frame="ee", damping=1e-4)
+    assert dq[3:] == pytest.approx([0.0, 0.0, 0.0])
+    moved = ARM.position(np.add(theta, dq)) - ARM.position(theta)
+    # first order: exact up to curvature (|dq|² L) and damping (λ²/σ²) terms
+    assert np.allclose(moved, ARM.rotation(theta) @ np.asarray(d), rtol=0, atol=1e-3 * np.linalg.norm(d) + 1e-14)
+
+
+def test_inverse_kinematics_round_trip_and_out_of_reach() -> None:
+    theta = ARM.inverse([0.7, 0.3, 0.6], [0.0, 0.5, -1.0])
+    assert ARM.position(theta) == pytest.approx([0.7, 0.3, 0.6], abs=1e-8)
+    with pytest.raises(ValueError, match="not reached"):
+        ARM.inverse([3.0, 0.0, 0.3], [0.0, 0.5, -1.0])
+
+
+def test_arm_from_parameter_table() -> None:
+    arm = ArmModel.from_table({"d1": 0.2, "a2": 0.5, "a3": 0.4, "joints": [1, 2, 3]})
+    assert arm.reach == pytest.approx(0.9) and arm.joints == (1, 2, 3)
+    with pytest.raises(ValueError, match="unknown"):
+        ArmModel.from_table({"length": 1.0})
+
+
+# --- vision system -------------------------------------------------------------------------
+def test_vision_measures_the_target_in_the_camera_frame() -> None:
+    theta = [0.4, 0.6, -1.1]
+    p, R = ARM.pose(theta)
+    target = p + 0.2 * R[:, 0] + 0.05 * R[:, 1]  # ahead and to the left
+    vision = VisionSystem(VisionServoServer.__new__(VisionServoServer), target, ARM,
+                          ee_pose=lambda: ARM.pose(theta))
+    e, visible = vision.measure()
+    assert e == pytest.approx([0.2, 0.05, 0.0], abs=1e-12) and visible
+    vision.params = VisionParams(fov_half_angle_rad=math.radians(10))
+    assert not vision.measure()[1]  # 14° off axis
+
+
+def test_vision_params_are_checked() -> None:
+    with pytest.raises(ValueError, match="gain"):
+        VisionParams(gain=1.5)
+    with pytest.raises(ValueError, match="rate_hz"):
+        VisionParams(rate_hz=0)
+
+
+# --- closed loop, one process, lockstep through the driver ---------------------------------
+def _robot_rig(link: Bit3Link, poll: float | None = None):
+    crate = Crate("robot")
+    card = Bit3Board("bit3", link, window_base=0x400000, window_space="A24", poll_period_s=poll)
+    crate.install(card, base=0xC000, space="A16")
+    drv = Bit3Driver(crate, 0xC000, 0x400000, window_size=link.mem_size)
+    return crate, card, drv
+
+
+def _closed_loop(latency_s: float, rate_hz: float, use_telemetry: bool, seconds: float = 4.0):
+    link = Bit3Link(0x1000)
+    remote = Bit3RemotePort(link)
+    remote.power_on()
+    crate, _, drv = _robot_rig(link)
+    format_layout(drv.memory())
+    robot = VisionServoClient(drv.memory(), ring=drv.ring_doorbell)
+    drv.on_doorbell(robot.notify)
+    theta = np.array([0.2, 0.5, -1.0, 0.0, 0.0, 0.0])
+    target = ARM.position(theta) + np.array([0.08, -0.12, 0.05])
+    params = VisionParams(rate_hz=rate_hz, latency_s=latency_s, gain=0.5, max_step_m=0.01, tolerance_m=0.002)
+    server = VisionServoServer(remote.memory, ring=remote.ring)
+    remote.on_doorbell(server.notify)
+    vision = VisionSystem(server, target, ARM, params, ee_pose=None if use_telemetry else lambda: ARM.pose(theta))
+    dt = 0.008
+    robot.publish_joints(theta, 0.0)
+    robot.request(crate.now())
+    n = 0
+    for k in range(1, round(seconds / dt)):
+        crate.advance_to(round(k * dt * 1e9))
+        t = crate.now()
+        vision.step(t)
+        cmd = robot.step(t)
+        if cmd is not None:
+            theta += ARM.ee_delta_to_joint_delta(theta, cmd.dp)
+            n += 1
+        robot.publish_joints(theta, t)
+        if robot.state is RobotState.IDLE and server.state is VisionState.IDLE:
+            break
+    return robot, server, vision, float(np.linalg.norm(ARM.position(theta) - target)), n
+
+
+@pytest.mark.parametrize(("latency_s", "rate_hz", "use_telemetry"),
+                         [(0.03, 30.0, True), (0.0, 60.0, False), (0.06, 25.0, True)])
+def test_closed_loop_visual_servo_converges_in_lockstep(latency_s, rate_hz, use_telemetry) -> None:
+    robot, server, vision, err, n = _closed_loop(latency_s, rate_hz, use_telemetry)
+    assert server.end_reason is EndReason.TARGET_REACHED
+    assert robot.state is RobotState.IDLE and robot.end_reason is EndReason.PEER_ENDED
+    assert err < 2 * vision.params.tolerance_m
+    assert n > 10 and vision.stats.frames > n // 2
+    assert robot.doorbells > 0 and server.doorbells > 0  # hints delivered both ways (not relied on)
+
+
+# --- closed loop with the vision system as its own process ----------------------------------
+def test_closed_loop_with_vision_emulator_as_a_separate_process() -> None:
+    link = Bit3Link.create_shared(0x1000)
+    proc = None
+    try:
+        crate, _, drv = _robot_rig(link, poll=100e-6)
+        T = Timeouts(peer_timeout_s=1.0, accept_timeout_s=3.0, ending_timeout_s=0.5)
+        theta = np.array([0.2, 0.5, -1.0, 0.0, 0.0, 0.0])
+        target = ARM.position(theta) + np.array([0.03, 0.04, -0.02])
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "servo", "vision", "--shm", link.shm_name, "--exit-after-task",
+             "--target", ",".join(f"{x:.6f}" for x in target), "--rate-hz", "50", "--latency-ms", "10",
+             "--peer-timeout-ms", "1000", "--duration", "20"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        t0 = time.monotonic()
+        while not drv.status().link_up:  # the vision process powers the remote crate on
+            assert proc.poll() is None, proc.stderr.read()
+            assert time.monotonic() - t0 < 15, "vision process did not come up"
+            time.sleep(0.01)
+        drv.reset_link()
+        robot = VisionServoClient(drv.memory(), T)  # the vision side formatted its memory
+        robot.publish_joints(theta, crate.now())
+        robot.request(crate.now())
+        while time.monotonic() - t0 < 20:
+            crate.advance_to(round((time.monotonic() - t0) * 1e9))
+            t = crate.now()
+            cmd = robot.step(t)
+            if cmd is not None:
+                theta += ARM.ee_delta_to_joint_delta(theta, cmd.dp)
+            robot.publish_joints(theta, t)
+            if robot.state is RobotState.IDLE:
+                break
+            time.sleep(0.008)
+        assert robot.end_reason is EndReason.PEER_ENDED, robot.end_reason
+        assert robot.peer is not None and robot.peer.end_reason == EndReason.TARGET_REACHED
+        assert np.linalg.norm(ARM.position(theta) - target) < 0.004
+        out, err = proc.communicate(timeout=10)
+        assert proc.returncode == 0, err
+        summary = json.loads(out.strip().splitlines()[-1])
+        assert summary["end_reason"] == "TARGET_REACHED" and summary["commands"] >= robot.commands > 0
+        assert not link.remote_power  # the vision process powered off on exit
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        link.close(unlink=True)
+
+
+def test_killed_vision_process_leaves_the_robot_holding_after_peer_timeout() -> None:
+    link = Bit3Link.create_shared(0x1000)
+    proc = None
+    try:
+        crate, _, drv = _robot_rig(link, poll=100e-6)
+        T = Timeouts(peer_timeout_s=0.3, accept_timeout_s=3.0, ending_timeout_s=0.2)
+        theta = np.array([0.2, 0.5, -1.0])
+        far = ARM.position(theta) + np.array([0.3, 0.0, 0.0])  # takes a while: still servoing when killed
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "servo", "vision", "--shm", link.shm_name, "--target",
+             ",".join(f"{x:.6f}" for x in far), "--max-step-mm", "0.5", "--duration", "20"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        t0 = time.monotonic()
+        while not drv.status().link_up:
+            assert proc.poll() is None, proc.stderr.read()
+            assert time.monotonic() - t0 < 15, "vision process did not come up"
+            time.sleep(0.01)
+        drv.reset_link()
+        robot = VisionServoClient(drv.memory(), T)
+        robot.publish_joints(theta, crate.now())
+        robot.request(crate.now())
+        killed_at = None
+        while time.monotonic() - t0 < 20 and robot.state is not RobotState.IDLE:
+            crate.advance_to(round((time.monotonic() - t0) * 1e9))
+            t = crate.now()
+            cmd = robot.step(t)
+            if cmd is not None:
+                theta += ARM.ee_delta_to_joint_delta(theta, cmd.dp)
+                if killed_at is None and robot.commands >= 3:
+                    proc.kill()
+                    proc.wait(timeout=5)
+                    killed_at = t
+            robot.publish_joints(theta, t)
+            time.sleep(0.005)
+        assert killed_at is not None
+        assert robot.state is RobotState.IDLE and robot.holding
+        assert robot.end_reason is EndReason.PEER_TIMEOUT
+        assert link.remote_power  # a killed process cannot power off: only the heartbeat tells
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        link.close(unlink=True)
+
+
+def test_vision_process_exits_cleanly_on_sigterm() -> None:
+    link = Bit3Link.create_shared(0x1000)
+    proc = subprocess.Popen([sys.executable, "-m", "servo", "vision", "--shm", link.shm_name, "--duration", "20"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        t0 = time.monotonic()
+        while not link.remote_power:
+            assert proc.poll() is None, proc.stderr.read()
+            assert time.monotonic() - t0 < 15, "vision process did not come up"
+            time.sleep(0.01)
+        proc.terminate()
+        out, err = proc.communicate(timeout=10)
+        assert proc.returncode == 0, err
+        assert json.loads(out.strip().splitlines()[-1])["tasks"] == 0
+        assert not link.remote_power
+        view = BufferMemory(link.mem)
+        probe = VisionServoClient(view)  # the vision side formatted its memory
+        probe.step(0.0)
+        assert probe.peer is not None and probe.peer.state == VisionState.IDLE
+        view.release()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        link.close(unlink=True)
+
+
+def test_vision_command_reports_a_missing_segment() -> None:
+    from servo.cli import main
+
+    assert main(["vision", "--shm", "vmehil-test-no-such-segment"]) == 2

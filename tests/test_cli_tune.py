@@ -1,0 +1,153 @@
+"""`vmehil tune`: defaults on the default rig, JSON keys and nulls, reports, rig-file gains, and
+clear errors for bad gains (no tracebacks)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from servo.cli import main
+
+
+def test_bode_with_no_arguments_works_on_the_default_rig(capsys) -> None:
+    assert main(["tune", "bode"]) == 0
+    out = capsys.readouterr().out
+    assert "phase margin" in out and "jpl-arm" in out and "paper" in out
+
+
+def test_bode_json_has_the_documented_keys_and_null_for_infinite_margin(tmp_path: Path, capsys) -> None:
+    path = tmp_path / "bode.json"
+    assert main(["tune", "bode", "--json", str(path)]) == 0
+    text = path.read_text()
+    d = json.loads(text)
+    for key in ("gain_margin_db", "phase_margin_deg"):
+        assert key in d["continuous"]
+    for key in ("gain_margin_db", "phase_margin_deg", "crossover_hz", "bandwidth_hz"):
+        assert isinstance(d["sampled"][key], float)
+    assert d["continuous"]["gain_margin_db"] is None  # infinite upper margin of the ideal loop
+    assert '"gain_margin_db": null' in text and "Infinity" not in text and "NaN" not in text
+    assert 40 < d["sampled"]["phase_margin_deg"] < d["continuous"]["phase_margin_deg"]
+    assert list(tmp_path.iterdir()) == [path]  # no temp files left behind
+
+
+def test_bode_report_writes_png_svg_and_markdown(tmp_path: Path, capsys) -> None:
+    rep = tmp_path / "rep"
+    assert main(["tune", "bode", "--report", str(rep)]) == 0
+    names = sorted(p.name for p in rep.iterdir())
+    assert names == ["bode_open_loop.png", "bode_open_loop.svg", "closed_loop_and_disturbance.png",
+                     "closed_loop_and_disturbance.svg", "summary.md"]
+    assert (rep / "bode_open_loop.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    md = (rep / "summary.md").read_text()
+    assert "phase margin" in md and "bode_open_loop.png" in md
+
+
+@pytest.mark.parametrize(("gains", "words"), [
+    ("kp=-5", "negative"),
+    ("kv=nan", "not finite"),
+    ("kq=3", "unknown gain"),
+    ("kp=1,,kv", "malformed"),
+    ("kp=fast", "not a number"),
+])
+def test_bad_gains_are_clear_errors_without_traceback(gains: str, words: str, capsys) -> None:
+    assert main(["tune", "bode", "--gains", gains]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "Traceback" not in err and err.startswith("vmehil tune: error:")
+
+
+def test_unstable_gains_are_reported_clearly(tmp_path: Path, capsys) -> None:
+    path = tmp_path / "b.json"
+    assert main(["tune", "bode", "--gains", "kv=5", "--json", str(path)]) == 1
+    cap = capsys.readouterr()
+    assert "UNSTABLE" in cap.out and "UNSTABLE" in cap.err and "Traceback" not in cap.err
+    d = json.loads(path.read_text())
+    assert d["stable"] is False and d["sampled"]["stable"] is False
+
+
+def test_bad_joint_number_is_an_argument_error(capsys) -> None:
+    with pytest.raises(SystemExit) as e:
+        main(["tune", "bode", "--joint", "0"])
+    assert e.value.code == 2
+    assert "numbered from 1" in capsys.readouterr().err
+
+
+RIG = """
+[rig]
+servo_rate_hz = 250.0
+computation_delay_s = 0.004
+
+[[joint]]
+name = "shoulder"
+inertia_kg_m2 = 2.0
+[joint.servo]
+gains = { kp = 150, kpi = 4000, kv = 60, kvi = 900 }
+velocity = "encoder"
+
+[[joint]]
+name = "elbow"
+[joint.servo]
+gains = { kp = 100, kpi = 5000, kv = 50, kvi = 1000 }
+[joint.tach]
+gradient_v_per_rad_s = 2.0
+brush_drop_v = 0.24
+"""
+
+
+def test_rig_file_gains_and_loop_settings_are_used(tmp_path: Path, capsys) -> None:
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG)
+    path = tmp_path / "b.json"
+    assert main(["tune", "bode", "--rig", str(rig), "--gains", "kp=175", "--json", str(path)]) == 0
+    d = json.loads(path.read_text())
+    assert d["gains"] == {"kp": 175.0, "kpi": 4000.0, "kv": 60.0, "kvi": 900.0}
+    assert d["joint_name"] == "shoulder" and d["velocity_source"] == "encoder"
+    assert d["sample_period_s"] == pytest.approx(0.004) and d["computation_delay_s"] == pytest.approx(0.004)
+    assert not any(n.startswith("gains") for n in d["notes"])
+
+
+def test_tach_dead_band_from_gradient_and_brush_drop(tmp_path: Path, capsys) -> None:
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG)
+    path = tmp_path / "lc.json"
+    assert main(["tune", "limit-cycle", "--predict-only", "--rig", str(rig), "--joint", "2",
+                 "--json", str(path)]) == 0
+    d = json.loads(path.read_text())
+    assert d["tach_deadband_rad_s"] == pytest.approx(0.12)
+    assert "tach dead band" in d["predicted"]["nonlinearity"]
+
+
+def test_joint_beyond_the_rig_is_a_clear_error(tmp_path: Path, capsys) -> None:
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG)
+    assert main(["tune", "bode", "--rig", str(rig), "--joint", "3"]) == 2
+    err = capsys.readouterr().err
+    assert "has 2 joints" in err and "Traceback" not in err
+
+
+def test_limit_cycle_predict_only_json_and_report(tmp_path: Path, capsys) -> None:
+    path = tmp_path / "lc.json"
+    rep = tmp_path / "lc"
+    assert main(["tune", "limit-cycle", "--predict-only", "--json", str(path), "--report", str(rep)]) == 0
+    d = json.loads(path.read_text())
+    p = d["predicted"]
+    assert 0.5 < p["amplitude_deg"] < 1.0 and 2.0 < p["frequency_hz"] < 4.0  # DESIGN section 9: ±¾° at 1–3 Hz
+    assert d["simulated"] is None and d["switch_off"]["simulated"] is None
+    # the paper's cure: with the integrators switched off no stable cycle is predicted
+    assert d["switch_off"]["predicted"]["amplitude_deg"] is None
+    assert d["switch_off"]["predicted"]["frequency_hz"] is None
+    assert "static_error_deg" in d["switch_off"]
+    assert d["switch_off"]["predicted"]["static_error_bound_deg"] == pytest.approx(
+        4.24 / (3.0 * 1100) * 180 / 3.141592653589793, rel=1e-6)
+    assert {"df_nyquist.png", "df_nyquist.svg", "cycle_time.png", "summary.md"} <= {x.name for x in rep.iterdir()}
+
+
+def test_limit_cycle_without_any_cycle_gives_null(tmp_path: Path, capsys) -> None:
+    """A heavily damped, slow loop with no dead band (encoder velocity): nothing to predict."""
+    rig = tmp_path / "rig.toml"
+    rig.write_text(RIG)
+    path = tmp_path / "lc.json"
+    assert main(["tune", "limit-cycle", "--predict-only", "--rig", str(rig), "--json", str(path)]) == 0
+    d = json.loads(path.read_text())
+    assert d["predicted"]["amplitude_deg"] is None and d["predicted"]["frequency_hz"] is None
+    assert "null" in path.read_text()
