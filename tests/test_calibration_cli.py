@@ -25,6 +25,8 @@ WIRING = """
 
 def default_rig_with_references(tmp_path):
     text = resolve_rig("jpl-arm").read_text()
+    if "[joint.wiring]" not in text:
+        pytest.skip("the jpl-arm preset has no [joint.wiring] yet (integration pending)")
     if "[rig.references]" not in text:
         text += WIRING
     p = tmp_path / "jpl-arm.toml"
