@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(VENV)/bin/vmehil crate demo
+	$(VENV)/bin/vmehil run --report reports/run --json reports/run/run.json
 
 lint: $(STAMP)
 	$(PY) -m ruff check .

@@ -137,8 +137,12 @@ def test_limit_cycle_predict_only_json_and_report(tmp_path: Path, capsys) -> Non
     assert d["switch_off"]["predicted"]["amplitude_deg"] is None
     assert d["switch_off"]["predicted"]["frequency_hz"] is None
     assert "static_error_deg" in d["switch_off"]
+    from emulators.plant import load_plant_params
+
+    j1 = load_plant_params("jpl-arm").joints[0]  # T_F at the output = N · input Coulomb level
+    tf = j1.friction.coulomb_nm * j1.gear.ratio
     assert d["switch_off"]["predicted"]["static_error_bound_deg"] == pytest.approx(
-        4.24 / (3.0 * 1100) * 180 / 3.141592653589793, rel=1e-6)
+        tf / (j1.inertia_at_joint() * 1100) * 180 / 3.141592653589793, rel=1e-6)
     assert {"df_nyquist.png", "df_nyquist.svg", "cycle_time.png", "summary.md"} <= {x.name for x in rep.iterdir()}
 
 

@@ -322,7 +322,7 @@ def joint_from_config(tbl: ConfigTable, templates: dict[str, dict[str, Any]] | N
     for key, cls in _SUBTABLES.items():
         if key in tbl:
             setattr(j, key, _read_dataclass(cls, tbl.table(key)))
-    tbl.check_unknown({"name", "amplifier", "template", *_SUBTABLES})
+    tbl.check_unknown({"name", "amplifier", "template", "wiring", "servo", *_SUBTABLES})  # wiring, servo: read by servo
     try:
         j.validate()
     except ValueError as e:

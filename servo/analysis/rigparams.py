@@ -165,6 +165,11 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | None = None,
                      amplifier_bandwidth_hz=amp_bw)
 
     inertia = _num(jt, "inertia_kg_m2", min=1e-12) if jt is not None else None
+    if inertia is None and jt is not None and "link" in jt:
+        # plant tables: link inertia plus the rotor reflected through N² (see docs/plant.md)
+        n_gear = _num(_sub(jt, "gear"), "ratio", min=1e-9) or DEFAULT_RATIO
+        rotor = _num(_sub(jt, "motor"), "rotor_inertia_kg_m2", min=0.0) or 0.0
+        inertia = (_num(_sub(jt, "link"), "inertia_kg_m2", min=0.0) or 0.0) + rotor * n_gear**2
     if inertia is None:
         inertia = DEFAULT_INERTIA
         notes.append(f"inertia: not in the rig, assuming J = {DEFAULT_INERTIA:g} kg·m²")
@@ -181,6 +186,8 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | None = None,
     coulomb = _num(fr, "coulomb_nm", min=0.0)
     if coulomb is None:
         coulomb = _num(fr, "breakout_nm", min=0.0)
+    if coulomb is not None and jt is not None and "gear" in jt:
+        coulomb *= _num(_sub(jt, "gear"), "ratio", min=1e-9) or 1.0  # plant friction is input-referred
     if coulomb is None:
         coulomb = DEFAULT_COULOMB_NM
         notes.append(f"friction: not in the rig, assuming {DEFAULT_COULOMB_NM:g} N·m at the output (600 oz-in)")
@@ -194,7 +201,7 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | None = None,
         notes.append(f"position quantum: not in the rig, assuming {DEFAULT_QUANTUM_RAD * 1e3:g} mrad (12-bit pot)")
 
     motor = _sub(jt, "motor") if jt is not None else None
-    drive = _sub(jt, "drive") if jt is not None else None
+    drive = (_sub(jt, "gear") or _sub(jt, "drive")) if jt is not None else None
     peak = _num(motor, "peak_torque_nm", min=0.0)
     ratio = _num(drive, "ratio", min=0.0)
     if peak is None or ratio is None:
