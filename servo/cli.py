@@ -17,6 +17,7 @@ COMMAND_MODULES = [
     "servo.commands.vision",
     "servo.commands.plant_node",
     "servo.commands.console",
+    "servo.commands.calibrate",
 ]
 
 
