@@ -63,6 +63,7 @@ class LockstepRunner:
         self.period_s = system.rig.period_s
         self.period_ns = system.period_ns
         self.delay_s = system.rig.computation_delay_s
+        self.delay_ns = round(self.delay_s * 1e9)
         self.overruns = 0
         self.after_tick: list[Callable[[ServoLoop], None]] = []
 
@@ -72,6 +73,9 @@ class LockstepRunner:
         sys_.crate.advance_to(k * self.period_ns)
         sys_.harness.publish()
         self.loop.tick(truth=sys_.truth())
+        # The command takes effect at t_k + delay: let the boards' pending events (a DAC's output
+        # settling after its update strobe) run before the harness reads the command nets.
+        sys_.crate.advance_to(k * self.period_ns + self.delay_ns)
         try:
             sys_.harness.step(self.period_s, self.delay_s)
         except PlantLinkError as e:

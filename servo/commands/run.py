@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from pathlib import Path
 
 from servo.files import write_json
 
@@ -63,6 +64,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--gains", default=None, help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=..")
     p.add_argument("--json", default=None, help="write the machine-readable summary here")
     p.add_argument("--report", default=None, help="write plots and summary.md into this folder")
+    p.add_argument("--calibration", default=None,
+                   help="calibration file for the drivers (default: calibration/<rig>.toml or "
+                        "$VMEHIL_CALIBRATION_DIR/<rig>.toml; missing → nominal values with a warning)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     for ext in _extensions():
         ext.add_arguments(p)
@@ -114,7 +118,7 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     if not duration > 0:
         raise ValueError("--duration must be > 0")
     n_ticks = round(duration * rig.servo_rate_hz)
-    system = build_emulated_rig(rig, seed=args.seed, link=_make_link(args, rig))
+    system = _build_calibrated(args, rig, build_emulated_rig)
     loop = build_loop(system, motion=motion, gains=gains, n_ticks=n_ticks,
                       switch_off=False if args.no_integrator_switch_off else None)
     loop.start()
@@ -142,6 +146,29 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
         print(f"report: {len(files)} files in {args.report}")
     system.close()
     return 1 if summary["faults"] else 0
+
+
+def _build_calibrated(args: argparse.Namespace, rig, build):
+    """Build the rig with the drivers' calibration file; a missing file is a one-line warning."""
+    import warnings
+
+    from servo.calibration.store import default_store_path
+    from servo.io import CalibrationMissingWarning
+
+    if args.calibration and not Path(args.calibration).exists():
+        raise FileNotFoundError(f"--calibration {args.calibration}: no such file")
+    cal = args.calibration or default_store_path(rig)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CalibrationMissingWarning)
+        system = build(rig, seed=args.seed, link=_make_link(args, rig), calibration=cal)
+    for w in caught:
+        if issubclass(w.category, CalibrationMissingWarning):
+            print(f"warning: {w.message}", file=sys.stderr)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if not caught:
+        print(f"calibration: {cal}", file=sys.stderr)
+    return system
 
 
 def _make_link(args: argparse.Namespace, rig):
