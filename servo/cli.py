@@ -15,6 +15,7 @@ COMMAND_MODULES = [
     "servo.commands.run",
     "servo.commands.tune",
     "servo.commands.vision",
+    "servo.commands.friction",
 ]
 
 
