@@ -36,6 +36,10 @@ class TimingStats:
     compute_s: list[float] = field(default_factory=list)
     lateness_s: list[float] = field(default_factory=list)
     overruns: int = 0
+    #: per tick, the part of ``compute_s`` spent in the servo loop (drivers + law: what a real HIL
+    #: controller runs) and in the harness exchange (clock, publish, in-process plant step)
+    controller_s: list[float] = field(default_factory=list)
+    harness_s: list[float] = field(default_factory=list)
 
     def summary(self, period_s: float) -> dict[str, float | int]:
         c = np.asarray(self.compute_s) if self.compute_s else np.zeros(1)
@@ -50,7 +54,18 @@ class TimingStats:
             "lateness_p50_ms": float(np.percentile(late, 50) * 1e3),
             "lateness_p99_ms": float(np.percentile(late, 99) * 1e3),
             "lateness_max_ms": float(late.max() * 1e3),
+            **_split_summary("controller", self.controller_s, period_s),
+            **_split_summary("harness", self.harness_s, period_s),
         }
+
+
+def _split_summary(name: str, values: list[float], period_s: float) -> dict[str, float]:
+    if not values:
+        return {}
+    v = np.asarray(values)
+    p99 = float(np.percentile(v, 99))
+    return {f"{name}_p50_ms": float(np.percentile(v, 50) * 1e3), f"{name}_p99_ms": p99 * 1e3,
+            f"{name}_max_ms": float(v.max() * 1e3), f"{name}_p99_fraction_of_period": p99 / period_s}
 
 
 class LockstepRunner:
@@ -64,14 +79,21 @@ class LockstepRunner:
         self.delay_s = system.rig.computation_delay_s
         self.overruns = 0
         self.after_tick: list[Callable[[ServoLoop], None]] = []
+        #: wall seconds of the last tick spent in the servo loop and in the harness exchange
+        self.last_split = (0.0, 0.0)
 
     def tick(self) -> None:
         sys_ = self.system
         k = self.loop.tick_count
+        clock = time.perf_counter
+        t0 = clock()
         sys_.crate.advance_to(k * self.period_ns)
         sys_.harness.publish()
+        t1 = clock()
         self.loop.tick(truth=sys_.truth())
+        t2 = clock()
         sys_.harness.step(self.period_s, self.delay_s)
+        self.last_split = (t2 - t1, (t1 - t0) + (clock() - t2))
         for cb in self.after_tick:
             cb(self.loop)
 
@@ -109,6 +131,8 @@ class RealtimeRunner(LockstepRunner):
             done = self.clock()
             self.timing.compute_s.append(done - woke)
             self.timing.lateness_s.append(max(0.0, woke - deadline))
+            self.timing.controller_s.append(self.last_split[0])
+            self.timing.harness_s.append(self.last_split[1])
             if done > deadline + self.period_s:
                 self.timing.overruns += 1
             if progress is not None:
