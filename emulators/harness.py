@@ -25,8 +25,10 @@ from emulators.signals import QuadratureEvents, Signals
 class ExchangeCodec:
     """Quantizes the exchanged values to the resolution of the wire encoding.
 
-    The identity codec here is replaced by the CAN message set's scaling (DBC) where the
-    CAN node is in use; in-process runs use the same codec so both modes agree.
+    This base class is the identity (raw plant values). The default codec of every link is
+    :func:`default_codec`: the CAN message set's quantization (scale, offset and range of each
+    DBC signal, :class:`emulators.can.codec.DbcExchangeCodec`), so in-process runs and lockstep
+    runs over CAN see bit-identical values.
     """
 
     def command(self, cmd: PlantCommand) -> PlantCommand:
@@ -34,6 +36,37 @@ class ExchangeCodec:
 
     def sensors(self, s: PlantSensors) -> PlantSensors:
         return s
+
+
+def default_codec() -> ExchangeCodec:
+    """The CAN message set's quantization (the DBC is read once per process)."""
+    from emulators.can.codec import DbcExchangeCodec
+
+    return DbcExchangeCodec()  # type: ignore[return-value]
+
+
+class PlantLinkError(RuntimeError):
+    """The link to the plant failed; the runner turns it into a safe stop with ``cause``."""
+
+    cause = "plant_link"
+
+
+class StaleDataError(PlantLinkError):
+    """No fresh sensor data from the plant within the allowed number of ticks."""
+
+    cause = "stale_sensor"
+
+
+class PlantLostError(StaleDataError):
+    """The plant node fell silent (no answer and no heartbeat within the timeout)."""
+
+    cause = "plant_lost"
+
+
+class PlantRestartedError(PlantLinkError):
+    """The plant node restarted (new boot identifier): its state no longer matches the loop's."""
+
+    cause = "plant_restarted"
 
 
 class PlantLink(ABC):
@@ -53,7 +86,7 @@ class InProcessLink(PlantLink):
 
     def __init__(self, plant: Plant, codec: ExchangeCodec | None = None) -> None:
         self.plant = plant
-        self.codec = codec or ExchangeCodec()
+        self.codec = codec or default_codec()
         self.names = list(plant.names)
 
     def exchange(self, cmd: PlantCommand, period_s: float, delay_s: float) -> PlantSensors:

@@ -15,7 +15,9 @@ COMMAND_MODULES = [
     "servo.commands.run",
     "servo.commands.tune",
     "servo.commands.vision",
-    "servo.commands.friction",
+    "servo.commands.plant_node",
+    "servo.commands.console",
+    "servo.commands.calibrate",
 ]
 
 

@@ -171,13 +171,31 @@ def identify_friction(system: EmulatedRig, joint: int, *, amplitude_rad: float =
                               "transconductance amplifier (current command and current monitor)")
     if move_counts < 1 or ramps < 1:
         raise ValueError("move_counts and ramps must be >= 1")
-    sc = io.scaling[j]
-    ratio, kt = sc.ratio, sc.kt_nm_per_a
-    cpr_joint = sc.encoder_counts_per_rev  # x4 counts per joint revolution
+    saved = (io.position_source[j], io.velocity_source[j])
     # The stiff loop runs on the encoder for both position and velocity.
     io.position_source[j] = "encoder"
     io.velocity_source[j] = "encoder"
+    try:
+        return _identify(system, joint, amplitude_rad, frequency_hz, cycles, kp, kv, ramps, ramp_rate_nm_s,
+                         move_counts, settle_s, runner_factory, keep_records)
+    finally:
+        io.position_source[j], io.velocity_source[j] = saved
+
+
+def _identify(system: EmulatedRig, joint: int, amplitude_rad: float, frequency_hz: float, cycles: float, kp: float,
+              kv: float, ramps: int, ramp_rate_nm_s: float | None, move_counts: int, settle_s: float,
+              runner_factory: Callable[[EmulatedRig, ServoLoop], LockstepRunner] | None,
+              keep_records: bool) -> dict[str, Any]:
+    rig = system.rig
+    spec = rig.joint(joint)
+    j = spec.index
+    io = system.io
+    sc = io.scaling[j]
+    ratio, kt = sc.ratio, sc.kt_nm_per_a
+    cpr_joint = sc.encoder_counts_per_rev  # x4 counts per joint revolution
     loop = build_loop(system, motion=Motion((), "friction_id", "<friction_id>"))
+    # ticks continue the crate's time (other procedures may have run on this rig before)
+    loop.tick_count = -(-int(system.crate.clock.now_ns) // system.period_ns) + 1
     law = loop.law
     for name, value in (("kp", kp), ("kpi", 0.0), ("kv", kv), ("kvi", 0.0)):
         law.set_gains(**{name: value}, joint=j)
@@ -440,3 +458,70 @@ def write_friction_report(result: dict[str, Any], folder: str | Path) -> list[Pa
 def public_result(result: dict[str, Any]) -> dict[str, Any]:
     """``result`` without the raw records (for JSON)."""
     return {k: v for k, v in result.items() if k != "records"}
+
+
+def format_result(r: dict[str, Any]) -> str:
+    """A few lines for the terminal."""
+    rt = r["running_torque_oz_in"]
+    lo, hi = r["breakout_input_range_oz_in"]
+    return "\n".join([
+        f"{r['rig']} joint {r['joint']} ({r['joint_name']}): friction at the motor shaft",
+        f"  running torque     {rt['mean']:7.2f} oz-in  (ripple ±{rt['ripple_amplitude']:.2f} oz-in "
+        f"at {r['ripple_frequency_hz']:.2f} Hz)",
+        f"  breakout (input)   {r['breakout_input_oz_in']:7.2f} oz-in  (ramps {lo:.2f}–{hi:.2f})",
+        f"  breakout (output)  {r['breakout_output_oz_in']:7.1f} oz-in  ({r['breakout_output_method']})",
+    ])
+
+
+class FrictionProcedure:
+    """``vmehil calibrate friction --joint N``: the calibration registry's wrapper of
+    :func:`identify_friction` (not part of ``calibrate all``; writes no calibration entries).
+
+    Result data: for one joint the figures at the top level of the procedure's result
+    (``procedures.friction.running_torque_oz_in.mean`` … in the command's JSON), and per joint under ``joints.<name>``.
+    ``ctx.options["report"]`` (the command's ``--report``): plots in ``<report>/friction-<joint>/``.
+    """
+
+    name = "friction"
+    version = 1
+    title = "friction identification: running torque, ripple, breakout (drivers only)"
+
+    def run(self, ctx: Any) -> Any:
+        from servo.calibration.base import CalibrationAbort, Check, ProcedureResult
+
+        if not ctx.joints:
+            raise CalibrationAbort("friction identification needs --joint N (1-based; repeat for several)")
+        system = getattr(ctx.positioner(), "system", None)
+        if system is None:
+            raise CalibrationAbort("friction identification needs the rig's servo loop (an emulated rig here)")
+        report = ctx.options.get("report")
+        res = ProcedureResult(self.name, self.version)
+        joints: dict[str, Any] = {}
+        try:
+            for j in ctx.joints:
+                r = identify_friction(system, j + 1, keep_records=bool(report))
+                ctx.say(format_result(r))
+                if report:
+                    write_friction_report(r, Path(report) / f"friction-{r['joint_name']}")
+                pub = public_result(r)
+                joints[r["joint_name"]] = pub
+                name = r["joint_name"]
+                res.checks.append(Check(f"{name} strokes measured", pub["test"]["strokes"], "", 2, kind="min"))
+        finally:
+            ctx.refresh_positioner()  # this procedure ran its own loop on the rig
+        res.data = {"joints": joints}
+        if len(joints) == 1:
+            res.data.update(next(iter(joints.values())))
+        return res
+
+
+def register() -> None:
+    """Add ``friction`` to the ``vmehil calibrate`` registry (idempotent)."""
+    from servo.calibration.base import PROCEDURES, register_procedure
+
+    if "friction" not in PROCEDURES:
+        register_procedure("friction", FrictionProcedure, order=90, in_all=False,
+                           help="friction: running torque, ripple, breakout of --joint N (not in `all`)")
+
+
+register()

@@ -14,7 +14,9 @@ It imports ``hal`` only: it cannot tell an emulated crate from real hardware.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -24,7 +26,12 @@ from hal.adc_dac.dac import DacDriver
 from hal.pio.pio import PioDriver
 from hal.quadrature.quad import QuadratureDriver
 from hal.vme.bus import VmeBus
+from servo.calibration.store import CalibrationStore, load_store
 from servo.rig import RigSpec
+
+
+class CalibrationMissingWarning(UserWarning):
+    """No calibration file: the drivers run on nominal (datasheet) values."""
 
 
 @dataclass
@@ -37,7 +44,8 @@ class SensorScaling:
         tach_v_per_rad_s: tachometer gradient (V per rad/s of joint velocity); 0 = no tach.
         encoder_counts_per_rev: decoder x4 counts per JOINT revolution (lines·4·ratio).
         ratio: gear ratio N; kt_nm_per_a: motor torque constant.
-        amp_gain_a_per_v: transconductance amplifier gain; monitor_v_per_a: current monitor.
+        amp_gain_a_per_v: transconductance amplifier gain (A/V), amp_offset_a: its output
+            current at 0 V command (A); monitor_v_per_a: current monitor.
         current_limit_a: amplifier current limit.
         supply_v, resistance_ohm, ke_v_s_per_rad: H-bridge voltage command model.
         pwm_period_s: H-bridge PWM period programmed into the PIO timer.
@@ -50,6 +58,7 @@ class SensorScaling:
     ratio: float = 1.0
     kt_nm_per_a: float = 1.0
     amp_gain_a_per_v: float = 1.0
+    amp_offset_a: float = 0.0
     monitor_v_per_a: float = 1.0
     current_limit_a: float = 1.0
     supply_v: float = 24.0
@@ -97,9 +106,16 @@ class PotCalibration:
 
 
 class JointIO:
-    """All joints' sensors and amplifiers through the board drivers."""
+    """All joints' sensors and amplifiers through the board drivers.
 
-    def __init__(self, bus: VmeBus, rig: RigSpec, scaling: list[SensorScaling]) -> None:
+    ``calibration``: a :class:`CalibrationStore`, or the path of a calibration file loaded at
+    start (:func:`servo.calibration.store.load_store`, identity-checked against the rig and the
+    boards; a file for another rig or board raises ``CalibrationFileError``; a missing file
+    gives nominal values and a :class:`CalibrationMissingWarning`), or ``None`` (nominal).
+    """
+
+    def __init__(self, bus: VmeBus, rig: RigSpec, scaling: list[SensorScaling],
+                 calibration: CalibrationStore | str | Path | None = None) -> None:
         self.bus = bus
         self.rig = rig
         self.n = rig.n_joints
@@ -171,8 +187,42 @@ class JointIO:
                 board = j.wiring["amp_fault"].board
                 port, bit = self.pio[board].resolve(j.net("amp_fault"))
                 self._fault_lines.append((j.index, board, port, bit))
+        self.calibration: CalibrationStore | None = None
+        if isinstance(calibration, str | Path):
+            try:
+                calibration = load_store(calibration, rig, bus=bus)
+            except FileNotFoundError:
+                warnings.warn(f"no calibration file {calibration}: drivers use nominal values "
+                              f"(run `vmehil calibrate all --rig {rig.name}`)", CalibrationMissingWarning, stacklevel=2)
+                calibration = None
+        if calibration is not None:
+            self.apply_calibration(calibration)
 
     # --- calibration ------------------------------------------------------------------------
+    def apply_calibration(self, store: CalibrationStore) -> None:
+        """Put a calibration in force: ADC/DAC per-channel offset and gain in the board drivers,
+        pot tables, encoder counts per revolution, amplifier gain and offset. Entries the store
+        lacks keep their nominal values."""
+        for name, drv in [*self.adc.items(), *self.dac.items()]:
+            cal = store.board_calibration(name)
+            if cal is not None:
+                drv.calibration = cal
+        for j in self.rig.joints:
+            s = self.scaling[j.index]
+            pot = store.joint_entry(j.name, "pot")
+            if pot is not None:
+                self.set_pot_calibration(j.index, PotCalibration(pot.values["volts"], pot.values["angles_rad"]))
+            enc = store.joint_entry(j.name, "encoder")
+            if enc is not None and "encoder" in j.wiring:
+                s.encoder_counts_per_rev = float(enc.values["counts_per_joint_rev"])
+                pin = j.wiring["encoder"]
+                self.quad[pin.board].counts_per_rev_x4[pin.index] = s.encoder_counts_per_rev
+            amp = store.joint_entry(j.name, "amplifier")
+            if amp is not None:
+                s.amp_gain_a_per_v = float(amp.values["gain_a_per_v"])
+                s.amp_offset_a = float(amp.values["offset_a"])
+        self.calibration = store
+
     def set_pot_calibration(self, joint: int, cal: PotCalibration | None) -> None:
         if cal is None:
             self.pot_cal.pop(joint, None)
@@ -228,11 +278,11 @@ class JointIO:
             amps = float(torque_nm[i]) / (s.ratio * s.kt_nm_per_a)
             amps = max(-s.current_limit_a, min(s.current_limit_a, amps))
             if j.amplifier == "linear":
-                volts = min(DAC_V_MAX, max(DAC_V_MIN, amps / s.amp_gain_a_per_v))
+                volts = min(DAC_V_MAX, max(DAC_V_MIN, (amps - s.amp_offset_a) / s.amp_gain_a_per_v))
                 pin = j.wiring["amp_command"]
                 per_dac.setdefault(pin.board, {})[pin.index] = volts
                 self.last_dac_volts[i] = volts
-                current[i] = volts * s.amp_gain_a_per_v
+                current[i] = volts * s.amp_gain_a_per_v + s.amp_offset_a
             else:
                 w_m = 0.0 if omega is None or not np.isfinite(omega[i]) else float(omega[i]) * s.ratio
                 duty = max(-1.0, min(1.0, (s.resistance_ohm * amps + s.ke_v_s_per_rad * w_m) / s.supply_v))

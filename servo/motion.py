@@ -190,3 +190,6 @@ def default_demo_motion(n_joints: int, hold_s: float = 10.0, speed: float = 0.5)
         raise ConfigError("<demo>", "hold_s", "a hold of at least 8 s", hold_s)
     deltas = deg_to_rad(np.array([DEMO_DELTAS_DEG[j % len(DEMO_DELTAS_DEG)] for j in range(n_joints)]))
     return Motion((QuinticMove(None, deltas, speed), WaitMove(hold_s)), "demo", "<demo>")
+
+
+import servo.vservo  # noqa: E402, F401  (registers the "vservo" move type)

@@ -18,6 +18,18 @@ or ``"board:PA0"`` (PIO lines)::
 
 Each wired signal becomes the net ``<joint>.<signal>`` between the boards and the plant.
 
+Rig-level calibration wiring (used by ``vmehil calibrate adc|dac``)::
+
+    [rig.references]           # precision reference voltages wired to ADC inputs (pin = volts)
+    "adc1:12" = 5.000
+    "adc1:13" = 0.0
+    [rig.loopback]             # DAC outputs wired back into ADC inputs (DAC pin = ADC pin)
+    "dac0:6" = "adc1:14"
+    "dac0:7" = "adc1:15"
+
+Reference pins carry the net ``ref.<board>.<channel>``, loopback pairs the net
+``loop.<dac board>.<channel>`` (see :func:`reference_net`, :func:`loopback_net`).
+
 ``[joint.servo]``: ``position = "pot" | "encoder"``, ``velocity = "tach" | "encoder"``,
 ``gains = {kp, kpi, kv, kvi}``, ``switch_off = {...}``, ``max_velocity_deg_s``,
 ``torque_limit_nm``, ``following_error_limit_deg``, ``controller = {objects = [...]}``.
@@ -80,6 +92,8 @@ class RigSpec:
     computation_delay_s: float
     joints: list[JointSpec] = field(default_factory=list)
     description: str = ""
+    references: dict[Pin, float] = field(default_factory=dict)  #: ADC pin → reference volts
+    loopback: dict[Pin, Pin] = field(default_factory=dict)  #: DAC pin → ADC pin it is wired to
 
     @property
     def period_s(self) -> float:
@@ -138,4 +152,38 @@ def load_rig(path: str | Path) -> RigSpec:
         spec.joints.append(JointSpec(i, name, amp, wiring, servo, jt))
     if not spec.joints:
         raise ConfigError(str(path), "joint", "at least one [[joint]] table")
+    _parse_calibration_wiring(spec, rig)
     return spec
+
+
+# --- rig-level calibration wiring: references and DAC → ADC loopback ------------------------------
+def reference_net(pin: Pin) -> str:
+    """Net name of a reference input (``ref.adc1.12``)."""
+    return f"ref.{pin.board}.{pin.channel}"
+
+
+def loopback_net(dac_pin: Pin) -> str:
+    """Net name of a DAC → ADC loopback pair (``loop.dac0.6``)."""
+    return f"loop.{dac_pin.board}.{dac_pin.channel}"
+
+
+def _parse_calibration_wiring(spec: RigSpec, rig: ConfigTable) -> None:
+    types = {b.str("name"): b.str("type") for b in spec.table.table("crate", {}).tables("board", [])}
+    used = {(p.board, p.channel): f"{j.name}.{sig}" for j in spec.joints for sig, p in j.wiring.items()}
+
+    def pin(cfg: ConfigTable, key: str, text: str, kind: str) -> Pin:
+        board, sep, chan = text.partition(":")
+        if not sep or not chan.isdigit() or types.get(board) != kind:
+            raise cfg.error(key, f'a {kind} pin "board:channel" of a {kind} board in [crate]', text)
+        p = Pin(board, int(chan))
+        if (p.board, p.channel) in used:
+            raise cfg.error(key, f"a free pin ({p} already carries {used[(p.board, p.channel)]})", text)
+        used[(p.board, p.channel)] = key
+        return p
+
+    refs = rig.table("references", {})
+    for key in refs.keys():
+        spec.references[pin(refs, key, key, "adc")] = refs.float(key, min=-10.0, max=10.0)
+    loops = rig.table("loopback", {})
+    for key in loops.keys():
+        spec.loopback[pin(loops, key, key, "dac")] = pin(loops, key, loops.str(key), "adc")

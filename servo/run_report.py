@@ -64,6 +64,9 @@ def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns:
     }
     if timing is not None:
         out["timing"] = timing
+    vision = getattr(loop, "vision", None)
+    if vision is not None:
+        out["vision"] = vision.summary()
     return out
 
 
@@ -82,7 +85,12 @@ def table(summary: dict[str, Any]) -> str:
     lines.insert(1, "  ".join("-" * w for w in widths))
     head = (f"{summary['rig']} · {summary['mode']} · {summary['ticks']} ticks ({summary['duration_s']:.2f} s) · "
             f"overruns {summary['overruns']} · faults {len(summary['faults'])}")
-    tail = [f"fault: {f['cause']} at {f['time_s']:.3f} s ({f['joint']}): {f['detail']}" for f in summary["faults"]]
+    v = summary.get("vision")
+    vis = [] if v is None else [
+        f"vision: {v['commands']} commands, robot {v['robot_state']} ({v['end_reason']}), "
+        f"end effector {_f(v['final_distance_mm'], 2)} mm from the target"]
+    tail = [*vis] + [f"fault: {f['cause']} at {f['time_s']:.3f} s ({f['joint']}): {f['detail']}"
+                     for f in summary["faults"]]
     return "\n".join([head, "", *lines, *tail])
 
 

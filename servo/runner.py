@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from emulators.harness import PlantLinkError
 from servo.loop import ServoLoop
 from servo.system import EmulatedRig
 
@@ -92,7 +93,12 @@ class LockstepRunner:
         t1 = clock()
         self.loop.tick(truth=sys_.truth())
         t2 = clock()
-        sys_.harness.step(self.period_s, self.delay_s)
+        try:
+            sys_.harness.step(self.period_s, self.delay_s)
+        except PlantLinkError as e:
+            # A remote plant (CAN node) gave no fresh data, vanished or restarted: the watchdog's
+            # answer is a safe stop in this tick; the link then returns held values without waiting.
+            self.loop.safe_stop(e.cause, str(e))
         self.last_split = (t2 - t1, (t1 - t0) + (clock() - t2))
         for cb in self.after_tick:
             cb(self.loop)

@@ -19,7 +19,7 @@ from emulators.plant import JointParams, Plant, plant_params_from_config
 from emulators.presets import resolve_rig
 from hal.config import ConfigTable
 from servo.io import JointIO, SensorScaling
-from servo.rig import RigSpec, load_rig
+from servo.rig import RigSpec, load_rig, loopback_net, reference_net
 
 
 def scaling_from_params(p: JointParams) -> SensorScaling:
@@ -63,7 +63,24 @@ def wired_crate_table(rig: RigSpec) -> ConfigTable:
                 chans[pin.index] = j.net(sig)
             else:  # adc, dac: a table channel → net
                 b.setdefault("wiring", {})[str(pin.channel)] = j.net(sig)
+    _wire_calibration_nets(rig, boards)
     return ConfigTable(data, rig.table.source)
+
+
+# --- calibration wiring (rig [rig.references] and [rig.loopback]; see servo.rig) ----------------
+def _wire_calibration_nets(rig: RigSpec, boards: dict[str, dict]) -> None:
+    """Add the reference and loopback nets to the boards' wiring tables."""
+    for pin in rig.references:
+        boards[pin.board].setdefault("wiring", {})[str(pin.channel)] = reference_net(pin)
+    for dac_pin, adc_pin in rig.loopback.items():
+        boards[dac_pin.board].setdefault("wiring", {})[str(dac_pin.channel)] = loopback_net(dac_pin)
+        boards[adc_pin.board].setdefault("wiring", {})[str(adc_pin.channel)] = loopback_net(dac_pin)
+
+
+def publish_references(crate: Crate, rig: RigSpec) -> None:
+    """Drive each reference net with its constant (a precision reference source)."""
+    for pin, volts in rig.references.items():
+        crate.signals.set_analog(reference_net(pin), volts)
 
 
 def joint_nets(rig: RigSpec) -> list[JointNets]:
@@ -95,10 +112,13 @@ class EmulatedRig:
 
 
 def build_emulated_rig(rig: str | Path | RigSpec | None = None, *, seed: int = 0,
-                       link: PlantLink | None = None, initial_deg: list[float] | None = None) -> EmulatedRig:
-    """Build crate, boards, plant (in-process unless ``link`` is given), harness and drivers."""
+                       link: PlantLink | None = None, initial_deg: list[float] | None = None,
+                       calibration: Any = None) -> EmulatedRig:
+    """Build crate, boards, plant (in-process unless ``link`` is given), harness and drivers.
+    ``calibration``: a calibration store or file for the drivers (see :class:`servo.io.JointIO`)."""
     spec = rig if isinstance(rig, RigSpec) else load_rig(resolve_rig(rig))
     crate = build_crate(wired_crate_table(spec), seed=seed)
+    publish_references(crate, spec)
     params = plant_params_from_config(spec.table).joints
     if [p.name for p in params] != [j.name for j in spec.joints]:
         raise ValueError(f"rig {spec.name}: plant joints and servo joints differ")
@@ -110,7 +130,7 @@ def build_emulated_rig(rig: str | Path | RigSpec | None = None, *, seed: int = 0
         link = InProcessLink(plant)
     harness = Harness(crate.signals, joint_nets(spec), link)
     _couple_hbridge_noise(crate, spec)
-    io = JointIO(crate, spec, [scaling_from_params(p) for p in params])
+    io = JointIO(crate, spec, [scaling_from_params(p) for p in params], calibration=calibration)
     system = EmulatedRig(spec, crate, plant, link, harness, io, params, seed)
     # Power-up: the plant runs one servo period with the rack's power-up outputs (DACs at 0 V,
     # amplifiers disabled) so that the sensor nets hold real readings when the loop starts.

@@ -45,8 +45,11 @@ def test_refuses_a_joint_it_cannot_identify() -> None:
 def test_cli_finds_the_papers_friction_figures_on_jpl_arm_joint_1(tmp_path) -> None:
     out = tmp_path / "f.json"
     rep = tmp_path / "report"
-    assert main(["calibrate", "friction", "--joint", "1", "--json", str(out), "--report", str(rep)]) == 0
-    r = json.loads(out.read_text())
+    cal = tmp_path / "cal.toml"
+    assert main(["calibrate", "friction", "--joint", "1", "--json", str(out), "--report", str(rep),
+                 "--out", str(cal)]) == 0
+    r = json.loads(out.read_text())["procedures"]["friction"]
+    assert r["procedure"] == "friction" and r["passed"]
     mean = r["running_torque_oz_in"]["mean"]
     ripple = r["running_torque_oz_in"]["ripple_amplitude"]
     assert 19.0 <= mean <= 29.0
@@ -58,7 +61,8 @@ def test_cli_finds_the_papers_friction_figures_on_jpl_arm_joint_1(tmp_path) -> N
     assert 5.0 <= r["breakout_input_oz_in"] <= 9.0
     assert 550.0 <= r["breakout_output_oz_in"] <= 750.0
     assert math.isclose(r["breakout_output_oz_in"], 100.0 * r["breakout_input_oz_in"], rel_tol=1e-9)
-    assert {p.name for p in rep.iterdir()} >= {"torque_vs_time.png", "torque_vs_velocity.png", "summary.md"}
+    plots = rep / "friction-j1"
+    assert {p.name for p in plots.iterdir()} >= {"torque_vs_time.png", "torque_vs_velocity.png", "summary.md"}
 
 
 @pytest.mark.slow

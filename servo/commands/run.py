@@ -16,7 +16,16 @@ from servo.files import write_json
 # Modules that extend `vmehil run` (live tuning over MAVLink, the operator console, ...). Each
 # defines ``add_arguments(parser)`` and ``attach(args, system, loop, runner)``, which returns
 # ``None`` when its options are unused, or an object with ``close()`` called after the run.
-RUN_EXTENSIONS: list[str] = ["servo.mavlink.extension"]
+# An extension may also define ``prepare(args, rig) -> dict | None``, called before the rig is
+# built: it may adjust the rig table and return defaults ``{"motion": Motion, "duration": s}``;
+# and ``make_link(args, rig) -> PlantLink | None`` to run the plant elsewhere (the CAN plant
+# node): the first link returned replaces the in-process plant.
+RUN_EXTENSIONS: list[str] = [
+    "servo.mavlink.extension",
+    "servo.vservo_extension",
+    "emulators.can.extension",
+    "servo.console.extension",
+]
 
 
 def parse_gains(text: str | None) -> dict[str, float]:
@@ -67,23 +76,45 @@ def _extensions():
 
 
 def run(args: argparse.Namespace) -> int:
+    from emulators.presets import resolve_rig
+    from servo.rig import load_rig
+
+    gains = parse_gains(args.gains)
+    rig = load_rig(resolve_rig(args.rig))
+    try:
+        return _run(args, rig, gains)
+    finally:
+        shm = getattr(args, "_vision_shm", None)  # created by an extension's prepare()
+        if shm is not None:
+            shm.close(unlink=True)
+
+
+def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     from servo.motion import default_demo_motion, load_motion
     from servo.run_report import summarize, table, write_report
     from servo.runner import LockstepRunner, RealtimeRunner
     from servo.session import build_loop
     from servo.system import build_emulated_rig
 
-    gains = parse_gains(args.gains)
-    system = build_emulated_rig(args.rig, seed=args.seed)
-    n = system.rig.n_joints
-    motion = load_motion(args.motion, n) if args.motion else default_demo_motion(n)
-    probe = build_loop(system, motion=motion, n_ticks=1)
-    planned = _planned_duration(probe)
-    duration = args.duration if args.duration is not None else planned + 1.0
-    if duration <= 0:
+    defaults: dict = {}
+    for ext in _extensions():
+        prep = getattr(ext, "prepare", None)
+        if prep is not None:
+            defaults.update(prep(args, rig) or {})
+    n = rig.n_joints
+    motion = load_motion(args.motion, n) if args.motion else defaults.get("motion") or default_demo_motion(n)
+    if args.duration is not None:
+        duration = args.duration
+    elif "duration" in defaults:
+        duration = defaults["duration"]
+    else:
+        probe_system = build_emulated_rig(rig, seed=args.seed)
+        duration = _planned_duration(build_loop(probe_system, motion=motion, n_ticks=1)) + 1.0
+        probe_system.close()
+    if not duration > 0:
         raise ValueError("--duration must be > 0")
-    n_ticks = round(duration * system.rig.servo_rate_hz)
-    system = build_emulated_rig(args.rig, seed=args.seed)
+    n_ticks = round(duration * rig.servo_rate_hz)
+    system = build_emulated_rig(rig, seed=args.seed, link=_make_link(args, rig))
     loop = build_loop(system, motion=motion, gains=gains, n_ticks=n_ticks,
                       switch_off=False if args.no_integrator_switch_off else None)
     loop.start()
@@ -113,14 +144,29 @@ def run(args: argparse.Namespace) -> int:
     return 1 if summary["faults"] else 0
 
 
+def _make_link(args: argparse.Namespace, rig):
+    """The plant link an extension asks for (``--plant can``), else ``None`` (in-process)."""
+    for ext in _extensions():
+        make = getattr(ext, "make_link", None)
+        link = make(args, rig) if make is not None else None
+        if link is not None:
+            return link
+    return None
+
+
 def _planned_duration(loop) -> float:
     """Plan every move once (on a throw-away sequencer) to learn the motion's length."""
+    from servo.trajectory.base import TrajectoryError
+
     seq = loop.sequencer
     t = 0.0
-    seq.sample(0.0)
-    while not seq.finished and t < 3600.0:
-        t += max(seq.current.duration, 1e-3)
-        seq.sample(t)
+    try:
+        seq.sample(0.0)
+        while not seq.finished and t < 3600.0:
+            t += max(seq.current.duration, 1e-3)
+            seq.sample(t)
+    except TrajectoryError as e:
+        raise ValueError(f"{e}; or give --duration") from None
     return float(seq.total_duration or t)
 
 

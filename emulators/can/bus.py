@@ -1,0 +1,175 @@
+"""python-can bus creation, the network-namespace guard for ``udp_multicast``, and bus logging.
+
+Configuration follows python-can's own conventions: explicit ``interface``/``channel`` win;
+otherwise ``CAN_INTERFACE`` / ``CAN_CHANNEL`` (and ``CAN_CONFIG``) from the environment or
+python-can's config file (``~/can.conf``, ``~/.canrc``, ``./can.ini``, section ``[default]``)
+are used; with nothing configured the in-process ``virtual`` bus on channel ``vmehil``.
+
+All buses are opened for CAN FD (the SENS, SYNC, STATUS and TRUTH frames are FD frames).
+
+**udp_multicast** sends to an IP multicast group. On a shared machine that traffic must not
+leave the host, so :func:`open_bus` refuses it outside a private network namespace that has
+only loopback (see :func:`private_multicast_namespace`) unless ``VMEHIL_ALLOW_MULTICAST=1``
+says the network is yours. The IPv4 group 239.74.163.2 (python-can's IPv4 default) is used by
+default; inside the namespace it needs ``ip route add 224.0.0.0/4 dev lo``.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import can
+
+DEFAULT_CHANNEL = {"virtual": "vmehil", "socketcan": "vcan0", "udp_multicast": "239.74.163.2"}
+INTERFACES = ("virtual", "socketcan", "udp_multicast")
+
+
+class BusConfigError(ValueError):
+    """The bus cannot be opened as configured (message says what to change)."""
+
+
+def resolve(interface: str | None = None, channel: str | None = None) -> tuple[str, str]:
+    """Interface and channel after python-can's config resolution (arguments, environment,
+    config file), defaulting to ``virtual``/``vmehil``."""
+    given: dict[str, Any] = {}
+    if interface:
+        given["interface"] = interface
+    if channel:
+        given["channel"] = channel
+    try:
+        cfg = can.util.load_config(config=given)
+    except can.CanInterfaceNotImplementedError:
+        cfg = dict(given)
+    except Exception:  # no interface configured anywhere
+        cfg = dict(given)
+    iface = str(cfg.get("interface") or "virtual")
+    chan = cfg.get("channel") or DEFAULT_CHANNEL.get(iface)
+    if chan is None:
+        raise BusConfigError(f"interface {iface!r} needs a channel: pass --channel or set CAN_CHANNEL")
+    return iface, str(chan)
+
+
+def socketcan_available() -> bool:
+    """True when this kernel lets us open a raw CAN socket (``AF_CAN``)."""
+    af = getattr(socket, "AF_CAN", None)
+    if af is None:
+        return False
+    try:
+        s = socket.socket(af, socket.SOCK_RAW, socket.CAN_RAW)
+    except OSError:
+        return False
+    s.close()
+    return True
+
+
+def vcan_exists(name: str = "vcan0") -> bool:
+    return Path(f"/sys/class/net/{name}").exists()
+
+
+def private_multicast_namespace() -> bool:
+    """True inside a network namespace whose only interface is ``lo`` and that routes the IPv4
+    multicast range (224.0.0.0/4) over ``lo``: multicast there cannot leave the host."""
+    try:
+        names = [n for _, n in socket.if_nameindex()]
+    except OSError:
+        return False
+    if names != ["lo"]:
+        return False
+    try:
+        out = subprocess.run(["ip", "route", "show", "table", "all"], capture_output=True, text=True,
+                             timeout=5, check=False).stdout
+    except (OSError, subprocess.SubprocessError):
+        return False
+    return any(line.split()[:1] == ["224.0.0.0/4"] and "dev lo" in line
+               for line in out.splitlines() if line.strip())
+
+
+def multicast_allowed() -> bool:
+    return os.environ.get("VMEHIL_ALLOW_MULTICAST") == "1" or private_multicast_namespace()
+
+
+def open_bus(interface: str | None = None, channel: str | None = None, **kwargs: Any) -> can.BusABC:
+    """Open a CAN FD bus with python-can (see the module docstring for the resolution rules).
+
+    Raises :class:`BusConfigError` with what to do when the transport is unusable here.
+    """
+    iface, chan = resolve(interface, channel)
+    if iface == "udp_multicast" and not multicast_allowed():
+        raise BusConfigError(
+            "udp_multicast would send multicast beyond this host: run inside a private network namespace "
+            "(unshare -n sh -c 'ip link set lo up; ip route add 224.0.0.0/4 dev lo; …') or set "
+            "VMEHIL_ALLOW_MULTICAST=1 on a network that is yours")
+    if iface == "socketcan" and not socketcan_available():
+        raise BusConfigError("socketcan: this kernel has no usable AF_CAN sockets; use --interface virtual "
+                             "or udp_multicast")
+    opts: dict[str, Any] = {"fd": True}
+    if iface == "udp_multicast":
+        opts["receive_own_messages"] = False
+    opts.update(kwargs)
+    try:
+        return can.Bus(interface=iface, channel=chan, **opts)
+    except (OSError, can.CanError) as e:
+        hint = " (create it with: sudo ./vcan_setup.sh)" if iface == "socketcan" else ""
+        raise BusConfigError(f"cannot open {iface} channel {chan!r}: {e}{hint}") from e
+
+
+class Endpoint:
+    """One node's view of a bus: sends and receives frames, logging both directions.
+
+    Frames whose identifier this node sends itself (``own_ids``) are ignored on receive:
+    ``udp_multicast`` loops a node's own frames back to it.
+    """
+
+    def __init__(self, bus: can.BusABC, own_ids: set[int], *, log_path: str | Path | None = None,
+                 owns_bus: bool = True) -> None:
+        self.bus = bus
+        self.own_ids = set(own_ids)
+        self.owns_bus = owns_bus
+        self.logger: can.Listener | None = can.Logger(str(log_path)) if log_path else None
+        self.sent = 0
+        self.received = 0
+
+    def send(self, msg: can.Message) -> None:
+        msg.timestamp = time.time()
+        msg.channel = msg.channel or "vmehil"
+        msg.is_rx = False
+        self.bus.send(msg)
+        self.sent += 1
+        if self.logger is not None:
+            self.logger(msg)
+
+    def recv(self, timeout: float | None) -> can.Message | None:
+        """The next frame from the other node(s), or ``None`` after ``timeout`` seconds."""
+        deadline = None if timeout is None else time.monotonic() + max(0.0, timeout)
+        while True:
+            left = None if deadline is None else max(0.0, deadline - time.monotonic())
+            m = self.bus.recv(left)
+            if m is None:
+                return None
+            if not m.is_extended_id and m.arbitration_id in self.own_ids and not m.is_error_frame:
+                if deadline is not None and time.monotonic() >= deadline:
+                    return None
+                continue
+            self.received += 1
+            if self.logger is not None:
+                m.channel = m.channel or "vmehil"
+                self.logger(m)
+            return m
+
+    def close(self) -> None:
+        if self.logger is not None:
+            self.logger.stop()
+            self.logger = None
+        if self.owns_bus:
+            self.bus.shutdown()
+
+
+def replay(path: str | Path):
+    """Iterate the frames of a recorded log (any format python-can reads: ``.log`` candump, ``.asc``,
+    ``.blf``, ``.csv``)."""
+    yield from can.LogReader(str(path))

@@ -1,0 +1,356 @@
+"""Encode and decode the vmehil CAN message set (``vmehil.dbc``), and quantize like the wire does.
+
+The DBC file is read **once** with cantools. Every scale, offset, bit length and value range used
+here comes from it:
+
+* :class:`CanCodec` quantizes a :class:`~emulators.plant.PlantCommand` /
+  :class:`~emulators.plant.PlantSensors` to raw integers with numpy (round half to even, then
+  clip to the signal's declared range), packs raw values into frames with cantools
+  (``scaling=False``) and unpacks them again; raw → physical is ``raw * scale + offset`` in
+  numpy on both paths.
+* :class:`DbcExchangeCodec` is the harness's :class:`~emulators.harness.ExchangeCodec`: the
+  same quantize → raw → physical round trip without the frames. The in-process link uses it,
+  so an in-process run and a lockstep run over CAN see bit-identical values: the only extra step
+  on CAN is cantools' bit packing, which is lossless for raw values inside the declared ranges.
+
+Resolutions (see ``docs/can.md``): analog volts 2 µV (24-bit signed, ±16.78 V), PWM duty 1e-6,
+encoder counts exact (24-bit signed per period), index offsets exact for up to two pulses per
+period (first and last; more are spaced evenly between them), ground truth float64 (exact).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import can
+import cantools
+import numpy as np
+
+from emulators.can.dbc import (
+    DBC_PATH,
+    ID_CMD,
+    ID_CONTROL,
+    ID_HEARTBEAT_CONTROLLER,
+    ID_HEARTBEAT_PLANT,
+    ID_SENS,
+    ID_STATUS,
+    ID_SYNC,
+    ID_TRUTH,
+    MAX_JOINTS,
+)
+from emulators.signals import QuadratureEvents
+
+#: truth keys carried by the TRUTH frames (float64, in this order)
+TRUTH_SIGNALS = {"ThetaJoint": "theta_joint", "OmegaJoint": "omega_joint", "CurrentA": "current_a",
+                 "FrictionMeanNm": "friction_torque_mean_nm"}
+
+CMD_BITS = ("AmpEnable", "FaultReset", "PwmDirection", "Brake")
+
+
+class FrameError(ValueError):
+    """A frame that cannot be used: unknown identifier, wrong length, undecodable, or a value
+    outside its declared range. Receivers count these and drop the frame."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class SignalSpec:
+    """One signal's wire format, read from the DBC."""
+
+    name: str
+    scale: float
+    offset: float
+    raw_min: float
+    raw_max: float
+    is_float: bool
+
+    def quantize(self, values: Any) -> tuple[np.ndarray, int]:
+        """Physical values → raw integers (round half to even, clipped to the declared range).
+        Returns the raw array and how many values were clipped (NaN counts as clipped, → 0)."""
+        v = np.asarray(values, dtype=float)
+        if self.is_float:
+            return v.copy(), 0
+        bad = ~np.isfinite(v)
+        r = np.round((np.where(bad, self.offset, v) - self.offset) / self.scale)
+        clipped = np.clip(r, self.raw_min, self.raw_max)
+        n = int(np.count_nonzero(bad | (clipped != r)))
+        return clipped.astype(np.int64), n
+
+    def physical(self, raw: Any) -> np.ndarray:
+        """Raw → physical: ``raw * scale + offset`` (float64)."""
+        r = np.asarray(raw, dtype=float)
+        if self.is_float:
+            return r
+        return r * self.scale + self.offset
+
+    def in_range(self, raw: float) -> bool:
+        if self.is_float:
+            return True
+        return self.raw_min <= raw <= self.raw_max
+
+
+def _spec(sig) -> SignalSpec:
+    scale, offset = float(sig.scale), float(sig.offset)
+    if sig.is_float:
+        return SignalSpec(sig.name, scale, offset, -np.inf, np.inf, True)
+    lo_bits = -(2 ** (sig.length - 1)) if sig.is_signed else 0
+    hi_bits = 2 ** (sig.length - 1) - 1 if sig.is_signed else 2**sig.length - 1
+    lo = lo_bits if sig.minimum is None else max(lo_bits, round((sig.minimum - offset) / scale))
+    hi = hi_bits if sig.maximum is None else min(hi_bits, round((sig.maximum - offset) / scale))
+    return SignalSpec(sig.name, scale, offset, lo, hi, False)
+
+
+@dataclass
+class Frame:
+    """A decoded frame: ``kind`` is the message name without the joint suffix (``CMD``, ``SENS``,
+    ``TRUTH``, ``SYNC``, ``CONTROL``, ``PLANT_STATUS``, ``HEARTBEAT_CONTROLLER``,
+    ``HEARTBEAT_PLANT``); ``joint`` is the joint index for per-joint frames; ``raw`` the raw
+    signal values (floats for float64 signals)."""
+
+    kind: str
+    joint: int | None
+    raw: dict[str, Any]
+    timestamp: float = 0.0
+
+
+@dataclass
+class CodecCounters:
+    """What the codec refused or clipped (totals since construction)."""
+
+    clipped: int = 0
+    unknown_id: int = 0
+    wrong_length: int = 0
+    undecodable: int = 0
+    out_of_range: int = 0
+    by_reason: dict[str, int] = field(default_factory=dict)
+
+
+class CanCodec:
+    """The message set of ``vmehil.dbc``: quantization, frame encoding and decoding.
+
+    Args:
+        dbc_path: the DBC file (default: the one shipped with the package).
+    """
+
+    def __init__(self, dbc_path: str | Path | None = None) -> None:
+        self.path = Path(dbc_path) if dbc_path is not None else DBC_PATH
+        self.db = cantools.database.load_file(str(self.path))
+        by_id = {m.frame_id: m for m in self.db.messages}
+        self.max_joints = sum(1 for m in self.db.messages if m.name.startswith("CMD_J"))
+        if self.max_joints == 0:
+            raise ValueError(f"{self.path}: no CMD_Jxx messages; is this the vmehil DBC?")
+        self.specs: dict[str, dict[str, SignalSpec]] = {}
+        self._by_id: dict[int, tuple[str, int | None, Any]] = {}
+        for fid, msg in by_id.items():
+            kind, joint = self._kind_of(fid)
+            if kind is None:
+                continue
+            self._by_id[fid] = (kind, joint, msg)
+            if kind not in self.specs:
+                self.specs[kind] = {s.name: _spec(s) for s in msg.signals}
+        self.counters = CodecCounters()
+
+    @staticmethod
+    def _kind_of(fid: int) -> tuple[str | None, int | None]:
+        fixed = {ID_SYNC: "SYNC", ID_CONTROL: "CONTROL", ID_STATUS: "PLANT_STATUS",
+                 ID_HEARTBEAT_CONTROLLER: "HEARTBEAT_CONTROLLER", ID_HEARTBEAT_PLANT: "HEARTBEAT_PLANT"}
+        if fid in fixed:
+            return fixed[fid], None
+        for base, kind in ((ID_CMD, "CMD"), (ID_SENS, "SENS"), (ID_TRUTH, "TRUTH")):
+            if base <= fid < base + MAX_JOINTS:
+                return kind, fid - base
+        return None, None
+
+    def message(self, kind: str, joint: int | None = None):
+        """The cantools message of ``kind`` (and joint)."""
+        base = {"CMD": ID_CMD, "SENS": ID_SENS, "TRUTH": ID_TRUTH}.get(kind)
+        if base is not None:
+            return self._by_id[base + int(joint or 0)][2]
+        return self.db.get_message_by_name(kind)
+
+    def check_joints(self, n: int) -> None:
+        if not 0 < n <= self.max_joints:
+            raise ValueError(f"{n} joints: the CAN message set carries 1..{self.max_joints} joints "
+                             f"(regenerate {self.path.name} with a larger MAX_JOINTS)")
+
+    def _q(self, kind: str, name: str, values: Any) -> np.ndarray:
+        raw, n = self.specs[kind][name].quantize(values)
+        self.counters.clipped += n
+        return raw
+
+    def _p(self, kind: str, name: str, raw: Any) -> np.ndarray:
+        return self.specs[kind][name].physical(raw)
+
+    # --- commands --------------------------------------------------------------------------------
+    def command_raw(self, cmd) -> dict[str, np.ndarray]:
+        """A plant command → raw signal arrays (one entry per joint)."""
+        out = {
+            "AmpCommand": self._q("CMD", "AmpCommand", cmd.amp_command_v),
+            "PwmDuty": self._q("CMD", "PwmDuty", cmd.pwm_duty),
+        }
+        for name, arr in zip(CMD_BITS, (cmd.amp_enable, cmd.fault_reset, cmd.pwm_direction, cmd.brake), strict=True):
+            out[name] = np.asarray(arr, dtype=bool).astype(np.int64)
+        return out
+
+    def command_from_raw(self, raw: dict[str, np.ndarray], command_type: Callable[..., Any]):
+        """Raw signal arrays → a command object built with ``command_type(**fields)``."""
+        return command_type(
+            amp_command_v=self._p("CMD", "AmpCommand", raw["AmpCommand"]),
+            amp_enable=np.asarray(raw["AmpEnable"]) != 0,
+            fault_reset=np.asarray(raw["FaultReset"]) != 0,
+            pwm_duty=self._p("CMD", "PwmDuty", raw["PwmDuty"]),
+            pwm_direction=np.asarray(raw["PwmDirection"]) != 0,
+            brake=np.asarray(raw["Brake"]) != 0,
+        )
+
+    # --- sensors ---------------------------------------------------------------------------------
+    def sensors_raw(self, s) -> dict[str, np.ndarray]:
+        """Plant sensors → raw signal arrays (one entry per joint)."""
+        n = len(s.pot_v)
+        enc: Sequence[QuadratureEvents] = s.encoder
+        counts = np.array([e.counts for e in enc], dtype=float)
+        illegal = np.array([e.illegal for e in enc], dtype=float)
+        phase = np.array([int(e.phase) % 4 for e in enc], dtype=np.int64)
+        n_index = np.array([len(e.index_offsets) for e in enc], dtype=float)
+        first = np.array([e.index_offsets[0] if e.index_offsets else 0 for e in enc], dtype=float)
+        last = np.array([e.index_offsets[-1] if e.index_offsets else 0 for e in enc], dtype=float)
+        switching = np.asarray(s.switching, dtype=bool)
+        if switching.shape != (n,):
+            switching = np.zeros(n, dtype=bool)
+        return {
+            "PotVoltage": self._q("SENS", "PotVoltage", s.pot_v),
+            "TachVoltage": self._q("SENS", "TachVoltage", s.tach_v),
+            "CurrentMonitor": self._q("SENS", "CurrentMonitor", s.imon_v),
+            "EncoderCounts": self._q("SENS", "EncoderCounts", counts),
+            "EncoderIllegal": self._q("SENS", "EncoderIllegal", illegal),
+            "EncoderPhase": phase,
+            "AmpFault": np.asarray(s.amp_fault, dtype=bool).astype(np.int64),
+            "Switching": switching.astype(np.int64),
+            "IndexCount": self._q("SENS", "IndexCount", n_index),
+            "IndexFirst": self._q("SENS", "IndexFirst", first),
+            "IndexLast": self._q("SENS", "IndexLast", last),
+        }
+
+    def sensors_from_raw(self, raw: dict[str, np.ndarray], sensors_type: Callable[..., Any],
+                         truth: dict[str, np.ndarray] | None = None):
+        """Raw signal arrays → a sensors object built with ``sensors_type(**fields)``."""
+        events = [
+            QuadratureEvents(counts=int(c), illegal=int(il), index_offsets=index_offsets(int(k), int(f), int(la)),
+                             phase=int(ph))
+            for c, il, k, f, la, ph in zip(raw["EncoderCounts"], raw["EncoderIllegal"], raw["IndexCount"],
+                                           raw["IndexFirst"], raw["IndexLast"], raw["EncoderPhase"], strict=True)
+        ]
+        return sensors_type(
+            pot_v=self._p("SENS", "PotVoltage", raw["PotVoltage"]),
+            tach_v=self._p("SENS", "TachVoltage", raw["TachVoltage"]),
+            imon_v=self._p("SENS", "CurrentMonitor", raw["CurrentMonitor"]),
+            amp_fault=np.asarray(raw["AmpFault"]) != 0,
+            encoder=events,
+            switching=np.asarray(raw["Switching"]) != 0,
+            truth=dict(truth) if truth is not None else {},
+        )
+
+    # --- frames ----------------------------------------------------------------------------------
+    def _frame(self, msg, values: dict[str, Any]) -> can.Message:
+        data = msg.encode(values, scaling=False, padding=False, strict=False)
+        return can.Message(arbitration_id=msg.frame_id, data=data, is_extended_id=False, is_fd=msg.is_fd,
+                           bitrate_switch=msg.is_fd)
+
+    def command_frames(self, raw: dict[str, np.ndarray], seq: int) -> list[can.Message]:
+        n = len(raw["AmpCommand"])
+        return [self._frame(self.message("CMD", j), {k: int(v[j]) for k, v in raw.items()} | {"Seq": seq & 0xFF})
+                for j in range(n)]
+
+    def sensor_frames(self, raw: dict[str, np.ndarray], seq: int,
+                      truth: dict[str, np.ndarray] | None = None) -> list[can.Message]:
+        """SENS frames of every joint, then TRUTH frames when ``truth`` has the keys."""
+        n = len(raw["PotVoltage"])
+        out = [self._frame(self.message("SENS", j), {k: int(v[j]) for k, v in raw.items()} | {"Seq": seq & 0xFF})
+               for j in range(n)]
+        if truth is not None and all(key in truth for key in TRUTH_SIGNALS.values()):
+            cols = {sig: np.asarray(truth[key], dtype=float) for sig, key in TRUTH_SIGNALS.items()}
+            out += [self._frame(self.message("TRUTH", j), {sig: float(c[j]) for sig, c in cols.items()})
+                    for j in range(n)]
+        return out
+
+    def frame(self, kind: str, **values: Any) -> can.Message:
+        """A non-joint frame (SYNC, CONTROL, PLANT_STATUS, HEARTBEAT_*) from raw values; missing
+        signals are 0, integer values are clipped to their declared range."""
+        msg = self.message(kind)
+        specs = self.specs[kind]
+        out: dict[str, Any] = {}
+        for name, spec in specs.items():
+            v = values.get(name, 0)
+            out[name] = float(v) if spec.is_float else int(min(max(int(v), spec.raw_min), spec.raw_max))
+        return self._frame(msg, out)
+
+    def decode(self, m: can.Message) -> Frame:
+        """A received frame → :class:`Frame`; raises :class:`FrameError` for anything unusable."""
+        entry = self._by_id.get(m.arbitration_id) if not m.is_extended_id else None
+        if entry is None or m.is_remote_frame or m.is_error_frame:
+            raise FrameError("unknown_id", f"frame 0x{m.arbitration_id:X} is not in {self.path.name}")
+        kind, joint, msg = entry
+        data = bytes(m.data)
+        if len(data) != msg.length:
+            raise FrameError("wrong_length", f"{msg.name}: {len(data)} bytes, expected {msg.length}")
+        try:
+            raw = msg.decode(data, decode_choices=False, scaling=False, allow_truncated=False, allow_excess=False)
+        except Exception as e:  # cantools raises several types for bad payloads
+            raise FrameError("undecodable", f"{msg.name}: {type(e).__name__}: {e}") from None
+        specs = self.specs[kind]
+        for name, v in raw.items():
+            if not specs[name].in_range(v):
+                raise FrameError("out_of_range", f"{msg.name}.{name} raw {v} outside "
+                                 f"[{specs[name].raw_min}, {specs[name].raw_max}]")
+        return Frame(kind, joint, raw, float(m.timestamp or 0.0))
+
+    def try_decode(self, m: can.Message) -> Frame | None:
+        """:meth:`decode`, counting and dropping unusable frames (returns ``None``)."""
+        try:
+            return self.decode(m)
+        except FrameError as e:
+            c = self.counters
+            setattr(c, e.reason, getattr(c, e.reason) + 1)
+            c.by_reason[e.reason] = c.by_reason.get(e.reason, 0) + 1
+            return None
+
+
+def index_offsets(count: int, first: int, last: int) -> tuple[int, ...]:
+    """Index pulse offsets from (count, first, last): exact for up to two pulses; more are spaced
+    evenly from first to last (exact for the once-per-revolution index of a steadily turning
+    encoder)."""
+    if count <= 0:
+        return ()
+    if count == 1:
+        return (first,)
+    return tuple(first + round(k * (last - first) / (count - 1)) for k in range(count))
+
+
+class DbcExchangeCodec:
+    """The harness codec: quantizes commands and sensors exactly as the CAN frames do.
+
+    Duck-typed :class:`emulators.harness.ExchangeCodec` (``command(cmd)``, ``sensors(s)``);
+    ground truth passes unchanged.
+    """
+
+    def __init__(self, codec: CanCodec | None = None) -> None:
+        self.can = codec or shared_codec()
+
+    def command(self, cmd):
+        return self.can.command_from_raw(self.can.command_raw(cmd), type(cmd))
+
+    def sensors(self, s):
+        return self.can.sensors_from_raw(self.can.sensors_raw(s), type(s), s.truth)
+
+
+@functools.cache
+def shared_codec() -> CanCodec:
+    """One :class:`CanCodec` of the shipped DBC per process (the DBC is parsed once)."""
+    return CanCodec()

@@ -1,0 +1,177 @@
+"""The vmehil CAN message set, generated once into ``vmehil.dbc`` (shipped with the package).
+
+The DBC file is the single source of truth at run time: the codec reads every scale, offset,
+length and range from it (:mod:`emulators.can.codec`). This module only *writes* it, so the
+layout is reviewable as Python; ``tests/test_can_dbc.py`` checks that the shipped file equals
+the generator's output. Regenerate with ``python -m emulators.can.dbc``.
+
+Frame identifiers (11-bit; lower = higher bus priority). ``j`` is the joint index 0..31.
+
+======  ==================  =====  =========================  =====================================
+ID      message             bytes  sender → receiver          content
+======  ==================  =====  =========================  =====================================
+0x080   SYNC                24 FD  controller → plant         tick, servo period, computation delay
+0x081   CONTROL             8      controller → plant         reset request (seed), joint count
+0x100+j CMD_Jjj             8      controller → plant         amplifier command / enable / reset, PWM
+0x200+j SENS_Jjj            24 FD  plant → controller         pot, tach, current monitor, encoder, fault
+0x280   PLANT_STATUS        16 FD  plant → controller         end of answer: tick echo, counters
+0x300+j TRUTH_Jjj           32 FD  plant → controller         ground truth (float64), reports only
+0x701   HEARTBEAT_CONTROLLER 8     controller → all           state, boot id, counter
+0x702   HEARTBEAT_PLANT     8      plant → all                state, boot id, counter
+======  ==================  =====  =========================  =====================================
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cantools
+from cantools.database.can import Database, Message, Node, Signal
+from cantools.database.conversion import BaseConversion
+
+DBC_PATH = Path(__file__).with_name("vmehil.dbc")
+
+MAX_JOINTS = 32
+ID_SYNC = 0x080
+ID_CONTROL = 0x081
+ID_CMD = 0x100
+ID_SENS = 0x200
+ID_STATUS = 0x280
+ID_TRUTH = 0x300
+ID_HEARTBEAT_CONTROLLER = 0x701
+ID_HEARTBEAT_PLANT = 0x702
+
+VOLT_LSB = 2e-6  # V per bit of every analog voltage on the wire (24-bit signed: ±16.78 V)
+DUTY_LSB = 1e-6  # PWM duty per bit (20-bit unsigned)
+
+CONTROLLER = "CONTROLLER"
+PLANT = "PLANT"
+
+
+def _sig(name: str, start: int, length: int, *, signed: bool = False, scale: float = 1, offset: float = 0,
+         minimum: float | None = None, maximum: float | None = None, unit: str | None = None,
+         comment: str | None = None, is_float: bool = False, choices: dict[int, str] | None = None,
+         receiver: str = PLANT) -> Signal:
+    return Signal(name, start, length, "little_endian", is_signed=signed,
+                  conversion=BaseConversion.factory(scale, offset, choices, is_float),
+                  minimum=minimum, maximum=maximum, unit=unit, comment=comment, receivers=[receiver])
+
+
+def _volts(name: str, start: int, comment: str, receiver: str) -> Signal:
+    return _sig(name, start, 24, signed=True, scale=VOLT_LSB, minimum=-(2**23) * VOLT_LSB,
+                maximum=(2**23 - 1) * VOLT_LSB, unit="V", comment=comment, receiver=receiver)
+
+
+def _bit(name: str, start: int, comment: str, receiver: str) -> Signal:
+    return _sig(name, start, 1, minimum=0, maximum=1, comment=comment, receiver=receiver)
+
+
+NODE_STATES = {0: "BOOT", 1: "READY", 2: "RUNNING", 3: "STOPPED", 4: "FAULT"}
+
+
+def build_database(max_joints: int = MAX_JOINTS) -> Database:
+    """The message set as a cantools :class:`Database`."""
+    C, P = CONTROLLER, PLANT
+    msgs: list[Message] = [
+        Message(ID_SYNC, "SYNC", 24, [
+            _sig("Tick", 0, 32, maximum=2**32 - 1, minimum=0, comment="exchange number (0 = priming exchange)"),
+            _sig("PeriodS", 32, 64, is_float=True, unit="s", minimum=0, maximum=1,
+                 comment="servo period the plant advances (float64, exact)"),
+            _sig("DelayS", 96, 64, is_float=True, unit="s", minimum=0, maximum=1,
+                 comment="computation delay: the previous command holds this long (float64, exact)"),
+            _sig("Seq", 160, 8, minimum=0, maximum=255, comment="Tick mod 256"),
+        ], senders=[C], is_fd=True, comment="Lockstep: advance one servo period and answer."),
+        Message(ID_CONTROL, "CONTROL", 8, [
+            _sig("Command", 0, 8, minimum=0, maximum=255, choices={0: "NONE", 1: "RESET"},
+                 comment="RESET: rebuild the plant with Seed and start at rest"),
+            _sig("Seed", 8, 32, minimum=0, maximum=2**32 - 1, comment="seed of every plant noise source"),
+            _sig("NJoints", 40, 8, minimum=0, maximum=255, comment="joints the controller expects"),
+            _sig("BootId", 48, 16, minimum=0, maximum=65535, comment="controller boot identifier"),
+        ], senders=[C]),
+        Message(ID_STATUS, "PLANT_STATUS", 16, [
+            _sig("Tick", 0, 32, minimum=0, maximum=2**32 - 1, receiver=C,
+                 comment="tick answered (lockstep: SYNC Tick; free-running: plant step count)"),
+            _sig("BootId", 32, 16, minimum=0, maximum=65535, receiver=C, comment="plant boot identifier"),
+            _sig("NJoints", 48, 8, minimum=0, maximum=255, receiver=C),
+            _sig("FreeRunning", 56, 1, minimum=0, maximum=1, receiver=C),
+            _sig("StepError", 57, 1, minimum=0, maximum=1, receiver=C, comment="the plant rejected the step"),
+            _sig("ResetAck", 58, 1, minimum=0, maximum=1, receiver=C, comment="answer to a CONTROL RESET"),
+            _sig("MissingCmd", 64, 16, minimum=0, maximum=65535, receiver=C,
+                 comment="command frames missing at a step (held), total, saturating"),
+            _sig("Dropped", 80, 16, minimum=0, maximum=65535, receiver=C,
+                 comment="malformed / unknown / late frames dropped, total, saturating"),
+            _sig("SeqJumps", 96, 16, minimum=0, maximum=65535, receiver=C,
+                 comment="SYNC ticks that were not the previous + 1, total, saturating"),
+            _sig("Steps", 112, 16, minimum=0, maximum=65535, receiver=C, comment="steps since reset, mod 65536"),
+        ], senders=[P], is_fd=True, comment="Ends the plant's answer to one tick."),
+    ]
+    for node, fid in ((C, ID_HEARTBEAT_CONTROLLER), (P, ID_HEARTBEAT_PLANT)):
+        other = P if node == C else C
+        msgs.append(Message(fid, f"HEARTBEAT_{node}", 8, [
+            _sig("State", 0, 8, minimum=0, maximum=255, choices=dict(NODE_STATES), receiver=other),
+            _sig("BootId", 8, 16, minimum=0, maximum=65535, receiver=other),
+            _sig("Counter", 24, 8, minimum=0, maximum=255, receiver=other),
+            _sig("Tick", 32, 32, minimum=0, maximum=2**32 - 1, receiver=other, comment="last tick handled"),
+        ], senders=[node], comment="Sent every 100 ms (wall clock)."))
+    for j in range(max_joints):
+        msgs.append(Message(ID_CMD + j, f"CMD_J{j:02d}", 8, [
+            _volts("AmpCommand", 0, "transconductance amplifier input", P),
+            _sig("PwmDuty", 24, 20, scale=DUTY_LSB, minimum=0, maximum=1, comment="H-bridge PWM duty 0..1"),
+            _bit("AmpEnable", 44, "amplifier enable line", P),
+            _bit("FaultReset", 45, "amplifier fault reset line (rising edge clears)", P),
+            _bit("PwmDirection", 46, "H-bridge direction (1 = positive)", P),
+            _bit("Brake", 47, "H-bridge brake (winding shorted)", P),
+            _sig("Seq", 48, 8, minimum=0, maximum=255, comment="Tick mod 256 of the SYNC this belongs to"),
+        ], senders=[C], comment=f"Joint {j}: commands held over the coming servo period."))
+        msgs.append(Message(ID_SENS + j, f"SENS_J{j:02d}", 24, [
+            _volts("PotVoltage", 0, "joint potentiometer wiper at the sampling instant", C),
+            _volts("TachVoltage", 24, "tachometer at the sampling instant (0 without one)", C),
+            _volts("CurrentMonitor", 48, "amplifier current monitor at the sampling instant", C),
+            _sig("EncoderCounts", 72, 24, signed=True, minimum=-(2**23), maximum=2**23 - 1, unit="counts",
+                 receiver=C, comment="net decoded x4 counts during the period"),
+            _sig("EncoderIllegal", 96, 16, minimum=0, maximum=65535, receiver=C,
+                 comment="illegal transitions sampled during the period (saturating)"),
+            _sig("EncoderPhase", 112, 2, minimum=0, maximum=3, receiver=C, comment="quadrature state at the end"),
+            _bit("AmpFault", 114, "amplifier fault line (latched)", C),
+            _bit("Switching", 115, "H-bridge switching during the period", C),
+            _sig("IndexCount", 116, 4, minimum=0, maximum=15, receiver=C,
+                 comment="index pulses during the period (saturating)"),
+            _sig("IndexFirst", 120, 24, signed=True, minimum=-(2**23), maximum=2**23 - 1, unit="counts",
+                 receiver=C, comment="count offset of the first index pulse"),
+            _sig("IndexLast", 144, 24, signed=True, minimum=-(2**23), maximum=2**23 - 1, unit="counts",
+                 receiver=C, comment="count offset of the last index pulse"),
+            _sig("Seq", 168, 8, minimum=0, maximum=255, receiver=C, comment="Tick mod 256 answered"),
+        ], senders=[P], is_fd=True, comment=f"Joint {j}: sensors at the end of the period."))
+        msgs.append(Message(ID_TRUTH + j, f"TRUTH_J{j:02d}", 32, [
+            _sig("ThetaJoint", 0, 64, is_float=True, unit="rad", receiver=C),
+            _sig("OmegaJoint", 64, 64, is_float=True, unit="rad/s", receiver=C),
+            _sig("CurrentA", 128, 64, is_float=True, unit="A", receiver=C),
+            _sig("FrictionMeanNm", 192, 64, is_float=True, unit="Nm", receiver=C),
+        ], senders=[P], is_fd=True, comment=f"Joint {j}: ground truth for reports (never for the servo)."))
+    msgs.sort(key=lambda m: m.frame_id)
+    # A CAN FD bus: the DBC writer marks FD messages (VFrameFormat) only when the database
+    # carries the BusType attribute, which is easiest to give it by parsing a header.
+    db = cantools.database.load_string(_FD_HEADER, database_format="dbc")
+    db.messages.extend(msgs)
+    db.nodes.extend([Node(CONTROLLER), Node(PLANT)])
+    db.version = "vmehil-1"
+    db.refresh()
+    return db
+
+
+_FD_HEADER = """VERSION "vmehil-1"
+BS_:
+BU_:
+BA_DEF_ "BusType" STRING ;
+BA_DEF_DEF_ "BusType" "CAN FD";
+BA_ "BusType" "CAN FD";
+"""
+
+
+def dbc_text() -> str:
+    return build_database().as_dbc_string()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    DBC_PATH.write_text(dbc_text())
+    print(f"wrote {DBC_PATH}")

@@ -1,0 +1,296 @@
+"""The plant node: the plant (motors, Harmonic Drives, sensors, amplifier power stages) as its own
+node on a CAN bus.
+
+Protocol (frames of ``vmehil.dbc``; see ``docs/can.md``):
+
+* **CONTROL** ``RESET`` (from the controller's link when it connects): rebuild the plant with
+  the given seed, at rest; answer ``PLANT_STATUS`` with ``ResetAck = 1``.
+* **CMD_Jxx** frames set each joint's command (held until the next one).
+* **Lockstep** — on **SYNC** (tick ``k``, period, delay) the node advances the plant exactly one
+  period with the commands whose ``Seq`` is ``k mod 256`` (a joint without one keeps its previous
+  command: counted in ``MissingCmd``), then answers ``SENS_Jxx`` (and ``TRUTH_Jxx``) with
+  ``Seq = k mod 256`` and finally ``PLANT_STATUS`` with ``Tick = k``, which marks the answer
+  complete.
+* **Free-running** — the node steps on the wall clock every ``period_s`` with the newest
+  commands and publishes the same answer with ``Tick`` = its own step count. If the controller
+  falls silent for ``controller_timeout_s`` the node disables every amplifier (idle command)
+  until it hears from the controller again.
+* **HEARTBEAT_PLANT** every ``heartbeat_s`` of wall-clock time, carrying the node's boot id.
+
+Unknown, malformed or out-of-range frames are counted (``PLANT_STATUS.Dropped``) and dropped;
+SYNC ticks that are not the previous + 1 are counted (``SeqJumps``) and stepped anyway.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+
+from emulators.can.bus import Endpoint
+from emulators.can.codec import CanCodec
+from emulators.can.dbc import ID_HEARTBEAT_PLANT, ID_SENS, ID_STATUS, ID_TRUTH, MAX_JOINTS
+
+log = logging.getLogger(__name__)
+
+PLANT_IDS = {ID_STATUS, ID_HEARTBEAT_PLANT} | {ID_SENS + j for j in range(MAX_JOINTS)} | {
+    ID_TRUTH + j for j in range(MAX_JOINTS)}
+STATE_READY, STATE_RUNNING, STATE_STOPPED, STATE_FAULT = 1, 2, 3, 4
+
+
+def new_boot_id() -> int:
+    """A 16-bit identifier that differs between node starts (process id and start time)."""
+    return (os.getpid() * 7919 ^ time.time_ns() // 1000) & 0xFFFF
+
+
+@dataclass
+class NodeSpec:
+    """What a plant node needs from a rig file: the plant tables, joint names and timing."""
+
+    name: str
+    table: Any
+    names: list[str]
+    period_s: float
+    delay_s: float
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.names)
+
+
+def node_spec(rig: str | None) -> NodeSpec:
+    """Read a rig preset name or file for the plant node (``[rig]``, ``[plant]``, ``[[joint]]``;
+    the wiring and servo tables are the controller's business)."""
+    from emulators.plant import plant_params_from_config
+    from emulators.presets import resolve_rig
+    from hal.config import load_toml
+
+    path = resolve_rig(rig)
+    table = load_toml(path)
+    r = table.table("rig", {})
+    rate = r.float("servo_rate_hz", 125.0, min=1.0, max=10_000.0)
+    params = plant_params_from_config(table)
+    return NodeSpec(r.str("name", Path(path).stem), table, [j.name for j in params.joints], 1.0 / rate,
+                    r.float("computation_delay_s", 0.001, min=0.0))
+
+
+@dataclass
+class NodeCounters:
+    steps: int = 0
+    missing_cmd: int = 0
+    dropped: int = 0
+    seq_jumps: int = 0
+    step_errors: int = 0
+    resets: int = 0
+    controller_lost: int = 0
+
+
+class PlantNode:
+    """Serves one plant on a bus.
+
+    Args:
+        endpoint: the node's :class:`~emulators.can.bus.Endpoint` (or a python-can bus).
+        plant_factory: ``seed -> plant`` (an object with ``step_period(cmd, period_s, delay_s)``).
+        n_joints: joints of the plant (must match the controller's).
+        seed: seed of the plant built at start (a controller's RESET brings its own).
+        free_running: step on the wall clock instead of on SYNC.
+        period_s: free-running step (s).
+        delay_s: free-running computation delay passed to the plant (s).
+        heartbeat_s: heartbeat interval (s, wall clock).
+        controller_timeout_s: free-running: silence after which amplifiers are disabled (s).
+        command_type: the plant's command class (default :class:`emulators.plant.PlantCommand`).
+    """
+
+    def __init__(self, endpoint: Endpoint | can.BusABC, plant_factory: Callable[[int], Any], n_joints: int, *,
+                 seed: int = 0, free_running: bool = False, period_s: float = 0.008, delay_s: float = 0.0,
+                 heartbeat_s: float = 0.1, controller_timeout_s: float = 0.5,
+                 command_type: Callable[..., Any] | None = None, codec: CanCodec | None = None,
+                 boot_id: int | None = None) -> None:
+        self.ep = endpoint if isinstance(endpoint, Endpoint) else Endpoint(endpoint, PLANT_IDS, owns_bus=False)
+        self.ep.own_ids |= PLANT_IDS
+        self.codec = codec or CanCodec()
+        self.codec.check_joints(n_joints)
+        self.n = n_joints
+        self.factory = plant_factory
+        self.free_running = free_running
+        self.period_s = float(period_s)
+        self.delay_s = float(delay_s)
+        self.heartbeat_s = heartbeat_s
+        self.controller_timeout_s = controller_timeout_s
+        if command_type is None:
+            from emulators.plant import PlantCommand as command_type
+        self.command_type = command_type
+        self.boot_id = new_boot_id() if boot_id is None else boot_id & 0xFFFF
+        self.counters = NodeCounters()
+        self._hb_counter = 0
+        self._next_hb = 0.0
+        self._last_controller = None  # monotonic time of the last controller frame
+        self.state = STATE_READY
+        self._reset_state(seed)
+
+    # --- state ----------------------------------------------------------------------------------
+    def _idle_raw(self) -> dict[str, np.ndarray]:
+        z = np.zeros(self.n, dtype=np.int64)
+        return {"AmpCommand": z.copy(), "PwmDuty": z.copy(), "AmpEnable": z.copy(), "FaultReset": z.copy(),
+                "PwmDirection": np.ones(self.n, dtype=np.int64), "Brake": z.copy()}
+
+    def _reset_state(self, seed: int) -> None:
+        self.seed = int(seed)
+        self.plant = self.factory(self.seed)
+        self.cmd_raw = self._idle_raw()
+        self.cmd_seq = np.full(self.n, -1)
+        self.last_tick: int | None = None
+        self.counters.steps = 0
+
+    # --- I/O ------------------------------------------------------------------------------------
+    def _send(self, msg: can.Message) -> None:
+        try:
+            self.ep.send(msg)
+        except can.CanError as e:  # a full queue or a vanished bus: count, keep serving
+            self.counters.dropped += 1
+            log.warning("plant node: send failed: %s", e)
+
+    def _status(self, tick: int, *, reset_ack: bool = False, step_error: bool = False) -> None:
+        c = self.counters
+        self._send(self.codec.frame(
+            "PLANT_STATUS", Tick=tick & 0xFFFFFFFF, BootId=self.boot_id, NJoints=self.n,
+            FreeRunning=int(self.free_running), StepError=int(step_error), ResetAck=int(reset_ack),
+            MissingCmd=c.missing_cmd, Dropped=c.dropped + self._codec_dropped(), SeqJumps=c.seq_jumps,
+            Steps=c.steps & 0xFFFF))
+
+    def dropped_total(self) -> int:
+        """Frames dropped: malformed, unknown, out of range (codec) and foreign (node)."""
+        return self.counters.dropped + self._codec_dropped()
+
+    def _codec_dropped(self) -> int:
+        k = self.codec.counters
+        return k.unknown_id + k.wrong_length + k.undecodable + k.out_of_range
+
+    def heartbeat(self, now: float | None = None) -> None:
+        """Send the heartbeat if it is due."""
+        now = time.monotonic() if now is None else now
+        if now < self._next_hb:
+            return
+        self._next_hb = now + self.heartbeat_s
+        self._hb_counter = (self._hb_counter + 1) & 0xFF
+        self._send(self.codec.frame("HEARTBEAT_PLANT", State=self.state, BootId=self.boot_id,
+                                    Counter=self._hb_counter, Tick=(self.last_tick or 0) & 0xFFFFFFFF))
+
+    # --- frames ---------------------------------------------------------------------------------
+    def handle(self, m: can.Message) -> None:
+        """Process one received frame (never raises on bad frames)."""
+        f = self.codec.try_decode(m)
+        if f is None:
+            return
+        if f.kind in ("CMD", "SYNC", "CONTROL", "HEARTBEAT_CONTROLLER"):
+            self._last_controller = time.monotonic()
+        if f.kind == "CMD":
+            j = int(f.joint or 0)
+            if j >= self.n:
+                self.counters.dropped += 1
+                return
+            for k in self.cmd_raw:
+                self.cmd_raw[k][j] = f.raw[k]
+            self.cmd_seq[j] = f.raw["Seq"]
+        elif f.kind == "SYNC":
+            if not self.free_running:
+                self.step(int(f.raw["Tick"]), float(f.raw["PeriodS"]), float(f.raw["DelayS"]))
+        elif f.kind == "CONTROL":
+            if int(f.raw["Command"]) == 1:
+                self.counters.resets += 1
+                self._reset_state(int(f.raw["Seed"]))
+                self.state = STATE_RUNNING
+                self._status(0, reset_ack=True)
+        elif f.kind == "HEARTBEAT_CONTROLLER":
+            pass
+        else:  # another plant's frames on our bus
+            self.counters.dropped += 1
+
+    def step(self, tick: int, period_s: float, delay_s: float) -> None:
+        """Advance the plant one period with the held commands and publish the answer."""
+        c = self.counters
+        if self.last_tick is not None and tick != self.last_tick + 1:
+            c.seq_jumps += 1
+        self.last_tick = tick
+        if not self.free_running:
+            missing = int(np.count_nonzero(self.cmd_seq != (tick & 0xFF)))
+            c.missing_cmd += missing
+        raw = self.cmd_raw
+        if self.free_running and self._controller_lost():
+            raw = self._idle_raw()
+        cmd = self.codec.command_from_raw(raw, self.command_type)
+        try:
+            sensors = self.plant.step_period(cmd, period_s, delay_s)
+        except Exception as e:  # the plant refused (e.g. a bad period): tell the controller
+            c.step_errors += 1
+            log.warning("plant node: step %d failed: %s: %s", tick, type(e).__name__, e)
+            self._status(tick, step_error=True)
+            return
+        c.steps += 1
+        for msg in self.codec.sensor_frames(self.codec.sensors_raw(sensors), tick, sensors.truth):
+            self._send(msg)
+        self._status(tick)
+
+    def _controller_lost(self) -> bool:
+        lost = self._last_controller is None or time.monotonic() - self._last_controller > self.controller_timeout_s
+        if lost and self.state == STATE_RUNNING:
+            self.counters.controller_lost += 1
+            self.state = STATE_STOPPED
+        elif not lost and self.state == STATE_STOPPED:
+            self.state = STATE_RUNNING
+        return lost
+
+    # --- serving --------------------------------------------------------------------------------
+    def serve(self, stop: threading.Event | None = None, duration_s: float | None = None) -> None:
+        """Serve until ``stop`` is set or ``duration_s`` of wall time has passed."""
+        t_end = None if duration_s is None else time.monotonic() + duration_s
+        next_step = time.monotonic() + self.period_s
+        free_tick = 0
+        while not (stop is not None and stop.is_set()):
+            now = time.monotonic()
+            if t_end is not None and now >= t_end:
+                return
+            self.heartbeat(now)
+            if self.free_running and now >= next_step:
+                self.step(free_tick, self.period_s, self.delay_s)
+                free_tick += 1
+                next_step += self.period_s
+                if next_step < now:  # fell behind by more than a period: do not burst
+                    next_step = now + self.period_s
+                continue
+            wait = self._next_hb - now
+            if self.free_running:
+                wait = min(wait, next_step - now)
+            if t_end is not None:
+                wait = min(wait, t_end - now)
+            m = self.ep.recv(max(0.0, min(wait, 0.05)))
+            if m is not None:
+                self.handle(m)
+
+    def start_thread(self) -> tuple[threading.Thread, threading.Event]:
+        """Serve in a daemon thread; set the returned event to stop it."""
+        stop = threading.Event()
+        t = threading.Thread(target=self.serve, args=(stop,), name="vmehil-plant-node", daemon=True)
+        t.start()
+        return t, stop
+
+    def close(self) -> None:
+        self.ep.close()
+
+
+def exit_on_sigterm() -> None:
+    """Turn SIGTERM into ``SystemExit`` so a terminated node still closes its bus and its log."""
+
+    def _exit(signum: int, frame: Any) -> None:
+        raise SystemExit(0)
+
+    signal.signal(signal.SIGTERM, _exit)

@@ -1,0 +1,154 @@
+"""Visual servoing: the ``vservo`` trajectory object and the robot side of the vision link.
+
+While a ``vservo`` move runs, the servo loop follows the vision system's end-effector-relative
+commands, which arrive over the BIT3 VME-to-VME link (``hal.bit3``): each tick the robot side
+publishes the measured joint angles, runs its protocol state machine and, when a complete new
+command arrived, turns the end-effector increment into joint increments with the arm model's
+damped-least-squares Jacobian (``hal.bit3.arm.ArmModel.ee_delta_to_joint_delta``) and adds them
+to the joint targets. Whenever the protocol says *hold* (requested, ending, idle, peer dead) the
+targets stay where they are. The move ends when the task ends (either side, or a dead peer) or
+after ``timeout_s``; the sequencer then goes on from where the arm is held.
+
+Motion file::
+
+    [[move]]
+    type = "vservo"
+    timeout_s = 20        # end the task (robot side) after this long
+
+The link is given to the planner as ``PlanContext.extras["vision"]`` (a :class:`VisionLink`);
+``vmehil run --vision inprocess|process`` sets it up (see ``servo/vservo_extension.py``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from hal.bit3.arm import ArmModel
+from hal.bit3.protocol import RobotState, VisionServoClient
+from hal.config import ConfigTable
+from servo.motion import register_move_type
+from servo.trajectory.base import Sample, TrajectoryError
+from servo.trajectory.sequencer import PlanContext
+
+
+class VisionLink:
+    """The robot side of a visual-servo task, stepped from the servo loop's tick.
+
+    Args:
+        client: the protocol endpoint on the BIT3 window memory.
+        arm: the arm model (which joints it moves: ``arm.joints``).
+        clock: bus time in seconds (the crate's simulated clock, or the hardware clock).
+        measure: the latest measured joint angles (rad, all joints).
+        n_joints: joints of the rig.
+        vision: an in-process vision system stepped before the client (``None`` when it runs
+            as its own process or on a real vision computer).
+    """
+
+    def __init__(self, client: VisionServoClient, arm: ArmModel, clock: Callable[[], float],
+                 measure: Callable[[], np.ndarray | None], n_joints: int, vision=None) -> None:
+        self.client = client
+        self.arm = arm
+        self.clock = clock
+        self.measure = measure
+        self.n = n_joints
+        self.vision = vision
+        self.commands = 0
+
+    def summary(self) -> dict:
+        """Outcome for the run report: protocol state, commands followed, distance to target."""
+        theta = self.measure()
+        out = {"robot_state": self.client.state.name,
+               "end_reason": getattr(self.client.end_reason, "name", None),
+               "commands": self.commands, "final_distance_mm": None}
+        if self.vision is not None and theta is not None:
+            ee = np.asarray(self.arm.position(np.asarray(theta, float)[:6]))
+            out["final_distance_mm"] = float(np.linalg.norm(ee - np.asarray(self.vision.target)) * 1e3)
+        return out
+
+    def step(self, fallback: np.ndarray) -> np.ndarray | None:
+        """One tick: publish joints, run both state machines. For a new command, the new joint
+        targets (rad): the *measured* angles plus the command's joint increment — the command is
+        relative to where the end effector is, so targets never run away from a lagging arm.
+        ``None`` when there is no new command."""
+        now = self.clock()
+        theta = self.measure()
+        theta = np.asarray(fallback if theta is None else theta, float)
+        self.client.publish_joints(theta[: min(self.n, 8)], now)
+        if self.vision is not None:
+            self.vision.step(now)
+        cmd = self.client.step(now)
+        if cmd is None or self.client.holding:
+            return None
+        self.commands += 1
+        d = np.asarray(self.arm.ee_delta_to_joint_delta(theta[:6], cmd.dp), float)
+        moved = np.zeros(self.n, bool)
+        moved[list(self.arm.joints)] = True
+        target = np.asarray(fallback, float).copy()
+        dd = np.zeros(self.n)
+        dd[: min(d.size, self.n)] = d[: self.n]
+        target[moved] = theta[moved] + dd[moved]
+        return target
+
+
+class VisualServoTrajectory:
+    """Targets that follow the vision commands; ``duration`` is open until the task ends."""
+
+    def __init__(self, start: np.ndarray, link: VisionLink, timeout_s: float) -> None:
+        self.target = np.asarray(start, float).copy()
+        self.link = link
+        self.timeout_s = float(timeout_s)
+        self._t_end: float | None = None
+        self._requested = False
+        self._zeros = np.zeros_like(self.target)
+
+    @property
+    def duration(self) -> float:
+        return math.inf if self._t_end is None else self._t_end
+
+    @property
+    def end(self) -> np.ndarray:
+        return self.target.copy()
+
+    def sample(self, t: float) -> Sample:
+        client = self.link.client
+        if not self._requested:
+            if client.state is not RobotState.IDLE:
+                raise TrajectoryError(f"vservo: the vision link is busy ({client.state.name}); cannot start a task")
+            client.request(self.link.clock())
+            self._requested = True
+        if self._t_end is None:
+            target = self.link.step(self.target)
+            if target is not None:
+                self.target = target
+            if t >= self.timeout_s and client.state is not RobotState.IDLE:
+                client.end(self.link.clock())
+            if client.state is RobotState.IDLE and t > 0.0:
+                self._t_end = max(t, 1e-9)  # task over: the sequencer moves on, holding here
+        return Sample(self.target.copy(), self._zeros, self._zeros, False)
+
+
+@dataclass(frozen=True)
+class VservoMove:
+    """Motion-file move ``type = "vservo"``: follow the vision system until the task ends."""
+
+    timeout_s: float = 30.0
+    kind: str = "vservo"
+
+    def build(self, start: np.ndarray, ctx: PlanContext) -> VisualServoTrajectory:
+        link = ctx.extras.get("vision")
+        if link is None:
+            raise TrajectoryError("a vservo move needs the vision link: run with --vision inprocess|process")
+        return VisualServoTrajectory(start, link, self.timeout_s)
+
+
+def parse_vservo(cfg: ConfigTable, n_joints: int) -> VservoMove:
+    move = VservoMove(cfg.float("timeout_s", 30.0, min=1e-3))
+    cfg.check_unknown({"type", "timeout_s"})
+    return move
+
+
+register_move_type("vservo", parse_vservo)
