@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import inspect
 import pkgutil
 import sys
 from pathlib import Path
@@ -13,13 +14,15 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__)
     ap.add_argument("names", nargs="*", help="benchmark module names (default: all bench_*)")
     ap.add_argument("--quick", action="store_true", help="shorter runs (rougher figures)")
+    ap.add_argument("--seconds", type=float, default=None, help="real-time runs: seconds per rig (bench_servo)")
     args = ap.parse_args(argv)
     here = Path(__file__).parent
     names = args.names or sorted(m.name for m in pkgutil.iter_modules([str(here)]) if m.name.startswith("bench_"))
     for name in names:
         mod = importlib.import_module(f"benchmarks.{name}")
         print(f"== {name} ==", flush=True)
-        mod.main(quick=args.quick)
+        extra = {"seconds": args.seconds} if "seconds" in inspect.signature(mod.main).parameters else {}
+        mod.main(quick=args.quick, **extra)
     return 0
 
 

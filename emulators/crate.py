@@ -57,6 +57,10 @@ class Crate(VmeBus):
         self._slots: list[Slot] = []
         self.boards: dict[str, Board] = {}
         self.counters: Counter[str] = Counter()
+        # hot-path caches (a servo tick makes ~100 cycles): counter key per (write, AM, width),
+        # decoded slot per (AM, address, width); cleared when a board is installed
+        self._counter_keys: dict[tuple[bool, int, Width], str] = {}
+        self._decode_cache: dict[tuple[int, int, Width], Slot] = {}
         self.irq = IrqController(self.irq_handler, on_iack=self._count_iack)
 
     # --- configuration -------------------------------------------------------------------
@@ -88,6 +92,7 @@ class Crate(VmeBus):
             raise VmeConfigError(f"crate {self.name}: board {board.name!r} slot {slot} is not 1..21")
         board.base, board.space, board.slot = base, space, slot
         self._slots.append(Slot(board, space, base, end))
+        self._decode_cache.clear()
         self.boards[board.name] = board
         board.attach(self)
         return board
@@ -127,9 +132,19 @@ class Crate(VmeBus):
 
     def _cycle(self, am: AddressModifier, address: int, width: Width, value: int | None) -> int:
         write = value is not None
-        op = "write" if write else "read"
-        self.counters[f"{op}.{am.space.name}.{width.name}"] += 1
-        s = self._decode(am, address, width)
+        ck = (write, am.code, width)
+        key = self._counter_keys.get(ck)
+        if key is None:
+            key = self._counter_keys[ck] = f"{'write' if write else 'read'}.{am.space.name}.{width.name}"
+        self.counters[key] += 1
+        dk = (am.code, address, width)
+        s = self._decode_cache.get(dk)
+        if s is None:
+            s = self._decode(am, address, width)
+            if s is not None:
+                if len(self._decode_cache) >= 4096:  # e.g. a large memory board swept once
+                    self._decode_cache.clear()
+                self._decode_cache[dk] = s
         if s is None:
             self.clock.advance(self.bus_timeout_ns)
             self.counters[f"error.{BusErrorCause.NO_RESPONDER.name}"] += 1

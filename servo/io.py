@@ -180,6 +180,13 @@ class JointIO:
                 if need not in j.wiring:
                     raise ValueError(f"rig {rig.name} joint {j.name}: servo uses {src} but '{need}' is not wired")
         self.last_dac_volts = np.zeros(self.n)
+        # Fault lines as (joint, PIO board, port, bit): read() fetches each port once per tick.
+        self._fault_lines = []
+        for j in rig.joints:
+            if "amp_fault" in j.wiring:
+                board = j.wiring["amp_fault"].board
+                port, bit = self.pio[board].resolve(j.net("amp_fault"))
+                self._fault_lines.append((j.index, board, port, bit))
         self.calibration: CalibrationStore | None = None
         if isinstance(calibration, str | Path):
             try:
@@ -237,7 +244,6 @@ class JointIO:
         m = Measurement(nan.copy(), nan.copy(), nan.copy(), nan.copy(), nan.copy(), nan.copy(), np.zeros(n, bool))
         volts = {name: drv.scan(self._adc_last[name]) for name, drv in self.adc.items()}
         readings = {name: drv.update(self.period_s) for name, drv in self.quad.items()}
-        ports: dict[tuple[str, str], bool] = {}
         for j in self.rig.joints:
             i, s, w = j.index, self.scaling[j.index], j.wiring
             if "pot" in w:
@@ -252,11 +258,12 @@ class JointIO:
                 r = readings[w["encoder"].board][w["encoder"].index]
                 m.theta_enc[i] = r.position_rad
                 m.omega_enc[i] = r.velocity_rad_s
-            if "amp_fault" in w:
-                key = (w["amp_fault"].board, j.net("amp_fault"))
-                if key not in ports:
-                    ports[key] = self.pio[key[0]].get_line(key[1])
-                m.fault[i] = ports[key]
+        ports: dict[tuple[str, int], int] = {}
+        for i, board, port, bit in self._fault_lines:
+            value = ports.get((board, port))
+            if value is None:
+                value = ports[(board, port)] = self.pio[board].read_port(port)  # DATA_x, as get_line reads
+            m.fault[i] = bool(value >> bit & 1)
         m.theta = np.where([p == "pot" for p in self.position_source], m.theta_pot, m.theta_enc)
         m.omega = np.where([v == "tach" for v in self.velocity_source], m.omega_tach, m.omega_enc)
         return m

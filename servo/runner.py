@@ -37,6 +37,10 @@ class TimingStats:
     compute_s: list[float] = field(default_factory=list)
     lateness_s: list[float] = field(default_factory=list)
     overruns: int = 0
+    #: per tick, the part of ``compute_s`` spent in the servo loop (drivers + law: what a real HIL
+    #: controller runs) and in the harness exchange (clock, publish, in-process plant step)
+    controller_s: list[float] = field(default_factory=list)
+    harness_s: list[float] = field(default_factory=list)
 
     def summary(self, period_s: float) -> dict[str, float | int]:
         c = np.asarray(self.compute_s) if self.compute_s else np.zeros(1)
@@ -51,7 +55,18 @@ class TimingStats:
             "lateness_p50_ms": float(np.percentile(late, 50) * 1e3),
             "lateness_p99_ms": float(np.percentile(late, 99) * 1e3),
             "lateness_max_ms": float(late.max() * 1e3),
+            **_split_summary("controller", self.controller_s, period_s),
+            **_split_summary("harness", self.harness_s, period_s),
         }
+
+
+def _split_summary(name: str, values: list[float], period_s: float) -> dict[str, float]:
+    if not values:
+        return {}
+    v = np.asarray(values)
+    p99 = float(np.percentile(v, 99))
+    return {f"{name}_p50_ms": float(np.percentile(v, 50) * 1e3), f"{name}_p99_ms": p99 * 1e3,
+            f"{name}_max_ms": float(v.max() * 1e3), f"{name}_p99_fraction_of_period": p99 / period_s}
 
 
 class LockstepRunner:
@@ -66,13 +81,19 @@ class LockstepRunner:
         self.delay_ns = round(self.delay_s * 1e9)
         self.overruns = 0
         self.after_tick: list[Callable[[ServoLoop], None]] = []
+        #: wall seconds of the last tick spent in the servo loop and in the harness exchange
+        self.last_split = (0.0, 0.0)
 
     def tick(self) -> None:
         sys_ = self.system
         k = self.loop.tick_count
+        clock = time.perf_counter
+        t0 = clock()
         sys_.crate.advance_to(k * self.period_ns)
         sys_.harness.publish()
+        t1 = clock()
         self.loop.tick(truth=sys_.truth())
+        t2 = clock()
         # The command takes effect at t_k + delay: let the boards' pending events (a DAC's output
         # settling after its update strobe) run before the harness reads the command nets.
         sys_.crate.advance_to(k * self.period_ns + self.delay_ns)
@@ -82,6 +103,7 @@ class LockstepRunner:
             # A remote plant (CAN node) gave no fresh data, vanished or restarted: the watchdog's
             # answer is a safe stop in this tick; the link then returns held values without waiting.
             self.loop.safe_stop(e.cause, str(e))
+        self.last_split = (t2 - t1, (t1 - t0) + (clock() - t2))
         for cb in self.after_tick:
             cb(self.loop)
 
@@ -119,6 +141,8 @@ class RealtimeRunner(LockstepRunner):
             done = self.clock()
             self.timing.compute_s.append(done - woke)
             self.timing.lateness_s.append(max(0.0, woke - deadline))
+            self.timing.controller_s.append(self.last_split[0])
+            self.timing.harness_s.append(self.last_split[1])
             if done > deadline + self.period_s:
                 self.timing.overruns += 1
             if progress is not None:

@@ -20,7 +20,7 @@ from pathlib import Path
 from servo.files import write_atomic, write_json
 
 #: Modules imported before the parser is built; each registers procedures at import.
-PROCEDURE_MODULES = ["servo.calibration.procedures"]
+PROCEDURE_MODULES = ["servo.calibration.procedures", "servo.friction_id"]
 
 
 def _load_procedures():
@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
         rig=rig, bus=system.crate, store=store, auto=args.auto,
         fixture=EmulatedFixture(system) if args.auto else None,
         positioner_factory=lambda st: EmulatedPositioner(system, st),
-        joints=joints, prompt=input, say=print, progress=ProgressLine(sys.stderr),
+        joints=joints, prompt=input, say=print, progress=ProgressLine(sys.stderr), options={"report": args.report},
     )
     print(f"calibrating {', '.join(names)} on rig {rig.name}" + (" (auto: reference fixture)" if args.auto else ""))
     try:
