@@ -17,8 +17,8 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
-from matplotlib import patheffects
 import numpy as np
+from matplotlib import patheffects
 from matplotlib.figure import Figure
 
 from servo.analysis.describing import Nonlinearity, linear_response_fn
@@ -369,8 +369,8 @@ def limit_cycle_text(r: dict[str, Any]) -> str:
                          f"(servo), {sim['static_error_true_deg']:.3f}° (true angle)" if not sim.get("fault") else
                          "    full-stack simulation: " + got)
             if block is not r and not sim.get("fault") and sim.get("balance_error_deg") is not None:
-                lines.append(f"    frozen integral terms {sim['integral_terms_rad_s2']:+.2f} rad/s² centre the stuck joint "
-                             f"at {sim['balance_error_deg']:+.3f}° (± the bound below)")
+                lines.append(f"    frozen integral terms {sim['integral_terms_rad_s2']:+.2f} rad/s² centre the "
+                             f"stuck joint at {sim['balance_error_deg']:+.3f}° (± the bound below)")
         lines.append("")
     bound = r["switch_off"]["predicted"]["static_error_bound_deg"]
     lines.append(f"switch-off static error bound T_F/(J·Kp_off) (T_F the largest local breakout, "
@@ -479,7 +479,7 @@ def step_figure(step: dict, step_lin: np.ndarray, move: dict, move_lin: np.ndarr
         a.plot(t, lin_deg, color="tab:blue", lw=1.2, ls="-.", label="linear prediction (sampled loop)")
         a.set_ylabel("angle from start (deg)")
         a.set_title(f"{name}: settling {fmt(d.get('settling_time_s'), '.2f', ' s', none='never')} "
-                    f"(±{d['settle_band_deg']:g}° of the final angle)")
+                    f"(steady state ±{d['settle_band_deg']:g}°)")
         e = ax[1, col]
         e.plot(t, (thd - thd0) - (thm - thm0), color="tab:orange", lw=0.8, label="simulated (servo's error)")
         e.plot(t, (thd - thd0) - (th - th0), color="tab:red", lw=0.8, alpha=0.7, label="simulated (true angle)")
@@ -500,8 +500,8 @@ def step_figure(step: dict, step_lin: np.ndarray, move: dict, move_lin: np.ndarr
 
 HEATMAP_METRICS = (("lc_amplitude_deg", "limit-cycle amplitude (deg)", "viridis_r"),
                    ("phase_margin_deg", "sampled phase margin (deg)", "viridis"),
-                   ("max_tracking_error_deg", "max tracking error (deg)", "viridis_r"),
-                   ("settling_time_s", "settling time (s)", "viridis_r"))
+                   ("rms_tracking_error_deg", "rms tracking error during the move (deg)", "viridis_r"),
+                   ("settling_time_s", "settling time into the steady state (s)", "viridis_r"))
 
 
 def sweep_heatmaps(rows: list[dict], x: str, y: str, title: str) -> Figure | None:

@@ -46,7 +46,7 @@ from emulators.plant.params import JointParams as PlantJoint
 from emulators.presets import resolve_rig
 from hal.adc_dac.conversions import AdcRange, adc_lsb
 from servo.analysis.describing import DeadZone, Nonlinearity, Quantizer, Relay, Saturation
-from servo.analysis.loop import GAIN_KEYS, Gains, GainError, LoopConfig
+from servo.analysis.loop import GAIN_KEYS, GainError, Gains, LoopConfig
 from servo.rig import RigSpec, load_rig
 
 
@@ -240,7 +240,8 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
     vel_filter = None
     if velocity == "tach":
         if not p.tach.present:
-            raise ValueError(f"rig {spec.name} joint {js.name}: the servo uses the tach but [joint.tach] present = false")
+            raise ValueError(f"rig {spec.name} joint {js.name}: the servo uses the tach but "
+                             "[joint.tach] present = false")
         for key in ("brush_drop_v", "gradient_v_per_rad_s"):
             note_default("tach", key, getattr(p.tach, key), "V" if key == "brush_drop_v" else "V/(rad/s)")
         deadband = p.tach.brush_drop_v / p.tach.gradient_v_per_rad_s

@@ -30,6 +30,22 @@ from servo.metrics import limit_cycle, settling_time
 
 MOTIONS = ("joint", "demo")
 STATIC_WINDOW_S = 1.0  #: the static error is the mean error over the last second of the hold
+STEADY_WINDOW_S = 2.0  #: the steady-state envelope (settling reference) is taken over the last 2 s
+
+
+def settling_after(t: np.ndarray, y: np.ndarray, t_start: float, band: float) -> float | None:
+    """Settling time (s after ``t_start``) of ``y`` into its steady state: until it stays within
+    the steady-state envelope — mean ± half the peak-to-peak over the last
+    :data:`STEADY_WINDOW_S` (so a limit cycle counts as settled once the transient has died into
+    it) — widened by ``band``. None if it never does."""
+    t = np.asarray(t, float)
+    y = np.asarray(y, float)
+    if t.size == 0:
+        return None
+    tail = y[t >= t[-1] - STEADY_WINDOW_S]
+    mid = 0.5 * (float(np.max(tail)) + float(np.min(tail)))
+    half = 0.5 * (float(np.max(tail)) - float(np.min(tail)))
+    return settling_time(t, y - mid, t_start, half + band)
 
 
 class SimulationError(ValueError):
@@ -47,7 +63,7 @@ class SimSettings:
     move_deg: float | None = None
     speed: float = 0.5
     hold_s: float = 8.0
-    settle_band_deg: float = 1.0
+    settle_band_deg: float = 0.1
     allow_short: bool = False
 
     def __post_init__(self) -> None:
@@ -124,8 +140,10 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
     ``frequency_hz`` (limit cycle on the true angle, as ``vmehil run``), ``amplitude_pot_deg``,
     ``spectrum_peak_hz``, ``max_tracking_error_deg`` (during the move, true angle, as ``vmehil run``:
     includes the uncalibrated pot's ≈1° non-linearity), ``max_tracking_error_servo_deg`` (the error
-    the servo measures), ``settling_time_s`` (after the move ended, until the true angle stays within
-    the settling band of its final value, the mean over the last second; None if never), ``static_error_deg`` (|mean error| over the last second, as the servo measures it) and
+    the servo measures; quantized to the pot's ADC step) and ``rms_tracking_error_servo_deg``,
+    ``settling_time_s`` (after the move ended, until the true angle stays in its steady-state
+    envelope widened by the settling band, :func:`settling_after`; None if never),
+    ``static_error_deg`` (|mean error| over the last second, as the servo measures it) and
     ``static_error_true_deg`` (against the true angle: adds the uncalibrated pot's non-linearity),
     ``final_error_deg``, ``switch_off_events``, ``integral_terms_rad_s2`` (Kpi·∫e + KvI·∫ė at the end:
     frozen while switched off), ``balance_error_deg`` (−that/Kp_eff: where a stuck joint's error is
@@ -169,9 +187,10 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
     err_servo = th_d - th_meas
     last = t >= (t[-1] - STATIC_WINDOW_S) if t.size else np.zeros(0, bool)
     band = math.radians(s.settle_band_deg)
-    settle = settling_time(t, th_true - np.mean(th_true[last]), t_end, band) if t.size else None
+    settle = settling_after(t, th_true, t_end, band) if t.size else None
     moving = t <= t_end
     track_servo = _deg(np.nanmax(np.abs(err_servo[moving]))) if moving.any() else None
+    track_rms = _deg(float(np.sqrt(np.nanmean(err_servo[moving] ** 2)))) if moving.any() else None
     g = law.gains
     frozen = float(g.kpi[j] * law.state.ie[j] + g.kvi[j] * law.state.iv[j])  # Kpi·∫e + KvI·∫ė, rad/s²
     kp_now = float(law.kp_eff()[j])
@@ -191,6 +210,7 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
         "spectrum_peak_hz": None if fault or lc.frequency_hz is None else lc.spectrum_peak_hz,
         "max_tracking_error_deg": js["max_tracking_error_deg"],
         "max_tracking_error_servo_deg": track_servo,
+        "rms_tracking_error_servo_deg": track_rms,
         "settling_time_s": None if fault else settle,
         "settle_band_deg": s.settle_band_deg,
         "static_error_deg": None if fault else _deg(abs(np.mean((th_d - th_meas)[last]))),
@@ -228,9 +248,10 @@ def strip_traces(d: dict[str, Any] | None) -> dict[str, Any] | None:
 def linear_prediction(jp: JointParams, t: np.ndarray, theta_d: np.ndarray, omega_d: np.ndarray | None = None,
                       alpha_d: np.ndarray | None = None, theta_start: float | None = None) -> np.ndarray:
     """The sampled linear loop's joint angle (rad, relative to ``theta_start``, default θd[0]; the
-    loop starts at rest there) for the command samples ``theta_d`` (rad) at the tick times ``t``, with the velocity reference ``omega_d`` and the
-    acceleration feedforward ``alpha_d`` (rad/s²; entered as a plant-input acceleration held over
-    each period — i.e. without the computation delay, a small approximation)."""
+    loop starts at rest there) for the command samples ``theta_d`` (rad) at the tick times ``t``,
+    with the velocity reference ``omega_d`` and the acceleration feedforward ``alpha_d`` (rad/s²;
+    entered as a plant-input acceleration held over each period, i.e. without the computation
+    delay: a small approximation)."""
     import control as ct
 
     from servo.analysis.loop import build_loop
@@ -249,8 +270,8 @@ def step_metrics(d: dict[str, Any], linear_rad: np.ndarray | None, band_deg: flo
     """Response figures of a run ``d`` (from :func:`simulate` with traces): the servo's measured
     angle, or — with ``linear_rad`` — the linear prediction for the same command. Angles relative to
     the start; ``overshoot_pct`` and ``rise_time_s`` (10–90 %) for a step, ``max_tracking_error_deg``
-    while a move runs (servo's error), ``settling_time_s`` after it (true angle within ``band_deg`` of
-    its final value),
+    while a move runs (servo's error), ``settling_time_s`` after it (true angle into its steady-state
+    envelope ± ``band_deg``, :func:`settling_after`),
     ``final_error_deg`` (|mean error| over the last second), ``move_deg``."""
     t = np.asarray(d["t_s"])
     r = np.asarray(d["theta_d_deg"]) - d["theta_start_deg"]
@@ -280,7 +301,6 @@ def step_metrics(d: dict[str, Any], linear_rad: np.ndarray | None, band_deg: flo
         moving = t <= t_end
         out["max_tracking_error_deg"] = float(np.max(np.abs(e[moving]))) if moving.any() else None
     last = t >= t[-1] - STATIC_WINDOW_S
-    out["settling_time_s"] = settling_time(t, np.radians(y_true - np.mean(y_true[last])), t_end,
-                                           math.radians(band_deg))
+    out["settling_time_s"] = settling_after(t, y_true, t_end, band_deg)
     out["final_error_deg"] = float(abs(np.mean(e[last])))
     return out

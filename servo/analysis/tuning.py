@@ -24,7 +24,7 @@ from servo.analysis.describing import (
     predict_joint_velocity,
     simulate_joint,
 )
-from servo.analysis.loop import Gains, LoopConfig
+from servo.analysis.loop import LoopConfig
 from servo.analysis.margins import compute_margins, equivalent_s_poles
 from servo.analysis.rigparams import JointParams, with_gains  # noqa: F401  (re-exported)
 

@@ -76,7 +76,7 @@ def _sim_args(p: argparse.ArgumentParser, hold: float, band: float) -> None:
                    help="size of the move (default: the demo's delta for the joint, 20° for joint 1)")
     p.add_argument("--hold", type=_positive_float, default=hold, help=f"hold after the move, s (default {hold:g})")
     p.add_argument("--settle-band-deg", type=_positive_float, default=band,
-                   help=f"settling band about the final angle, deg (default {band:g})")
+                   help=f"settling: into the steady-state envelope (last 2 s) ± this, deg (default {band:g})")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -95,7 +95,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     lc.add_argument("--switch-off-kp", type=_positive_float, default=None,
                     help="position gain while the integrators are switched off in the prediction "
                          "(default: what the control law uses, PidLaw.kp_off)")
-    _sim_args(lc, 8.0, 1.0)
+    _sim_args(lc, 8.0, 0.1)
     lc.set_defaults(func=run_limit_cycle)
     sw = tsub.add_parser("sweep", parents=[common],
                          help="many gain sets: margins, simulated limit cycle, tracking and settling; "
@@ -112,7 +112,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="write sweep.csv and sweep.json here (default: the --report folder, else ./sweep-out)")
     sw.add_argument("--margins-only", action="store_true", help="no simulations: margins only (fast)")
     sw.add_argument("--quiet", action="store_true", help="no progress bar")
-    _sim_args(sw, 8.0, 1.0)
+    _sim_args(sw, 8.0, 0.1)
     sw.set_defaults(func=run_sweep)
     st = tsub.add_parser("step", parents=[common],
                          help="step and quintic-move responses through the full stack, over the linear prediction")
@@ -361,7 +361,10 @@ def run_sweep(args: argparse.Namespace) -> int:
     for name, v in (("--x", x), ("--y", y)):
         if v not in GAIN_KEYS:
             raise ValueError(f"{name} {v!r} must be one of {', '.join(GAIN_KEYS)}")
-    settings = _sim_settings(args)
+    settings = _sim_settings(args, allow_short=True)
+    if settings.hold_s < 8.0 and not args.margins_only:
+        print(f"note: a {settings.hold_s:g} s hold is too short for a reliable limit-cycle figure (use ≥ 8 s)",
+              file=sys.stderr)
     tasks = [SweepTask(i, jp.rig_path, jp.joint, g, settings, simulate=not args.margins_only)
              for i, g in enumerate(points)]
     out_dir = Path(args.out or args.report or "sweep-out")
@@ -438,12 +441,14 @@ def _point_text(r: dict[str, Any]) -> str:
 def _sweep_table(rows: list[dict[str, Any]]) -> str:
     from servo.analysis.report import fmt
 
-    head = ("kp", "kpi", "kv", "kvi", "PM °", "GM dB", "LC amp °", "LC Hz", "track err °", "settle s", "status")
+    head = ("kp", "kpi", "kv", "kvi", "PM °", "GM dB", "LC amp °", "LC Hz", "rms track °", "max track °", "settle s",
+            "status")
     lines = [head]
     for r in rows:
         lines.append((f"{r['kp']:g}", f"{r['kpi']:g}", f"{r['kv']:g}", f"{r['kvi']:g}",
                       fmt(r["phase_margin_deg"], ".1f", none="—"), fmt(r["gain_margin_db"], ".1f"),
                       fmt(r["lc_amplitude_deg"], ".3f", none="—"), fmt(r["lc_frequency_hz"], ".2f", none="—"),
+                      fmt(r["rms_tracking_error_deg"], ".3f", none="—"),
                       fmt(r["max_tracking_error_deg"], ".3f", none="—"),
                       fmt(r["settling_time_s"], ".2f", none="never" if r["status"] == "ok" else "—"), r["status"]))
     w = [max(len(row[i]) for row in lines) for i in range(len(head))]
