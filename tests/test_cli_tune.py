@@ -138,7 +138,8 @@ def test_limit_cycle_predict_only_json_and_report(tmp_path: Path, capsys) -> Non
     tf = j1.friction.breakout_nm * (1 + j1.friction.ripple_fraction) * j1.gear.ratio
     assert d["switch_off"]["predicted"]["static_error_bound_deg"] == pytest.approx(
         tf / (j1.inertia_at_joint() * 1100) * 180 / 3.141592653589793, rel=1e-6)
-    assert {"df_nyquist.png", "df_nyquist.svg", "cycle_model_check.png", "summary.md"} <= {x.name for x in rep.iterdir()}
+    names = {x.name for x in rep.iterdir()}
+    assert {"df_nyquist.png", "df_nyquist.svg", "cycle_model_check.png", "summary.md"} <= names
 
 
 def test_limit_cycle_without_any_cycle_gives_null(tmp_path: Path, capsys) -> None:
