@@ -14,19 +14,19 @@ from servo.cli import main
 def test_bode_with_no_arguments_works_on_the_default_rig(capsys) -> None:
     assert main(["tune", "bode"]) == 0
     out = capsys.readouterr().out
-    assert "phase margin" in out and "jpl-arm" in out and "paper" in out
+    assert "phase margin" in out and "jpl-arm" in out and "Kp=100 Kpi=5000 Kv=50 KvI=1000" in out
 
 
 def test_bode_json_has_the_documented_keys_and_null_for_infinite_margin(tmp_path: Path, capsys) -> None:
     path = tmp_path / "bode.json"
-    assert main(["tune", "bode", "--json", str(path)]) == 0
+    assert main(["tune", "bode", "--joint", "2", "--json", str(path)]) == 0  # encoder velocity: no tach filter
     text = path.read_text()
     d = json.loads(text)
     for key in ("gain_margin_db", "phase_margin_deg"):
         assert key in d["continuous"]
     for key in ("gain_margin_db", "phase_margin_deg", "crossover_hz", "bandwidth_hz"):
         assert isinstance(d["sampled"][key], float)
-    assert d["continuous"]["gain_margin_db"] is None  # infinite upper margin of the ideal loop
+    assert d["continuous"]["gain_margin_db"] is None  # infinite upper margin: phase never reaches −180°
     assert '"gain_margin_db": null' in text and "Infinity" not in text and "NaN" not in text
     assert 40 < d["sampled"]["phase_margin_deg"] < d["continuous"]["phase_margin_deg"]
     assert list(tmp_path.iterdir()) == [path]  # no temp files left behind
@@ -58,7 +58,7 @@ def test_bad_gains_are_clear_errors_without_traceback(gains: str, words: str, ca
 
 def test_unstable_gains_are_reported_clearly(tmp_path: Path, capsys) -> None:
     path = tmp_path / "b.json"
-    assert main(["tune", "bode", "--gains", "kv=5", "--json", str(path)]) == 1
+    assert main(["tune", "bode", "--gains", "kpi=200000", "--json", str(path)]) == 1
     cap = capsys.readouterr()
     assert "UNSTABLE" in cap.out and "UNSTABLE" in cap.err and "Traceback" not in cap.err
     d = json.loads(path.read_text())
@@ -72,57 +72,52 @@ def test_bad_joint_number_is_an_argument_error(capsys) -> None:
     assert "numbered from 1" in capsys.readouterr().err
 
 
-RIG = """
-[rig]
-servo_rate_hz = 250.0
-computation_delay_s = 0.004
+def _rig_variant(tmp_path: Path, **edits: str) -> Path:
+    """jpl-arm with text edits: ``servo_j1`` appended to joint 1's [joint.servo]; ``servo`` replaces the
+    [servo] switch-off line; ``replace`` is a list of (old, new) text substitutions."""
+    from emulators.presets import resolve_rig
 
-[[joint]]
-name = "shoulder"
-inertia_kg_m2 = 2.0
-[joint.servo]
-gains = { kp = 150, kpi = 4000, kv = 60, kvi = 900 }
-velocity = "encoder"
-
-[[joint]]
-name = "elbow"
-[joint.servo]
-gains = { kp = 100, kpi = 5000, kv = 50, kvi = 1000 }
-[joint.tach]
-gradient_v_per_rad_s = 2.0
-brush_drop_v = 0.24
-"""
+    text = resolve_rig("jpl-arm").read_text()
+    if "servo_j1" in edits:
+        anchor = 'velocity = "tach"\n'
+        assert text.count(anchor) == 1
+        text = text.replace(anchor, anchor + edits["servo_j1"] + "\n")
+    for old, new in edits.get("replace", ()):
+        assert old in text
+        text = text.replace(old, new, 1)
+    if "servo" in edits:
+        text = text.replace('switch_off = { enabled = true }', edits["servo"], 1)
+    path = tmp_path / "rig.toml"
+    path.write_text(text)
+    return path
 
 
 def test_rig_file_gains_and_loop_settings_are_used(tmp_path: Path, capsys) -> None:
-    rig = tmp_path / "rig.toml"
-    rig.write_text(RIG)
+    rig = _rig_variant(tmp_path, servo_j1="gains = { kp = 150, kpi = 4000, kv = 60, kvi = 900 }",
+                       replace=[("servo_rate_hz = 125.0", "servo_rate_hz = 250.0"),
+                                ("computation_delay_s = 0.001", "computation_delay_s = 0.003")])
     path = tmp_path / "b.json"
     assert main(["tune", "bode", "--rig", str(rig), "--gains", "kp=175", "--json", str(path)]) == 0
     d = json.loads(path.read_text())
     assert d["gains"] == {"kp": 175.0, "kpi": 4000.0, "kv": 60.0, "kvi": 900.0}
-    assert d["joint_name"] == "shoulder" and d["velocity_source"] == "encoder"
-    assert d["sample_period_s"] == pytest.approx(0.004) and d["computation_delay_s"] == pytest.approx(0.004)
+    assert d["gains_source"].startswith("rig [joint.servo]")
+    assert d["joint_name"] == "j1" and d["velocity_source"] == "tach"
+    assert d["sample_period_s"] == pytest.approx(0.004) and d["computation_delay_s"] == pytest.approx(0.003)
     assert not any(n.startswith("gains") for n in d["notes"])
 
 
-def test_tach_dead_band_from_gradient_and_brush_drop(tmp_path: Path, capsys) -> None:
-    rig = tmp_path / "rig.toml"
-    rig.write_text(RIG)
+def test_encoder_velocity_joint_has_no_dead_band(tmp_path: Path, capsys) -> None:
     path = tmp_path / "lc.json"
-    assert main(["tune", "limit-cycle", "--predict-only", "--rig", str(rig), "--joint", "2",
-                 "--json", str(path)]) == 0
+    assert main(["tune", "limit-cycle", "--predict-only", "--joint", "2", "--json", str(path)]) == 0
     d = json.loads(path.read_text())
-    assert d["tach_deadband_rad_s"] == pytest.approx(0.12)
-    assert "tach dead band" in d["predicted"]["nonlinearity"]
+    assert d["velocity_source"] == "encoder" and d["tach_deadband_rad_s"] is None
+    assert d["joint_name"] == "j2"
 
 
-def test_joint_beyond_the_rig_is_a_clear_error(tmp_path: Path, capsys) -> None:
-    rig = tmp_path / "rig.toml"
-    rig.write_text(RIG)
-    assert main(["tune", "bode", "--rig", str(rig), "--joint", "3"]) == 2
+def test_joint_beyond_the_rig_is_a_clear_error(capsys) -> None:
+    assert main(["tune", "bode", "--joint", "8"]) == 2
     err = capsys.readouterr().err
-    assert "has 2 joints" in err and "Traceback" not in err
+    assert "has 7 joints" in err and "Traceback" not in err
 
 
 def test_limit_cycle_predict_only_json_and_report(tmp_path: Path, capsys) -> None:
@@ -131,7 +126,7 @@ def test_limit_cycle_predict_only_json_and_report(tmp_path: Path, capsys) -> Non
     assert main(["tune", "limit-cycle", "--predict-only", "--json", str(path), "--report", str(rep)]) == 0
     d = json.loads(path.read_text())
     p = d["predicted"]
-    assert 0.5 < p["amplitude_deg"] < 1.0 and 2.0 < p["frequency_hz"] < 4.0  # DESIGN section 9: ±¾° at 1–3 Hz
+    assert 0.5 < p["amplitude_deg"] < 1.0 and 1.0 < p["frequency_hz"] < 3.0  # DESIGN section 9: ±¾° at 1–3 Hz
     assert d["simulated"] is None and d["switch_off"]["simulated"] is None
     # the paper's cure: with the integrators switched off no stable cycle is predicted
     assert d["switch_off"]["predicted"]["amplitude_deg"] is None
@@ -139,19 +134,18 @@ def test_limit_cycle_predict_only_json_and_report(tmp_path: Path, capsys) -> Non
     assert "static_error_deg" in d["switch_off"]
     from emulators.plant import load_plant_params
 
-    j1 = load_plant_params("jpl-arm").joints[0]  # T_F at the output = N · input Coulomb level
-    tf = j1.friction.coulomb_nm * j1.gear.ratio
+    j1 = load_plant_params("jpl-arm").joints[0]  # T_F at the output = N · largest local input breakout
+    tf = j1.friction.breakout_nm * (1 + j1.friction.ripple_fraction) * j1.gear.ratio
     assert d["switch_off"]["predicted"]["static_error_bound_deg"] == pytest.approx(
         tf / (j1.inertia_at_joint() * 1100) * 180 / 3.141592653589793, rel=1e-6)
-    assert {"df_nyquist.png", "df_nyquist.svg", "cycle_time.png", "summary.md"} <= {x.name for x in rep.iterdir()}
+    names = {x.name for x in rep.iterdir()}
+    assert {"df_nyquist.png", "df_nyquist.svg", "cycle_model_check.png", "summary.md"} <= names
 
 
 def test_limit_cycle_without_any_cycle_gives_null(tmp_path: Path, capsys) -> None:
-    """A heavily damped, slow loop with no dead band (encoder velocity): nothing to predict."""
-    rig = tmp_path / "rig.toml"
-    rig.write_text(RIG)
+    """Joint 2 senses velocity with the motor encoder (no dead band): nothing to predict."""
     path = tmp_path / "lc.json"
-    assert main(["tune", "limit-cycle", "--predict-only", "--rig", str(rig), "--json", str(path)]) == 0
+    assert main(["tune", "limit-cycle", "--predict-only", "--joint", "2", "--json", str(path)]) == 0
     d = json.loads(path.read_text())
     assert d["predicted"]["amplitude_deg"] is None and d["predicted"]["frequency_hz"] is None
     assert "null" in path.read_text()

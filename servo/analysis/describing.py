@@ -554,8 +554,9 @@ def simulate_joint(cfg: LoopConfig, seconds: float, deadband_rad_s: float = 0.0,
     stays stuck while the commanded acceleration is below ``breakout_accel`` (default: the Coulomb
     level); a velocity crossing zero inside a sub-step is captured at zero. The plant is integrated
     with ``substeps`` steps per servo period (the command changes after the computation delay).
-    This is a check on the describing function, not the plant emulator: no motor, gearing, sensor
-    noise or amplifier dynamics (``cfg`` analog options are ignored).
+    Viscous friction is ``cfg.viscous_damping`` (1/s). This is a check on the describing function,
+    not the plant emulator: no motor, gearing, sensor noise or amplifier dynamics (the other ``cfg``
+    analog options are ignored).
     """
     T, d = cfg.sample_period_s, cfg.delay_fraction
     K = sampled_controller(cfg.gains, T, cfg.velocity_source)
@@ -563,6 +564,7 @@ def simulate_joint(cfg: LoopConfig, seconds: float, deadband_rad_s: float = 0.0,
     h = T / substeps
     j_switch = round(d * substeps)
     stick = coulomb_accel if breakout_accel is None else breakout_accel
+    c_visc = cfg.viscous_damping
     n = round(seconds / T)
     xk = np.zeros(Ka.shape[0])
     th, om, a_prev = 0.0, float(kick), 0.0
@@ -578,7 +580,7 @@ def simulate_joint(cfg: LoopConfig, seconds: float, deadband_rad_s: float = 0.0,
             if om == 0.0 and abs(acc) <= stick:
                 continue  # stuck
             sgn = math.copysign(1.0, om) if om != 0.0 else math.copysign(1.0, acc)
-            om_new = om + h * (acc - coulomb_accel * sgn)
+            om_new = om + h * (acc - coulomb_accel * sgn - c_visc * om)
             if om != 0.0 and om_new * om < 0.0:
                 om_new = 0.0  # captured at zero velocity; stiction decides on the next sub-step
             elif om == 0.0 and om_new * sgn < 0.0:

@@ -18,6 +18,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib import patheffects
 from matplotlib.figure import Figure
 
 from servo.analysis.describing import Nonlinearity, linear_response_fn
@@ -196,7 +197,10 @@ def nyquist_df_figure(cfg: LoopConfig, nl: Nonlinearity, cycles: list[dict], tit
     fig, ax = plt.subplots(figsize=(7, 6))
     f_top = cfg.nyquist_hz * (1 - 1e-6) if nl.location != "friction" else 0.5 * cfg.nyquist_hz
     pts = []
+    dense = [np.linspace(0.3 * c["frequency_hz"], 3.0 * c["frequency_hz"], 3000) for c in cycles
+             if c.get("frequency_hz")]
     for sampled, f in ((False, frequency_grid(100.0, 0.2, 2000)), (True, frequency_grid(f_top, 0.2, 2000))):
+        f = np.unique(np.concatenate([f, *[d[d < f[-1]] for d in dense]]))
         g = linear_response_fn(cfg, nl.location, sampled)(f)[0]
         kind = "sampled" if sampled else "continuous"
         ax.plot(g.real, g.imag, color=_C[kind], label=f"G(jω) {kind}" if not sampled else "G(e^{jωT}) sampled")
@@ -355,14 +359,30 @@ def limit_cycle_text(r: dict[str, Any]) -> str:
             lines.append(f"    reduced nonlinear joint simulated: {got}")
         sim = block.get("simulated")
         if sim:
-            got = (f"±{sim['amplitude_deg']:.3f}° at {sim['frequency_hz']:.2f} Hz"
-                   if sim.get("amplitude_deg") is not None else "no cycle")
-            lines.append("    full-stack simulation: " + got)
+            if sim.get("fault"):
+                got = f"stopped by the watchdog: {sim['fault']['cause']} ({sim['fault']['detail']})"
+            elif sim.get("frequency_hz") is not None:
+                got = f"±{sim['amplitude_deg']:.3f}° at {sim['frequency_hz']:.2f} Hz"
+            else:
+                got = f"no cycle (±{sim['amplitude_deg']:.3f}°)"
+            lines.append("    full-stack simulation: " + got + f"; static error {sim['static_error_deg']:.3f}° "
+                         f"(servo), {sim['static_error_true_deg']:.3f}° (true angle)" if not sim.get("fault") else
+                         "    full-stack simulation: " + got)
+            if block is not r and not sim.get("fault") and sim.get("balance_error_deg") is not None:
+                lines.append(f"    frozen integral terms {sim['integral_terms_rad_s2']:+.2f} rad/s² centre the "
+                             f"stuck joint at {sim['balance_error_deg']:+.3f}° (± the bound below)")
         lines.append("")
     bound = r["switch_off"]["predicted"]["static_error_bound_deg"]
-    lines.append(f"switch-off static error bound T_F/(J·Kp): {bound:.3f}°")
+    lines.append(f"switch-off static error bound T_F/(J·Kp_off) (T_F the largest local breakout, "
+                 f"integral terms ≈ 0): {bound:.3f}°")
     if r["simulated"] is None:
         lines.append("simulated (full driver stack): not run")
+    cmp_ = r.get("comparison")
+    if cmp_:
+        def _x(v):
+            return "—" if v is None else f"×{v:.2f}"
+        lines.append(f"simulated / predicted: amplitude {_x(cmp_['amplitude_ratio'])}, "
+                     f"frequency {_x(cmp_['frequency_ratio'])}")
     if r.get("notes"):
         lines += ["", "assumed (not in the rig file):"] + [f"  - {n}" for n in r["notes"]]
     return "\n".join(lines)
@@ -382,3 +402,139 @@ def markdown(title: str, command: str, text: str, images: list[str]) -> str:
     for img in images:
         out += [f"![{img}]({img})", ""]
     return "\n".join(out)
+
+
+# ------------------------------------------------------------- full-stack simulations
+
+
+def limit_cycle_sim_figure(sim_on: dict | None, sim_off: dict | None, predicted: dict, title: str) -> Figure | None:
+    """The full-stack runs: joint error over the whole run (integrators on / switched off) with the
+    measurement window, a zoom on the cycle, and the spectrum of the window with the predicted
+    frequency marked."""
+    runs = [(lab, d, col) for lab, d, col in (("integrators on", sim_on, "tab:red"),
+                                               ("switch-off", sim_off, "tab:blue")) if d and d.get("t_s")]
+    if not runs:
+        return None
+    fig, ax = plt.subplots(3, 1, figsize=(9, 10))
+    f_pred, a_pred = predicted.get("frequency_hz"), predicted.get("amplitude_deg")
+    for lab, d, col in runs:
+        t = np.asarray(d["t_s"])
+        th = np.asarray(d["theta_deg"])
+        err = np.asarray(d["theta_d_deg"]) - th
+        w0, w1 = d["window_s"]
+        amp = d.get("amplitude_deg")
+        freq = d.get("frequency_hz")
+        desc = f"{lab}: ±{amp:.3f}°" + (f" at {freq:.2f} Hz" if freq else " (no cycle)") if amp is not None else lab
+        ax[0].plot(t, err, lw=0.8, color=col, label=desc)
+        sel = (t >= w0) & (t <= w1)
+        mean = float(np.mean(th[sel])) if sel.any() else 0.0
+        zoom = t >= max(w0, t[-1] - 3.0)
+        ax[1].plot(t[zoom], th[zoom] - mean, lw=1.0, color=col, label=f"{lab} (true angle about its mean)")
+        meas = np.asarray(d["theta_meas_deg"])
+        mean_m = float(np.mean(meas[sel])) if sel.any() else 0.0
+        ax[1].plot(t[zoom], meas[zoom] - mean_m, lw=0.6, color=col, alpha=0.45, ls="--",
+                   label=f"{lab} (pot reading about its mean, as the servo sees it)")
+        seg = th[sel] - mean
+        if seg.size > 16:
+            dt = float(np.median(np.diff(t)))
+            spec = np.abs(np.fft.rfft(seg * np.hanning(seg.size))) * 2 / (0.5 * seg.size)
+            ax[2].semilogy(np.fft.rfftfreq(seg.size, dt), np.maximum(spec, 1e-5), lw=1.0, color=col, label=lab)
+        ax[0].axvspan(w0, w1, color="grey", alpha=0.08)
+    if a_pred is not None:
+        for a in (ax[1],):
+            a.axhline(a_pred, color="k", ls=":", lw=0.8, label=f"predicted ±{a_pred:.3f}°")
+            a.axhline(-a_pred, color="k", ls=":", lw=0.8)
+    if f_pred is not None:
+        ax[2].axvline(f_pred, color="k", ls=":", lw=0.8, label=f"predicted {f_pred:.2f} Hz")
+    ax[0].set_ylabel("error θd − θ (deg, true angle)")
+    ax[0].set_xlabel("time (s); shaded: the limit-cycle window (from 2 s after the move)")
+    ax[0].set_title(title)
+    ax[1].set_ylabel("angle about the mean (deg)")
+    ax[1].set_xlabel("time (s), last 3 s")
+    ax[2].set_ylabel("amplitude (deg)")
+    ax[2].set_xlabel("frequency (Hz), spectrum of the window")
+    ax[2].set_xlim(0, 15)
+    for a in ax:
+        a.grid(True, alpha=0.3)
+        a.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    return fig
+
+
+def step_figure(step: dict, step_lin: np.ndarray, move: dict, move_lin: np.ndarray, title: str) -> Figure:
+    """Step and quintic-move responses simulated through the full stack, with the sampled linear
+    loop's prediction overlaid, and the tracking errors."""
+    fig, ax = plt.subplots(2, 2, figsize=(12, 8))
+    for col, d, lin, name in ((0, step, step_lin, "step"), (1, move, move_lin, "quintic move")):
+        t = np.asarray(d["t_s"])
+        th = np.asarray(d["theta_deg"])
+        thm = np.asarray(d["theta_meas_deg"])
+        thd = np.asarray(d["theta_d_deg"])
+        th0, thm0, thd0 = th[0], thm[0], d["theta_start_deg"]
+        lin_deg = np.degrees(lin)
+        a = ax[0, col]
+        a.plot(t, thd - thd0, "k--", lw=1, label="target θd")
+        a.plot(t, th - th0, color="tab:red", lw=1.2, label="simulated, true angle")
+        a.plot(t, thm - thm0, color="tab:orange", lw=0.7, alpha=0.7, label="simulated, pot (servo)")
+        a.plot(t, lin_deg, color="tab:blue", lw=1.2, ls="-.", label="linear prediction (sampled loop)")
+        a.set_ylabel("angle from start (deg)")
+        a.set_title(f"{name}: settling {fmt(d.get('settling_time_s'), '.2f', ' s', none='never')} "
+                    f"(steady state ±{d['settle_band_deg']:g}°)")
+        e = ax[1, col]
+        e.plot(t, (thd - thd0) - (thm - thm0), color="tab:orange", lw=0.8, label="simulated (servo's error)")
+        e.plot(t, (thd - thd0) - (th - th0), color="tab:red", lw=0.8, alpha=0.7, label="simulated (true angle)")
+        e.plot(t, (thd - thd0) - lin_deg, color="tab:blue", lw=1.0, ls="-.", label="linear prediction")
+        e.set_ylabel("error θd − θ (deg)")
+        e.set_xlabel("time (s)")
+        if name == "step":
+            e.set_ylim(-0.5 * abs(thd[-1] - thd0), 1.05 * abs(thd[-1] - thd0))
+        for x in (a, e):
+            x.grid(True, alpha=0.3)
+            x.legend(fontsize=7, loc="best")
+            if d.get("motion_end_s"):
+                x.axvline(d["motion_end_s"], color="grey", lw=0.6, ls=":")
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig
+
+
+HEATMAP_METRICS = (("lc_amplitude_deg", "limit-cycle amplitude (deg)", "viridis_r"),
+                   ("phase_margin_deg", "sampled phase margin (deg)", "viridis"),
+                   ("rms_tracking_error_deg", "rms tracking error during the move (deg)", "viridis_r"),
+                   ("settling_time_s", "settling time into the steady state (s)", "viridis_r"))
+
+
+def sweep_heatmaps(rows: list[dict], x: str, y: str, title: str) -> Figure | None:
+    """One heat map per metric over gains ``x`` and ``y``; cells show the value (mean over any other
+    gains that vary); hatched grey = no value (not simulated, no cycle, never settled)."""
+    if not rows:
+        return None
+    xs = sorted({r[x] for r in rows})
+    ys = sorted({r[y] for r in rows})
+    fig, axes = plt.subplots(2, 2, figsize=(11, 9))
+    for a, (key, label, cmap) in zip(axes.flat, HEATMAP_METRICS, strict=True):
+        grid = np.full((len(ys), len(xs)), np.nan)
+        for iy, yv in enumerate(ys):
+            for ix, xv in enumerate(xs):
+                vals = [r[key] for r in rows if r[x] == xv and r[y] == yv and r.get(key) is not None]
+                if vals:
+                    grid[iy, ix] = float(np.mean(vals))
+        a.set_facecolor("#dddddd")
+        m = np.ma.masked_invalid(grid)
+        im = a.imshow(m, origin="lower", aspect="auto", cmap=cmap,
+                      extent=(-0.5, len(xs) - 0.5, -0.5, len(ys) - 0.5))
+        fig.colorbar(im, ax=a, shrink=0.85)
+        for iy in range(len(ys)):
+            for ix in range(len(xs)):
+                v = grid[iy, ix]
+                text = "—" if not np.isfinite(v) else f"{v:.3g}"
+                a.text(ix, iy, text, ha="center", va="center", fontsize=8, color="w",
+                       path_effects=[patheffects.withStroke(linewidth=2, foreground="k")])
+        a.set_xticks(range(len(xs)), [f"{v:g}" for v in xs])
+        a.set_yticks(range(len(ys)), [f"{v:g}" for v in ys])
+        a.set_xlabel(x)
+        a.set_ylabel(y)
+        a.set_title(label)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig

@@ -1,69 +1,77 @@
-"""The loop and nonlinearity parameters of one joint of a rig, read defensively from its TOML.
+"""The loop and nonlinearity parameters of one joint, taken from the real rig file.
 
-Keys read (all optional; anything missing falls back to the JPL paper's joint-1 figures of DESIGN
-section 9 and the fallback is listed in :attr:`JointParams.notes`)::
+Everything comes from the same sources the emulated rig and the servo use, so the analysis and
+the full-stack simulation describe the same joint:
 
-    [rig]
-    servo_rate_hz = 125.0             # sampling rate (T = 1/rate)
-    computation_delay_s = 0.004       # sensor sampling → amplifier command write, 0..T
+* servo rate and computation delay: :func:`servo.rig.load_rig` (``[rig] servo_rate_hz``,
+  ``computation_delay_s``);
+* gains, switch-off settings and torque limit: :func:`servo.session.servo_settings` (``[servo]``
+  defaults + ``[joint.servo]`` overrides); the switch-off position gain is what the control law
+  computes, :meth:`servo.control.law.PidLaw.kp_off` of the controller built from those settings;
+* plant: :func:`emulators.plant.plant_params_from_config` (the plant subtables of ``[[joint]]``).
 
-    [[joint]]
-    name = "shoulder-azimuth"
-    inertia_kg_m2 = 3.0               # total joint inertia J at the output
-    [joint.servo]
-    gains = { kp = 100, kpi = 5000, kv = 50, kvi = 1000 }
-    velocity = "tach"                 # or "encoder"
-    switch_off_kp = 1100.0            # position gain while the integrators are switched off
-    amplifier_bandwidth_hz = 300.0    # optional current-loop lag
-    [joint.tach]
-    deadband_rad_s = 0.15             # or gradient_v_per_rad_s and brush_drop_v
-    [joint.friction]
-    coulomb_nm = 4.24                 # or breakout_nm (output side, N·m)
-    [joint.pot]
-    quantum_rad = 0.00145             # or bits + range_deg
-    [joint.motor]
-    peak_torque_nm = 0.847            # with [joint.drive] ratio → acceleration limit
-    [joint.drive]
-    ratio = 100
+Derived figures (SI, at the joint/output side, N = gear ratio):
+
+* inertia J = :meth:`~emulators.plant.JointParams.inertia_at_joint` (link + rotor·N²);
+* friction: Coulomb level at the output N·T_c (``friction.coulomb_nm``, the *kinetic* level: a
+  limit cycle keeps the joint sliding through most of each period, so its describing function
+  is the sliding friction's); viscous b·N² (``friction.viscous_nm_s_per_rad``), put in the
+  linear plant as damping b·N²/J; breakout N·T_s·(1 + ripple) (the largest local breakout, used
+  for the switch-off static-error bound: a stopped joint stays stuck while the commanded torque
+  is below it);
+* tach dead band = ``tach.brush_drop_v / tach.gradient_v_per_rad_s`` (rad/s at the joint), tach
+  ripple filter ``tach.filter_time_constant_s`` as a first-order velocity filter;
+* position quantum: pot source — one 12-bit ADC LSB (``hal.adc_dac.conversions``, bipolar ±10 V)
+  over the pot gradient (V/rad from ``pot.span_rad`` and ``v_low``/``v_high``); encoder source —
+  one x4 count, 2π/(4·lines·N);
+* velocity source ``[joint.servo] velocity``; amplifier bandwidth ``[joint.linear_amp]
+  bandwidth_hz`` (H-bridge joints: no current-loop lag modelled);
+* acceleration limit = the session's torque limit (``torque_limit_nm`` or the amplifier current
+  limit · Kt · N) / J.
+
+A figure whose key is absent from the rig file takes the plant model's default (the JPL paper's
+joint 1) — exactly what the emulator then simulates — and is listed in :attr:`JointParams.notes`.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
-from emulators.presets import DEFAULT_RIG, resolve_rig
-from hal.config import ConfigError, ConfigTable, load_toml
+from emulators.plant import plant_params_from_config
+from emulators.plant.params import JointParams as PlantJoint
+from emulators.presets import resolve_rig
+from hal.adc_dac.conversions import AdcRange, adc_lsb
 from servo.analysis.describing import DeadZone, Nonlinearity, Quantizer, Relay, Saturation
-from servo.analysis.loop import Gains, LoopConfig
-
-#: Fallbacks from DESIGN section 9 (JPL arm joint 1).
-DEFAULT_RATE_HZ = 125.0
-DEFAULT_DELAY_FRACTION = 0.5
-DEFAULT_DEADBAND_RAD_S = 0.15
-DEFAULT_COULOMB_NM = 4.24  # 600 oz-in breakout at the output shaft
-DEFAULT_INERTIA = 3.0
-DEFAULT_QUANTUM_RAD = 1.45e-3  # 12-bit pot over ~340°
-DEFAULT_PEAK_TORQUE_NM = 0.847
-DEFAULT_RATIO = 100.0
+from servo.analysis.loop import GAIN_KEYS, GainError, Gains, LoopConfig
+from servo.rig import RigSpec, load_rig
 
 
 @dataclass
 class JointParams:
-    """Everything ``vmehil tune`` needs about one joint (SI units)."""
+    """Everything ``vmehil tune`` needs about one joint (SI units, output side)."""
 
     rig: str
+    rig_path: str
     joint: int  #: 1-based
     name: str
     cfg: LoopConfig
     gains_source: str
     tach_deadband_rad_s: float | None
-    coulomb_nm: float
+    coulomb_nm: float  #: N·T_c, kinetic (sliding) friction at the output
+    breakout_nm: float  #: N·T_s·(1 + ripple), the largest local breakout at the output
+    viscous_nm_s_per_rad: float  #: b·N² at the output
     inertia_kg_m2: float
     position_quantum_rad: float
+    position_source: str
+    torque_limit_nm: float
     accel_limit_rad_s2: float
     switch_off_kp: float
+    switch_off_enabled: bool
+    gain_overrides: dict[str, float] = field(default_factory=dict)  #: applied to this joint only
     notes: list[str] = field(default_factory=list)
 
     def switch_off_cfg(self) -> LoopConfig:
@@ -84,142 +92,202 @@ class JointParams:
             out.append(Saturation(self.accel_limit_rad_s2, location="actuator", name="torque saturation"))
         return out
 
-    def describe(self) -> dict:
+    def static_error_bound_rad(self, kp: float | None = None) -> float:
+        """T_F/(J·Kp): the largest error a stuck joint can hold with the integral terms frozen at zero
+        (T_F = the largest local breakout at the output; Kp defaults to the switch-off gain)."""
+        return self.breakout_nm / (self.inertia_kg_m2 * (kp if kp is not None else self.switch_off_kp))
+
+    def describe(self) -> dict[str, Any]:
         c = self.cfg
         return {
             "rig": self.rig, "joint": self.joint, "joint_name": self.name,
             "gains": c.gains.as_dict(), "gains_source": self.gains_source,
             "sample_period_s": c.sample_period_s, "computation_delay_s": c.delay_s,
-            "velocity_source": c.velocity_source, "amplifier_bandwidth_hz": c.amplifier_bandwidth_hz,
+            "velocity_source": c.velocity_source, "position_source": self.position_source,
+            "amplifier_bandwidth_hz": c.amplifier_bandwidth_hz, "velocity_filter_hz": c.velocity_filter_hz,
             "tach_deadband_rad_s": self.tach_deadband_rad_s, "coulomb_friction_nm": self.coulomb_nm,
+            "breakout_friction_nm": self.breakout_nm, "viscous_friction_nm_s_per_rad": self.viscous_nm_s_per_rad,
+            "viscous_damping_per_s": c.viscous_damping,
             "inertia_kg_m2": self.inertia_kg_m2, "position_quantum_rad": self.position_quantum_rad,
-            "accel_limit_rad_s2": self.accel_limit_rad_s2, "switch_off_kp": self.switch_off_kp,
+            "torque_limit_nm": self.torque_limit_nm, "accel_limit_rad_s2": self.accel_limit_rad_s2,
+            "switch_off_kp": self.switch_off_kp, "switch_off_enabled": self.switch_off_enabled,
             "notes": list(self.notes),
         }
 
 
-def _sub(t: ConfigTable, name: str) -> ConfigTable | None:
-    return t.table(name) if name in t else None
+@dataclass
+class _RigView:
+    """The two attributes of :class:`servo.system.EmulatedRig` that the session's settings
+    resolution reads (``rig`` and ``params``), without building a crate."""
+
+    rig: RigSpec
+    params: list[PlantJoint]
 
 
-def _num(t: ConfigTable | None, name: str, **kw) -> float | None:
-    if t is None or name not in t:
-        return None
-    return t.float(name, **kw)
+def _joint_data(spec: RigSpec, index: int) -> dict[str, Any]:
+    """The joint's table after its plant template (if any) is applied — to see which keys exist."""
+    data = spec.joints[index].table.data
+    if "template" in data:
+        templates = spec.table.data.get("plant", {}).get("templates", {})
+        base = copy.deepcopy(templates.get(data["template"], {}))
+        for k, v in data.items():
+            if isinstance(v, dict) and isinstance(base.get(k), dict):
+                base[k] = {**base[k], **v}
+            elif k != "template":
+                base[k] = v
+        return base
+    return data
 
 
-def load_joint(rig: str | Path | None, joint: int = 1, gains: str | None = None,
+def parse_gain_overrides(text: str | None) -> dict[str, float]:
+    """``"kp=200,kv=40"`` → ``{"kp": 200.0, "kv": 40.0}``, validated (raises :class:`GainError`)."""
+    if not text or not text.strip():
+        return {}
+    g = Gains(1.0, 1.0, 1.0, 1.0).with_overrides(text)  # validates names, numbers, signs
+    keys = {item.partition("=")[0].strip().lower() for item in text.replace(" ", ",").split(",") if item}
+    return {k: getattr(g, k) for k in GAIN_KEYS if k in keys}
+
+
+def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, float] | None = None,
                switch_off_kp: float | None = None) -> JointParams:
     """Read joint ``joint`` (1-based) of ``rig`` (preset name or path; None = jpl-arm).
 
-    ``gains``: ``"kp=..,kv=.."`` overrides; ``switch_off_kp`` overrides the switch-off gain.
-    Raises :class:`hal.config.ConfigError` (a ValueError) for malformed values and
-    :class:`~servo.analysis.loop.GainError` for bad gains.
+    ``gains``: ``"kp=..,kv=.."`` text or a mapping of overrides for this joint; ``switch_off_kp``
+    overrides the switch-off gain (default: the control law's ``kp_off`` for these gains).
+    Raises :class:`hal.config.ConfigError` (a ValueError) for a malformed rig file,
+    :class:`~servo.analysis.loop.GainError` for bad gains and ValueError for a bad joint number.
     """
+    from servo.session import build_controller_for, servo_settings
+
     if isinstance(joint, bool) or not isinstance(joint, int) or joint < 1:
         raise ValueError(f"joint number {joint!r} must be 1 or more (joints are numbered from 1)")
     path = resolve_rig(rig)
-    root = load_toml(path)
-    rig_name = str(rig or DEFAULT_RIG)
+    spec = load_rig(path)
+    if joint > spec.n_joints:
+        raise ValueError(f"rig {spec.name} has {spec.n_joints} joints; --joint must be 1..{spec.n_joints}, not {joint}")
+    plant = plant_params_from_config(spec.table).joints
+    j = joint - 1
+    p = plant[j]
+    js = spec.joints[j]
+    data = _joint_data(spec, j)
     notes: list[str] = []
-    rt = _sub(root, "rig")
-    rate = _num(rt, "servo_rate_hz", min=1e-3)
-    if rate is None:
-        rate = DEFAULT_RATE_HZ
-        notes.append(f"servo rate: rig has no [rig] servo_rate_hz, using the paper's {DEFAULT_RATE_HZ:g} Hz")
-    T = 1.0 / rate
-    delay = _num(rt, "computation_delay_s", min=0.0)
-    if delay is None:
-        d = DEFAULT_DELAY_FRACTION
-        notes.append(f"computation delay: rig has no [rig] computation_delay_s, assuming {d:g}·T = {d * T * 1e3:g} ms")
-    else:
-        if delay > T * (1 + 1e-9):
-            raise ConfigError(root.source, "rig.computation_delay_s", f"a delay between 0 and one period ({T:g} s)",
-                              delay)
-        d = min(delay / T, 1.0)
 
-    joints = root.tables("joint") if "joint" in root else []
-    if joints and joint > len(joints):
-        raise ValueError(f"rig {rig_name} has {len(joints)} joints; --joint must be 1..{len(joints)}, not {joint}")
-    jt = joints[joint - 1] if joints else None
-    if jt is None:
-        notes.append("joint: rig has no [[joint]] tables, using the paper's joint-1 figures (DESIGN section 9)")
-    name = jt.str("name", f"joint{joint}") if jt is not None else f"joint{joint}"
+    def absent(sub: str, key: str) -> bool:
+        return not (isinstance(data.get(sub), dict) and key in data[sub])
 
-    st = _sub(jt, "servo") if jt is not None else None
-    if st is not None and "gains" in st:
-        g = Gains.from_mapping(dict(st.table("gains").data))
-        gsrc = "rig"
+    def note_default(sub: str, key: str, value: Any, unit: str) -> None:
+        if absent(sub, key):
+            notes.append(f"[joint.{sub}] {key} not in the rig: the plant model's default {value:g} {unit}")
+
+    rt = spec.table.data.get("rig", {})
+    if "servo_rate_hz" not in rt:
+        notes.append(f"[rig] servo_rate_hz not in the rig: {spec.servo_rate_hz:g} Hz (the paper's rate)")
+    if "computation_delay_s" not in rt:
+        notes.append(f"[rig] computation_delay_s not in the rig: {spec.computation_delay_s * 1e3:g} ms (rig default)")
+    T = spec.period_s
+
+    # ---- gains and switch-off, as the session resolves them
+    view = _RigView(spec, plant)
+    settings = servo_settings(view)  # type: ignore[arg-type]
+    base = {k: settings.gains[k][j] for k in GAIN_KEYS}
+    servo_top = spec.table.data.get("servo", {})
+    if "gains" in js.servo.data:
+        gsrc = "rig [joint.servo]" + (" + [servo]" if "gains" in servo_top else "")
+    elif "gains" in servo_top:
+        gsrc = "rig [servo]"
     else:
-        g = Gains.paper()
-        gsrc = "paper defaults"
-        notes.append("gains: no [joint.servo] gains in the rig, using the paper's Kp=100, Kpi=5000, Kv=50, KvI=1000")
-    if gains:
-        g = g.with_overrides(gains)
+        gsrc = "session defaults (the paper's)"
+        notes.append("gains: neither [servo] nor [joint.servo] gives gains; the session default is the "
+                     "paper's Kp=100, Kpi=5000, Kv=50, KvI=1000")
+    overrides = parse_gain_overrides(gains) if isinstance(gains, str | type(None)) else _check_mapping(gains)
+    if overrides:
         gsrc += " + --gains overrides"
-    velocity = st.str("velocity", "tach", choices=("tach", "encoder")) if st is not None else "tach"
-    if st is None or "velocity" not in st.data:
-        notes.append("velocity path: not given in the rig, assuming a tachometer")
-    amp_bw = _num(st, "amplifier_bandwidth_hz", min=1e-6)
-    cfg = LoopConfig(gains=g, sample_period_s=T, delay_fraction=d, velocity_source=velocity,
-                     amplifier_bandwidth_hz=amp_bw)
-
-    inertia = _num(jt, "inertia_kg_m2", min=1e-12) if jt is not None else None
-    if inertia is None and jt is not None and "link" in jt:
-        # plant tables: link inertia plus the rotor reflected through N² (see docs/plant.md)
-        n_gear = _num(_sub(jt, "gear"), "ratio", min=1e-9) or DEFAULT_RATIO
-        rotor = _num(_sub(jt, "motor"), "rotor_inertia_kg_m2", min=0.0) or 0.0
-        inertia = (_num(_sub(jt, "link"), "inertia_kg_m2", min=0.0) or 0.0) + rotor * n_gear**2
-    if inertia is None:
-        inertia = DEFAULT_INERTIA
-        notes.append(f"inertia: not in the rig, assuming J = {DEFAULT_INERTIA:g} kg·m²")
-
-    tach = _sub(jt, "tach") if jt is not None else None
-    deadband = _num(tach, "deadband_rad_s", min=0.0)
-    if deadband is None and tach is not None and "brush_drop_v" in tach and "gradient_v_per_rad_s" in tach:
-        deadband = tach.float("brush_drop_v", min=0.0) / tach.float("gradient_v_per_rad_s", min=1e-12)
-    if deadband is None and velocity == "tach":
-        deadband = DEFAULT_DEADBAND_RAD_S
-        notes.append(f"tach dead band: not in the rig, assuming {DEFAULT_DEADBAND_RAD_S:g} rad/s at the joint")
-
-    fr = _sub(jt, "friction") if jt is not None else None
-    coulomb = _num(fr, "coulomb_nm", min=0.0)
-    if coulomb is None:
-        coulomb = _num(fr, "breakout_nm", min=0.0)
-    if coulomb is not None and jt is not None and "gear" in jt:
-        coulomb *= _num(_sub(jt, "gear"), "ratio", min=1e-9) or 1.0  # plant friction is input-referred
-    if coulomb is None:
-        coulomb = DEFAULT_COULOMB_NM
-        notes.append(f"friction: not in the rig, assuming {DEFAULT_COULOMB_NM:g} N·m at the output (600 oz-in)")
-
-    pot = _sub(jt, "pot") if jt is not None else None
-    quantum = _num(pot, "quantum_rad", min=0.0)
-    if quantum is None and pot is not None and "bits" in pot and "range_deg" in pot:
-        quantum = math.radians(pot.float("range_deg", min=0.0)) / 2 ** pot.int("bits", min=1, max=32)
-    if quantum is None:
-        quantum = DEFAULT_QUANTUM_RAD
-        notes.append(f"position quantum: not in the rig, assuming {DEFAULT_QUANTUM_RAD * 1e3:g} mrad (12-bit pot)")
-
-    motor = _sub(jt, "motor") if jt is not None else None
-    drive = (_sub(jt, "gear") or _sub(jt, "drive")) if jt is not None else None
-    peak = _num(motor, "peak_torque_nm", min=0.0)
-    ratio = _num(drive, "ratio", min=0.0)
-    if peak is None or ratio is None:
-        notes.append(f"torque limit: not in the rig, assuming {DEFAULT_PEAK_TORQUE_NM:g} N·m motor peak "
-                     f"× {DEFAULT_RATIO:g}:1")
-    peak = DEFAULT_PEAK_TORQUE_NM if peak is None else peak
-    ratio = DEFAULT_RATIO if ratio is None else ratio
-    accel_limit = peak * ratio / inertia if peak > 0 else math.inf
-
+    g = Gains.from_mapping({**base, **overrides})
+    for k in GAIN_KEYS:
+        settings.gains[k][j] = getattr(g, k)
+    enabled = settings.switch_off.get("enabled", [None] * spec.n_joints)[j]
+    so_enabled = True if enabled is None else bool(enabled)
+    controller = build_controller_for(view, settings)  # type: ignore[arg-type]
+    law = controller.law
     if switch_off_kp is None:
-        switch_off_kp = _num(st, "switch_off_kp", min=0.0)
-        if switch_off_kp is None:
+        if law is not None:
+            switch_off_kp = float(law.kp_off()[j])
+        else:
             switch_off_kp = g.kp + g.kvi
-            notes.append(f"switch-off gain: not in the rig, raising Kp to Kp + KvI = {switch_off_kp:g}")
+            notes.append(f"switch-off gain: the rig's controller has no pid object; assuming Kp + KvI = "
+                         f"{switch_off_kp:g}")
     elif not (math.isfinite(switch_off_kp) and switch_off_kp > 0):
-        raise ValueError(f"--switch-off-kp {switch_off_kp} must be a positive number")
+        raise GainError(f"--switch-off-kp {switch_off_kp} must be a positive number")
 
-    return JointParams(rig=rig_name, joint=joint, name=name, cfg=cfg, gains_source=gsrc,
-                       tach_deadband_rad_s=deadband if velocity == "tach" else None,
-                       coulomb_nm=coulomb, inertia_kg_m2=inertia, position_quantum_rad=quantum,
-                       accel_limit_rad_s2=accel_limit, switch_off_kp=float(switch_off_kp), notes=notes)
+    # ---- plant
+    n_gear = p.gear.ratio
+    inertia = p.inertia_at_joint()
+    for sub, key, unit in (("link", "inertia_kg_m2", "kg·m²"), ("motor", "rotor_inertia_kg_m2", "kg·m²"),
+                           ("gear", "ratio", ":1")):
+        note_default(sub, key, getattr(getattr(p, sub), key), unit)
+    fr = p.friction
+    for key in ("coulomb_nm", "breakout_nm", "viscous_nm_s_per_rad"):
+        note_default("friction", key, getattr(fr, key), "(input side)")
+    coulomb = n_gear * fr.coulomb_nm
+    breakout = n_gear * fr.breakout_nm * (1.0 + fr.ripple_fraction)
+    viscous = n_gear**2 * fr.viscous_nm_s_per_rad
+
+    velocity = js.servo.str("velocity", "tach", choices=("tach", "encoder"))
+    position = js.servo.str("position", "pot", choices=("pot", "encoder"))
+    if "velocity" not in js.servo.data:
+        notes.append("[joint.servo] velocity not in the rig: the servo's default, the tachometer")
+    deadband = None
+    vel_filter = None
+    if velocity == "tach":
+        if not p.tach.present:
+            raise ValueError(f"rig {spec.name} joint {js.name}: the servo uses the tach but "
+                             "[joint.tach] present = false")
+        for key in ("brush_drop_v", "gradient_v_per_rad_s"):
+            note_default("tach", key, getattr(p.tach, key), "V" if key == "brush_drop_v" else "V/(rad/s)")
+        deadband = p.tach.brush_drop_v / p.tach.gradient_v_per_rad_s
+        if p.tach.filter_time_constant_s > 0:
+            vel_filter = 1.0 / (2 * math.pi * p.tach.filter_time_constant_s)
+
+    if position == "pot":
+        pot_v_per_rad = (p.pot.v_high - p.pot.v_low) / p.pot.span_rad
+        quantum = adc_lsb(AdcRange.BIPOLAR_10V, 1) / abs(pot_v_per_rad)
+        note_default("pot", "span_rad", p.pot.span_rad, "rad")
+    else:
+        quantum = 2 * math.pi / (4 * p.encoder.lines_per_rev * n_gear)
+
+    amp_bw = None
+    if p.amplifier == "linear":
+        amp_bw = p.linear_amp.bandwidth_hz
+        note_default("linear_amp", "bandwidth_hz", amp_bw, "Hz")
+    else:
+        notes.append("amplifier: H-bridge (PWM voltage drive); no current-loop lag is modelled")
+
+    torque_limit = settings.torque_limit_nm[j] if "torque_limit" in settings.objects else math.inf
+    if not math.isfinite(torque_limit):
+        limit_a = p.linear_amp.current_limit_a if p.amplifier == "linear" else p.hbridge.current_limit_a
+        torque_limit = limit_a * p.motor.kt_nm_per_a * n_gear  # the amplifier's own current limit
+    accel_limit = torque_limit / inertia if torque_limit > 0 else math.inf
+    if p.link.gravity_torque_nm:
+        notes.append(f"gravity ({p.link.gravity_torque_nm:g} N·m) is a steady load the integrators take up; "
+                     "the linear analysis leaves it out")
+
+    cfg = LoopConfig(gains=g, sample_period_s=T, delay_fraction=min(spec.computation_delay_s / T, 1.0),
+                     velocity_source=velocity, amplifier_bandwidth_hz=amp_bw, velocity_filter_hz=vel_filter,
+                     viscous_damping=viscous / inertia)
+    return JointParams(rig=spec.name, rig_path=str(path), joint=joint, name=js.name, cfg=cfg, gains_source=gsrc,
+                       tach_deadband_rad_s=deadband, coulomb_nm=coulomb, breakout_nm=breakout,
+                       viscous_nm_s_per_rad=viscous, inertia_kg_m2=inertia, position_quantum_rad=quantum,
+                       position_source=position, torque_limit_nm=torque_limit, accel_limit_rad_s2=accel_limit,
+                       switch_off_kp=float(switch_off_kp), switch_off_enabled=so_enabled,
+                       gain_overrides=overrides, notes=notes)
+
+
+def _check_mapping(m: dict[str, float]) -> dict[str, float]:
+    g = Gains.from_mapping(dict(m), base=Gains(1.0, 1.0, 1.0, 1.0))
+    return {k: getattr(g, k) for k in GAIN_KEYS if k in m}
+
+
+def with_gains(jp: JointParams, gains: Gains) -> JointParams:
+    """The same joint re-read with another gain set (so the switch-off gain is again what the
+    control law computes for it)."""
+    return load_joint(jp.rig_path, jp.joint, gains=gains.as_dict())

@@ -1,8 +1,9 @@
 """The analyses behind ``vmehil tune``: plain functions from a joint's parameters to JSON-ready
 dicts, so sweeps and the simulated side can reuse them.
 
-Plugging in the full-stack simulation: :func:`limit_cycle_analysis` takes an optional callable
-``simulate(gains, switch_off: bool, joint_params=...) -> dict`` returning at least
+The simulated side: :func:`limit_cycle_analysis` takes an optional callable
+``simulate(joint_params, switch_off: bool) -> dict`` — normally
+:func:`servo.analysis.simulate.simulate` (the full driver stack) — returning at least
 ``amplitude_deg``, ``frequency_hz`` (None when no cycle) and ``static_error_deg``; optional
 ``t_s`` and ``theta_deg`` lists are plotted in the report.
 """
@@ -23,9 +24,9 @@ from servo.analysis.describing import (
     predict_joint_velocity,
     simulate_joint,
 )
-from servo.analysis.loop import Gains, LoopConfig
+from servo.analysis.loop import LoopConfig
 from servo.analysis.margins import compute_margins, equivalent_s_poles
-from servo.analysis.rigparams import JointParams
+from servo.analysis.rigparams import JointParams, with_gains  # noqa: F401  (re-exported)
 
 Simulate = Callable[..., dict[str, Any]]
 
@@ -82,8 +83,8 @@ def _prediction(cfg: LoopConfig, jp: JointParams) -> dict[str, Any]:
 
 
 def model_check(cfg: LoopConfig, jp: JointParams, seconds: float = 30.0) -> dict[str, Any] | None:
-    """Simulate the reduced nonlinear joint (sampled servo law, 1/s², tach dead band, Coulomb
-    friction with stiction) as a check on the describing function. Starts with a 1 rad/s kick."""
+    """Simulate the reduced nonlinear joint (sampled servo law, 1/s², tach dead band, Coulomb and
+    viscous friction with stiction) as a check on the describing function. Starts with a 1 rad/s kick."""
     dz = jp.tach_deadband_rad_s or 0.0
     fr = jp.coulomb_nm / jp.inertia_kg_m2
     if not dz and not fr:
@@ -93,7 +94,7 @@ def model_check(cfg: LoopConfig, jp: JointParams, seconds: float = 30.0) -> dict
     cyc = amp is not None and freq is not None
     tail = sim["theta"][len(sim["theta"]) // 2:]
     return {
-        "model": "sampled servo law + 1/s² + tach dead band + Coulomb friction/stiction",
+        "model": "sampled servo law + 1/s² + tach dead band + Coulomb/viscous friction with stiction",
         "amplitude_deg": math.degrees(amp) if cyc else None,
         "frequency_hz": freq if cyc else None,
         "final_error_deg": None if cyc else float(math.degrees(abs(tail[-1]))),
@@ -101,20 +102,22 @@ def model_check(cfg: LoopConfig, jp: JointParams, seconds: float = 30.0) -> dict
     }
 
 
-def limit_cycle_analysis(jp: JointParams, simulate: Simulate | None = None, with_traces: bool = True) -> dict[str, Any]:
+def limit_cycle_analysis(jp: JointParams, simulate: Simulate | None = None, with_traces: bool = True,
+                         model_checks: bool = True) -> dict[str, Any]:
     """Predicted (describing function) and, when ``simulate`` is given, simulated limit cycles,
-    with and without integrator switch-off."""
+    with and without integrator switch-off. ``simulate(jp, switch_off=bool)`` returns a dict (see
+    the module docstring)."""
     off = jp.switch_off_cfg()
     out: dict[str, Any] = {"command": "tune limit-cycle", **jp.describe(),
                            "nonlinearities": [n.describe() for n in jp.nonlinearities()]}
     out["predicted"] = _prediction(jp.cfg, jp)
     pred_off = _prediction(off, jp)
-    pred_off["static_error_bound_deg"] = math.degrees(jp.coulomb_nm / (jp.inertia_kg_m2 * jp.switch_off_kp))
+    pred_off["static_error_bound_deg"] = math.degrees(jp.static_error_bound_rad())
     out["switch_off"] = {"gains": off.gains.as_dict(), "predicted": pred_off, "simulated": None,
                          "static_error_deg": None}
     out["simulated"] = None
-    mc = model_check(jp.cfg, jp)
-    mc_off = model_check(off, jp)
+    mc = model_check(jp.cfg, jp) if model_checks else None
+    mc_off = model_check(off, jp) if model_checks else None
     if not with_traces:
         for m in (mc, mc_off):
             if m:
@@ -123,15 +126,20 @@ def limit_cycle_analysis(jp: JointParams, simulate: Simulate | None = None, with
     out["model_check"] = mc
     out["switch_off"]["model_check"] = mc_off
     if simulate is not None:
-        out["simulated"] = simulate(jp.cfg.gains, switch_off=False, joint_params=jp)
-        sim_off = simulate(jp.cfg.gains, switch_off=True, joint_params=jp)
+        out["simulated"] = simulate(jp, switch_off=False)
+        sim_off = simulate(jp, switch_off=True)
         out["switch_off"]["simulated"] = sim_off
         out["switch_off"]["static_error_deg"] = sim_off.get("static_error_deg")
+        out["comparison"] = compare(out["predicted"], out["simulated"])
     return out
 
 
-def with_gains(jp: JointParams, gains: Gains) -> JointParams:
-    """A copy of ``jp`` with another gain set (for sweeps)."""
-    from dataclasses import replace
+def compare(predicted: dict[str, Any], simulated: dict[str, Any] | None) -> dict[str, Any]:
+    """Simulated / predicted ratios of the limit cycle's amplitude and frequency (None where either
+    side has no cycle)."""
+    def ratio(key: str) -> float | None:
+        a = (simulated or {}).get(key)
+        b = predicted.get(key)
+        return a / b if a is not None and b else None
 
-    return replace(jp, cfg=jp.cfg.replace(gains=gains))
+    return {"amplitude_ratio": ratio("amplitude_deg"), "frequency_ratio": ratio("frequency_hz")}
