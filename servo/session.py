@@ -67,7 +67,7 @@ def servo_settings(system: EmulatedRig) -> ServoSettings:
             gains[k].append(jg.float(k, default, min=0.0))
         jso = j.servo.table("switch_off", {})
         for k in so_keys:
-            v = jso.raw(k) if k in jso else base_so.raw(k)
+            v = jso.raw(k) if k in jso else base_so.raw(k, None)  # None: the law's default
             so.setdefault(k, []).append(v)
         limit_a = p.linear_amp.current_limit_a if p.amplifier == "linear" else p.hbridge.current_limit_a
         tl.append(j.servo.float("torque_limit_nm", limit_a * p.motor.kt_nm_per_a * p.gear.ratio, min=0.0))

@@ -86,7 +86,7 @@ def test_the_frames_carry_exactly_what_the_in_process_codec_gives(rows):
                    imon_v=np.array([r[2] for r in rows]), amp_fault=np.array([r[3] for r in rows]),
                    encoder=[r[4] for r in rows], switching=np.array([r[5] for r in rows]),
                    truth={"theta_joint": np.arange(n) * 0.1, "omega_joint": np.zeros(n), "current_a": np.ones(n),
-                          "friction_torque_mean_nm": np.full(n, -1.5)})
+                          "friction_torque_nm": np.full(n, -1.5)})
     direct = DbcExchangeCodec(CODEC).sensors(s)
     frames = CODEC.sensor_frames(CODEC.sensors_raw(s), 9, s.truth)
     decoded = [CODEC.decode(can.Message(arbitration_id=m.arbitration_id, data=m.data, is_fd=m.is_fd,

@@ -46,7 +46,7 @@ from emulators.signals import QuadratureEvents
 
 #: truth keys carried by the TRUTH frames (float64, in this order)
 TRUTH_SIGNALS = {"ThetaJoint": "theta_joint", "OmegaJoint": "omega_joint", "CurrentA": "current_a",
-                 "FrictionMeanNm": "friction_torque_mean_nm"}
+                 "FrictionNm": "friction_torque_nm"}
 
 CMD_BITS = ("AmpEnable", "FaultReset", "PwmDirection", "Brake")
 

@@ -146,7 +146,7 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
             _sig("ThetaJoint", 0, 64, is_float=True, unit="rad", receiver=C),
             _sig("OmegaJoint", 64, 64, is_float=True, unit="rad/s", receiver=C),
             _sig("CurrentA", 128, 64, is_float=True, unit="A", receiver=C),
-            _sig("FrictionMeanNm", 192, 64, is_float=True, unit="Nm", receiver=C),
+            _sig("FrictionNm", 192, 64, is_float=True, unit="Nm", receiver=C),
         ], senders=[P], is_fd=True, comment=f"Joint {j}: ground truth for reports (never for the servo)."))
     msgs.sort(key=lambda m: m.frame_id)
     # A CAN FD bus: the DBC writer marks FD messages (VFrameFormat) only when the database

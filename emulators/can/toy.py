@@ -104,7 +104,7 @@ class ToyPlant:
                                       phase=int(x4[-1][j]) % 4) for j in range(self.n_joints)],
             switching=np.asarray(cmd.pwm_duty, float) > 0.0,
             truth={"theta_joint": theta_j, "omega_joint": omega_j, "current_a": self.i.copy(),
-                   "friction_torque_mean_nm": np.zeros(self.n_joints), "time_s": np.full(self.n_joints, self.time_s)},
+                   "friction_torque_nm": np.zeros(self.n_joints), "time_s": np.full(self.n_joints, self.time_s)},
         )
 
 
