@@ -30,7 +30,8 @@ def _assert_safe(system, loop, cause: str) -> None:
         if "amp_enable" in j.wiring:
             assert signals.get_digital(j.net("amp_enable")) is False, j.name
         if "amp_command" in j.wiring:
-            assert signals.get_analog(j.net("amp_command")) == pytest.approx(0.0, abs=1e-9), j.name
+            # 0 V commanded; the uncalibrated DAC's offset error (≤ 10 mV in the preset) remains
+            assert signals.get_analog(j.net("amp_command")) == pytest.approx(0.0, abs=0.0125), j.name
     # the plant sees the amplifiers off: no more drive current after a few ticks
     truth = system.truth()
     assert np.all(np.abs(truth["current_a"][:6]) < 0.5)
