@@ -48,8 +48,11 @@ def test_cli_finds_the_papers_friction_figures_on_jpl_arm_joint_1(tmp_path) -> N
     cal = tmp_path / "cal.toml"
     assert main(["calibrate", "friction", "--joint", "1", "--json", str(out), "--report", str(rep),
                  "--out", str(cal)]) == 0
-    r = json.loads(out.read_text())["procedures"]["friction"]
+    top = json.loads(out.read_text())
+    r = top["procedures"]["friction"]
     assert r["procedure"] == "friction" and r["passed"]
+    for key in ("running_torque_oz_in", "ripple_frequency_hz", "breakout_input_oz_in", "breakout_output_oz_in"):
+        assert top[key] == r.get(key, r["joints"]["j1"][key])  # the keys at the top level too
     mean = r["running_torque_oz_in"]["mean"]
     ripple = r["running_torque_oz_in"]["ripple_amplitude"]
     assert 19.0 <= mean <= 29.0

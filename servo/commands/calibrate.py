@@ -97,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         system.close()
     summary = {"rig": rig.name, "seed": args.seed, "auto": args.auto, **outcome.as_dict()}
+    _flatten_single_joint(summary)
     if args.json:
         write_json(args.json, summary)
     if args.report:
@@ -105,6 +106,19 @@ def run(args: argparse.Namespace) -> int:
     if outcome.error:
         raise CliError(outcome.error)
     return 0 if outcome.passed else 1
+
+
+def _flatten_single_joint(summary: dict) -> None:
+    """A run of one procedure on one joint (``vmehil calibrate friction --joint 1``) also puts
+    that joint's figures at the top level of the JSON (``running_torque_oz_in.mean``, …), the
+    keys users' scripts read; the nested ``procedures.<name>.joints.<joint>`` copy stays."""
+    procs = summary.get("procedures") or {}
+    if len(procs) != 1:
+        return
+    joints = next(iter(procs.values())).get("joints") or {}
+    if len(joints) == 1:
+        for key, value in next(iter(joints.values())).items():
+            summary.setdefault(key, value)
 
 
 def _write_report(folder: Path, summary: dict, table: str, outcome) -> None:
