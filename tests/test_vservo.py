@@ -19,7 +19,7 @@ def test_inprocess_visual_servo_run_reaches_the_target(tmp_path: Path, capsys) -
     v = json.loads(out.read_text())["vision"]
     assert v["end_reason"] == "PEER_ENDED"  # the vision system ended the task: target reached
     assert v["robot_state"] == "IDLE" and v["commands"] > 10
-    assert v["final_distance_mm"] < 6.0  # the vision tolerance (5 mm) plus pot noise
+    assert v["final_distance_mm"] < 8.0  # the vision tolerance (5 mm) plus settling and pot noise (≈1.7 mm/LSB)
     assert "vision: " in capsys.readouterr().out
 
 
