@@ -556,7 +556,8 @@ def _run(s: Session, a: dict[str, Any]) -> Outcome:
                        "all (as vmehil calibrate, on the running rig; stop aborts)", varargs=True, in_files=False)
 def _calibrate(s: Session, a: dict[str, Any]) -> Outcome:
     if s.calibrate is None:
-        raise ConsoleError(UNAVAILABLE, "calibrate: the calibration tools are not available in this build")
+        raise ConsoleError(UNAVAILABLE, "calibrate: not available here: this console's host has no rig for it "
+                                        "(vmehil console and vmehil run --console on an emulated rig offer it)")
     return s.calibrate(s, a.get("args", []))
 
 
