@@ -162,6 +162,38 @@ class ServoLoop:
         self.io.enable(True)
         self.enabled = True
 
+    def resume(self, hold_measured: bool = True) -> np.ndarray | None:
+        """Leave a safe stop (or a stop) and servo again: clear the fault, forget the watchdog's
+        memory of positions from before the stop (the joints may have moved meanwhile), reset the
+        control objects' state (pid integrators, switch-off), then :meth:`start` (clear amplifier
+        faults, zero the outputs, enable).
+
+        ``hold_measured``: read the joints first and hold them where they are (a new, empty
+        motion from the measured position, rad) — returned. A read error or a non-finite position
+        raises before anything changes; an error while enabling safe-stops again and re-raises.
+        Call it at a tick boundary (inside a live command) or while no runner ticks.
+        """
+        theta = None
+        if hold_measured:
+            theta = np.asarray(self.io.read().theta, float).copy()
+            if not np.all(np.isfinite(theta)):
+                raise ValueError("a joint position reads as not finite; check the sensors before resuming")
+        self.fault = None
+        self._last_theta = None
+        self._last_raw = None
+        self._same_count = np.zeros(self.n, int)
+        if theta is not None:
+            ctx = getattr(self, "plan_context", None) or self.sequencer.ctx
+            self.set_motion(Sequencer([], theta, ctx))
+        for obj in self.controller.active.objects:
+            obj.reset()
+        try:
+            self.start()
+        except Exception as e:
+            self.safe_stop("driver_error", f"resume failed: {type(e).__name__}: {e}")
+            raise
+        return theta
+
     def safe_stop(self, cause: str, detail: str, joint: int | None = None) -> None:
         failures = self.io.safe_stop()
         if failures:

@@ -11,6 +11,7 @@ import pytest
 import serial
 from test_console_support import Driver, LineReader, make_loop, tap_poll, tick, until
 
+from servo.console.commands import Outcome
 from servo.console.protocol import parse_reply_line
 from servo.console.server import Console, PtyTransport, open_transport
 
@@ -167,8 +168,36 @@ def test_run_a_motion_file(console_driver, tmp_path):
     err(drv.ask(f"run {tmp_path}/bad.toml"), "FILE")
 
 
-def test_calibrate_is_not_available_in_this_build(console_driver):
-    assert "not available in this build" in err(console_driver.ask("calibrate pot j1"), "UNAVAILABLE")
+def test_calibrate_without_a_rig_is_unavailable(console_driver):
+    assert "has no rig for it" in err(console_driver.ask("calibrate pot j1"), "UNAVAILABLE")
+
+
+def test_a_deferred_reply_streams_from_a_job_between_ticks(console_driver):
+    """The mechanism calibrate uses: the command answers later, from a job run between ticks."""
+    drv = console_driver
+    ran: list[int] = []
+
+    def hook(s, args):
+        def job(send):
+            ran.append(s.loop.tick_count)
+            send(["INFO working", "INFO still working"])
+            send([f"OK calibrate args={len(args)}"])
+        s.defer(job)
+        return Outcome(["INFO started"], deferred=True)
+
+    drv.console.session.calibrate = hook
+    assert drv.ask("calibrate x --auto") == ["INFO started", "INFO working", "INFO still working",
+                                             "OK calibrate args=2"]
+    assert len(ran) == 1
+    # a host that runs jobs itself (vmehil console): on_tick leaves the job waiting, and schedules nothing
+    drv.console.jobs_on_tick = False
+    drv.send(b"calibrate y\r\n")
+    until(drv.console.job_waiting, drv.loop, drv.console)
+    tick(drv.loop, drv.console, n=5)
+    assert len(ran) == 1 and drv.console.job_waiting()
+    assert drv.console.run_job() and not drv.console.job_waiting() and len(ran) == 2
+    assert drv.console.run_job() is False
+    assert drv.reply() == ["INFO started", "INFO working", "INFO still working", "OK calibrate args=1"]
 
 
 def test_log_lists_changes(console_driver):

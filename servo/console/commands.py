@@ -86,13 +86,17 @@ class Outcome:
     ok: str = ""
     until: Callable[[Any], bool] | None = None
     pause_ticks: int = 0
+    #: the reply goes on later: a job handed to ``Session.defer`` sends its further lines and
+    #: the end line (``OK``/``ERR``); the console sends only ``lines`` now
+    deferred: bool = False
 
 
 @dataclass
 class Session:
     """What commands act on: the ``loop`` (a :class:`servo.loop.ServoLoop` or an object with the
     same attributes), the computation ``delay`` in periods (for gain checks), the compound
-    ``library`` and ``executor``, and optional host hooks (``shutdown``, ``calibrate``)."""
+    ``library`` and ``executor``, optional host hooks (``shutdown``, ``calibrate``), and the
+    console's ``defer`` (jobs between ticks, e.g. a calibration)."""
 
     loop: Any
     delay: float = 0.0
@@ -101,6 +105,9 @@ class Session:
     shutdown: Callable[[], None] | None = None
     calibrate: Callable[[Session, list[Arg]], Outcome] | None = None
     source: str = "console"
+    #: run ``job(send)`` between two ticks, in the thread that owns the rig (set by the console);
+    #: ``send(lines)`` writes reply lines. At most one job waits at a time.
+    defer: Callable[[Callable[[Callable[[list[str]], None]], None]], None] | None = None
 
     @property
     def n(self) -> int:
@@ -508,34 +515,18 @@ def _stop(s: Session, a: dict[str, Any]) -> Outcome:
 
 @atom("enable", (), "clear faults and enable the amplifiers, holding the joints where they are")
 def _enable(s: Session, a: dict[str, Any]) -> Outcome:
-    from servo.trajectory import Sequencer
-
     loop = s.loop
     if loop.enabled and loop.fault is None:
         return Outcome(["INFO already enabled"], kv(state=loop_state(loop)))
     previous = loop.fault
     try:
-        theta = np.asarray(loop.io.read().theta, float)
+        loop.resume(hold_measured=True)
+    except ValueError as e:
+        raise ConsoleError(STATE, f"{e}; the loop stays stopped") from None
     except Exception as e:
-        raise ConsoleError(STATE, f"cannot read the joints ({type(e).__name__}: {e}); fix the cause first") from None
-    if not np.all(np.isfinite(theta)):
-        raise ConsoleError(STATE, "a joint position reads as not finite; check the sensors before enabling")
-    # the watchdog's memory refers to before the stop: forget it (positions may have moved meanwhile)
-    if hasattr(loop, "_last_theta"):
-        loop._last_theta = None
-    if hasattr(loop, "_last_raw"):
-        loop._last_raw = None
-    if hasattr(loop, "_same_count"):
-        loop._same_count = np.zeros(loop.n, int)
-    loop.fault = None
-    loop.set_motion(Sequencer([], theta, _plan_context(loop)))
-    if loop.law is not None:
-        loop.law.reset()
-    try:
-        loop.start()
-    except Exception as e:
-        loop.safe_stop("driver_error", f"enable failed: {type(e).__name__}: {e}")
-        raise ConsoleError(STATE, f"enable failed ({type(e).__name__}: {e}); the loop stays stopped") from None
+        what = "enable failed" if loop.fault is not None and loop.fault is not previous else "cannot read the joints"
+        raise ConsoleError(STATE, f"{what} ({type(e).__name__}: {e}); fix the cause first, the loop stays "
+                                  "stopped") from None
     loop.note(s.source, "enable" + (f" (cleared fault {previous.cause})" if previous else ""))
     return Outcome(ok=kv(state=loop_state(loop), cleared=previous.cause if previous else "-"))
 
@@ -561,10 +552,12 @@ def _run(s: Session, a: dict[str, Any]) -> Outcome:
     return start_motion(s, list(motion.moves), f"run {motion.name} ({a['file']})")
 
 
-@atom("calibrate", (), "calibration procedures (pot, adc, dac, encoder, amplifier, friction)", varargs=True)
+@atom("calibrate", (), "calibrate PROCEDURE [--joint N ...] [--auto]: pot, adc, dac, encoder, amplifier, friction, "
+                       "all (as vmehil calibrate, on the running rig; stop aborts)", varargs=True, in_files=False)
 def _calibrate(s: Session, a: dict[str, Any]) -> Outcome:
     if s.calibrate is None:
-        raise ConsoleError(UNAVAILABLE, "calibrate: the calibration tools are not available in this build")
+        raise ConsoleError(UNAVAILABLE, "calibrate: not available here: this console's host has no rig for it "
+                                        "(vmehil console and vmehil run --console on an emulated rig offer it)")
     return s.calibrate(s, a.get("args", []))
 
 

@@ -10,8 +10,10 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
+from servo.console.calibrate import calibrator_for
 from servo.console.compound import CompoundLibrary, load_compound_file
 from servo.console.server import Console, PtyTransport, open_transport
 
@@ -29,15 +31,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def start_console(port: str, loop: Any, *, runner: Any = None, commands: str | None = None,
                   baudrate: int = 115200, shutdown: Callable[[], None] | None = None,
-                  announce: Callable[[str], None] | None = None) -> Console:
-    """Open ``port``, load ``commands`` (compound file), hook into ``runner.after_tick`` and start."""
+                  announce: Callable[[str], None] | None = None, system: Any = None,
+                  calibration: str | Path | None = None, jobs_on_tick: bool = True) -> Console:
+    """Open ``port``, load ``commands`` (compound file), hook into ``runner.after_tick`` and start.
+
+    ``system``: the emulated rig the loop drives (default ``runner.system``) — it makes ``calibrate``
+    available, writing ``calibration`` (default: the rig's calibration file). ``jobs_on_tick``:
+    see :class:`Console` (``vmehil console`` runs jobs between its runner chunks instead)."""
     library = (load_compound_file(commands, n_joints=loop.n, names=list(loop.names)) if commands
                else CompoundLibrary())
     delay = 0.0
     if runner is not None and getattr(runner, "period_s", 0):
         delay = min(1.0, max(0.0, float(getattr(runner, "delay_s", 0.0)) / float(runner.period_s)))
     transport = open_transport(port, baudrate=baudrate)
-    console = Console(loop, transport, delay=delay, library=library, shutdown=shutdown)
+    if system is None and runner is not None:
+        system = getattr(runner, "system", None)
+    calibrate = calibrator_for(system, calibration) if system is not None else None
+    console = Console(loop, transport, delay=delay, library=library, shutdown=shutdown, calibrate=calibrate,
+                      jobs_on_tick=jobs_on_tick)
     if runner is not None:
         runner.after_tick.append(console.on_tick)
     console.start()
@@ -61,4 +72,9 @@ def attach(args: argparse.Namespace, system: Any, loop: Any, runner: Any) -> Con
         if getattr(args, "console_commands", None):
             raise ValueError("--console-commands needs --console PORT")
         return None
-    return start_console(port, loop, runner=runner, commands=args.console_commands, baudrate=args.console_baud)
+    from servo.calibration.store import default_store_path
+
+    calibration = getattr(args, "calibration", None) or (default_store_path(system.rig) if system is not None
+                                                         else None)
+    return start_console(port, loop, runner=runner, commands=args.console_commands, baudrate=args.console_baud,
+                         system=system, calibration=calibration)

@@ -45,6 +45,7 @@ from servo.console.protocol import (
     INTERNAL,
     LONG,
     MAX_LINE,
+    STATE,
     UNKNOWN,
     ConsoleError,
     LineAssembler,
@@ -392,18 +393,28 @@ class Console:
     after every tick (``runner.after_tick.append(console.on_tick)``), and :meth:`close` at the end.
     ``delay`` is the computation delay in periods (gain checks); ``library`` the compound commands;
     ``shutdown`` / ``calibrate`` optional host hooks.
+
+    Deferred jobs (``Session.defer``, e.g. a calibration) run between two ticks in the thread
+    that owns the rig: from :meth:`on_tick` (``jobs_on_tick``), or when the host calls
+    :meth:`run_job`. While one waits or runs no pump is scheduled, so queued commands wait for
+    it; ``stop`` still reaches the loop (the job's own ticks drain it) and aborts the job.
     """
 
     def __init__(self, loop: Any, transport: Transport | None, *, delay: float = 0.0,
                  library: CompoundLibrary | None = None, shutdown: Callable[[], None] | None = None,
                  calibrate: Callable[..., Outcome] | None = None, queue_size: int = 32, per_tick: int = 4,
-                 outbox_size: int = 1000, max_line: int = MAX_LINE) -> None:
+                 outbox_size: int = 1000, max_line: int = MAX_LINE, jobs_on_tick: bool = True) -> None:
         self.loop = loop
         self.transport = transport
         self.session = Session(loop, delay, library if library is not None else CompoundLibrary(), None,
                                shutdown, calibrate)
         self.executor = Executor(self.session, self._emit)
         self.session.executor = self.executor
+        self.session.defer = self._defer
+        #: run deferred jobs from :meth:`on_tick` (False: the host calls :meth:`run_job` between
+        #: runner chunks, so a wall-clock runner keeps its deadlines — see ``vmehil console``)
+        self.jobs_on_tick = jobs_on_tick
+        self._job: Callable[[Callable[[list[str]], None]], None] | None = None
         self.per_tick = per_tick
         self.stats = ConsoleStats()
         # taps: called with every reply/event line sent (a transcript, tests over loop://)
@@ -532,6 +543,11 @@ class Console:
         if f is not None and f is not self._last_fault:
             self._emit(kv("EVT", "fault", cause=f.cause, joint=f.joint or "-", tick=f.tick, detail=f.detail))
         self._last_fault = f
+        if self._job is not None:
+            if not self.jobs_on_tick:
+                return  # the host runs it between runner chunks
+            self.run_job()
+            return
         if not self._scheduled and (not self._queue.empty() or self.executor.active):
             self._scheduled = True
             loop.submit(self._pump)
@@ -554,6 +570,28 @@ class Console:
             self._emit(f"EVT error {INTERNAL} compound executor: {one_line(f'{type(e).__name__}: {e}')}")
             self.executor.cancel_all("internal error")
 
+    # ---- deferred jobs (the loop's thread, between ticks) -----------------------------------------------
+    def _defer(self, job: Callable[[Callable[[list[str]], None]], None]) -> None:
+        if self._job is not None:
+            raise ConsoleError(STATE, "another long command (a calibration) is waiting to run")
+        self._job = job
+
+    def job_waiting(self) -> bool:
+        """True while a deferred job waits for :meth:`run_job`."""
+        return self._job is not None
+
+    def run_job(self) -> bool:
+        """Run the waiting deferred job, if any (call between ticks, in the thread that ticks the
+        loop); returns whether one ran. The job's errors become an ``ERR INTERNAL`` line."""
+        job, self._job = self._job, None
+        if job is None:
+            return False
+        try:
+            job(self._send)
+        except Exception as e:
+            self._send([f"ERR {INTERNAL} {one_line(f'{type(e).__name__}: {e}')}"])
+        return True
+
     def _run_item(self, item: _Item) -> None:
         if item.kind == "reply":
             self._send(item.lines)
@@ -566,6 +604,9 @@ class Console:
                 return
             atom: Atom = item.target
             out = atom.run(self.session, item.args)
+            if out.deferred:
+                self._send(out.lines)  # the deferred job sends the rest and the end line
+                return
             self._send([*out.lines, f"OK {item.name} {out.ok}".rstrip()])
         except ConsoleError as e:
             self._send([e.reply_line()])
