@@ -5,12 +5,14 @@ run's exactly (same seed). Short moves and holds keep each simulation near one s
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
 import pytest
 
-from emulators.can.bus import Endpoint, open_bus, replay
+from emulators.can.bus import Endpoint, open_bus, private_multicast_namespace, replay
 from emulators.can.extension import CanLinkFactory, CanPlantOptions
 from emulators.can.node import PLANT_IDS, PlantNode, node_spec
 from emulators.plant import Plant
@@ -116,3 +118,19 @@ def test_can_options_validate_and_tag_logs() -> None:
     assert o.log_path("p3") == str(Path("out/bus-p3.log")) and o.log_path(None) == "out/bus.log"
     assert o.starts_node and not CanPlantOptions("socketcan").starts_node
     assert CanLinkFactory(o).shareable and not CanLinkFactory(CanPlantOptions("socketcan")).shareable
+
+
+@pytest.mark.skipif(not private_multicast_namespace(), reason="udp_multicast only inside a private namespace")
+def test_tune_step_against_a_plant_node_process_equals_in_process(tmp_path: Path) -> None:
+    node = subprocess.Popen([sys.executable, "-m", "servo", "plant-node", "--interface", "udp_multicast",
+                             "--duration", "120"], stderr=subprocess.PIPE, text=True)
+    try:
+        assert "plant node" in node.stderr.readline()
+        a, b = tmp_path / "a.json", tmp_path / "b.json"
+        assert main(["tune", "step", *FAST, "--json", str(a)]) == 0
+        assert main(["tune", "step", *FAST, "--json", str(b), "--plant", "can", "--interface", "udp_multicast"]) == 0
+    finally:
+        node.terminate()
+        node.wait(10)
+    assert "2 resets" in node.stderr.read()  # one node, reset by each of the two runs
+    assert json.loads(a.read_text()) == json.loads(b.read_text())
