@@ -8,6 +8,11 @@ exactly as ``vmehil run`` measures them (:func:`servo.run_report.summarize`): th
 the true angle over the hold from 2 s after the last move ended, amplitude = half peak-to-peak,
 frequency from zero crossings (null below 0.02° or with fewer than two periods).
 
+The plant is in-process by default; ``link_factory(rig_path, seed) -> PlantLink`` runs it elsewhere
+(``vmehil tune … --plant can``: :class:`emulators.can.extension.CanLinkFactory`). It is called
+once per run, so every run gets a fresh link whose plant was reset with the run's seed; the run
+closes it. In lockstep the figures equal the in-process run's bit for bit (docs/can.md).
+
 Motions (:class:`SimSettings`):
 
 * ``"joint"`` (default): a quintic move of the analysed joint only, by ``move_deg`` (default the
@@ -82,6 +87,7 @@ class SimSettings:
 
 
 Progress = Callable[[int, int], None]
+LinkFactory = Callable[[str, int], Any]  #: ``(rig_path, seed) -> PlantLink`` (connected, plant reset)
 
 
 def _motion(system, jp: JointParams, s: SimSettings, step_deg: float | None):
@@ -132,9 +138,10 @@ def _planned_s(system, motion) -> float:
 
 def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSettings | None = None, *,
              step_deg: float | None = None, traces: bool = True, progress: Progress | None = None,
-             stop: Callable[[], bool] | None = None) -> dict[str, Any]:
+             stop: Callable[[], bool] | None = None, link_factory: LinkFactory | None = None) -> dict[str, Any]:
     """Run the full stack once for joint ``jp`` with its gains; ``switch_off`` forces the
-    integrator switch-off on/off for every joint (None: as the rig says).
+    integrator switch-off on/off for every joint (None: as the rig says). ``link_factory``: where
+    the plant runs (None: in this process; else called once for this run's link, closed at the end).
 
     Returns JSON-ready figures for the joint (angles in degrees, times in seconds): ``amplitude_deg``,
     ``frequency_hz`` (limit cycle on the true angle, as ``vmehil run``), ``amplitude_pot_deg``,
@@ -157,7 +164,13 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
     from servo.system import build_emulated_rig
 
     s = settings or SimSettings()
-    system = build_emulated_rig(jp.rig_path, seed=s.seed)
+    link = None if link_factory is None else link_factory(jp.rig_path, s.seed)
+    try:
+        system = build_emulated_rig(jp.rig_path, seed=s.seed, link=link)
+    except BaseException:
+        if link is not None:
+            link.close()
+        raise
     try:
         j = jp.joint - 1
         motion = _motion(system, jp, s, step_deg)

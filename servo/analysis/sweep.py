@@ -170,7 +170,10 @@ def load_gains_file(path: str | Path, base: Gains) -> list[dict[str, float]]:
 
 @dataclass(frozen=True)
 class SweepTask:
-    """One point to evaluate: the joint (rig file path, 1-based number), full gain set, settings."""
+    """One point to evaluate: the joint (rig file path, 1-based number), full gain set, settings,
+    and where the plant runs (``link_factory``, see :func:`servo.analysis.simulate.simulate`; it is
+    pickled to the worker, so a CAN factory there opens its own bus — and its own node on
+    ``virtual``)."""
 
     index: int
     rig_path: str
@@ -178,6 +181,7 @@ class SweepTask:
     gains: dict[str, float]
     sim: SimSettings = field(default_factory=SimSettings)
     simulate: bool = True
+    link_factory: Callable[[str, int], Any] | None = None  #: picklable; None = in-process plant
 
 
 _STOP: Any = None  # a multiprocessing.Event in workers (set by the pool initializer)
@@ -215,7 +219,8 @@ def evaluate_point(task: SweepTask) -> dict[str, Any]:
         row["status"] = "margins only"
     else:
         stop = (lambda: _STOP.is_set()) if _STOP is not None else None
-        r = simulate(jp, switch_off=False, settings=task.sim, traces=False, stop=stop)
+        r = simulate(jp, switch_off=False, settings=task.sim, traces=False, stop=stop,
+                     link_factory=task.link_factory)
         if stop is not None and stop():
             row["status"] = "interrupted"
             return {k: row.get(k) for k in COLUMNS}

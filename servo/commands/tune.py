@@ -7,6 +7,13 @@ Examples::
     vmehil tune limit-cycle --report out/lc           # predicted and simulated, ± switch-off
     vmehil tune sweep --grid kp=80:140:4,kv=30:70:5 --out out/sweep --jobs 2
     vmehil tune step --step-deg 2 --report out/step
+    vmehil tune step --plant can --interface virtual  # the plant as a CAN node (docs/can.md)
+
+``limit-cycle``, ``step`` and ``sweep`` take the CAN plant options of ``vmehil run``
+(:mod:`emulators.can.extension`): every simulated run opens a fresh link that RESETs the plant
+with the run's seed; on ``virtual`` each run starts its own in-process plant node thread on a
+channel of its own, on ``socketcan``/``udp_multicast`` the runs talk to one external
+``vmehil plant-node`` in turn (so ``sweep`` runs them with one worker).
 
 Exit status: 0 on success, 1 when the gain set gives an unstable sampled loop (``bode``) or a
 simulation was stopped by the watchdog (``limit-cycle``, ``step``), 2 for bad arguments
@@ -77,6 +84,9 @@ def _sim_args(p: argparse.ArgumentParser, hold: float, band: float) -> None:
     p.add_argument("--hold", type=_positive_float, default=hold, help=f"hold after the move, s (default {hold:g})")
     p.add_argument("--settle-band-deg", type=_positive_float, default=band,
                    help=f"settling: into the steady-state envelope (last 2 s) ± this, deg (default {band:g})")
+    from emulators.can.extension import add_plant_arguments
+
+    add_plant_arguments(p)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -139,6 +149,17 @@ def _command_line(args: argparse.Namespace) -> str:
 def _load(args: argparse.Namespace) -> JointParams:
     return load_joint(args.rig, args.joint, gains=args.gains,
                       switch_off_kp=getattr(args, "switch_off_kp", None))
+
+
+def _link_factory(args: argparse.Namespace):
+    """``--plant can``: a :class:`~emulators.can.extension.CanLinkFactory`; else None (in-process)."""
+    from emulators.can.extension import link_factory
+
+    return link_factory(args)
+
+
+def _tagged(factory, tag: str):
+    return None if factory is None else factory.tagged(tag)
 
 
 def _sim_settings(args: argparse.Namespace, allow_short: bool = False):
@@ -224,10 +245,12 @@ def run_limit_cycle(args: argparse.Namespace) -> int:
     sim = None
     if not args.predict_only:
         settings = _sim_settings(args)
+        links = _link_factory(args)
 
         def sim(jp_: JointParams, switch_off: bool) -> dict[str, Any]:
             label = "switch-off" if switch_off else "integrators on"
-            return simulate(jp_, switch_off=switch_off, settings=settings, progress=_Ticker(f"simulating ({label})"))
+            return simulate(jp_, switch_off=switch_off, settings=settings, progress=_Ticker(f"simulating ({label})"),
+                            link_factory=_tagged(links, label.replace(" ", "-")))
 
     result = limit_cycle_analysis(jp, simulate=sim, with_traces=bool(args.report))
     text = report.limit_cycle_text(result)
@@ -356,6 +379,15 @@ def run_sweep(args: argparse.Namespace) -> int:
         axes_names = [k for k in axes if len(axes[k]) > 1]
     if args.jobs is not None and args.jobs < 1:
         raise ValueError(f"--jobs {args.jobs} must be at least 1")
+    links = None if args.margins_only else _link_factory(args)
+    jobs = args.jobs
+    if links is not None and not links.shareable:
+        iface, chan = links.options.resolved()
+        if jobs is not None and jobs > 1:
+            raise ValueError(f"--jobs {jobs} with --plant can on {iface} {chan}: the one external plant node serves "
+                             "one run at a time; use --jobs 1, or --interface virtual (each worker then runs its "
+                             "own in-process plant node)")
+        jobs = 1
     x = args.x or (axes_names[0] if axes_names else "kp")
     y = args.y or (axes_names[1] if len(axes_names) > 1 else next(k for k in GAIN_KEYS if k != x))
     for name, v in (("--x", x), ("--y", y)):
@@ -365,7 +397,8 @@ def run_sweep(args: argparse.Namespace) -> int:
     if settings.hold_s < 8.0 and not args.margins_only:
         print(f"note: a {settings.hold_s:g} s hold is too short for a reliable limit-cycle figure (use ≥ 8 s)",
               file=sys.stderr)
-    tasks = [SweepTask(i, jp.rig_path, jp.joint, g, settings, simulate=not args.margins_only)
+    tasks = [SweepTask(i, jp.rig_path, jp.joint, g, settings, simulate=not args.margins_only,
+                       link_factory=_tagged(links, f"p{i}"))
              for i, g in enumerate(points)]
     out_dir = Path(args.out or args.report or "sweep-out")
     csv_path, json_path = out_dir / "sweep.csv", Path(args.json_path) if args.json_path else out_dir / "sweep.json"
@@ -401,9 +434,9 @@ def run_sweep(args: argparse.Namespace) -> int:
 
     write([], False)
     print(f"vmehil tune sweep — {jp.rig} joint {jp.joint} ({jp.name}): {len(tasks)} gain sets, "
-          f"{args.jobs or 'all'} worker(s); writing {csv_path} and {json_path}")
+          f"{jobs or 'all'} worker(s); writing {csv_path} and {json_path}")
     try:
-        rows = run_sweep(tasks, jobs=args.jobs, on_result=on_result)
+        rows = run_sweep(tasks, jobs=jobs, on_result=on_result)
     except SweepInterrupted as e:
         write(e.rows, False, interrupted=True)
         if show and tty:
@@ -473,8 +506,11 @@ def run_step(args: argparse.Namespace) -> int:
         return 1
     settings = _sim_settings(args, allow_short=True)
     so = {"rig": None, "on": True, "off": False}[args.switch_off]
-    step = simulate(jp, switch_off=so, settings=settings, step_deg=args.step_deg, progress=_Ticker("step"))
-    move = simulate(jp, switch_off=so, settings=settings, progress=_Ticker("quintic move"))
+    links = _link_factory(args)
+    step = simulate(jp, switch_off=so, settings=settings, step_deg=args.step_deg, progress=_Ticker("step"),
+                    link_factory=_tagged(links, "step"))
+    move = simulate(jp, switch_off=so, settings=settings, progress=_Ticker("quintic move"),
+                    link_factory=_tagged(links, "move"))
     T = jp.cfg.sample_period_s
     lin = {}
     for name, d in (("step", step), ("move", move)):
