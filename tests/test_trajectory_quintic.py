@@ -38,7 +38,8 @@ def test_joints_finish_together_and_the_slowest_hits_its_max_velocity(start, tar
     q = Quintic.plan(start, target, lim, speed)
     delta = target - start
     if np.all(np.abs(delta) < 1e-6):
-        assert q.duration < 1e-5
+        # a negligible move is (almost) instant: at most the time the slowest joint needs for 1e-6 rad
+        assert q.duration <= 1.875e-6 / (speed * np.min(lim.v_max)) * (1 + 1e-9)
         return
     T = q.duration
     # the normalized progress is the same for every moving joint at every instant
