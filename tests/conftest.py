@@ -2,10 +2,19 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
+from hypothesis import settings
 
 from emulators.crate import Crate
 from emulators.ram import RamBoard
+
+# Property tests are derandomized: the same examples on every run and every machine, so CI
+# cannot fail on an example nobody has seen (set HYPOTHESIS_PROFILE=explore to search afresh).
+settings.register_profile("deterministic", derandomize=True, deadline=None, print_blob=True)
+settings.register_profile("explore", deadline=None, print_blob=True)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "deterministic"))
 
 
 @pytest.fixture
