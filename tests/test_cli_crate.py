@@ -31,3 +31,11 @@ def test_crate_shell_runs_commands_and_reports_errors() -> None:
     lines = out.getvalue().splitlines()
     assert lines[:2] == ["ok", "0xBEEF"]
     assert lines[2].startswith("error: bus error") and status == 1
+
+
+def test_crate_list_of_a_rig_shows_its_wiring(capsys) -> None:
+    assert main(["crate", "--json", "list"]) == 0
+    boards = {b["name"]: b for b in json.loads(capsys.readouterr().out)}
+    assert boards["adc0"]["wired"] == 13  # 7 pots + 6 tachs of jpl-arm
+    assert main(["crate", "list"]) == 0
+    assert "wired" in capsys.readouterr().out

@@ -53,7 +53,7 @@ def _int(text: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    crate = load_crate(resolve_rig(args.rig))
+    crate = _load(resolve_rig(args.rig))
     cmd = args.crate_cmd
     if cmd == "types":
         _emit(args, board_types(), lambda v: "\n".join(v))
@@ -77,6 +77,19 @@ def run(args: argparse.Namespace) -> int:
     elif cmd == "shell":
         return shell(crate, sys.stdin, sys.stdout)
     return 0
+
+
+def _load(path) -> Crate:
+    """A crate file, or a rig file's crate with the joints' wiring (pins → nets) applied."""
+    from hal.config import load_toml
+
+    if "joint" not in load_toml(path):
+        return load_crate(path)
+    from emulators.crate_file import build_crate
+    from servo.rig import load_rig
+    from servo.system import wired_crate_table
+
+    return build_crate(wired_crate_table(load_rig(path)))
 
 
 def probe_all(crate: Crate) -> list[dict[str, Any]]:
@@ -143,15 +156,31 @@ def _emit(args: argparse.Namespace, data: Any, text) -> None:
     print(json.dumps(data, indent=2) if args.json else text(data))
 
 
+_TEXT_COLUMNS = ("slot", "name", "space", "base", "end", "type", "id", "wired")
+
+
 def _table(rows: list[dict[str, Any]]) -> str:
+    """Boards as a text table: the common columns; a board's wiring as the number of wired
+    pins (``--json`` gives every detail)."""
     if not rows:
         return "(no boards)"
-    cols = list(dict.fromkeys(k for r in rows for k in r))
+    rows = [{**r, "wired": _wired(r)} for r in rows]
+    cols = [c for c in _TEXT_COLUMNS if any(r.get(c) not in (None, "") for r in rows)]
     widths = {c: max(len(c), *(len(str(r.get(c, ""))) for r in rows)) for c in cols}
     head = "  ".join(c.ljust(widths[c]) for c in cols)
     lines = [head, "  ".join("-" * widths[c] for c in cols)]
     lines += ["  ".join(str(r.get(c, "")).ljust(widths[c]) for c in cols) for r in rows]
     return "\n".join(lines)
+
+
+def _wired(row: dict[str, Any]) -> str:
+    for key in ("wired", "lines", "channels"):
+        v = row.get(key)
+        if isinstance(v, int):
+            return str(v)
+        if isinstance(v, dict | list):
+            return str(sum(1 for x in (v.values() if isinstance(v, dict) else v) if x))
+    return ""
 
 
 def _demo_text(d: dict[str, Any]) -> str:
