@@ -158,3 +158,46 @@ def _feed(mp: MavProxy, ep: MavlinkEndpoint) -> None:
         while time.monotonic() < t_end and not ready():
             time.sleep(0.05)
         mp.send(command)
+
+
+@pytest.mark.slow
+def test_mavproxy_tunes_a_real_vmehil_run(tmp_path):
+    """The issue's 'done when': MAVProxy reads and sets a gain of a running `vmehil run`
+    (lockstep, jpl-arm, waiting for the arm), and the run then uses it."""
+    import json
+
+    port = free_udp_port()
+    out = tmp_path / "run.json"
+    run = subprocess.Popen(
+        [sys.executable, "-m", "servo", "run", "--duration", "3", "--quiet", "--json", str(out),
+         "--mavlink", f"udpin:127.0.0.1:{port}", "--mavlink-wait", "90"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=str(tmp_path))
+    mp = MavProxy(port, tmp_path, modules="param,signing,arm")
+    try:
+        t_end = time.monotonic() + 90
+
+        def wait_for(pattern: str) -> None:
+            while time.monotonic() < t_end:
+                if re.search(pattern, mp.text()):
+                    return
+                assert run.poll() is None, run.stderr.read() if run.stderr else ""
+                time.sleep(0.1)
+            raise AssertionError(f"MAVProxy never printed {pattern!r}:\n{mp.text()}")
+
+        wait_for("Received")  # the parameter list was fetched
+        mp.send("param show J1_KP")
+        wait_for(r"J1_KP\s+100")
+        mp.send("param set J1_KP 250")  # staged: it takes effect at the first tick boundary
+        time.sleep(1.0)
+        mp.send("arm throttle")
+        _, err = run.communicate(timeout=120)
+        assert run.returncode == 0, err
+    finally:
+        mp.close()
+        if run.poll() is None:
+            run.kill()
+            run.wait()
+    summary = json.loads(out.read_text())
+    assert summary["ticks"] == 375 and not summary["faults"]
+    changes = [c for c in summary["changes"] if c["source"] == "mavlink"]
+    assert changes[0]["change"].startswith("J1_KP 100 -> 250") and changes[0]["time_s"] == 0.0
