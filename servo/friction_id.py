@@ -214,7 +214,7 @@ def _identify(system: EmulatedRig, joint: int, amplitude_rad: float, frequency_h
     target = io.read().theta.copy()
 
     def play(traj: Any) -> None:
-        loop.set_motion(Sequencer([_Play(traj)], traj.start, loop.plan_context))  # type: ignore[attr-defined]
+        loop.set_motion(Sequencer([_Play(traj)], traj.start, loop.plan_context))
 
     def ticks(seconds: float) -> int:
         return max(1, round(seconds / period))

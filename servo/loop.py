@@ -118,6 +118,11 @@ class ServoLoop:
         self._last_theta: np.ndarray | None = None
         self.last: dict[str, Any] = {}
         self.log: list[tuple[float, str, str]] = []  # (time, source, message)
+        #: set by the session/tools: the planning context for new moves, the motion being played,
+        #: the visual-servo link (servo.vservo.VisionLink) when the run has one
+        self.plan_context: Any = None
+        self.motion: Any = None
+        self.vision: Any = None
 
     # --- live interface ------------------------------------------------------------------------
     def submit(self, command: LiveCommand,

@@ -66,7 +66,7 @@ def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns:
         out["timing"] = timing
     if loop.log:  # live changes (MAVLink, console, API), in the order they took effect
         out["changes"] = [{"time_s": t, "source": src, "change": msg} for t, src, msg in loop.log]
-    vision = getattr(loop, "vision", None)
+    vision = loop.vision
     if vision is not None:
         out["vision"] = vision.summary()
     return out

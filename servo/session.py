@@ -131,6 +131,6 @@ def build_loop(system: EmulatedRig, *, motion: Motion | None = None, gains: dict
     wd = WatchdogConfig(following_error_rad=np.asarray(settings.following_error_rad), enabled=watchdog)
     recorder = Recorder(n_ticks, n) if n_ticks else None
     loop = ServoLoop(system.io, controller, sequencer, wd, recorder=recorder, names=[j.name for j in system.rig.joints])
-    loop.plan_context = PlanContext(limits)  # type: ignore[attr-defined]
-    loop.motion = motion  # type: ignore[attr-defined]
+    loop.plan_context = PlanContext(limits)
+    loop.motion = motion
     return loop

@@ -147,7 +147,7 @@ def attach(args: argparse.Namespace, system, loop, runner) -> _Attachment | None
     drv.on_doorbell(client.notify)
     link = VisionLink(client, arm, system.crate.now, lambda: loop.last.get("theta"), rig.n_joints, vision)
     loop.sequencer.ctx.extras["vision"] = link
-    loop.vision = link  # type: ignore[attr-defined]
+    loop.vision = link
     print(f"vision: {args.vision}, target {np.round(target, 4).tolist()} m")
     # the shared memory itself is unlinked by `vmehil run` at exit
     return _Attachment(proc, card if args.vision == "process" else None)
