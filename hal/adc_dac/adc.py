@@ -126,12 +126,7 @@ class AdcDriver:
     ) -> None:
         self.bus = bus
         self.win = BoardWindow(bus, base, ADC_REGMAP, space)
-        ident = self.win.read("ID")
-        if ident != ADC_BOARD_ID:
-            raise BoardIdError(
-                f"no ADC at 0x{base:X}: ID register reads 0x{ident:04X}, expected 0x{ADC_BOARD_ID:04X}; "
-                "check the base address in the crate/rig file"
-            )
+        self.win.check_id(ADC_BOARD_ID, "ADC", error=BoardIdError)
         self.calibration = calibration or Calibration.identity(ADC_CHANNELS)
         if self.calibration.channels != ADC_CHANNELS:
             raise ValueError(f"ADC calibration has {self.calibration.channels} channels, the board has 16")

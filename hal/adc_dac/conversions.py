@@ -22,6 +22,8 @@ import math
 
 import numpy as np
 
+from hal.vme.errors import BoardIdError as VmeBoardIdError
+
 BITS = 12
 N_CODES = 1 << BITS  #: 4096
 CODE_MAX = N_CODES - 1  #: 0xFFF
@@ -38,7 +40,7 @@ class AdcDacError(Exception):
     """Base class of the ADC/DAC driver errors."""
 
 
-class BoardIdError(AdcDacError):
+class BoardIdError(AdcDacError, VmeBoardIdError):
     """The board at the given address did not answer with the expected ID register value."""
 
 

@@ -86,12 +86,7 @@ class DacDriver:
     ) -> None:
         self.bus = bus
         self.win = BoardWindow(bus, base, DAC_REGMAP, space)
-        ident = self.win.read("ID")
-        if ident != DAC_BOARD_ID:
-            raise BoardIdError(
-                f"no DAC at 0x{base:X}: ID register reads 0x{ident:04X}, expected 0x{DAC_BOARD_ID:04X}; "
-                "check the base address in the crate/rig file"
-            )
+        self.win.check_id(DAC_BOARD_ID, "DAC", error=BoardIdError)
         self.calibration = calibration or Calibration.identity(DAC_CHANNELS)
         if self.calibration.channels != DAC_CHANNELS:
             raise ValueError(f"DAC calibration has {self.calibration.channels} channels, the board has 8")

@@ -60,3 +60,8 @@ class BusError(VmeError):
 
 class VmeConfigError(VmeError):
     """A crate or board configuration is invalid (overlap, bad base address, ...)."""
+
+
+class BoardIdError(VmeConfigError):
+    """A board's ID register does not read what its driver expects (wrong base address, wrong
+    board, or wrong address space in the crate/rig file)."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from hal.vme.bus import SpaceLike, VmeBus
+from hal.vme.errors import BoardIdError
 from hal.vme.registers import Register, RegisterMap
 from hal.vme.types import AddressModifier, Width, resolve_am
 
@@ -20,6 +21,16 @@ class BoardWindow:
 
     def _reg(self, reg: str | Register) -> Register:
         return reg if isinstance(reg, Register) else self.regmap[reg]
+
+    def check_id(self, expected: int, kind: str, *, reg: str = "ID",
+                  error: type[BoardIdError] = BoardIdError) -> None:
+        """Read the board's ID register; raise ``error`` naming what was found where."""
+        ident = self.read(reg)
+        if ident != expected:
+            raise error(
+                f"no {kind} at 0x{self.base:X}: {reg} register reads 0x{ident:04X}, expected 0x{expected:04X}; "
+                "check the base address in the crate/rig file"
+            )
 
     def read(self, reg: str | Register, width: Width | None = None) -> int:
         r = self._reg(reg)
