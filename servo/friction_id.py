@@ -173,13 +173,12 @@ def identify_friction(system: EmulatedRig, joint: int, *, amplitude_rad: float =
         raise ValueError("move_counts and ramps must be >= 1")
     saved = (io.position_source[j], io.velocity_source[j])
     # The stiff loop runs on the encoder for both position and velocity.
-    io.position_source[j] = "encoder"
-    io.velocity_source[j] = "encoder"
+    io.set_sources(j, "encoder", "encoder")
     try:
         return _identify(system, joint, amplitude_rad, frequency_hz, cycles, kp, kv, ramps, ramp_rate_nm_s,
                          move_counts, settle_s, runner_factory, keep_records)
     finally:
-        io.position_source[j], io.velocity_source[j] = saved
+        io.set_sources(j, *saved)
 
 
 def _identify(system: EmulatedRig, joint: int, amplitude_rad: float, frequency_hz: float, cycles: float, kp: float,

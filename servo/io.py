@@ -23,6 +23,7 @@ import numpy as np
 from hal.adc_dac.adc import AdcDriver
 from hal.adc_dac.conversions import DAC_V_MAX, DAC_V_MIN
 from hal.adc_dac.dac import DacDriver
+from hal.amplifiers import clamp_current, command_volts, current_for_torque, duty_for_current
 from hal.pio.pio import PioDriver
 from hal.quadrature.quad import QuadratureDriver
 from hal.vme.bus import VmeBus
@@ -174,6 +175,8 @@ class JointIO:
         self.pot_cal: dict[int, PotCalibration] = {}
         self.position_source = [j.servo.str("position", "pot", choices=("pot", "encoder")) for j in rig.joints]
         self.velocity_source = [j.servo.str("velocity", "tach", choices=("tach", "encoder")) for j in rig.joints]
+        self._position_from_pot = np.array([p == "pot" for p in self.position_source])
+        self._velocity_from_tach = np.array([v == "tach" for v in self.velocity_source])
         for j in rig.joints:
             for src, sig in ((self.position_source[j.index], "pot"), (self.velocity_source[j.index], "tach")):
                 need = "encoder" if src == "encoder" else sig
@@ -197,6 +200,15 @@ class JointIO:
                 calibration = None
         if calibration is not None:
             self.apply_calibration(calibration)
+
+    def set_sources(self, joint: int, position: str, velocity: str) -> None:
+        """Choose where joint ``joint`` (0-based) takes its position (``"pot"``/``"encoder"``) and
+        velocity (``"tach"``/``"encoder"``) from, e.g. for a procedure that needs the encoder."""
+        if position not in ("pot", "encoder") or velocity not in ("tach", "encoder"):
+            raise ValueError(f"position {position!r} / velocity {velocity!r}: expected pot|encoder and tach|encoder")
+        self.position_source[joint], self.velocity_source[joint] = position, velocity
+        self._position_from_pot[joint] = position == "pot"
+        self._velocity_from_tach[joint] = velocity == "tach"
 
     # --- calibration ------------------------------------------------------------------------
     def apply_calibration(self, store: CalibrationStore) -> None:
@@ -264,8 +276,8 @@ class JointIO:
             if value is None:
                 value = ports[(board, port)] = self.pio[board].read_port(port)  # DATA_x, as get_line reads
             m.fault[i] = bool(value >> bit & 1)
-        m.theta = np.where([p == "pot" for p in self.position_source], m.theta_pot, m.theta_enc)
-        m.omega = np.where([v == "tach" for v in self.velocity_source], m.omega_tach, m.omega_enc)
+        m.theta = np.where(self._position_from_pot, m.theta_pot, m.theta_enc)
+        m.omega = np.where(self._velocity_from_tach, m.omega_tach, m.omega_enc)
         return m
 
     def write_torque(self, torque_nm: np.ndarray, omega: np.ndarray | None = None) -> np.ndarray:
@@ -275,17 +287,16 @@ class JointIO:
         per_dac: dict[str, dict[int, float]] = {}
         for j in self.rig.joints:
             i, s = j.index, self.scaling[j.index]
-            amps = float(torque_nm[i]) / (s.ratio * s.kt_nm_per_a)
-            amps = max(-s.current_limit_a, min(s.current_limit_a, amps))
+            amps = clamp_current(current_for_torque(float(torque_nm[i]), s.ratio, s.kt_nm_per_a), s.current_limit_a)
             if j.amplifier == "linear":
-                volts = min(DAC_V_MAX, max(DAC_V_MIN, (amps - s.amp_offset_a) / s.amp_gain_a_per_v))
+                volts = min(DAC_V_MAX, max(DAC_V_MIN, command_volts(amps, s.amp_gain_a_per_v, s.amp_offset_a)))
                 pin = j.wiring["amp_command"]
                 per_dac.setdefault(pin.board, {})[pin.index] = volts
                 self.last_dac_volts[i] = volts
                 current[i] = volts * s.amp_gain_a_per_v + s.amp_offset_a
             else:
                 w_m = 0.0 if omega is None or not np.isfinite(omega[i]) else float(omega[i]) * s.ratio
-                duty = max(-1.0, min(1.0, (s.resistance_ohm * amps + s.ke_v_s_per_rad * w_m) / s.supply_v))
+                duty = duty_for_current(amps, s.resistance_ohm, s.ke_v_s_per_rad, w_m, s.supply_v)
                 self._set_hbridge(j, duty)
                 current[i] = amps
         for board, cmds in per_dac.items():

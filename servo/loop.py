@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from servo.control.objects import Controller, SwitchableController
+from servo.control.objects import ControlContext, Controller, SwitchableController
 from servo.io import JointIO, Measurement
 from servo.trajectory.sequencer import Sequencer
 
@@ -79,9 +79,6 @@ class Recorder:
             self.data[f] = np.full((self.n_ticks, self.n), np.nan)
         self.data["t"] = np.full(self.n_ticks, np.nan)
         self.data["compute_s"] = np.full(self.n_ticks, np.nan)
-
-    def row(self, k: int) -> int | None:
-        return k if 0 <= k < self.n_ticks else None
 
     def put(self, k: int, **values: Any) -> None:
         if not 0 <= k < self.n_ticks:
@@ -188,7 +185,7 @@ class ServoLoop:
         self._last_raw = None
         self._same_count = np.zeros(self.n, int)
         if theta is not None:
-            ctx = getattr(self, "plan_context", None) or self.sequencer.ctx
+            ctx = self.plan_context or self.sequencer.ctx
             self.set_motion(Sequencer([], theta, ctx))
         for obj in self.controller.active.objects:
             obj.reset()
@@ -241,8 +238,6 @@ class ServoLoop:
         self.tick_count += 1
 
     def _context(self, k: int, t: float, m: Measurement, sample):
-        from servo.control.objects import ControlContext
-
         ctrl = self.controller.active
         return ControlContext(
             tick=k, t=t, dt=self.period_s, theta=m.theta, omega=m.omega, theta_d=sample.theta_d,

@@ -157,7 +157,3 @@ def _couple_hbridge_noise(crate: Crate, spec: RigSpec) -> None:
         add = getattr(b, "add_noise_source", None)
         if add is not None:
             add(noise)
-
-
-def describe(system: EmulatedRig) -> dict[str, Any]:
-    return {"rig": system.rig.name, "joints": [j.name for j in system.rig.joints], "seed": system.seed}

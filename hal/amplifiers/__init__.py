@@ -1,7 +1,15 @@
 """Amplifier drivers: a linear transconductance amplifier (DAC command, PIO enable/fault,
 ADC current monitor) and an H-bridge (PIO PWM, direction, brake, faults, ADC monitor)."""
 
-from hal.amplifiers.hbridge import HBridgeAmp, HBridgeConfig
-from hal.amplifiers.linear import AmplifierFault, LinearAmp, LinearAmpConfig
+from hal.amplifiers.hbridge import HBridgeAmp, HBridgeConfig, duty_for_current
+from hal.amplifiers.linear import (
+    AmplifierFault,
+    LinearAmp,
+    LinearAmpConfig,
+    clamp_current,
+    command_volts,
+    current_for_torque,
+)
 
-__all__ = ["AmplifierFault", "HBridgeAmp", "HBridgeConfig", "LinearAmp", "LinearAmpConfig"]
+__all__ = ["AmplifierFault", "HBridgeAmp", "HBridgeConfig", "LinearAmp", "LinearAmpConfig", "clamp_current",
+           "command_volts", "current_for_torque", "duty_for_current"]

@@ -13,6 +13,13 @@ from typing import Protocol
 from hal.amplifiers.linear import AmplifierFault, AnalogInput
 
 
+def duty_for_current(current_a: float, resistance_ohm: float, ke_v_s_per_rad: float,
+                     omega_motor_rad_s: float, supply_v: float) -> float:
+    """Signed PWM duty that drives ``current_a`` into a motor turning at ``omega_motor_rad_s``:
+    V = R·i + Ke·ω (steady state, back-EMF fed forward), as a fraction of the supply, in [-1, 1]."""
+    return max(-1.0, min(1.0, (resistance_ohm * current_a + ke_v_s_per_rad * omega_motor_rad_s) / supply_v))
+
+
 class PwmLines(Protocol):
     def set_line(self, name: str, level: bool) -> None: ...
     def get_line(self, name: str) -> bool: ...

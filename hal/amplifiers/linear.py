@@ -17,6 +17,21 @@ from dataclasses import dataclass
 from typing import Protocol
 
 
+def current_for_torque(joint_torque_nm: float, ratio: float, kt_nm_per_a: float) -> float:
+    """Motor current (A) for a joint torque (N·m) through the gear: i = τ / (N · Kt)."""
+    return joint_torque_nm / (ratio * kt_nm_per_a)
+
+
+def clamp_current(current_a: float, limit_a: float) -> float:
+    """``current_a`` limited to ±``limit_a`` (the amplifier's current limit)."""
+    return max(-limit_a, min(limit_a, current_a))
+
+
+def command_volts(current_a: float, gain_a_per_v: float, offset_a: float = 0.0) -> float:
+    """Command volts for a current on an amplifier whose output is ``gain·v + offset`` (A)."""
+    return (current_a - offset_a) / gain_a_per_v
+
+
 class AmplifierFault(RuntimeError):
     """The amplifier's fault line is asserted (latched in the amplifier until reset)."""
 
@@ -47,6 +62,7 @@ class LinearAmpConfig:
         enable_line, fault_line, reset_line: PIO logical line names (``None`` if not wired).
         kt_nm_per_a: motor torque constant (N·m/A), for torque commands at the motor shaft.
         ratio: gear ratio N (joint torque = N · motor torque).
+        offset_a: output current at 0 V command (A; from calibration).
     """
 
     gain_a_per_v: float
@@ -59,6 +75,7 @@ class LinearAmpConfig:
     reset_line: str | None = None
     kt_nm_per_a: float = 1.0
     ratio: float = 1.0
+    offset_a: float = 0.0
 
 
 class LinearAmp:
@@ -73,20 +90,19 @@ class LinearAmp:
 
     def command_volts_for(self, current_a: float) -> float:
         """The DAC volts that command ``current_a`` (clamped to the current limit)."""
-        lim = self.cfg.current_limit_a
-        current_a = min(max(current_a, -lim), lim)
-        return current_a / self.cfg.gain_a_per_v
+        cfg = self.cfg
+        return command_volts(clamp_current(current_a, cfg.current_limit_a), cfg.gain_a_per_v, cfg.offset_a)
 
     def set_current(self, current_a: float, update: bool = True) -> float:
         """Command motor current (A); returns the volts written to the DAC."""
         volts = self.command_volts_for(current_a)
         self.dac.write_volts(self.cfg.dac_channel, volts, update=update)
-        self.commanded_a = volts * self.cfg.gain_a_per_v
+        self.commanded_a = volts * self.cfg.gain_a_per_v + self.cfg.offset_a
         return volts
 
     def current_for_torque(self, joint_torque_nm: float) -> float:
         """Motor current (A) for a joint torque (N·m): i = τ / (N · Kt)."""
-        return joint_torque_nm / (self.cfg.ratio * self.cfg.kt_nm_per_a)
+        return current_for_torque(joint_torque_nm, self.cfg.ratio, self.cfg.kt_nm_per_a)
 
     def set_torque(self, joint_torque_nm: float, update: bool = True) -> float:
         """Command a joint-side torque (N·m) through Kt and the ratio; returns DAC volts."""
