@@ -3,44 +3,23 @@ tests and benchmarks of the CAN transport that must not depend on the plant's ph
 
 Per joint: a current-driven double integrator (``i = enable·gain·v``, ``J·ω̇ = Kt·i``), integrated
 at 1 kHz, with seeded sensor noise, a 1000-line encoder (x4) with an index per motor revolution
-and an amplifier that faults above 10 V command. Commands and sensors use the field names of
-``PlantCommand`` / ``PlantSensors`` (:class:`ToyCommand`, :class:`ToySensors`).
+and an amplifier that faults above 10 V command. Commands and sensors are the plant's own
+``PlantCommand`` / ``PlantSensors`` (aliased :data:`ToyCommand`, :data:`ToySensors`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
+from emulators.plant import PlantCommand, PlantSensors
 from emulators.rng import rng_for
 from emulators.signals import QuadratureEvents
 
-
-@dataclass
-class ToyCommand:
-    amp_command_v: np.ndarray
-    amp_enable: np.ndarray
-    fault_reset: np.ndarray
-    pwm_duty: np.ndarray
-    pwm_direction: np.ndarray
-    brake: np.ndarray
-
-    @classmethod
-    def idle(cls, n: int) -> ToyCommand:
-        return cls(np.zeros(n), np.zeros(n, bool), np.zeros(n, bool), np.zeros(n), np.ones(n, bool), np.zeros(n, bool))
-
-
-@dataclass
-class ToySensors:
-    pot_v: np.ndarray
-    tach_v: np.ndarray
-    imon_v: np.ndarray
-    amp_fault: np.ndarray
-    encoder: list[QuadratureEvents]
-    switching: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
-    truth: dict[str, np.ndarray] = field(default_factory=dict)
+# The toy speaks the plant's own exchange types (kept under these names for the tests).
+ToyCommand = PlantCommand
+ToySensors = PlantSensors
 
 
 class ToyPlant:
