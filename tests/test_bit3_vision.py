@@ -163,6 +163,50 @@ def test_closed_loop_visual_servo_converges_in_lockstep(latency_s, rate_hz, use_
 
 
 # --- closed loop with the vision system as its own process ----------------------------------
+# The robot's clock is simulated. While the vision process lives, simulated time advances one
+# step only after the peer has shown a new heartbeat, so a loaded machine that delays the vision
+# process can never make the robot see it as silent; the vision side (wall clock) is given a
+# robot-silence bound a loaded machine cannot reach. Wall-clock bounds only stop a hang.
+STEP_NS = 5_000_000
+
+
+def _vision_process(link: Bit3Link, *args: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "servo", "vision", "--shm", link.shm_name, "--peer-timeout-ms", "60000", *args],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_link_up(drv: Bit3Driver, proc: subprocess.Popen, wall_limit: float) -> None:
+    while not drv.status().link_up:  # the vision process powers the remote crate on
+        assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+        assert time.monotonic() < wall_limit, "vision process did not come up"
+        time.sleep(0.01)
+
+
+def _robot_step(robot: VisionServoClient, crate: Crate, theta: np.ndarray) -> None:
+    cmd = robot.step(crate.now())
+    if cmd is not None:
+        theta += ARM.ee_delta_to_joint_delta(theta, cmd.dp)
+    robot.publish_joints(theta, crate.now())
+
+
+def _until_peer_beats(robot: VisionServoClient, crate: Crate, theta: np.ndarray, proc: subprocess.Popen,
+                      wall_limit: float) -> None:
+    """Step the robot at the same simulated instant until the peer's heartbeat changes (or the
+    task ends)."""
+    seen = robot.peer.heartbeat if robot.peer is not None else None
+    while robot.state is not RobotState.IDLE and (robot.peer is None or robot.peer.heartbeat == seen):
+        assert proc.poll() is None or robot.peer is not None, proc.stderr.read() if proc.stderr else ""
+        assert time.monotonic() < wall_limit, "the vision process stopped beating"
+        _robot_step(robot, crate, theta)
+        time.sleep(0.001)
+
+
+def _advance(robot: VisionServoClient, crate: Crate, theta: np.ndarray) -> None:
+    crate.advance_to(round(crate.now() * 1e9) + STEP_NS)
+    _robot_step(robot, crate, theta)
+
+
 def test_closed_loop_with_vision_emulator_as_a_separate_process() -> None:
     link = Bit3Link.create_shared(0x1000)
     proc = None
@@ -171,31 +215,19 @@ def test_closed_loop_with_vision_emulator_as_a_separate_process() -> None:
         T = Timeouts(peer_timeout_s=1.0, accept_timeout_s=3.0, ending_timeout_s=0.5)
         theta = np.array([0.2, 0.5, -1.0, 0.0, 0.0, 0.0])
         target = ARM.position(theta) + np.array([0.03, 0.04, -0.02])
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "servo", "vision", "--shm", link.shm_name, "--exit-after-task",
-             "--target", ",".join(f"{x:.6f}" for x in target), "--rate-hz", "50", "--latency-ms", "10",
-             "--peer-timeout-ms", "1000", "--duration", "20"],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        )
-        t0 = time.monotonic()
-        while not drv.status().link_up:  # the vision process powers the remote crate on
-            assert proc.poll() is None, proc.stderr.read()
-            assert time.monotonic() - t0 < 15, "vision process did not come up"
-            time.sleep(0.01)
+        proc = _vision_process(link, "--exit-after-task", "--target", ",".join(f"{x:.6f}" for x in target),
+                               "--rate-hz", "50", "--latency-ms", "10", "--duration", "120")
+        wall_limit = time.monotonic() + 60.0
+        _wait_link_up(drv, proc, wall_limit)
         drv.reset_link()
         robot = VisionServoClient(drv.memory(), T)  # the vision side formatted its memory
         robot.publish_joints(theta, crate.now())
         robot.request(crate.now())
-        while time.monotonic() - t0 < 20:
-            crate.advance_to(round((time.monotonic() - t0) * 1e9))
-            t = crate.now()
-            cmd = robot.step(t)
-            if cmd is not None:
-                theta += ARM.ee_delta_to_joint_delta(theta, cmd.dp)
-            robot.publish_joints(theta, t)
-            if robot.state is RobotState.IDLE:
-                break
-            time.sleep(0.008)
+        while robot.state is not RobotState.IDLE:
+            assert time.monotonic() < wall_limit, f"no end of task: state {robot.state.name}"
+            _until_peer_beats(robot, crate, theta, proc, wall_limit)
+            if robot.state is not RobotState.IDLE:
+                _advance(robot, crate, theta)
         assert robot.end_reason is EndReason.PEER_ENDED, robot.end_reason
         assert robot.peer is not None and robot.peer.end_reason == EndReason.TARGET_REACHED
         assert np.linalg.norm(ARM.position(theta) - target) < 0.004
@@ -216,6 +248,8 @@ def test_closed_loop_with_vision_emulator_as_a_separate_process() -> None:
 
 
 def test_killed_vision_process_leaves_the_robot_holding_after_peer_timeout() -> None:
+    """After a SIGKILL no heartbeat comes, simulated time runs on, and the robot ends the task
+    with PEER_TIMEOUT on its own clock and holds."""
     link = Bit3Link.create_shared(0x1000)
     proc = None
     try:
@@ -223,36 +257,29 @@ def test_killed_vision_process_leaves_the_robot_holding_after_peer_timeout() -> 
         T = Timeouts(peer_timeout_s=0.3, accept_timeout_s=3.0, ending_timeout_s=0.2)
         theta = np.array([0.2, 0.5, -1.0])
         far = ARM.position(theta) + np.array([0.3, 0.0, 0.0])  # takes a while: still servoing when killed
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "servo", "vision", "--shm", link.shm_name, "--target",
-             ",".join(f"{x:.6f}" for x in far), "--max-step-mm", "0.5", "--duration", "20"],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        )
-        t0 = time.monotonic()
-        while not drv.status().link_up:
-            assert proc.poll() is None, proc.stderr.read()
-            assert time.monotonic() - t0 < 15, "vision process did not come up"
-            time.sleep(0.01)
+        proc = _vision_process(link, "--target", ",".join(f"{x:.6f}" for x in far), "--max-step-mm", "0.5",
+                               "--duration", "120")
+        wall_limit = time.monotonic() + 60.0
+        _wait_link_up(drv, proc, wall_limit)
         drv.reset_link()
         robot = VisionServoClient(drv.memory(), T)
         robot.publish_joints(theta, crate.now())
         robot.request(crate.now())
         killed_at = None
-        while time.monotonic() - t0 < 20 and robot.state is not RobotState.IDLE:
-            crate.advance_to(round((time.monotonic() - t0) * 1e9))
-            t = crate.now()
-            cmd = robot.step(t)
-            if cmd is not None:
-                theta += ARM.ee_delta_to_joint_delta(theta, cmd.dp)
-                if killed_at is None and robot.commands >= 3:
+        while robot.state is not RobotState.IDLE:
+            assert time.monotonic() < wall_limit, f"no end of task: state {robot.state.name}"
+            if killed_at is None:
+                _until_peer_beats(robot, crate, theta, proc, wall_limit)
+                if robot.commands >= 3:
                     proc.kill()
-                    proc.wait(timeout=5)
-                    killed_at = t
-            robot.publish_joints(theta, t)
-            time.sleep(0.005)
+                    proc.wait(timeout=30)
+                    killed_at = crate.now()
+            _advance(robot, crate, theta)
         assert killed_at is not None
         assert robot.state is RobotState.IDLE and robot.holding
         assert robot.end_reason is EndReason.PEER_TIMEOUT
+        # ended by the timeout on the robot's clock, within a step of peer_timeout_s after the kill
+        assert T.peer_timeout_s <= crate.now() - killed_at <= T.peer_timeout_s + 2 * STEP_NS * 1e-9
         assert link.remote_power  # a killed process cannot power off: only the heartbeat tells
     finally:
         if proc is not None and proc.poll() is None:

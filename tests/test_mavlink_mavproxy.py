@@ -176,19 +176,29 @@ def test_mavproxy_tunes_a_real_vmehil_run(tmp_path):
     try:
         t_end = time.monotonic() + 90
 
-        def wait_for(pattern: str) -> None:
+        def wait_for(pattern: str, resend: str | None = None) -> None:
+            """Wait for MAVProxy to print ``pattern``; ``resend`` is typed again every 2 s (a
+            request over UDP that may have gone out before the vehicle was known)."""
+            next_send = time.monotonic()
             while time.monotonic() < t_end:
-                if re.search(pattern, mp.text()):
+                if re.search(pattern, mp.text(), re.M):
                     return
                 assert run.poll() is None, run.stderr.read() if run.stderr else ""
+                if resend is not None and time.monotonic() >= next_send:
+                    mp.send(resend)
+                    next_send = time.monotonic() + 2.0
                 time.sleep(0.1)
             raise AssertionError(f"MAVProxy never printed {pattern!r}:\n{mp.text()}")
 
-        wait_for("Received")  # the parameter list was fetched
-        mp.send("param show J1_KP")
-        wait_for(r"J1_KP\s+100")
+        # MAVProxy may fetch the list before it has detected the vehicle, and then shows nothing
+        # for it: wait for the detection, fetch again, and ask until the value is shown.
+        wait_for(r"Detected vehicle 1:1|online system 1")
+        mp.send("param fetch")
+        wait_for(r"Received \d+ parameters")
+        wait_for(r"J1_KP\s+100(\.0)?\s*$", resend="param show J1_KP")
         mp.send("param set J1_KP 250")  # staged: it takes effect at the first tick boundary
-        time.sleep(1.0)
+        # the vehicle's PARAM_VALUE answer updates MAVProxy's table: the set was received
+        wait_for(r"J1_KP\s+250(\.0)?\s*$", resend="param show J1_KP")
         mp.send("arm throttle")
         _, err = run.communicate(timeout=120)
         assert run.returncode == 0, err
