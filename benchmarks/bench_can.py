@@ -109,7 +109,7 @@ def lockstep_rate(rig: str, interface: str, channel: str, n: int) -> tuple[float
 
     proc = thread = stop = None
     if interface == "udp_multicast":
-        proc = _spawn(["-m", "servo", "plant-node", "--rig", rig, "--interface", interface, "--channel", channel])
+        proc = _spawn(["-m", "vmehil", "plant-node", "--rig", rig, "--interface", interface, "--channel", channel])
     else:
         node = PlantNode(Endpoint(open_bus(interface, channel), PLANT_IDS),
                          lambda s: Plant.from_config(spec.table, seed=s), spec.n_joints)

@@ -23,8 +23,8 @@ import sys
 import time
 
 from servo.runner import LockstepRunner, RealtimeRunner
-from servo.session import build_loop
-from servo.system import build_emulated_rig
+from vmehil.session import build_loop
+from vmehil.system import build_emulated_rig
 
 RIGS = ("jpl-arm", "melmalec-16")
 LOCKSTEP_TICKS = 1250  # 10 s simulated

@@ -253,7 +253,7 @@ def wiring_from_config(cfg: ConfigTable, channels: int) -> dict[int, str]:
     for key in table.keys():
         if not key.isdigit() or not 0 <= int(key) < channels:
             raise table.error(key, f"a channel number 0..{channels - 1}", key)
-        out[int(key)] = table.str(key)
+        out[int(key)] = table.get_str(key)
     return out
 
 
@@ -266,10 +266,10 @@ def adc_factory(name: str, cfg: ConfigTable, ctx: BuildContext) -> AdcBoard:
     return AdcBoard(
         name,
         wiring=wiring_from_config(cfg, ADC_CHANNELS),
-        noise_rms_v=cfg.float("noise_rms_v", 0.0, min=0.0, max=10.0),
+        noise_rms_v=cfg.get_float("noise_rms_v", 0.0, min=0.0, max=10.0),
         offset_v=cfg.floats("offset_v", None, length=ADC_CHANNELS) if "offset_v" in cfg else None,
         gain_error=cfg.floats("gain_error", None, length=ADC_CHANNELS) if "gain_error" in cfg else None,
-        conversion_time_ns=round(cfg.float("conversion_time_us", DEFAULT_CONVERSION_TIME_NS / 1000,
+        conversion_time_ns=round(cfg.get_float("conversion_time_us", DEFAULT_CONVERSION_TIME_NS / 1000,
                                            min=0.1, max=10_000.0) * 1000),
         seed=ctx.seed,
     )

@@ -453,17 +453,17 @@ def bit3_factory(name: str, cfg: ConfigTable, ctx: BuildContext) -> Bit3Board:
     in-process link with the remote crate powered), ``poll_period_us`` (default 50 with
     ``shm``).
     """
-    window_space = cfg.str("window_space", "A24", choices=("A24", "A32"))
-    window_base = cfg.int("window_base", min=0, max=(1 << 32) - 1)
-    window_size = cfg.int("window_size", 0x10000, min=4, max=1 << 28)
-    shm = cfg.str("shm", "")
+    window_space = cfg.get_str("window_space", "A24", choices=("A24", "A32"))
+    window_base = cfg.get_int("window_base", min=0, max=(1 << 32) - 1)
+    window_size = cfg.get_int("window_size", 0x10000, min=4, max=1 << 28)
+    shm = cfg.get_str("shm", "")
     if shm:
         link = Bit3Link.attach_shared(shm)
-        poll_us = cfg.float("poll_period_us", 50.0, min=1.0, max=1e6)
+        poll_us = cfg.get_float("poll_period_us", 50.0, min=1.0, max=1e6)
     else:
         link = Bit3Link(window_size)
         link.remote_power = True
-        poll_us = cfg.float("poll_period_us", 0.0, min=0.0, max=1e6)
+        poll_us = cfg.get_float("poll_period_us", 0.0, min=0.0, max=1e6)
     return Bit3Board(name, link, window_base=window_base, window_space=window_space,
                      window_size=window_size if window_size <= link.mem_size else None,
                      poll_period_s=poll_us * 1e-6 if poll_us else None)

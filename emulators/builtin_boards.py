@@ -13,7 +13,7 @@ from hal.config import ConfigTable
 
 
 def _ram(name: str, cfg: ConfigTable, ctx: BuildContext) -> RamBoard:
-    return RamBoard(name, cfg.int("size", min=1, max=1 << 32))
+    return RamBoard(name, cfg.get_int("size", min=1, max=1 << 32))
 
 
 register_board_type("ram", _ram)

@@ -32,23 +32,23 @@ _COMMON_KEYS = {"type", "name", "slot", "space", "base"}
 def build_crate(cfg: ConfigTable, *, signals: Signals | None = None, seed: int = 0) -> Crate:
     """Build a crate from the table that contains ``[crate]``."""
     crate_cfg = cfg.table("crate")
-    timeout_us = crate_cfg.float("bus_timeout_us", 64.0, min=1.0, max=10_000.0)
+    timeout_us = crate_cfg.get_float("bus_timeout_us", 64.0, min=1.0, max=10_000.0)
     crate = Crate(
-        crate_cfg.str("name", "crate"), bus_timeout_ns=round(timeout_us * 1000), signals=signals
+        crate_cfg.get_str("name", "crate"), bus_timeout_ns=round(timeout_us * 1000), signals=signals
     )
     ctx = BuildContext(signals=crate.signals, seed=seed)
     for bcfg in crate_cfg.tables("board", []):
-        type_name = bcfg.str("type")
+        type_name = bcfg.get_str("type")
         factory = board_factory(type_name)
         if factory is None:
             raise bcfg.error("type", "a board type (" + ", ".join(board_types()) + ")", type_name)
-        name = bcfg.str("name")
+        name = bcfg.get_str("name")
         try:
-            space = AddressSpace.parse(bcfg.str("space"))
+            space = AddressSpace.parse(bcfg.get_str("space"))
         except ValueError:
             raise bcfg.error("space", "A16, A24 or A32", bcfg.raw("space")) from None
-        base = bcfg.int("base", min=0, max=(1 << 32) - 1)
-        slot = bcfg.int("slot", None, min=1, max=21) if "slot" in bcfg else None
+        base = bcfg.get_int("base", min=0, max=(1 << 32) - 1)
+        slot = bcfg.get_int("slot", None, min=1, max=21) if "slot" in bcfg else None
         board = factory(name, bcfg, ctx)
         bcfg.check_unknown()
         try:

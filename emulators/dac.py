@@ -218,6 +218,6 @@ def dac_factory(name: str, cfg: ConfigTable, ctx: BuildContext) -> DacBoard:
         wiring=wiring_from_config(cfg, DAC_CHANNELS),
         offset_v=cfg.floats("offset_v", None, length=DAC_CHANNELS) if "offset_v" in cfg else None,
         gain_error=cfg.floats("gain_error", None, length=DAC_CHANNELS) if "gain_error" in cfg else None,
-        settling_time_ns=round(cfg.float("settling_time_us", DEFAULT_SETTLING_NS / 1000, min=0.0, max=10_000.0)
+        settling_time_ns=round(cfg.get_float("settling_time_us", DEFAULT_SETTLING_NS / 1000, min=0.0, max=10_000.0)
                                * 1000),
     )

@@ -231,9 +231,9 @@ def pio_from_config(name: str, cfg, ctx) -> PioBoard:
     if "lines" in cfg:
         tbl = cfg.table("lines")
         for pin in list(tbl.keys()):
-            net = tbl.str(pin)
+            net = tbl.get_str(pin)
             if pin.upper() not in ALL_LINES:
                 raise tbl.error(pin, "a PIO line name PA0..PC7", pin)
             lines[pin.upper()] = net
-    pwm_net = cfg.str("pwm_net") if "pwm_net" in cfg else None
+    pwm_net = cfg.get_str("pwm_net") if "pwm_net" in cfg else None
     return PioBoard(name, lines=lines, pwm_net=pwm_net)

@@ -262,5 +262,5 @@ def quad_from_config(name: str, cfg, ctx) -> QuadratureBoard:
         if not isinstance(raw, list) or len(raw) > CHANNELS or not all(isinstance(x, str) for x in raw):
             raise cfg.error("channels", f"a list of up to {CHANNELS} net names (\"\" = unwired)", raw)
         nets = {c: n for c, n in enumerate(raw) if n}
-    sample_hz = cfg.float("sample_hz", DEFAULT_SAMPLE_HZ, min=1.0, max=1e9)
+    sample_hz = cfg.get_float("sample_hz", DEFAULT_SAMPLE_HZ, min=1.0, max=1e9)
     return QuadratureBoard(name, nets=nets, sample_hz=sample_hz)

@@ -7,6 +7,7 @@ expected*.
 
 from __future__ import annotations
 
+import math
 import tomllib
 from collections.abc import Iterator
 from pathlib import Path
@@ -72,7 +73,7 @@ class ConfigTable:
             raise self.error(name, "a value (the key is missing)")
         return default
 
-    def str(self, name: str, default: Any = _MISSING, choices: tuple[str, ...] | None = None) -> str:
+    def get_str(self, name: str, default: Any = _MISSING, choices: tuple[str, ...] | None = None) -> str:
         v = self.raw(name, default)
         if not isinstance(v, str):
             raise self.error(name, "a string", v)
@@ -80,7 +81,7 @@ class ConfigTable:
             raise self.error(name, "one of " + ", ".join(choices), v)
         return v
 
-    def int(self, name: str, default: Any = _MISSING, min: int | None = None, max: int | None = None) -> int:
+    def get_int(self, name: str, default: Any = _MISSING, min: int | None = None, max: int | None = None) -> int:
         v = self.raw(name, default)
         if isinstance(v, bool) or not isinstance(v, int):
             raise self.error(name, "an integer", v)
@@ -88,31 +89,33 @@ class ConfigTable:
             raise self.error(name, f"an integer in [{min}, {max}]", v)
         return v
 
-    def float(
+    def get_float(
         self, name: str, default: Any = _MISSING, min: float | None = None, max: float | None = None
     ) -> float:
+        """A finite number (NaN and ±inf are refused) within ``[min, max]``."""
         v = self.raw(name, default)
         if isinstance(v, bool) or not isinstance(v, int | float):
             raise self.error(name, "a number", v)
         v = float(v)
-        if v != v:
+        if not math.isfinite(v):
             raise self.error(name, "a finite number", v)
         if (min is not None and v < min) or (max is not None and v > max):
             raise self.error(name, f"a number in [{min}, {max}]", v)
         return v
 
-    def bool(self, name: str, default: Any = _MISSING) -> bool:
+    def get_bool(self, name: str, default: Any = _MISSING) -> bool:
         v = self.raw(name, default)
         if not isinstance(v, bool):
             raise self.error(name, "true or false", v)
         return v
 
     def floats(self, name: str, default: Any = _MISSING, length: int | None = None) -> list[float]:
+        """A list of finite numbers (of ``length`` when given)."""
         v = self.raw(name, default)
         if not isinstance(v, list) or not all(
-            isinstance(x, int | float) and not isinstance(x, bool) for x in v
+            isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) for x in v
         ):
-            raise self.error(name, "a list of numbers", v)
+            raise self.error(name, "a list of finite numbers", v)
         if length is not None and len(v) != length:
             raise self.error(name, f"a list of {length} numbers", v)
         return [float(x) for x in v]

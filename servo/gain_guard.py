@@ -39,7 +39,7 @@ from servo.control.linear import sampled_loop_matrix
 # The stability margin 1 − ρ must exceed this at least (strictly inside the unit circle, with a hair
 # for rounding: 1e-12 per tick is a time constant of ~250 million years at 125 Hz).
 MIN_MARGIN_FLOOR = 1e-12
-# Upper limits (the ranges the MAVLink parameters advertise, servo.mavlink.params.GAIN_RANGES).
+# Upper limits (the ranges the MAVLink parameters advertise, vmehil.mavlink.params.GAIN_RANGES).
 GAIN_MAX = {"kp": 1e5, "kpi": 1e7, "kv": 1e4, "kvi": 1e6}
 
 

@@ -14,25 +14,39 @@ It imports ``hal`` only: it cannot tell an emulated crate from real hardware.
 
 from __future__ import annotations
 
-import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
 
 from hal.adc_dac.adc import AdcDriver
+from hal.adc_dac.calibration import Calibration
 from hal.adc_dac.conversions import DAC_V_MAX, DAC_V_MIN
 from hal.adc_dac.dac import DacDriver
 from hal.amplifiers import clamp_current, command_volts, current_for_torque, duty_for_current
 from hal.pio.pio import PioDriver
 from hal.quadrature.quad import QuadratureDriver
 from hal.vme.bus import VmeBus
-from servo.calibration.store import CalibrationStore, load_store
 from servo.rig import RigSpec
 
 
-class CalibrationMissingWarning(UserWarning):
-    """No calibration file: the drivers run on nominal (datasheet) values."""
+class CalibrationEntry(Protocol):
+    """One measured entry of a joint (``values``: the procedure's figures, SI units)."""
+
+    values: Mapping[str, Any]
+
+
+class CalibrationSource(Protocol):
+    """The calibration data the drivers apply: per ADC/DAC board a per-channel offset and gain,
+    per joint the measured ``pot`` table (``volts``, ``angles_rad``), ``encoder``
+    (``counts_per_joint_rev``) and ``amplifier`` (``gain_a_per_v``, ``offset_a``). Where it comes
+    from (a calibration file, a procedure in progress) is the application's business
+    (``vmehil.calibration.store``)."""
+
+    def board_calibration(self, board: str) -> Calibration | None: ...
+
+    def joint_entry(self, joint: str, procedure: str) -> CalibrationEntry | None: ...
 
 
 @dataclass
@@ -109,26 +123,24 @@ class PotCalibration:
 class JointIO:
     """All joints' sensors and amplifiers through the board drivers.
 
-    ``calibration``: a :class:`CalibrationStore`, or the path of a calibration file loaded at
-    start (:func:`servo.calibration.store.load_store`, identity-checked against the rig and the
-    boards; a file for another rig or board raises ``CalibrationFileError``; a missing file
-    gives nominal values and a :class:`CalibrationMissingWarning`), or ``None`` (nominal).
+    ``calibration``: the calibration data to apply at start (:class:`CalibrationSource`, e.g.
+    a store loaded by ``vmehil.calibration.store.load_store``), or ``None`` (nominal values).
     """
 
     def __init__(self, bus: VmeBus, rig: RigSpec, scaling: list[SensorScaling],
-                 calibration: CalibrationStore | str | Path | None = None) -> None:
+                 calibration: CalibrationSource | None = None) -> None:
         self.bus = bus
         self.rig = rig
         self.n = rig.n_joints
         self.scaling = scaling
         self.period_s = rig.period_s
-        boards = {b.str("name"): b for b in rig.table.table("crate").tables("board", [])}
-        self._types = {name: b.str("type") for name, b in boards.items()}
+        boards = {b.get_str("name"): b for b in rig.table.table("crate").tables("board", [])}
+        self._types = {name: b.get_str("type") for name, b in boards.items()}
 
         def loc(name: str) -> tuple[int, str]:
             if name not in boards:
                 raise ValueError(f"rig {rig.name}: wiring names board {name!r}, which is not in [crate]")
-            return boards[name].int("base"), boards[name].str("space")
+            return boards[name].get_int("base"), boards[name].get_str("space")
 
         self.adc: dict[str, AdcDriver] = {}
         self.dac: dict[str, DacDriver] = {}
@@ -173,8 +185,8 @@ class JointIO:
         self._adc_last = {name: max(p.index for j in rig.joints for p in j.wiring.values() if p.board == name)
                           for name in self.adc}
         self.pot_cal: dict[int, PotCalibration] = {}
-        self.position_source = [j.servo.str("position", "pot", choices=("pot", "encoder")) for j in rig.joints]
-        self.velocity_source = [j.servo.str("velocity", "tach", choices=("tach", "encoder")) for j in rig.joints]
+        self.position_source = [j.servo.get_str("position", "pot", choices=("pot", "encoder")) for j in rig.joints]
+        self.velocity_source = [j.servo.get_str("velocity", "tach", choices=("tach", "encoder")) for j in rig.joints]
         self._position_from_pot = np.array([p == "pot" for p in self.position_source])
         self._velocity_from_tach = np.array([v == "tach" for v in self.velocity_source])
         for j in rig.joints:
@@ -190,14 +202,7 @@ class JointIO:
                 board = j.wiring["amp_fault"].board
                 port, bit = self.pio[board].resolve(j.net("amp_fault"))
                 self._fault_lines.append((j.index, board, port, bit))
-        self.calibration: CalibrationStore | None = None
-        if isinstance(calibration, str | Path):
-            try:
-                calibration = load_store(calibration, rig, bus=bus)
-            except FileNotFoundError:
-                warnings.warn(f"no calibration file {calibration}: drivers use nominal values "
-                              f"(run `vmehil calibrate all --rig {rig.name}`)", CalibrationMissingWarning, stacklevel=2)
-                calibration = None
+        self.calibration: CalibrationSource | None = None
         if calibration is not None:
             self.apply_calibration(calibration)
 
@@ -211,7 +216,7 @@ class JointIO:
         self._velocity_from_tach[joint] = velocity == "tach"
 
     # --- calibration ------------------------------------------------------------------------
-    def apply_calibration(self, store: CalibrationStore) -> None:
+    def apply_calibration(self, store: CalibrationSource) -> None:
         """Put a calibration in force: ADC/DAC per-channel offset and gain in the board drivers,
         pot tables, encoder counts per revolution, amplifier gain and offset. Entries the store
         lacks keep their nominal values."""

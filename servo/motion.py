@@ -16,10 +16,11 @@ Format (angles in degrees at this edge, or radians with the ``_rad`` keys)::
     via_deg = [[0, 10, 0, 0, 0, 0], [20, 0, 10, 0, 0, 0]]   # the last via is the target
     speed = 1.0
 
-Move types are looked up in :data:`MOVE_TYPES`; :func:`register_move_type` adds one (a visual-servo
-move will register ``"vservo"``). A parser receives the move's :class:`hal.config.ConfigTable`
-(whose errors name the file and key, e.g. ``move[2].duration_s``) and the number of joints, and
-returns a :class:`servo.trajectory.MoveSpec`.
+Move types are looked up in :data:`MOVE_TYPES`, a plain table of the built-in types (the
+visual-servo move ``"vservo"`` among them); :func:`register_move_type` adds one. A parser
+receives the move's :class:`hal.config.ConfigTable` (whose errors name the file and key, e.g.
+``move[2].duration_s``) and the number of joints, and returns a
+:class:`servo.trajectory.MoveSpec`.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ import numpy as np
 from hal.config import ConfigError, ConfigTable, load_toml
 from hal.units import deg_to_rad
 from servo.trajectory import Lspb, MoveSpec, PlanContext, Quintic, Sequencer, Stay, Trajectory
+from servo.vservo import parse_vservo
 
 MoveParser = Callable[[ConfigTable, int], MoveSpec]
 MOVE_TYPES: dict[str, MoveParser] = {}
@@ -98,7 +100,7 @@ def _angles(cfg: ConfigTable, base: str, n: int, required: bool = True) -> np.nd
 
 
 def _speed(cfg: ConfigTable) -> float:
-    s = cfg.float("speed", 1.0)
+    s = cfg.get_float("speed", 1.0)
     if not 0.0 < s <= 1.0:
         raise cfg.error("speed", "a speed factor in (0, 1] (0.5 makes the move twice as long)", s)
     return s
@@ -134,15 +136,13 @@ def parse_lspb(cfg: ConfigTable, n: int) -> MoveSpec:
 
 
 def parse_wait(cfg: ConfigTable, n: int) -> MoveSpec:
-    move = WaitMove(cfg.float("duration_s", min=0.0))
+    move = WaitMove(cfg.get_float("duration_s", min=0.0))
     cfg.check_unknown({"type", "duration_s"})
     return move
 
 
-register_move_type("quintic", parse_quintic)
-register_move_type("lspb", parse_lspb)
-register_move_type("wait", parse_wait)
-register_move_type("stay", parse_wait)
+MOVE_TYPES.update({"quintic": parse_quintic, "lspb": parse_lspb, "wait": parse_wait, "stay": parse_wait,
+                   "vservo": parse_vservo})
 
 
 # ---- files --------------------------------------------------------------------------------------------
@@ -163,13 +163,13 @@ def parse_motion(cfg: ConfigTable, n_joints: int) -> Motion:
     """Parse a motion table; :class:`hal.config.ConfigError` names the file and key on any problem."""
     moves: list[MoveSpec] = []
     for mv in cfg.tables("move"):
-        kind = mv.str("type", "quintic")
+        kind = mv.get_str("type", "quintic")
         if kind not in MOVE_TYPES:
             raise mv.error("type", "one of " + ", ".join(sorted(MOVE_TYPES)), kind)
         moves.append(MOVE_TYPES[kind](mv, n_joints))
     if not moves:
         raise cfg.error("move", "at least one [[move]]")
-    name = cfg.str("name", Path(cfg.source).stem)
+    name = cfg.get_str("name", Path(cfg.source).stem)
     cfg.check_unknown({"move", "name", "description"})
     return Motion(tuple(moves), name, cfg.source)
 
@@ -192,4 +192,3 @@ def default_demo_motion(n_joints: int, hold_s: float = 10.0, speed: float = 0.5)
     return Motion((QuinticMove(None, deltas, speed), WaitMove(hold_s)), "demo", "<demo>")
 
 
-import servo.vservo  # noqa: E402, F401  (registers the "vservo" move type)

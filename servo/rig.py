@@ -111,7 +111,7 @@ class RigSpec:
 
 
 def parse_pin(cfg: ConfigTable, key: str) -> Pin:
-    text = cfg.str(key)
+    text = cfg.get_str(key)
     board, sep, chan = text.partition(":")
     if not sep or not board or not chan:
         raise cfg.error(key, 'a pin "board:channel" such as "adc0:3" or "pio0:PA0"', text)
@@ -122,25 +122,25 @@ def load_rig(path: str | Path) -> RigSpec:
     """Parse a rig file (a preset path from :func:`emulators.presets.resolve_rig` or any path)."""
     table = load_toml(path)
     rig = table.table("rig", {})
-    period_hz = rig.float("servo_rate_hz", 125.0, min=1.0, max=10_000.0)
-    delay = rig.float("computation_delay_s", 0.001, min=0.0)
+    period_hz = rig.get_float("servo_rate_hz", 125.0, min=1.0, max=10_000.0)
+    delay = rig.get_float("computation_delay_s", 0.001, min=0.0)
     if delay > 1.0 / period_hz:
         raise rig.error("computation_delay_s", f"a delay of at most one servo period ({1 / period_hz} s)", delay)
     spec = RigSpec(
-        name=rig.str("name", Path(path).stem),
+        name=rig.get_str("name", Path(path).stem),
         path=Path(path),
         table=table,
         servo_rate_hz=period_hz,
         computation_delay_s=delay,
-        description=rig.str("description", ""),
+        description=rig.get_str("description", ""),
     )
     names: set[str] = set()
     for i, jt in enumerate(table.tables("joint", [])):
-        name = jt.str("name")
+        name = jt.get_str("name")
         if name in names:
             raise jt.error("name", "a joint name not used before", name)
         names.add(name)
-        amp = jt.str("amplifier", "linear", choices=("linear", "hbridge"))
+        amp = jt.get_str("amplifier", "linear", choices=("linear", "hbridge"))
         wt = jt.table("wiring", {})
         wiring = {k: parse_pin(wt, k) for k in wt.keys() if k in WIRING_KEYS}
         for k in wt.keys():
@@ -168,7 +168,7 @@ def loopback_net(dac_pin: Pin) -> str:
 
 
 def _parse_calibration_wiring(spec: RigSpec, rig: ConfigTable) -> None:
-    types = {b.str("name"): b.str("type") for b in spec.table.table("crate", {}).tables("board", [])}
+    types = {b.get_str("name"): b.get_str("type") for b in spec.table.table("crate", {}).tables("board", [])}
     used = {(p.board, p.channel): f"{j.name}.{sig}" for j in spec.joints for sig, p in j.wiring.items()}
 
     def pin(cfg: ConfigTable, key: str, text: str, kind: str) -> Pin:
@@ -183,7 +183,7 @@ def _parse_calibration_wiring(spec: RigSpec, rig: ConfigTable) -> None:
 
     refs = rig.table("references", {})
     for key in refs.keys():
-        spec.references[pin(refs, key, key, "adc")] = refs.float(key, min=-10.0, max=10.0)
+        spec.references[pin(refs, key, key, "adc")] = refs.get_float(key, min=-10.0, max=10.0)
     loops = rig.table("loopback", {})
     for key in loops.keys():
-        spec.loopback[pin(loops, key, key, "dac")] = pin(loops, key, loops.str(key), "adc")
+        spec.loopback[pin(loops, key, key, "dac")] = pin(loops, key, loops.get_str(key), "adc")

@@ -1,8 +1,9 @@
 """Runners: when ticks happen, and what advances between them.
 
-Both runners execute the same tick: align the crate's clock to the tick time, publish the
-plant's answer on the sensor nets, run :meth:`servo.loop.ServoLoop.tick` (drivers → law →
-drivers), then exchange with the plant for one servo period. They differ only in pacing:
+Both runners execute the same tick through the plant boundary (:mod:`servo.boundary`): let
+time pass to the tick's instant, put the sensor values in place, run
+:meth:`servo.loop.ServoLoop.tick` (drivers → law → drivers), then make the one exchange per
+servo period. They differ only in pacing:
 
 * :class:`LockstepRunner` — simulated time only, as fast as the CPU allows, deterministic for
   a seed.
@@ -24,9 +25,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from emulators.harness import PlantLinkError
+from servo.boundary import PlantBoundary, PlantBoundaryError
 from servo.loop import ServoLoop
-from servo.system import EmulatedRig
 
 Progress = Callable[[int, int], None]
 
@@ -73,12 +73,12 @@ def _split_summary(name: str, values: list[float], period_s: float) -> dict[str,
 class LockstepRunner:
     """Simulated time only; ``run(n)`` executes ``n`` ticks back to back."""
 
-    def __init__(self, system: EmulatedRig, loop: ServoLoop) -> None:
-        self.system = system
+    def __init__(self, plant: PlantBoundary, loop: ServoLoop) -> None:
+        self.plant = plant
         self.loop = loop
-        self.period_s = system.rig.period_s
-        self.period_ns = system.period_ns
-        self.delay_s = system.rig.computation_delay_s
+        self.period_s = plant.period_s
+        self.period_ns = round(plant.period_s * 1e9)
+        self.delay_s = plant.computation_delay_s
         self.delay_ns = round(self.delay_s * 1e9)
         self.overruns = 0
         self.after_tick: list[Callable[[ServoLoop], None]] = []
@@ -86,21 +86,21 @@ class LockstepRunner:
         self.last_split = (0.0, 0.0)
 
     def tick(self) -> None:
-        sys_ = self.system
+        plant = self.plant
         k = self.loop.tick_count
         clock = time.perf_counter
         t0 = clock()
-        sys_.crate.advance_to(k * self.period_ns)
-        sys_.harness.publish()
+        plant.advance_to(k * self.period_ns)
+        plant.sense(k)
         t1 = clock()
-        self.loop.tick(truth=sys_.truth())
+        self.loop.tick(truth=plant.truth())
         t2 = clock()
         # The command takes effect at t_k + delay: let the boards' pending events (a DAC's output
-        # settling after its update strobe) run before the harness reads the command nets.
-        sys_.crate.advance_to(k * self.period_ns + self.delay_ns)
+        # settling after its update strobe) run before the exchange reads the command nets.
+        plant.advance_to(k * self.period_ns + self.delay_ns)
         try:
-            sys_.harness.step(self.period_s, self.delay_s)
-        except PlantLinkError as e:
+            plant.exchange(k)
+        except PlantBoundaryError as e:
             # A remote plant (CAN node) gave no fresh data, vanished or restarted: the watchdog's
             # answer is a safe stop in this tick; the link then returns held values without waiting.
             self.loop.safe_stop(e.cause, str(e))
@@ -121,10 +121,10 @@ class LockstepRunner:
 class RealtimeRunner(LockstepRunner):
     """Paced by the wall clock at the rig's servo rate with absolute deadlines."""
 
-    def __init__(self, system: EmulatedRig, loop: ServoLoop, *, spin_s: float = 0.0005,
+    def __init__(self, plant: PlantBoundary, loop: ServoLoop, *, spin_s: float = 0.0005,
                  clock: Callable[[], float] = time.perf_counter,
                  sleep: Callable[[float], None] = time.sleep) -> None:
-        super().__init__(system, loop)
+        super().__init__(plant, loop)
         self.spin_s = spin_s
         self.clock = clock
         self.sleep = sleep

@@ -16,7 +16,7 @@ Motion file::
     timeout_s = 20        # end the task (robot side) after this long
 
 The link is given to the planner as ``PlanContext.extras["vision"]`` (a :class:`VisionLink`);
-``vmehil run --vision inprocess|process`` sets it up (see ``servo/vservo_extension.py``).
+``vmehil run --vision inprocess|process`` sets it up (see ``vmehil/vision_options.py``).
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ import numpy as np
 from hal.bit3.arm import ArmModel
 from hal.bit3.protocol import RobotState, VisionServoClient
 from hal.config import ConfigTable
-from servo.motion import register_move_type
 from servo.trajectory.base import Sample, TrajectoryError
 from servo.trajectory.sequencer import PlanContext
 
@@ -146,9 +145,8 @@ class VservoMove:
 
 
 def parse_vservo(cfg: ConfigTable, n_joints: int) -> VservoMove:
-    move = VservoMove(cfg.float("timeout_s", 30.0, min=1e-3))
+    move = VservoMove(cfg.get_float("timeout_s", 30.0, min=1e-3))
     cfg.check_unknown({"type", "timeout_s"})
     return move
 
 
-register_move_type("vservo", parse_vservo)

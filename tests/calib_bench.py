@@ -18,10 +18,10 @@ from emulators.dac import DacBoard
 from emulators.encoder_edges import EncoderSampler
 from emulators.quadrature import QuadratureBoard
 from emulators.rng import rng_for
-from servo.calibration.base import CalibrationContext
-from servo.calibration.store import CalibrationStore
 from servo.io import JointIO, SensorScaling
 from servo.rig import RigSpec, load_rig, loopback_net, reference_net
+from vmehil.calibration.base import CalibrationContext
+from vmehil.calibration.store import CalibrationStore
 
 RIG_TOML = """
 [rig]

@@ -524,7 +524,7 @@ def test_crate_file_builds_a_wired_adc(tmp_path: Path) -> None:
     c.signals.set_analog("pot2", -1.0)
     assert adc.read_volts(0) == pytest.approx(1.1, abs=LSB)
     assert adc.read_volts(3) == pytest.approx(-1.0, abs=LSB)
-    from servo.commands.crate import probe_all
+    from vmehil.commands.crate import probe_all
 
     assert probe_all(c)[0]["value"] == f"0x{ADC_BOARD_ID:X}"
 

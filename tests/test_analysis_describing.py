@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from servo.analysis.describing import (
+from vmehil.analysis.describing import (
     DeadZone,
     Quantizer,
     Relay,
@@ -26,7 +26,7 @@ from servo.analysis.describing import (
     simulate_joint,
     simulate_sampled,
 )
-from servo.analysis.loop import Gains, LoopConfig
+from vmehil.analysis.loop import Gains, LoopConfig
 
 S = ct.tf("s")
 

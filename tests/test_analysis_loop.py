@@ -10,7 +10,7 @@ import control as ct
 import numpy as np
 import pytest
 
-from servo.analysis.loop import (
+from vmehil.analysis.loop import (
     GainError,
     Gains,
     LoopConfig,

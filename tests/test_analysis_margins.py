@@ -10,8 +10,8 @@ import control as ct
 import numpy as np
 import pytest
 
-from servo.analysis.loop import Gains, LoopConfig, closed_loop, freqresp, open_loop
-from servo.analysis.margins import compute_margins
+from vmehil.analysis.loop import Gains, LoopConfig, closed_loop, freqresp, open_loop
+from vmehil.analysis.margins import compute_margins
 
 
 def _pc(cfg: LoopConfig, sampled: bool) -> dict:

@@ -12,10 +12,10 @@ import pytest
 from emulators.plant import load_plant_params
 from emulators.presets import resolve_rig
 from hal.adc_dac.conversions import N_CODES
-from servo.analysis.loop import GainError
-from servo.analysis.rigparams import load_joint, with_gains
-from servo.session import build_loop, servo_settings
-from servo.system import build_emulated_rig
+from vmehil.analysis.loop import GainError
+from vmehil.analysis.rigparams import load_joint, with_gains
+from vmehil.session import build_loop, servo_settings
+from vmehil.system import build_emulated_rig
 
 
 def _variant(tmp_path: Path, *subs: tuple[str, str]) -> Path:

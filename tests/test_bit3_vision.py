@@ -2,7 +2,7 @@
 
 The closed loops integrate the commanded joint increments directly (a kinematic arm; the
 servo loop is not needed here): in one process in lockstep through the full driver stack,
-and with the vision system as its own process (``python -m servo vision``) over
+and with the vision system as its own process (``python -m vmehil vision``) over
 ``multiprocessing.shared_memory``.
 """
 
@@ -172,7 +172,7 @@ STEP_NS = 5_000_000
 
 def _vision_process(link: Bit3Link, *args: str) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "servo", "vision", "--shm", link.shm_name, "--peer-timeout-ms", "60000", *args],
+        [sys.executable, "-m", "vmehil", "vision", "--shm", link.shm_name, "--peer-timeout-ms", "60000", *args],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -290,7 +290,7 @@ def test_killed_vision_process_leaves_the_robot_holding_after_peer_timeout() -> 
 
 def test_vision_process_exits_cleanly_on_sigterm() -> None:
     link = Bit3Link.create_shared(0x1000)
-    proc = subprocess.Popen([sys.executable, "-m", "servo", "vision", "--shm", link.shm_name, "--duration", "20"],
+    proc = subprocess.Popen([sys.executable, "-m", "vmehil", "vision", "--shm", link.shm_name, "--duration", "20"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         t0 = time.monotonic()
@@ -316,6 +316,6 @@ def test_vision_process_exits_cleanly_on_sigterm() -> None:
 
 
 def test_vision_command_reports_a_missing_segment() -> None:
-    from servo.cli import main
+    from vmehil.cli import main
 
     assert main(["vision", "--shm", "vmehil-test-no-such-segment"]) == 2

@@ -9,9 +9,9 @@ import pytest
 pytest.importorskip("emulators.plant")
 
 from emulators.presets import resolve_rig
-from servo.calibration.store import load_store
-from servo.cli import main
 from servo.rig import load_rig
+from vmehil.calibration.store import load_store
+from vmehil.cli import main
 
 WIRING = """
 [rig.references]
@@ -45,7 +45,7 @@ def test_calibrate_adc_dac_writes_a_file_the_drivers_load(tmp_path, capsys):
     store = load_store(out, load_rig(rig_path))
     assert "adc1" in store.boards and "dac0" in store.boards  # the second run kept the first's tables
     assert json.loads((tmp_path / "r.json").read_text())["passed"] is True
-    from servo.system import build_emulated_rig
+    from vmehil.system import build_emulated_rig
 
     system = build_emulated_rig(load_rig(rig_path), calibration=out)
     assert system.io.calibration is not None

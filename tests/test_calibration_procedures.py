@@ -12,15 +12,15 @@ import numpy as np
 import pytest
 from calib_bench import Errors, build_bench
 
-import servo.calibration.procedures  # noqa: F401  (registers the procedures)
-from servo.calibration.adc import AdcProcedure
-from servo.calibration.amplifier import AmplifierProcedure
-from servo.calibration.base import PROCEDURES, CalibrationAbort, register_procedure
-from servo.calibration.dac import DacProcedure
-from servo.calibration.encoder import EncoderProcedure
-from servo.calibration.pot import ARCMIN_PER_RAD, PotProcedure, pot_targets
-from servo.calibration.runner import resolve_names, results_table, run_procedures
-from servo.calibration.store import load_store
+import vmehil.calibration.procedures  # noqa: F401  (registers the procedures)
+from vmehil.calibration.adc import AdcProcedure
+from vmehil.calibration.amplifier import AmplifierProcedure
+from vmehil.calibration.base import PROCEDURES, CalibrationAbort, register_procedure
+from vmehil.calibration.dac import DacProcedure
+from vmehil.calibration.encoder import EncoderProcedure
+from vmehil.calibration.pot import ARCMIN_PER_RAD, PotProcedure, pot_targets
+from vmehil.calibration.procedure_runner import resolve_names, results_table, run_procedures
+from vmehil.calibration.store import load_store
 
 ERRORS = Errors(
     adc1_offset_v=0.012, adc1_gain_error=0.004,
@@ -194,7 +194,7 @@ def test_all_runs_in_order_and_writes_a_file_the_drivers_apply(tmp_path):
     # drivers apply it: a fresh JointIO on the same crate reads the 5 V reference as 5 V
     from servo.io import JointIO
 
-    io = JointIO(b.crate, b.rig, b.io.scaling, calibration=path)
+    io = JointIO(b.crate, b.rig, b.io.scaling, calibration=store)
     raw = b.context().adc("adc1", calibrated=False)
     assert abs(np.mean([raw.read_volts(12) for _ in range(32)]) - 5.0) > 0.02
     assert np.mean([io.adc["adc1"].read_volts(12) for _ in range(32)]) == pytest.approx(5.0, abs=1.5e-3)

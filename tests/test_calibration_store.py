@@ -14,18 +14,20 @@ import pytest
 from calib_bench import RIG_TOML, build_bench, write_rig
 
 from hal.adc_dac.calibration import Calibration
-from servo.calibration.store import (
+from servo.io import JointIO
+from servo.rig import load_rig
+from vmehil.calibration.store import (
     BoardCal,
     CalibrationFileError,
+    CalibrationMissingWarning,
     CalibrationStore,
     JointCal,
     default_store_path,
     load_store,
+    load_store_or_nominal,
     rig_boards,
     utc_now,
 )
-from servo.io import CalibrationMissingWarning, JointIO
-from servo.rig import load_rig
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -122,16 +124,18 @@ def test_a_board_that_answers_another_id_is_refused(tmp_path):
 def test_jointio_applies_a_loaded_file_and_warns_when_missing(tmp_path):
     b = build_bench(tmp_path)
     path = sample_store(b.rig).save(tmp_path / "cal.toml")
-    io = JointIO(b.crate, b.rig, b.io.scaling, calibration=path)
+    io = JointIO(b.crate, b.rig, b.io.scaling, calibration=load_store_or_nominal(path, b.rig, bus=b.crate))
     assert io.adc["adc1"].calibration.offset_v[0] == 0.012
     assert io.pot_angle(0, 4.5) == pytest.approx(1.35)
     with pytest.warns(CalibrationMissingWarning, match="nominal"):
-        io2 = JointIO(b.crate, b.rig, b.io.scaling, calibration=tmp_path / "missing.toml")
+        missing = load_store_or_nominal(tmp_path / "missing.toml", b.rig, bus=b.crate)
+    assert missing is None
+    io2 = JointIO(b.crate, b.rig, b.io.scaling, calibration=missing)
     assert io2.adc["adc1"].calibration == Calibration.identity(16)
     other = load_rig(tmp_path / "bench.toml")
     other.name = "elsewhere"
     with pytest.raises(CalibrationFileError, match="written for rig 'bench'"):
-        JointIO(b.crate, other, b.io.scaling, calibration=path)
+        load_store_or_nominal(path, other, bus=b.crate)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         JointIO(b.crate, b.rig, b.io.scaling)  # no calibration asked for: no warning

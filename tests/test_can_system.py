@@ -19,8 +19,8 @@ from emulators.can.dbc import ID_SYNC
 from emulators.can.link import CONTROLLER_IDS, CanPlantLink
 from emulators.can.node import PLANT_IDS, PlantNode
 
-system_mod = pytest.importorskip("servo.system")
-session = pytest.importorskip("servo.session")
+system_mod = pytest.importorskip("vmehil.system")
+session = pytest.importorskip("vmehil.session")
 runner_mod = pytest.importorskip("servo.runner")
 
 RIG = "jpl-arm"
@@ -134,14 +134,14 @@ def test_a_vanished_node_stops_the_loop_safely():
 @pytest.mark.skipif(not private_multicast_namespace(), reason="udp_multicast only inside a private namespace")
 def test_vmehil_run_against_a_plant_node_process_equals_the_in_process_run(tmp_path):
     _spec()
-    node = subprocess.Popen([sys.executable, "-m", "servo", "plant-node", "--rig", RIG, "--interface",
+    node = subprocess.Popen([sys.executable, "-m", "vmehil", "plant-node", "--rig", RIG, "--interface",
                              "udp_multicast", "--duration", "120"], stderr=subprocess.PIPE, text=True)
     try:
         assert "plant node" in node.stderr.readline()
         common = ["--rig", RIG, "--seed", "3", "--duration", "1.0", "--quiet"]
-        subprocess.run([sys.executable, "-m", "servo", "run", *common, "--json", str(tmp_path / "a.json")],
+        subprocess.run([sys.executable, "-m", "vmehil", "run", *common, "--json", str(tmp_path / "a.json")],
                        check=False, capture_output=True)
-        subprocess.run([sys.executable, "-m", "servo", "run", *common, "--json", str(tmp_path / "b.json"),
+        subprocess.run([sys.executable, "-m", "vmehil", "run", *common, "--json", str(tmp_path / "b.json"),
                         "--plant", "can", "--interface", "udp_multicast", "--can-log", str(tmp_path / "bus.log")],
                        check=False, capture_output=True)
     finally:

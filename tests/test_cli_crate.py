@@ -7,8 +7,8 @@ import json
 
 from emulators.crate_file import load_crate
 from emulators.presets import resolve_rig
-from servo.cli import main
-from servo.commands.crate import shell
+from vmehil.cli import main
+from vmehil.commands.crate import shell
 
 
 def test_crate_demo_probes_every_board(capsys) -> None:

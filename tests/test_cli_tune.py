@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from servo.cli import main
+from vmehil.cli import main
 
 
 def test_bode_with_no_arguments_works_on_the_default_rig(capsys) -> None:

@@ -9,13 +9,13 @@ import threading
 import pytest
 from test_console_support import Driver, tap_poll
 
-from servo.calibration.store import load_store
-from servo.console.extension import start_console
-from servo.console.protocol import parse_reply_line
 from servo.motion import Motion, WaitMove
 from servo.runner import LockstepRunner
-from servo.session import build_loop
-from servo.system import build_emulated_rig
+from vmehil.calibration.store import load_store
+from vmehil.console.extension import start_console
+from vmehil.console.protocol import parse_reply_line
+from vmehil.session import build_loop
+from vmehil.system import build_emulated_rig
 
 
 @pytest.fixture

@@ -11,9 +11,9 @@ import pytest
 import serial
 from test_console_support import Driver, LineReader, make_loop, tap_poll, tick, until
 
-from servo.console.commands import Outcome
-from servo.console.protocol import parse_reply_line
-from servo.console.server import Console, PtyTransport, open_transport
+from vmehil.console.commands import Outcome
+from vmehil.console.protocol import parse_reply_line
+from vmehil.console.server import Console, PtyTransport, open_transport
 
 
 @pytest.fixture(params=["loop", "pty"])

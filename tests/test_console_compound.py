@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_console_support import make_loop, tick
 
-from servo.console.commands import Session
-from servo.console.compound import (
+from vmehil.console.commands import Session
+from vmehil.console.compound import (
     AsyncBlock,
     CompoundError,
     Executor,

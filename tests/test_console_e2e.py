@@ -19,12 +19,12 @@ import pytest
 import serial
 from test_console_support import Driver, LineReader
 
-from servo.console.extension import attach
-from servo.console.protocol import parse_reply_line
 from servo.motion import default_demo_motion
 from servo.runner import LockstepRunner
-from servo.session import build_loop
-from servo.system import build_emulated_rig
+from vmehil.console.extension import attach
+from vmehil.console.protocol import parse_reply_line
+from vmehil.session import build_loop
+from vmehil.system import build_emulated_rig
 
 COMMANDS = ('command nudge(float a) = {\n    move_joint(1, a, 1.0);\n    move_joint(1, 0.0);\n'
             '    echo("nudged");\n}\n')
@@ -156,7 +156,7 @@ class _Terminal:
 
 
 def _vmehil(*args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "servo", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    return subprocess.Popen([sys.executable, "-m", "vmehil", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
 
 

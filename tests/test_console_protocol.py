@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from servo.console.protocol import (
+from vmehil.console.protocol import (
     ERROR_CODES,
     MAX_LINE,
     Arg,

@@ -16,7 +16,7 @@ import pytest
 import serial
 from test_console_support import Driver, LineReader, make_loop, tap_poll, tick
 
-from servo.console.server import Console, ConsoleSetupError, ListenTransport, open_transport
+from vmehil.console.server import Console, ConsoleSetupError, ListenTransport, open_transport
 
 
 def _pty_console(tmp_path, **kw):

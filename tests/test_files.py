@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from servo.files import write_atomic, write_json
+from vmehil.files import write_atomic, write_json
 
 
 def test_write_atomic_replaces_and_keeps_previous(tmp_path: Path) -> None:

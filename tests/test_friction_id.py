@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from emulators.presets import resolve_rig
-from servo.cli import main
-from servo.friction_id import FrictionIdError, Sinusoid, identify_friction
-from servo.system import build_emulated_rig
+from vmehil.cli import main
+from vmehil.friction_id import FrictionIdError, Sinusoid, identify_friction
+from vmehil.system import build_emulated_rig
 
 
 def test_sinusoid_trajectory_is_the_papers_test_then_holds() -> None:

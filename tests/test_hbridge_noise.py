@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from servo.system import build_emulated_rig
+from vmehil.system import build_emulated_rig
 
 
 def _reference_readings(system, n: int = 400) -> np.ndarray:
@@ -22,7 +22,7 @@ def test_hbridge_switching_raises_adc_noise() -> None:
     noisy = _reference_readings(system)
     pio.set_pwm(0.0, direction_line=hand.net("direction"))
     again = _reference_readings(system)
-    level = system.rig.table.table("rig").float("hbridge_noise_v")
+    level = system.rig.table.table("rig").get_float("hbridge_noise_v")
     # quiet: board noise + quantization only; switching adds the coupled rms in quadrature
     expected = np.hypot(np.std(quiet), level)
     assert 0.75 * expected < np.std(noisy) < 1.3 * expected

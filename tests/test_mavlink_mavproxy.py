@@ -16,9 +16,9 @@ import pytest
 
 pytest.importorskip("MAVProxy")
 
-from servo.mavlink.endpoint import MavlinkEndpoint, free_udp_port
-from servo.mavlink.signing import key_from_passphrase
-from servo.mavlink.testing import fake_loop
+from vmehil.mavlink.endpoint import MavlinkEndpoint, free_udp_port
+from vmehil.mavlink.signing import key_from_passphrase
+from vmehil.mavlink.testing import fake_loop
 
 TIMEOUT_S = 25.0
 
@@ -169,7 +169,7 @@ def test_mavproxy_tunes_a_real_vmehil_run(tmp_path):
     port = free_udp_port()
     out = tmp_path / "run.json"
     run = subprocess.Popen(
-        [sys.executable, "-m", "servo", "run", "--duration", "3", "--quiet", "--json", str(out),
+        [sys.executable, "-m", "vmehil", "run", "--duration", "3", "--quiet", "--json", str(out),
          "--mavlink", f"udpin:127.0.0.1:{port}", "--mavlink-wait", "90"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=str(tmp_path))
     mp = MavProxy(port, tmp_path, modules="param,signing,arm")

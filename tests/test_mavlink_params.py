@@ -9,10 +9,10 @@ import threading
 import numpy as np
 import pytest
 
-from servo.mavlink.client import Client
-from servo.mavlink.endpoint import MavlinkEndpoint, free_udp_port
-from servo.mavlink.signing import key_from_passphrase
-from servo.mavlink.testing import fake_loop
+from vmehil.mavlink.client import Client
+from vmehil.mavlink.endpoint import MavlinkEndpoint, free_udp_port
+from vmehil.mavlink.signing import key_from_passphrase
+from vmehil.mavlink.testing import fake_loop
 
 
 @pytest.fixture
@@ -140,7 +140,7 @@ def test_gain_making_the_sampled_loop_unstable_is_refused_with_old_value(rig):
 
 
 def test_boost_making_the_switched_off_loop_unstable_is_refused(rig):
-    from servo.mavlink.stability import check_gains
+    from vmehil.mavlink.stability import check_gains
 
     # premises: Kv 20, Kp 1000 is stable integrating and switched off with the auto boost (Kp_off = Kp + KvI),
     # but a boost of 10 (Kp_off = 10000) makes the switched-off loop unstable

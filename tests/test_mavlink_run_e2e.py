@@ -11,14 +11,14 @@ from pathlib import Path
 
 import pytest
 
-from servo.mavlink.client import Client
-from servo.mavlink.endpoint import free_udp_port
+from vmehil.mavlink.client import Client
+from vmehil.mavlink.endpoint import free_udp_port
 
 ARGS = ["--duration", "6", "--quiet", "--no-integrator-switch-off", "--seed", "2"]
 
 
 def _run(tmp_path: Path, name: str, extra: list[str]) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "servo", "run", *ARGS, "--json", str(tmp_path / name), *extra],
+    return subprocess.Popen([sys.executable, "-m", "vmehil", "run", *ARGS, "--json", str(tmp_path / name), *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 

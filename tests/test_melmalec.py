@@ -6,10 +6,10 @@ from collections import Counter
 
 import numpy as np
 
-from servo.run_report import summarize
 from servo.runner import LockstepRunner
-from servo.session import build_loop
-from servo.system import build_emulated_rig
+from vmehil.run_report import summarize
+from vmehil.session import build_loop
+from vmehil.system import build_emulated_rig
 
 UNITS = ("leg1", "leg2", "leg3", "leg4", "arm")
 
@@ -18,8 +18,8 @@ def test_each_unit_has_its_own_adc_dac_and_decoder_on_distinct_a16_pages() -> No
     system = build_emulated_rig("melmalec-16", seed=0)
     rig = system.rig
     assert rig.n_joints == 16
-    boards = {b.str("name"): b for b in rig.table.table("crate").tables("board")}
-    bases = [(b.str("space"), b.int("base")) for b in boards.values()]
+    boards = {b.get_str("name"): b for b in rig.table.table("crate").tables("board")}
+    bases = [(b.get_str("space"), b.get_int("base")) for b in boards.values()]
     assert len(set(bases)) == len(bases)
     assert all(space == "A16" and base % 0x100 == 0 for space, base in bases)
     for u, unit in enumerate(UNITS):

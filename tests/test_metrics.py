@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from servo.metrics import limit_cycle, settling_time
+from vmehil.metrics import limit_cycle, settling_time
 
 
 @pytest.mark.parametrize("amp_deg,freq", [(0.75, 2.0), (0.3, 1.2), (1.0, 3.1)])

@@ -116,7 +116,7 @@ def test_move_type_registry_is_an_extension_point(tmp_path, monkeypatch):
             return Stay(np.zeros_like(start), self.dur)
 
     def parse_park(cfg, n):
-        move = Park(cfg.float("duration_s", 1.0))
+        move = Park(cfg.get_float("duration_s", 1.0))
         cfg.check_unknown({"type", "duration_s"})
         return move
 

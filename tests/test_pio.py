@@ -17,7 +17,7 @@ from hal.pio import (
     UnknownLineError,
 )
 from hal.vme import BusError, BusErrorCause, Width
-from servo.commands.crate import probe_all
+from vmehil.commands.crate import probe_all
 
 BASE = 0x4000
 WIRING = {

@@ -25,7 +25,7 @@ from hal.quadrature import (
     TrackingLostError,
 )
 from hal.vme import BusError, BusErrorCause, Width
-from servo.commands.crate import probe_all
+from vmehil.commands.crate import probe_all
 
 BASE = 0x5000
 CPR = 2000  # 500-line encoder, x4

@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from servo.cli import main
 from servo.motion import default_demo_motion
-from servo.run_report import summarize
 from servo.runner import LockstepRunner, RealtimeRunner
-from servo.session import build_loop
-from servo.system import build_emulated_rig
+from vmehil.cli import main
+from vmehil.run_report import summarize
+from vmehil.session import build_loop
+from vmehil.system import build_emulated_rig
 
 
 def _run(seconds: float, *, seed: int = 0, switch_off: bool | None = None, gains=None, motion=None,

@@ -13,12 +13,12 @@ from pathlib import Path
 import pytest
 
 from emulators.can.bus import Endpoint, open_bus, private_multicast_namespace, replay
-from emulators.can.extension import CanLinkFactory, CanPlantOptions
 from emulators.can.node import PLANT_IDS, PlantNode, node_spec
 from emulators.plant import Plant
-from servo.analysis.rigparams import load_joint
-from servo.analysis.simulate import SimSettings, simulate
-from servo.cli import main
+from vmehil.analysis.rigparams import load_joint
+from vmehil.analysis.simulate import SimSettings, simulate
+from vmehil.can_options import CanLinkFactory, CanPlantOptions
+from vmehil.cli import main
 
 SHORT = SimSettings(seed=4, move_deg=2.0, hold_s=0.5, allow_short=True)
 FAST = ["--move-deg", "2", "--hold", "1"]
@@ -75,7 +75,7 @@ def test_tune_step_json_over_can_equals_in_process_and_logs_each_run(tmp_path: P
 
 
 def test_tune_limit_cycle_json_over_can_equals_in_process(tmp_path: Path, monkeypatch) -> None:
-    from servo.commands import tune
+    from vmehil.commands import tune
 
     real = tune._sim_settings
     monkeypatch.setattr(tune, "_sim_settings", lambda args, allow_short=False: real(args, True))  # 1 s hold: fast
@@ -122,7 +122,7 @@ def test_can_options_validate_and_tag_logs() -> None:
 
 @pytest.mark.skipif(not private_multicast_namespace(), reason="udp_multicast only inside a private namespace")
 def test_tune_step_against_a_plant_node_process_equals_in_process(tmp_path: Path) -> None:
-    node = subprocess.Popen([sys.executable, "-m", "servo", "plant-node", "--interface", "udp_multicast",
+    node = subprocess.Popen([sys.executable, "-m", "vmehil", "plant-node", "--interface", "udp_multicast",
                              "--duration", "120"], stderr=subprocess.PIPE, text=True)
     try:
         assert "plant node" in node.stderr.readline()

@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 
 from hal.config import ConfigError
-from servo.cli import main
 from servo.motion import load_motion
+from vmehil.cli import main
 
 
 @pytest.mark.slow

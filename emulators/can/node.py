@@ -77,10 +77,10 @@ def node_spec(rig: str | None) -> NodeSpec:
     path = resolve_rig(rig)
     table = load_toml(path)
     r = table.table("rig", {})
-    rate = r.float("servo_rate_hz", 125.0, min=1.0, max=10_000.0)
+    rate = r.get_float("servo_rate_hz", 125.0, min=1.0, max=10_000.0)
     params = plant_params_from_config(table)
-    return NodeSpec(r.str("name", Path(path).stem), table, [j.name for j in params.joints], 1.0 / rate,
-                    r.float("computation_delay_s", 0.001, min=0.0))
+    return NodeSpec(r.get_str("name", Path(path).stem), table, [j.name for j in params.joints], 1.0 / rate,
+                    r.get_float("computation_delay_s", 0.001, min=0.0))
 
 
 @dataclass

@@ -287,13 +287,13 @@ def _read_dataclass(cls: type, tbl: ConfigTable) -> Any:
             continue
         default = getattr(obj, f.name)
         if isinstance(default, bool):
-            v: Any = tbl.bool(f.name)
+            v: Any = tbl.get_bool(f.name)
         elif isinstance(default, int):
-            v = tbl.int(f.name)
+            v = tbl.get_int(f.name)
         elif isinstance(default, float):
-            v = tbl.float(f.name)
+            v = tbl.get_float(f.name)
         else:
-            v = tbl.str(f.name)
+            v = tbl.get_str(f.name)
         setattr(obj, f.name, v)
     tbl.check_unknown({f.name for f in fields(cls)})
     return obj
@@ -313,12 +313,13 @@ def joint_from_config(tbl: ConfigTable, templates: dict[str, dict[str, Any]] | N
     """Read one ``[[joint]]`` table (after applying its ``template``)."""
     data = tbl.data
     if "template" in data:
-        tname = tbl.str("template")
+        tname = tbl.get_str("template")
         if not templates or tname not in templates:
             raise tbl.error("template", "the name of a [plant.templates.*] table", tname)
         data = _merge(templates[tname], {k: v for k, v in data.items() if k != "template"})
         tbl = ConfigTable(data, tbl.source, tbl.prefix)
-    j = JointParams(name=tbl.str("name"), amplifier=tbl.str("amplifier", AMP_LINEAR, choices=(AMP_LINEAR, AMP_HBRIDGE)))
+    j = JointParams(name=tbl.get_str("name"),
+                    amplifier=tbl.get_str("amplifier", AMP_LINEAR, choices=(AMP_LINEAR, AMP_HBRIDGE)))
     for key, cls in _SUBTABLES.items():
         if key in tbl:
             setattr(j, key, _read_dataclass(cls, tbl.table(key)))
@@ -333,7 +334,7 @@ def joint_from_config(tbl: ConfigTable, templates: dict[str, dict[str, Any]] | N
 def plant_params_from_config(cfg: ConfigTable) -> PlantParams:
     """Read ``[plant]`` and ``[[joint]]`` from a rig file's root table."""
     plant = cfg.table("plant", {})
-    rate = plant.float("rate_hz", 4000.0, min=100.0, max=1.0e6)
+    rate = plant.get_float("rate_hz", 4000.0, min=100.0, max=1.0e6)
     templates: dict[str, dict[str, Any]] = {}
     if "templates" in plant:
         ttbl = plant.table("templates")

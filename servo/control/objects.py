@@ -312,7 +312,7 @@ class FrictionComp(BaseControlObject):
         obj = cls(cfg_per_joint(cfg, "coulomb_motor_nm", n, 0.0),
                   cfg_per_joint(cfg, "viscous_motor_nm_s_per_rad", n, 0.0),
                   cfg_per_joint(cfg, "dead_zone_rad_s", n, 0.005),
-                  cfg.str("velocity", "desired", choices=("desired", "measured")) == "measured")
+                  cfg.get_str("velocity", "desired", choices=("desired", "measured")) == "measured")
         cfg.check_unknown()
         return obj
 
@@ -349,10 +349,10 @@ class GravityComp(BaseControlObject):
                 raise cfg.error("mgl_nm", "either mgl_nm or mass_kg and com_m, not both")
             mgl = cfg_per_joint(cfg, "mgl_nm", n, None)
         else:
-            g = cfg.float("g_m_s2", STANDARD_GRAVITY, min=0.0)
+            g = cfg.get_float("g_m_s2", STANDARD_GRAVITY, min=0.0)
             mgl = cfg_per_joint(cfg, "mass_kg", n, None) * g * cfg_per_joint(cfg, "com_m", n, None)
         offset = cfg_per_joint(cfg, "offset_rad", n, 0.0, deg_key="offset_deg")
-        use_measured = cfg.str("angle", "desired", choices=("desired", "measured")) == "measured"
+        use_measured = cfg.get_str("angle", "desired", choices=("desired", "measured")) == "measured"
         cfg.check_unknown({"mgl_nm", "mass_kg", "com_m", "g_m_s2", "offset_rad", "offset_deg", "angle"})
         return cls(mgl, offset, use_measured)
 

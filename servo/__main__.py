@@ -1,5 +1,0 @@
-import sys
-
-from servo.cli import main
-
-sys.exit(main())

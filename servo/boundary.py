@@ -1,0 +1,88 @@
+"""The plant boundary: what the runners need from the rest of the rig, and nothing more.
+
+A runner (:mod:`servo.runner`) executes servo tick ``k`` as::
+
+    plant.advance_to(k · T)            let time pass on the rig to the tick's instant
+    plant.sense(k)                     the sensor values for tick k are in place
+    loop.tick(truth=plant.truth())     drivers → law → drivers
+    plant.advance_to(k · T + delay)    the command takes effect after the computation delay
+    plant.exchange(k)                  the one exchange per servo period
+
+Implementations:
+
+* the emulated rig (:class:`vmehil.system.EmulatedRig`): the crate's simulated clock, the
+  harness's publish and exchange, in-process or over CAN, and the plant's true state as truth;
+* a real rig: the wall clock is the plant — ``advance_to`` and ``exchange`` do nothing (the
+  boards and the arm move by themselves), ``truth`` is ``None`` (:class:`WallClockPlant`).
+
+Several controllers that each drive a subset of the joints may share one plant: each holds a
+boundary that names its joints (``joints``); the plant steps tick ``k`` once every boundary's
+exchange for tick ``k`` has been made. The tick number travels with every call for that reason.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+
+class PlantBoundaryError(RuntimeError):
+    """The rest of the rig failed at the boundary (no fresh data, a lost or restarted plant node).
+
+    The runner turns it into a safe stop in the same tick, with :attr:`cause` as the fault cause.
+    """
+
+    def __init__(self, cause: str, detail: str) -> None:
+        super().__init__(detail)
+        self.cause = cause
+
+
+@runtime_checkable
+class PlantBoundary(Protocol):
+    """What a runner drives between the loop's ticks (see the module docstring)."""
+
+    #: the plant joints this boundary serves, in the loop's joint order
+    joints: Sequence[str]
+    #: the servo period (s) and the delay from sampling to the command taking effect (s)
+    period_s: float
+    computation_delay_s: float
+
+    def advance_to(self, t_ns: int) -> None:
+        """Let time pass on the rig up to ``t_ns`` (integer nanoseconds since the run's start)."""
+        ...
+
+    def sense(self, tick: int) -> None:
+        """Put the sensor values for ``tick`` in place (called at the start of the tick)."""
+        ...
+
+    def exchange(self, tick: int) -> None:
+        """The one exchange per period after ``tick``'s commands were written; may raise
+        :class:`PlantBoundaryError`."""
+        ...
+
+    def truth(self) -> Mapping[str, np.ndarray] | None:
+        """The plant's true state for reports (``theta_joint``, ``omega_joint``…), or ``None``."""
+        ...
+
+
+class WallClockPlant:
+    """A real rig's boundary: time passes by itself, the boards are the exchange, no truth."""
+
+    def __init__(self, joints: Sequence[str], period_s: float, computation_delay_s: float = 0.0) -> None:
+        self.joints = list(joints)
+        self.period_s = period_s
+        self.computation_delay_s = computation_delay_s
+
+    def advance_to(self, t_ns: int) -> None:
+        return None
+
+    def sense(self, tick: int) -> None:
+        return None
+
+    def exchange(self, tick: int) -> None:
+        return None
+
+    def truth(self) -> Mapping[str, np.ndarray] | None:
+        return None

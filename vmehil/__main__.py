@@ -1,0 +1,5 @@
+import sys
+
+from vmehil.cli import main
+
+sys.exit(main())

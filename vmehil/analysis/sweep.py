@@ -1,0 +1,306 @@
+"""Gain sweeps: many gain sets, each analysed (sampled margins) and simulated (full stack).
+
+Gain sets come from a grid (:func:`parse_grid`, ``"kp=80:140:4,kv=30:70:5"``: 4 values from 80 to
+140 and 5 from 30 to 70, all combinations; ``"kvi=800;1000;1200"`` lists values; a single value
+fixes a gain) or a list (:func:`load_gains_file`, CSV with a header naming some of kp, kpi, kv,
+kvi, or TOML ``[[gains]]`` tables). Gains not given keep the joint's rig values.
+
+Each point (:func:`evaluate_point`, a plain top-level function so it pickles to any worker):
+sampled and continuous margins; unless the sampled linear loop is unstable, one full-stack run
+with the integrators kept on (switch-off disabled, so the limit cycle the gains produce shows):
+limit-cycle amplitude and frequency (as ``vmehil run``), tracking error of the standard move and
+settling time after it (:mod:`vmehil.analysis.simulate`).
+
+Execution (:func:`run_sweep`): any :class:`concurrent.futures.Executor` — by default a
+:class:`~concurrent.futures.ProcessPoolExecutor` with ``jobs`` workers. That argument is the seam
+for a distributed engine: e.g. a Dask ``distributed.Client(...).get_executor()`` is a
+``concurrent.futures.Executor`` and can be passed as is (Dask is not a dependency). Results are
+handed to ``on_result`` as they complete; the CLI rewrites CSV and JSON atomically after each one,
+so an interrupted sweep (SIGINT) leaves files with every completed row. On interruption the
+workers are told to stop (a shared event polled every tick), pending points are cancelled and
+:class:`SweepInterrupted` carries the finished rows.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import itertools
+import math
+import multiprocessing
+import os
+import signal
+import time
+from collections.abc import Callable, Iterable
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hal.config import ConfigError, load_toml
+from vmehil.analysis.loop import GAIN_KEYS, GainError, Gains
+from vmehil.analysis.simulate import SimSettings
+
+DEFAULT_GRID = "kp=80:140:3,kvi=600:1400:3"  #: 9 points: about 40 s on 2 busy cores
+
+#: CSV columns, in order.
+COLUMNS = ("index", "kp", "kpi", "kv", "kvi", "status", "sampled_stable", "phase_margin_deg", "gain_margin_db",
+           "crossover_hz", "bandwidth_hz", "continuous_phase_margin_deg", "lc_amplitude_deg", "lc_frequency_hz",
+           "lc_amplitude_pot_deg", "rms_tracking_error_deg", "max_tracking_error_deg", "max_tracking_error_true_deg",
+           "settling_time_s",
+           "final_error_deg", "fault", "wall_s")
+
+
+class SweepError(ValueError):
+    """A malformed grid or gains file."""
+
+
+class SweepInterrupted(Exception):
+    """The sweep was interrupted; ``rows`` holds the points that finished."""
+
+    def __init__(self, rows: list[dict[str, Any]]) -> None:
+        super().__init__(f"sweep interrupted after {len(rows)} point(s)")
+        self.rows = rows
+
+
+# ------------------------------------------------------------------------- gain sets
+
+
+def _axis(name: str, text: str) -> list[float]:
+    text = text.strip()
+    try:
+        if ":" in text:
+            parts = text.split(":")
+            if len(parts) != 3:
+                raise SweepError(f"grid axis {name}={text!r}: write start:stop:count, e.g. {name}=80:140:4")
+            a, b, n = float(parts[0]), float(parts[1]), int(parts[2])
+            if n < 1:
+                raise SweepError(f"grid axis {name}={text!r}: the count must be at least 1")
+            vals = [a] if n == 1 else list(np.linspace(a, b, n))
+        else:
+            vals = [float(v) for v in text.split(";") if v.strip()]
+    except ValueError as e:
+        if isinstance(e, SweepError):
+            raise
+        raise SweepError(f"grid axis {name}={text!r} is not start:stop:count or v1;v2;… numbers") from None
+    if not vals:
+        raise SweepError(f"grid axis {name} has no values")
+    for v in vals:
+        if not math.isfinite(v) or v < 0:
+            raise GainError(f"grid axis {name}: value {v} must be a finite number ≥ 0")
+    return [float(v) for v in vals]
+
+
+def parse_grid(specs: str | Iterable[str]) -> dict[str, list[float]]:
+    """Grid axes from ``"kp=80:140:4,kv=30:70:5"`` text (or several such strings)."""
+    if isinstance(specs, str):
+        specs = [specs]
+    axes: dict[str, list[float]] = {}
+    for spec in specs:
+        for item in spec.split(","):
+            if not item.strip():
+                continue
+            key, sep, val = item.partition("=")
+            key = key.strip().lower()
+            if not sep:
+                raise SweepError(f"grid item {item!r}: write gain=start:stop:count, e.g. kp=80:140:4")
+            if key not in GAIN_KEYS:
+                raise GainError(f"unknown gain {key!r} in the grid; known: {', '.join(GAIN_KEYS)}")
+            if key in axes:
+                raise SweepError(f"gain {key} appears twice in the grid")
+            axes[key] = _axis(key, val)
+    if not axes:
+        raise SweepError("the grid is empty; give e.g. --grid kp=80:140:4,kv=30:70:5")
+    return axes
+
+
+def grid_points(axes: dict[str, list[float]], base: Gains) -> list[dict[str, float]]:
+    """Every combination of the axes (in order, the last axis fastest) over the ``base`` gains."""
+    names = list(axes)
+    out = []
+    for combo in itertools.product(*(axes[k] for k in names)):
+        g = base.as_dict()
+        g.update(dict(zip(names, combo, strict=True)))
+        Gains(**g)  # validate
+        out.append(g)
+    return out
+
+
+def load_gains_file(path: str | Path, base: Gains) -> list[dict[str, float]]:
+    """Gain sets from a CSV (header with some of kp, kpi, kv, kvi) or TOML (``[[gains]]``) file."""
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"gains file {p} does not exist")
+    rows: list[dict[str, Any]] = []
+    if p.suffix.lower() == ".toml":
+        root = load_toml(p)
+        try:
+            tables = root.tables("gains")
+        except ConfigError as e:
+            raise SweepError(f"{p}: expected [[gains]] tables with kp/kpi/kv/kvi ({e})") from None
+        rows = [dict(t.data) for t in tables]
+    else:
+        with p.open(newline="") as f:
+            reader = csv.DictReader(f)
+            if not reader.fieldnames:
+                raise SweepError(f"{p}: empty CSV; the first line names the gains (kp,kpi,kv,kvi)")
+            unknown = [c for c in reader.fieldnames if c.strip().lower() not in GAIN_KEYS]
+            if unknown:
+                raise SweepError(f"{p}: unknown column(s) {', '.join(unknown)}; use kp, kpi, kv, kvi")
+            for line, r in enumerate(reader, start=2):
+                try:
+                    rows.append({k.strip().lower(): float(v) for k, v in r.items() if v not in (None, "")})
+                except ValueError:
+                    raise SweepError(f"{p} line {line}: {r} has a value that is not a number") from None
+    if not rows:
+        raise SweepError(f"{p}: no gain sets")
+    out = []
+    for i, r in enumerate(rows):
+        try:
+            out.append(Gains.from_mapping(r, base=base).as_dict())
+        except GainError as e:
+            raise GainError(f"{p} gain set {i + 1}: {e}") from None
+    return out
+
+
+# ------------------------------------------------------------------------ one point
+
+
+@dataclass(frozen=True)
+class SweepTask:
+    """One point to evaluate: the joint (rig file path, 1-based number), full gain set, settings,
+    and where the plant runs (``link_factory``, see :func:`vmehil.analysis.simulate.simulate`; it is
+    pickled to the worker, so a CAN factory there opens its own bus — and its own node on
+    ``virtual``)."""
+
+    index: int
+    rig_path: str
+    joint: int
+    gains: dict[str, float]
+    sim: SimSettings = field(default_factory=SimSettings)
+    simulate: bool = True
+    link_factory: Callable[[str, int], Any] | None = None  #: picklable; None = in-process plant
+
+
+_STOP: Any = None  # a multiprocessing.Event in workers (set by the pool initializer)
+
+
+def _worker_init(stop_event: Any) -> None:
+    """Pool initializer: the parent handles SIGINT; workers watch ``stop_event`` instead."""
+    global _STOP
+    _STOP = stop_event
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def evaluate_point(task: SweepTask) -> dict[str, Any]:
+    """Margins and (unless unstable) a full-stack run for one gain set; a flat, JSON/CSV-ready row."""
+    from vmehil.analysis.rigparams import load_joint
+    from vmehil.analysis.simulate import simulate
+    from vmehil.analysis.tuning import margins_summary
+
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {"index": task.index, **{k: float(task.gains[k]) for k in GAIN_KEYS}}
+    jp = load_joint(task.rig_path, task.joint, gains=task.gains)
+    m = margins_summary(jp.cfg)
+    s, c = m["sampled"], m["continuous"]
+    row.update({"sampled_stable": bool(s["stable"]), "phase_margin_deg": s["phase_margin_deg"],
+                "gain_margin_db": s["gain_margin_db"], "crossover_hz": s["crossover_hz"],
+                "bandwidth_hz": s["bandwidth_hz"], "continuous_phase_margin_deg": c["phase_margin_deg"]})
+    sim_keys = ("lc_amplitude_deg", "lc_frequency_hz", "lc_amplitude_pot_deg", "rms_tracking_error_deg",
+                "max_tracking_error_deg",
+                "max_tracking_error_true_deg", "settling_time_s", "final_error_deg")
+    row.update(dict.fromkeys(sim_keys))
+    row["fault"] = None
+    if not s["stable"]:
+        row["status"] = "unstable (sampled linear loop): not simulated"
+    elif not task.simulate:
+        row["status"] = "margins only"
+    else:
+        stop = (lambda: _STOP.is_set()) if _STOP is not None else None
+        r = simulate(jp, switch_off=False, settings=task.sim, traces=False, stop=stop,
+                     link_factory=task.link_factory)
+        if stop is not None and stop():
+            row["status"] = "interrupted"
+            return {k: row.get(k) for k in COLUMNS}
+        row.update({"lc_amplitude_deg": r["amplitude_deg"], "lc_frequency_hz": r["frequency_hz"],
+                    "lc_amplitude_pot_deg": r["amplitude_pot_deg"],
+                    "rms_tracking_error_deg": r["rms_tracking_error_servo_deg"],
+                    "max_tracking_error_deg": r["max_tracking_error_servo_deg"],
+                    "max_tracking_error_true_deg": r["max_tracking_error_deg"],
+                    "settling_time_s": r["settling_time_s"], "final_error_deg": r["final_error_deg"]})
+        if r["fault"]:
+            row["fault"] = f"{r['fault']['cause']} at {r['fault']['time_s']:.2f} s"
+            row["status"] = "fault"
+        else:
+            row["status"] = "ok"
+    row["wall_s"] = time.perf_counter() - t0
+    return {k: row.get(k) for k in COLUMNS}
+
+
+# --------------------------------------------------------------------------- running
+
+
+def run_sweep(tasks: list[SweepTask], *, executor: Executor | None = None, jobs: int | None = None,
+              on_result: Callable[[dict[str, Any], list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
+    """Evaluate ``tasks`` in parallel; returns the rows sorted by index.
+
+    ``executor``: any :class:`concurrent.futures.Executor` (the caller owns and shuts it down; it is
+    not sent the stop event, so an interruption only cancels what has not started). Default: a
+    process pool of ``jobs`` workers (default ``os.cpu_count()``). ``on_result(row, rows_so_far)``
+    is called in the calling thread as each point completes. A ``KeyboardInterrupt`` (SIGINT)
+    stops the workers, cancels the rest and raises :class:`SweepInterrupted` with the finished rows.
+    """
+    rows: list[dict[str, Any]] = []
+    own = executor is None
+    stop_event = None
+    if own:
+        n = max(1, min(jobs or os.cpu_count() or 1, len(tasks) or 1))
+        ctx = multiprocessing.get_context("spawn" if os.name == "nt" else "fork")
+        stop_event = ctx.Event()
+        executor = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_worker_init,
+                                       initargs=(stop_event,))
+    futures: dict[Future, SweepTask] = {}
+    try:
+        futures = {executor.submit(evaluate_point, t): t for t in tasks}
+        for fut in as_completed(futures):
+            row = fut.result()
+            if row["status"] == "interrupted":
+                continue
+            rows.append(row)
+            rows.sort(key=lambda r: r["index"])
+            if on_result is not None:
+                on_result(row, list(rows))
+    except KeyboardInterrupt:
+        if stop_event is not None:
+            stop_event.set()
+        for f in futures:
+            f.cancel()
+        raise SweepInterrupted(sorted(rows, key=lambda r: r["index"])) from None
+    finally:
+        if own:
+            executor.shutdown(wait=True, cancel_futures=True)
+    return rows
+
+
+# ------------------------------------------------------------------------------ files
+
+
+def rows_csv(rows: list[dict[str, Any]]) -> str:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(COLUMNS), lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: ("" if r.get(k) is None else _csv_value(r[k])) for k in COLUMNS})
+    return buf.getvalue()
+
+
+def _csv_value(v: Any) -> Any:
+    if isinstance(v, float):
+        return f"{v:.6g}" if math.isfinite(v) else ""
+    return v
+
+
+def settings_dict(sim: SimSettings) -> dict[str, Any]:
+    return asdict(sim)

@@ -1,0 +1,118 @@
+"""Run calibration procedures: progress display, results table against tolerances, one write.
+
+:func:`run_procedures` runs the named procedures in order on one context. After each
+successful procedure its entries are merged into ``ctx.store`` (so ``dac`` measures with the
+``adc`` result, and the servo loop of ``pot`` runs with the amplifier and encoder results).
+The file is written once, at the end, and only if every procedure ran to completion and
+passed (or ``write_on_fail`` is set): a procedure that raises or is interrupted leaves the old
+file in force.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+from vmehil.calibration.base import PROCEDURES, CalibrationContext, ProcedureResult, procedures_for_all
+
+
+@dataclass
+class RunOutcome:
+    results: list[ProcedureResult] = field(default_factory=list)
+    written: Path | None = None
+    error: str | None = None
+
+    @property
+    def passed(self) -> bool:
+        return self.error is None and all(r.passed for r in self.results)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"passed": self.passed, "written": str(self.written) if self.written else None, "error": self.error,
+                "procedures": {r.procedure: r.as_dict() for r in self.results}}
+
+
+def resolve_names(name: str) -> list[str]:
+    """``all`` → every registered procedure in its order; otherwise the one name."""
+    if name == "all":
+        return [p.name for p in procedures_for_all()]
+    if name not in PROCEDURES:
+        raise ValueError(f"unknown calibration procedure {name!r}; choose from all, {', '.join(sorted(PROCEDURES))}")
+    return [name]
+
+
+class ProgressLine:
+    """A one-line progress display on a terminal (silent elsewhere)."""
+
+    def __init__(self, stream: TextIO = sys.stderr) -> None:
+        self.stream = stream
+        self.tty = stream.isatty()
+        self._last = 0.0
+
+    def __call__(self, what: str, i: int, n: int) -> None:
+        if not self.tty or n <= 0:
+            return
+        now = time.monotonic()
+        if i < n and now - self._last < 0.1:
+            return
+        self._last = now
+        frac = i / n
+        self.stream.write(f"\r  [{'#' * int(24 * frac):<24s}] {frac * 100:5.1f}%  {what:<40.40s}")
+        if i >= n:
+            self.stream.write("\r" + " " * 80 + "\r")
+        self.stream.flush()
+
+
+def results_table(results: list[ProcedureResult]) -> str:
+    """Plain-text table of every check: item, value, tolerance, pass/FAIL."""
+    rows = [("procedure", "item", "value", "tolerance", "result")]
+    for r in results:
+        for c in r.checks:
+            tol = ("true" if c.kind == "bool" else (f"≤ {c.limit:.4g}" if c.kind == "max" else f"≥ {c.limit:.4g}"))
+            val = ("yes" if c.value else "no") if c.kind == "bool" else f"{c.value:+.4g}"
+            unit = f" {c.unit}" if c.unit and c.kind != "bool" else ""
+            rows.append((r.procedure, c.item, val + unit, tol + unit, "pass" if c.passed else "FAIL"))
+        for s in r.skipped:
+            rows.append((r.procedure, s, "", "", "skipped"))
+    widths = [max(len(row[i]) for row in rows) for i in range(5)]
+    lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip() for row in rows]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def run_procedures(ctx: CalibrationContext, names: list[str], *, out_path: str | Path | None,
+                   write_on_fail: bool = False, before_write: Callable[[], None] | None = None) -> RunOutcome:
+    """Run ``names`` in order; merge results into ``ctx.store``; write ``out_path`` once at the end."""
+    outcome = RunOutcome()
+    base_store = ctx.store
+    merged = base_store
+    for k, name in enumerate(names):
+        spec = PROCEDURES[name]
+        proc = spec.factory()
+        ctx.say(f"[{k + 1}/{len(names)}] {name}: {proc.title}")
+        try:
+            result = proc.run(ctx)
+        except Exception as e:
+            outcome.error = f"{name}: {type(e).__name__}: {e}"
+            ctx.say(f"  {name} failed: {e}; the calibration file is left unchanged")
+            return outcome
+        outcome.results.append(result)
+        if result.update is not None:
+            merged = merged.merged(result.update)
+            ctx.store = merged
+            ctx.refresh_positioner()
+        ctx.say(f"  {name}: {'pass' if result.passed else 'FAIL'} "
+                f"({sum(c.passed for c in result.checks)}/{len(result.checks)} checks)")
+    ctx.say("")
+    ctx.say(results_table(outcome.results))
+    if out_path is not None and (outcome.passed or write_on_fail):
+        if before_write is not None:
+            before_write()
+        outcome.written = merged.save(out_path)
+        ctx.say(f"calibration written to {outcome.written} (previous kept as {outcome.written.name}.prev)")
+    elif out_path is not None:
+        ctx.say(f"checks failed: {out_path} left unchanged (use --write-on-fail to write anyway)")
+    return outcome

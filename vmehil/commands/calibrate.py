@@ -1,0 +1,149 @@
+"""``vmehil calibrate``: calibration procedures that write the rig's calibration file.
+
+    vmehil calibrate adc|dac|encoder|amplifier|pot|all [--rig NAME|PATH] [--seed N]
+                     [--joint N ...] [--auto] [--out CAL.toml] [--json PATH] [--report DIR]
+                     [--write-on-fail] [--points 9] [--verify-per-segment 1]
+
+Procedures come from a registry (:data:`vmehil.calibration.base.PROCEDURES`). Another module
+adds one (e.g. the plant's ``friction``) by calling
+:func:`vmehil.calibration.base.register_procedure` at import and appending its module name to
+:data:`PROCEDURE_MODULES`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from pathlib import Path
+
+from vmehil.files import write_atomic, write_json
+
+#: Modules imported before the parser is built; each registers procedures at import.
+PROCEDURE_MODULES = ["vmehil.calibration.procedures", "vmehil.friction_id"]
+
+
+def _load_procedures():
+    for name in PROCEDURE_MODULES:
+        importlib.import_module(name)
+    from vmehil.calibration.base import PROCEDURES
+
+    return PROCEDURES
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    procs = _load_procedures()
+    names = sorted(procs, key=lambda n: procs[n].order)
+    lines = "\n".join(f"  {n:<10s} {procs[n].help}" for n in names)
+    p = sub.add_parser(
+        "calibrate", help="run calibration procedures and write the rig's calibration file",
+        description="Calibration procedures (order of `all`: " + ", ".join(n for n in names if procs[n].in_all)
+                    + ").\n" + lines, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("procedure", choices=[*names, "all"], help="what to calibrate")
+    p.add_argument("--rig", default=None, help="rig preset name or TOML path (default jpl-arm)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the emulated rig's noise (default 0)")
+    p.add_argument("--joint", type=int, action="append", default=None,
+                   help="joint number (1-based) to calibrate; repeat for several (default: all)")
+    p.add_argument("--auto", action="store_true",
+                   help="use the rig's reference fixture instead of prompting the operator for angles")
+    p.add_argument("--out", default=None,
+                   help="calibration file (default $VMEHIL_CALIBRATION_DIR or ./calibration, /<rig>.toml)")
+    p.add_argument("--json", default=None, help="write the machine-readable results here")
+    p.add_argument("--report", default=None, help="write results.txt, results.json and plots into this folder")
+    p.add_argument("--write-on-fail", action="store_true", help="write the file even if a check failed")
+    p.add_argument("--points", type=int, default=9, help="pot: calibration points (default 9, the paper's)")
+    p.add_argument("--verify-per-segment", type=int, default=1, help="pot: verification stops per segment")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from emulators.presets import resolve_rig
+    from servo.rig import load_rig
+    from vmehil.calibration.base import PROCEDURES, CalibrationContext, ProcedureSpec
+    from vmehil.calibration.emulated import EmulatedFixture, EmulatedPositioner
+    from vmehil.calibration.pot import PotProcedure
+    from vmehil.calibration.procedure_runner import ProgressLine, resolve_names, results_table, run_procedures
+    from vmehil.calibration.store import CalibrationStore, default_store_path, load_store
+    from vmehil.cli import CliError
+    from vmehil.system import build_emulated_rig
+
+    rig = load_rig(resolve_rig(args.rig))
+    names = resolve_names(args.procedure)
+    out = Path(args.out) if args.out else default_store_path(rig)
+    if out.exists():
+        store = load_store(out, rig)  # a foreign or malformed file is refused here, before anything runs
+        print(f"calibration in force: {out} (written {store.written})")
+    else:
+        store = CalibrationStore.empty(rig)
+        print(f"no calibration file {out} yet: starting from nominal values")
+    joints = None
+    if args.joint:
+        joints = [rig.joint(n).index for n in args.joint]
+    if "pot" in names and (args.points != 9 or args.verify_per_segment != 1):
+        spec = PROCEDURES["pot"]
+        PROCEDURES["pot"] = ProcedureSpec("pot", lambda: PotProcedure(points=args.points,
+                                                                     verify_per_segment=args.verify_per_segment),
+                                          spec.order, spec.help, spec.in_all)
+    system = build_emulated_rig(rig, seed=args.seed, calibration=store)
+    ctx = CalibrationContext(
+        rig=rig, bus=system.crate, store=store, auto=args.auto,
+        fixture=EmulatedFixture(system) if args.auto else None,
+        positioner_factory=lambda st: EmulatedPositioner(system, st),
+        joints=joints, prompt=input, say=print, progress=ProgressLine(sys.stderr), options={"report": args.report},
+    )
+    print(f"calibrating {', '.join(names)} on rig {rig.name}" + (" (auto: reference fixture)" if args.auto else ""))
+    try:
+        outcome = run_procedures(ctx, names, out_path=out, write_on_fail=args.write_on_fail)
+    finally:
+        system.close()
+    summary = {"rig": rig.name, "seed": args.seed, "auto": args.auto, **outcome.as_dict()}
+    _flatten_single_joint(summary)
+    if args.json:
+        write_json(args.json, summary)
+    if args.report:
+        _write_report(Path(args.report), summary, results_table(outcome.results), outcome)
+        print(f"report: {args.report}")
+    if outcome.error:
+        raise CliError(outcome.error)
+    return 0 if outcome.passed else 1
+
+
+def _flatten_single_joint(summary: dict) -> None:
+    """A run of one procedure on one joint (``vmehil calibrate friction --joint 1``) also puts
+    that joint's figures at the top level of the JSON (``running_torque_oz_in.mean``, …), the
+    keys users' scripts read; the nested ``procedures.<name>.joints.<joint>`` copy stays."""
+    procs = summary.get("procedures") or {}
+    if len(procs) != 1:
+        return
+    joints = next(iter(procs.values())).get("joints") or {}
+    if len(joints) == 1:
+        for key, value in next(iter(joints.values())).items():
+            summary.setdefault(key, value)
+
+
+def _write_report(folder: Path, summary: dict, table: str, outcome) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    write_json(folder / "results.json", summary)
+    write_atomic(folder / "results.txt", table + "\n")
+    pot = next((r for r in outcome.results if r.procedure == "pot"), None)
+    if pot is None or "joints" not in pot.data:
+        return
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from vmehil.files import save_figure
+
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for name, d in pot.data["joints"].items():
+        ver = d["verification"]
+        ax.plot([p["angle_deg"] for p in ver], [p["before_arcmin"] for p in ver], "x--", label=f"{name} nominal")
+        ax.plot([p["angle_deg"] for p in ver], [p["residual_arcmin"] for p in ver], "o-", label=f"{name} 8 segments")
+    ax.axhspan(-3, 3, color="0.9", label="±3 arcmin (≈ 1 mm at full reach)")
+    ax.set_xlabel("joint angle (deg)")
+    ax.set_ylabel("pot error at verification points (arcmin)")
+    ax.legend(fontsize=7, ncol=2)
+    ax.grid(True, alpha=0.3)
+    save_figure(fig, folder / "pot_residuals", ("png",))
+    plt.close(fig)

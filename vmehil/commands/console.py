@@ -1,0 +1,108 @@
+"""``vmehil console``: run the servo loop on a rig and serve the operator console on PORT.
+
+    vmehil console --port PORT [--rig NAME|PATH] [--seed N] [--motion FILE] [--commands FILE]
+                   [--gains kp=..,..] [--lockstep] [--duration S]
+
+Design: the console attaches to a loop in the same process. ``vmehil console`` is that process —
+it builds the rig and the loop the way ``vmehil run`` does, holds the joints where they are (or
+plays ``--motion``), paces ticks by the wall clock (``--lockstep``: as fast as possible) and runs
+until ``shutdown`` on the console, Ctrl-C, or ``--duration`` seconds. To add a console to a
+measured run instead, use ``vmehil run --console PORT``. To reach either from another program,
+serve on ``listen://127.0.0.1:N`` and connect with ``socket://127.0.0.1:N``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import warnings
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from vmehil.commands.run import add_rig_args
+
+    p = sub.add_parser("console", help="run the servo loop and serve the operator console on a serial line")
+    p.add_argument("--port", required=True,
+                   help="pty (linked at /tmp/vmehil-console), pty:/path/link, a serial device, a pyserial URL "
+                        "(loop://, socket://127.0.0.1:N) or listen://127.0.0.1:N")
+    add_rig_args(p)
+    p.add_argument("--motion", default=None, help="motion file to play at start (default: hold the joints)")
+    p.add_argument("--commands", default=None, help="compound command file (checked at load)")
+    p.add_argument("--gains", default=None, help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=..")
+    p.add_argument("--baud", type=int, default=115200, help="baud rate for a serial device (default 115200)")
+    p.add_argument("--lockstep", action="store_true", help="do not pace ticks by the wall clock")
+    p.add_argument("--duration", type=float, default=None, help="end after this many seconds of loop time")
+    p.add_argument("--calibration", default=None,
+                   help="calibration file for the drivers, and where the console's calibrate writes "
+                        "(default: calibration/<rig>.toml or $VMEHIL_CALIBRATION_DIR/<rig>.toml)")
+    p.set_defaults(func=run_console)
+
+
+def run_console(args: argparse.Namespace) -> int:
+    from servo.motion import Motion, WaitMove, load_motion
+    from servo.rig import load_rig
+    from servo.runner import LockstepRunner, RealtimeRunner
+    from vmehil.calibration.store import CalibrationMissingWarning, default_store_path
+    from vmehil.commands.run import parse_gains
+    from vmehil.console.extension import start_console
+    from vmehil.session import build_loop
+    from vmehil.system import build_emulated_rig
+
+    gains = parse_gains(args.gains)
+    if args.duration is not None and args.duration <= 0:
+        raise ValueError("--duration must be > 0")
+    from emulators.presets import resolve_rig
+
+    rig = load_rig(resolve_rig(args.rig))
+    calibration = args.calibration or str(default_store_path(rig))
+    if args.calibration and not Path(args.calibration).exists():
+        raise FileNotFoundError(f"--calibration {args.calibration}: no such file")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CalibrationMissingWarning)
+        system = build_emulated_rig(rig, seed=args.seed, calibration=calibration)
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
+    if not caught:
+        print(f"calibration: {calibration}", file=sys.stderr)
+    n = system.rig.n_joints
+    motion = load_motion(args.motion, n) if args.motion else Motion((WaitMove(0.0),), "hold", "<console>")
+    loop = build_loop(system, motion=motion, gains=gains, n_ticks=0)
+    loop.start()
+    runner = LockstepRunner(system, loop) if args.lockstep else RealtimeRunner(system, loop)
+    done = threading.Event()
+    # calibrate jobs run here between runner chunks (not inside a tick hook), so a wall-clock
+    # runner restarts its deadlines after a calibration instead of catching up on them
+    console = start_console(args.port, loop, runner=runner, commands=args.commands, baudrate=args.baud,
+                            shutdown=done.set, system=system, calibration=calibration, jobs_on_tick=False)
+    previous = signal.signal(signal.SIGTERM, lambda *_: done.set()) if threading.current_thread() is \
+        threading.main_thread() else None
+    rate = system.rig.servo_rate_hz
+    try:
+        remaining = round(args.duration * rate) if args.duration is not None else None
+        while not done.is_set() and (remaining is None or remaining > 0):
+            chunk = round(60 * rate) if remaining is None else min(remaining, round(60 * rate))
+            k0 = loop.tick_count
+            runner.run(chunk, stop=lambda: done.is_set() or console.job_waiting())
+            console.run_job()  # a calibration: between ticks, the loop's own thread
+            if remaining is not None:
+                remaining -= loop.tick_count - k0
+            if hasattr(runner, "timing"):
+                for series in (runner.timing.compute_s, runner.timing.lateness_s, runner.timing.controller_s,
+                               runner.timing.harness_s):
+                    series.clear()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        fault = loop.fault
+        if not loop.fault:
+            loop.safe_stop("session_end", "vmehil console ended")
+        console.close()
+        system.close()
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+    print(f"vmehil console: {loop.tick_count} ticks ({loop.tick_count * loop.period_s:.3f} s), "
+          f"{console.stats.handled} commands, stopped: {fault.cause if fault else '-'}")
+    return 0

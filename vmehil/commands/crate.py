@@ -1,0 +1,193 @@
+"""``vmehil crate``: inspect and poke an emulated crate, like ``halcmd`` for driver authors.
+
+Examples::
+
+    vmehil crate list                          # boards of the default rig's crate
+    vmehil crate read A24 0x200000 --width 16
+    vmehil crate write A16 0x0000 0x0001 --width 16 --then-read A16 0x0002
+    vmehil crate demo                          # build, probe every board, print the map
+    echo "write A24 0x200000 0xBEEF; read A24 0x200000; counters" | vmehil crate shell
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from typing import Any
+
+from emulators.crate import Crate
+from emulators.crate_file import load_crate
+from emulators.presets import resolve_rig
+from emulators.registry import board_types
+from hal.vme.errors import BusError
+from hal.vme.types import AddressSpace, Width
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("crate", help="list, probe, read and write an emulated VME crate")
+    p.add_argument("--rig", default=None, help="rig preset name or crate/rig TOML path (default jpl-arm)")
+    p.add_argument("--json", action="store_true", help="print machine-readable JSON")
+    csub = p.add_subparsers(dest="crate_cmd", metavar="ACTION")
+    csub.required = True
+    csub.add_parser("list", help="list the boards and their windows")
+    csub.add_parser("demo", help="build the crate, probe every board, print the map and counters")
+    csub.add_parser("types", help="list the board types a crate file can use")
+    csub.add_parser("counters", help="probe every board, then print the access counters")
+    r = csub.add_parser("read", help="read one value: read A24 0x200000 --width 16")
+    r.add_argument("space")
+    r.add_argument("address", type=_int)
+    r.add_argument("--width", default="16", help="8, 16 or 32 (or D8/D16/D32)")
+    w = csub.add_parser("write", help="write one value: write A24 0x200000 0xBEEF --width 16")
+    w.add_argument("space")
+    w.add_argument("address", type=_int)
+    w.add_argument("value", type=_int)
+    w.add_argument("--width", default="16")
+    csub.add_parser("shell", help="read commands (read/write/list/counters/time) from stdin")
+    p.set_defaults(func=run)
+
+
+def _int(text: str) -> int:
+    return int(text, 0)
+
+
+def run(args: argparse.Namespace) -> int:
+    crate = _load(resolve_rig(args.rig))
+    cmd = args.crate_cmd
+    if cmd == "types":
+        _emit(args, board_types(), lambda v: "\n".join(v))
+    elif cmd == "list":
+        _emit(args, crate.describe(), _table)
+    elif cmd in ("demo", "counters"):
+        probes = probe_all(crate)
+        if cmd == "demo":
+            out = {"crate": crate.name, "boards": crate.describe(), "probes": probes,
+                   "counters": crate.counter_snapshot(), "time_us": crate.now() * 1e6}
+            _emit(args, out, _demo_text)
+        else:
+            _emit(args, crate.counter_snapshot(), lambda c: "\n".join(f"{k:24s} {v}" for k, v in c.items()))
+    elif cmd == "read":
+        value = crate.read(args.address, space=args.space, width=Width.parse(args.width))
+        width = Width.parse(args.width)
+        _emit(args, {"value": value}, lambda d: f"0x{d['value']:0{int(width) * 2}X}  ({d['value']})")
+    elif cmd == "write":
+        crate.write(args.address, args.value, space=args.space, width=Width.parse(args.width))
+        _emit(args, {"ok": True}, lambda d: "ok")
+    elif cmd == "shell":
+        return shell(crate, sys.stdin, sys.stdout)
+    return 0
+
+
+def _load(path) -> Crate:
+    """A crate file, or a rig file's crate with the joints' wiring (pins → nets) applied."""
+    from hal.config import load_toml
+
+    if "joint" not in load_toml(path):
+        return load_crate(path)
+    from emulators.crate_file import build_crate
+    from servo.rig import load_rig
+    from vmehil.system import wired_crate_table
+
+    return build_crate(wired_crate_table(load_rig(path)))
+
+
+def probe_all(crate: Crate) -> list[dict[str, Any]]:
+    """Read the first readable location of every board; report OK or the bus error."""
+    results = []
+    for s in crate.slots():
+        b = s.board
+        regmap = getattr(b, "REGMAP", None)
+        offset, width = 0, Width.D16
+        if regmap is not None:
+            reg = next((r for r in sorted(regmap.registers, key=lambda r: r.offset) if r.access.readable), None)
+            if reg is not None:
+                offset, width = reg.offset, reg.width
+        try:
+            value = crate.read(s.base + offset, space=s.space, width=width)
+            results.append({"board": b.name, "address": f"0x{s.base + offset:X}", "width": width.name,
+                            "ok": True, "value": f"0x{value:X}"})
+        except BusError as e:
+            results.append({"board": b.name, "address": f"0x{s.base + offset:X}", "width": width.name,
+                            "ok": False, "error": str(e)})
+    return results
+
+
+def shell(crate: Crate, stdin, stdout) -> int:
+    """A tiny command interpreter: ``read SPACE ADDR [WIDTH]``, ``write SPACE ADDR VALUE [WIDTH]``,
+    ``list``, ``counters``, ``time``, ``delay US``; ``;`` separates commands on a line."""
+    status = 0
+    for line in stdin:
+        for part in line.split(";"):
+            words = shlex.split(part)
+            if not words:
+                continue
+            try:
+                stdout.write(_shell_one(crate, words) + "\n")
+            except (BusError, ValueError, IndexError) as e:
+                stdout.write(f"error: {e}\n")
+                status = 1
+    return status
+
+
+def _shell_one(crate: Crate, words: list[str]) -> str:
+    op = words[0].lower()
+    if op == "read":
+        width = Width.parse(words[3] if len(words) > 3 else "16")
+        v = crate.read(int(words[2], 0), space=AddressSpace.parse(words[1]), width=width)
+        return f"0x{v:0{int(width) * 2}X}"
+    if op == "write":
+        width = Width.parse(words[4] if len(words) > 4 else "16")
+        crate.write(int(words[2], 0), int(words[3], 0), space=AddressSpace.parse(words[1]), width=width)
+        return "ok"
+    if op == "list":
+        return _table(crate.describe())
+    if op == "counters":
+        return "\n".join(f"{k} {v}" for k, v in crate.counter_snapshot().items())
+    if op == "time":
+        return f"{crate.now() * 1e6:.3f} us"
+    if op == "delay":
+        crate.delay(float(words[1]) * 1e-6)
+        return "ok"
+    raise ValueError(f"unknown command {op!r} (read, write, list, counters, time, delay)")
+
+
+def _emit(args: argparse.Namespace, data: Any, text) -> None:
+    print(json.dumps(data, indent=2) if args.json else text(data))
+
+
+_TEXT_COLUMNS = ("slot", "name", "space", "base", "end", "type", "id", "wired")
+
+
+def _table(rows: list[dict[str, Any]]) -> str:
+    """Boards as a text table: the common columns; a board's wiring as the number of wired
+    pins (``--json`` gives every detail)."""
+    if not rows:
+        return "(no boards)"
+    rows = [{**r, "wired": _wired(r)} for r in rows]
+    cols = [c for c in _TEXT_COLUMNS if any(r.get(c) not in (None, "") for r in rows)]
+    widths = {c: max(len(c), *(len(str(r.get(c, ""))) for r in rows)) for c in cols}
+    head = "  ".join(c.ljust(widths[c]) for c in cols)
+    lines = [head, "  ".join("-" * widths[c] for c in cols)]
+    lines += ["  ".join(str(r.get(c, "")).ljust(widths[c]) for c in cols) for r in rows]
+    return "\n".join(lines)
+
+
+def _wired(row: dict[str, Any]) -> str:
+    for key in ("wired", "lines", "channels"):
+        v = row.get(key)
+        if isinstance(v, int):
+            return str(v)
+        if isinstance(v, dict | list):
+            return str(sum(1 for x in (v.values() if isinstance(v, dict) else v) if x))
+    return ""
+
+
+def _demo_text(d: dict[str, Any]) -> str:
+    out = [f"crate {d['crate']}: {len(d['boards'])} boards", "", _table(d["boards"]), "", "probe:"]
+    for p in d["probes"]:
+        status = f"OK  {p['value']}" if p["ok"] else f"BERR {p['error']}"
+        out.append(f"  {p['board']:12s} {p['width']} @ {p['address']:>10s}  {status}")
+    out += ["", f"simulated bus time: {d['time_us']:.2f} us", "counters:"]
+    out += [f"  {k:24s} {v}" for k, v in d["counters"].items()]
+    return "\n".join(out)

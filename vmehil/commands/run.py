@@ -1,0 +1,207 @@
+"""``vmehil run``: the main job — the servo loop moving emulated joints through the full stack.
+
+    vmehil run [--rig NAME|PATH] [--motion PATH] [--duration S] [--realtime] [--seed N]
+               [--no-integrator-switch-off] [--gains kp=..,kpi=..,kv=..,kvi=..]
+               [--json PATH] [--report DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+from vmehil.files import write_json
+
+# Modules that extend `vmehil run` (live tuning over MAVLink, the operator console, ...). Each
+# defines ``add_arguments(parser)`` and ``attach(args, system, loop, runner)``, which returns
+# ``None`` when its options are unused, or an object with ``close()`` called after the run.
+# An extension may also define ``prepare(args, rig) -> dict | None``, called before the rig is
+# built: it may adjust the rig table and return defaults ``{"motion": Motion, "duration": s}``;
+# and ``make_link(args, rig) -> PlantLink | None`` to run the plant elsewhere (the CAN plant
+# node): the first link returned replaces the in-process plant.
+RUN_EXTENSIONS: list[str] = [
+    "vmehil.mavlink.extension",
+    "vmehil.vision_options",
+    "vmehil.can_options",
+    "vmehil.console.extension",
+]
+
+
+def parse_gains(text: str | None) -> dict[str, float]:
+    """``"kp=100,kv=50"`` → ``{"kp": 100.0, "kv": 50.0}``; clear errors for anything else."""
+    if not text:
+        return {}
+    out: dict[str, float] = {}
+    for part in text.split(","):
+        key, sep, value = part.partition("=")
+        key = key.strip().lower()
+        if not sep or key not in ("kp", "kpi", "kv", "kvi"):
+            raise ValueError(f"--gains: {part!r} is not kp=…, kpi=…, kv=… or kvi=…")
+        try:
+            v = float(value)
+        except ValueError:
+            raise ValueError(f"--gains: {key} = {value!r} is not a number") from None
+        if not math.isfinite(v) or v < 0:
+            raise ValueError(f"--gains: {key} = {value} must be a finite number >= 0")
+        out[key] = v
+    return out
+
+
+def add_rig_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--rig", default=None, help="rig preset name or TOML path (default jpl-arm)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every noise source (default 0)")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("run", help="run the servo loop on a rig (the main job)")
+    add_rig_args(p)
+    p.add_argument("--motion", default=None, help="motion file (TOML); default: a coordinated demo move + 10 s hold")
+    p.add_argument("--duration", type=float, default=None, help="seconds to run (default: the motion, +1 s)")
+    p.add_argument("--realtime", action="store_true", help="pace ticks by the wall clock at the servo rate")
+    p.add_argument("--no-integrator-switch-off", action="store_true", help="keep the integrators fed at rest")
+    p.add_argument("--gains", default=None, help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=..")
+    p.add_argument("--json", default=None, help="write the machine-readable summary here")
+    p.add_argument("--report", default=None, help="write plots and summary.md into this folder")
+    p.add_argument("--calibration", default=None,
+                   help="calibration file for the drivers (default: calibration/<rig>.toml or "
+                        "$VMEHIL_CALIBRATION_DIR/<rig>.toml; missing → nominal values with a warning)")
+    p.add_argument("--quiet", action="store_true", help="no progress display")
+    for ext in _extensions():
+        ext.add_arguments(p)
+    p.set_defaults(func=run)
+
+
+def _extensions():
+    import importlib
+
+    return [importlib.import_module(name) for name in RUN_EXTENSIONS]
+
+
+def run(args: argparse.Namespace) -> int:
+    from emulators.presets import resolve_rig
+    from servo.rig import load_rig
+
+    gains = parse_gains(args.gains)
+    rig = load_rig(resolve_rig(args.rig))
+    try:
+        return _run(args, rig, gains)
+    finally:
+        shm = getattr(args, "_vision_shm", None)  # created by an extension's prepare()
+        if shm is not None:
+            shm.close(unlink=True)
+
+
+def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
+    from servo.motion import default_demo_motion, load_motion
+    from servo.runner import LockstepRunner, RealtimeRunner
+    from vmehil.run_report import summarize, table, write_report
+    from vmehil.session import build_loop
+    from vmehil.system import build_emulated_rig
+
+    defaults: dict = {}
+    for ext in _extensions():
+        prep = getattr(ext, "prepare", None)
+        if prep is not None:
+            defaults.update(prep(args, rig) or {})
+    n = rig.n_joints
+    motion = load_motion(args.motion, n) if args.motion else defaults.get("motion") or default_demo_motion(n)
+    if args.duration is not None:
+        duration = args.duration
+    elif "duration" in defaults:
+        duration = defaults["duration"]
+    else:
+        probe_system = build_emulated_rig(rig, seed=args.seed)
+        duration = _planned_duration(build_loop(probe_system, motion=motion, n_ticks=1)) + 1.0
+        probe_system.close()
+    if not duration > 0:
+        raise ValueError("--duration must be > 0")
+    n_ticks = round(duration * rig.servo_rate_hz)
+    system = _build_calibrated(args, rig, build_emulated_rig)
+    loop = build_loop(system, motion=motion, gains=gains, n_ticks=n_ticks,
+                      switch_off=False if args.no_integrator_switch_off else None)
+    loop.start()
+    runner = RealtimeRunner(system, loop) if args.realtime else LockstepRunner(system, loop)
+    attached = [a for a in (ext.attach(args, system, loop, runner) for ext in _extensions()) if a is not None]
+    progress = None if args.quiet or not sys.stderr.isatty() else _progress_bar()
+    try:
+        runner.run(n_ticks, progress=progress)
+    finally:
+        for a in attached:
+            a.close()
+    if progress is not None:
+        sys.stderr.write("\n")
+    timing = runner.timing.summary(system.rig.period_s) if args.realtime else None
+    summary = summarize(loop, rig=system.rig.name, seed=args.seed, realtime=args.realtime,
+                        overruns=runner.overruns, timing=timing)
+    print(table(summary))
+    if timing:
+        print(f"timing: compute p50 {timing['compute_p50_ms']:.3f} ms, p99 {timing['compute_p99_ms']:.3f} ms; "
+              f"lateness p99 {timing['lateness_p99_ms']:.3f} ms, max {timing['lateness_max_ms']:.3f} ms")
+    if args.json:
+        write_json(args.json, summary)
+    if args.report:
+        files = write_report(loop, summary, args.report)
+        print(f"report: {len(files)} files in {args.report}")
+    system.close()
+    return 1 if summary["faults"] else 0
+
+
+def _build_calibrated(args: argparse.Namespace, rig, build):
+    """Build the rig with the drivers' calibration file; a missing file is a one-line warning."""
+    import warnings
+
+    from vmehil.calibration.store import CalibrationMissingWarning, default_store_path
+
+    if args.calibration and not Path(args.calibration).exists():
+        raise FileNotFoundError(f"--calibration {args.calibration}: no such file")
+    cal = args.calibration or default_store_path(rig)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CalibrationMissingWarning)
+        system = build(rig, seed=args.seed, link=_make_link(args, rig), calibration=cal)
+    for w in caught:
+        if issubclass(w.category, CalibrationMissingWarning):
+            print(f"warning: {w.message}", file=sys.stderr)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if not caught:
+        print(f"calibration: {cal}", file=sys.stderr)
+    return system
+
+
+def _make_link(args: argparse.Namespace, rig):
+    """The plant link an extension asks for (``--plant can``), else ``None`` (in-process)."""
+    for ext in _extensions():
+        make = getattr(ext, "make_link", None)
+        link = make(args, rig) if make is not None else None
+        if link is not None:
+            return link
+    return None
+
+
+def _planned_duration(loop) -> float:
+    """Plan every move once (on a throw-away sequencer) to learn the motion's length."""
+    from servo.trajectory.base import TrajectoryError
+
+    seq = loop.sequencer
+    t = 0.0
+    try:
+        seq.sample(0.0)
+        while not seq.finished and t < 3600.0:
+            t += max(seq.current.duration, 1e-3)
+            seq.sample(t)
+    except TrajectoryError as e:
+        raise ValueError(f"{e}; or give --duration") from None
+    return float(seq.total_duration or t)
+
+
+def _progress_bar():
+    def show(i: int, n: int) -> None:
+        if i % 25 and i != n:
+            return
+        frac = i / n
+        bar = "#" * int(30 * frac)
+        sys.stderr.write(f"\r[{bar:<30s}] {frac * 100:5.1f}%  tick {i}/{n}")
+        sys.stderr.flush()
+    return show

@@ -1,0 +1,568 @@
+"""``vmehil tune``: gain-tuning analyses of a rig's joint servo.
+
+Examples::
+
+    vmehil tune bode                                  # jpl-arm joint 1 with the rig's gains
+    vmehil tune bode --gains kp=200,kv=60 --json bode.json --report out/bode
+    vmehil tune limit-cycle --report out/lc           # predicted and simulated, ± switch-off
+    vmehil tune sweep --grid kp=80:140:4,kv=30:70:5 --out out/sweep --jobs 2
+    vmehil tune step --step-deg 2 --report out/step
+    vmehil tune step --plant can --interface virtual  # the plant as a CAN node (docs/can.md)
+
+``limit-cycle``, ``step`` and ``sweep`` take the CAN plant options of ``vmehil run``
+(:mod:`vmehil.can_options`): every simulated run opens a fresh link that RESETs the plant
+with the run's seed; on ``virtual`` each run starts its own in-process plant node thread on a
+channel of its own, on ``socketcan``/``udp_multicast`` the runs talk to one external
+``vmehil plant-node`` in turn (so ``sweep`` runs them with one worker).
+
+Exit status: 0 on success, 1 when the gain set gives an unstable sampled loop (``bode``) or a
+simulation was stopped by the watchdog (``limit-cycle``, ``step``), 2 for bad arguments
+(negative/NaN/unknown gains, bad rig file), 130 when a sweep is interrupted (its files then hold
+every completed point).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shlex
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from vmehil.analysis.rigparams import JointParams, load_joint
+
+
+def _joint_number(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"joint must be a whole number (1-based), not {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"joints are numbered from 1, not {n}")
+    return n
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive finite number")
+    return v
+
+
+def _finite_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(v) or v == 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a non-zero finite number")
+    return v
+
+
+def _common() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(add_help=False)
+    p.add_argument("--rig", default=None, help="rig preset name or TOML path (default jpl-arm)")
+    p.add_argument("--joint", type=_joint_number, default=1, help="joint number, 1-based (default 1)")
+    p.add_argument("--gains", default=None, metavar="kp=..,kpi=..,kv=..,kvi=..",
+                   help="override some or all of the joint's gains (this joint only)")
+    p.add_argument("--json", dest="json_path", default=None, metavar="PATH", help="write the results as JSON")
+    p.add_argument("--report", default=None, metavar="DIR", help="write PNG/SVG plots and a markdown summary")
+    return p
+
+
+def _sim_args(p: argparse.ArgumentParser, hold: float, band: float) -> None:
+    p.add_argument("--seed", type=int, default=0, help="seed of every noise source of the emulated rig (default 0)")
+    p.add_argument("--motion", choices=("joint", "demo"), default="joint",
+                   help="joint: a quintic move of this joint only (default); demo: the demo move of every joint")
+    p.add_argument("--move-deg", type=_finite_float, default=None,
+                   help="size of the move (default: the demo's delta for the joint, 20° for joint 1)")
+    p.add_argument("--hold", type=_positive_float, default=hold, help=f"hold after the move, s (default {hold:g})")
+    p.add_argument("--settle-band-deg", type=_positive_float, default=band,
+                   help=f"settling: into the steady-state envelope (last 2 s) ± this, deg (default {band:g})")
+    from vmehil.can_options import add_plant_arguments
+
+    add_plant_arguments(p)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("tune", help="gain-tuning analyses: Bode/margins, limit cycles, sweeps, step responses")
+    tsub = p.add_subparsers(dest="tune_cmd", metavar="ANALYSIS")
+    tsub.required = True
+    common = _common()
+    b = tsub.add_parser("bode", parents=[common],
+                        help="margins, crossover, bandwidth; open/closed-loop and disturbance responses")
+    b.set_defaults(func=run_bode)
+    lc = tsub.add_parser("limit-cycle", parents=[common],
+                         help="limit cycles predicted (describing function) and simulated (full stack), "
+                              "with and without integrator switch-off")
+    lc.add_argument("--predict-only", action="store_true",
+                    help="only the describing-function prediction (no full-stack simulation)")
+    lc.add_argument("--switch-off-kp", type=_positive_float, default=None,
+                    help="position gain while the integrators are switched off in the prediction "
+                         "(default: what the control law uses, PidLaw.kp_off)")
+    _sim_args(lc, 8.0, 0.1)
+    lc.set_defaults(func=run_limit_cycle)
+    sw = tsub.add_parser("sweep", parents=[common],
+                         help="many gain sets: margins, simulated limit cycle, tracking and settling; "
+                              "parallel, CSV/JSON, heat maps")
+    sw.add_argument("--grid", action="append", default=None, metavar="kp=80:140:4,kv=30:70:5",
+                    help=f"grid axes gain=start:stop:count or gain=v1;v2;… (repeatable; default {_default_grid()})")
+    sw.add_argument("--set", dest="grid", action="append", metavar="kp=80:140:4", help="same as --grid")
+    sw.add_argument("--gains-file", default=None, metavar="PATH",
+                    help="a list of gain sets instead of a grid: CSV (header kp,kpi,kv,kvi) or TOML [[gains]]")
+    sw.add_argument("--jobs", type=int, default=None, help="worker processes (default: os.cpu_count())")
+    sw.add_argument("--x", default=None, help="heat-map x gain (default: the first gain that varies)")
+    sw.add_argument("--y", default=None, help="heat-map y gain (default: the second gain that varies)")
+    sw.add_argument("--out", default=None, metavar="DIR",
+                    help="write sweep.csv and sweep.json here (default: the --report folder, else ./sweep-out)")
+    sw.add_argument("--margins-only", action="store_true", help="no simulations: margins only (fast)")
+    sw.add_argument("--quiet", action="store_true", help="no progress bar")
+    _sim_args(sw, 8.0, 0.1)
+    sw.set_defaults(func=run_sweep)
+    st = tsub.add_parser("step", parents=[common],
+                         help="step and quintic-move responses through the full stack, over the linear prediction")
+    st.add_argument("--step-deg", type=_finite_float, default=2.0, help="step size, deg (default 2)")
+    st.add_argument("--switch-off", choices=("rig", "on", "off"), default="rig",
+                    help="integrator switch-off: as the rig says (default), forced on, or off")
+    _sim_args(st, 4.0, 0.1)
+    st.set_defaults(func=run_step)
+
+
+def _default_grid() -> str:
+    from vmehil.analysis.sweep import DEFAULT_GRID
+
+    return DEFAULT_GRID
+
+
+def _command_line(args: argparse.Namespace) -> str:
+    argv = sys.argv[1:] if sys.argv and Path(sys.argv[0]).name in ("vmehil", "__main__.py") else None
+    if argv:
+        return "vmehil " + " ".join(shlex.quote(a) for a in argv)
+    return f"vmehil tune {args.tune_cmd}"
+
+
+def _load(args: argparse.Namespace) -> JointParams:
+    return load_joint(args.rig, args.joint, gains=args.gains,
+                      switch_off_kp=getattr(args, "switch_off_kp", None))
+
+
+def _link_factory(args: argparse.Namespace):
+    """``--plant can``: a :class:`~vmehil.can_options.CanLinkFactory`; else None (in-process)."""
+    from vmehil.can_options import link_factory
+
+    return link_factory(args)
+
+
+def _tagged(factory, tag: str):
+    return None if factory is None else factory.tagged(tag)
+
+
+def _sim_settings(args: argparse.Namespace, allow_short: bool = False):
+    from vmehil.analysis.simulate import SimSettings
+
+    return SimSettings(seed=args.seed, motion=args.motion, move_deg=args.move_deg, hold_s=args.hold,
+                       settle_band_deg=args.settle_band_deg, allow_short=allow_short)
+
+
+class _Ticker:
+    """A one-line progress display on stderr (only when stderr is a terminal)."""
+
+    def __init__(self, label: str, enabled: bool = True) -> None:
+        self.label = label
+        self.enabled = enabled and sys.stderr.isatty()
+
+    def __call__(self, i: int, n: int) -> None:
+        if not self.enabled or (i % 50 and i != n):
+            return
+        frac = i / n
+        sys.stderr.write(f"\r{self.label} [{'#' * int(30 * frac):<30s}] {frac * 100:5.1f}%")
+        sys.stderr.flush()
+        if i == n:
+            sys.stderr.write("\n")
+
+
+# ------------------------------------------------------------------------------- bode
+
+
+def run_bode(args: argparse.Namespace) -> int:
+    from vmehil.analysis import report
+    from vmehil.analysis.tuning import bode_analysis
+
+    jp = _load(args)
+    result = bode_analysis(jp)
+    text = report.bode_text(result)
+    print("vmehil tune bode — open loop broken at the plant input")
+    print(text)
+    files: list[Path] = []
+    if args.report:
+        d = Path(args.report)
+        imgs = []
+        files += report.save_figure_both(report.bode_figure(jp.cfg, result), d, "bode_open_loop")
+        imgs.append("bode_open_loop.png")
+        files += report.save_figure_both(report.responses_figure(jp.cfg, result, jp.inertia_kg_m2), d,
+                                         "closed_loop_and_disturbance")
+        imgs.append("closed_loop_and_disturbance.png")
+        md = report.markdown(f"Bode analysis — {jp.rig} joint {jp.joint}", _command_line(args), text, imgs)
+        files.append(report.write_text_atomic(d / "summary.md", md))
+        result["report_files"] = [str(f) for f in files]
+    if args.json_path:
+        files.append(report.write_json_atomic(args.json_path, result))
+    for f in files:
+        print(f"wrote {f}")
+    if not result["stable"]:
+        print(f"vmehil tune bode: the sampled closed loop is UNSTABLE with gains {jp.cfg.gains}", file=sys.stderr)
+        return 1
+    return 0
+
+
+# ------------------------------------------------------------------------ limit cycle
+
+
+def _unstable_message(jp: JointParams) -> str | None:
+    from vmehil.analysis.loop import is_stable
+
+    if is_stable(jp.cfg, sampled=True):
+        return None
+    return (f"the sampled linear loop is UNSTABLE with gains {jp.cfg.gains}: a limit-cycle analysis needs a "
+            f"stable loop (see `vmehil tune bode`); lower the gains or raise Kv")
+
+
+def run_limit_cycle(args: argparse.Namespace) -> int:
+    from vmehil.analysis import report
+    from vmehil.analysis.simulate import simulate, strip_traces
+    from vmehil.analysis.tuning import limit_cycle_analysis
+
+    jp = _load(args)
+    bad = _unstable_message(jp)
+    if bad:
+        print(f"vmehil tune limit-cycle: {bad}", file=sys.stderr)
+        return 1
+    sim = None
+    if not args.predict_only:
+        settings = _sim_settings(args)
+        links = _link_factory(args)
+
+        def sim(jp_: JointParams, switch_off: bool) -> dict[str, Any]:
+            label = "switch-off" if switch_off else "integrators on"
+            return simulate(jp_, switch_off=switch_off, settings=settings, progress=_Ticker(f"simulating ({label})"),
+                            link_factory=_tagged(links, label.replace(" ", "-")))
+
+    result = limit_cycle_analysis(jp, simulate=sim, with_traces=bool(args.report))
+    text = report.limit_cycle_text(result)
+    print("vmehil tune limit-cycle — describing-function prediction of the sampled loop"
+          + ("" if args.predict_only else " and the full-stack simulation"))
+    print(text)
+    files: list[Path] = []
+    if args.report:
+        d = Path(args.report)
+        imgs = []
+        views = (("df_nyquist", jp.cfg, result["predicted"], "integrators on"),
+                 ("df_nyquist_switch_off", jp.switch_off_cfg(), result["switch_off"]["predicted"],
+                  "integrators switched off"))
+        for stem, cfg, block, label in views:
+            nl, cfg_plot, cyc, what = _df_view(jp, cfg, block)
+            if nl is None:
+                continue
+            title = f"{what} — {label}\n({report._gain_text(cfg)})"
+            fig = report.nyquist_df_figure(cfg_plot, nl, cyc, title=title)
+            files += report.save_figure_both(fig, d, stem)
+            imgs.append(f"{stem}.png")
+        fig = report.limit_cycle_sim_figure(result.get("simulated"), result["switch_off"].get("simulated"),
+                                            result["predicted"],
+                                            f"Full-stack simulation, {jp.rig} joint {jp.joint} ({jp.name}), "
+                                            f"{report._gain_text(jp.cfg)}")
+        if fig is not None:
+            files += report.save_figure_both(fig, d, "cycle_simulated")
+            imgs.append("cycle_simulated.png")
+        traces = [("integrators on: reduced nonlinear joint", result.get("model_check")),
+                  ("switched off: reduced nonlinear joint", result["switch_off"].get("model_check"))]
+        fig = report.cycle_time_figure(traces, f"Reduced-model check, {jp.rig} joint {jp.joint}")
+        if fig is not None:
+            files += report.save_figure_both(fig, d, "cycle_model_check")
+            imgs.append("cycle_model_check.png")
+        md = report.markdown(f"Limit cycles — {jp.rig} joint {jp.joint}", _command_line(args), text, imgs)
+        files.append(report.write_text_atomic(d / "summary.md", md))
+        result["report_files"] = [str(f) for f in files]
+    out = _strip_model_traces(result)
+    out["simulated"] = strip_traces(out.get("simulated"))
+    out["switch_off"]["simulated"] = strip_traces(out["switch_off"].get("simulated"))
+    if args.json_path:
+        files.append(report.write_json_atomic(args.json_path, out))
+    for f in files:
+        print(f"wrote {f}")
+    faults = [s["fault"] for s in (result.get("simulated"), result["switch_off"].get("simulated")) if s and s["fault"]]
+    if faults:
+        print(f"vmehil tune limit-cycle: the watchdog stopped a simulation: {faults[0]['cause']} "
+              f"({faults[0]['detail']})", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _df_view(jp: JointParams, cfg, block: dict):
+    """What the Nyquist/DF plot shows: for a combined dead-band + friction cycle, the dead band's
+    G with the friction replaced by its equivalent damping at the cycle's velocity amplitude (so
+    the intersection is the predicted cycle); otherwise the headline (or tach) nonlinearity alone."""
+    from vmehil.analysis.describing import predict_cycles
+
+    nls = jp.nonlinearities()
+    h = next((c for c in block.get("combined_cycles", []) if c["stable"]
+              and c["amplitude_deg"] == block.get("amplitude_deg")), None)
+    dz = next((n for n in nls if n.location == "velocity_sensor"), None)
+    fr = next((n for n in nls if n.location == "friction"), None)
+    if h is not None and dz is not None and fr is not None:
+        cfg_eq = cfg.replace(viscous_damping=cfg.viscous_damping + fr.df(h["amplitude_x"]))
+        cyc = [c.as_dict() for c in predict_cycles(cfg_eq, dz, sampled=True)]
+        return dz, cfg_eq, cyc, f"{dz.name}; Coulomb friction as its equivalent damping at the cycle"
+    nl = _headline_nl(jp, block)
+    if nl is None:
+        return None, cfg, [], ""
+    return nl, cfg, [c for c in block["cycles"] if c["nonlinearity"] == nl.name], f"{nl.name} alone"
+
+
+def _headline_nl(jp: JointParams, block: dict):
+    """The nonlinearity whose Nyquist/DF picture is drawn: the headline one when it is a single
+    nonlinearity, else the tach dead band (the mechanism of the JPL cycle), else the first."""
+    nls = jp.nonlinearities()
+    name = block.get("nonlinearity")
+    match = next((n for n in nls if n.name == name), None)
+    if match is not None:
+        return match
+    return next((n for n in nls if n.location == "velocity_sensor"), nls[0] if nls else None)
+
+
+def _strip_model_traces(result: dict) -> dict:
+    """JSON keeps figures, not sample-by-sample traces of the model check."""
+    out = dict(result)
+    if out.get("model_check"):
+        out["model_check"] = {k: v for k, v in out["model_check"].items() if k not in ("t_s", "theta_deg")}
+    so = dict(out["switch_off"])
+    if so.get("model_check"):
+        so["model_check"] = {k: v for k, v in so["model_check"].items() if k not in ("t_s", "theta_deg")}
+    out["switch_off"] = so
+    return out
+
+
+# ------------------------------------------------------------------------------ sweep
+
+
+def run_sweep(args: argparse.Namespace) -> int:
+    from vmehil.analysis import report
+    from vmehil.analysis.sweep import (
+        DEFAULT_GRID,
+        GAIN_KEYS,
+        SweepInterrupted,
+        SweepTask,
+        grid_points,
+        load_gains_file,
+        parse_grid,
+        rows_csv,
+        run_sweep,
+    )
+
+    jp = _load(args)
+    base = jp.cfg.gains
+    if args.gains_file and args.grid:
+        raise ValueError("give either --grid/--set or --gains-file, not both")
+    if args.gains_file:
+        points = load_gains_file(args.gains_file, base)
+        axes_names = [k for k in GAIN_KEYS if len({p[k] for p in points}) > 1]
+        grid_text = None
+    else:
+        grid_text = ",".join(args.grid) if args.grid else DEFAULT_GRID
+        axes = parse_grid(grid_text)
+        points = grid_points(axes, base)
+        axes_names = [k for k in axes if len(axes[k]) > 1]
+    if args.jobs is not None and args.jobs < 1:
+        raise ValueError(f"--jobs {args.jobs} must be at least 1")
+    links = None if args.margins_only else _link_factory(args)
+    jobs = args.jobs
+    if links is not None and not links.shareable:
+        iface, chan = links.options.resolved()
+        if jobs is not None and jobs > 1:
+            raise ValueError(f"--jobs {jobs} with --plant can on {iface} {chan}: the one external plant node serves "
+                             "one run at a time; use --jobs 1, or --interface virtual (each worker then runs its "
+                             "own in-process plant node)")
+        jobs = 1
+    x = args.x or (axes_names[0] if axes_names else "kp")
+    y = args.y or (axes_names[1] if len(axes_names) > 1 else next(k for k in GAIN_KEYS if k != x))
+    for name, v in (("--x", x), ("--y", y)):
+        if v not in GAIN_KEYS:
+            raise ValueError(f"{name} {v!r} must be one of {', '.join(GAIN_KEYS)}")
+    settings = _sim_settings(args, allow_short=True)
+    if settings.hold_s < 8.0 and not args.margins_only:
+        print(f"note: a {settings.hold_s:g} s hold is too short for a reliable limit-cycle figure (use ≥ 8 s)",
+              file=sys.stderr)
+    tasks = [SweepTask(i, jp.rig_path, jp.joint, g, settings, simulate=not args.margins_only,
+                       link_factory=_tagged(links, f"p{i}"))
+             for i, g in enumerate(points)]
+    out_dir = Path(args.out or args.report or "sweep-out")
+    csv_path, json_path = out_dir / "sweep.csv", Path(args.json_path) if args.json_path else out_dir / "sweep.json"
+    meta: dict[str, Any] = {
+        "command": "tune sweep", "rig": jp.rig, "joint": jp.joint, "joint_name": jp.name,
+        "base_gains": base.as_dict(), "grid": grid_text, "gains_file": args.gains_file,
+        "simulation": None if args.margins_only else {
+            "motion": settings.motion, "move_deg": settings.move_deg, "speed": settings.speed,
+            "hold_s": settings.hold_s, "seed": settings.seed, "switch_off": False,
+            "settle_band_deg": settings.settle_band_deg},
+        "points_total": len(tasks), "heatmap_axes": [x, y],
+    }
+    t0 = time.perf_counter()
+    show = not args.quiet
+    tty = sys.stderr.isatty()
+
+    def write(rows: list[dict[str, Any]], done: bool, interrupted: bool = False) -> None:
+        report.write_text_atomic(csv_path, rows_csv(rows))
+        report.write_json_atomic(json_path, {**meta, "completed": len(rows), "finished": done,
+                                             "interrupted": interrupted, "rows": rows})
+
+    def on_result(row: dict[str, Any], rows: list[dict[str, Any]]) -> None:
+        write(rows, False)
+        if show:
+            n, k = len(tasks), len(rows)
+            el = time.perf_counter() - t0
+            eta = el / k * (n - k)
+            bar = "#" * int(30 * k / n)
+            msg = (f"sweep [{bar:<30s}] {k}/{n}  {el:5.0f} s elapsed, ~{eta:4.0f} s left  "
+                   f"(last: {_point_text(row)})")
+            sys.stderr.write(("\r" + msg + "\033[K") if tty else msg + "\n")
+            sys.stderr.flush()
+
+    write([], False)
+    print(f"vmehil tune sweep — {jp.rig} joint {jp.joint} ({jp.name}): {len(tasks)} gain sets, "
+          f"{jobs or 'all'} worker(s); writing {csv_path} and {json_path}")
+    try:
+        rows = run_sweep(tasks, jobs=jobs, on_result=on_result)
+    except SweepInterrupted as e:
+        write(e.rows, False, interrupted=True)
+        if show and tty:
+            sys.stderr.write("\n")
+        print(f"vmehil tune sweep: interrupted; {len(e.rows)} of {len(tasks)} points kept in {csv_path} and "
+              f"{json_path}", file=sys.stderr)
+        return 130
+    if show and tty:
+        sys.stderr.write("\n")
+    write(rows, True)
+    print(_sweep_table(rows))
+    files = [csv_path, json_path]
+    if args.report:
+        d = Path(args.report)
+        fig = report.sweep_heatmaps(rows, x, y, f"Gain sweep, {jp.rig} joint {jp.joint} ({jp.name})")
+        imgs = []
+        if fig is not None:
+            files += report.save_figure_both(fig, d, f"heatmap_{x}_{y}")
+            imgs.append(f"heatmap_{x}_{y}.png")
+        md = report.markdown(f"Gain sweep — {jp.rig} joint {jp.joint}", _command_line(args), _sweep_table(rows), imgs)
+        files.append(report.write_text_atomic(d / "summary.md", md))
+    for f in files:
+        print(f"wrote {f}")
+    return 0
+
+
+def _point_text(r: dict[str, Any]) -> str:
+    g = f"kp={r['kp']:g} kpi={r['kpi']:g} kv={r['kv']:g} kvi={r['kvi']:g}"
+    if r["status"] != "ok":
+        return f"{g}: {r['status']}"
+    lc = "no cycle" if r["lc_frequency_hz"] is None else f"±{r['lc_amplitude_deg']:.2f}°"
+    return f"{g}: {lc}"
+
+
+def _sweep_table(rows: list[dict[str, Any]]) -> str:
+    from vmehil.analysis.report import fmt
+
+    head = ("kp", "kpi", "kv", "kvi", "PM °", "GM dB", "LC amp °", "LC Hz", "rms track °", "max track °", "settle s",
+            "status")
+    lines = [head]
+    for r in rows:
+        lines.append((f"{r['kp']:g}", f"{r['kpi']:g}", f"{r['kv']:g}", f"{r['kvi']:g}",
+                      fmt(r["phase_margin_deg"], ".1f", none="—"), fmt(r["gain_margin_db"], ".1f"),
+                      fmt(r["lc_amplitude_deg"], ".3f", none="—"), fmt(r["lc_frequency_hz"], ".2f", none="—"),
+                      fmt(r["rms_tracking_error_deg"], ".3f", none="—"),
+                      fmt(r["max_tracking_error_deg"], ".3f", none="—"),
+                      fmt(r["settling_time_s"], ".2f", none="never" if r["status"] == "ok" else "—"), r["status"]))
+    w = [max(len(row[i]) for row in lines) for i in range(len(head))]
+    out = ["  ".join(c.rjust(w[i]) for i, c in enumerate(row)) for row in lines]
+    out.insert(1, "  ".join("-" * n for n in w))
+    return "\n".join(out)
+
+
+# ------------------------------------------------------------------------------- step
+
+
+def run_step(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from vmehil.analysis import report
+    from vmehil.analysis.simulate import linear_prediction, simulate, step_metrics, strip_traces
+
+    jp = _load(args)
+    bad = _unstable_message(jp)
+    if bad:
+        print(f"vmehil tune step: {bad}", file=sys.stderr)
+        return 1
+    settings = _sim_settings(args, allow_short=True)
+    so = {"rig": None, "on": True, "off": False}[args.switch_off]
+    links = _link_factory(args)
+    step = simulate(jp, switch_off=so, settings=settings, step_deg=args.step_deg, progress=_Ticker("step"),
+                    link_factory=_tagged(links, "step"))
+    move = simulate(jp, switch_off=so, settings=settings, progress=_Ticker("quintic move"),
+                    link_factory=_tagged(links, "move"))
+    T = jp.cfg.sample_period_s
+    lin = {}
+    for name, d in (("step", step), ("move", move)):
+        thd = np.radians(d["theta_d_deg"])
+        wd = np.radians(d["omega_d_deg_s"])
+        ad = np.gradient(wd, T) if name == "move" else np.zeros_like(wd)
+        lin[name] = linear_prediction(jp, np.asarray(d["t_s"]), thd, wd, ad, math.radians(d["theta_start_deg"]))
+    result: dict[str, Any] = {"command": "tune step", **jp.describe(),
+                              "switch_off": args.switch_off, "step_deg": args.step_deg}
+    for name, d in (("step", step), ("move", move)):
+        result[name] = {"simulated": {**strip_traces(d), **step_metrics(d, None, args.settle_band_deg)},
+                        "linear": step_metrics(d, lin[name], args.settle_band_deg)}
+    text = _step_text(result)
+    print(f"vmehil tune step — {jp.rig} joint {jp.joint} ({jp.name}), full stack vs the sampled linear loop")
+    print(text)
+    files: list[Path] = []
+    if args.report:
+        d = Path(args.report)
+        fig = report.step_figure(step, lin["step"], move, lin["move"],
+                                 f"{jp.rig} joint {jp.joint} ({jp.name}), {report._gain_text(jp.cfg)}, "
+                                 f"switch-off: {args.switch_off}")
+        files += report.save_figure_both(fig, d, "step_and_move")
+        md = report.markdown(f"Step and move — {jp.rig} joint {jp.joint}", _command_line(args), text,
+                             ["step_and_move.png"])
+        files.append(report.write_text_atomic(d / "summary.md", md))
+    if args.json_path:
+        files.append(report.write_json_atomic(args.json_path, result))
+    for f in files:
+        print(f"wrote {f}")
+    faults = [s["fault"] for s in (step, move) if s["fault"]]
+    if faults:
+        print(f"vmehil tune step: the watchdog stopped a simulation: {faults[0]['cause']} ({faults[0]['detail']})",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+def _step_text(r: dict[str, Any]) -> str:
+    from vmehil.analysis.report import _gains_line, fmt
+
+    g = r["gains"]
+    lines = [f"gains {_gains_line(g)} [{r['gains_source']}]; integrator switch-off: {r['switch_off']}", "",
+             f"{'':34s}{'simulated':>12s}{'linear':>12s}"]
+    rows = (("step", f"step {r['step_deg']:g}°"), ("move", f"quintic move {r['move']['simulated']['move_deg']:g}°"))
+    for key, label in rows:
+        s, lin = r[key]["simulated"], r[key]["linear"]
+        lines.append(label)
+        for k, name, spec in (("overshoot_pct", "  overshoot (%)", ".1f"), ("rise_time_s", "  rise 10–90 % (s)", ".3f"),
+                              ("max_tracking_error_deg", "  max tracking error (deg)", ".3f"),
+                              ("settling_time_s", f"  settling ±{s['settle_band_deg']:g}° (s)", ".2f"),
+                              ("final_error_deg", "  final error (deg)", ".3f")):
+            lines.append(f"{name:34s}{fmt(s.get(k), spec, none='—'):>12s}{fmt(lin.get(k), spec, none='—'):>12s}")
+    lines += ["", "simulated errors are the servo's (pot reading); the true angle adds the uncalibrated pot's "
+              "non-linearity (≈1°, see the JSON)"]
+    return "\n".join(lines)

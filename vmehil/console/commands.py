@@ -1,0 +1,659 @@
+"""The console's atomic commands, with typed parameters shared by the line protocol and the
+compound-command language.
+
+Every command runs in the loop's thread at a tick boundary (the server hands it over with
+:meth:`servo.loop.ServoLoop.submit`), so it sees and changes the loop between two ticks, never
+during one. A command returns an :class:`Outcome`: reply lines, the text of its ``OK`` line, and —
+for motions and pauses — when it is *complete* (a compound sequence waits for that before its next
+statement; the console line replies at once).
+
+Angles at this edge are degrees (the operator's unit); inside, everything is SI.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from hal.units import deg_to_rad, rad_to_deg
+from servo.gain_guard import GainRejected, check_gain_change
+from vmehil.console.protocol import (
+    ARGS,
+    FILE,
+    GAIN,
+    STATE,
+    UNAVAILABLE,
+    VALUE,
+    Arg,
+    ConsoleError,
+    Value,
+    kv,
+    type_name,
+)
+
+if TYPE_CHECKING:
+    from vmehil.console.compound import CompoundLibrary, Executor
+
+# parameter types: the (DM)² four, plus "joint" (an int 1..n or a joint name, or "all")
+STRING, INT, FLOAT, VECTOR, JOINT = "string", "int", "float", "vector", "joint"
+ACCEPTS: dict[str, tuple[str, ...]] = {
+    STRING: ("string",),
+    INT: ("int",),
+    FLOAT: ("float", "int"),
+    VECTOR: ("vector",),
+    JOINT: ("int", "string"),
+}
+REQUIRED: Any = object()
+MAX_LOG_LINES = 200
+
+
+@dataclass(frozen=True)
+class Param:
+    """A typed parameter: ``type`` is one of string, int, float, vector, joint; ``default`` is
+    :data:`REQUIRED` for a required one; ``per_joint`` vectors must have one value per joint."""
+
+    name: str
+    type: str
+    default: Any = REQUIRED
+    per_joint: bool = False
+
+    def usage(self) -> str:
+        text = f"{self.name}:{self.type}"
+        if self.default is REQUIRED:
+            return text
+        return f"[{text}={'-' if self.default is None else self.default}]"
+
+
+@dataclass(frozen=True)
+class Typed:
+    """A value known only by its type (a compound parameter reference, checked at load time);
+    ``length`` for vectors when known."""
+
+    type: str
+    length: int | None = None
+
+
+@dataclass
+class Outcome:
+    """What a command did: reply ``lines`` (with their DATA/INFO prefix), the text after ``OK
+    <name>``, and when it is complete: ``until(loop)`` true, or after ``pause_ticks`` ticks."""
+
+    lines: list[str] = field(default_factory=list)
+    ok: str = ""
+    until: Callable[[Any], bool] | None = None
+    pause_ticks: int = 0
+    #: the reply goes on later: a job handed to ``Session.defer`` sends its further lines and
+    #: the end line (``OK``/``ERR``); the console sends only ``lines`` now
+    deferred: bool = False
+
+
+@dataclass
+class Session:
+    """What commands act on: the ``loop`` (a :class:`servo.loop.ServoLoop` or an object with the
+    same attributes), the computation ``delay`` in periods (for gain checks), the compound
+    ``library`` and ``executor``, optional host hooks (``shutdown``, ``calibrate``), and the
+    console's ``defer`` (jobs between ticks, e.g. a calibration)."""
+
+    loop: Any
+    delay: float = 0.0
+    library: CompoundLibrary | None = None
+    executor: Executor | None = None
+    shutdown: Callable[[], None] | None = None
+    calibrate: Callable[[Session, list[Arg]], Outcome] | None = None
+    source: str = "console"
+    #: run ``job(send)`` between two ticks, in the thread that owns the rig (set by the console);
+    #: ``send(lines)`` writes reply lines. At most one job waits at a time.
+    defer: Callable[[Callable[[Callable[[list[str]], None]], None]], None] | None = None
+
+    @property
+    def n(self) -> int:
+        return int(self.loop.n)
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.loop.names)
+
+
+Runner = Callable[[Session, dict[str, Any]], Outcome]
+
+
+@dataclass(frozen=True)
+class Atom:
+    """An atomic command: typed ``params`` and ``run(session, bound_args)``; ``on_line`` /
+    ``in_files``: where it may be used; ``varargs``: arguments are passed unchecked."""
+
+    name: str
+    params: tuple[Param, ...]
+    run: Runner
+    summary: str
+    on_line: bool = True
+    in_files: bool = True
+    varargs: bool = False
+
+    def usage(self) -> str:
+        return " ".join([self.name, *(p.usage() for p in self.params)] + (["..."] if self.varargs else []))
+
+
+ATOMS: dict[str, Atom] = {}
+
+
+def atom(name: str, params: tuple[Param, ...], summary: str, **flags: Any) -> Callable[[Runner], Runner]:
+    def deco(fn: Runner) -> Runner:
+        if name in ATOMS:
+            raise ValueError(f"console command {name!r} is already defined")
+        ATOMS[name] = Atom(name, params, fn, summary, **flags)
+        return fn
+    return deco
+
+
+# ---- argument binding (shared with the compound loader) ------------------------------------------------
+def resolve_joint(value: Value, names: list[str] | None) -> int | None:
+    """``"all"`` → None; an int 1..n or a joint name → the joint index (0-based)."""
+    if isinstance(value, str) and value.lower() == "all":
+        return None
+    if names is None:
+        return 0
+    if isinstance(value, int) and not isinstance(value, bool):
+        if 1 <= value <= len(names):
+            return value - 1
+        raise ConsoleError(VALUE, f"joint {value} does not exist: joints are 1..{len(names)} ({', '.join(names)})")
+    if isinstance(value, str):
+        for i, nm in enumerate(names):
+            if nm.lower() == value.lower():
+                return i
+    raise ConsoleError(VALUE, f"no joint {value!r}: use 1..{len(names)}, {', '.join(names)} or all")
+
+
+def _a(word: str) -> str:
+    return ("an " if word[0] in "aeiou" else "a ") + word
+
+
+def check_arg(cmd: str, p: Param, value: Value | Typed, n_joints: int | None, names: list[str] | None) -> Any:
+    """Type-check (and convert) one argument; :class:`ConsoleError` ARGS/VALUE naming it."""
+    vtype = value.type if isinstance(value, Typed) else type_name(value)
+    if vtype not in ACCEPTS[p.type]:
+        raise ConsoleError(ARGS, f"{cmd}: {p.name} must be {_a(p.type)}, got {_a(vtype)}"
+                                 + (f" ({value!r})" if not isinstance(value, Typed) else ""))
+    length = value.length if isinstance(value, Typed) else (len(value) if isinstance(value, tuple) else None)
+    if p.per_joint and n_joints is not None and length is not None and length != n_joints:
+        raise ConsoleError(VALUE, f"{cmd}: {p.name} needs {n_joints} values (one per joint), got {length}")
+    if isinstance(value, Typed):
+        return value
+    if p.type == FLOAT:
+        return float(value)  # type: ignore[arg-type]
+    if p.type == JOINT:
+        if names is None:
+            return value
+        return resolve_joint(value, names)
+    return value
+
+
+def bind(cmd: str, params: tuple[Param, ...], args: list[tuple[str | None, Value | Typed]],
+         n_joints: int | None = None, names: list[str] | None = None) -> dict[str, Any]:
+    """Match positional and keyword ``args`` to ``params``; :class:`ConsoleError` ARGS on a missing,
+    unknown, repeated or ill-typed argument."""
+    out: dict[str, Any] = {}
+    positional = [v for k, v in args if k is None]
+    if len(positional) > len(params):
+        raise ConsoleError(ARGS, f"{cmd} takes at most {len(params)} argument(s), got {len(positional)}; "
+                                 f"usage: {' '.join([cmd, *(p.usage() for p in params)])}")
+    by_name = {p.name: p for p in params}
+    for p, v in zip(params, positional, strict=False):
+        out[p.name] = check_arg(cmd, p, v, n_joints, names)
+    for k, v in args:
+        if k is None:
+            continue
+        if k not in by_name:
+            raise ConsoleError(ARGS, f"{cmd} has no argument {k!r}; it takes "
+                                     f"{', '.join(by_name) or 'no arguments'}")
+        if k in out:
+            raise ConsoleError(ARGS, f"{cmd}: {k} given twice")
+        out[k] = check_arg(cmd, by_name[k], v, n_joints, names)
+    for p in params:
+        if p.name not in out:
+            if p.default is REQUIRED:
+                raise ConsoleError(ARGS, f"{cmd}: missing {p.name} ({p.type}); usage: "
+                                         f"{' '.join([cmd, *(q.usage() for q in params)])}")
+            out[p.name] = resolve_joint(p.default, names) if p.type == JOINT and names is not None else p.default
+    return out
+
+
+# ---- helpers --------------------------------------------------------------------------------------------
+def _deg(x: float) -> float:
+    return float(rad_to_deg(x))
+
+
+def loop_state(loop: Any) -> str:
+    if loop.fault is not None:
+        return "fault"
+    return "running" if loop.enabled else "stopped"
+
+
+def _law(loop: Any):
+    law = loop.law
+    if law is None:
+        raise ConsoleError(STATE, "the active controller has no pid law: gains and modes cannot be changed")
+    return law
+
+
+def _plan_context(loop: Any):
+    ctx = getattr(loop, "plan_context", None)
+    if ctx is None:
+        from servo.trajectory import JointLimits, PlanContext
+
+        ctx = PlanContext(JointLimits.make(loop.n, math.radians(30.0)))
+    return ctx
+
+
+def hold_position(loop: Any) -> np.ndarray:
+    """Where the joints are commanded to be now (rad): the held target, or the last θd mid-motion."""
+    seq = loop.sequencer
+    if seq.finished:
+        return np.asarray(seq.current.end, float).copy()
+    last = loop.last.get("theta_d") if loop.last else None
+    if last is not None and np.all(np.isfinite(last)):
+        return np.asarray(last, float).copy()
+    return np.asarray(seq.current.start, float).copy()
+
+
+def _require_running(loop: Any) -> None:
+    if loop.fault is not None:
+        f = loop.fault
+        raise ConsoleError(STATE, f"the loop is stopped by a fault ({f.cause}"
+                                  f"{' on ' + f.joint if f.joint else ''}): check status, then enable")
+    if not loop.enabled:
+        raise ConsoleError(STATE, "the amplifiers are not enabled: enable first")
+
+
+def _require_idle(loop: Any) -> None:
+    seq = loop.sequencer
+    if not seq.finished:
+        left = len(seq.moves) - max(seq.index, 0)
+        raise ConsoleError(STATE, f"a motion is running ({left} move(s) left): wait for it to end, or stay to "
+                                  "hold the present target first")
+
+
+def _dry_run(moves: list[Any], start: np.ndarray, ctx: Any) -> float:
+    """Plan every move on a throw-away sequencer (errors now, not inside a tick); total duration s."""
+    from servo.trajectory import Sequencer, TrajectoryError
+
+    seq = Sequencer(list(moves), start, ctx)
+    t = 0.0
+    try:
+        seq.sample(0.0)
+        guard = 0
+        while not seq.finished and guard < 100_000:
+            t += max(seq.current.duration, 1e-3)
+            seq.sample(t)
+            guard += 1
+    except (TrajectoryError, ValueError) as e:
+        raise ConsoleError(VALUE, f"cannot plan the motion: {e}") from None
+    if not seq.finished:
+        raise ConsoleError(VALUE, "the motion does not end (an endless hold?); give every wait a duration")
+    return float(seq.total_duration or 0.0)
+
+
+def start_motion(s: Session, moves: list[Any], what: str) -> Outcome:
+    """Start ``moves`` from the present target at this tick; complete when they have all ended."""
+    from servo.trajectory import Sequencer
+
+    loop = s.loop
+    _require_running(loop)
+    _require_idle(loop)
+    start = hold_position(loop)
+    ctx = _plan_context(loop)
+    duration = _dry_run(moves, start, ctx)
+    seq = Sequencer(list(moves), start, ctx)
+    loop.set_motion(seq)
+    loop.note(s.source, f"{what} ({duration:.3f} s)")
+    return Outcome(ok=kv(duration_s=duration), until=lambda lp: lp.sequencer is not seq or seq.finished)
+
+
+def _speed(v: float) -> float:
+    if not (math.isfinite(v) and 0.0 < v <= 1.0):
+        raise ConsoleError(VALUE, f"speed {v!r} must be in (0, 1] (0.5 makes the move twice as long)")
+    return v
+
+
+def _angles(values: tuple[float, ...], what: str) -> np.ndarray:
+    arr = np.asarray(values, float)
+    if not np.all(np.isfinite(arr)):
+        raise ConsoleError(VALUE, f"{what} must be finite angles in degrees")
+    return deg_to_rad(arr)
+
+
+# ---- the commands ----------------------------------------------------------------------------------------
+@atom("help", (Param("command", STRING, ""),), "list the commands, or show one command's usage", in_files=False)
+def _help(s: Session, a: dict[str, Any]) -> Outcome:
+    name = a["command"]
+    lines = []
+    if name:
+        if name in ATOMS:
+            c = ATOMS[name]
+            lines.append(kv("DATA", "help", command=c.name, usage=c.usage(), summary=c.summary))
+        elif s.library is not None and name in s.library:
+            d = s.library[name]
+            lines.append(kv("DATA", "help", command=d.name, usage=d.usage(), summary=f"compound command ({d.where})"))
+        else:
+            raise ConsoleError(VALUE, f"no command {name!r}; help lists them")
+        return Outcome(lines)
+    for c in ATOMS.values():
+        if c.on_line:
+            lines.append(kv("DATA", "help", command=c.name, usage=c.usage(), summary=c.summary))
+    if s.library is not None:
+        for d in s.library.values():
+            lines.append(kv("DATA", "help", command=d.name, usage=d.usage(), summary=f"compound command ({d.where})"))
+    lines.append("INFO angles in degrees; replies end with an OK or ERR line; see docs/console.md")
+    return Outcome(lines)
+
+
+@atom("status", (), "loop state and, per joint: position, target, error, current, integrators, faults")
+def _status(s: Session, a: dict[str, Any]) -> Outcome:
+    loop = s.loop
+    last = loop.last or {}
+    n = loop.n
+    nan = np.full(n, np.nan)
+
+    def col(key: str) -> np.ndarray:
+        v = last.get(key)
+        return np.asarray(v, float) if v is not None else nan
+
+    theta, theta_d, current = col("theta"), col("theta_d"), col("current")
+    integrating = col("integrating")
+    law = loop.law
+    kp_eff = np.asarray(law.kp_eff(), float) if law is not None else nan
+    seq = loop.sequencer
+    motion = "idle" if seq.finished else "running"
+    active = s.executor.active_ids() if s.executor is not None else []
+    lines = [kv("DATA", "loop", tick=int(loop.tick_count), t_s=loop.tick_count * loop.period_s,
+                state=loop_state(loop), motion=motion, compounds=len(active))]
+    fault = loop.fault
+    for i, name in enumerate(loop.names):
+        err = theta_d[i] - theta[i]
+        integ = "nan" if math.isnan(integrating[i]) else ("on" if integrating[i] else "off")
+        jf = fault.cause if fault is not None and fault.joint == name else "-"
+        lines.append(kv("DATA", "joint", joint=name, pos_deg=_deg(theta[i]), target_deg=_deg(theta_d[i]),
+                        err_deg=_deg(err), current_a=float(current[i]), integrators=integ,
+                        kp_eff=float(kp_eff[i]), fault=jf))
+    if fault is not None:
+        lines.append(kv("DATA", "fault", cause=fault.cause, joint=fault.joint or "-", tick=fault.tick,
+                        t_s=fault.time_s, detail=fault.detail))
+    return Outcome(lines, kv(joints=n, state=loop_state(loop)))
+
+
+@atom("move", (Param("target", VECTOR, per_joint=True), Param("speed", FLOAT, 1.0)),
+      "coordinated quintic move of every joint to TARGET (degrees); speed factor in (0, 1]")
+def _move(s: Session, a: dict[str, Any]) -> Outcome:
+    from servo.motion import QuinticMove
+
+    target = _angles(a["target"], "targets")
+    return start_motion(s, [QuinticMove(target, None, _speed(a["speed"]))], "move to " + str(list(a["target"])))
+
+
+@atom("move_rel", (Param("delta", VECTOR, per_joint=True), Param("speed", FLOAT, 1.0)),
+      "coordinated quintic move by DELTA (degrees) from the present target")
+def _move_rel(s: Session, a: dict[str, Any]) -> Outcome:
+    from servo.motion import QuinticMove
+
+    delta = _angles(a["delta"], "deltas")
+    return start_motion(s, [QuinticMove(None, delta, _speed(a["speed"]))], "move by " + str(list(a["delta"])))
+
+
+@atom("move_joint", (Param("joint", JOINT), Param("target", FLOAT), Param("speed", FLOAT, 1.0)),
+      "quintic move of one joint (number 1..n or name) to TARGET degrees; the others hold")
+def _move_joint(s: Session, a: dict[str, Any]) -> Outcome:
+    from servo.motion import QuinticMove
+
+    j = a["joint"]
+    if j is None:
+        raise ConsoleError(VALUE, "move_joint needs one joint (not all); use move for every joint")
+    if not math.isfinite(a["target"]):
+        raise ConsoleError(VALUE, "target must be a finite angle in degrees")
+    _require_running(s.loop)
+    _require_idle(s.loop)
+    target = hold_position(s.loop)
+    target[j] = float(deg_to_rad(a["target"]))
+    return start_motion(s, [QuinticMove(target, None, _speed(a["speed"]))],
+                        f"move {s.loop.names[j]} to {a['target']:g} deg")
+
+
+@atom("stay", (), "stop the motion: hold the present target (the amplifiers stay on)")
+def _stay(s: Session, a: dict[str, Any]) -> Outcome:
+    from servo.trajectory import Sequencer
+
+    loop = s.loop
+    hold = hold_position(loop)
+    loop.set_motion(Sequencer([], hold, _plan_context(loop)))
+    loop.note(s.source, "stay")
+    return Outcome(ok=kv(target_deg=tuple(round(_deg(x), 6) for x in hold)))
+
+
+def _gain_lines(loop: Any) -> list[str]:
+    law = _law(loop)
+    g = getattr(law, "_pending_gains", None) or law.gains
+    so = getattr(law, "_pending_switch_off", None) or law.switch_off
+    kp_eff = law.kp_eff()
+    return [kv("DATA", "gains", joint=name, kp=float(g.kp[i]), kpi=float(g.kpi[i]), kv=float(g.kv[i]),
+               kvi=float(g.kvi[i]), kp_eff=float(kp_eff[i]), mode="auto" if so.enabled[i] else "integrate")
+            for i, name in enumerate(loop.names)]
+
+
+@atom("gains", (Param("joint", JOINT, "all"), Param("kp", FLOAT, None), Param("kpi", FLOAT, None),
+                Param("kv", FLOAT, None), Param("kvi", FLOAT, None)),
+      "show the gains, or set some (kp= kpi= kv= kvi=) for one joint or all; checked like live tuning")
+def _gains(s: Session, a: dict[str, Any]) -> Outcome:
+    loop = s.loop
+    law = _law(loop)
+    changes = {k: a[k] for k in ("kp", "kpi", "kv", "kvi") if a[k] is not None}
+    if not changes:
+        lines = _gain_lines(loop)
+        if a["joint"] is not None:
+            lines = [lines[a["joint"]]]
+        return Outcome(lines)
+    joint = a["joint"]
+    try:
+        check_gain_change(law, joint, changes, loop.period_s, s.delay)
+        law.set_gains(joint=joint, **changes)
+    except GainRejected as e:
+        where = f"{loop.names[e.joint]}: " if e.joint is not None else ""
+        shown = " ".join(f"{k}={v:g}" for k, v in changes.items())
+        raise ConsoleError(GAIN, f"{shown} rejected ({where}{e.reason}); nothing was changed") from None
+    except ValueError as e:  # GainError from the law itself
+        raise ConsoleError(GAIN, str(e)) from None
+    where = "all joints" if joint is None else loop.names[joint]
+    shown = " ".join(f"{k}={v:g}" for k, v in changes.items())
+    loop.note(s.source, f"gains {where}: {shown}")
+    lines = _gain_lines(loop)
+    if joint is not None:
+        lines = [lines[joint]]
+    return Outcome(lines, kv(applied_at_tick=int(loop.tick_count)))
+
+
+MODES = {"auto": True, "integrate": False}
+
+
+@atom("mode", (Param("mode", STRING, ""), Param("joint", JOINT, "all")),
+      "show the loop mode, or set the integrator mode: auto (switch-off at rest) or integrate (always)")
+def _mode(s: Session, a: dict[str, Any]) -> Outcome:
+    loop = s.loop
+    law = _law(loop)
+    mode, joint = a["mode"], a["joint"]
+    if mode:
+        if mode not in MODES:
+            raise ConsoleError(VALUE, f"mode {mode!r}: use auto (integrator switch-off at rest) or integrate")
+        so = getattr(law, "_pending_switch_off", None) or law.switch_off
+        enabled = so.enabled.copy()
+        if joint is None:
+            enabled[:] = MODES[mode]
+        else:
+            enabled[joint] = MODES[mode]
+        law.set_switch_off(replace(so, enabled=enabled))
+        loop.note(s.source, f"mode {mode} on {'all joints' if joint is None else loop.names[joint]}")
+    so = getattr(law, "_pending_switch_off", None) or law.switch_off
+    integ = law.integrating
+    objects = ",".join(o.name for o in loop.controller.active.objects) if hasattr(loop, "controller") else "?"
+    lines = [kv("DATA", "mode", state=loop_state(loop), controller=objects)]
+    lines += [kv("DATA", "mode", joint=name, mode="auto" if so.enabled[i] else "integrate",
+                 integrators="on" if integ[i] else "off")
+              for i, name in enumerate(loop.names) if joint is None or i == joint]
+    return Outcome(lines)
+
+
+@atom("stop", (), "safe stop: amplifiers off, outputs 0 V; cancels running compound commands")
+def _stop(s: Session, a: dict[str, Any]) -> Outcome:
+    loop = s.loop
+    loop.safe_stop("operator_stop", f"stop from the {s.source}")
+    if s.executor is not None:
+        s.executor.cancel_all("stopped by the operator")
+    loop.note(s.source, "stop")
+    return Outcome(ok=kv(state=loop_state(loop)))
+
+
+@atom("enable", (), "clear faults and enable the amplifiers, holding the joints where they are")
+def _enable(s: Session, a: dict[str, Any]) -> Outcome:
+    loop = s.loop
+    if loop.enabled and loop.fault is None:
+        return Outcome(["INFO already enabled"], kv(state=loop_state(loop)))
+    previous = loop.fault
+    try:
+        loop.resume(hold_measured=True)
+    except ValueError as e:
+        raise ConsoleError(STATE, f"{e}; the loop stays stopped") from None
+    except Exception as e:
+        what = "enable failed" if loop.fault is not None and loop.fault is not previous else "cannot read the joints"
+        raise ConsoleError(STATE, f"{what} ({type(e).__name__}: {e}); fix the cause first, the loop stays "
+                                  "stopped") from None
+    loop.note(s.source, "enable" + (f" (cleared fault {previous.cause})" if previous else ""))
+    return Outcome(ok=kv(state=loop_state(loop), cleared=previous.cause if previous else "-"))
+
+
+def _prepare_run(a: dict[str, Any], n_joints: int) -> dict[str, Any]:
+    from hal.config import ConfigError
+    from servo.motion import load_motion
+
+    try:
+        motion = load_motion(a["file"], n_joints)
+    except FileNotFoundError as e:
+        raise ConsoleError(FILE, f"motion file {a['file']!r} not found ({e.strerror or e})") from None
+    except (ConfigError, OSError, ValueError) as e:
+        raise ConsoleError(FILE, f"motion file {a['file']!r}: {e}") from None
+    return {**a, "motion": motion}
+
+
+@atom("run", (Param("file", STRING),), "play a motion file (TOML, see docs/control.md) from the present target")
+def _run(s: Session, a: dict[str, Any]) -> Outcome:
+    motion = a.get("motion")
+    if motion is None:  # not prepared off the loop thread (direct API use)
+        motion = _prepare_run(a, s.n)["motion"]
+    return start_motion(s, list(motion.moves), f"run {motion.name} ({a['file']})")
+
+
+@atom("calibrate", (), "calibrate PROCEDURE [--joint N ...] [--auto]: pot, adc, dac, encoder, amplifier, friction, "
+                       "all (as vmehil calibrate, on the running rig; stop aborts)", varargs=True, in_files=False)
+def _calibrate(s: Session, a: dict[str, Any]) -> Outcome:
+    if s.calibrate is None:
+        raise ConsoleError(UNAVAILABLE, "calibrate: not available here: this console's host has no rig for it "
+                                        "(vmehil console and vmehil run --console on an emulated rig offer it)")
+    return s.calibrate(s, a.get("args", []))
+
+
+@atom("log", (Param("count", INT, 20),), "the last COUNT entries of the loop's change log (time, source, message)")
+def _log(s: Session, a: dict[str, Any]) -> Outcome:
+    count = a["count"]
+    if not 1 <= count <= MAX_LOG_LINES:
+        raise ConsoleError(VALUE, f"count {count} must be within 1..{MAX_LOG_LINES}")
+    loop = s.loop
+    lines = [kv("DATA", "log", t_s=t, source=src, message=msg) for t, src, msg in list(loop.log)[-count:]]
+    if loop.fault is not None:
+        f = loop.fault
+        lines.append(kv("DATA", "log", t_s=f.time_s, source="watchdog", message=f"fault {f.cause}: {f.detail}"))
+    return Outcome(lines, kv(entries=len(loop.log)))
+
+
+@atom("commands", (), "list the compound commands loaded from files", in_files=False)
+def _commands(s: Session, a: dict[str, Any]) -> Outcome:
+    lib = s.library
+    lines = [kv("DATA", "command", name=d.name, usage=d.usage(), where=d.where) for d in (lib.values() if lib else [])]
+    return Outcome(lines, kv(count=len(lines)))
+
+
+def _prepare_load(a: dict[str, Any], n_joints: int, names: list[str]) -> dict[str, Any]:
+    from vmehil.console.compound import CompoundError, load_compound_file
+
+    try:
+        lib = load_compound_file(a["file"], n_joints=n_joints, names=names)
+    except FileNotFoundError as e:
+        raise ConsoleError(FILE, f"compound command file {a['file']!r} not found ({e.strerror or e})") from None
+    except (CompoundError, OSError, UnicodeDecodeError) as e:
+        raise ConsoleError(FILE, str(e)) from None
+    return {**a, "library": lib}
+
+
+@atom("load", (Param("file", STRING),), "load (or reload) a compound command file, replacing the loaded commands",
+      in_files=False)
+def _load(s: Session, a: dict[str, Any]) -> Outcome:
+    lib = a.get("library")
+    if lib is None:
+        lib = _prepare_load(a, s.n, s.names)["library"]
+    s.library = lib
+    s.loop.note(s.source, f"loaded {len(lib)} compound command(s) from {a['file']}")
+    return Outcome([kv("DATA", "command", name=d.name, usage=d.usage(), where=d.where) for d in lib.values()],
+                   kv(count=len(lib)))
+
+
+@atom("cancel", (Param("id", INT, 0),), "cancel a running compound command (by id), or all of them (0)",
+      in_files=False)
+def _cancel(s: Session, a: dict[str, Any]) -> Outcome:
+    if s.executor is None:
+        return Outcome(ok=kv(cancelled=0))
+    if a["id"] == 0:
+        n = s.executor.cancel_all("cancelled by the operator")
+    else:
+        n = s.executor.cancel(a["id"], "cancelled by the operator")
+        if n == 0:
+            raise ConsoleError(VALUE, f"no running compound command with id {a['id']}")
+    return Outcome(ok=kv(cancelled=n))
+
+
+@atom("pause", (Param("seconds", FLOAT),), "in a compound command: wait SECONDS of loop time", on_line=False)
+def _pause(s: Session, a: dict[str, Any]) -> Outcome:
+    sec = a["seconds"]
+    if not (math.isfinite(sec) and 0.0 <= sec <= 86400.0):
+        raise ConsoleError(VALUE, f"pause {sec!r} s must be within 0..86400")
+    return Outcome(ok=kv(seconds=sec), pause_ticks=round(sec / s.loop.period_s))
+
+
+@atom("echo", (Param("text", STRING),), "print TEXT (an INFO line; an EVT line inside compound commands)")
+def _echo(s: Session, a: dict[str, Any]) -> Outcome:
+    return Outcome([f"INFO {a['text']}"])
+
+
+@atom("shutdown", (), "end the session that owns the loop (vmehil console): safe stop, then exit", in_files=False)
+def _shutdown(s: Session, a: dict[str, Any]) -> Outcome:
+    if s.shutdown is None:
+        raise ConsoleError(UNAVAILABLE, "shutdown: this loop is owned by vmehil run and ends with its --duration")
+    s.loop.safe_stop("operator_shutdown", f"shutdown from the {s.source}")
+    if s.executor is not None:
+        s.executor.cancel_all("shutdown")
+    s.shutdown()
+    return Outcome(ok=kv(state=loop_state(s.loop)))
+
+
+def prepare(name: str, bound: dict[str, Any], n_joints: int, names: list[str]) -> dict[str, Any]:
+    """The off-loop phase of a command (reading files); returns the arguments to run with."""
+    if name == "run":
+        return _prepare_run(bound, n_joints)
+    if name == "load":
+        return _prepare_load(bound, n_joints, names)
+    return bound
+
+
+def bind_request(a: Atom, args: tuple[Arg, ...] | list[Arg], n_joints: int, names: list[str]) -> dict[str, Any]:
+    """Bind the arguments of a request line to atom ``a``."""
+    if a.varargs:
+        return {"args": list(args)}
+    return bind(a.name, a.params, [(x.key, x.value) for x in args], n_joints, names)

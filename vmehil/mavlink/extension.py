@@ -1,0 +1,67 @@
+"""``vmehil run --mavlink URL``: the MAVLink endpoint as a RUN_EXTENSIONS module.
+
+Options::
+
+    --mavlink URL                 e.g. udpin:127.0.0.1:14550 (listen) or udpout:127.0.0.1:14550
+    --mavlink-rate HZ             telemetry samples per second of loop time (default 10; 0 = off)
+    --mavlink-telemetry KIND      array (DEBUG_FLOAT_ARRAY, default) or named (NAMED_VALUE_FLOAT)
+    --mavlink-key-file PATH       MAVLink 2 signing key (64 hex digits, file mode 600)
+    --mavlink-allow-unsigned-read with a key, still answer unsigned parameter reads
+    --mavlink-allow-remote        allow a non-loopback address in URL
+    --mavlink-sysid N             our system id (default 1; component id 1)
+    --mavlink-min-margin M        stability margin 1-rho a new gain set must keep (default 0)
+    --mavlink-wait S              before the first tick, wait up to S s (wall clock) for a client
+                                  to arm (MAV_CMD_COMPONENT_ARM_DISARM); parameters set meanwhile
+                                  apply from tick 0. Not armed in time: the run is not started.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from vmehil.mavlink.endpoint import MavlinkEndpoint, MavlinkError
+from vmehil.mavlink.signing import load_key_file
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("MAVLink live tuning and telemetry (docs/mavlink.md)")
+    g.add_argument("--mavlink", metavar="URL", default=None,
+                   help="serve MAVLink on URL, e.g. udpin:127.0.0.1:14550 (loopback only by default)")
+    g.add_argument("--mavlink-rate", metavar="HZ", type=float, default=10.0,
+                   help="telemetry rate in Hz of loop time (default 10, 0 = off)")
+    g.add_argument("--mavlink-telemetry", choices=("array", "named"), default="array",
+                   help="DEBUG_FLOAT_ARRAY per joint (array, default) or NAMED_VALUE_FLOAT per value (named)")
+    g.add_argument("--mavlink-key-file", metavar="PATH", default=None,
+                   help="MAVLink 2 signing key file (64 hex digits, mode 600); unsigned PARAM_SET is then refused")
+    g.add_argument("--mavlink-allow-unsigned-read", action="store_true",
+                   help="with a key, still answer unsigned PARAM_REQUEST_LIST/READ")
+    g.add_argument("--mavlink-allow-remote", action="store_true",
+                   help="allow a non-loopback address in --mavlink (exposes live gain changes to the network)")
+    g.add_argument("--mavlink-sysid", metavar="N", type=int, default=1, help="MAVLink system id (default 1)")
+    g.add_argument("--mavlink-min-margin", metavar="M", type=float, default=0.0,
+                   help="refuse gains leaving less than this stability margin 1-rho (default 0)")
+    g.add_argument("--mavlink-wait", metavar="S", type=float, default=0.0,
+                   help="wait up to S s for a client to arm before the first tick (default 0: start at once)")
+
+
+def attach(args: argparse.Namespace, system: Any, loop: Any, runner: Any) -> MavlinkEndpoint | None:
+    """Open the endpoint and hook it to ``runner.after_tick``; None when --mavlink is not given."""
+    url = getattr(args, "mavlink", None)
+    if not url:
+        return None
+    key = load_key_file(args.mavlink_key_file) if args.mavlink_key_file else None
+    period = float(loop.period_s)
+    delay_s = float(getattr(runner, "delay_s", 0.0) or 0.0)
+    endpoint = MavlinkEndpoint(
+        loop, url, sysid=args.mavlink_sysid, rate_hz=args.mavlink_rate, key=key,
+        allow_unsigned_read=args.mavlink_allow_unsigned_read, allow_remote=args.mavlink_allow_remote,
+        delay_periods=min(max(delay_s / period, 0.0), 1.0), min_margin=args.mavlink_min_margin,
+        telemetry=args.mavlink_telemetry)
+    if args.mavlink_wait > 0:
+        if not endpoint.wait_for_start(args.mavlink_wait):
+            endpoint.close()
+            raise MavlinkError(f"--mavlink-wait: no client armed within {args.mavlink_wait:g} s; "
+                               "arm from the ground station (MAVProxy: 'arm throttle') or drop --mavlink-wait")
+    runner.after_tick.append(endpoint.after_tick)
+    return endpoint

@@ -1,0 +1,146 @@
+"""The report of a `vmehil run`: per-joint figures, JSON, plots."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from servo.loop import ServoLoop
+from vmehil.files import save_figure, write_atomic, write_json
+from vmehil.metrics import limit_cycle
+
+SETTLE_S = 2.0  #: the limit cycle window starts this long after the last motion ended
+
+
+def motion_end_time(loop: ServoLoop) -> float:
+    """When the last non-wait move ended (s); 0 if there was none."""
+    end = 0.0
+    for r in loop.sequencer.records:
+        if r.kind not in ("wait", "stay"):
+            end = r.t_start + r.duration
+    return end + getattr(loop, "_t_motion0", 0.0)
+
+
+def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns: int,
+              timing: dict[str, Any] | None = None) -> dict[str, Any]:
+    rec = loop.recorder.trimmed() if loop.recorder is not None else {}
+    t = rec.get("t", np.zeros(0))
+    t_end_motion = motion_end_time(loop)
+    t_window = t_end_motion + SETTLE_S
+    joints = []
+    for i, name in enumerate(loop.names):
+        th_true = rec["theta_true"][:, i] if rec else np.zeros(0)
+        th_d = rec["theta_d"][:, i] if rec else np.zeros(0)
+        th_pot = rec["theta_pot"][:, i] if rec else np.zeros(0)
+        err = th_d - th_true
+        moving = t <= t_end_motion
+        finite = np.isfinite(err)
+        lc = limit_cycle(t, th_true, t_window)
+        lc_pot = limit_cycle(t, th_pot, t_window)
+        so_events = [e for e in loop.law.events if e.joint == i] if loop.law is not None else []
+        joints.append({
+            "name": name,
+            "final_error_deg": _deg(err[finite][-1]) if finite.any() else None,
+            "max_tracking_error_deg": _deg(np.max(np.abs(err[moving & finite]))) if (moving & finite).any() else None,
+            "limit_cycle": {"amplitude_deg": lc.amplitude_deg if t.size else None, "frequency_hz": lc.frequency_hz,
+                            "window_s": list(lc.window_s), "source": "true angle"},
+            "limit_cycle_pot": {"amplitude_deg": lc_pot.amplitude_deg if t.size else None,
+                                "frequency_hz": lc_pot.frequency_hz, "source": "potentiometer"},
+            "switch_off_events": len(so_events),
+            "final_integrating": bool(loop.law.integrating[i]) if loop.law is not None else None,
+        })
+    out = {
+        "rig": rig,
+        "seed": seed,
+        "mode": "realtime" if realtime else "lockstep",
+        "ticks": loop.tick_count,
+        "duration_s": loop.tick_count * loop.period_s,
+        "overruns": overruns,
+        "faults": [loop.fault.as_dict()] if loop.fault else [],
+        "motion_end_s": t_end_motion,
+        "joints": joints,
+    }
+    if timing is not None:
+        out["timing"] = timing
+    if loop.log:  # live changes (MAVLink, console, API), in the order they took effect
+        out["changes"] = [{"time_s": t, "source": src, "change": msg} for t, src, msg in loop.log]
+    vision = loop.vision
+    if vision is not None:
+        out["vision"] = vision.summary()
+    return out
+
+
+def _deg(x: float) -> float:
+    return float(np.degrees(x))
+
+
+def table(summary: dict[str, Any]) -> str:
+    rows = [("joint", "final err °", "max track err °", "LC amp ° (true)", "LC Hz", "LC amp ° (pot)")]
+    for j in summary["joints"]:
+        lc, lp = j["limit_cycle"], j["limit_cycle_pot"]
+        rows.append((j["name"], _f(j["final_error_deg"]), _f(j["max_tracking_error_deg"]), _f(lc["amplitude_deg"]),
+                     _f(lc["frequency_hz"], 2), _f(lp["amplitude_deg"])))
+    widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]))]
+    lines = ["  ".join(r[c].rjust(widths[c]) if c else r[c].ljust(widths[c]) for c in range(len(r))) for r in rows]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    head = (f"{summary['rig']} · {summary['mode']} · {summary['ticks']} ticks ({summary['duration_s']:.2f} s) · "
+            f"overruns {summary['overruns']} · faults {len(summary['faults'])}")
+    v = summary.get("vision")
+    vis = [] if v is None else [
+        f"vision: {v['commands']} commands, robot {v['robot_state']} ({v['end_reason']}), "
+        f"end effector {_f(v['final_distance_mm'], 2)} mm from the target"]
+    tail = [*vis] + [f"fault: {f['cause']} at {f['time_s']:.3f} s ({f['joint']}): {f['detail']}"
+                     for f in summary["faults"]]
+    return "\n".join([head, "", *lines, *tail])
+
+
+def _f(v: float | None, nd: int = 3) -> str:
+    return "—" if v is None else f"{v:.{nd}f}"
+
+
+def write_report(loop: ServoLoop, summary: dict[str, Any], out_dir: str | Path) -> list[Path]:
+    """Plots per joint (position/target, error, current, integrator state with switch-off events)
+    and an overview, plus ``summary.md`` and ``run.json``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rec = loop.recorder.trimmed()
+    t = rec["t"]
+    files: list[Path] = []
+    for i, name in enumerate(loop.names):
+        fig, ax = plt.subplots(4, 1, figsize=(9, 9), sharex=True)
+        ax[0].plot(t, np.degrees(rec["theta_d"][:, i]), "k--", lw=1, label="target")
+        ax[0].plot(t, np.degrees(rec["theta_true"][:, i]), lw=1, label="true angle")
+        ax[0].plot(t, np.degrees(rec["theta"][:, i]), lw=0.8, alpha=0.7, label="measured (servo)")
+        ax[0].set_ylabel("angle (°)")
+        ax[0].legend(loc="best", fontsize=8)
+        ax[1].plot(t, np.degrees(rec["theta_d"][:, i] - rec["theta_true"][:, i]), lw=1)
+        ax[1].set_ylabel("error (°)")
+        ax[2].plot(t, rec["current_cmd"][:, i], lw=1, label="commanded")
+        ax[2].plot(t, rec["current"][:, i], lw=0.8, alpha=0.7, label="monitor")
+        ax[2].set_ylabel("current (A)")
+        ax[2].legend(loc="best", fontsize=8)
+        ax[3].step(t, rec["integrating"][:, i], where="post", lw=1, label="integrating (1) / switched off (0)")
+        ax3b = ax[3].twinx()
+        ax3b.plot(t, rec["kp_eff"][:, i], "r", lw=0.8, label="Kp effective")
+        ax3b.set_ylabel("Kp eff", color="r")
+        ax[3].set_ylabel("integrators")
+        ax[3].set_xlabel("time (s)")
+        j = summary["joints"][i]
+        fig.suptitle(f"{name}: final error {_f(j['final_error_deg'])}°, limit cycle "
+                     f"{_f(j['limit_cycle']['amplitude_deg'])}° @ {_f(j['limit_cycle']['frequency_hz'], 2)} Hz")
+        for a in ax:
+            a.grid(alpha=0.3)
+            if summary["motion_end_s"]:
+                a.axvline(summary["motion_end_s"], color="grey", lw=0.6, ls=":")
+        files += save_figure(fig, out / f"joint{i + 1}_{name}")
+        plt.close(fig)
+    files.append(write_json(out / "run.json", summary))
+    files.append(write_atomic(out / "summary.md", "# vmehil run\n\n```\n" + table(summary) + "\n```\n"))
+    return files

@@ -1,0 +1,137 @@
+"""Build a servo loop for an emulated rig: controller from the rig's servo tables, the motion,
+the watchdog and the recorder.
+
+Rig-level ``[servo]`` gives defaults; each ``[joint.servo]`` may override them::
+
+    [servo]
+    objects = ["pid", "torque_limit"]          # control objects, in order
+    gains = { kp = 100.0, kpi = 5000.0, kv = 50.0, kvi = 1000.0 }
+    switch_off = { enabled = true, inner_band_deg = 0.3, outer_band_deg = 1.5, kp_boost = 2.0 }
+    max_velocity_deg_s = 30.0                  # trajectory planning limit
+    following_error_limit_deg = 10.0           # watchdog
+
+    [joint.servo]
+    position = "pot"                           # or "encoder"
+    velocity = "tach"                          # or "encoder"
+    gains = { kp = 120.0 }                     # per-joint overrides
+    torque_limit_nm = 84.7                     # default: amplifier current limit · Kt · N
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hal.config import ConfigTable
+from servo.control.normalize import normalizing_chain
+from servo.control.objects import Controller, build_controller
+from servo.loop import Recorder, ServoLoop, WatchdogConfig
+from servo.motion import Motion, default_demo_motion
+from servo.trajectory.base import JointLimits
+from servo.trajectory.sequencer import PlanContext, Sequencer
+from vmehil.system import EmulatedRig
+
+GAIN_KEYS = ("kp", "kpi", "kv", "kvi")
+
+
+@dataclass
+class ServoSettings:
+    """Per-joint servo settings resolved from the rig (SI units)."""
+
+    objects: list[str]
+    gains: dict[str, list[float]]
+    switch_off: dict[str, list[Any]]
+    torque_limit_nm: list[float]
+    max_velocity_rad_s: list[float]
+    following_error_rad: list[float]
+
+
+def servo_settings(system: EmulatedRig) -> ServoSettings:
+    rig = system.rig
+    top = rig.table.table("servo", {})
+    objects = top.raw("objects", ["pid", "torque_limit"])
+    base_gains = top.table("gains", {})
+    base_so = top.table("switch_off", {})
+    gains: dict[str, list[float]] = {k: [] for k in GAIN_KEYS}
+    so: dict[str, list[Any]] = {}
+    tl, vmax, ferr = [], [], []
+    so_keys = set(base_so.keys())
+    for j in rig.joints:
+        so_keys |= set(j.servo.table("switch_off", {}).keys())
+    for j, p in zip(rig.joints, system.params, strict=True):
+        jg = j.servo.table("gains", {})
+        for k in GAIN_KEYS:
+            default = base_gains.get_float(k, {"kp": 100.0, "kpi": 5000.0, "kv": 50.0, "kvi": 1000.0}[k], min=0.0)
+            gains[k].append(jg.get_float(k, default, min=0.0))
+        jso = j.servo.table("switch_off", {})
+        for k in so_keys:
+            v = jso.raw(k) if k in jso else base_so.raw(k, None)  # None: the law's default
+            so.setdefault(k, []).append(v)
+        limit_a = p.linear_amp.current_limit_a if p.amplifier == "linear" else p.hbridge.current_limit_a
+        tl.append(j.servo.get_float("torque_limit_nm", limit_a * p.motor.kt_nm_per_a * p.gear.ratio, min=0.0))
+        vmax.append(np.radians(j.servo.get_float("max_velocity_deg_s",
+                                                 top.get_float("max_velocity_deg_s", 30.0, min=0.0))))
+        ferr.append(np.radians(j.servo.get_float("following_error_limit_deg",
+                                             top.get_float("following_error_limit_deg", 10.0, min=0.0))))
+    if not isinstance(objects, list):
+        raise top.error("objects", "a list of control object names", objects)
+    return ServoSettings(list(objects), gains, so, tl, vmax, ferr)
+
+
+def build_controller_for(system: EmulatedRig, settings: ServoSettings) -> Controller:
+    params = system.params
+    chain = normalizing_chain(
+        [p.inertia_at_joint() for p in params], [p.gear.ratio for p in params],
+        [p.motor.kt_nm_per_a for p in params], [p.linear_amp.gain_a_per_v for p in params])
+    table: dict[str, Any] = {"objects": settings.objects}
+    pid: dict[str, Any] = dict(settings.gains)
+    if settings.switch_off:
+        pid["switch_off"] = _collapse(settings.switch_off)
+    table["pid"] = pid
+    if "torque_limit" in settings.objects:
+        table["torque_limit"] = {"tau_max_nm": settings.torque_limit_nm}
+    return build_controller(ConfigTable(table, f"{system.rig.path} (servo settings)"), chain, system.rig.period_s)
+
+
+def _collapse(d: dict[str, list[Any]]) -> dict[str, Any]:
+    """Per-joint lists; a key absent for some joints takes the control law's default there."""
+    out: dict[str, Any] = {}
+    for k, vals in d.items():
+        if any(v is None for v in vals):
+            known = [v for v in vals if v is not None]
+            if all(isinstance(v, bool) for v in known):
+                vals = [True if v is None else v for v in vals]
+            else:
+                vals = ["auto" if v is None and k == "kp_boost" else v for v in vals]
+                if any(v is None for v in vals):
+                    continue
+        out[k] = vals
+    return out
+
+
+def build_loop(system: EmulatedRig, *, motion: Motion | None = None, gains: dict[str, float] | None = None,
+               switch_off: bool | None = None, n_ticks: int = 0, watchdog: bool = True) -> ServoLoop:
+    """A ready-to-start :class:`ServoLoop` for ``system`` (all settings from the rig file, with
+    optional gain overrides applied to every joint and the switch-off forced on or off)."""
+    settings = servo_settings(system)
+    n = system.rig.n_joints
+    if gains:
+        for k, v in gains.items():
+            if k not in GAIN_KEYS:
+                raise ValueError(f"unknown gain {k!r}; use kp, kpi, kv, kvi")
+            settings.gains[k] = [float(v)] * n
+    if switch_off is not None:
+        settings.switch_off["enabled"] = [bool(switch_off)] * n
+    controller = build_controller_for(system, settings)
+    motion = motion or default_demo_motion(n)
+    start = system.io.read().theta
+    limits = JointLimits.make(n, settings.max_velocity_rad_s)
+    sequencer = Sequencer(list(motion.moves), start, PlanContext(limits))
+    wd = WatchdogConfig(following_error_rad=np.asarray(settings.following_error_rad), enabled=watchdog)
+    recorder = Recorder(n_ticks, n) if n_ticks else None
+    loop = ServoLoop(system.io, controller, sequencer, wd, recorder=recorder, names=[j.name for j in system.rig.joints])
+    loop.plan_context = PlanContext(limits)
+    loop.motion = motion
+    return loop

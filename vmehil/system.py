@@ -1,0 +1,192 @@
+"""Assemble an emulated rig: crate + boards wired to the plant through the harness, the
+drivers (:class:`servo.io.JointIO`) and the servo loop. This module is the tools layer: it
+imports ``emulators``; the loop and the drivers do not.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from emulators.crate import Crate
+from emulators.crate_file import build_crate
+from emulators.harness import Harness, InProcessLink, JointNets, PlantLink, PlantLinkError
+from emulators.plant import JointParams, Plant, plant_params_from_config
+from emulators.presets import resolve_rig
+from hal.config import ConfigTable
+from servo.boundary import PlantBoundaryError
+from servo.io import JointIO, SensorScaling
+from servo.rig import RigSpec, load_rig, loopback_net, reference_net
+from vmehil.calibration.store import load_store_or_nominal
+
+
+def scaling_from_params(p: JointParams) -> SensorScaling:
+    """The nominal (datasheet) scaling the servo uses for a joint: no nonlinearity, no noise."""
+    span_v = p.pot.v_high - p.pot.v_low
+    amp = p.linear_amp
+    return SensorScaling(
+        pot_v_per_rad=span_v / p.pot.span_rad,
+        pot_zero_v=p.pot.v_low + span_v * (0.5 - p.pot.center_rad / p.pot.span_rad),
+        tach_v_per_rad_s=p.tach.gradient_v_per_rad_s if p.tach.present else 0.0,
+        encoder_counts_per_rev=4.0 * p.encoder.lines_per_rev * p.gear.ratio,
+        ratio=p.gear.ratio,
+        kt_nm_per_a=p.motor.kt_nm_per_a,
+        amp_gain_a_per_v=amp.gain_a_per_v,
+        monitor_v_per_a=amp.monitor_v_per_a if p.amplifier == "linear" else p.hbridge.monitor_v_per_a,
+        current_limit_a=amp.current_limit_a if p.amplifier == "linear" else p.hbridge.current_limit_a,
+        supply_v=p.hbridge.supply_v,
+        resistance_ohm=p.motor.resistance_ohm,
+        ke_v_s_per_rad=p.motor.ke_v_s_per_rad,
+        pwm_period_s=1.0 / p.hbridge.pwm_hz,
+    )
+
+
+def wired_crate_table(rig: RigSpec) -> ConfigTable:
+    """The rig's ``[crate]`` with every joint pin's net added to its board's wiring table."""
+    data = copy.deepcopy(rig.table.data)
+    boards = {b["name"]: b for b in data.get("crate", {}).get("board", [])}
+    for j in rig.joints:
+        for sig, pin in j.wiring.items():
+            b = boards.get(pin.board)
+            if b is None:
+                raise j.table.table("wiring").error(sig, f"a board of [crate] (no board named {pin.board!r})")
+            if b["type"] == "pio" and pin.channel == "PWM":
+                b["pwm_net"] = j.net(sig)
+                continue
+            if b["type"] == "pio":
+                b.setdefault("lines", {})[str(pin.channel)] = j.net(sig)
+            elif b["type"] == "quad":
+                chans = b.setdefault("channels", [])
+                chans.extend([""] * (pin.index + 1 - len(chans)))
+                chans[pin.index] = j.net(sig)
+            else:  # adc, dac: a table channel → net
+                b.setdefault("wiring", {})[str(pin.channel)] = j.net(sig)
+    _wire_calibration_nets(rig, boards)
+    return ConfigTable(data, rig.table.source)
+
+
+# --- calibration wiring (rig [rig.references] and [rig.loopback]; see servo.rig) ----------------
+def _wire_calibration_nets(rig: RigSpec, boards: dict[str, dict]) -> None:
+    """Add the reference and loopback nets to the boards' wiring tables."""
+    for pin in rig.references:
+        boards[pin.board].setdefault("wiring", {})[str(pin.channel)] = reference_net(pin)
+    for dac_pin, adc_pin in rig.loopback.items():
+        boards[dac_pin.board].setdefault("wiring", {})[str(dac_pin.channel)] = loopback_net(dac_pin)
+        boards[adc_pin.board].setdefault("wiring", {})[str(adc_pin.channel)] = loopback_net(dac_pin)
+
+
+def publish_references(crate: Crate, rig: RigSpec) -> None:
+    """Drive each reference net with its constant (a precision reference source)."""
+    for pin, volts in rig.references.items():
+        crate.signals.set_analog(reference_net(pin), volts)
+
+
+def joint_nets(rig: RigSpec) -> list[JointNets]:
+    return [JointNets(j.name, **{sig: j.net(sig) for sig in j.wiring}) for j in rig.joints]
+
+
+@dataclass
+class EmulatedRig:
+    """Everything of one emulated rig, assembled and wired. It is the runners' plant boundary
+    (:class:`servo.boundary.PlantBoundary`): the crate's simulated clock, the harness's publish
+    and exchange, and the plant's true state."""
+
+    rig: RigSpec
+    crate: Crate
+    plant: Plant | None
+    link: PlantLink
+    harness: Harness
+    io: JointIO
+    params: list[JointParams]
+    seed: int
+
+    @property
+    def period_ns(self) -> int:
+        return round(1e9 / self.rig.servo_rate_hz)
+
+    # --- servo.boundary.PlantBoundary -------------------------------------------------------
+    @property
+    def joints(self) -> list[str]:
+        return [j.name for j in self.rig.joints]
+
+    @property
+    def period_s(self) -> float:
+        return self.rig.period_s
+
+    @property
+    def computation_delay_s(self) -> float:
+        return self.rig.computation_delay_s
+
+    def advance_to(self, t_ns: int) -> None:
+        self.crate.advance_to(t_ns)
+
+    def sense(self, tick: int) -> None:
+        self.harness.publish()
+
+    def exchange(self, tick: int) -> None:
+        try:
+            self.harness.step(self.rig.period_s, self.rig.computation_delay_s)
+        except PlantLinkError as e:
+            raise PlantBoundaryError(e.cause, str(e)) from e
+
+    def truth(self) -> dict[str, np.ndarray] | None:
+        return self.harness.last.truth if self.harness.last is not None else None
+
+    def close(self) -> None:
+        self.link.close()
+
+
+def build_emulated_rig(rig: str | Path | RigSpec | None = None, *, seed: int = 0,
+                       link: PlantLink | None = None, initial_deg: list[float] | None = None,
+                       calibration: Any = None) -> EmulatedRig:
+    """Build crate, boards, plant (in-process unless ``link`` is given), harness and drivers.
+    ``calibration``: a calibration store, or the path of a calibration file (loaded and
+    identity-checked against the rig and the boards; a missing file gives nominal values and a
+    :class:`~vmehil.calibration.store.CalibrationMissingWarning`)."""
+    spec = rig if isinstance(rig, RigSpec) else load_rig(resolve_rig(rig))
+    crate = build_crate(wired_crate_table(spec), seed=seed)
+    publish_references(crate, spec)
+    params = plant_params_from_config(spec.table).joints
+    if [p.name for p in params] != [j.name for j in spec.joints]:
+        raise ValueError(f"rig {spec.name}: plant joints and servo joints differ")
+    plant = None
+    if link is None:
+        plant = Plant.from_config(spec.table, seed=seed)
+        if initial_deg is not None:
+            plant.reset(np.radians(np.asarray(initial_deg, float)))
+        link = InProcessLink(plant)
+    harness = Harness(crate.signals, joint_nets(spec), link)
+    _couple_hbridge_noise(crate, spec)
+    if isinstance(calibration, str | Path):
+        calibration = load_store_or_nominal(calibration, spec, bus=crate)
+    io = JointIO(crate, spec, [scaling_from_params(p) for p in params], calibration=calibration)
+    system = EmulatedRig(spec, crate, plant, link, harness, io, params, seed)
+    # Power-up: the plant runs one servo period with the rack's power-up outputs (DACs at 0 V,
+    # amplifiers disabled) so that the sensor nets hold real readings when the loop starts.
+    harness.pending = link.exchange(harness.collect(), spec.period_s, 0.0)
+    harness.publish()
+    return system
+
+
+def _couple_hbridge_noise(crate: Crate, spec: RigSpec) -> None:
+    """H-bridge switching noise couples into every ADC conversion while a bridge is driving
+    (the JPL paper's grounding lesson). The level is set per rig: ``[rig] hbridge_noise_v``."""
+    level = spec.table.table("rig", {}).get_float("hbridge_noise_v", 0.0, min=0.0)
+    if level <= 0.0:
+        return
+    nets = [j.net("pwm") for j in spec.joints if "pwm" in j.wiring]
+    if not nets:
+        return
+    signals = crate.signals
+
+    def noise() -> float:
+        return level if any(signals.get_analog(n) > 0.0 for n in nets) else 0.0
+
+    for b in crate.boards.values():
+        add = getattr(b, "add_noise_source", None)
+        if add is not None:
+            add(noise)
