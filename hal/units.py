@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-NM_PER_OZ_IN = 0.0070615518  #: 1 ounce-force inch in newton metres (DESIGN section 8)
+NM_PER_OZ_IN = 0.0070615518  #: 1 ounce-force inch in newton metres (docs/architecture.md, “Units”)
 ARCMIN_PER_RAD = 60.0 * 180.0 / math.pi
 RAD_PER_REV = 2.0 * math.pi
 

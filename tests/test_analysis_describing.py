@@ -1,5 +1,5 @@
 """Describing-function analysis: DF formulas, analytic known answers, the sampled evaluation
-against brute-force time simulation, and the JPL velocity dead-band cycle (DESIGN section 9)."""
+against brute-force time simulation, and the JPL velocity dead-band cycle (docs/jpl-figures.md)."""
 
 from __future__ import annotations
 
@@ -109,10 +109,10 @@ def _deadband_for(amplitude_deg: float, g: Gains) -> tuple[float, float]:
 
 
 def test_continuous_velocity_dead_band_reproduces_the_papers_cycle() -> None:
-    """DESIGN section 9: a DF of the tach dead band on the normalized loop predicts ±0.73° at 3.1 Hz."""
+    """docs/jpl-figures.md: a DF of the tach dead band on the normalized loop predicts ±0.73° at 3.1 Hz."""
     g = Gains.paper()
     delta, w = _deadband_for(0.73, g)
-    assert 0.10 < delta < 0.16  # the band DESIGN section 9 quotes (exactly 0.1506 rad/s)
+    assert 0.10 < delta < 0.16  # the band docs/jpl-figures.md quotes (exactly 0.1506 rad/s)
     (c,) = predict_cycles(LoopConfig(gains=g), DeadZone(delta), sampled=False)
     assert c.frequency_hz == pytest.approx(w / (2 * math.pi), rel=1e-7)
     assert c.frequency_hz == pytest.approx(3.06, abs=0.01)
@@ -141,7 +141,7 @@ def test_harmonic_balance_puts_a_gain_loop_pole_on_the_unit_circle() -> None:
 
 
 def test_frozen_integrator_loop_without_friction_still_cycles_near_sqrt_kp() -> None:
-    """DESIGN section 9: with the integrators frozen (and Kp raised) the dead band alone still
+    """docs/jpl-figures.md: with the integrators frozen (and Kp raised) the dead band alone still
     leaves a cycle near √Kp/2π, smaller than with integrators — friction is what stops it."""
     g = Gains(kp=1100, kpi=0, kv=50, kvi=0)
     cfg = LoopConfig(gains=g)
@@ -191,7 +191,7 @@ JOINT1 = [DeadZone(0.15, name="tach dead band"), Relay(4.24 / 3.0, name="Coulomb
 
 
 def test_dead_band_with_friction_cycle_matches_the_reduced_joint_simulation() -> None:
-    """Paper gains: ±¾° at 1–3 Hz (DESIGN section 9), predicted and simulated."""
+    """Paper gains: ±¾° at 1–3 Hz (docs/jpl-figures.md), predicted and simulated."""
     cfg = LoopConfig()
     c = headline(predict_joint_velocity(cfg, JOINT1, sampled=True))
     assert c is not None and 0.6 < c.amplitude_deg < 0.85 and 2.0 < c.frequency_hz < 3.2

@@ -126,7 +126,7 @@ def test_limit_cycle_predict_only_json_and_report(tmp_path: Path, capsys) -> Non
     assert main(["tune", "limit-cycle", "--predict-only", "--json", str(path), "--report", str(rep)]) == 0
     d = json.loads(path.read_text())
     p = d["predicted"]
-    assert 0.5 < p["amplitude_deg"] < 1.0 and 1.0 < p["frequency_hz"] < 3.0  # DESIGN section 9: ±¾° at 1–3 Hz
+    assert 0.5 < p["amplitude_deg"] < 1.0 and 1.0 < p["frequency_hz"] < 3.0  # docs/jpl-figures.md: ±¾° at 1–3 Hz
     assert d["simulated"] is None and d["switch_off"]["simulated"] is None
     # the paper's cure: with the integrators switched off no stable cycle is predicted
     assert d["switch_off"]["predicted"]["amplitude_deg"] is None

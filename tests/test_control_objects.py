@@ -41,7 +41,7 @@ def test_normalizing_chain_numbers():
     assert ch.current_from_torque(tau)[0] == pytest.approx(30.0 / 2.8)
     assert ch.volts_from_torque(tau)[0] == pytest.approx(30.0 / 2.8 / 2.0)
     assert ch.counts_from_volts(np.array([1.0]))[0] == pytest.approx(4096 / 20.0)
-    # 6 oz-in breakout at the motor is ~1.5 A (DESIGN section 9)
+    # 6 oz-in breakout at the motor is ~1.5 A (docs/jpl-figures.md)
     assert ch.current_from_torque(np.array([oz_in_to_nm(6.0) * 100]))[0] == pytest.approx(1.51, abs=0.01)
     assert ch.describe()[0]["volts_per_accel"] == pytest.approx(ch.volts_per_accel[0])
     with pytest.raises(GainError, match=r"kt\[1\] = 0.0"):

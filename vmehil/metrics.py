@@ -1,6 +1,6 @@
 """Figures of merit measured from recorded runs: limit cycles, tracking and settling.
 
-Limit cycle (DESIGN section 9, issue 5): over the hold after the last motion has ended and the
+Limit cycle (docs/jpl-figures.md, issue 5): over the hold after the last motion has ended and the
 joint has settled, amplitude = half the peak-to-peak of the angle about its mean; frequency
 from the zero crossings of the angle about its mean, cross-checked against the spectrum peak;
 ``None`` when there is no cycle (amplitude below ``min_amplitude_rad`` or fewer than two full

@@ -10,7 +10,7 @@ cycle when the first harmonic closes the loop::
 For the odd single-valued nonlinearities here N(A) is real and positive, so ω is where G is real
 and negative, and A solves N(A) = −1/G(jω). For the **sampled** loop, G is evaluated on the unit
 circle, G(e^{jωT}) — python-control's ``describing_function_response`` assumes a continuous
-system and mis-scales the frequency of a discrete one (DESIGN section 9), so it is not used.
+system and mis-scales the frequency of a discrete one (docs/jpl-figures.md), so it is not used.
 
 Where the nonlinearity acts in the loop:
 

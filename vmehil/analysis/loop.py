@@ -1,6 +1,6 @@
 """Linear models of the normalized JPL joint servo loop, continuous and sampled.
 
-The loop (DESIGN section 6), per joint, in normalized units (plant 1/s²: the input is an
+The loop (docs/control.md), per joint, in normalized units (plant 1/s²: the input is an
 acceleration in rad/s², i.e. torque/J)::
 
     e_k  = θd_k − θ_k            ė_k = ωd_k − ω_k                      (rad, rad/s)
