@@ -332,8 +332,12 @@ class JointIO:
                 drv.set_line(j.net("amp_reset"), False)
 
     def safe_stop(self) -> list[str]:
-        """Amplifiers disabled, DAC outputs to 0 V, PWM off. Keeps going past driver errors
-        (a safe stop must do as much as it can) and returns what failed."""
+        """Amplifiers disabled, DAC outputs to 0 V, PWM off — then read back that it happened.
+
+        Keeps going past driver errors (a safe stop must do as much as it can) and returns what
+        failed or could not be confirmed (:meth:`verify_stopped`): an empty list means every
+        enable line reads low, every amplifier command's DAC output holds the 0 V code and every
+        PWM timer is off."""
         failures: list[str] = []
         for name, drv in self.dac.items():
             try:
@@ -345,9 +349,46 @@ class JointIO:
                 if "pwm" in j.wiring:
                     self._set_hbridge(j, 0.0)
                     self.pio[j.wiring["pwm"].board].pwm_enable(False)
+            except Exception as e:
+                failures.append(f"{j.name}: {e}")
+            try:
                 if "amp_enable" in j.wiring:
                     self.pio[j.wiring["amp_enable"].board].set_line(j.net("amp_enable"), False)
             except Exception as e:
                 failures.append(f"{j.name}: {e}")
         self.last_dac_volts[:] = 0.0
-        return failures
+        return failures + [f for f in self.verify_stopped() if f not in failures]
+
+    def verify_stopped(self) -> list[str]:
+        """Read back every actuator output: what is not provably safe, one line each.
+
+        An enable line is read from its PIO latch and pin; an amplifier command from its DAC
+        output register (``OUTn``) against the 0 V code; a PWM timer from its control register.
+        A board that does not answer cannot be confirmed and is reported as such."""
+        problems: list[str] = []
+        for j in self.rig.joints:
+            w = j.wiring
+            try:
+                if "amp_enable" in w:
+                    pio = self.pio[w["amp_enable"].board]
+                    port, bit = pio.resolve(j.net("amp_enable"))
+                    if pio.get_line(j.net("amp_enable")) or pio.read_pins(port) >> bit & 1:
+                        problems.append(f"{j.name}: amplifier enable {w['amp_enable']} still reads high")
+            except Exception as e:
+                problems.append(f"{j.name}: amplifier enable {w['amp_enable']} cannot be read back ({e})")
+            try:
+                if "amp_command" in w:
+                    pin = w["amp_command"]
+                    dac = self.dac[pin.board]
+                    zero, _ = dac.code_for(pin.index, 0.0)
+                    code = dac.read_back_counts(pin.index)
+                    if code != zero:
+                        problems.append(f"{j.name}: DAC {pin} output code {code:#05x}, not the 0 V code {zero:#05x}")
+            except Exception as e:
+                problems.append(f"{j.name}: DAC {w['amp_command']} cannot be read back ({e})")
+            try:
+                if "pwm" in w and self.pio[w["pwm"].board].pwm_duty() != 0.0:
+                    problems.append(f"{j.name}: PWM {w['pwm']} still running")
+            except Exception as e:
+                problems.append(f"{j.name}: PWM {w['pwm']} cannot be read back ({e})")
+        return problems

@@ -105,6 +105,8 @@ class ServoLoop:
         self.recorder = recorder
         self.names = names or [f"j{i + 1}" for i in range(self.n)]
         self.fault: Fault | None = None
+        #: after a safe stop: what its read-back could not confirm as safe (empty: all safe)
+        self.stop_incomplete: list[str] = []
         self.enabled = False
         self.tick_count = 0
         self._inbox: queue.SimpleQueue[tuple[LiveCommand, Callable[[Any, BaseException | None], None] | None]] = (
@@ -197,7 +199,13 @@ class ServoLoop:
         return theta
 
     def safe_stop(self, cause: str, detail: str, joint: int | None = None) -> None:
+        """Disable the amplifiers, command 0 V, stop PWM, read it all back, and record why.
+
+        The first fault is kept (later stops add nothing to it). What the read-back could not
+        confirm goes to :attr:`stop_incomplete` — a separate, louder condition than the fault
+        itself: the rig may still be powered."""
         failures = self.io.safe_stop()
+        self.stop_incomplete = failures
         if failures:
             detail += " (safe stop incomplete: " + "; ".join(failures) + ")"
         if self.fault is None:

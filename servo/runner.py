@@ -13,7 +13,17 @@ servo period. They differ only in pacing:
   that ends after the next deadline counts as an overrun and the next tick starts at once,
   late; the loop catches up when later ticks are shorter. Because the plant advances exactly
   one period per tick, a real-time run computes the same numbers as a lockstep run with the
-  same seed — only the timing statistics differ.
+  same seed — only the timing statistics differ. A loop that falls more than
+  ``max_lateness_periods`` (default 5: 40 ms at 125 Hz) behind its deadline is no longer
+  controlling anything in time: with ``overrun="stop"`` (the default) it safe-stops with the
+  cause ``overrun``; ``overrun="warn"`` counts it and runs on.
+
+**Every exit path safe-stops.** An exception raised anywhere in a tick (trajectory, control
+object, drivers, plant, an after-tick hook) safe-stops the rig in the same tick with the cause
+``exception`` and the exception's text; SIGINT (KeyboardInterrupt) and SIGTERM (see
+:mod:`servo.interrupts`) with the cause ``interrupted``. The stop is then carried to the plant
+by one more exchange, and the run ends: ``run`` returns the number of ticks completed and
+:attr:`LockstepRunner.ended_by` says why (``None`` for a run that went to the end).
 """
 
 from __future__ import annotations
@@ -26,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from servo.boundary import PlantBoundary, PlantBoundaryError
+from servo.interrupts import Terminated, interrupt_name
 from servo.loop import ServoLoop
 
 Progress = Callable[[int, int], None]
@@ -84,10 +95,15 @@ class LockstepRunner:
         self.after_tick: list[Callable[[ServoLoop], None]] = []
         #: wall seconds of the last tick spent in the servo loop and in the harness exchange
         self.last_split = (0.0, 0.0)
+        #: why the last run ended early: the exception or signal (``None``: it ran to the end)
+        self.ended_by: BaseException | None = None
+        self._exchanged = False
+        self._completed = 0
 
     def tick(self) -> None:
         plant = self.plant
         k = self.loop.tick_count
+        self._exchanged = False
         clock = time.perf_counter
         t0 = clock()
         plant.advance_to(k * self.period_ns)
@@ -98,6 +114,7 @@ class LockstepRunner:
         # The command takes effect at t_k + delay: let the boards' pending events (a DAC's output
         # settling after its update strobe) run before the exchange reads the command nets.
         plant.advance_to(k * self.period_ns + self.delay_ns)
+        self._exchanged = True  # from here on, a failure's stop reaches the plant at the next exchange
         try:
             plant.exchange(k)
         except PlantBoundaryError as e:
@@ -109,13 +126,49 @@ class LockstepRunner:
             cb(self.loop)
 
     def run(self, n_ticks: int, progress: Progress | None = None, stop: Callable[[], bool] | None = None) -> int:
+        """Run up to ``n_ticks`` ticks; returns how many completed. ``stop()`` is asked before
+        each tick (True ends the run there, without a fault)."""
+        self.ended_by = None
+        self._completed = 0
+        try:
+            return self._run(n_ticks, progress, stop)
+        except (KeyboardInterrupt, Terminated) as e:
+            self.stop_now("interrupted", f"{interrupt_name(e)} received", e)
+        except Exception as e:
+            self.stop_now("exception", f"{type(e).__name__}: {e}", e)
+        return self._completed
+
+    def _run(self, n_ticks: int, progress: Progress | None, stop: Callable[[], bool] | None) -> int:
         for i in range(n_ticks):
             if stop is not None and stop():
                 return i
             self.tick()
+            self._completed = i + 1
             if progress is not None:
                 progress(i + 1, n_ticks)
         return n_ticks
+
+    def stop_now(self, cause: str, detail: str, exc: BaseException | None = None) -> None:
+        """Safe-stop the loop now and carry the stop to the plant with one more exchange.
+
+        The exchange of the tick that failed is made if it had not happened yet; otherwise the
+        next tick's. Errors while carrying the stop over are ignored: the drivers have already
+        disabled the amplifiers and zeroed the DACs (and read it back) in :meth:`ServoLoop.safe_stop`.
+        """
+        self.ended_by = exc
+        self.loop.safe_stop(cause, detail)
+        k = self.loop.tick_count
+        if self._exchanged:
+            k += 1
+        try:
+            self.plant.advance_to(k * self.period_ns + self.delay_ns)
+            self.plant.exchange(k)
+        except Exception:  # the stop itself is done; the plant may be what failed
+            pass
+        self._exchanged = True
+
+
+OVERRUN_POLICIES = ("stop", "warn")
 
 
 class RealtimeRunner(LockstepRunner):
@@ -123,8 +176,17 @@ class RealtimeRunner(LockstepRunner):
 
     def __init__(self, plant: PlantBoundary, loop: ServoLoop, *, spin_s: float = 0.0005,
                  clock: Callable[[], float] = time.perf_counter,
-                 sleep: Callable[[float], None] = time.sleep) -> None:
+                 sleep: Callable[[float], None] = time.sleep,
+                 overrun: str = "stop", max_lateness_periods: float = 5.0) -> None:
         super().__init__(plant, loop)
+        if overrun not in OVERRUN_POLICIES:
+            raise ValueError(f"overrun policy {overrun!r}: expected one of {', '.join(OVERRUN_POLICIES)}")
+        if not max_lateness_periods > 0 or max_lateness_periods == float("inf"):
+            raise ValueError(f"max_lateness_periods {max_lateness_periods!r}: expected a finite number > 0")
+        self.overrun = overrun
+        self.max_lateness_periods = float(max_lateness_periods)
+        #: ticks that started more than ``max_lateness_periods`` late (counted under "warn")
+        self.late_ticks = 0
         self.spin_s = spin_s
         self.clock = clock
         self.sleep = sleep
@@ -140,8 +202,9 @@ class RealtimeRunner(LockstepRunner):
         gc.freeze()
         gc.disable()
         try:
-            return self._run(n_ticks, progress, stop)
+            return super().run(n_ticks, progress, stop)
         finally:
+            self.overruns = self.timing.overruns
             gc.unfreeze()
             if gc_was_enabled:
                 gc.enable()
@@ -156,7 +219,16 @@ class RealtimeRunner(LockstepRunner):
                 gc.collect(0)
             self._wait_until(deadline)
             woke = self.clock()
+            behind = (woke - deadline) / self.period_s
+            if behind > self.max_lateness_periods and self.loop.fault is None:
+                self.late_ticks += 1
+                if self.overrun == "stop":
+                    self.stop_now("overrun", f"the loop fell {behind:.1f} periods behind its deadline "
+                                  f"(limit {self.max_lateness_periods:g}; --overrun warn runs on)")
+                    self.overruns = self.timing.overruns
+                    return i
             self.tick()
+            self._completed = i + 1
             done = self.clock()
             self.timing.compute_s.append(done - woke)
             self.timing.lateness_s.append(max(0.0, woke - deadline))
