@@ -23,13 +23,15 @@ from __future__ import annotations
 
 import queue
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from servo.control.objects import ControlContext, Controller, SwitchableController
+from servo.interrupts import Terminated, interrupt_name
 from servo.io import JointIO, Measurement
 from servo.trajectory.sequencer import Sequencer
 
@@ -107,6 +109,8 @@ class ServoLoop:
         self.fault: Fault | None = None
         #: after a safe stop: what its read-back could not confirm as safe (empty: all safe)
         self.stop_incomplete: list[str] = []
+        #: how the run ended (:meth:`shutdown`): reason, tick, whether the read-back confirmed it
+        self.final_stop: dict[str, Any] | None = None
         self.enabled = False
         self.tick_count = 0
         self._inbox: queue.SimpleQueue[tuple[LiveCommand, Callable[[Any, BaseException | None], None] | None]] = (
@@ -165,6 +169,40 @@ class ServoLoop:
         self.io.write_torque(np.zeros(self.n))
         self.io.enable(True)
         self.enabled = True
+
+    def shutdown(self, reason: str) -> list[str]:
+        """End of a run, not a fault: amplifiers disabled, 0 V commanded, PWM off, read back.
+
+        Recorded in :attr:`final_stop` (``reason``, and what the read-back could not confirm);
+        the first fault, if any, is kept as it was. Returns the unconfirmed items."""
+        failures = self.io.safe_stop()
+        self.enabled = False
+        self.stop_incomplete = failures
+        self.final_stop = {"reason": reason, "tick": self.tick_count, "time_s": self.tick_count * self.period_s,
+                           "verified": not failures, "incomplete": list(failures)}
+        return failures
+
+    @contextmanager
+    def armed(self) -> Iterator[ServoLoop]:
+        """``start()`` the loop; however the block is left — its end, an exception, Ctrl-C,
+        SIGTERM raised as :class:`servo.interrupts.Terminated` — :meth:`shutdown` it, with the
+        reason (``end``, ``exception: …``, ``interrupted: SIGINT``). An exception or a signal
+        that leaves the block is also recorded as the fault (cause ``exception`` or
+        ``interrupted``) unless one was recorded already, and re-raised."""
+        self.start()
+        reason = "end"
+        try:
+            yield self
+        except (KeyboardInterrupt, Terminated) as e:
+            reason = f"interrupted: {interrupt_name(e)}"
+            self.safe_stop("interrupted", f"{interrupt_name(e)} received")
+            raise
+        except BaseException as e:
+            reason = f"exception: {type(e).__name__}: {e}"
+            self.safe_stop("exception", f"{type(e).__name__}: {e}")
+            raise
+        finally:
+            self.shutdown(reason)
 
     def resume(self, hold_measured: bool = True) -> np.ndarray | None:
         """Leave a safe stop (or a stop) and servo again: clear the fault, forget the watchdog's

@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+import traceback
 
 from hal.config import ConfigError
 from hal.vme.errors import VmeError
+from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name, stop_signals_raise
+from vmehil.exit_status import EXIT_UNEXPECTED, EXIT_USAGE
 
 # Subcommand modules; each defines ``register(subparsers)`` that sets ``func`` on its parser.
 COMMAND_MODULES = [
@@ -26,6 +30,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="vmehil",
         description="VME hardware-in-the-loop emulation, drivers and servo tools for robot joints.",
     )
+    parser.add_argument("--debug", action="store_true",
+                        help="show the traceback of an unexpected error (also VMEHIL_DEBUG=1)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMAND_MODULES:
@@ -38,16 +44,29 @@ class CliError(Exception):
 
 
 def main(argv: list[str] | None = None) -> int:
+    # --debug is accepted anywhere on the line (before or after the subcommand)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv or os.environ.get("VMEHIL_DEBUG", "") not in ("", "0")
+    argv = [a for a in argv if a != "--debug"]
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        with stop_signals_raise():
+            return int(args.func(args) or 0)
     except (CliError, ConfigError, VmeError, FileNotFoundError, ValueError) as e:
+        if debug:
+            traceback.print_exc()
         print(f"vmehil {args.command}: error: {e}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"vmehil {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_USAGE
+    except (KeyboardInterrupt, Terminated) as e:
+        print(f"vmehil {args.command}: interrupted ({interrupt_name(e)})", file=sys.stderr)
+        return interrupt_exit_status(e)
+    except Exception as e:
+        if debug:
+            traceback.print_exc()
+        print(f"vmehil {args.command}: unexpected error: {type(e).__name__}: {e} "
+              "(run with --debug or VMEHIL_DEBUG=1 for the traceback)", file=sys.stderr)
+        return EXIT_UNEXPECTED
 
 
 if __name__ == "__main__":  # pragma: no cover

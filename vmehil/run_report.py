@@ -59,6 +59,9 @@ def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns:
         "duration_s": loop.tick_count * loop.period_s,
         "overruns": overruns,
         "faults": [loop.fault.as_dict()] if loop.fault else [],
+        # how the run ended: the final safe stop and what its read-back could not confirm
+        "final_stop": loop.final_stop,
+        "safe_stop_incomplete": list(loop.stop_incomplete),
         "motion_end_s": t_end_motion,
         "joints": joints,
     }

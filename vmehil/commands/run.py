@@ -12,6 +12,8 @@ import math
 import sys
 from pathlib import Path
 
+from servo.interrupts import Terminated, interrupt_exit_status
+from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
 from vmehil.files import write_json
 
 # Modules that extend `vmehil run` (live tuning over MAVLink, the operator console, ...). Each
@@ -121,12 +123,20 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     system = _build_calibrated(args, rig, build_emulated_rig)
     loop = build_loop(system, motion=motion, gains=gains, n_ticks=n_ticks,
                       switch_off=False if args.no_integrator_switch_off else None)
-    loop.start()
     runner = RealtimeRunner(system, loop) if args.realtime else LockstepRunner(system, loop)
-    attached = [a for a in (ext.attach(args, system, loop, runner) for ext in _extensions()) if a is not None]
     progress = None if args.quiet or not sys.stderr.isatty() else _progress_bar()
+    attached: list = []
+    interrupted: BaseException | None = None
     try:
-        runner.run(n_ticks, progress=progress)
+        # armed(): whatever ends the block (its end, an exception, Ctrl-C, SIGTERM) ends with the
+        # amplifiers disabled, 0 V on the DACs and PWM off, read back (loop.final_stop).
+        with loop.armed():
+            attached = [a for a in (ext.attach(args, system, loop, runner) for ext in _extensions()) if a is not None]
+            if not args.quiet:
+                print(f"run: {n_ticks} ticks ({duration:g} s) on {rig.name}, amplifiers enabled", file=sys.stderr)
+            runner.run(n_ticks, progress=progress)
+    except (KeyboardInterrupt, Terminated) as e:  # between ticks' reach (set-up): still reported
+        interrupted = e
     finally:
         for a in attached:
             a.close()
@@ -145,7 +155,17 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
         files = write_report(loop, summary, args.report)
         print(f"report: {len(files)} files in {args.report}")
     system.close()
-    return 1 if summary["faults"] else 0
+    return run_exit_status(loop, interrupted or runner.ended_by)
+
+
+def run_exit_status(loop, ended_by: BaseException | None) -> int:
+    """The documented exit statuses (docs/faults.md): 4 a safe stop that its read-back could not
+    confirm, 130/143 ended by SIGINT/SIGTERM, 1 a fault stopped the run, 0 it ran to the end."""
+    if loop.stop_incomplete:
+        return EXIT_STOP_INCOMPLETE
+    if isinstance(ended_by, KeyboardInterrupt | Terminated):
+        return interrupt_exit_status(ended_by)
+    return EXIT_FAULT if loop.fault is not None else 0
 
 
 def _build_calibrated(args: argparse.Namespace, rig, build):

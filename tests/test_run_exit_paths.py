@@ -1,0 +1,68 @@
+"""`vmehil run` ends safe on every exit path, with the documented exit status, and still writes
+its JSON: SIGINT → 130, SIGTERM → 143, a normal end → 0 with a verified final stop."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from vmehil import cli
+from vmehil.exit_status import EXIT_UNEXPECTED
+
+
+def _start_run(tmp_path):
+    out = tmp_path / "run.json"
+    proc = subprocess.Popen([sys.executable, "-m", "vmehil", "run", "--duration", "120", "--json", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=str(tmp_path))
+    assert proc.stderr is not None
+    seen = []
+    deadline = time.monotonic() + 120  # a bound on a hang only
+    for line in proc.stderr:  # the run announces that the amplifiers are enabled, then ticks
+        seen.append(line)
+        if "amplifiers enabled" in line:
+            return proc, out
+        assert time.monotonic() < deadline
+    raise AssertionError(f"the run never started: {''.join(seen)}")
+
+
+@pytest.mark.parametrize(("signum", "status", "name"),
+                         [(signal.SIGINT, 130, "SIGINT"), (signal.SIGTERM, 143, "SIGTERM")])
+def test_a_signal_ends_the_run_safe_stopped_with_its_exit_status_and_the_json(tmp_path, signum, status, name):
+    proc, out = _start_run(tmp_path)
+    proc.send_signal(signum)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == status, err
+    assert out.exists(), err
+    summary = json.loads(out.read_text())
+    assert summary["faults"][0]["cause"] == "interrupted" and name in summary["faults"][0]["detail"]
+    assert summary["final_stop"]["reason"] == f"interrupted: {name}"
+    assert summary["final_stop"]["verified"] is True and summary["safe_stop_incomplete"] == []
+    assert summary["ticks"] < 120 * 125  # stopped early (possibly in its very first tick)
+
+
+def test_a_normal_end_is_a_verified_stop(tmp_path):
+    out = tmp_path / "run.json"
+    assert cli.main(["run", "--duration", "1", "--quiet", "--json", str(out)]) == 0
+    summary = json.loads(out.read_text())
+    assert summary["final_stop"] == {"reason": "end", "tick": 125, "time_s": 1.0, "verified": True, "incomplete": []}
+
+
+def test_an_unexpected_error_is_one_line_and_exit_status_3(monkeypatch, capsys):
+    def broken(args):
+        raise RuntimeError("something nobody expected")
+
+    parser = cli.build_parser()
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    run_parser = parser._subparsers._group_actions[0].choices["run"]  # type: ignore[union-attr]
+    run_parser.set_defaults(func=broken)
+    assert cli.main(["run"]) == EXIT_UNEXPECTED
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["vmehil run: unexpected error: RuntimeError: something nobody expected "
+                   "(run with --debug or VMEHIL_DEBUG=1 for the traceback)"]
+    assert cli.main(["run", "--debug"]) == EXIT_UNEXPECTED
+    assert "Traceback" in capsys.readouterr().err

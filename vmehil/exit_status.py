@@ -1,0 +1,8 @@
+"""Exit statuses of every ``vmehil`` command (docs/faults.md, "Exit statuses")."""
+
+EXIT_OK = 0
+EXIT_FAULT = 1  #: a fault safe-stopped the run (the report says which)
+EXIT_USAGE = 2  #: bad input: a flag, a file, a key (nothing moved)
+EXIT_UNEXPECTED = 3  #: an unexpected error (``--debug`` or VMEHIL_DEBUG=1 shows the traceback)
+EXIT_STOP_INCOMPLETE = 4  #: a safe stop whose read-back could not confirm every output safe
+# 130 / 143: ended by SIGINT / SIGTERM (128 + the signal number), after a safe stop
