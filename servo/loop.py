@@ -170,39 +170,43 @@ class ServoLoop:
         self.io.enable(True)
         self.enabled = True
 
-    def shutdown(self, reason: str) -> list[str]:
-        """End of a run, not a fault: amplifiers disabled, 0 V commanded, PWM off, read back.
+    def shutdown(self, reason: str, detail: str = "") -> list[str]:
+        """End of a run: amplifiers disabled, 0 V commanded, PWM off, read back.
 
-        Recorded in :attr:`final_stop` (``reason``, and what the read-back could not confirm);
-        the first fault, if any, is kept as it was. Returns the unconfirmed items."""
+        Recorded in :attr:`final_stop` (``reason``: ``end``, ``fault``, ``interrupted`` or
+        ``exception``; ``detail``; what the read-back could not confirm); a fault recorded
+        earlier is kept as it was. Returns the unconfirmed items."""
         failures = self.io.safe_stop()
         self.enabled = False
         self.stop_incomplete = failures
-        self.final_stop = {"reason": reason, "tick": self.tick_count, "time_s": self.tick_count * self.period_s,
-                           "verified": not failures, "incomplete": list(failures)}
+        self.final_stop = {"reason": reason, "detail": detail, "tick": self.tick_count,
+                           "time_s": self.tick_count * self.period_s, "verified": not failures,
+                           "incomplete": list(failures)}
         return failures
 
     @contextmanager
     def armed(self) -> Iterator[ServoLoop]:
         """``start()`` the loop; however the block is left — its end, an exception, Ctrl-C,
-        SIGTERM raised as :class:`servo.interrupts.Terminated` — :meth:`shutdown` it, with the
-        reason (``end``, ``exception: …``, ``interrupted: SIGINT``). An exception or a signal
-        that leaves the block is also recorded as the fault (cause ``exception`` or
-        ``interrupted``) unless one was recorded already, and re-raised."""
+        SIGTERM raised as :class:`servo.interrupts.Terminated` — :meth:`shutdown` it. An
+        exception or a signal that leaves the block is also recorded as the fault (cause
+        ``exception`` or ``interrupted``) unless one was recorded already, and re-raised; a
+        block that ends after a fault (a watchdog stop, or a runner that caught a signal) ends
+        with that fault's cause as the reason."""
         self.start()
-        reason = "end"
         try:
             yield self
         except (KeyboardInterrupt, Terminated) as e:
-            reason = f"interrupted: {interrupt_name(e)}"
             self.safe_stop("interrupted", f"{interrupt_name(e)} received")
             raise
         except BaseException as e:
-            reason = f"exception: {type(e).__name__}: {e}"
             self.safe_stop("exception", f"{type(e).__name__}: {e}")
             raise
         finally:
-            self.shutdown(reason)
+            f = self.fault
+            if f is None:
+                self.shutdown("end", "the run ended")
+            else:
+                self.shutdown(f.cause if f.cause in ("interrupted", "exception") else "fault", f.detail)
 
     def resume(self, hold_measured: bool = True) -> np.ndarray | None:
         """Leave a safe stop (or a stop) and servo again: clear the fault, forget the watchdog's

@@ -40,7 +40,7 @@ def test_a_signal_ends_the_run_safe_stopped_with_its_exit_status_and_the_json(tm
     assert out.exists(), err
     summary = json.loads(out.read_text())
     assert summary["faults"][0]["cause"] == "interrupted" and name in summary["faults"][0]["detail"]
-    assert summary["final_stop"]["reason"] == f"interrupted: {name}"
+    assert summary["final_stop"]["reason"] == "interrupted" and name in summary["final_stop"]["detail"]
     assert summary["final_stop"]["verified"] is True and summary["safe_stop_incomplete"] == []
     assert summary["ticks"] < 120 * 125  # stopped early (possibly in its very first tick)
 
@@ -49,7 +49,8 @@ def test_a_normal_end_is_a_verified_stop(tmp_path):
     out = tmp_path / "run.json"
     assert cli.main(["run", "--duration", "1", "--quiet", "--json", str(out)]) == 0
     summary = json.loads(out.read_text())
-    assert summary["final_stop"] == {"reason": "end", "tick": 125, "time_s": 1.0, "verified": True, "incomplete": []}
+    assert summary["final_stop"] == {"reason": "end", "detail": "the run ended", "tick": 125, "time_s": 1.0,
+                                     "verified": True, "incomplete": []}
 
 
 def test_an_unexpected_error_is_one_line_and_exit_status_3(monkeypatch, capsys):
