@@ -209,117 +209,117 @@ def _identify(system: EmulatedRig, joint: int, amplitude_rad: float, frequency_h
     loop.controller.active.objects.append(opener)
     run = (runner_factory or LockstepRunner)(system, loop)
     period = rig.period_s
-    loop.start()
-    target = io.read().theta.copy()
+    with loop.armed():  # every way out of the identification ends with the amplifiers off
+        target = io.read().theta.copy()
 
-    def play(traj: Any) -> None:
-        loop.set_motion(Sequencer([_Play(traj)], traj.start, loop.plan_context))
+        def play(traj: Any) -> None:
+            loop.set_motion(Sequencer([_Play(traj)], traj.start, loop.plan_context))
 
-    def ticks(seconds: float) -> int:
-        return max(1, round(seconds / period))
+        def ticks(seconds: float) -> int:
+            return max(1, round(seconds / period))
 
-    def check() -> None:
-        if loop.fault is not None:
-            f = loop.fault
-            raise FrictionIdError(f"the watchdog stopped the loop at t = {f.time_s:.3f} s: {f.cause} "
-                                  f"({f.joint}: {f.detail})")
+        def check() -> None:
+            if loop.fault is not None:
+                f = loop.fault
+                raise FrictionIdError(f"the watchdog stopped the loop at t = {f.time_s:.3f} s: {f.cause} "
+                                      f"({f.joint}: {f.detail})")
 
-    # --- 1. the paper's sinusoid -----------------------------------------------------------------
-    play(Stay(target, settle_s))
-    run.run(ticks(settle_s))
-    check()
-    rec = _Records([], [], [], [])
+        # --- 1. the paper's sinusoid -----------------------------------------------------------------
+        play(Stay(target, settle_s))
+        run.run(ticks(settle_s))
+        check()
+        rec = _Records([], [], [], [])
 
-    def record(lp: ServoLoop) -> None:
-        last = lp.last
-        if "theta_enc" not in last or "omega_d" not in last:
-            return
-        rec.t.append(float(last["t"]))
-        rec.torque_nm.append(kt * float(last["current"][j]))
-        rec.theta_enc.append(float(last["theta_enc"][j]))
-        rec.omega_d.append(float(last["omega_d"][j]))
+        def record(lp: ServoLoop) -> None:
+            last = lp.last
+            if "theta_enc" not in last or "omega_d" not in last:
+                return
+            rec.t.append(float(last["t"]))
+            rec.torque_nm.append(kt * float(last["current"][j]))
+            rec.theta_enc.append(float(last["theta_enc"][j]))
+            rec.omega_d.append(float(last["omega_d"][j]))
 
-    sine = Sinusoid(target, j, amplitude_rad, frequency_hz, cycles)
-    play(sine)
-    run.after_tick.append(record)
-    run.run(round(sine.duration / period) + 2)
-    run.after_tick.remove(record)
-    check()
-    t = np.asarray(rec.t)
-    tau = np.asarray(rec.torque_nm)
-    theta_m = np.asarray(rec.theta_enc) * ratio
-    w_d = np.asarray(rec.omega_d)
-    metrics = running_torque_metrics(t, tau, theta_m, w_d, j_motor)
+        sine = Sinusoid(target, j, amplitude_rad, frequency_hz, cycles)
+        play(sine)
+        run.after_tick.append(record)
+        run.run(round(sine.duration / period) + 2)
+        run.after_tick.remove(record)
+        check()
+        t = np.asarray(rec.t)
+        tau = np.asarray(rec.torque_nm)
+        theta_m = np.asarray(rec.theta_enc) * ratio
+        w_d = np.asarray(rec.omega_d)
+        metrics = running_torque_metrics(t, tau, theta_m, w_d, j_motor)
 
-    # --- 2. breakout ramps -----------------------------------------------------------------------
-    rate = ramp_rate_nm_s if ramp_rate_nm_s is not None else 0.02 * kt * sc.current_limit_a
-    max_torque = kt * sc.current_limit_a
-    base = target.copy()
-    ramp_out: list[dict[str, Any]] = []
-    ramp_traces: list[dict[str, list[float]]] = []
-    found: list[float] = []
-    for r in range(ramps):
-        sign = 1.0 if r % 2 == 0 else -1.0
-        if r > 0:
-            # r/ramps of the ripple period (half a motor turn) further on, plus a whole motor
-            # turn on every other ramp so that the joint really travels between ramps
-            new = target.copy()
-            new[j] = base[j] + (r * math.pi / ramps + (2.0 * math.pi if r % 2 else 0.0)) / ratio
-            move = Quintic(target, new, max(0.5, 8.0 * abs(new[j] - target[j])))
-            play(move)
-            run.run(ticks(move.duration))
-            target = new
+        # --- 2. breakout ramps -----------------------------------------------------------------------
+        rate = ramp_rate_nm_s if ramp_rate_nm_s is not None else 0.02 * kt * sc.current_limit_a
+        max_torque = kt * sc.current_limit_a
+        base = target.copy()
+        ramp_out: list[dict[str, Any]] = []
+        ramp_traces: list[dict[str, list[float]]] = []
+        found: list[float] = []
+        for r in range(ramps):
+            sign = 1.0 if r % 2 == 0 else -1.0
+            if r > 0:
+                # r/ramps of the ripple period (half a motor turn) further on, plus a whole motor
+                # turn on every other ramp so that the joint really travels between ramps
+                new = target.copy()
+                new[j] = base[j] + (r * math.pi / ramps + (2.0 * math.pi if r % 2 else 0.0)) / ratio
+                move = Quintic(target, new, max(0.5, 8.0 * abs(new[j] - target[j])))
+                play(move)
+                run.run(ticks(move.duration))
+                target = new
+            play(Stay(target, float("inf")))
+            run.run(ticks(settle_s))
+            check()
+            start_counts = io.read().theta_enc[j] * cpr_joint / (2.0 * math.pi)
+            tq0 = 0.0 if not found else 0.5 * min(found)
+            trace: dict[str, list[float]] = {"t": [], "command_nm": [], "measured_nm": [], "counts": []}
+            moved_at: int | None = None
+            k = 0
+            while True:
+                cmd = tq0 + rate * k * period
+                if cmd > max_torque:
+                    break
+                opener.torque_nm = sign * cmd * ratio  # joint torque: write_torque divides by N·Kt
+                run.run(1)
+                check()
+                last = loop.last
+                counts = float(last["theta_enc"][j]) * cpr_joint / (2.0 * math.pi) - start_counts
+                trace["t"].append(k * period)
+                trace["command_nm"].append(cmd)
+                trace["measured_nm"].append(kt * float(last["current"][j]) * sign)
+                trace["counts"].append(counts)
+                k += 1
+                if abs(counts) >= move_counts - 1e-6:
+                    moved_at = k - 1
+                    break
+            opener.torque_nm = None
+            if moved_at is None:
+                raise FrictionIdError(
+                    f"joint {joint} ({spec.name}) did not move with up to {nm_to_oz_in(max_torque):.1f} oz-in "
+                    "(the amplifier's current limit): is the joint blocked, or the amplifier disabled?")
+            tt = np.asarray(trace["t"])
+            meas = np.asarray(trace["measured_nm"])
+            use = slice(min(3, moved_at), moved_at + 1)  # skip the amplifier's first ticks
+            if moved_at - use.start >= 2:
+                coef = np.polyfit(tt[use], meas[use], 1)
+                breakout = float(np.polyval(coef, tt[moved_at]))
+            else:
+                breakout = float(meas[moved_at])
+            found.append(abs(breakout))
+            ramp_out.append({
+                "direction": "+" if sign > 0 else "-",
+                "motor_angle_rad": float(io.read().theta_enc[j] * ratio),
+                "torque_oz_in": float(nm_to_oz_in(abs(breakout))),
+                "command_oz_in": float(nm_to_oz_in(trace["command_nm"][moved_at])),
+                "ramp_s": float(tt[moved_at]),
+            })
+            ramp_traces.append(trace)
         play(Stay(target, float("inf")))
         run.run(ticks(settle_s))
         check()
-        start_counts = io.read().theta_enc[j] * cpr_joint / (2.0 * math.pi)
-        tq0 = 0.0 if not found else 0.5 * min(found)
-        trace: dict[str, list[float]] = {"t": [], "command_nm": [], "measured_nm": [], "counts": []}
-        moved_at: int | None = None
-        k = 0
-        while True:
-            cmd = tq0 + rate * k * period
-            if cmd > max_torque:
-                break
-            opener.torque_nm = sign * cmd * ratio  # joint torque: write_torque divides by N·Kt
-            run.run(1)
-            check()
-            last = loop.last
-            counts = float(last["theta_enc"][j]) * cpr_joint / (2.0 * math.pi) - start_counts
-            trace["t"].append(k * period)
-            trace["command_nm"].append(cmd)
-            trace["measured_nm"].append(kt * float(last["current"][j]) * sign)
-            trace["counts"].append(counts)
-            k += 1
-            if abs(counts) >= move_counts - 1e-6:
-                moved_at = k - 1
-                break
-        opener.torque_nm = None
-        if moved_at is None:
-            raise FrictionIdError(
-                f"joint {joint} ({spec.name}) did not move with up to {nm_to_oz_in(max_torque):.1f} oz-in "
-                "(the amplifier's current limit): is the joint blocked, or the amplifier disabled?")
-        tt = np.asarray(trace["t"])
-        meas = np.asarray(trace["measured_nm"])
-        use = slice(min(3, moved_at), moved_at + 1)  # skip the amplifier's first ticks
-        if moved_at - use.start >= 2:
-            coef = np.polyfit(tt[use], meas[use], 1)
-            breakout = float(np.polyval(coef, tt[moved_at]))
-        else:
-            breakout = float(meas[moved_at])
-        found.append(abs(breakout))
-        ramp_out.append({
-            "direction": "+" if sign > 0 else "-",
-            "motor_angle_rad": float(io.read().theta_enc[j] * ratio),
-            "torque_oz_in": float(nm_to_oz_in(abs(breakout))),
-            "command_oz_in": float(nm_to_oz_in(trace["command_nm"][moved_at])),
-            "ramp_s": float(tt[moved_at]),
-        })
-        ramp_traces.append(trace)
-    play(Stay(target, float("inf")))
-    run.run(ticks(settle_s))
-    check()
-    loop.controller.active.objects.remove(opener)
+        loop.controller.active.objects.remove(opener)
 
     b_in = float(np.mean(found))
     result: dict[str, Any] = {

@@ -180,13 +180,13 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
         law = loop.law
         theta_start = float(loop.sequencer.current.end[j])  # the target before the first move
         law.set_gains(**jp.cfg.gains.as_dict(), joint=j)
-        loop.start()
         runner = LockstepRunner(system, loop)
 
         def halt() -> bool:
             return loop.fault is not None or (stop is not None and stop())
 
-        runner.run(n_ticks, progress=progress, stop=halt)
+        with loop.armed():  # every way out of the simulation ends with the amplifiers off
+            runner.run(n_ticks, progress=progress, stop=halt)
         summary = summarize(loop, rig=system.rig.name, seed=s.seed, realtime=False, overruns=0)
     finally:
         system.close()

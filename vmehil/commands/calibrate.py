@@ -95,6 +95,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         outcome = run_procedures(ctx, names, out_path=out, write_on_fail=args.write_on_fail)
     finally:
+        # Procedures drive amplifiers (positioners, amplifier and friction tests): however they
+        # end — done, failed, Ctrl-C, SIGTERM — the rig ends disabled, at 0 V, PWM off.
+        unconfirmed = system.io.safe_stop()
+        for line in unconfirmed:
+            print(f"calibrate: SAFE STOP INCOMPLETE: {line}", file=sys.stderr)
         system.close()
     summary = {"rig": rig.name, "seed": args.seed, "auto": args.auto, **outcome.as_dict()}
     _flatten_single_joint(summary)

@@ -20,6 +20,8 @@ import threading
 import warnings
 from pathlib import Path
 
+from servo.interrupts import Terminated, interrupt_name
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     from vmehil.commands.run import add_rig_args
@@ -77,6 +79,7 @@ def run_console(args: argparse.Namespace) -> int:
     # runner restarts its deadlines after a calibration instead of catching up on them
     console = start_console(args.port, loop, runner=runner, commands=args.commands, baudrate=args.baud,
                             shutdown=done.set, system=system, calibration=calibration, jobs_on_tick=False)
+    # SIGTERM ends the session between runner chunks like the console's own `quit`
     previous = signal.signal(signal.SIGTERM, lambda *_: done.set()) if threading.current_thread() is \
         threading.main_thread() else None
     rate = system.rig.servo_rate_hz
@@ -93,8 +96,11 @@ def run_console(args: argparse.Namespace) -> int:
                 for series in (runner.timing.compute_s, runner.timing.lateness_s, runner.timing.controller_s,
                                runner.timing.harness_s):
                     series.clear()
-    except KeyboardInterrupt:
-        pass
+    except (KeyboardInterrupt, Terminated) as e:
+        loop.safe_stop("interrupted", f"{interrupt_name(e)} received")
+    except Exception as e:
+        loop.safe_stop("exception", f"{type(e).__name__}: {e}")
+        raise
     finally:
         fault = loop.fault
         if not loop.fault:
