@@ -40,7 +40,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from hal.adc_dac.adc_regs import ADC_CHANNELS
+from hal.adc_dac.dac_regs import DAC_CHANNELS
 from hal.config import ConfigError, ConfigTable, load_toml
+from hal.pio.pio_regs import parse_line
+from hal.quadrature.quad_regs import CHANNELS as QUAD_CHANNELS
 
 ANALOG_INPUTS = ("pot", "tach", "imon")
 DIGITAL_OUTPUTS = ("amp_enable", "amp_reset", "direction", "brake")
@@ -152,8 +156,67 @@ def load_rig(path: str | Path) -> RigSpec:
         spec.joints.append(JointSpec(i, name, amp, wiring, servo, jt))
     if not spec.joints:
         raise ConfigError(str(path), "joint", "at least one [[joint]] table")
+    _check_boards(table)
+    _check_wiring(spec)
     _parse_calibration_wiring(spec, rig)
     return spec
+
+
+# --- wiring checks: refuse a rig that would move the wrong joint, before anything moves ----------
+#: which board type each wired signal must be on, and how its pin is named
+_SIGNAL_BOARD = {"amp_command": "dac", "pot": "adc", "tach": "adc", "imon": "adc", "encoder": "quad",
+                 "pwm": "pio", **{k: "pio" for k in (*DIGITAL_OUTPUTS, *DIGITAL_INPUTS)}}
+_CHANNELS = {"adc": ADC_CHANNELS, "dac": DAC_CHANNELS, "quad": QUAD_CHANNELS}
+
+
+def _check_boards(table: ConfigTable) -> None:
+    """Board names and slots of ``[crate]`` are unique (the crate itself refuses overlapping
+    windows when it is built)."""
+    names: dict[str, str] = {}
+    slots: dict[int, str] = {}
+    for b in table.table("crate", {}).tables("board", []):
+        name = b.get_str("name")
+        if name in names:
+            raise b.error("name", f"a board name not used before ({name!r} is {names[name]})", name)
+        names[name] = b.key("name")
+        if "slot" in b:
+            slot = b.get_int("slot", min=1, max=21)
+            if slot in slots:
+                raise b.error("slot", f"a free slot (slot {slot} holds {slots[slot]})", slot)
+            slots[slot] = name
+
+
+def _check_wiring(spec: RigSpec) -> None:
+    """Every joint pin names a board of the right type in ``[crate]``, a channel or line that the
+    board has, and no pin carries two signals (j2's pot on j1's ADC pin would servo j1 on j2's
+    angle)."""
+    types = {b.get_str("name"): b.get_str("type") for b in spec.table.table("crate", {}).tables("board", [])}
+    used: dict[tuple[str, int | str], str] = {}
+    for j in spec.joints:
+        wt = j.table.table("wiring", {})
+        for sig, pin in j.wiring.items():
+            want = _SIGNAL_BOARD[sig]
+            got = types.get(pin.board)
+            if got is None:
+                raise wt.error(sig, f"a pin of a board in [crate] (no board named {pin.board!r})", str(pin))
+            if got != want:
+                raise wt.error(sig, f"a pin of a {want} board ({pin.board!r} is a {got} board)", str(pin))
+            if want in _CHANNELS:
+                if not isinstance(pin.channel, int) or not 0 <= pin.channel < _CHANNELS[want]:
+                    raise wt.error(sig, f"a {want} channel 0..{_CHANNELS[want] - 1}", str(pin))
+            elif sig == "pwm":
+                if pin.channel != "PWM":
+                    raise wt.error(sig, f'the PIO\'s PWM output ("{pin.board}:PWM")', str(pin))
+            else:
+                try:
+                    parse_line(str(pin.channel))
+                except ValueError:
+                    raise wt.error(sig, "a PIO line PA0..PC7", str(pin)) from None
+            where = f"{j.name}.{sig}"
+            key = (pin.board, pin.channel)
+            if key in used:
+                raise wt.error(sig, f"a free pin ({pin} already carries {used[key]})", str(pin))
+            used[key] = where
 
 
 # --- rig-level calibration wiring: references and DAC → ADC loopback ------------------------------
