@@ -39,6 +39,7 @@ board's identity against the rig's ``[crate]``; any mismatch raises
 from __future__ import annotations
 
 import datetime as _dt
+import itertools
 import math
 import os
 import tomllib
@@ -303,8 +304,61 @@ def load_store(path: str | Path, rig: RigSpec, *, bus: Any = None) -> Calibratio
             if meta[0] != proc:
                 raise CalibrationFileError(p, f"[joint.{jname}.{proc}] says procedure = {meta[0]!r}")
             values = {k: v for k, v in entry.items() if k not in _META_KEYS}
+            _check_joint_values(p, f"joint.{jname}.{proc}", proc, values)
             store.set_joint(jname, JointCal(meta[0], meta[1], meta[2], values))
     return store
+
+
+# Physical ranges a measured coefficient must fall in: far wider than any real error, so that
+# only a corrupted or hand-mangled file (a gain of 1e-300, counts of 0) is refused.
+BOARD_GAIN_RANGE = (0.5, 2.0)  #: a converter's gain error beyond ±50 %/−100 % is a broken board
+BOARD_OFFSET_LIMIT_V = 1.0
+AMP_GAIN_RANGE_A_PER_V = (1e-3, 1e3)
+AMP_OFFSET_LIMIT_A = 100.0
+ENCODER_COUNTS_RANGE = (1.0, 1e10)  #: x4 counts per joint revolution
+POT_VOLTS_LIMIT_V = 10.5  #: an ADC input range and a little
+
+#: the keys each procedure's joint entry must have (the ones the drivers apply)
+JOINT_KEYS = {"pot": ("volts", "angles_rad"), "encoder": ("counts_per_joint_rev",),
+              "amplifier": ("gain_a_per_v", "offset_a")}
+
+
+def _number(p: Path, where: str, key: str, v: Any, lo: float, hi: float, *, absolute: bool = False) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        raise CalibrationFileError(p, f"[{where}] {key} = {v!r}: expected a finite number; re-run the calibration")
+    x = abs(v) if absolute else v
+    if not lo <= x <= hi:
+        what = f"|{key}|" if absolute else key
+        raise CalibrationFileError(p, f"[{where}] {key} = {v!r}: expected {lo:g} <= {what} <= {hi:g}; "
+                                      "re-run the calibration")
+    return float(v)
+
+
+def _check_joint_values(p: Path, where: str, proc: str, values: Mapping[str, Any]) -> None:
+    """Every value a driver applies is present, finite and physically possible; pot tables are
+    strictly monotonic (else the angle of a voltage is ambiguous)."""
+    for key in JOINT_KEYS.get(proc, ()):
+        if key not in values:
+            raise CalibrationFileError(p, f"[{where}] has no {key}; re-run the calibration ({proc})")
+    if proc == "pot":
+        volts, angles = values["volts"], values["angles_rad"]
+        for key, seq in (("volts", volts), ("angles_rad", angles)):
+            if not isinstance(seq, list) or len(seq) < 2:
+                raise CalibrationFileError(p, f"[{where}] {key}: expected a list of at least two numbers")
+        if len(volts) != len(angles):
+            raise CalibrationFileError(p, f"[{where}] volts has {len(volts)} entries, angles_rad {len(angles)}")
+        v = [_number(p, where, f"volts[{i}]", x, 0.0, POT_VOLTS_LIMIT_V, absolute=True) for i, x in enumerate(volts)]
+        a = [_number(p, where, f"angles_rad[{i}]", x, 0.0, 4 * math.pi, absolute=True) for i, x in enumerate(angles)]
+        for key, seq in (("volts", v), ("angles_rad", a)):
+            steps = [b - c for c, b in itertools.pairwise(seq)]
+            if not (all(d > 0 for d in steps) or all(d < 0 for d in steps)):
+                raise CalibrationFileError(p, f"[{where}] {key} is not strictly monotonic; re-run the calibration")
+    elif proc == "encoder":
+        _number(p, where, "counts_per_joint_rev", values["counts_per_joint_rev"], *ENCODER_COUNTS_RANGE,
+                absolute=True)
+    elif proc == "amplifier":
+        _number(p, where, "gain_a_per_v", values["gain_a_per_v"], *AMP_GAIN_RANGE_A_PER_V, absolute=True)
+        _number(p, where, "offset_a", values["offset_a"], 0.0, AMP_OFFSET_LIMIT_A, absolute=True)
 
 
 def _tables(p: Path, data: Mapping[str, Any], key: str) -> dict[str, Any]:
@@ -357,6 +411,9 @@ def _load_board(p: Path, name: str, entry: Any, idents: dict[str, BoardIdentity]
         cal = Calibration.from_dict(coeffs, channels=BOARD_CHANNELS[ident.type])
     except CalibrationError as e:
         raise CalibrationFileError(p, f"{where}: {e}") from None
+    for ch, (off, gain) in enumerate(zip(cal.offset_v, cal.gain, strict=True)):
+        _number(p, f"board.{name}", f"gain[{ch}]", gain, *BOARD_GAIN_RANGE)
+        _number(p, f"board.{name}", f"offset_v[{ch}]", off, 0.0, BOARD_OFFSET_LIMIT_V, absolute=True)
     measured = entry.get("measured", [])
     if not isinstance(measured, list) or not all(isinstance(c, int) for c in measured):
         raise CalibrationFileError(p, f"{where} measured must be a list of channel numbers")
