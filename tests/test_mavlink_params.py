@@ -369,3 +369,16 @@ def test_wait_for_start_times_out_without_a_client():
     assert not ep.wait_for_start(2.0, clock=lambda: float(next(fake_now)), sleep=lambda s: None)
     assert ep.stats.heartbeats_sent == 2
     ep.close()
+
+
+def test_a_hammering_client_is_counted_not_logged_entry_by_entry(rig):
+    """500 unsigned sets from one client: 500 refusals counted, one log entry."""
+    loop, _, runner, ep, unsigned = rig(key=KEY)
+    for batch in range(1, 6):  # batches of 100: more at once would overflow the UDP socket buffer
+        for _ in range(100):
+            unsigned.set("J1_KP", 130.0)
+        unsigned.wait(lambda b=batch: ep.stats.unsigned_refused >= 100 * b, runner.tick, timeout_s=60)
+    notes = [text for _, source, text in loop.log if source == "mavlink" and "refused" in text]
+    assert len(notes) == 1 and "repeats are counted" in notes[0]
+    assert sum(ep.stats.refusals.values()) == 500
+    assert float(loop.law.gains.kp[0]) == 100.0

@@ -30,7 +30,7 @@ from typing import Any, ClassVar
 import vmehil.mavlink  # noqa: F401  (MAVLINK20=1 before pymavlink)
 from vmehil.mavlink import params as P
 from vmehil.mavlink.params import ParamRefused, ParamTable
-from vmehil.mavlink.signing import UnsignedPolicy
+from vmehil.mavlink.signing import UnsignedPolicy, install_verified_signature_check
 from vmehil.mavlink.telemetry import array_messages, named_messages
 
 
@@ -90,6 +90,8 @@ class EndpointStats:
     sets_applied: int = 0
     sets_refused: int = 0
     unsigned_refused: int = 0
+    #: refusals by kind (what, why, who) → count; only the first of each kind is logged
+    refusals: dict[tuple[Any, ...], int] = field(default_factory=dict)
     heartbeats_sent: int = 0
     telemetry_sent: int = 0
     errors: list[str] = field(default_factory=list)
@@ -141,6 +143,7 @@ class MavlinkEndpoint:
         if key is not None:
             self.policy = UnsignedPolicy(self.ml)
             self.conn.setup_signing(key, sign_outgoing=True, allow_unsigned_callback=self.policy)
+            install_verified_signature_check(self.conn.mav)
         ticks_per_s = 1.0 / loop.period_s
         self.hb_every = max(1, round(ticks_per_s))
         self.tm_every = 0 if rate_hz == 0 else max(1, round(ticks_per_s / rate_hz))
@@ -301,7 +304,8 @@ class MavlinkEndpoint:
         origin = self._origin(msg)
         if not self._signed_ok(msg, read=False):
             self._refuse_unsigned("PARAM_SET", name, -1, msg)
-            self.loop.note(self.source, f"refused PARAM_SET {name} = {value:g} ({origin}): signing required")
+            self._note_refusal(f"refused PARAM_SET {name} = {value:g} ({origin}): signing required",
+                               ("unsigned", origin))
             return
         try:
             index, spec = self.table.find(name)
@@ -356,16 +360,27 @@ class MavlinkEndpoint:
 
     def _refuse(self, e: ParamRefused, index: int, value: float, origin: str, msg: Any) -> None:
         self.stats.sets_refused += 1
-        self.loop.note(self.source, f"refused {e.name} = {value:g} ({origin}): {e.reason}")
+        if self._note_refusal(f"refused {e.name} = {value:g} ({origin}): {e.reason}", (e.name, e.code, origin)):
+            self._statustext(self.ml.MAV_SEVERITY_WARNING, f"{e.name}: {e.reason}")
         self._send_param_error(e.name if index < 0 else self.table.at(index).name, index, e.code, msg)
-        self._statustext(self.ml.MAV_SEVERITY_WARNING, f"{e.name}: {e.reason}")
         if index >= 0:
             self._send_param_value(index)  # the old value, still in force
+
+    def _note_refusal(self, text: str, kind: tuple[Any, ...]) -> bool:
+        """Log a refusal the first time it happens for ``kind`` (what, why, who); count the
+        rest (``stats.refusals``), so that a client hammering the endpoint cannot flood the
+        run's log. Returns True for the first of its kind."""
+        n = self.stats.refusals.get(kind, 0) + 1
+        self.stats.refusals[kind] = n
+        if n == 1:
+            self.loop.note(self.source, text + " (repeats are counted, not logged)")
+        return n == 1
 
     def _refuse_unsigned(self, what: str, name: str, index: int, msg: Any) -> None:
         self.stats.unsigned_refused += 1
         self._send_param_error(name, index, P.PERMISSION_DENIED, msg)
-        self._statustext(self.ml.MAV_SEVERITY_WARNING, f"unsigned {what} refused: signing required")
+        if self.stats.refusals.get(("unsigned", self._origin(msg)), 0) == 0:
+            self._statustext(self.ml.MAV_SEVERITY_WARNING, f"unsigned {what} refused: signing required")
 
     def _flush_params(self) -> None:
         for _ in range(self.MAX_PARAM_SENDS_PER_SERVICE):

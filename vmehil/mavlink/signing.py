@@ -12,9 +12,12 @@ written with ``vmehil``'s :func:`write_key_file` (or by hand: ``sha256sum`` of t
 from __future__ import annotations
 
 import hashlib
+import hmac
 import os
 import stat
+import types
 from pathlib import Path
+from typing import Any
 
 KEY_LEN = 32
 
@@ -88,3 +91,39 @@ class UnsignedPolicy:
             return True
         self.dropped += 1
         return False
+
+
+def check_signature_verified_first(mav: Any, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+    """pymavlink's ``MAVLink.check_signature`` with the signature checked *before* the stream's
+    timestamp is recorded.
+
+    pymavlink records a stream's timestamp before it compares the signature, so one forged
+    frame carrying a future timestamp (and the ground station's link id, system and component)
+    moves the stream's clock ahead and every genuine signed frame after it is refused as "old":
+    the signed ground station is locked out. Here a frame whose signature does not verify
+    changes nothing. The timestamp rules are pymavlink's (MAVLink 2 signing spec): a known
+    stream's timestamp must increase; a new stream may be at most one minute behind ours.
+    """
+    signing = mav.signing
+    timestamp_buf = msgbuf[-12:-6]
+    link_id = msgbuf[-13]
+    tlow, thigh = mav.mav_sign_unpacker.unpack(timestamp_buf)
+    timestamp = tlow + (thigh << 32)
+    digest = hashlib.sha256(signing.secret_key + bytes(msgbuf[:-6])).digest()[:6]
+    if not hmac.compare_digest(digest, bytes(msgbuf[-6:])):
+        return False
+    stream_key = (link_id, src_system, src_component)
+    last = signing.stream_timestamps.get(stream_key)
+    if last is not None and timestamp <= last:
+        return False  # a replay, or older than what this stream already sent
+    if last is None and timestamp + 6000 * 1000 < signing.timestamp:
+        return False  # a new stream more than a minute behind us
+    signing.stream_timestamps[stream_key] = timestamp
+    signing.timestamp = max(signing.timestamp, timestamp)
+    return True
+
+
+def install_verified_signature_check(mav: Any) -> None:
+    """Make ``mav`` (a pymavlink ``MAVLink`` object with signing set up) use
+    :func:`check_signature_verified_first`."""
+    mav.check_signature = types.MethodType(check_signature_verified_first, mav)
