@@ -282,3 +282,22 @@ def test_fuzzed_bytes_through_the_console_only_produce_typed_replies():
 
     run()
     assert loop.tick_count > 0
+
+
+def test_run_and_load_refuse_devices_fifos_and_huge_files_and_stop_still_works(tmp_path):
+    """`run /dev/zero` used to end in MemoryError and `run FIFO` blocked the reader thread so
+    that `stop` was no longer heard."""
+    loop, console, link = _pty_console(tmp_path)
+    client = serial.Serial(link, timeout=0.02)
+    drv = Driver(loop, console, client.write, LineReader(client.read).lines)
+    fifo = tmp_path / "motion.fifo"
+    os.mkfifo(fifo)
+    huge = tmp_path / "huge.toml"
+    huge.write_bytes(b"#" * (2 << 20))
+    assert drv.ask("run /dev/zero")[-1].startswith("ERR FILE") and "not a regular file" in drv.ask("run /dev/zero")[-1]
+    assert "not a regular file" in drv.ask(f"run {fifo}")[-1]
+    assert "not a regular file" in drv.ask(f"load {fifo}")[-1]
+    assert "the limit is" in drv.ask(f"run {huge}")[-1]
+    assert drv.ask("stop")[-1].startswith("OK stop")
+    client.close()
+    console.close()

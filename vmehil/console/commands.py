@@ -13,6 +13,8 @@ Angles at this edge are degrees (the operator's unit); inside, everything is SI.
 from __future__ import annotations
 
 import math
+import os
+import stat
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
@@ -531,10 +533,31 @@ def _enable(s: Session, a: dict[str, Any]) -> Outcome:
     return Outcome(ok=kv(state=loop_state(loop), cleared=previous.cause if previous else "-"))
 
 
+#: the largest motion or compound command file the console reads (a hand-written TOML is a few kB)
+MAX_CONSOLE_FILE_BYTES = 1 << 20
+
+
+def check_console_file(path: str, what: str) -> None:
+    """Refuse anything but a regular file under :data:`MAX_CONSOLE_FILE_BYTES` before opening it:
+    the reader thread that prepares ``run``/``load`` must never block (a FIFO) or read without
+    end (``/dev/zero``), or ``stop`` would no longer be heard."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError as e:
+        raise ConsoleError(FILE, f"{what} {path!r} not found ({e.strerror or e})") from None
+    except OSError as e:
+        raise ConsoleError(FILE, f"{what} {path!r}: {e.strerror or e}") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise ConsoleError(FILE, f"{what} {path!r} is not a regular file")
+    if st.st_size > MAX_CONSOLE_FILE_BYTES:
+        raise ConsoleError(FILE, f"{what} {path!r} has {st.st_size} bytes; the limit is {MAX_CONSOLE_FILE_BYTES}")
+
+
 def _prepare_run(a: dict[str, Any], n_joints: int) -> dict[str, Any]:
     from hal.config import ConfigError
     from servo.motion import load_motion
 
+    check_console_file(a["file"], "motion file")
     try:
         motion = load_motion(a["file"], n_joints)
     except FileNotFoundError as e:
@@ -584,6 +607,7 @@ def _commands(s: Session, a: dict[str, Any]) -> Outcome:
 def _prepare_load(a: dict[str, Any], n_joints: int, names: list[str]) -> dict[str, Any]:
     from vmehil.console.compound import CompoundError, load_compound_file
 
+    check_console_file(a["file"], "compound command file")
     try:
         lib = load_compound_file(a["file"], n_joints=n_joints, names=names)
     except FileNotFoundError as e:
