@@ -237,6 +237,20 @@ def test_failed_checks_do_not_overwrite_unless_asked(tmp_path):
     assert path.exists()
 
 
+def test_the_written_message_claims_a_prev_only_when_one_was_kept(tmp_path):
+    b = build_bench(tmp_path, ERRORS)
+    path = tmp_path / "cal.toml"
+    said: list[str] = []
+    for _ in range(2):
+        ctx = b.context()
+        ctx.say = said.append
+        out = run_procedures(ctx, ["adc"], out_path=path)
+    first, second = [s for s in said if s.startswith("calibration written")]
+    assert "previous kept" not in first and "no previous file" in first
+    assert "previous kept as cal.toml.prev" in second and out.previous == tmp_path / "cal.toml.prev"
+    assert out.previous.exists()
+
+
 def test_registry_refuses_duplicates_and_all():
     with pytest.raises(ValueError):
         register_procedure("adc", AdcProcedure, order=1, help="x")

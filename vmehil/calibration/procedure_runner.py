@@ -24,6 +24,8 @@ from vmehil.calibration.base import PROCEDURES, CalibrationContext, ProcedureRes
 class RunOutcome:
     results: list[ProcedureResult] = field(default_factory=list)
     written: Path | None = None
+    #: where the file that ``written`` replaced was kept (``.prev``); None when there was none
+    previous: Path | None = None
     error: str | None = None
 
     @property
@@ -112,7 +114,9 @@ def run_procedures(ctx: CalibrationContext, names: list[str], *, out_path: str |
         if before_write is not None:
             before_write()
         outcome.written = merged.save(out_path)
-        ctx.say(f"calibration written to {outcome.written} (previous kept as {outcome.written.name}.prev)")
+        outcome.previous = merged.previous
+        kept = f"previous kept as {outcome.previous.name}" if outcome.previous else "there was no previous file"
+        ctx.say(f"calibration written to {outcome.written} ({kept})")
     elif out_path is not None:
         ctx.say(f"checks failed: {out_path} left unchanged (use --write-on-fail to write anyway)")
     return outcome

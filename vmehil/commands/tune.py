@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from vmehil.analysis.rigparams import JointParams, load_joint
+from vmehil.files import write_atomic, write_json
 
 
 def _joint_number(text: str) -> int:
@@ -208,10 +209,10 @@ def run_bode(args: argparse.Namespace) -> int:
                                          "closed_loop_and_disturbance")
         imgs.append("closed_loop_and_disturbance.png")
         md = report.markdown(f"Bode analysis — {jp.rig} joint {jp.joint}", _command_line(args), text, imgs)
-        files.append(report.write_text_atomic(d / "summary.md", md))
+        files.append(write_atomic(d / "summary.md", md))
         result["report_files"] = [str(f) for f in files]
     if args.json_path:
-        files.append(report.write_json_atomic(args.json_path, result))
+        files.append(write_json(args.json_path, result))
     for f in files:
         print(f"wrote {f}")
     if not result["stable"]:
@@ -286,13 +287,13 @@ def run_limit_cycle(args: argparse.Namespace) -> int:
             files += report.save_figure_both(fig, d, "cycle_model_check")
             imgs.append("cycle_model_check.png")
         md = report.markdown(f"Limit cycles — {jp.rig} joint {jp.joint}", _command_line(args), text, imgs)
-        files.append(report.write_text_atomic(d / "summary.md", md))
+        files.append(write_atomic(d / "summary.md", md))
         result["report_files"] = [str(f) for f in files]
     out = _strip_model_traces(result)
     out["simulated"] = strip_traces(out.get("simulated"))
     out["switch_off"]["simulated"] = strip_traces(out["switch_off"].get("simulated"))
     if args.json_path:
-        files.append(report.write_json_atomic(args.json_path, out))
+        files.append(write_json(args.json_path, out))
     for f in files:
         print(f"wrote {f}")
     faults = [s["fault"] for s in (result.get("simulated"), result["switch_off"].get("simulated")) if s and s["fault"]]
@@ -416,9 +417,9 @@ def run_sweep(args: argparse.Namespace) -> int:
     tty = sys.stderr.isatty()
 
     def write(rows: list[dict[str, Any]], done: bool, interrupted: bool = False) -> None:
-        report.write_text_atomic(csv_path, rows_csv(rows))
-        report.write_json_atomic(json_path, {**meta, "completed": len(rows), "finished": done,
-                                             "interrupted": interrupted, "rows": rows})
+        write_atomic(csv_path, rows_csv(rows))
+        write_json(json_path, {**meta, "completed": len(rows), "finished": done,
+                               "interrupted": interrupted, "rows": rows})
 
     def on_result(row: dict[str, Any], rows: list[dict[str, Any]]) -> None:
         write(rows, False)
@@ -457,7 +458,7 @@ def run_sweep(args: argparse.Namespace) -> int:
             files += report.save_figure_both(fig, d, f"heatmap_{x}_{y}")
             imgs.append(f"heatmap_{x}_{y}.png")
         md = report.markdown(f"Gain sweep — {jp.rig} joint {jp.joint}", _command_line(args), _sweep_table(rows), imgs)
-        files.append(report.write_text_atomic(d / "summary.md", md))
+        files.append(write_atomic(d / "summary.md", md))
     for f in files:
         print(f"wrote {f}")
     return 0
@@ -535,9 +536,9 @@ def run_step(args: argparse.Namespace) -> int:
         files += report.save_figure_both(fig, d, "step_and_move")
         md = report.markdown(f"Step and move — {jp.rig} joint {jp.joint}", _command_line(args), text,
                              ["step_and_move.png"])
-        files.append(report.write_text_atomic(d / "summary.md", md))
+        files.append(write_atomic(d / "summary.md", md))
     if args.json_path:
-        files.append(report.write_json_atomic(args.json_path, result))
+        files.append(write_json(args.json_path, result))
     for f in files:
         print(f"wrote {f}")
     faults = [s["fault"] for s in (step, move) if s["fault"]]
