@@ -1,4 +1,4 @@
-"""Run calibration procedures: progress display, results table against tolerances, one write.
+"""Run calibration procedures: results table against tolerances, one write.
 
 :func:`run_procedures` runs the named procedures in order on one context. After each
 successful procedure its entries are merged into ``ctx.store`` (so ``dac`` measures with the
@@ -10,12 +10,10 @@ file in force.
 
 from __future__ import annotations
 
-import sys
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
 
 from vmehil.calibration.base import PROCEDURES, CalibrationContext, ProcedureResult, procedures_for_all
 
@@ -44,28 +42,6 @@ def resolve_names(name: str) -> list[str]:
     if name not in PROCEDURES:
         raise ValueError(f"unknown calibration procedure {name!r}; choose from all, {', '.join(sorted(PROCEDURES))}")
     return [name]
-
-
-class ProgressLine:
-    """A one-line progress display on a terminal (silent elsewhere)."""
-
-    def __init__(self, stream: TextIO = sys.stderr) -> None:
-        self.stream = stream
-        self.tty = stream.isatty()
-        self._last = 0.0
-
-    def __call__(self, what: str, i: int, n: int) -> None:
-        if not self.tty or n <= 0:
-            return
-        now = time.monotonic()
-        if i < n and now - self._last < 0.1:
-            return
-        self._last = now
-        frac = i / n
-        self.stream.write(f"\r  [{'#' * int(24 * frac):<24s}] {frac * 100:5.1f}%  {what:<40.40s}")
-        if i >= n:
-            self.stream.write("\r" + " " * 80 + "\r")
-        self.stream.flush()
 
 
 def results_table(results: list[ProcedureResult]) -> str:

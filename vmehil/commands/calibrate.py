@@ -2,7 +2,10 @@
 
     vmehil calibrate adc|dac|encoder|amplifier|pot|all [--rig NAME|PATH] [--seed N]
                      [--joint N ...] [--auto] [--out CAL.toml] [--json PATH] [--report DIR]
-                     [--write-on-fail] [--points 9] [--verify-per-segment 1]
+                     [--write-on-fail] [--points 9] [--verify-per-segment 1] [--quiet]
+
+Progress is a bar on stderr (:mod:`vmehil.progress`) when it is a terminal and ``--quiet`` is
+not given; the procedures' lines and prompts are printed above it, never onto it.
 
 Procedures come from a registry (:data:`vmehil.calibration.base.PROCEDURES`). Another module
 adds one (e.g. the plant's ``friction``) by calling
@@ -14,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import sys
 from pathlib import Path
 
 from vmehil.files import write_atomic, write_json
@@ -53,6 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--write-on-fail", action="store_true", help="write the file even if a check failed")
     p.add_argument("--points", type=int, default=9, help="pot: calibration points (default 9, the paper's)")
     p.add_argument("--verify-per-segment", type=int, default=1, help="pot: verification stops per segment")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
@@ -62,9 +65,10 @@ def run(args: argparse.Namespace) -> int:
     from vmehil.calibration.base import PROCEDURES, CalibrationContext, ProcedureSpec
     from vmehil.calibration.emulated import EmulatedFixture, EmulatedPositioner
     from vmehil.calibration.pot import PotProcedure
-    from vmehil.calibration.procedure_runner import ProgressLine, resolve_names, results_table, run_procedures
+    from vmehil.calibration.procedure_runner import resolve_names, results_table, run_procedures
     from vmehil.calibration.store import CalibrationStore, default_store_path, load_store
     from vmehil.cli import CliError
+    from vmehil.progress import PhaseProgress
     from vmehil.system import build_emulated_rig
 
     rig = load_rig(resolve_rig(args.rig))
@@ -85,15 +89,17 @@ def run(args: argparse.Namespace) -> int:
                                                                      verify_per_segment=args.verify_per_segment),
                                           spec.order, spec.help, spec.in_all)
     system = build_emulated_rig(rig, seed=args.seed, calibration=store)
+    progress = PhaseProgress(quiet=args.quiet)
     ctx = CalibrationContext(
         rig=rig, bus=system.crate, store=store, auto=args.auto,
         fixture=EmulatedFixture(system) if args.auto else None,
         positioner_factory=lambda st: EmulatedPositioner(system, st),
-        joints=joints, prompt=input, say=print, progress=ProgressLine(sys.stderr), options={"report": args.report},
+        joints=joints, prompt=progress.ask, say=progress.say, progress=progress, options={"report": args.report},
     )
     print(f"calibrating {', '.join(names)} on rig {rig.name}" + (" (auto: reference fixture)" if args.auto else ""))
     try:
-        outcome = run_procedures(ctx, names, out_path=out, write_on_fail=args.write_on_fail)
+        with progress:
+            outcome = run_procedures(ctx, names, out_path=out, write_on_fail=args.write_on_fail)
     finally:
         system.close()
     summary = {"rig": rig.name, "seed": args.seed, "auto": args.auto, **outcome.as_dict()}
