@@ -19,7 +19,7 @@ from vmehil.calibration.base import PROCEDURES, CalibrationContext, ProcedureRes
 
 
 @dataclass
-class RunOutcome:
+class ProcedureRunOutcome:
     results: list[ProcedureResult] = field(default_factory=list)
     written: Path | None = None
     #: where the file that ``written`` replaced was kept (``.prev``); None when there was none
@@ -35,7 +35,7 @@ class RunOutcome:
                 "procedures": {r.procedure: r.as_dict() for r in self.results}}
 
 
-def resolve_names(name: str) -> list[str]:
+def resolve_procedure_names(name: str) -> list[str]:
     """``all`` → every registered procedure in its order; otherwise the one name."""
     if name == "all":
         return [p.name for p in procedures_for_all()]
@@ -44,7 +44,7 @@ def resolve_names(name: str) -> list[str]:
     return [name]
 
 
-def results_table(results: list[ProcedureResult]) -> str:
+def procedure_results_table(results: list[ProcedureResult]) -> str:
     """Plain-text table of every check: item, value, tolerance, pass/FAIL."""
     rows = [("procedure", "item", "value", "tolerance", "result")]
     for r in results:
@@ -62,9 +62,9 @@ def results_table(results: list[ProcedureResult]) -> str:
 
 
 def run_procedures(ctx: CalibrationContext, names: list[str], *, out_path: str | Path | None,
-                   write_on_fail: bool = False, before_write: Callable[[], None] | None = None) -> RunOutcome:
+                   write_on_fail: bool = False, before_write: Callable[[], None] | None = None) -> ProcedureRunOutcome:
     """Run ``names`` in order; merge results into ``ctx.store``; write ``out_path`` once at the end."""
-    outcome = RunOutcome()
+    outcome = ProcedureRunOutcome()
     base_store = ctx.store
     merged = base_store
     for k, name in enumerate(names):
@@ -85,7 +85,7 @@ def run_procedures(ctx: CalibrationContext, names: list[str], *, out_path: str |
         ctx.say(f"  {name}: {'pass' if result.passed else 'FAIL'} "
                 f"({sum(c.passed for c in result.checks)}/{len(result.checks)} checks)")
     ctx.say("")
-    ctx.say(results_table(outcome.results))
+    ctx.say(procedure_results_table(outcome.results))
     if out_path is not None and (outcome.passed or write_on_fail):
         if before_write is not None:
             before_write()

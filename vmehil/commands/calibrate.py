@@ -65,14 +65,14 @@ def run(args: argparse.Namespace) -> int:
     from vmehil.calibration.base import PROCEDURES, CalibrationContext, ProcedureSpec
     from vmehil.calibration.emulated import EmulatedFixture, EmulatedPositioner
     from vmehil.calibration.pot import PotProcedure
-    from vmehil.calibration.procedure_runner import resolve_names, results_table, run_procedures
+    from vmehil.calibration.procedure_runner import procedure_results_table, resolve_procedure_names, run_procedures
     from vmehil.calibration.store import CalibrationStore, default_store_path, load_store
     from vmehil.cli import CliError
     from vmehil.progress import PhaseProgress
     from vmehil.system import build_emulated_rig
 
     rig = load_rig(resolve_rig(args.rig))
-    names = resolve_names(args.procedure)
+    names = resolve_procedure_names(args.procedure)
     out = Path(args.out) if args.out else default_store_path(rig)
     if out.exists():
         store = load_store(out, rig)  # a foreign or malformed file is refused here, before anything runs
@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, summary)
     if args.report:
-        _write_report(Path(args.report), summary, results_table(outcome.results), outcome)
+        _write_report(Path(args.report), summary, procedure_results_table(outcome.results), outcome)
         print(f"report: {args.report}")
     if outcome.error:
         raise CliError(outcome.error)

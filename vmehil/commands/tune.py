@@ -342,11 +342,11 @@ def run_sweep(args: argparse.Namespace) -> int:
         GAIN_KEYS,
         SweepInterrupted,
         SweepTask,
+        evaluate_points,
         grid_points,
         load_gains_file,
         parse_grid,
         rows_csv,
-        run_sweep,
     )
     from vmehil.progress import progress_bar
 
@@ -414,7 +414,7 @@ def run_sweep(args: argparse.Namespace) -> int:
                 bar.set_postfix_str(f"last: {_point_text(row)}", refresh=False)
                 bar.update(1)
 
-            rows = run_sweep(tasks, jobs=jobs, on_result=on_result)
+            rows = evaluate_points(tasks, jobs=jobs, on_result=on_result)
     except SweepInterrupted as e:
         write(e.rows, False, interrupted=True)
         print(f"vmehil tune sweep: interrupted; {len(e.rows)} of {len(tasks)} points kept in {csv_path} and "
