@@ -19,7 +19,7 @@ from vmehil.calibration.base import PROCEDURES, CalibrationAbort, register_proce
 from vmehil.calibration.dac import DacProcedure
 from vmehil.calibration.encoder import EncoderProcedure
 from vmehil.calibration.pot import ARCMIN_PER_RAD, PotProcedure, pot_targets
-from vmehil.calibration.procedure_runner import resolve_names, results_table, run_procedures
+from vmehil.calibration.procedure_runner import procedure_results_table, resolve_procedure_names, run_procedures
 from vmehil.calibration.store import load_store
 
 ERRORS = Errors(
@@ -32,7 +32,7 @@ ERRORS = Errors(
 def test_adc_recovers_injected_offset_and_gain(tmp_path):
     b = build_bench(tmp_path, ERRORS)
     res = AdcProcedure().run(b.context())
-    assert res.passed, results_table([res])
+    assert res.passed, procedure_results_table([res])
     cal = res.update.board_calibration("adc1")
     # stated tolerances: offset within 1.5 mV (0.3 LSB), gain within 0.05 %
     assert cal.offset_v[5] == pytest.approx(0.012, abs=1.5e-3)
@@ -45,7 +45,7 @@ def test_dac_recovers_per_channel_errors_with_the_calibrated_adc(tmp_path):
     b = build_bench(tmp_path, ERRORS)
     ctx = b.context()
     out = run_procedures(ctx, ["adc", "dac"], out_path=None)
-    assert out.passed, results_table(out.results)
+    assert out.passed, procedure_results_table(out.results)
     cal = ctx.store.board_calibration("dac0")
     # stated tolerances: offset within 2 mV, gain within 0.1 %
     assert cal.offset_v[6] == pytest.approx(-0.020, abs=2e-3)
@@ -66,7 +66,7 @@ def test_dac_without_adc_calibration_inherits_the_adc_error(tmp_path):
 def test_encoder_counts_per_rev_index_and_direction(tmp_path):
     b = build_bench(tmp_path, ERRORS)
     res = EncoderProcedure().run(b.context())
-    assert res.passed, results_table([res])
+    assert res.passed, procedure_results_table([res])
     e = res.update.joint_entry("j1", "encoder").values
     assert e["counts_per_motor_rev"] == 2000
     assert e["counts_per_joint_rev"] == 200000
@@ -101,7 +101,7 @@ def test_amplifier_recovers_gain_offset_and_checks_limit(tmp_path):
     b = build_bench(tmp_path, ERRORS)
     ctx = b.context()
     out = run_procedures(ctx, ["adc", "amplifier"], out_path=None)
-    assert out.passed, results_table(out.results)
+    assert out.passed, procedure_results_table(out.results)
     j1 = ctx.store.joint_entry("j1", "amplifier").values
     j2 = ctx.store.joint_entry("j2", "amplifier").values
     # stated tolerances: gain within 0.3 %, offset within 20 mA (monitor through a 12-bit ADC)
@@ -131,7 +131,7 @@ def test_pot_targets_follow_the_paper_and_fit_the_travel():
 def test_pot_residual_after_calibration_is_below_the_stated_figure(tmp_path):
     b = build_bench(tmp_path, ERRORS)
     res = PotProcedure().run(b.context())
-    assert res.passed, results_table([res])
+    assert res.passed, procedure_results_table([res])
     for name in ("j1", "j2"):
         d = res.data["joints"][name]
         assert d["before_rms_arcmin"] > 30.0  # the injected ~1° bow
@@ -187,8 +187,8 @@ def test_all_runs_in_order_and_writes_a_file_the_drivers_apply(tmp_path):
     b = build_bench(tmp_path, ERRORS)
     ctx = b.context()
     path = tmp_path / "cal.toml"
-    out = run_procedures(ctx, resolve_names("all"), out_path=path)
-    assert out.passed, results_table(out.results)
+    out = run_procedures(ctx, resolve_procedure_names("all"), out_path=path)
+    assert out.passed, procedure_results_table(out.results)
     assert [r.procedure for r in out.results] == ["adc", "dac", "encoder", "amplifier", "pot"]
     store = load_store(path, b.rig, bus=b.crate)
     # drivers apply it: a fresh JointIO on the same crate reads the 5 V reference as 5 V
@@ -237,10 +237,24 @@ def test_failed_checks_do_not_overwrite_unless_asked(tmp_path):
     assert path.exists()
 
 
+def test_the_written_message_claims_a_prev_only_when_one_was_kept(tmp_path):
+    b = build_bench(tmp_path, ERRORS)
+    path = tmp_path / "cal.toml"
+    said: list[str] = []
+    for _ in range(2):
+        ctx = b.context()
+        ctx.say = said.append
+        out = run_procedures(ctx, ["adc"], out_path=path)
+    first, second = [s for s in said if s.startswith("calibration written")]
+    assert "previous kept" not in first and "no previous file" in first
+    assert "previous kept as cal.toml.prev" in second and out.previous == tmp_path / "cal.toml.prev"
+    assert out.previous.exists()
+
+
 def test_registry_refuses_duplicates_and_all():
     with pytest.raises(ValueError):
         register_procedure("adc", AdcProcedure, order=1, help="x")
     with pytest.raises(ValueError):
         register_procedure("all", AdcProcedure, order=1, help="x")
     with pytest.raises(ValueError, match="unknown calibration procedure"):
-        resolve_names("frobnicate")
+        resolve_procedure_names("frobnicate")

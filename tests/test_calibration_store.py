@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 import os
-import signal
-import subprocess
-import sys
-import textwrap
 import warnings
 from pathlib import Path
 
 import pytest
 from calib_bench import RIG_TOML, build_bench, write_rig
+from test_files import kill_mid_write
 
 from hal.adc_dac.calibration import Calibration
 from servo.io import JointIO
@@ -28,8 +25,7 @@ from vmehil.calibration.store import (
     rig_boards,
     utc_now,
 )
-
-ROOT = Path(__file__).resolve().parents[1]
+from vmehil.files import is_temp_file
 
 
 def sample_store(rig, offset=0.012) -> CalibrationStore:
@@ -55,10 +51,26 @@ def test_round_trip_keeps_coefficients_and_provenance(tmp_path):
 def test_save_keeps_the_previous_file(tmp_path):
     rig = write_rig(tmp_path)
     p = tmp_path / "cal.toml"
-    sample_store(rig, 0.001).save(p)
-    sample_store(rig, 0.002).save(p)
+    first = sample_store(rig, 0.001)
+    first.save(p)
+    assert first.previous is None and not p.with_name("cal.toml.prev").exists()  # nothing to keep yet
+    second = sample_store(rig, 0.002)
+    second.save(p)
+    assert second.previous == p.with_name("cal.toml.prev")
     assert load_store(p, rig).board_calibration("adc1").offset_v[0] == 0.002
-    assert load_store(p.with_name("cal.toml.prev"), rig).board_calibration("adc1").offset_v[0] == 0.001
+    assert load_store(second.previous, rig).board_calibration("adc1").offset_v[0] == 0.001
+
+
+def test_malformed_file_message_names_a_prev_only_when_there_is_one(tmp_path):
+    rig = write_rig(tmp_path)
+    p = tmp_path / "cal.toml"
+    p.write_text("[calibration\n")
+    with pytest.raises(CalibrationFileError) as e:
+        load_store(p, rig)
+    assert ".prev" not in str(e.value) and "re-run the calibration" in str(e.value)
+    p.with_name("cal.toml.prev").write_text("")
+    with pytest.raises(CalibrationFileError, match=r"restore cal\.toml\.prev"):
+        load_store(p, rig)
 
 
 def test_merge_replaces_only_the_procedures_results(tmp_path):
@@ -148,40 +160,22 @@ def test_default_path_follows_the_environment(tmp_path, monkeypatch):
     assert default_store_path("jpl-arm") == Path("calibration") / "jpl-arm.toml"
 
 
-def test_killed_mid_write_leaves_the_previous_file_intact(tmp_path):
+def test_killed_mid_write_leaves_the_previous_file_intact_and_no_orphan_after_the_next_save(tmp_path):
     """A real process is SIGKILLed after writing and fsyncing the temporary file, before the rename."""
     rig = write_rig(tmp_path)
     path = tmp_path / "cal.toml"
     sample_store(rig, 0.001).save(path)
     old = path.read_bytes()
-    script = textwrap.dedent(f"""
-        import os, sys, time
-        sys.path.insert(0, {str(ROOT / "tests")!r})
-        from calib_bench import write_rig
+    tmp_file = kill_mid_write(path, f"""
         from pathlib import Path
+        from calib_bench import write_rig
         from test_calibration_store import sample_store
-        rig = write_rig(Path({str(tmp_path)!r}))
-        real_replace = os.replace
-        def slow_replace(src, dst):          # the test hook: stop between write and rename
-            print("WRITTEN", src, flush=True)
-            time.sleep(60)
-            real_replace(src, dst)
-        os.replace = slow_replace
-        sample_store(rig, 0.999).save({str(path)!r})
+        sample_store(write_rig(Path({str(tmp_path)!r})), 0.999).save({str(path)!r})
     """)
-    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True, cwd=ROOT,
-                            env={**os.environ, "PYTHONPATH": str(ROOT)})
-    try:
-        line = proc.stdout.readline()
-        assert line.startswith("WRITTEN"), line
-        tmp_file = Path(line.split()[1])
-        assert tmp_file.exists() and b"0.999" in tmp_file.read_bytes()  # the new data was on disk
-        proc.send_signal(signal.SIGKILL)
-        assert proc.wait(timeout=30) == -signal.SIGKILL
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
+    assert b"0.999" in tmp_file.read_bytes()  # the new data was on disk
     assert path.read_bytes() == old
     assert load_store(path, rig).board_calibration("adc1").offset_v[0] == 0.001
+    # the killed process could not remove its temporary file; the next save does
+    assert is_temp_file(tmp_file.name)
+    sample_store(rig, 0.002).save(path)
+    assert not [f for f in os.listdir(tmp_path) if f.endswith(".tmp")]

@@ -165,7 +165,7 @@ class CanPlantOptions:
         return node_spec(None if rig is None else str(rig)).names
 
 
-class _NodeRunner:
+class _PlantNodeThread:
     """An in-process plant node serving in a daemon thread."""
 
     def __init__(self, node: Any) -> None:
@@ -178,7 +178,7 @@ class _NodeRunner:
         self.node.close()
 
 
-def _start_node(rig: Any, interface: str, channel: str, *, free_running: bool) -> _NodeRunner:
+def _start_node(rig: Any, interface: str, channel: str, *, free_running: bool) -> _PlantNodeThread:
     from emulators.can.bus import Endpoint, open_bus
     from emulators.can.node import PLANT_IDS, PlantNode, node_spec
     from emulators.plant import Plant
@@ -187,7 +187,7 @@ def _start_node(rig: Any, interface: str, channel: str, *, free_running: bool) -
     node = PlantNode(Endpoint(open_bus(interface, channel), PLANT_IDS),
                      lambda seed: Plant.from_config(spec.table, seed=seed), spec.n_joints,
                      free_running=free_running, period_s=spec.period_s, delay_s=spec.delay_s)
-    return _NodeRunner(node)
+    return _PlantNodeThread(node)
 
 
 @functools.cache
@@ -197,7 +197,7 @@ def _owning_link_type() -> type:
     from emulators.can.link import CanPlantLink
 
     class NodeOwningCanPlantLink(CanPlantLink):
-        node: _NodeRunner | None = None
+        node: _PlantNodeThread | None = None
 
         def close(self) -> None:
             try:

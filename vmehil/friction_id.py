@@ -49,6 +49,7 @@ from servo.trajectory.base import Sample
 from servo.trajectory.quintic import Quintic
 from servo.trajectory.sequencer import Sequencer
 from servo.trajectory.stay import Stay
+from vmehil.files import save_figure, write_atomic
 from vmehil.session import build_loop
 from vmehil.system import EmulatedRig
 
@@ -402,10 +403,8 @@ def write_friction_report(result: dict[str, Any], folder: str | Path) -> list[Pa
     ax[1].set_ylabel("rad/s")
     ax[1].legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    p = out / "torque_vs_time.png"
-    fig.savefig(p, dpi=110)
+    files += save_figure(fig, out / "torque_vs_time")
     plt.close(fig)
-    files.append(p)
 
     fig, ax = plt.subplots(figsize=(8, 6))
     ax.plot(wm, oz(tau_f), ".", ms=2, alpha=0.6)
@@ -416,10 +415,8 @@ def write_friction_report(result: dict[str, Any], folder: str | Path) -> list[Pa
     ax.axhline(0, color="k", lw=0.5)
     ax.axvline(0, color="k", lw=0.5)
     fig.tight_layout()
-    p = out / "torque_vs_velocity.png"
-    fig.savefig(p, dpi=110)
+    files += save_figure(fig, out / "torque_vs_velocity")
     plt.close(fig)
-    files.append(p)
 
     fig, ax = plt.subplots(figsize=(8, 5))
     for tr, info in zip(rec["ramps"], result["breakout_ramps"], strict=True):
@@ -433,10 +430,8 @@ def write_friction_report(result: dict[str, Any], folder: str | Path) -> list[Pa
                  f"= {result['breakout_output_oz_in']:.0f} oz-in", fontsize=9)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    p = out / "breakout_ramps.png"
-    fig.savefig(p, dpi=110)
+    files += save_figure(fig, out / "breakout_ramps")
     plt.close(fig)
-    files.append(p)
 
     lo, hi = result["breakout_input_range_oz_in"]
     md = [f"# Friction identification: {name}", "",
@@ -448,9 +443,7 @@ def write_friction_report(result: dict[str, Any], folder: str | Path) -> list[Pa
           f"| breakout at the output | {result['breakout_output_oz_in']:.0f} oz-in "
           f"({result['breakout_output_method']}) |", "",
           "Measurement definition: docs/plant.md (Friction measurement); procedure: vmehil/friction_id.py.", ""]
-    p = out / "summary.md"
-    p.write_text("\n".join(md))
-    files.append(p)
+    files.append(write_atomic(out / "summary.md", "\n".join(md)))
     return files
 
 

@@ -1,15 +1,12 @@
-"""Reports for ``vmehil tune``: atomic JSON/text/figure writing, plots and markdown summaries.
+"""Reports for ``vmehil tune``: plots and markdown summaries.
 
-Every file is written to a temporary name in the target directory and moved into place with
-``os.replace``, so a reader never sees a half-written report. Plots use matplotlib's Agg backend.
+Files are written with :mod:`vmehil.files` (atomic: a reader never sees a half-written report).
+Plots use matplotlib's Agg backend.
 """
 
 from __future__ import annotations
 
-import json
 import math
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -31,71 +28,14 @@ from vmehil.analysis.loop import (
     tracking_loop,
 )
 from vmehil.analysis.margins import frequency_grid
+from vmehil.files import save_figure
 
-# ----------------------------------------------------------------------- atomic writes
-
-
-def _atomic_write(path: Path, write) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    return path
-
-
-def write_text_atomic(path: str | Path, text: str) -> Path:
-    return _atomic_write(Path(path), lambda f: f.write(text.encode("utf-8")))
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, complex):
-        return {"re": o.real, "im": o.imag}
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f"not JSON serializable: {type(o).__name__}")
-
-
-def to_json(obj: Any) -> str:
-    """JSON text with non-finite floats as null (never the non-standard NaN/Infinity)."""
-    return json.dumps(_finite(obj), indent=2, default=_json_default, allow_nan=False) + "\n"
-
-
-def _finite(o: Any) -> Any:
-    if isinstance(o, float | np.floating):
-        return float(o) if math.isfinite(o) else None
-    if isinstance(o, dict):
-        return {k: _finite(v) for k, v in o.items()}
-    if isinstance(o, list | tuple):
-        return [_finite(v) for v in o]
-    return o
-
-
-def write_json_atomic(path: str | Path, obj: Any) -> Path:
-    return write_text_atomic(path, to_json(obj))
-
-
-def save_figure_atomic(fig: Figure, path: str | Path) -> Path:
-    p = Path(path)
-    fmt = p.suffix.lstrip(".") or "png"
-    out = _atomic_write(p, lambda f: fig.savefig(f, format=fmt, dpi=120, bbox_inches="tight"))
-    return out
+# ----------------------------------------------------------------------- figure files
 
 
 def save_figure_both(fig: Figure, directory: Path, stem: str) -> list[Path]:
-    paths = [save_figure_atomic(fig, directory / f"{stem}.{ext}") for ext in ("png", "svg")]
+    """``<stem>.png`` and ``<stem>.svg`` in ``directory`` (atomic writes), then close the figure."""
+    paths = save_figure(fig, directory / stem, ("png", "svg"), dpi=120)
     plt.close(fig)
     return paths
 

@@ -11,7 +11,7 @@ with the integrators kept on (switch-off disabled, so the limit cycle the gains 
 limit-cycle amplitude and frequency (as ``vmehil run``), tracking error of the standard move and
 settling time after it (:mod:`vmehil.analysis.simulate`).
 
-Execution (:func:`run_sweep`): any :class:`concurrent.futures.Executor` — by default a
+Execution (:func:`evaluate_points`): any :class:`concurrent.futures.Executor` — by default a
 :class:`~concurrent.futures.ProcessPoolExecutor` with ``jobs`` workers. That argument is the seam
 for a distributed engine: e.g. a Dask ``distributed.Client(...).get_executor()`` is a
 ``concurrent.futures.Executor`` and can be passed as is (Dask is not a dependency). Results are
@@ -242,7 +242,7 @@ def evaluate_point(task: SweepTask) -> dict[str, Any]:
 # --------------------------------------------------------------------------- running
 
 
-def run_sweep(tasks: list[SweepTask], *, executor: Executor | None = None, jobs: int | None = None,
+def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None, jobs: int | None = None,
               on_result: Callable[[dict[str, Any], list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
     """Evaluate ``tasks`` in parallel; returns the rows sorted by index.
 

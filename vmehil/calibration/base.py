@@ -12,7 +12,8 @@ registered with :func:`register_procedure`. It talks to the rig only through the
 * ``ctx.say`` / ``ctx.progress``: what it is doing, and how far it got.
 
 It never touches emulator internals, so the same procedure calibrates real boards.
-Results are returned, not written: the runner writes the store once, after success.
+Results are returned, not written: :func:`~vmehil.calibration.procedure_runner.run_procedures`
+writes the store once, after success.
 """
 
 from __future__ import annotations

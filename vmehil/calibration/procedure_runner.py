@@ -1,4 +1,4 @@
-"""Run calibration procedures: progress display, results table against tolerances, one write.
+"""Run calibration procedures: results table against tolerances, one write.
 
 :func:`run_procedures` runs the named procedures in order on one context. After each
 successful procedure its entries are merged into ``ctx.store`` (so ``dac`` measures with the
@@ -10,20 +10,20 @@ file in force.
 
 from __future__ import annotations
 
-import sys
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
 
 from vmehil.calibration.base import PROCEDURES, CalibrationContext, ProcedureResult, procedures_for_all
 
 
 @dataclass
-class RunOutcome:
+class ProcedureRunOutcome:
     results: list[ProcedureResult] = field(default_factory=list)
     written: Path | None = None
+    #: where the file that ``written`` replaced was kept (``.prev``); None when there was none
+    previous: Path | None = None
     error: str | None = None
 
     @property
@@ -35,7 +35,7 @@ class RunOutcome:
                 "procedures": {r.procedure: r.as_dict() for r in self.results}}
 
 
-def resolve_names(name: str) -> list[str]:
+def resolve_procedure_names(name: str) -> list[str]:
     """``all`` → every registered procedure in its order; otherwise the one name."""
     if name == "all":
         return [p.name for p in procedures_for_all()]
@@ -44,29 +44,7 @@ def resolve_names(name: str) -> list[str]:
     return [name]
 
 
-class ProgressLine:
-    """A one-line progress display on a terminal (silent elsewhere)."""
-
-    def __init__(self, stream: TextIO = sys.stderr) -> None:
-        self.stream = stream
-        self.tty = stream.isatty()
-        self._last = 0.0
-
-    def __call__(self, what: str, i: int, n: int) -> None:
-        if not self.tty or n <= 0:
-            return
-        now = time.monotonic()
-        if i < n and now - self._last < 0.1:
-            return
-        self._last = now
-        frac = i / n
-        self.stream.write(f"\r  [{'#' * int(24 * frac):<24s}] {frac * 100:5.1f}%  {what:<40.40s}")
-        if i >= n:
-            self.stream.write("\r" + " " * 80 + "\r")
-        self.stream.flush()
-
-
-def results_table(results: list[ProcedureResult]) -> str:
+def procedure_results_table(results: list[ProcedureResult]) -> str:
     """Plain-text table of every check: item, value, tolerance, pass/FAIL."""
     rows = [("procedure", "item", "value", "tolerance", "result")]
     for r in results:
@@ -84,9 +62,9 @@ def results_table(results: list[ProcedureResult]) -> str:
 
 
 def run_procedures(ctx: CalibrationContext, names: list[str], *, out_path: str | Path | None,
-                   write_on_fail: bool = False, before_write: Callable[[], None] | None = None) -> RunOutcome:
+                   write_on_fail: bool = False, before_write: Callable[[], None] | None = None) -> ProcedureRunOutcome:
     """Run ``names`` in order; merge results into ``ctx.store``; write ``out_path`` once at the end."""
-    outcome = RunOutcome()
+    outcome = ProcedureRunOutcome()
     base_store = ctx.store
     merged = base_store
     for k, name in enumerate(names):
@@ -107,12 +85,14 @@ def run_procedures(ctx: CalibrationContext, names: list[str], *, out_path: str |
         ctx.say(f"  {name}: {'pass' if result.passed else 'FAIL'} "
                 f"({sum(c.passed for c in result.checks)}/{len(result.checks)} checks)")
     ctx.say("")
-    ctx.say(results_table(outcome.results))
+    ctx.say(procedure_results_table(outcome.results))
     if out_path is not None and (outcome.passed or write_on_fail):
         if before_write is not None:
             before_write()
         outcome.written = merged.save(out_path)
-        ctx.say(f"calibration written to {outcome.written} (previous kept as {outcome.written.name}.prev)")
+        outcome.previous = merged.previous
+        kept = f"previous kept as {outcome.previous.name}" if outcome.previous else "there was no previous file"
+        ctx.say(f"calibration written to {outcome.written} ({kept})")
     elif out_path is not None:
         ctx.say(f"checks failed: {out_path} left unchanged (use --write-on-fail to write anyway)")
     return outcome

@@ -29,8 +29,8 @@ Layout (see ``docs/calibration.md`` for a full example)::
     angles_rad = [...]
 
 Rules: a procedure's result replaces only its own tables (the rest of the file is carried
-over); the file is written with temp + fsync + rename and the previous file kept as
-``<name>.prev`` (:func:`vmehil.files.write_atomic`), so a failed or interrupted procedure
+over); the file is written with temp + fsync + rename and the previous file (if any) kept as
+``<name>.prev`` (:func:`vmehil.files.write_atomic_keeping_previous`), so a failed or interrupted procedure
 leaves the old calibration in force. Loading checks the format, the rig name and every
 board's identity against the rig's ``[crate]``; any mismatch raises
 :class:`CalibrationFileError` saying what differs and what to do.
@@ -55,7 +55,7 @@ from hal.adc_dac.adc_regs import ADC_BOARD_ID, ADC_CHANNELS
 from hal.adc_dac.calibration import Calibration, CalibrationError
 from hal.adc_dac.dac_regs import DAC_BOARD_ID, DAC_CHANNELS
 from servo.rig import RigSpec
-from vmehil.files import write_atomic
+from vmehil.files import PREVIOUS_SUFFIX, write_atomic_keeping_previous
 
 FORMAT = "vmehil-calibration"
 FORMAT_VERSION = 1
@@ -181,6 +181,8 @@ class CalibrationStore:
     joints: dict[str, dict[str, JointCal]] = field(default_factory=dict)
     written: str = ""
     path: Path | None = None
+    #: where the last :meth:`save` kept the file it replaced; None if it replaced none (or no save yet)
+    previous: Path | None = field(default=None, compare=False)
 
     @classmethod
     def empty(cls, rig: RigSpec) -> CalibrationStore:
@@ -225,12 +227,13 @@ class CalibrationStore:
         return tomli_w.dumps(_finite(doc, ""))
 
     def save(self, path: str | Path) -> Path:
-        """Write atomically (temp + fsync + rename), keeping the previous file as ``.prev``."""
+        """Write atomically (temp + fsync + rename), keeping the file it replaces (if any) as
+        ``.prev``; :attr:`previous` then says where (None: there was no file to keep)."""
         self.written = utc_now()
         text = self.to_toml()
-        p = write_atomic(path, text, keep_previous=True)
-        self.path = p
-        return p
+        done = write_atomic_keeping_previous(path, text)
+        self.path, self.previous = done.path, done.previous
+        return done.path
 
 
 def _finite(obj: Any, where: str) -> Any:
@@ -264,8 +267,9 @@ def load_store(path: str | Path, rig: RigSpec, *, bus: Any = None) -> Calibratio
     try:
         data = tomllib.loads(raw.decode("utf-8"))
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
-        raise CalibrationFileError(
-            p, f"not valid TOML ({e}); restore {p.name}.prev or re-run the calibration") from None
+        prev = p.with_name(p.name + PREVIOUS_SUFFIX)
+        fix = f"restore {prev.name} or re-run the calibration" if prev.exists() else "re-run the calibration"
+        raise CalibrationFileError(p, f"not valid TOML ({e}); {fix}") from None
     head = data.get("calibration")
     if not isinstance(head, dict) or head.get("format") != FORMAT:
         raise CalibrationFileError(p, f"not a vmehil calibration file ([calibration] format = {FORMAT!r} missing)")

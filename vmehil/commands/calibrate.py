@@ -2,7 +2,10 @@
 
     vmehil calibrate adc|dac|encoder|amplifier|pot|all [--rig NAME|PATH] [--seed N]
                      [--joint N ...] [--auto] [--out CAL.toml] [--json PATH] [--report DIR]
-                     [--write-on-fail] [--points 9] [--verify-per-segment 1]
+                     [--write-on-fail] [--points 9] [--verify-per-segment 1] [--quiet]
+
+Progress is a bar on stderr (:mod:`vmehil.progress`) when it is a terminal and ``--quiet`` is
+not given; the procedures' lines and prompts are printed above it, never onto it.
 
 Procedures come from a registry (:data:`vmehil.calibration.base.PROCEDURES`). Another module
 adds one (e.g. the plant's ``friction``) by calling
@@ -53,6 +56,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--write-on-fail", action="store_true", help="write the file even if a check failed")
     p.add_argument("--points", type=int, default=9, help="pot: calibration points (default 9, the paper's)")
     p.add_argument("--verify-per-segment", type=int, default=1, help="pot: verification stops per segment")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
@@ -62,13 +66,14 @@ def run(args: argparse.Namespace) -> int:
     from vmehil.calibration.base import PROCEDURES, CalibrationContext, ProcedureSpec
     from vmehil.calibration.emulated import EmulatedFixture, EmulatedPositioner
     from vmehil.calibration.pot import PotProcedure
-    from vmehil.calibration.procedure_runner import ProgressLine, resolve_names, results_table, run_procedures
+    from vmehil.calibration.procedure_runner import procedure_results_table, resolve_procedure_names, run_procedures
     from vmehil.calibration.store import CalibrationStore, default_store_path, load_store
     from vmehil.cli import CliError
+    from vmehil.progress import PhaseProgress
     from vmehil.system import build_emulated_rig
 
     rig = load_rig(resolve_rig(args.rig))
-    names = resolve_names(args.procedure)
+    names = resolve_procedure_names(args.procedure)
     out = Path(args.out) if args.out else default_store_path(rig)
     if out.exists():
         store = load_store(out, rig)  # a foreign or malformed file is refused here, before anything runs
@@ -85,15 +90,17 @@ def run(args: argparse.Namespace) -> int:
                                                                      verify_per_segment=args.verify_per_segment),
                                           spec.order, spec.help, spec.in_all)
     system = build_emulated_rig(rig, seed=args.seed, calibration=store)
+    progress = PhaseProgress(quiet=args.quiet)
     ctx = CalibrationContext(
         rig=rig, bus=system.crate, store=store, auto=args.auto,
         fixture=EmulatedFixture(system) if args.auto else None,
         positioner_factory=lambda st: EmulatedPositioner(system, st),
-        joints=joints, prompt=input, say=print, progress=ProgressLine(sys.stderr), options={"report": args.report},
+        joints=joints, prompt=progress.ask, say=progress.say, progress=progress, options={"report": args.report},
     )
     print(f"calibrating {', '.join(names)} on rig {rig.name}" + (" (auto: reference fixture)" if args.auto else ""))
     try:
-        outcome = run_procedures(ctx, names, out_path=out, write_on_fail=args.write_on_fail)
+        with progress:
+            outcome = run_procedures(ctx, names, out_path=out, write_on_fail=args.write_on_fail)
     finally:
         # Procedures drive amplifiers (positioners, amplifier and friction tests): however they
         # end — done, failed, Ctrl-C, SIGTERM — the rig ends disabled, at 0 V, PWM off.
@@ -106,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, summary)
     if args.report:
-        _write_report(Path(args.report), summary, results_table(outcome.results), outcome)
+        _write_report(Path(args.report), summary, procedure_results_table(outcome.results), outcome)
         print(f"report: {args.report}")
     if outcome.error:
         raise CliError(outcome.error)

@@ -2,7 +2,9 @@
 
     vmehil run [--rig NAME|PATH] [--motion PATH] [--duration S] [--realtime] [--seed N]
                [--no-integrator-switch-off] [--gains kp=..,kpi=..,kv=..,kvi=..]
-               [--json PATH] [--report DIR]
+               [--json PATH] [--report DIR] [--quiet]
+
+Progress: a bar on stderr when it is a terminal and ``--quiet`` is not given (:mod:`vmehil.progress`).
 """
 
 from __future__ import annotations
@@ -98,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     from servo.motion import default_demo_motion, load_motion
     from servo.runner import LockstepRunner, RealtimeRunner
+    from vmehil.progress import TickProgress
     from vmehil.run_report import summarize, table, write_report
     from vmehil.session import build_loop
     from vmehil.system import build_emulated_rig
@@ -124,7 +127,7 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     loop = build_loop(system, motion=motion, gains=gains, n_ticks=n_ticks,
                       switch_off=False if args.no_integrator_switch_off else None)
     runner = RealtimeRunner(system, loop) if args.realtime else LockstepRunner(system, loop)
-    progress = None if args.quiet or not sys.stderr.isatty() else _progress_bar()
+    progress = TickProgress("run", quiet=args.quiet)
     attached: list = []
     interrupted: BaseException | None = None
     try:
@@ -134,14 +137,13 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
             attached = [a for a in (ext.attach(args, system, loop, runner) for ext in _extensions()) if a is not None]
             if not args.quiet:
                 print(f"run: {n_ticks} ticks ({duration:g} s) on {rig.name}, amplifiers enabled", file=sys.stderr)
-            runner.run(n_ticks, progress=progress)
+            with progress:
+                runner.run(n_ticks, progress=progress if progress.enabled else None)
     except (KeyboardInterrupt, Terminated) as e:  # between ticks' reach (set-up): still reported
         interrupted = e
     finally:
         for a in attached:
             a.close()
-    if progress is not None:
-        sys.stderr.write("\n")
     timing = runner.timing.summary(system.rig.period_s) if args.realtime else None
     summary = summarize(loop, rig=system.rig.name, seed=args.seed, realtime=args.realtime,
                         overruns=runner.overruns, timing=timing)
@@ -215,13 +217,3 @@ def _planned_duration(loop) -> float:
         raise ValueError(f"{e}; or give --duration") from None
     return float(seq.total_duration or t)
 
-
-def _progress_bar():
-    def show(i: int, n: int) -> None:
-        if i % 25 and i != n:
-            return
-        frac = i / n
-        bar = "#" * int(30 * frac)
-        sys.stderr.write(f"\r[{bar:<30s}] {frac * 100:5.1f}%  tick {i}/{n}")
-        sys.stderr.flush()
-    return show

@@ -27,11 +27,11 @@ import argparse
 import math
 import shlex
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
 from vmehil.analysis.rigparams import JointParams, load_joint
+from vmehil.files import write_atomic, write_json
 
 
 def _joint_number(text: str) -> int:
@@ -84,6 +84,7 @@ def _sim_args(p: argparse.ArgumentParser, hold: float, band: float) -> None:
     p.add_argument("--hold", type=_positive_float, default=hold, help=f"hold after the move, s (default {hold:g})")
     p.add_argument("--settle-band-deg", type=_positive_float, default=band,
                    help=f"settling: into the steady-state envelope (last 2 s) ± this, deg (default {band:g})")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     from vmehil.can_options import add_plant_arguments
 
     add_plant_arguments(p)
@@ -121,7 +122,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     sw.add_argument("--out", default=None, metavar="DIR",
                     help="write sweep.csv and sweep.json here (default: the --report folder, else ./sweep-out)")
     sw.add_argument("--margins-only", action="store_true", help="no simulations: margins only (fast)")
-    sw.add_argument("--quiet", action="store_true", help="no progress bar")
     _sim_args(sw, 8.0, 0.1)
     sw.set_defaults(func=run_sweep)
     st = tsub.add_parser("step", parents=[common],
@@ -169,23 +169,6 @@ def _sim_settings(args: argparse.Namespace, allow_short: bool = False):
                        settle_band_deg=args.settle_band_deg, allow_short=allow_short)
 
 
-class _Ticker:
-    """A one-line progress display on stderr (only when stderr is a terminal)."""
-
-    def __init__(self, label: str, enabled: bool = True) -> None:
-        self.label = label
-        self.enabled = enabled and sys.stderr.isatty()
-
-    def __call__(self, i: int, n: int) -> None:
-        if not self.enabled or (i % 50 and i != n):
-            return
-        frac = i / n
-        sys.stderr.write(f"\r{self.label} [{'#' * int(30 * frac):<30s}] {frac * 100:5.1f}%")
-        sys.stderr.flush()
-        if i == n:
-            sys.stderr.write("\n")
-
-
 # ------------------------------------------------------------------------------- bode
 
 
@@ -208,10 +191,10 @@ def run_bode(args: argparse.Namespace) -> int:
                                          "closed_loop_and_disturbance")
         imgs.append("closed_loop_and_disturbance.png")
         md = report.markdown(f"Bode analysis — {jp.rig} joint {jp.joint}", _command_line(args), text, imgs)
-        files.append(report.write_text_atomic(d / "summary.md", md))
+        files.append(write_atomic(d / "summary.md", md))
         result["report_files"] = [str(f) for f in files]
     if args.json_path:
-        files.append(report.write_json_atomic(args.json_path, result))
+        files.append(write_json(args.json_path, result))
     for f in files:
         print(f"wrote {f}")
     if not result["stable"]:
@@ -236,6 +219,7 @@ def run_limit_cycle(args: argparse.Namespace) -> int:
     from vmehil.analysis import report
     from vmehil.analysis.simulate import simulate, strip_traces
     from vmehil.analysis.tuning import limit_cycle_analysis
+    from vmehil.progress import TickProgress
 
     jp = _load(args)
     bad = _unstable_message(jp)
@@ -249,8 +233,9 @@ def run_limit_cycle(args: argparse.Namespace) -> int:
 
         def sim(jp_: JointParams, switch_off: bool) -> dict[str, Any]:
             label = "switch-off" if switch_off else "integrators on"
-            return simulate(jp_, switch_off=switch_off, settings=settings, progress=_Ticker(f"simulating ({label})"),
-                            link_factory=_tagged(links, label.replace(" ", "-")))
+            with TickProgress(f"simulating ({label})", quiet=args.quiet) as progress:
+                return simulate(jp_, switch_off=switch_off, settings=settings, progress=progress,
+                                link_factory=_tagged(links, label.replace(" ", "-")))
 
     result = limit_cycle_analysis(jp, simulate=sim, with_traces=bool(args.report))
     text = report.limit_cycle_text(result)
@@ -286,13 +271,13 @@ def run_limit_cycle(args: argparse.Namespace) -> int:
             files += report.save_figure_both(fig, d, "cycle_model_check")
             imgs.append("cycle_model_check.png")
         md = report.markdown(f"Limit cycles — {jp.rig} joint {jp.joint}", _command_line(args), text, imgs)
-        files.append(report.write_text_atomic(d / "summary.md", md))
+        files.append(write_atomic(d / "summary.md", md))
         result["report_files"] = [str(f) for f in files]
     out = _strip_model_traces(result)
     out["simulated"] = strip_traces(out.get("simulated"))
     out["switch_off"]["simulated"] = strip_traces(out["switch_off"].get("simulated"))
     if args.json_path:
-        files.append(report.write_json_atomic(args.json_path, out))
+        files.append(write_json(args.json_path, out))
     for f in files:
         print(f"wrote {f}")
     faults = [s["fault"] for s in (result.get("simulated"), result["switch_off"].get("simulated")) if s and s["fault"]]
@@ -357,12 +342,13 @@ def run_sweep(args: argparse.Namespace) -> int:
         GAIN_KEYS,
         SweepInterrupted,
         SweepTask,
+        evaluate_points,
         grid_points,
         load_gains_file,
         parse_grid,
         rows_csv,
-        run_sweep,
     )
+    from vmehil.progress import progress_bar
 
     jp = _load(args)
     base = jp.cfg.gains
@@ -411,41 +397,29 @@ def run_sweep(args: argparse.Namespace) -> int:
             "settle_band_deg": settings.settle_band_deg},
         "points_total": len(tasks), "heatmap_axes": [x, y],
     }
-    t0 = time.perf_counter()
-    show = not args.quiet
-    tty = sys.stderr.isatty()
 
     def write(rows: list[dict[str, Any]], done: bool, interrupted: bool = False) -> None:
-        report.write_text_atomic(csv_path, rows_csv(rows))
-        report.write_json_atomic(json_path, {**meta, "completed": len(rows), "finished": done,
-                                             "interrupted": interrupted, "rows": rows})
-
-    def on_result(row: dict[str, Any], rows: list[dict[str, Any]]) -> None:
-        write(rows, False)
-        if show:
-            n, k = len(tasks), len(rows)
-            el = time.perf_counter() - t0
-            eta = el / k * (n - k)
-            bar = "#" * int(30 * k / n)
-            msg = (f"sweep [{bar:<30s}] {k}/{n}  {el:5.0f} s elapsed, ~{eta:4.0f} s left  "
-                   f"(last: {_point_text(row)})")
-            sys.stderr.write(("\r" + msg + "\033[K") if tty else msg + "\n")
-            sys.stderr.flush()
+        write_atomic(csv_path, rows_csv(rows))
+        write_json(json_path, {**meta, "completed": len(rows), "finished": done,
+                               "interrupted": interrupted, "rows": rows})
 
     write([], False)
     print(f"vmehil tune sweep — {jp.rig} joint {jp.joint} ({jp.name}): {len(tasks)} gain sets, "
           f"{jobs or 'all'} worker(s); writing {csv_path} and {json_path}")
     try:
-        rows = run_sweep(tasks, jobs=jobs, on_result=on_result)
+        with progress_bar("sweep", len(tasks), quiet=args.quiet, unit="point") as bar:
+
+            def on_result(row: dict[str, Any], rows: list[dict[str, Any]]) -> None:
+                write(rows, False)
+                bar.set_postfix_str(f"last: {_point_text(row)}", refresh=False)
+                bar.update(1)
+
+            rows = evaluate_points(tasks, jobs=jobs, on_result=on_result)
     except SweepInterrupted as e:
         write(e.rows, False, interrupted=True)
-        if show and tty:
-            sys.stderr.write("\n")
         print(f"vmehil tune sweep: interrupted; {len(e.rows)} of {len(tasks)} points kept in {csv_path} and "
               f"{json_path}", file=sys.stderr)
         return 130
-    if show and tty:
-        sys.stderr.write("\n")
     write(rows, True)
     print(_sweep_table(rows))
     files = [csv_path, json_path]
@@ -457,7 +431,7 @@ def run_sweep(args: argparse.Namespace) -> int:
             files += report.save_figure_both(fig, d, f"heatmap_{x}_{y}")
             imgs.append(f"heatmap_{x}_{y}.png")
         md = report.markdown(f"Gain sweep — {jp.rig} joint {jp.joint}", _command_line(args), _sweep_table(rows), imgs)
-        files.append(report.write_text_atomic(d / "summary.md", md))
+        files.append(write_atomic(d / "summary.md", md))
     for f in files:
         print(f"wrote {f}")
     return 0
@@ -498,6 +472,7 @@ def run_step(args: argparse.Namespace) -> int:
 
     from vmehil.analysis import report
     from vmehil.analysis.simulate import linear_prediction, simulate, step_metrics, strip_traces
+    from vmehil.progress import TickProgress
 
     jp = _load(args)
     bad = _unstable_message(jp)
@@ -507,10 +482,11 @@ def run_step(args: argparse.Namespace) -> int:
     settings = _sim_settings(args, allow_short=True)
     so = {"rig": None, "on": True, "off": False}[args.switch_off]
     links = _link_factory(args)
-    step = simulate(jp, switch_off=so, settings=settings, step_deg=args.step_deg, progress=_Ticker("step"),
-                    link_factory=_tagged(links, "step"))
-    move = simulate(jp, switch_off=so, settings=settings, progress=_Ticker("quintic move"),
-                    link_factory=_tagged(links, "move"))
+    with TickProgress("step", quiet=args.quiet) as progress:
+        step = simulate(jp, switch_off=so, settings=settings, step_deg=args.step_deg, progress=progress,
+                        link_factory=_tagged(links, "step"))
+    with TickProgress("quintic move", quiet=args.quiet) as progress:
+        move = simulate(jp, switch_off=so, settings=settings, progress=progress, link_factory=_tagged(links, "move"))
     T = jp.cfg.sample_period_s
     lin = {}
     for name, d in (("step", step), ("move", move)):
@@ -535,9 +511,9 @@ def run_step(args: argparse.Namespace) -> int:
         files += report.save_figure_both(fig, d, "step_and_move")
         md = report.markdown(f"Step and move — {jp.rig} joint {jp.joint}", _command_line(args), text,
                              ["step_and_move.png"])
-        files.append(report.write_text_atomic(d / "summary.md", md))
+        files.append(write_atomic(d / "summary.md", md))
     if args.json_path:
-        files.append(report.write_json_atomic(args.json_path, result))
+        files.append(write_json(args.json_path, result))
     for f in files:
         print(f"wrote {f}")
     faults = [s["fault"] for s in (step, move) if s["fault"]]

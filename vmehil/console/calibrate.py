@@ -72,7 +72,7 @@ def _procedures() -> dict[str, Any]:
 def parse_request(args: list[Arg], names: list[str]) -> CalibrationRequest:
     """``PROCEDURE [--joint N ...] [--auto]`` (or ``joint=N``, ``auto=1``) → a request;
     :class:`ConsoleError` ARGS/VALUE naming what is wrong."""
-    from vmehil.calibration.procedure_runner import resolve_names
+    from vmehil.calibration.procedure_runner import resolve_procedure_names
 
     procs = _procedures()
     choices = f"all, {', '.join(sorted(procs, key=lambda n: procs[n].order))}"
@@ -126,7 +126,7 @@ def parse_request(args: list[Arg], names: list[str]) -> CalibrationRequest:
     if procedure is None:
         raise ConsoleError(ARGS, f"calibrate: which procedure? ({choices}); {usage}")
     try:
-        run = resolve_names(procedure)
+        run = resolve_procedure_names(procedure)
     except ValueError:
         raise ConsoleError(VALUE, f"calibrate: no procedure {procedure!r}; choose from {choices}") from None
     if not auto:

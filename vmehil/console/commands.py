@@ -120,7 +120,8 @@ class Session:
         return list(self.loop.names)
 
 
-Runner = Callable[[Session, dict[str, Any]], Outcome]
+#: What carries out an atomic command: ``(session, bound arguments) -> Outcome``.
+AtomHandler = Callable[[Session, dict[str, Any]], Outcome]
 
 
 @dataclass(frozen=True)
@@ -130,7 +131,7 @@ class Atom:
 
     name: str
     params: tuple[Param, ...]
-    run: Runner
+    run: AtomHandler
     summary: str
     on_line: bool = True
     in_files: bool = True
@@ -143,8 +144,8 @@ class Atom:
 ATOMS: dict[str, Atom] = {}
 
 
-def atom(name: str, params: tuple[Param, ...], summary: str, **flags: Any) -> Callable[[Runner], Runner]:
-    def deco(fn: Runner) -> Runner:
+def atom(name: str, params: tuple[Param, ...], summary: str, **flags: Any) -> Callable[[AtomHandler], AtomHandler]:
+    def deco(fn: AtomHandler) -> AtomHandler:
         if name in ATOMS:
             raise ValueError(f"console command {name!r} is already defined")
         ATOMS[name] = Atom(name, params, fn, summary, **flags)

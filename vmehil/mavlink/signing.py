@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import hashlib
 import hmac
-import os
 import stat
 import types
 from pathlib import Path
 from typing import Any
+
+from vmehil.files import write_atomic
 
 KEY_LEN = 32
 
@@ -32,15 +33,13 @@ def key_from_passphrase(passphrase: str) -> bytes:
 
 
 def write_key_file(path: str | Path, key: bytes) -> Path:
-    """Write ``key`` (32 bytes) as hex to a new file created with mode 0600."""
+    """Write ``key`` (32 bytes) as hex to a new file created with mode 0600.
+
+    Atomic, and at most 0600 from creation on: replacing an existing (perhaps more open) file never
+    puts the key in it, even for a moment."""
     if len(key) != KEY_LEN:
         raise KeyFileError(f"a signing key is {KEY_LEN} bytes, got {len(key)}")
-    p = Path(path)
-    fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "w") as f:
-        f.write(key.hex() + "\n")
-    os.chmod(p, 0o600)
-    return p
+    return write_atomic(path, key.hex() + "\n", mode=0o600)
 
 
 def load_key_file(path: str | Path) -> bytes:

@@ -58,8 +58,9 @@ class DoubleIntegratorIO:
         self.omega = self.omega + a * T
 
 
-class FakeRunner:
-    """Lockstep runner over :class:`DoubleIntegratorIO` with ``after_tick`` callbacks."""
+class DoubleIntegratorLockstepRunner:
+    """Runs the servo loop in lockstep with :class:`DoubleIntegratorIO` (the stand-in for
+    :class:`servo.runner.LockstepRunner` and the emulated rig), with ``after_tick`` callbacks."""
 
     def __init__(self, loop: ServoLoop, io: DoubleIntegratorIO) -> None:
         self.loop = loop
@@ -79,7 +80,7 @@ class FakeRunner:
 
 
 def fake_loop(n: int = 2, period_s: float = 0.008, move_rad: float = 0.2, hold_s: float = 60.0,
-              n_ticks: int = 0) -> tuple[ServoLoop, DoubleIntegratorIO, FakeRunner]:
+              n_ticks: int = 0) -> tuple[ServoLoop, DoubleIntegratorIO, DoubleIntegratorLockstepRunner]:
     """A started loop moving every joint by ``move_rad`` then holding; with torque limit 50 N·m and
     the default JPL gains (Kp 100, Kpi 5000, Kv 50, KvI 1000)."""
     io = DoubleIntegratorIO(n, period_s)
@@ -91,4 +92,4 @@ def fake_loop(n: int = 2, period_s: float = 0.008, move_rad: float = 0.2, hold_s
                      recorder=Recorder(n_ticks, n) if n_ticks else None, names=[f"j{i + 1}" for i in range(n)])
     loop.plan_context = ctx  # type: ignore[attr-defined]
     loop.start()
-    return loop, io, FakeRunner(loop, io)
+    return loop, io, DoubleIntegratorLockstepRunner(loop, io)
