@@ -164,7 +164,8 @@ def test_vmehil_run_console_through_a_terminal_program(tmp_path):
     link = tmp_path / "console"
     cmd_file = tmp_path / "ops.cmd"
     cmd_file.write_text(COMMANDS)
-    proc = _vmehil("run", "--realtime", "--duration", "120", "--quiet", "--console", f"pty:{link}",
+    # a loaded test machine must not decide the outcome: the overrun policy warns instead of stopping
+    proc = _vmehil("run", "--realtime", "--overrun", "warn", "--duration", "120", "--quiet", "--console", f"pty:{link}",
                    "--console-commands", str(cmd_file))
     term = None
     try:
@@ -193,7 +194,7 @@ def test_vmehil_run_console_through_a_terminal_program(tmp_path):
 
 def test_vmehil_console_serves_and_shuts_down(tmp_path):
     link = tmp_path / "console"
-    proc = _vmehil("console", "--port", f"pty:{link}")
+    proc = _vmehil("console", "--overrun", "warn", "--port", f"pty:{link}")
     term = None
     try:
         _wait_for(link, proc)

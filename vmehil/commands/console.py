@@ -21,6 +21,7 @@ import warnings
 from pathlib import Path
 
 from servo.interrupts import Terminated, interrupt_name
+from vmehil.realtime_options import add_overrun_args, overrun_options
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,6 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--gains", default=None, help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=..")
     p.add_argument("--baud", type=int, default=115200, help="baud rate for a serial device (default 115200)")
     p.add_argument("--lockstep", action="store_true", help="do not pace ticks by the wall clock")
+    add_overrun_args(p)
     p.add_argument("--duration", type=float, default=None, help="end after this many seconds of loop time")
     p.add_argument("--calibration", default=None,
                    help="calibration file for the drivers, and where the console's calibrate writes "
@@ -73,7 +75,7 @@ def run_console(args: argparse.Namespace) -> int:
     motion = load_motion(args.motion, n) if args.motion else Motion((WaitMove(0.0),), "hold", "<console>")
     loop = build_loop(system, motion=motion, gains=gains, n_ticks=0)
     loop.start()
-    runner = LockstepRunner(system, loop) if args.lockstep else RealtimeRunner(system, loop)
+    runner = LockstepRunner(system, loop) if args.lockstep else RealtimeRunner(system, loop, **overrun_options(args))
     done = threading.Event()
     # calibrate jobs run here between runner chunks (not inside a tick hook), so a wall-clock
     # runner restarts its deadlines after a calibration instead of catching up on them

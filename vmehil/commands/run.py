@@ -17,6 +17,7 @@ from pathlib import Path
 from servo.interrupts import Terminated, interrupt_exit_status
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
 from vmehil.files import write_json
+from vmehil.realtime_options import add_overrun_args, overrun_options
 
 # Modules that extend `vmehil run` (live tuning over MAVLink, the operator console, ...). Each
 # defines ``add_arguments(parser)`` and ``attach(args, system, loop, runner)``, which returns
@@ -64,6 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--motion", default=None, help="motion file (TOML); default: a coordinated demo move + 10 s hold")
     p.add_argument("--duration", type=float, default=None, help="seconds to run (default: the motion, +1 s)")
     p.add_argument("--realtime", action="store_true", help="pace ticks by the wall clock at the servo rate")
+    add_overrun_args(p)
     p.add_argument("--no-integrator-switch-off", action="store_true", help="keep the integrators fed at rest")
     p.add_argument("--gains", default=None, help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=..")
     p.add_argument("--json", default=None, help="write the machine-readable summary here")
@@ -126,7 +128,7 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     system = _build_calibrated(args, rig, build_emulated_rig)
     loop = build_loop(system, motion=motion, gains=gains, n_ticks=n_ticks,
                       switch_off=False if args.no_integrator_switch_off else None)
-    runner = RealtimeRunner(system, loop) if args.realtime else LockstepRunner(system, loop)
+    runner = RealtimeRunner(system, loop, **overrun_options(args)) if args.realtime else LockstepRunner(system, loop)
     progress = TickProgress("run", quiet=args.quiet)
     attached: list = []
     interrupted: BaseException | None = None
