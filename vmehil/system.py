@@ -20,8 +20,13 @@ from emulators.presets import resolve_rig
 from hal.config import ConfigTable
 from servo.boundary import PlantBoundaryError
 from servo.io import JointIO, SensorScaling
-from servo.rig import RigSpec, load_rig, loopback_net, reference_net
+from servo.rig import SERVO_JOINT_KEYS, RigSpec, load_rig, loopback_net, reference_net
 from vmehil.calibration.store import load_store_or_nominal
+
+#: The ``[[joint]]`` keys that are not the plant's: the servo side's and ``[joint.calibration]``
+#: (the calibration procedures' settings, vmehil.calibration.pot). The plant is told them
+#: (emulators.plant.params) so that any other key it does not know is reported as a typo.
+NON_PLANT_JOINT_KEYS = (*SERVO_JOINT_KEYS, "calibration")
 
 
 def scaling_from_params(p: JointParams) -> SensorScaling:
@@ -150,12 +155,12 @@ def build_emulated_rig(rig: str | Path | RigSpec | None = None, *, seed: int = 0
     spec = rig if isinstance(rig, RigSpec) else load_rig(resolve_rig(rig))
     crate = build_crate(wired_crate_table(spec), seed=seed)
     publish_references(crate, spec)
-    params = plant_params_from_config(spec.table).joints
+    params = plant_params_from_config(spec.table, foreign_keys=NON_PLANT_JOINT_KEYS).joints
     if [p.name for p in params] != [j.name for j in spec.joints]:
         raise ValueError(f"rig {spec.name}: plant joints and servo joints differ")
     plant = None
     if link is None:
-        plant = Plant.from_config(spec.table, seed=seed)
+        plant = Plant.from_config(spec.table, seed=seed, foreign_keys=NON_PLANT_JOINT_KEYS)
         if initial_deg is not None:
             plant.reset(np.radians(np.asarray(initial_deg, float)))
         link = InProcessLink(plant)

@@ -158,6 +158,7 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
     :class:`~vmehil.analysis.loop.GainError` for bad gains and ValueError for a bad joint number.
     """
     from vmehil.session import build_controller_for, servo_settings
+    from vmehil.system import NON_PLANT_JOINT_KEYS
 
     if isinstance(joint, bool) or not isinstance(joint, int) or joint < 1:
         raise ValueError(f"joint number {joint!r} must be 1 or more (joints are numbered from 1)")
@@ -165,7 +166,7 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
     spec = load_rig(path)
     if joint > spec.n_joints:
         raise ValueError(f"rig {spec.name} has {spec.n_joints} joints; --joint must be 1..{spec.n_joints}, not {joint}")
-    plant = plant_params_from_config(spec.table).joints
+    plant = plant_params_from_config(spec.table, foreign_keys=NON_PLANT_JOINT_KEYS).joints
     j = joint - 1
     p = plant[j]
     js = spec.joints[j]
