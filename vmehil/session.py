@@ -133,7 +133,5 @@ def build_loop(system: EmulatedRig, *, motion: Motion | None = None, gains: dict
     sequencer = Sequencer(list(motion.moves), start, PlanContext(limits))
     wd = WatchdogConfig(following_error_rad=np.asarray(settings.following_error_rad), enabled=watchdog)
     recorder = Recorder(n_ticks, n) if n_ticks else None
-    loop = ServoLoop(system.io, controller, sequencer, wd, recorder=recorder, names=[j.name for j in system.rig.joints])
-    loop.plan_context = PlanContext(limits)
-    loop.motion = motion
-    return loop
+    return ServoLoop(system.io, controller, sequencer, wd, recorder=recorder, names=[j.name for j in system.rig.joints],
+                     plan_context=PlanContext(limits))
