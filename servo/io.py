@@ -51,7 +51,8 @@ class CalibrationSource(Protocol):
 
 @dataclass
 class SensorScaling:
-    """Nominal (datasheet) scaling of one joint's sensors and actuator, SI units.
+    """Nominal (datasheet) scaling of one joint's sensors and actuator, SI units (on a rig:
+    :func:`servo.nominal.nominal_scaling` from ``[joint.servo.nominal]``).
 
     Attributes:
         pot_v_per_rad: potentiometer gradient (V/rad of joint angle).

@@ -26,16 +26,23 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from servo.control.objects import ControlContext, Controller, SwitchableController
 from servo.interrupts import Terminated, interrupt_name
 from servo.io import JointIO, Measurement
-from servo.trajectory.sequencer import Sequencer
+from servo.trajectory.sequencer import PlanContext, Sequencer
 
 LiveCommand = Callable[["ServoLoop"], Any]
+
+
+class VisionOutcome(Protocol):
+    """What the loop keeps of a run's visual-servo link (:class:`servo.vservo.VisionLink`): the
+    loop never steps it (its ``vservo`` trajectory does), the run report asks it how it went."""
+
+    def summary(self) -> dict[str, Any]: ...
 
 
 @dataclass
@@ -97,7 +104,10 @@ class ServoLoop:
     """Per-tick control of all joints of a rig."""
 
     def __init__(self, io: JointIO, controller: Controller, sequencer: Sequencer, watchdog: WatchdogConfig,
-                 *, recorder: Recorder | None = None, names: list[str] | None = None) -> None:
+                 *, recorder: Recorder | None = None, names: list[str] | None = None,
+                 plan_context: PlanContext | None = None) -> None:
+        """``plan_context``: the limits new moves are planned with (live motions, :meth:`resume`);
+        ``None``: the current sequencer's."""
         self.io = io
         self.n = io.n
         self.period_s = io.period_s
@@ -121,11 +131,9 @@ class ServoLoop:
         self._last_theta: np.ndarray | None = None
         self.last: dict[str, Any] = {}
         self.log: list[tuple[float, str, str]] = []  # (time, source, message)
-        #: set by the session/tools: the planning context for new moves, the motion being played,
-        #: the visual-servo link (servo.vservo.VisionLink) when the run has one
-        self.plan_context: Any = None
-        self.motion: Any = None
-        self.vision: Any = None
+        self.plan_context = plan_context
+        #: the run's visual-servo link when it has one (set by ``vmehil run --vision``), for the report
+        self.vision: VisionOutcome | None = None
 
     # --- live interface ------------------------------------------------------------------------
     def submit(self, command: LiveCommand,

@@ -32,7 +32,18 @@ Reference pins carry the net ``ref.<board>.<channel>``, loopback pairs the net
 
 ``[joint.servo]``: ``position = "pot" | "encoder"``, ``velocity = "tach" | "encoder"``,
 ``gains = {kp, kpi, kv, kvi}``, ``switch_off = {...}``, ``max_velocity_deg_s``,
-``torque_limit_nm``, ``following_error_limit_deg``, ``controller = {objects = [...]}``.
+``torque_limit_nm`` (default: the nominal current limit · Kt · N), ``following_error_limit_deg``,
+``controller = {objects = [...]}``.
+
+``[joint.servo.nominal]``: the controller's own datasheet/nominal figures of the joint — sensor
+gradients and zeros, encoder counts per joint revolution, gear ratio, Kt, amplifier gain, current
+monitor and limit, H-bridge supply/R/Ke/PWM period, inertia at the joint (SI; the keys and which
+ones a joint must give: :mod:`servo.nominal`). The drivers' sensor scaling, the normalizing chain
+and the default torque limit come from these alone, never from the plant subtables: a study may
+perturb the plant and the controller does not learn of it.
+
+The plant reads the same ``[[joint]]`` tables and is told which keys are the servo side's
+(:data:`SERVO_JOINT_KEYS`) rather than knowing them.
 """
 
 from __future__ import annotations
@@ -50,6 +61,9 @@ ANALOG_INPUTS = ("pot", "tach", "imon")
 DIGITAL_OUTPUTS = ("amp_enable", "amp_reset", "direction", "brake")
 DIGITAL_INPUTS = ("amp_fault",)
 WIRING_KEYS = ("amp_command", "encoder", "pwm", *ANALOG_INPUTS, *DIGITAL_OUTPUTS, *DIGITAL_INPUTS)
+#: The keys of a ``[[joint]]`` table that only the servo side reads (``name`` and ``amplifier`` are
+#: shared with the plant, whose subtables sit beside these).
+SERVO_JOINT_KEYS = ("wiring", "servo")
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -57,7 +58,7 @@ class VisionLink:
         self.vision = vision
         self.commands = 0
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
         """Outcome for the run report: protocol state, commands followed, distance to target."""
         theta = self.measure()
         out = {"robot_state": self.client.state.name,

@@ -48,7 +48,7 @@ def test_joint_1_figures_come_from_the_plant_parameters() -> None:
 
 def test_gains_switch_off_gain_and_torque_limit_match_the_session_and_the_law() -> None:
     system = build_emulated_rig(None)
-    st = servo_settings(system)
+    st = servo_settings(system.rig)
     loop = build_loop(system, n_ticks=1)
     for j in (1, 4):
         jp = load_joint(None, j)

@@ -67,8 +67,7 @@ def make_loop(n: int = 2, names: list[str] | None = None, inertia: float = 1.0) 
     ctx = PlanContext(JointLimits.make(n, math.radians(30.0)))
     seq = Sequencer([], np.zeros(n), ctx)
     wd = WatchdogConfig(following_error_rad=np.full(n, math.radians(10.0)))
-    loop = ServoLoop(io, ctrl, seq, wd, names=names or [f"j{i + 1}" for i in range(n)])
-    loop.plan_context = ctx  # type: ignore[attr-defined]
+    loop = ServoLoop(io, ctrl, seq, wd, names=names or [f"j{i + 1}" for i in range(n)], plan_context=ctx)
     loop.start()
     return loop
 

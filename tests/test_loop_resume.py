@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from test_console_support import make_loop, tick
 
-from servo.trajectory import Sequencer
+from servo.trajectory import JointLimits, PlanContext, Sequencer
 
 
 def test_safe_stopped_loop_resumes_and_holds_the_measured_position():
@@ -69,3 +69,17 @@ def test_resume_that_cannot_enable_stops_again():
         loop.resume()
     assert not loop.enabled and loop.fault is not None and loop.fault.cause == "driver_error"
     assert "amplifier enable line stuck" in loop.fault.detail
+
+
+def test_resume_plans_with_the_loops_plan_context_else_the_sequencers():
+    loop = make_loop(1)
+    assert loop.vision is None
+    slow = PlanContext(JointLimits.make(1, 0.1))
+    loop.plan_context = slow
+    loop.safe_stop("operator_stop", "test")
+    loop.resume()
+    assert loop.sequencer.ctx is slow
+    loop.plan_context = None
+    loop.safe_stop("operator_stop", "test")
+    loop.resume()
+    assert loop.sequencer.ctx is slow  # the sequencer's own, carried on

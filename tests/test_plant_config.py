@@ -103,3 +103,17 @@ def test_missing_keys_take_the_documented_defaults(tmp_path):
 def test_unknown_preset_names_the_presets():
     with pytest.raises(FileNotFoundError, match="jpl-arm.*melmalec-16|melmalec-16.*jpl-arm"):
         load_plant_params("no-such-rig")
+
+
+def test_other_readers_tables_are_skipped_only_when_the_caller_names_them(tmp_path):
+    """The plant does not know the rig file's other readers: a caller that knows them passes their
+    [[joint]] keys; without them the plant leaves keys it does not own unchecked."""
+    text = '[[joint]]\nname = "a"\n[joint.ctl]\nanything = 1\n[joint.friction]\nbreakout_nm = 0.1\n'
+    f = _rig(tmp_path, text)
+    assert load_plant_params(f).joints[0].friction.breakout_nm == 0.1
+    assert load_plant_params(f, foreign_keys=("ctl",)).joints[0].friction.breakout_nm == 0.1
+    with pytest.raises(ConfigError, match=r"joint\[0\]\.ctl.*unknown key"):
+        load_plant_params(f, foreign_keys=("wiring",))
+    typo = _rig(tmp_path, '[[joint]]\nname = "a"\n[joint.fricton]\nbreakout_nm = 0.1\n')
+    with pytest.raises(ConfigError, match=r"joint\[0\]\.fricton"):
+        Plant.from_config(load_toml(typo), foreign_keys=("ctl",))

@@ -182,8 +182,9 @@ def _start_node(rig: Any, interface: str, channel: str, *, free_running: bool) -
     from emulators.can.bus import Endpoint, open_bus
     from emulators.can.node import PLANT_IDS, PlantNode, node_spec
     from emulators.plant import Plant
+    from vmehil.system import NON_PLANT_JOINT_KEYS
 
-    spec = node_spec(str(getattr(rig, "path", rig)) if rig is not None else None)
+    spec = node_spec(str(getattr(rig, "path", rig)) if rig is not None else None, foreign_keys=NON_PLANT_JOINT_KEYS)
     node = PlantNode(Endpoint(open_bus(interface, channel), PLANT_IDS),
                      lambda seed: Plant.from_config(spec.table, seed=seed), spec.n_joints,
                      free_running=free_running, period_s=spec.period_s, delay_s=spec.delay_s)

@@ -14,7 +14,11 @@ Rig-level ``[servo]`` gives defaults; each ``[joint.servo]`` may override them::
     position = "pot"                           # or "encoder"
     velocity = "tach"                          # or "encoder"
     gains = { kp = 120.0 }                     # per-joint overrides
-    torque_limit_nm = 84.7                     # default: amplifier current limit · Kt · N
+    torque_limit_nm = 84.7                     # default: nominal current limit · Kt · N
+
+The controller's plant figures (normalizing chain J, N, Kt, amplifier gain; the default torque
+limit) are the rig file's ``[joint.servo.nominal]`` values (:mod:`servo.nominal`), never the
+emulated plant's.
 """
 
 from __future__ import annotations
@@ -25,10 +29,11 @@ from typing import Any
 import numpy as np
 
 from hal.config import ConfigTable
-from servo.control.normalize import normalizing_chain
 from servo.control.objects import Controller, build_controller
 from servo.loop import Recorder, ServoLoop, WatchdogConfig
 from servo.motion import Motion, default_demo_motion
+from servo.nominal import nominal_chain, rig_nominal
+from servo.rig import RigSpec
 from servo.trajectory.base import JointLimits
 from servo.trajectory.sequencer import PlanContext, Sequencer
 from vmehil.system import EmulatedRig
@@ -48,8 +53,8 @@ class ServoSettings:
     following_error_rad: list[float]
 
 
-def servo_settings(system: EmulatedRig) -> ServoSettings:
-    rig = system.rig
+def servo_settings(rig: RigSpec) -> ServoSettings:
+    """The rig's servo settings, per joint (``[servo]`` defaults, ``[joint.servo]`` overrides)."""
     top = rig.table.table("servo", {})
     objects = top.raw("objects", ["pid", "torque_limit"])
     base_gains = top.table("gains", {})
@@ -60,7 +65,7 @@ def servo_settings(system: EmulatedRig) -> ServoSettings:
     so_keys = set(base_so.keys())
     for j in rig.joints:
         so_keys |= set(j.servo.table("switch_off", {}).keys())
-    for j, p in zip(rig.joints, system.params, strict=True):
+    for j, nominal in zip(rig.joints, rig_nominal(rig), strict=True):
         jg = j.servo.table("gains", {})
         for k in GAIN_KEYS:
             default = base_gains.get_float(k, {"kp": 100.0, "kpi": 5000.0, "kv": 50.0, "kvi": 1000.0}[k], min=0.0)
@@ -69,8 +74,7 @@ def servo_settings(system: EmulatedRig) -> ServoSettings:
         for k in so_keys:
             v = jso.raw(k) if k in jso else base_so.raw(k, None)  # None: the law's default
             so.setdefault(k, []).append(v)
-        limit_a = p.linear_amp.current_limit_a if p.amplifier == "linear" else p.hbridge.current_limit_a
-        tl.append(j.servo.get_float("torque_limit_nm", limit_a * p.motor.kt_nm_per_a * p.gear.ratio, min=0.0))
+        tl.append(j.servo.get_float("torque_limit_nm", nominal.torque_limit_nm, min=0.0))
         vmax.append(np.radians(j.servo.get_float("max_velocity_deg_s",
                                                  top.get_float("max_velocity_deg_s", 30.0, min=0.0))))
         ferr.append(np.radians(j.servo.get_float("following_error_limit_deg",
@@ -80,11 +84,9 @@ def servo_settings(system: EmulatedRig) -> ServoSettings:
     return ServoSettings(list(objects), gains, so, tl, vmax, ferr)
 
 
-def build_controller_for(system: EmulatedRig, settings: ServoSettings) -> Controller:
-    params = system.params
-    chain = normalizing_chain(
-        [p.inertia_at_joint() for p in params], [p.gear.ratio for p in params],
-        [p.motor.kt_nm_per_a for p in params], [p.linear_amp.gain_a_per_v for p in params])
+def build_controller_for(rig: RigSpec, settings: ServoSettings) -> Controller:
+    """The rig's controller for ``settings``, normalized with the rig's nominal values."""
+    chain = nominal_chain(rig_nominal(rig))
     table: dict[str, Any] = {"objects": settings.objects}
     pid: dict[str, Any] = dict(settings.gains)
     if settings.switch_off:
@@ -92,7 +94,7 @@ def build_controller_for(system: EmulatedRig, settings: ServoSettings) -> Contro
     table["pid"] = pid
     if "torque_limit" in settings.objects:
         table["torque_limit"] = {"tau_max_nm": settings.torque_limit_nm}
-    return build_controller(ConfigTable(table, f"{system.rig.path} (servo settings)"), chain, system.rig.period_s)
+    return build_controller(ConfigTable(table, f"{rig.path} (servo settings)"), chain, rig.period_s)
 
 
 def _collapse(d: dict[str, list[Any]]) -> dict[str, Any]:
@@ -115,7 +117,7 @@ def build_loop(system: EmulatedRig, *, motion: Motion | None = None, gains: dict
                switch_off: bool | None = None, n_ticks: int = 0, watchdog: bool = True) -> ServoLoop:
     """A ready-to-start :class:`ServoLoop` for ``system`` (all settings from the rig file, with
     optional gain overrides applied to every joint and the switch-off forced on or off)."""
-    settings = servo_settings(system)
+    settings = servo_settings(system.rig)
     n = system.rig.n_joints
     if gains:
         for k, v in gains.items():
@@ -124,14 +126,12 @@ def build_loop(system: EmulatedRig, *, motion: Motion | None = None, gains: dict
             settings.gains[k] = [float(v)] * n
     if switch_off is not None:
         settings.switch_off["enabled"] = [bool(switch_off)] * n
-    controller = build_controller_for(system, settings)
+    controller = build_controller_for(system.rig, settings)
     motion = motion or default_demo_motion(n)
     start = system.io.read().theta
     limits = JointLimits.make(n, settings.max_velocity_rad_s)
     sequencer = Sequencer(list(motion.moves), start, PlanContext(limits))
     wd = WatchdogConfig(following_error_rad=np.asarray(settings.following_error_rad), enabled=watchdog)
     recorder = Recorder(n_ticks, n) if n_ticks else None
-    loop = ServoLoop(system.io, controller, sequencer, wd, recorder=recorder, names=[j.name for j in system.rig.joints])
-    loop.plan_context = PlanContext(limits)
-    loop.motion = motion
-    return loop
+    return ServoLoop(system.io, controller, sequencer, wd, recorder=recorder, names=[j.name for j in system.rig.joints],
+                     plan_context=PlanContext(limits))

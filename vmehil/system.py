@@ -19,30 +19,15 @@ from emulators.plant import JointParams, Plant, plant_params_from_config
 from emulators.presets import resolve_rig
 from hal.config import ConfigTable
 from servo.boundary import PlantBoundaryError
-from servo.io import JointIO, SensorScaling
-from servo.rig import RigSpec, load_rig, loopback_net, reference_net
+from servo.io import JointIO
+from servo.nominal import nominal_scaling, rig_nominal
+from servo.rig import SERVO_JOINT_KEYS, RigSpec, load_rig, loopback_net, reference_net
 from vmehil.calibration.store import load_store_or_nominal
 
-
-def scaling_from_params(p: JointParams) -> SensorScaling:
-    """The nominal (datasheet) scaling the servo uses for a joint: no nonlinearity, no noise."""
-    span_v = p.pot.v_high - p.pot.v_low
-    amp = p.linear_amp
-    return SensorScaling(
-        pot_v_per_rad=span_v / p.pot.span_rad,
-        pot_zero_v=p.pot.v_low + span_v * (0.5 - p.pot.center_rad / p.pot.span_rad),
-        tach_v_per_rad_s=p.tach.gradient_v_per_rad_s if p.tach.present else 0.0,
-        encoder_counts_per_rev=4.0 * p.encoder.lines_per_rev * p.gear.ratio,
-        ratio=p.gear.ratio,
-        kt_nm_per_a=p.motor.kt_nm_per_a,
-        amp_gain_a_per_v=amp.gain_a_per_v,
-        monitor_v_per_a=amp.monitor_v_per_a if p.amplifier == "linear" else p.hbridge.monitor_v_per_a,
-        current_limit_a=amp.current_limit_a if p.amplifier == "linear" else p.hbridge.current_limit_a,
-        supply_v=p.hbridge.supply_v,
-        resistance_ohm=p.motor.resistance_ohm,
-        ke_v_s_per_rad=p.motor.ke_v_s_per_rad,
-        pwm_period_s=1.0 / p.hbridge.pwm_hz,
-    )
+#: The ``[[joint]]`` keys that are not the plant's: the servo side's and ``[joint.calibration]``
+#: (the calibration procedures' settings, vmehil.calibration.pot). The plant is told them
+#: (emulators.plant.params) so that any other key it does not know is reported as a typo.
+NON_PLANT_JOINT_KEYS = (*SERVO_JOINT_KEYS, "calibration")
 
 
 def wired_crate_table(rig: RigSpec) -> ConfigTable:
@@ -101,7 +86,7 @@ class EmulatedRig:
     link: PlantLink
     harness: Harness
     io: JointIO
-    params: list[JointParams]
+    params: list[JointParams]  #: the plant's own parameters: for reports and tests, never the controller
     seed: int
 
     @property
@@ -150,12 +135,12 @@ def build_emulated_rig(rig: str | Path | RigSpec | None = None, *, seed: int = 0
     spec = rig if isinstance(rig, RigSpec) else load_rig(resolve_rig(rig))
     crate = build_crate(wired_crate_table(spec), seed=seed)
     publish_references(crate, spec)
-    params = plant_params_from_config(spec.table).joints
+    params = plant_params_from_config(spec.table, foreign_keys=NON_PLANT_JOINT_KEYS).joints
     if [p.name for p in params] != [j.name for j in spec.joints]:
         raise ValueError(f"rig {spec.name}: plant joints and servo joints differ")
     plant = None
     if link is None:
-        plant = Plant.from_config(spec.table, seed=seed)
+        plant = Plant.from_config(spec.table, seed=seed, foreign_keys=NON_PLANT_JOINT_KEYS)
         if initial_deg is not None:
             plant.reset(np.radians(np.asarray(initial_deg, float)))
         link = InProcessLink(plant)
@@ -163,7 +148,8 @@ def build_emulated_rig(rig: str | Path | RigSpec | None = None, *, seed: int = 0
     _couple_hbridge_noise(crate, spec)
     if isinstance(calibration, str | Path):
         calibration = load_store_or_nominal(calibration, spec, bus=crate)
-    io = JointIO(crate, spec, [scaling_from_params(p) for p in params], calibration=calibration)
+    # The drivers scale with the rig file's nominal values, never the plant's (servo.nominal).
+    io = JointIO(crate, spec, nominal_scaling(rig_nominal(spec)), calibration=calibration)
     system = EmulatedRig(spec, crate, plant, link, harness, io, params, seed)
     # Power-up: the plant runs one servo period with the rack's power-up outputs (DACs at 0 V,
     # amplifiers disabled) so that the sensor nets hold real readings when the loop starts.

@@ -28,7 +28,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -67,9 +67,10 @@ class NodeSpec:
         return len(self.names)
 
 
-def node_spec(rig: str | None) -> NodeSpec:
+def node_spec(rig: str | None, *, foreign_keys: Collection[str] | None = None) -> NodeSpec:
     """Read a rig preset name or file for the plant node (``[rig]``, ``[plant]``, ``[[joint]]``;
-    the wiring and servo tables are the controller's business)."""
+    the ``[[joint]]`` keys of the file's other readers, if the caller knows them, in
+    ``foreign_keys``: see :mod:`emulators.plant.params`)."""
     from emulators.plant import plant_params_from_config
     from emulators.presets import resolve_rig
     from hal.config import load_toml
@@ -78,7 +79,7 @@ def node_spec(rig: str | None) -> NodeSpec:
     table = load_toml(path)
     r = table.table("rig", {})
     rate = r.get_float("servo_rate_hz", 125.0, min=1.0, max=10_000.0)
-    params = plant_params_from_config(table)
+    params = plant_params_from_config(table, foreign_keys=foreign_keys)
     return NodeSpec(r.get_str("name", Path(path).stem), table, [j.name for j in params.joints], 1.0 / rate,
                     r.get_float("computation_delay_s", 0.001, min=0.0))
 

@@ -27,12 +27,19 @@ Rig-file layout (``emulators/presets/*.toml``)::
     [joint.tach]     ...               # TachParams
 
 Every key has a default (the dataclass default); unknown keys are errors naming file and key.
+
+A ``[[joint]]`` table is shared with the rig file's other readers (the controller's tables sit
+beside the plant subtables). The plant does not know them: whoever knows every reader of the file
+passes their keys as ``foreign_keys`` (skipped unread, any other key the plant does not own is
+an error); without ``foreign_keys`` the plant cannot tell another reader's table from a typo and
+leaves the ``[[joint]]`` keys it does not own unchecked. Its own subtables are always checked.
 """
 
 from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Collection
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -309,8 +316,10 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def joint_from_config(tbl: ConfigTable, templates: dict[str, dict[str, Any]] | None = None) -> JointParams:
-    """Read one ``[[joint]]`` table (after applying its ``template``)."""
+def joint_from_config(tbl: ConfigTable, templates: dict[str, dict[str, Any]] | None = None,
+                      foreign_keys: Collection[str] | None = None) -> JointParams:
+    """Read one ``[[joint]]`` table (after applying its ``template``); ``foreign_keys``: the keys
+    other readers of the rig file own (see the module docstring)."""
     data = tbl.data
     if "template" in data:
         tname = tbl.get_str("template")
@@ -323,7 +332,8 @@ def joint_from_config(tbl: ConfigTable, templates: dict[str, dict[str, Any]] | N
     for key, cls in _SUBTABLES.items():
         if key in tbl:
             setattr(j, key, _read_dataclass(cls, tbl.table(key)))
-    tbl.check_unknown({"name", "amplifier", "template", "wiring", "servo", *_SUBTABLES})  # wiring, servo: read by servo
+    if foreign_keys is not None:
+        tbl.check_unknown({"name", "amplifier", "template", *_SUBTABLES, *foreign_keys})
     try:
         j.validate()
     except ValueError as e:
@@ -331,8 +341,9 @@ def joint_from_config(tbl: ConfigTable, templates: dict[str, dict[str, Any]] | N
     return j
 
 
-def plant_params_from_config(cfg: ConfigTable) -> PlantParams:
-    """Read ``[plant]`` and ``[[joint]]`` from a rig file's root table."""
+def plant_params_from_config(cfg: ConfigTable, *, foreign_keys: Collection[str] | None = None) -> PlantParams:
+    """Read ``[plant]`` and ``[[joint]]`` from a rig file's root table; ``foreign_keys``: the
+    ``[[joint]]`` keys other readers of the rig file own (see the module docstring)."""
     plant = cfg.table("plant", {})
     rate = plant.get_float("rate_hz", 4000.0, min=100.0, max=1.0e6)
     templates: dict[str, dict[str, Any]] = {}
@@ -341,7 +352,7 @@ def plant_params_from_config(cfg: ConfigTable) -> PlantParams:
         for name in list(ttbl.keys()):
             templates[name] = ttbl.table(name).data
     plant.check_unknown({"rate_hz", "templates"})
-    joints = [joint_from_config(t, templates) for t in cfg.tables("joint")]
+    joints = [joint_from_config(t, templates, foreign_keys) for t in cfg.tables("joint")]
     if not joints:
         raise cfg.error("joint", "at least one [[joint]] table")
     params = PlantParams(joints=joints, rate_hz=rate)

@@ -18,6 +18,7 @@ Ground truth (``PlantSensors.truth``) is for reports and tests only — never fo
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -242,9 +243,11 @@ class Plant:
 
     # ---- construction helpers -----------------------------------------------------------
     @classmethod
-    def from_config(cls, cfg: ConfigTable, *, seed: int = 0, rate_hz: float | None = None) -> Plant:
-        """Build from a rig file's root table (reads ``[plant]`` and ``[[joint]]``)."""
-        return cls(plant_params_from_config(cfg), seed=seed, rate_hz=rate_hz)
+    def from_config(cls, cfg: ConfigTable, *, seed: int = 0, rate_hz: float | None = None,
+                    foreign_keys: Collection[str] | None = None) -> Plant:
+        """Build from a rig file's root table (reads ``[plant]`` and ``[[joint]]``; ``foreign_keys``
+        as for :func:`~emulators.plant.params.plant_params_from_config`)."""
+        return cls(plant_params_from_config(cfg, foreign_keys=foreign_keys), seed=seed, rate_hz=rate_hz)
 
     def index_of(self, name: str) -> int:
         """Position of joint ``name`` in the arrays."""

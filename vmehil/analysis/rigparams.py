@@ -26,8 +26,12 @@ Derived figures (SI, at the joint/output side, N = gear ratio):
   one x4 count, 2π/(4·lines·N);
 * velocity source ``[joint.servo] velocity``; amplifier bandwidth ``[joint.linear_amp]
   bandwidth_hz`` (H-bridge joints: no current-loop lag modelled);
-* acceleration limit = the session's torque limit (``torque_limit_nm`` or the amplifier current
-  limit · Kt · N) / J.
+* acceleration limit = the session's torque limit (``torque_limit_nm`` or the nominal current
+  limit · Kt · N of ``[joint.servo.nominal]``) / J.
+
+The controller normalizes with the rig's nominal values (:mod:`servo.nominal`), the analysis
+describes the plant. Where they differ (a study that perturbs the plant) the normalized plant is
+r/s² instead of 1/s²; the linear model keeps 1/s², and a note gives r.
 
 A figure whose key is absent from the rig file takes the plant model's default (the JPL paper's
 joint 1) — exactly what the emulator then simulates — and is listed in :attr:`JointParams.notes`.
@@ -42,7 +46,6 @@ from pathlib import Path
 from typing import Any
 
 from emulators.plant import plant_params_from_config
-from emulators.plant.params import JointParams as PlantJoint
 from emulators.presets import resolve_rig
 from hal.adc_dac.conversions import AdcRange, adc_lsb
 from servo.rig import RigSpec, load_rig
@@ -115,15 +118,6 @@ class JointParams:
         }
 
 
-@dataclass
-class _RigView:
-    """The two attributes of :class:`vmehil.system.EmulatedRig` that the session's settings
-    resolution reads (``rig`` and ``params``), without building a crate."""
-
-    rig: RigSpec
-    params: list[PlantJoint]
-
-
 def _joint_data(spec: RigSpec, index: int) -> dict[str, Any]:
     """The joint's table after its plant template (if any) is applied — to see which keys exist."""
     data = spec.joints[index].table.data
@@ -158,6 +152,7 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
     :class:`~vmehil.analysis.loop.GainError` for bad gains and ValueError for a bad joint number.
     """
     from vmehil.session import build_controller_for, servo_settings
+    from vmehil.system import NON_PLANT_JOINT_KEYS
 
     if isinstance(joint, bool) or not isinstance(joint, int) or joint < 1:
         raise ValueError(f"joint number {joint!r} must be 1 or more (joints are numbered from 1)")
@@ -165,7 +160,7 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
     spec = load_rig(path)
     if joint > spec.n_joints:
         raise ValueError(f"rig {spec.name} has {spec.n_joints} joints; --joint must be 1..{spec.n_joints}, not {joint}")
-    plant = plant_params_from_config(spec.table).joints
+    plant = plant_params_from_config(spec.table, foreign_keys=NON_PLANT_JOINT_KEYS).joints
     j = joint - 1
     p = plant[j]
     js = spec.joints[j]
@@ -187,8 +182,7 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
     T = spec.period_s
 
     # ---- gains and switch-off, as the session resolves them
-    view = _RigView(spec, plant)
-    settings = servo_settings(view)  # type: ignore[arg-type]
+    settings = servo_settings(spec)
     base = {k: settings.gains[k][j] for k in GAIN_KEYS}
     servo_top = spec.table.data.get("servo", {})
     if "gains" in js.servo.data:
@@ -207,7 +201,7 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
         settings.gains[k][j] = getattr(g, k)
     enabled = settings.switch_off.get("enabled", [None] * spec.n_joints)[j]
     so_enabled = True if enabled is None else bool(enabled)
-    controller = build_controller_for(view, settings)  # type: ignore[arg-type]
+    controller = build_controller_for(spec, settings)
     law = controller.law
     if switch_off_kp is None:
         if law is not None:
@@ -228,6 +222,13 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
     fr = p.friction
     for key in ("coulomb_nm", "breakout_nm", "viscous_nm_s_per_rad"):
         note_default("friction", key, getattr(fr, key), "(input side)")
+    chain = controller.chain
+    r = float(chain.j_eff[j] / inertia * (n_gear * p.motor.kt_nm_per_a) / (chain.ratio[j] * chain.kt[j]))
+    if p.amplifier == "linear":
+        r *= p.linear_amp.gain_a_per_v / float(chain.amp_gain[j])
+    if not math.isclose(r, 1.0, rel_tol=1e-9):
+        notes.append(f"the controller's nominal J, N, Kt, amplifier gain ([joint.servo.nominal]) differ from the "
+                     f"plant's: the normalized plant is {r:.4g}/s², the linear analysis assumes 1/s²")
     coulomb = n_gear * fr.coulomb_nm
     breakout = n_gear * fr.breakout_nm * (1.0 + fr.ripple_fraction)
     viscous = n_gear**2 * fr.viscous_nm_s_per_rad

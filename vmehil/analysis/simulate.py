@@ -125,7 +125,7 @@ def _planned_s(system, motion) -> float:
     from servo.trajectory.sequencer import PlanContext
     from vmehil.session import servo_settings
 
-    st = servo_settings(system)
+    st = servo_settings(system.rig)
     ctx = PlanContext(JointLimits.make(system.rig.n_joints, st.max_velocity_rad_s))
     start = np.zeros(system.rig.n_joints)
     total = 0.0

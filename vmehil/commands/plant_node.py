@@ -31,9 +31,9 @@ def run(args: argparse.Namespace) -> int:
     from emulators.can.bus import Endpoint, open_bus, resolve
     from emulators.can.node import PLANT_IDS, PlantNode, exit_on_sigterm, node_spec
     from emulators.plant import Plant
+    from vmehil.system import NON_PLANT_JOINT_KEYS
 
-    spec = node_spec(args.rig)
-    Plant.from_config(spec.table, seed=args.seed)  # fail early on a bad rig file
+    spec = node_spec(args.rig, foreign_keys=NON_PLANT_JOINT_KEYS)  # fails early on a bad rig file
     bus = open_bus(args.interface, args.channel)
     ep = Endpoint(bus, PLANT_IDS, log_path=args.can_log)
     node = PlantNode(ep, lambda seed: Plant.from_config(spec.table, seed=seed), spec.n_joints, seed=args.seed,

@@ -89,7 +89,7 @@ def fake_loop(n: int = 2, period_s: float = 0.008, move_rad: float = 0.2, hold_s
     ctx = PlanContext(JointLimits.make(n, 0.5))
     seq = Sequencer([QuinticMove(None, np.full(n, move_rad)), WaitMove(hold_s)], np.zeros(n), ctx)
     loop = ServoLoop(io, controller, seq, WatchdogConfig(following_error_rad=np.full(n, 0.5)),
-                     recorder=Recorder(n_ticks, n) if n_ticks else None, names=[f"j{i + 1}" for i in range(n)])
-    loop.plan_context = ctx  # type: ignore[attr-defined]
+                     recorder=Recorder(n_ticks, n) if n_ticks else None, names=[f"j{i + 1}" for i in range(n)],
+                     plan_context=ctx)
     loop.start()
     return loop, io, DoubleIntegratorLockstepRunner(loop, io)
