@@ -3,7 +3,7 @@
 See docs/control.md.
 """
 
-from servo.control.errors import ControlError, GainError, GainSyntaxError
+from servo.control.errors import ControlError, GainError, GainRejected, GainSyntaxError
 from servo.control.gains import (
     DEFAULT_GAINS,
     GAIN_NAMES,
@@ -58,6 +58,7 @@ __all__ = [
     "Controller",
     "FrictionComp",
     "GainError",
+    "GainRejected",
     "GainSyntaxError",
     "Gains",
     "GravityComp",

@@ -4,7 +4,8 @@ One gain error family for the whole project::
 
     ControlError (ValueError)
     └── GainError               a gain (or other per-joint control parameter) is invalid
-        └── GainSyntaxError     gain text (``kp=100,kpi=5000``) that does not parse: names the token
+        ├── GainSyntaxError     gain text (``kp=100,kpi=5000``) that does not parse: names the token
+        └── GainRejected        servo.gain_guard refused a gain set (invalid value or unstable loop)
 """
 
 from __future__ import annotations
@@ -63,3 +64,23 @@ class GainSyntaxError(GainError):
             f"{what} {text!r}: {token!r} {problem}; write name=value items separated by commas or spaces, "
             "e.g. kp=100,kpi=5000,kv=50,kvi=1000"))
 
+
+class GainRejected(GainError):
+    """:mod:`servo.gain_guard` refused a gain set; nothing was changed.
+
+    ``name`` is the gain (or ``"joint"``, ``"period"``, ``"delay"``, or the shown change for a
+    loop-level refusal), ``joint`` the joint index (None: the request as a whole), ``value`` the
+    offending value (None for a loop-level refusal), ``reason`` a short human explanation with what
+    to do instead, ``kind`` ``"invalid"`` (a value no gain may have: not a number, not finite,
+    negative, subnormal, beyond the limits) or ``"unstable"`` (valid values, but the sampled loop
+    would be unstable or marginal).
+    """
+
+    def __init__(self, name: str, value: Any, reason: str, joint: int | None = None,
+                 kind: str = "invalid") -> None:
+        self.reason = reason
+        self.kind = kind
+        what = name if value is None else f"{name}={_shown(value)}"
+        where = f" on joint index {joint}" if joint is not None else ""
+        super().__init__(name, value, reason, joint,
+                         message=f"gain change {what}{where} rejected: {reason}; nothing was changed")
