@@ -180,3 +180,19 @@ def test_sweep_interrupted_by_sigint_keeps_the_finished_rows(tmp_path: Path) -> 
     assert [int(r["index"]) for r in rows] == sorted(int(r["index"]) for r in rows)
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temp files left
     assert math.isfinite(float(rows[0]["lc_amplitude_deg"]))
+
+
+def test_heat_maps_draw_unstable_points_as_their_own_class_not_as_values() -> None:
+    from vmehil.analysis.report import HEATMAP_METRICS, sweep_heatmaps
+
+    def row(kp: float, kv: float, stable: bool, sampled: bool = True) -> dict:
+        return {"kp": kp, "kv": kv, "stable": stable, "sampled_stable": sampled, "phase_margin_deg": 40.0,
+                **{key: 1.0 for key, _, _ in HEATMAP_METRICS if key != "phase_margin_deg"}}
+
+    rows = [row(100, 50, True), row(5e4, 50, False), row(100, 2, True, sampled=False), row(5e4, 2, False)]
+    fig = sweep_heatmaps(rows, "kp", "kv", "t")
+    for ax in fig.axes[:len(HEATMAP_METRICS)]:
+        cells = {(round(t.get_position()[0]), round(t.get_position()[1])): t.get_text() for t in ax.texts}
+        # x: kp 100 → 0, 5e4 → 1; y: kv 2 → 0, 50 → 1; margins of an unstable point are not shown
+        assert cells == {(0, 1): "40" if "margin" in ax.get_title() else "1", (1, 1): "unstable",
+                         (0, 0): "unstable", (1, 0): "unstable"}
