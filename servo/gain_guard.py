@@ -1,65 +1,127 @@
-"""Validation of live gain changes — shared by every live-tuning path (console, MAVLink, API).
+"""The gain guard: may this gain set be used on the servo? One rule for every entry point.
 
-A change is accepted only if, for every joint it touches,
+The console (``gains``), MAVLink (``PARAM_SET`` of ``J<n>_K*`` and of the switch-off boost),
+``vmehil run --gains`` / ``vmehil console --gains``, ``vmehil tune`` and the sweeps all ask
+:func:`judge` (through :func:`check_gain_change` where a live :class:`~servo.control.law.PidLaw`
+is involved), so the same gain set gets the same verdict and the same reason everywhere. Sweeps
+classify a refused point (``stable = false``) instead of refusing the sweep.
 
-* each new gain is one of ``kp``, ``kpi``, ``kv``, ``kvi``: a finite number ≥ 0 and at most
-  :data:`GAIN_MAX` (the ranges the MAVLink parameters advertise);
-* the sampled closed loop with the new gains is stable (margin 1 − ρ > ``min_margin``, default 0):
-  every pole of
-  :func:`servo.control.linear.sampled_loop_matrix` (ZOH double integrator, period ``period_s``,
-  computation delay ``delay`` periods) lies strictly inside the unit circle;
-* not Kpi = 0 with KvI > 0 (a pole at exactly z = 1: marginal, the KvI integrator keeps an offset);
-* where the joint's integrator switch-off is enabled, the switched-off loop (integrators frozen,
-  ``Kp_eff`` = the boosted Kp, see :mod:`servo.control.law`) is stable as well.
+**Values** (:func:`value_problem`, verdict kind ``"invalid"``): a gain is one of ``kp``, ``kpi``,
+``kv``, ``kvi``; a finite number ≥ 0 (:func:`servo.control.gains.gain_value_problem`); not
+subnormal (a non-zero value below 2.2e-308 has lost its precision, and the pole it sets sits
+within rounding of z = 1 anyway: use 0); at most :data:`GAIN_MAX` (the ranges MAVLink
+advertises; at 125 Hz every limit is far beyond a stable loop, so 1e30 is a typo, not a tuning).
+
+**Stability** (verdict kind ``"unstable"``) of the sampled closed loop of the normalized joint — the
+ideal plant θ'' = a, whose continuous loop is s³ + Kv·s² + (Kp+KvI)·s + Kpi — as the servo runs
+it: :func:`servo.control.linear.sampled_loop_matrix` (the PidLaw's backward-Euler integrators,
+zero-order hold, exact discretisation at the servo period T, computation delay ``delay``·T):
+
+* not Kpi = 0 with KvI > 0: the polynomial's root s = 0 is a loop pole at exactly z = 1 (the KvI
+  integrator holds whatever offset it has, nothing brings the joint back to its target);
+* every loop pole strictly inside the unit circle with margin 1 − ρ > ``min_margin`` (and at
+  least :data:`MIN_MARGIN_FLOOR`, so rounding never decides);
+* where the switch-off is enabled, the same for the switched-off loop (integrators frozen, Kp_eff
+  = the boosted Kp, :func:`servo.control.law.switched_off_kp`).
 
 The sampled-loop state ``[θ, ω, Ie, Iv]`` has one structural eigenvalue at exactly z = 1 that is
-not a loop pole: only the combination ``Kpi·Ie + KvI·Iv`` acts on the plant, the complementary
-combination never feeds back (see docs/control.md). :func:`loop_poles` removes it with an exact
-change of coordinates before the eigenvalues are taken, so a genuine slow pole near z = 1 is never
-mistaken for it.
+not a loop pole: only ``S = Kpi·Ie + KvI·Iv`` acts on the plant; ``R = KvI·Ie − Kpi·Iv`` is fed
+but never read back. :func:`loop_poles` removes it by that change of coordinates — a scaled
+rotation, so exact and perfectly conditioned — before the eigenvalues are taken; a genuine slow
+pole near z = 1 (a tiny Kpi) is never mistaken for it.
+
+Why this guard and not the one MAVLink had (``vmehil/mavlink/stability.py``, merged here): both
+removed the structural eigenvalue (it by projecting onto ``[θ, ω, S]`` with a pseudo-inverse, the
+same poles to rounding) and tested 1 − ρ, but it decided the marginal Kpi = 0, KvI > 0 loop by
+the sign of a ±1e-16 rounding residue, accepted negative gains whenever the eigenvalues happened
+to lie inside the circle (a negative gain is positive feedback the law refuses anyway), and had
+no upper limits. This one refuses the marginal loop for its physical reason, judges values first,
+and keeps a rounding floor under the margin.
 
 Use::
 
-    from servo.gain_guard import GainRejected, check_gain_change
-    check_gain_change(loop.law, joint=0, changes={"kp": 120.0}, period_s=loop.period_s, delay=0.5)
+    from servo.gain_guard import GainRejected, check_gain_change, judge
+    check_gain_change(loop.law, joint=0, changes={"kp": 120.0}, period_s=loop.period_s, delay=0.125)
     loop.law.set_gains(kp=120.0, joint=0)      # only after the check passed
+    judge(Gains(kp=120, kpi=5000, kv=50, kvi=1000), 0.008, 0.125).ok      # a verdict, never raises
 """
 
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from servo.control.law import GAIN_NAMES
+from servo.control.errors import GainRejected
+from servo.control.gains import GAIN_NAMES, Gains, gain_value_problem
+from servo.control.law import switched_off_kp
 from servo.control.linear import sampled_loop_matrix
+
+__all__ = ["GAIN_MAX", "MIN_MARGIN_FLOOR", "GainRejected", "GainVerdict", "check_gain_change", "check_values",
+           "judge", "loop_poles", "spectral_radius", "value_problem"]
 
 # The stability margin 1 − ρ must exceed this at least (strictly inside the unit circle, with a hair
 # for rounding: 1e-12 per tick is a time constant of ~250 million years at 125 Hz).
 MIN_MARGIN_FLOOR = 1e-12
-# Upper limits (the ranges the MAVLink parameters advertise, vmehil.mavlink.params.GAIN_RANGES).
-GAIN_MAX = {"kp": 1e5, "kpi": 1e7, "kv": 1e4, "kvi": 1e6}
+# A pole this close to the unit circle (either side) is marginal, not unstable: rounding decides its side.
+_MARGINAL = 1e-9
+#: Upper limits of the gains (the ranges the MAVLink parameters advertise).
+GAIN_MAX: dict[str, float] = {"kp": 1e5, "kpi": 1e7, "kv": 1e4, "kvi": 1e6}
 
 
-class GainRejected(ValueError):
-    """A live gain change was refused; nothing was changed.
+@dataclass(frozen=True)
+class GainVerdict:
+    """What :func:`judge` says about one joint's gain set.
 
-    ``name`` is the gain (or ``"joint"``), ``joint`` the joint index (None: the request as a whole),
-    ``value`` the offending value, ``reason`` a short human explanation (what to do instead).
+    ``ok``; ``kind`` ``"ok"``, ``"invalid"`` (a value no gain may have) or ``"unstable"`` (unstable or
+    marginal sampled loop); ``reason`` (``"stable"`` when ok, else why not and what to do);
+    ``margin_integrating`` and ``margin_switched_off`` the stability margins 1 − ρ (dimensionless,
+    NaN where not computed: invalid values, or the switch-off not checked).
     """
 
-    def __init__(self, name: str, value: Any, reason: str, joint: int | None = None) -> None:
-        self.name = name
-        self.value = value
-        self.joint = joint
-        self.reason = reason
-        what = name if value is None else f"{name}={value!r}"
-        where = f" on joint {joint}" if joint is not None else ""
-        super().__init__(f"gain change {what}{where} rejected: {reason}; nothing was changed")
+    ok: bool
+    kind: str
+    reason: str
+    margin_integrating: float = math.nan
+    margin_switched_off: float = math.nan
+
+    def raise_if_refused(self, shown: str, joint: int | None = None) -> None:
+        """Raise :class:`GainRejected` (``shown``: the gain change as the user wrote it) unless ok."""
+        if not self.ok:
+            raise GainRejected(shown, None, self.reason, joint, kind=self.kind)
 
 
+# ---- values -----------------------------------------------------------------------------------------
+def value_problem(name: str, value: Any) -> str | None:
+    """Why ``value`` may not be gain ``name`` (a sentence naming the gain), or None."""
+    if name not in GAIN_NAMES:
+        return f"unknown gain {name!r}; use kp, kpi, kv or kvi"
+    problem = gain_value_problem(value)
+    if problem is not None:
+        return f"{name} {problem}; a gain is a finite number >= 0"
+    v = float(value)
+    if 0.0 < v < sys.float_info.min:
+        return f"{name} is subnormal ({v:g} < {sys.float_info.min:.3g}); use 0 or a normal number"
+    if v > GAIN_MAX[name]:
+        return f"{name} is limited to {GAIN_MAX[name]:g} (far beyond a stable loop at servo rates)"
+    return None
+
+
+def check_values(changes: Mapping[str, Any], joint: int | None = None) -> dict[str, float]:
+    """``changes`` (gain name → value) as floats; :class:`GainRejected` (kind invalid) for the first
+    value :func:`value_problem` refuses."""
+    for name, value in changes.items():
+        problem = value_problem(name, value)
+        if problem is not None:
+            raise GainRejected(name, value, problem, joint)
+    return {name: float(value) + 0.0 for name, value in changes.items()}
+
+
+# ---- the sampled loop ----------------------------------------------------------------------------------
 def loop_poles(kp: float, kpi: float, kv: float, kvi: float, period_s: float, delay: float = 0.0) -> np.ndarray:
     """Poles (z-plane) of the sampled closed loop, without the structural eigenvalue at z = 1.
 
@@ -85,67 +147,89 @@ def spectral_radius(kp: float, kpi: float, kv: float, kvi: float, period_s: floa
     return float(np.max(np.abs(loop_poles(kp, kpi, kv, kvi, period_s, delay))))
 
 
+def _stability_problem(loop: str, r: float, need: float, where: str, lower: str, stiffer: str) -> str | None:
+    """Why ``loop`` with pole radius ``r`` fails the margin ``need``, with what to do, or None.
+    ``lower``/``stiffer``: the remedy for too much gain / for a pole on the unit circle."""
+    if 1.0 - r > need:
+        return None
+    if r >= 1.0 + _MARGINAL:
+        return f"{loop} would be unstable (pole radius {r:.4f} > 1; {where}); {lower}"
+    if r > 1.0 - _MARGINAL:
+        return (f"{loop} would be marginal (pole radius {r:.10f}, on the unit circle to rounding: an error would "
+                f"never decay; {where}); {stiffer}")
+    return (f"{loop} would keep a stability margin 1-rho = {1.0 - r:.4g}, not more than the required {need:g} "
+            f"(pole radius {r:.4f}; {where}); {lower}, or require less margin")
+
+
+def judge(gains: Gains[float], period_s: float, delay: float = 0.0, *, kp_off: float | None = None,
+          min_margin: float = 0.0) -> GainVerdict:
+    """The verdict on one joint's gain set (see the module docstring); never raises for bad gains.
+
+    ``period_s`` the servo period (s), ``delay`` the computation delay in periods (0..1),
+    ``kp_off`` the position gain while the integrators are switched off (1/s²; None: the switch-off
+    is disabled, not checked), ``min_margin`` the margin 1 − ρ the set must keep (> it).
+    Raises :class:`GainRejected` only for a bad ``period_s``, ``delay`` or ``kp_off``.
+    """
+    if not (math.isfinite(period_s) and period_s > 0):
+        raise GainRejected("period", period_s, "the servo period must be a positive number of seconds")
+    if not 0.0 <= delay <= 1.0:
+        raise GainRejected("delay", delay, "the computation delay must be within 0..1 periods")
+    if kp_off is not None and gain_value_problem(kp_off) is not None:
+        raise GainRejected("kp_off", kp_off, "the switched-off position gain must be a finite number ≥ 0")
+    for name in GAIN_NAMES:
+        problem = value_problem(name, getattr(gains, name))
+        if problem is not None:
+            return GainVerdict(False, "invalid", problem)
+    need = max(float(min_margin), MIN_MARGIN_FLOOR)
+    g = gains
+    m_int = 1.0 - spectral_radius(g.kp, g.kpi, g.kv, g.kvi, period_s, delay)
+    m_off = math.nan if kp_off is None else 1.0 - spectral_radius(kp_off, 0.0, g.kv, 0.0, period_s, delay)
+    if g.kpi == 0.0 and g.kvi > 0.0:
+        return GainVerdict(False, "unstable", (
+            "Kpi = 0 with KvI > 0 leaves a closed-loop pole at z = 1 (the KvI integrator would hold whatever "
+            "offset it has, nothing brings the joint back to its target); set kvi=0 as well, or keep kpi > 0"),
+            m_int, m_off)
+    where = f"T = {period_s * 1e3:g} ms, delay {delay:g} T"
+    problem = _stability_problem("the sampled loop", 1.0 - m_int, need, where, "lower the gains",
+                                 "raise kp or kpi (the loop's position stiffness)")
+    if problem is not None:
+        return GainVerdict(False, "unstable", problem, m_int, m_off)
+    if kp_off is not None:
+        problem = _stability_problem(f"the loop with its integrators switched off (Kp_eff = {kp_off:g})",
+                                     1.0 - m_off, need, where, "lower kp/kvi or the kp_boost",
+                                     "raise kp or the kp_boost")
+        if problem is not None:
+            return GainVerdict(False, "unstable", problem, m_int, m_off)
+    return GainVerdict(True, "ok", "stable", m_int, m_off)
+
+
+# ---- a live law -------------------------------------------------------------------------------------------
 def _staged(law: Any, attr: str) -> Any:
     """What the law will use at the next tick: a staged value if any, else the current one."""
     pending = getattr(law, f"_pending_{attr}", None)
     return pending if pending is not None else getattr(law, attr)
 
 
-def check_gain_change(law: Any, joint: int | None, changes: Mapping[str, float], period_s: float,
-                      delay: float = 0.0, *, min_margin: float = 0.0) -> None:
-    """Raise :class:`GainRejected` unless ``changes`` (gain name → value) may be applied.
+def check_gain_change(law: Any, joint: int | None, changes: Mapping[str, Any], period_s: float,
+                      delay: float = 0.0, *, min_margin: float = 0.0, switch_off: Any = None) -> None:
+    """Raise :class:`GainRejected` unless ``changes`` (gain name → value) may be applied to ``law``.
 
     ``law`` is a :class:`servo.control.law.PidLaw` (its ``gains``, ``n`` and ``switch_off`` are
-    read; staged-but-not-yet-applied gains count as current). ``joint`` is a joint index, or None
-    for every joint. ``period_s`` is the servo period (s), ``delay`` the computation delay in
-    periods (0..1), ``min_margin`` the stability margin 1 − ρ the new set must keep (> it).
-    Returns None when the change is acceptable; never modifies ``law``.
+    read; staged-but-not-yet-applied values count as current). ``joint`` is a joint index, or None
+    for every joint. ``switch_off``: judge with this :class:`~servo.control.law.SwitchOffConfig`
+    instead of the law's (a switch-off change being checked; ``changes`` may then be empty).
+    ``period_s``, ``delay`` and ``min_margin`` as for :func:`judge`. Never modifies ``law``.
     """
-    need = max(float(min_margin), MIN_MARGIN_FLOOR)
-    if not changes:
+    if not changes and switch_off is None:
         raise GainRejected("gains", {}, "no gain given (use kp=, kpi=, kv=, kvi=)")
     n = int(law.n)
     if joint is not None and not (isinstance(joint, int) and not isinstance(joint, bool) and 0 <= joint < n):
         raise GainRejected("joint", joint, f"a joint index in 0..{n - 1}")
-    if not (math.isfinite(period_s) and period_s > 0):
-        raise GainRejected("period", period_s, "the servo period must be a positive number of seconds")
-    if not 0.0 <= delay <= 1.0:
-        raise GainRejected("delay", delay, "the computation delay must be within 0..1 periods")
-    clean: dict[str, float] = {}
-    for name, value in changes.items():
-        if name not in GAIN_NAMES:
-            raise GainRejected(name, value, "unknown gain; use kp, kpi, kv or kvi", joint)
-        if isinstance(value, bool) or not isinstance(value, int | float | np.floating | np.integer):
-            raise GainRejected(name, value, "a number is required", joint)
-        v = float(value)
-        if not math.isfinite(v):
-            raise GainRejected(name, value, "gains must be finite", joint)
-        if v < 0.0:
-            raise GainRejected(name, value, "gains must be >= 0", joint)
-        if v > GAIN_MAX[name]:
-            raise GainRejected(name, value, f"{name} is limited to {GAIN_MAX[name]:g}", joint)
-        clean[name] = v
+    clean = check_values(changes, joint)
     gains = _staged(law, "gains")
-    switch_off = _staged(law, "switch_off")
-    joints = range(n) if joint is None else (joint,)
-    shown = ", ".join(f"{k}={v:g}" for k, v in clean.items())
-    for j in joints:
-        g = {name: clean.get(name, float(getattr(gains, name)[j])) for name in GAIN_NAMES}
-        if g["kpi"] == 0.0 and g["kvi"] > 0.0:
-            raise GainRejected(
-                shown, None, "Kpi = 0 with KvI > 0 leaves a closed-loop pole at z = 1 (the KvI integrator would "
-                "hold whatever offset it has, nothing brings the joint back to its target); set kvi=0 as well, "
-                "or keep kpi > 0", j)
-        r = spectral_radius(g["kp"], g["kpi"], g["kv"], g["kvi"], period_s, delay)
-        if not 1.0 - r > need:
-            raise GainRejected(
-                shown, None, f"the sampled loop would be unstable (pole radius {r:.4f}, margin 1-rho must exceed "
-                f"{need:g}; T = {period_s * 1e3:g} ms, delay {delay:g} T); lower the gains", j)
-        if switch_off is not None and bool(switch_off.enabled[j]):
-            boost = float(switch_off.kp_boost[j])
-            kp_off = g["kp"] + g["kvi"] if math.isnan(boost) else g["kp"] * boost
-            r_off = spectral_radius(kp_off, 0.0, g["kv"], 0.0, period_s, delay)
-            if not 1.0 - r_off > need:
-                raise GainRejected(
-                    shown, None, f"the loop would be unstable with its integrators switched off (Kp_eff = "
-                    f"{kp_off:g}, pole radius {r_off:.4f}); lower kp/kvi or the kp_boost", j)
+    so = switch_off if switch_off is not None else _staged(law, "switch_off")
+    shown = ", ".join(f"{k}={v:g}" for k, v in clean.items()) or "switch-off change"
+    for j in range(n) if joint is None else (joint,):
+        g = gains.joint(j).replace(**clean)
+        kp_off = float(switched_off_kp(g.kp, g.kvi, float(so.kp_boost[j]))) if bool(so.enabled[j]) else None
+        judge(g, period_s, delay, kp_off=kp_off, min_margin=min_margin).raise_if_refused(shown, j)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
+from servo.control.gains import Gains
 from vmehil.analysis.describing import (
     DeadZone,
     Quantizer,
@@ -26,7 +27,7 @@ from vmehil.analysis.describing import (
     simulate_joint,
     simulate_sampled,
 )
-from vmehil.analysis.loop import Gains, LoopConfig
+from vmehil.analysis.loop import LoopConfig
 
 S = ct.tf("s")
 

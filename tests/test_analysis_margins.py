@@ -10,7 +10,8 @@ import control as ct
 import numpy as np
 import pytest
 
-from vmehil.analysis.loop import Gains, LoopConfig, closed_loop, freqresp, open_loop
+from servo.control.gains import Gains
+from vmehil.analysis.loop import LoopConfig, closed_loop, freqresp, open_loop
 from vmehil.analysis.margins import compute_margins
 
 

@@ -119,7 +119,12 @@ def test_sweep_gains_file_lists_and_reports_unstable_points(tmp_path: Path, caps
     assert main(["tune", "sweep", "--gains-file", str(f), "--margins-only", "--jobs", "1", "--out", str(out),
                  "--quiet"]) == 0
     d = json.loads((out / "sweep.json").read_text())
-    assert [r["status"] for r in d["rows"]] == ["margins only", "margins only"]
+    assert [r["status"] for r in d["rows"]] == ["margins only", "unstable (servo.gain_guard): not simulated"]
+    # classified, not refused: Kv = 0.5 fails the guard's ideal loop (Kv·(Kp+KvI) < Kpi); the rig model's
+    # viscous friction would damp it, but the servo does not count on friction for stability
+    stable = [(r["stable"], r["unstable_reason"] is None, r["sampled_stable"]) for r in d["rows"]]
+    assert stable == [(True, True, True), (False, False, True)]
+    assert "unstable" in d["rows"][1]["unstable_reason"]
     t = tmp_path / "g.toml"
     t.write_text("[[gains]]\nkp = 120\n[[gains]]\nkpi = 200000\n")
     assert main(["tune", "sweep", "--gains-file", str(t), *FAST, "--jobs", "1", "--out", str(out), "--quiet"]) == 0
@@ -135,7 +140,7 @@ def test_grid_and_gains_file_errors_are_clear(tmp_path: Path) -> None:
             parse_grid(bad)
     with pytest.raises(ValueError, match="unknown gain"):
         parse_grid("kq=1:2:2")
-    with pytest.raises(ValueError, match="≥ 0"):
+    with pytest.raises(ValueError, match=r"kp=-10.0 rejected: kp is negative"):
         parse_grid("kp=-10:10:3")
     f = tmp_path / "g.csv"
     f.write_text("kp,speed\n1,2\n")
@@ -175,3 +180,19 @@ def test_sweep_interrupted_by_sigint_keeps_the_finished_rows(tmp_path: Path) -> 
     assert [int(r["index"]) for r in rows] == sorted(int(r["index"]) for r in rows)
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temp files left
     assert math.isfinite(float(rows[0]["lc_amplitude_deg"]))
+
+
+def test_heat_maps_draw_unstable_points_as_their_own_class_not_as_values() -> None:
+    from vmehil.analysis.report import HEATMAP_METRICS, sweep_heatmaps
+
+    def row(kp: float, kv: float, stable: bool, sampled: bool = True) -> dict:
+        return {"kp": kp, "kv": kv, "stable": stable, "sampled_stable": sampled, "phase_margin_deg": 40.0,
+                **{key: 1.0 for key, _, _ in HEATMAP_METRICS if key != "phase_margin_deg"}}
+
+    rows = [row(100, 50, True), row(5e4, 50, False), row(100, 2, True, sampled=False), row(5e4, 2, False)]
+    fig = sweep_heatmaps(rows, "kp", "kv", "t")
+    for ax in fig.axes[:len(HEATMAP_METRICS)]:
+        cells = {(round(t.get_position()[0]), round(t.get_position()[1])): t.get_text() for t in ax.texts}
+        # x: kp 100 → 0, 5e4 → 1; y: kv 2 → 0, 50 → 1; margins of an unstable point are not shown
+        assert cells == {(0, 1): "40" if "margin" in ax.get_title() else "1", (1, 1): "unstable",
+                         (0, 0): "unstable", (1, 0): "unstable"}

@@ -140,13 +140,14 @@ def test_gain_making_the_sampled_loop_unstable_is_refused_with_old_value(rig):
 
 
 def test_boost_making_the_switched_off_loop_unstable_is_refused(rig):
-    from vmehil.mavlink.stability import check_gains
+    from servo.control.gains import Gains
+    from servo.gain_guard import judge
 
     # premises: Kv 20, Kp 1000 is stable integrating and switched off with the auto boost (Kp_off = Kp + KvI),
     # but a boost of 10 (Kp_off = 10000) makes the switched-off loop unstable
-    assert check_gains(100, 5000, 20, 1000, 0.008, kp_off=1100).ok
-    assert check_gains(1000, 5000, 20, 1000, 0.008, kp_off=2000).ok
-    verdict = check_gains(1000, 5000, 20, 1000, 0.008, kp_off=10000)
+    assert judge(Gains(kp=100, kpi=5000, kv=20, kvi=1000), 0.008, kp_off=1100).ok
+    assert judge(Gains(kp=1000, kpi=5000, kv=20, kvi=1000), 0.008, kp_off=2000).ok
+    verdict = judge(Gains(kp=1000, kpi=5000, kv=20, kvi=1000), 0.008, kp_off=10000)
     assert not verdict.ok and verdict.margin_integrating > 0 and verdict.margin_switched_off < 0
     loop, _, runner, _ep, c = rig()
     c.set("J1_KV", 20.0)

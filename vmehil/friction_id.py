@@ -197,8 +197,7 @@ def _identify(system: EmulatedRig, joint: int, amplitude_rad: float, frequency_h
     # ticks continue the crate's time (other procedures may have run on this rig before)
     loop.tick_count = -(-int(system.crate.clock.now_ns) // system.period_ns) + 1
     law = loop.law
-    for name, value in (("kp", kp), ("kpi", 0.0), ("kv", kv), ("kvi", 0.0)):
-        law.set_gains(**{name: value}, joint=j)
+    law.set_gains(kp=kp, kpi=0.0, kv=kv, kvi=0.0, joint=j)
     so = law.switch_off
     enabled = so.enabled.copy()
     enabled[j] = False

@@ -29,7 +29,10 @@ from typing import Any
 import numpy as np
 
 from hal.config import ConfigTable
+from servo.control.gains import DEFAULT_GAINS, GAIN_NAMES
+from servo.control.linear import delay_periods
 from servo.control.objects import Controller, build_controller
+from servo.gain_guard import check_gain_change, check_values
 from servo.loop import Recorder, ServoLoop, WatchdogConfig
 from servo.motion import Motion, default_demo_motion
 from servo.nominal import nominal_chain, rig_nominal
@@ -37,8 +40,6 @@ from servo.rig import RigSpec
 from servo.trajectory.base import JointLimits
 from servo.trajectory.sequencer import PlanContext, Sequencer
 from vmehil.system import EmulatedRig
-
-GAIN_KEYS = ("kp", "kpi", "kv", "kvi")
 
 
 @dataclass
@@ -59,7 +60,7 @@ def servo_settings(rig: RigSpec) -> ServoSettings:
     objects = top.raw("objects", ["pid", "torque_limit"])
     base_gains = top.table("gains", {})
     base_so = top.table("switch_off", {})
-    gains: dict[str, list[float]] = {k: [] for k in GAIN_KEYS}
+    gains: dict[str, list[float]] = {k: [] for k in GAIN_NAMES}
     so: dict[str, list[Any]] = {}
     tl, vmax, ferr = [], [], []
     so_keys = set(base_so.keys())
@@ -67,8 +68,8 @@ def servo_settings(rig: RigSpec) -> ServoSettings:
         so_keys |= set(j.servo.table("switch_off", {}).keys())
     for j, nominal in zip(rig.joints, rig_nominal(rig), strict=True):
         jg = j.servo.table("gains", {})
-        for k in GAIN_KEYS:
-            default = base_gains.get_float(k, {"kp": 100.0, "kpi": 5000.0, "kv": 50.0, "kvi": 1000.0}[k], min=0.0)
+        for k in GAIN_NAMES:
+            default = base_gains.get_float(k, DEFAULT_GAINS[k], min=0.0)
             gains[k].append(jg.get_float(k, default, min=0.0))
         jso = j.servo.table("switch_off", {})
         for k in so_keys:
@@ -116,17 +117,25 @@ def _collapse(d: dict[str, list[Any]]) -> dict[str, Any]:
 def build_loop(system: EmulatedRig, *, motion: Motion | None = None, gains: dict[str, float] | None = None,
                switch_off: bool | None = None, n_ticks: int = 0, watchdog: bool = True) -> ServoLoop:
     """A ready-to-start :class:`ServoLoop` for ``system`` (all settings from the rig file, with
-    optional gain overrides applied to every joint and the switch-off forced on or off)."""
+    optional gain overrides applied to every joint and the switch-off forced on or off).
+
+    Gain overrides go through :func:`servo.gain_guard.check_gain_change` first, as a live change
+    would (the rig's period and computation delay, the switch-off as configured): a set the guard
+    refuses raises :class:`~servo.gain_guard.GainRejected` and no loop is built."""
     settings = servo_settings(system.rig)
-    n = system.rig.n_joints
-    if gains:
-        for k, v in gains.items():
-            if k not in GAIN_KEYS:
-                raise ValueError(f"unknown gain {k!r}; use kp, kpi, kv, kvi")
-            settings.gains[k] = [float(v)] * n
+    rig = system.rig
+    n = rig.n_joints
+    clean = check_values(gains or {})
+    for k, v in clean.items():
+        settings.gains[k] = [v] * n
     if switch_off is not None:
         settings.switch_off["enabled"] = [bool(switch_off)] * n
     controller = build_controller_for(system.rig, settings)
+    if clean:
+        if controller.law is None:
+            raise ValueError(f"gain overrides {gains}: the rig's controller has no pid object to take them")
+        check_gain_change(controller.law, None, clean, rig.period_s,
+                          delay_periods(rig.computation_delay_s, rig.period_s))
     motion = motion or default_demo_motion(n)
     start = system.io.read().theta
     limits = JointLimits.make(n, settings.max_velocity_rad_s)

@@ -3,11 +3,18 @@
 See docs/control.md.
 """
 
-from servo.control.errors import ControlError, GainError
-from servo.control.law import (
+from servo.control.errors import ControlError, GainError, GainRejected, GainSyntaxError
+from servo.control.gains import (
     DEFAULT_GAINS,
-    DEFAULT_PERIOD_S,
+    GAIN_NAMES,
+    GAIN_UNITS,
     Gains,
+    format_gains,
+    gain_items,
+    parse_gains,
+)
+from servo.control.law import (
+    DEFAULT_PERIOD_S,
     LawState,
     PidLaw,
     SwitchEvent,
@@ -41,6 +48,8 @@ __all__ = [
     "CONTROL_OBJECTS",
     "DEFAULT_GAINS",
     "DEFAULT_PERIOD_S",
+    "GAIN_NAMES",
+    "GAIN_UNITS",
     "BaseControlObject",
     "ControlContext",
     "ControlError",
@@ -49,6 +58,8 @@ __all__ = [
     "Controller",
     "FrictionComp",
     "GainError",
+    "GainRejected",
+    "GainSyntaxError",
     "Gains",
     "GravityComp",
     "LawState",
@@ -62,7 +73,10 @@ __all__ = [
     "build_controller",
     "closed_loop_poly",
     "continuous_poles",
+    "format_gains",
+    "gain_items",
     "normalizing_chain",
+    "parse_gains",
     "per_joint",
     "register_control_object",
     "sampled_loop_matrix",

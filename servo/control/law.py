@@ -35,40 +35,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from servo.control.errors import GainError
+from servo.control.gains import GAIN_NAMES, Gains, V
 from servo.control.normalize import per_joint
 
 DEFAULT_PERIOD_S = 0.008
-DEFAULT_GAINS: dict[str, float] = {"kp": 100.0, "kpi": 5000.0, "kv": 50.0, "kvi": 1000.0}
-GAIN_NAMES = ("kp", "kpi", "kv", "kvi")
 
 DEFAULT_INNER_BAND_RAD = math.radians(0.1)
 DEFAULT_OUTER_BAND_RAD = math.radians(1.0)
 
 
-@dataclass(frozen=True)
-class Gains:
-    """Per-joint normalized gains (arrays of length n): Kp 1/s², Kpi 1/s³, Kv 1/s, KvI 1/s²."""
-
-    kp: np.ndarray
-    kpi: np.ndarray
-    kv: np.ndarray
-    kvi: np.ndarray
-
-    @classmethod
-    def make(cls, n: int, kp: float | np.ndarray | list[float] = DEFAULT_GAINS["kp"],
-             kpi: float | np.ndarray | list[float] = DEFAULT_GAINS["kpi"],
-             kv: float | np.ndarray | list[float] = DEFAULT_GAINS["kv"],
-             kvi: float | np.ndarray | list[float] = DEFAULT_GAINS["kvi"]) -> Gains:
-        """Validated gains for ``n`` joints (scalars broadcast); raises :class:`GainError`."""
-        return cls(per_joint("kp", kp, n), per_joint("kpi", kpi, n), per_joint("kv", kv, n),
-                   per_joint("kvi", kvi, n))
-
-    @property
-    def n(self) -> int:
-        return int(self.kp.shape[0])
-
-    def as_dict(self) -> dict[str, list[float]]:
-        return {name: [float(x) for x in getattr(self, name)] for name in GAIN_NAMES}
+def switched_off_kp(kp: V, kvi: V, kp_boost: V) -> V:
+    """Kp while the integrators are switched off (1/s²): ``kp·kp_boost``, or with ``kp_boost`` NaN
+    (auto) ``kp + kvi`` — frozen, the KvI·∫ė term no longer follows e, so the boost puts its
+    stiffness back (module docstring). Floats or per-joint arrays."""
+    return np.where(np.isnan(kp_boost), kp + kvi, kp * np.nan_to_num(kp_boost, nan=1.0))[()]
 
 
 @dataclass(frozen=True)
@@ -174,12 +154,10 @@ class PidLaw:
             raise GainError("period", period, "a positive number of seconds")
         self.n = n
         self.period = float(period)
-        self.gains = gains if gains is not None else Gains.make(n)
-        if self.gains.n != n:
-            raise GainError("gains", self.gains.n, f"gains for {n} joints")
+        self.gains = (gains if gains is not None else Gains.paper()).broadcast(n)
         self.switch_off = switch_off if switch_off is not None else SwitchOffConfig.make(n)
         self.state = LawState.zeros(n)
-        self._pending_gains: Gains | None = None
+        self._pending_gains: Gains[np.ndarray] | None = None
         self._pending_switch_off: SwitchOffConfig | None = None
         self._tick = -1
         # per-tick scratch (set by begin/evaluate)
@@ -195,7 +173,7 @@ class PidLaw:
                   kpi: float | list[float] | np.ndarray | None = None,
                   kv: float | list[float] | np.ndarray | None = None,
                   kvi: float | list[float] | np.ndarray | None = None,
-                  joint: int | None = None) -> Gains:
+                  joint: int | None = None) -> Gains[np.ndarray]:
         """Stage new gains; they take effect at the next tick (next :meth:`begin` / :meth:`update`).
 
         Each argument is a scalar (all joints, or only ``joint`` when given) or a per-joint list;
@@ -204,7 +182,7 @@ class PidLaw:
         """
         base = self._pending_gains or self.gains
         new: dict[str, np.ndarray] = {}
-        for name, value in (("kp", kp), ("kpi", kpi), ("kv", kv), ("kvi", kvi)):
+        for name, value in zip(GAIN_NAMES, (kp, kpi, kv, kvi), strict=True):
             cur = getattr(base, name).copy()
             if value is None:
                 new[name] = cur
@@ -234,9 +212,7 @@ class PidLaw:
     # ---- derived quantities ----------------------------------------------------------------------
     def kp_off(self) -> np.ndarray:
         """Kp used while the integrators are switched off (boosted), per joint, 1/s²."""
-        g, so = self.gains, self.switch_off
-        auto = g.kp + g.kvi
-        return np.where(np.isnan(so.kp_boost), auto, g.kp * np.nan_to_num(so.kp_boost, nan=1.0))
+        return switched_off_kp(self.gains.kp, self.gains.kvi, self.switch_off.kp_boost)
 
     def kp_eff(self) -> np.ndarray:
         """The position gain in force for each joint now (boosted where switched off)."""

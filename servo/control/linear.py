@@ -15,6 +15,11 @@ from __future__ import annotations
 import numpy as np
 
 
+def delay_periods(delay_s: float, period_s: float) -> float:
+    """A computation delay of ``delay_s`` seconds in servo periods, within the models' 0..1."""
+    return min(max(float(delay_s) / float(period_s), 0.0), 1.0)
+
+
 def closed_loop_poly(kp: float, kpi: float, kv: float, kvi: float) -> np.ndarray:
     """Coefficients (highest power first) of the continuous closed-loop characteristic polynomial."""
     return np.array([1.0, kv, kp + kvi, kpi])

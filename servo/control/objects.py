@@ -45,12 +45,11 @@ import numpy as np
 from hal.config import ConfigError, ConfigTable
 from hal.units import deg_to_rad
 from servo.control.errors import ControlError, GainError
+from servo.control.gains import DEFAULT_GAINS, GAIN_NAMES, Gains
 from servo.control.law import (
-    DEFAULT_GAINS,
     DEFAULT_INNER_BAND_RAD,
     DEFAULT_OUTER_BAND_RAD,
     DEFAULT_PERIOD_S,
-    Gains,
     PidLaw,
     SwitchEvent,
     SwitchOffConfig,
@@ -178,9 +177,9 @@ class PidObject(BaseControlObject):
         """Keys: kp, kpi, kv, kvi (scalar or per joint; defaults 100, 5000, 50, 1000) and an optional
         ``switch_off`` table: enabled, inner_band_rad|_deg, outer_band_rad|_deg, kp_boost (number or
         "auto"), settle_time_s, zero_crossing."""
-        gains = Gains(*(cfg_per_joint(cfg, k, n, DEFAULT_GAINS[k]) for k in ("kp", "kpi", "kv", "kvi")))
+        gains = Gains(*(cfg_per_joint(cfg, k, n, DEFAULT_GAINS[k]) for k in GAIN_NAMES))
         so = parse_switch_off(cfg.table("switch_off", {}), n)
-        cfg.check_unknown({"kp", "kpi", "kv", "kvi", "switch_off"})
+        cfg.check_unknown({*GAIN_NAMES, "switch_off"})
         return cls(PidLaw(n, period, gains, so))
 
     def update(self, ctx: ControlContext, tau: np.ndarray) -> np.ndarray:

@@ -40,8 +40,9 @@ import control as ct
 import numpy as np
 from scipy.linalg import expm
 
+from servo.control.gains import Gains
+
 VelocitySource = Literal["tach", "encoder"]
-GAIN_KEYS = ("kp", "kpi", "kv", "kvi")
 
 #: Places where a nonlinearity can sit, i.e. where :func:`build_loop` can break the loop.
 #: ``actuator``: between the controller output a_k and the plant command (saturation).
@@ -51,77 +52,8 @@ GAIN_KEYS = ("kp", "kpi", "kv", "kvi")
 BREAK_POINTS = ("actuator", "position_sensor", "velocity_sensor", "friction")
 
 
-class GainError(ValueError):
-    """A gain set or gain-override string is invalid (negative, NaN, unknown key, malformed)."""
-
-
 class LoopConfigError(ValueError):
     """A loop model parameter is out of range."""
-
-
-@dataclass(frozen=True)
-class Gains:
-    """The four JPL servo gains of the normalized loop.
-
-    kp: position gain (1/s²), kpi: position-integral gain (1/s³), kv: velocity gain (1/s),
-    kvi: velocity-integral gain (1/s²). All must be finite and ≥ 0.
-    """
-
-    kp: float
-    kpi: float
-    kv: float
-    kvi: float
-
-    def __post_init__(self) -> None:
-        for k in GAIN_KEYS:
-            v = getattr(self, k)
-            if isinstance(v, bool) or not isinstance(v, int | float):
-                raise GainError(f"gain {k}={v!r} is not a number")
-            if not math.isfinite(v):
-                raise GainError(f"gain {k}={v} is not finite; give a finite number ≥ 0")
-            if v < 0:
-                raise GainError(f"gain {k}={v} is negative; servo gains must be ≥ 0 (the loop subtracts feedback)")
-            object.__setattr__(self, k, float(v))
-
-    @classmethod
-    def paper(cls) -> Gains:
-        """The JPL paper's gains: Kv=50, KvI=1000, Kp=100, Kpi=5000."""
-        return cls(kp=100.0, kpi=5000.0, kv=50.0, kvi=1000.0)
-
-    @classmethod
-    def from_mapping(cls, m: dict, base: Gains | None = None) -> Gains:
-        """Gains from a ``{kp=..., kpi=..., kv=..., kvi=...}`` table; missing keys come from ``base``."""
-        base = base or cls.paper()
-        unknown = sorted(set(m) - set(GAIN_KEYS))
-        if unknown:
-            raise GainError(f"unknown gain name(s) {', '.join(unknown)}; known: {', '.join(GAIN_KEYS)}")
-        return cls(**{k: m.get(k, getattr(base, k)) for k in GAIN_KEYS})
-
-    def with_overrides(self, text: str | None) -> Gains:
-        """Apply ``"kp=200,kv=40"`` style overrides (case-insensitive keys, ``,`` or spaces between)."""
-        if not text or not text.strip():
-            return self
-        values: dict[str, float] = {}
-        for item in text.replace(" ", ",").split(","):
-            if not item:
-                continue
-            key, sep, val = item.partition("=")
-            key = key.strip().lower()
-            if not sep or not key or not val.strip():
-                raise GainError(f"malformed gain override {item!r}; write e.g. --gains kp=100,kpi=5000,kv=50,kvi=1000")
-            if key not in GAIN_KEYS:
-                raise GainError(f"unknown gain {key!r} in {item!r}; known: {', '.join(GAIN_KEYS)}")
-            try:
-                values[key] = float(val)
-            except ValueError:
-                raise GainError(f"gain {key}={val!r} is not a number") from None
-        return Gains.from_mapping(values, base=self)
-
-    def as_dict(self) -> dict[str, float]:
-        return {k: getattr(self, k) for k in GAIN_KEYS}
-
-    def __str__(self) -> str:
-        return ", ".join(f"{k}={getattr(self, k):g}" for k in GAIN_KEYS)
 
 
 def _check_bandwidth(name: str, v: float | None) -> None:
@@ -140,7 +72,7 @@ class LoopConfig:
     used by the describing-function stability test for friction.
     """
 
-    gains: Gains = field(default_factory=Gains.paper)
+    gains: Gains[float] = field(default_factory=Gains.paper)  #: one joint's set (servo.control.gains)
     sample_period_s: float = 0.008
     delay_fraction: float = 0.5
     velocity_source: VelocitySource = "tach"
@@ -283,7 +215,7 @@ def _sampled_plant_arrays(cfg: LoopConfig) -> tuple[np.ndarray, np.ndarray, np.n
 # ----------------------------------------------------------------------- controller
 
 
-def _controller_matrices(gains: Gains, T: float | None, velocity_source: str) -> tuple[np.ndarray, ...]:
+def _controller_matrices(gains: Gains[float], T: float | None, velocity_source: str) -> tuple[np.ndarray, ...]:
     """Controller (A, B, C, D); inputs [r, rv, thin, win], output a. T=None: continuous.
 
     Integrator states exist only for non-zero integral gains (no hidden uncontrollable poles).
@@ -334,13 +266,14 @@ def _controller_matrices(gains: Gains, T: float | None, velocity_source: str) ->
 _CTRL_IO = {"inputs": ["r", "rv", "thin", "win"], "outputs": ["a"]}
 
 
-def sampled_controller(gains: Gains, sample_period_s: float, velocity_source: VelocitySource = "tach") -> ct.StateSpace:
+def sampled_controller(gains: Gains[float], sample_period_s: float,
+                       velocity_source: VelocitySource = "tach") -> ct.StateSpace:
     """The discrete servo law (dt = T) with inputs [r, rv, thin, win] and output a (rad/s²)."""
     A, B, C, D = _controller_matrices(gains, sample_period_s, velocity_source)
     return ct.ss(A, B, C, D, sample_period_s, name="K", **_CTRL_IO)
 
 
-def continuous_controller(gains: Gains) -> ct.StateSpace:
+def continuous_controller(gains: Gains[float]) -> ct.StateSpace:
     """The continuous ideal of the servo law: Kp·e + Kpi·∫e + Kv·ė + KvI·∫ė."""
     A, B, C, D = _controller_matrices(gains, None, "tach")
     return ct.ss(A, B, C, D, name="K", **_CTRL_IO)

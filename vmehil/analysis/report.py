@@ -17,6 +17,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib import patheffects
 from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 
 from vmehil.analysis.describing import Nonlinearity, linear_response_fn
 from vmehil.analysis.loop import (
@@ -211,8 +212,7 @@ def cycle_time_figure(traces: list[tuple[str, dict]], title: str) -> Figure | No
 
 
 def _gain_text(cfg: LoopConfig) -> str:
-    g = cfg.gains
-    return f"Kp={g.kp:g} Kpi={g.kpi:g} Kv={g.kv:g} KvI={g.kvi:g}"
+    return _gains_line(cfg.gains.as_dict())
 
 
 # -------------------------------------------------------------------------- text
@@ -253,6 +253,9 @@ def bode_text(r: dict[str, Any]) -> str:
         lines += ["", "UNSTABLE: the sampled closed loop has pole(s) on or outside the unit circle at "
                   + ", ".join(f"{p['re']:.3f}{p['im']:+.3f}j" for p in bad)
                   + "; margins above are not meaningful. Lower the gains or raise Kv."]
+    guard = r.get("guard")
+    if guard and not guard["ok"]:
+        lines += ["", f"servo.gain_guard refuses these gains (the servo would not run them): {guard['reason']}"]
     if r.get("notes"):
         lines += ["", "assumed (not in the rig file):"] + [f"  - {n}" for n in r["notes"]]
     return "\n".join(lines)
@@ -444,19 +447,32 @@ HEATMAP_METRICS = (("lc_amplitude_deg", "limit-cycle amplitude (deg)", "viridis_
                    ("settling_time_s", "settling time into the steady state (s)", "viridis_r"))
 
 
+def _unstable_point(row: dict) -> bool:
+    """A sweep point in the ``unstable`` class: refused by servo.gain_guard (``stable`` false) or
+    unstable in the sampled linear model (``sampled_stable`` false); neither was simulated."""
+    return row.get("stable") is False or row.get("sampled_stable") is False
+
+
 def sweep_heatmaps(rows: list[dict], x: str, y: str, title: str) -> Figure | None:
     """One heat map per metric over gains ``x`` and ``y``; cells show the value (mean over any other
-    gains that vary); hatched grey = no value (not simulated, no cycle, never settled)."""
+    gains that vary); red hatched "unstable" = every point of the cell is unstable (its class, not a
+    value: :func:`_unstable_point`); grey "—" = no value (not simulated, no cycle, never settled)."""
     if not rows:
         return None
     xs = sorted({r[x] for r in rows})
     ys = sorted({r[y] for r in rows})
+    unstable = np.zeros((len(ys), len(xs)), bool)
+    for iy, yv in enumerate(ys):
+        for ix, xv in enumerate(xs):
+            cell = [r for r in rows if r[x] == xv and r[y] == yv]
+            unstable[iy, ix] = bool(cell) and all(_unstable_point(r) for r in cell)
     fig, axes = plt.subplots(2, 2, figsize=(11, 9))
     for a, (key, label, cmap) in zip(axes.flat, HEATMAP_METRICS, strict=True):
         grid = np.full((len(ys), len(xs)), np.nan)
         for iy, yv in enumerate(ys):
             for ix, xv in enumerate(xs):
-                vals = [r[key] for r in rows if r[x] == xv and r[y] == yv and r.get(key) is not None]
+                vals = [r[key] for r in rows if r[x] == xv and r[y] == yv and r.get(key) is not None
+                        and not _unstable_point(r)]
                 if vals:
                     grid[iy, ix] = float(np.mean(vals))
         a.set_facecolor("#dddddd")
@@ -467,7 +483,10 @@ def sweep_heatmaps(rows: list[dict], x: str, y: str, title: str) -> Figure | Non
         for iy in range(len(ys)):
             for ix in range(len(xs)):
                 v = grid[iy, ix]
-                text = "—" if not np.isfinite(v) else f"{v:.3g}"
+                if unstable[iy, ix]:
+                    a.add_patch(Rectangle((ix - 0.5, iy - 0.5), 1, 1, facecolor="#f4cccc", edgecolor="#cc0000",
+                                          hatch="//", lw=0))
+                text = "unstable" if unstable[iy, ix] else "—" if not np.isfinite(v) else f"{v:.3g}"
                 a.text(ix, iy, text, ha="center", va="center", fontsize=8, color="w",
                        path_effects=[patheffects.withStroke(linewidth=2, foreground="k")])
         a.set_xticks(range(len(xs)), [f"{v:g}" for v in xs])

@@ -48,9 +48,13 @@ from typing import Any
 from emulators.plant import plant_params_from_config
 from emulators.presets import resolve_rig
 from hal.adc_dac.conversions import AdcRange, adc_lsb
+from servo.control.errors import GainError
+from servo.control.gains import GAIN_NAMES, Gains, parse_gains
+from servo.control.linear import delay_periods
+from servo.gain_guard import GainVerdict, check_values, judge
 from servo.rig import RigSpec, load_rig
 from vmehil.analysis.describing import DeadZone, Nonlinearity, Quantizer, Relay, Saturation
-from vmehil.analysis.loop import GAIN_KEYS, GainError, Gains, LoopConfig
+from vmehil.analysis.loop import LoopConfig
 
 
 @dataclass
@@ -81,6 +85,14 @@ class JointParams:
         """The loop while the integrators are switched off: no integral action, Kp raised."""
         g = self.cfg.gains
         return self.cfg.replace(gains=Gains(kp=self.switch_off_kp, kpi=0.0, kv=g.kv, kvi=0.0))
+
+    def verdict(self, switch_off: bool | None = None) -> GainVerdict:
+        """:func:`servo.gain_guard.judge` on this joint's gains, at its period and computation delay:
+        the servo's own check. ``switch_off``: whether the switched-off loop (Kp_eff =
+        :attr:`switch_off_kp`) is judged too; None = as the rig says."""
+        on = self.switch_off_enabled if switch_off is None else switch_off
+        c = self.cfg
+        return judge(c.gains, c.sample_period_s, c.delay_fraction, kp_off=self.switch_off_kp if on else None)
 
     def nonlinearities(self) -> list[Nonlinearity]:
         """The joint's nonlinearities for the describing-function analysis."""
@@ -133,23 +145,16 @@ def _joint_data(spec: RigSpec, index: int) -> dict[str, Any]:
     return data
 
 
-def parse_gain_overrides(text: str | None) -> dict[str, float]:
-    """``"kp=200,kv=40"`` → ``{"kp": 200.0, "kv": 40.0}``, validated (raises :class:`GainError`)."""
-    if not text or not text.strip():
-        return {}
-    g = Gains(1.0, 1.0, 1.0, 1.0).with_overrides(text)  # validates names, numbers, signs
-    keys = {item.partition("=")[0].strip().lower() for item in text.replace(" ", ",").split(",") if item}
-    return {k: getattr(g, k) for k in GAIN_KEYS if k in keys}
-
-
 def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, float] | None = None,
                switch_off_kp: float | None = None) -> JointParams:
     """Read joint ``joint`` (1-based) of ``rig`` (preset name or path; None = jpl-arm).
 
-    ``gains``: ``"kp=..,kv=.."`` text or a mapping of overrides for this joint; ``switch_off_kp``
+    ``gains``: ``"kp=..,kv=.."`` text (:func:`servo.control.gains.parse_gains`) or a mapping of
+    overrides for this joint, refused by :func:`servo.gain_guard.check_values` if no gain may have
+    those values (stability is not judged here: :meth:`JointParams.verdict`); ``switch_off_kp``
     overrides the switch-off gain (default: the control law's ``kp_off`` for these gains).
     Raises :class:`hal.config.ConfigError` (a ValueError) for a malformed rig file,
-    :class:`~vmehil.analysis.loop.GainError` for bad gains and ValueError for a bad joint number.
+    :class:`servo.control.errors.GainError` for bad gains and ValueError for a bad joint number.
     """
     from vmehil.session import build_controller_for, servo_settings
     from vmehil.system import NON_PLANT_JOINT_KEYS
@@ -183,7 +188,7 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
 
     # ---- gains and switch-off, as the session resolves them
     settings = servo_settings(spec)
-    base = {k: settings.gains[k][j] for k in GAIN_KEYS}
+    base = {k: settings.gains[k][j] for k in GAIN_NAMES}
     servo_top = spec.table.data.get("servo", {})
     if "gains" in js.servo.data:
         gsrc = "rig [joint.servo]" + (" + [servo]" if "gains" in servo_top else "")
@@ -193,11 +198,11 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
         gsrc = "session defaults (the paper's)"
         notes.append("gains: neither [servo] nor [joint.servo] gives gains; the session default is the "
                      "paper's Kp=100, Kpi=5000, Kv=50, KvI=1000")
-    overrides = parse_gain_overrides(gains) if isinstance(gains, str | type(None)) else _check_mapping(gains)
+    overrides = check_values(parse_gains(gains) if isinstance(gains, str | type(None)) else dict(gains))
     if overrides:
         gsrc += " + --gains overrides"
     g = Gains.from_mapping({**base, **overrides})
-    for k in GAIN_KEYS:
+    for k in GAIN_NAMES:
         settings.gains[k][j] = getattr(g, k)
     enabled = settings.switch_off.get("enabled", [None] * spec.n_joints)[j]
     so_enabled = True if enabled is None else bool(enabled)
@@ -211,7 +216,7 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
             notes.append(f"switch-off gain: the rig's controller has no pid object; assuming Kp + KvI = "
                          f"{switch_off_kp:g}")
     elif not (math.isfinite(switch_off_kp) and switch_off_kp > 0):
-        raise GainError(f"--switch-off-kp {switch_off_kp} must be a positive number")
+        raise GainError("switch_off_kp", switch_off_kp, "a positive number of 1/s² (--switch-off-kp)")
 
     # ---- plant
     n_gear = p.gear.ratio
@@ -272,7 +277,7 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
         notes.append(f"gravity ({p.link.gravity_torque_nm:g} N·m) is a steady load the integrators take up; "
                      "the linear analysis leaves it out")
 
-    cfg = LoopConfig(gains=g, sample_period_s=T, delay_fraction=min(spec.computation_delay_s / T, 1.0),
+    cfg = LoopConfig(gains=g, sample_period_s=T, delay_fraction=delay_periods(spec.computation_delay_s, T),
                      velocity_source=velocity, amplifier_bandwidth_hz=amp_bw, velocity_filter_hz=vel_filter,
                      viscous_damping=viscous / inertia)
     return JointParams(rig=spec.name, rig_path=str(path), joint=joint, name=js.name, cfg=cfg, gains_source=gsrc,
@@ -283,12 +288,7 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
                        gain_overrides=overrides, notes=notes)
 
 
-def _check_mapping(m: dict[str, float]) -> dict[str, float]:
-    g = Gains.from_mapping(dict(m), base=Gains(1.0, 1.0, 1.0, 1.0))
-    return {k: getattr(g, k) for k in GAIN_KEYS if k in m}
-
-
-def with_gains(jp: JointParams, gains: Gains) -> JointParams:
+def with_gains(jp: JointParams, gains: Gains[float]) -> JointParams:
     """The same joint re-read with another gain set (so the switch-off gain is again what the
     control law computes for it)."""
     return load_joint(jp.rig_path, jp.joint, gains=gains.as_dict())

@@ -5,9 +5,12 @@ Gain sets come from a grid (:func:`parse_grid`, ``"kp=80:140:4,kv=30:70:5"``: 4 
 fixes a gain) or a list (:func:`load_gains_file`, CSV with a header naming some of kp, kpi, kv,
 kvi, or TOML ``[[gains]]`` tables). Gains not given keep the joint's rig values.
 
-Each point (:func:`evaluate_point`, a plain top-level function so it pickles to any worker):
-sampled and continuous margins; unless the sampled linear loop is unstable, one full-stack run
-with the integrators kept on (switch-off disabled, so the limit cycle the gains produce shows):
+Each point (:func:`evaluate_point`, a plain top-level function so it pickles to any worker): the
+verdict of :mod:`servo.gain_guard` (columns ``stable`` and ``unstable_reason``: an unstable point
+is classified, not refused — only values no gain may have, e.g. negative, refuse the sweep);
+sampled and continuous margins; unless the guard refuses the point or the sampled linear loop is
+unstable, one full-stack run with the integrators kept on (switch-off disabled, so the limit cycle
+the gains produce shows):
 limit-cycle amplitude and frequency (as ``vmehil run``), tracking error of the standard move and
 settling time after it (:mod:`vmehil.analysis.simulate`).
 
@@ -40,13 +43,16 @@ from typing import Any
 import numpy as np
 
 from hal.config import ConfigError, load_toml
-from vmehil.analysis.loop import GAIN_KEYS, GainError, Gains
+from servo.control.errors import GainError, GainSyntaxError
+from servo.control.gains import GAIN_NAMES, Gains, gain_items
+from servo.gain_guard import check_values
 from vmehil.analysis.simulate import SimSettings
 
 DEFAULT_GRID = "kp=80:140:3,kvi=600:1400:3"  #: 9 points: about 40 s on 2 busy cores
 
 #: CSV columns, in order.
-COLUMNS = ("index", "kp", "kpi", "kv", "kvi", "status", "sampled_stable", "phase_margin_deg", "gain_margin_db",
+COLUMNS = ("index", *GAIN_NAMES, "status", "stable", "unstable_reason", "sampled_stable", "phase_margin_deg",
+           "gain_margin_db",
            "crossover_hz", "bandwidth_hz", "continuous_phase_margin_deg", "lc_amplitude_deg", "lc_frequency_hz",
            "lc_amplitude_pot_deg", "rms_tracking_error_deg", "max_tracking_error_deg", "max_tracking_error_true_deg",
            "settling_time_s",
@@ -87,10 +93,10 @@ def _axis(name: str, text: str) -> list[float]:
         raise SweepError(f"grid axis {name}={text!r} is not start:stop:count or v1;v2;… numbers") from None
     if not vals:
         raise SweepError(f"grid axis {name} has no values")
+    vals = [float(v) for v in vals]
     for v in vals:
-        if not math.isfinite(v) or v < 0:
-            raise GainError(f"grid axis {name}: value {v} must be a finite number ≥ 0")
-    return [float(v) for v in vals]
+        check_values({name: v})  # no gain may be negative, NaN, subnormal, beyond the limits: refuse the grid
+    return vals
 
 
 def parse_grid(specs: str | Iterable[str]) -> dict[str, list[float]]:
@@ -99,15 +105,11 @@ def parse_grid(specs: str | Iterable[str]) -> dict[str, list[float]]:
         specs = [specs]
     axes: dict[str, list[float]] = {}
     for spec in specs:
-        for item in spec.split(","):
-            if not item.strip():
-                continue
-            key, sep, val = item.partition("=")
-            key = key.strip().lower()
-            if not sep:
-                raise SweepError(f"grid item {item!r}: write gain=start:stop:count, e.g. kp=80:140:4")
-            if key not in GAIN_KEYS:
-                raise GainError(f"unknown gain {key!r} in the grid; known: {', '.join(GAIN_KEYS)}")
+        try:
+            items = gain_items(spec)  # the one gain-text grammar; the values are axes, parsed here
+        except GainSyntaxError as e:
+            raise SweepError(f"grid: {e}; an axis is gain=start:stop:count or gain=v1;v2;…, e.g. kp=80:140:4") from e
+        for key, val, _token in items:
             if key in axes:
                 raise SweepError(f"gain {key} appears twice in the grid")
             axes[key] = _axis(key, val)
@@ -116,19 +118,14 @@ def parse_grid(specs: str | Iterable[str]) -> dict[str, list[float]]:
     return axes
 
 
-def grid_points(axes: dict[str, list[float]], base: Gains) -> list[dict[str, float]]:
+def grid_points(axes: dict[str, list[float]], base: Gains[float]) -> list[dict[str, float]]:
     """Every combination of the axes (in order, the last axis fastest) over the ``base`` gains."""
     names = list(axes)
-    out = []
-    for combo in itertools.product(*(axes[k] for k in names)):
-        g = base.as_dict()
-        g.update(dict(zip(names, combo, strict=True)))
-        Gains(**g)  # validate
-        out.append(g)
-    return out
+    return [base.replace(**dict(zip(names, combo, strict=True))).as_dict()
+            for combo in itertools.product(*(axes[k] for k in names))]
 
 
-def load_gains_file(path: str | Path, base: Gains) -> list[dict[str, float]]:
+def load_gains_file(path: str | Path, base: Gains[float]) -> list[dict[str, float]]:
     """Gain sets from a CSV (header with some of kp, kpi, kv, kvi) or TOML (``[[gains]]``) file."""
     p = Path(path)
     if not p.exists():
@@ -146,7 +143,7 @@ def load_gains_file(path: str | Path, base: Gains) -> list[dict[str, float]]:
             reader = csv.DictReader(f)
             if not reader.fieldnames:
                 raise SweepError(f"{p}: empty CSV; the first line names the gains (kp,kpi,kv,kvi)")
-            unknown = [c for c in reader.fieldnames if c.strip().lower() not in GAIN_KEYS]
+            unknown = [c for c in reader.fieldnames if c.strip().lower() not in GAIN_NAMES]
             if unknown:
                 raise SweepError(f"{p}: unknown column(s) {', '.join(unknown)}; use kp, kpi, kv, kvi")
             for line, r in enumerate(reader, start=2):
@@ -159,9 +156,9 @@ def load_gains_file(path: str | Path, base: Gains) -> list[dict[str, float]]:
     out = []
     for i, r in enumerate(rows):
         try:
-            out.append(Gains.from_mapping(r, base=base).as_dict())
+            out.append(Gains.from_mapping(check_values(r), base=base).as_dict())
         except GainError as e:
-            raise GainError(f"{p} gain set {i + 1}: {e}") from None
+            raise SweepError(f"{p} gain set {i + 1}: {e}") from e
     return out
 
 
@@ -201,11 +198,14 @@ def evaluate_point(task: SweepTask) -> dict[str, Any]:
     from vmehil.analysis.tuning import margins_summary
 
     t0 = time.perf_counter()
-    row: dict[str, Any] = {"index": task.index, **{k: float(task.gains[k]) for k in GAIN_KEYS}}
+    row: dict[str, Any] = {"index": task.index, **{k: float(task.gains[k]) for k in GAIN_NAMES}}
     jp = load_joint(task.rig_path, task.joint, gains=task.gains)
+    # the servo's own verdict, for the loop simulated here: integrators on, switch-off disabled
+    verdict = jp.verdict(switch_off=False)
     m = margins_summary(jp.cfg)
     s, c = m["sampled"], m["continuous"]
-    row.update({"sampled_stable": bool(s["stable"]), "phase_margin_deg": s["phase_margin_deg"],
+    row.update({"stable": verdict.ok, "unstable_reason": None if verdict.ok else verdict.reason,
+                "sampled_stable": bool(s["stable"]), "phase_margin_deg": s["phase_margin_deg"],
                 "gain_margin_db": s["gain_margin_db"], "crossover_hz": s["crossover_hz"],
                 "bandwidth_hz": s["bandwidth_hz"], "continuous_phase_margin_deg": c["phase_margin_deg"]})
     sim_keys = ("lc_amplitude_deg", "lc_frequency_hz", "lc_amplitude_pot_deg", "rms_tracking_error_deg",
@@ -213,8 +213,10 @@ def evaluate_point(task: SweepTask) -> dict[str, Any]:
                 "max_tracking_error_true_deg", "settling_time_s", "final_error_deg")
     row.update(dict.fromkeys(sim_keys))
     row["fault"] = None
-    if not s["stable"]:
-        row["status"] = "unstable (sampled linear loop): not simulated"
+    if not verdict.ok:
+        row["status"] = f"{verdict.kind} (servo.gain_guard): not simulated"
+    elif not s["stable"]:
+        row["status"] = "unstable (sampled linear loop with the rig's sensor and amplifier lags): not simulated"
     elif not task.simulate:
         row["status"] = "margins only"
     else:

@@ -41,10 +41,13 @@ def margins_summary(cfg: LoopConfig) -> dict[str, Any]:
 
 
 def bode_analysis(jp: JointParams) -> dict[str, Any]:
-    """Margins, crossover and bandwidth of the continuous ideal and the sampled loop."""
+    """Margins, crossover and bandwidth of the continuous ideal and the sampled loop, and the
+    verdict of :mod:`servo.gain_guard` (``guard``: ``ok``, ``kind``, ``reason``)."""
     out: dict[str, Any] = {"command": "tune bode", **jp.describe()}
     out.update(margins_summary(jp.cfg))
     out["stable"] = bool(out["sampled"]["stable"])
+    verdict = jp.verdict()
+    out["guard"] = {"ok": verdict.ok, "kind": verdict.kind, "reason": verdict.reason}
     return out
 
 

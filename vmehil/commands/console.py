@@ -46,16 +46,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_console(args: argparse.Namespace) -> int:
+    from servo.control.gains import parse_gains
+    from servo.gain_guard import check_values
     from servo.motion import Motion, WaitMove, load_motion
     from servo.rig import load_rig
     from servo.runner import LockstepRunner, RealtimeRunner
     from vmehil.calibration.store import CalibrationMissingWarning, default_store_path
-    from vmehil.commands.run import parse_gains
     from vmehil.console.extension import start_console
     from vmehil.session import build_loop
     from vmehil.system import build_emulated_rig
 
-    gains = parse_gains(args.gains)
+    gains = check_values(parse_gains(args.gains, what="--gains"))  # stability: in build_loop
     if args.duration is not None and args.duration <= 0:
         raise ValueError("--duration must be > 0")
     from emulators.presets import resolve_rig

@@ -10,7 +10,6 @@ Progress: a bar on stderr when it is a terminal and ``--quiet`` is not given (:m
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
@@ -34,26 +33,6 @@ RUN_EXTENSIONS: list[str] = [
 ]
 
 
-def parse_gains(text: str | None) -> dict[str, float]:
-    """``"kp=100,kv=50"`` → ``{"kp": 100.0, "kv": 50.0}``; clear errors for anything else."""
-    if not text:
-        return {}
-    out: dict[str, float] = {}
-    for part in text.split(","):
-        key, sep, value = part.partition("=")
-        key = key.strip().lower()
-        if not sep or key not in ("kp", "kpi", "kv", "kvi"):
-            raise ValueError(f"--gains: {part!r} is not kp=…, kpi=…, kv=… or kvi=…")
-        try:
-            v = float(value)
-        except ValueError:
-            raise ValueError(f"--gains: {key} = {value!r} is not a number") from None
-        if not math.isfinite(v) or v < 0:
-            raise ValueError(f"--gains: {key} = {value} must be a finite number >= 0")
-        out[key] = v
-    return out
-
-
 def add_rig_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rig", default=None, help="rig preset name or TOML path (default jpl-arm)")
     p.add_argument("--seed", type=int, default=0, help="seed of every noise source (default 0)")
@@ -67,7 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--realtime", action="store_true", help="pace ticks by the wall clock at the servo rate")
     add_overrun_args(p)
     p.add_argument("--no-integrator-switch-off", action="store_true", help="keep the integrators fed at rest")
-    p.add_argument("--gains", default=None, help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=..")
+    p.add_argument("--gains", default=None,
+                   help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=.. (checked by servo.gain_guard)")
     p.add_argument("--json", default=None, help="write the machine-readable summary here")
     p.add_argument("--report", default=None, help="write plots and summary.md into this folder")
     p.add_argument("--calibration", default=None,
@@ -87,9 +67,12 @@ def _extensions():
 
 def run(args: argparse.Namespace) -> int:
     from emulators.presets import resolve_rig
+    from servo.control.gains import parse_gains
+    from servo.gain_guard import check_values
     from servo.rig import load_rig
 
-    gains = parse_gains(args.gains)
+    # values now (before a rig is built); stability in build_loop, on the rig's loop
+    gains = check_values(parse_gains(args.gains, what="--gains"))
     rig = load_rig(resolve_rig(args.rig))
     try:
         return _run(args, rig, gains)

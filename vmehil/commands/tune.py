@@ -15,10 +15,15 @@ with the run's seed; on ``virtual`` each run starts its own in-process plant nod
 channel of its own, on ``socketcan``/``udp_multicast`` the runs talk to one external
 ``vmehil plant-node`` in turn (so ``sweep`` runs them with one worker).
 
-Exit status: 0 on success, 1 when the gain set gives an unstable sampled loop (``bode``) or a
-simulation was stopped by the watchdog (``limit-cycle``, ``step``), 2 for bad arguments
-(negative/NaN/unknown gains, bad rig file), 130 when a sweep is interrupted (its files then hold
-every completed point).
+Gains (``--gains`` over the rig's) are judged by :mod:`servo.gain_guard`, the servo's own check:
+``bode`` analyses and reports a set it refuses, ``limit-cycle`` and ``step`` refuse to simulate it
+(with the guard's reason), ``sweep`` classifies each point (``stable``, ``unstable_reason``).
+
+Exit status: 0 on success, 1 when the gain set is refused by the guard or gives an unstable
+sampled loop (``bode``, and ``limit-cycle``/``step`` refuse it), or a simulation was stopped by the
+watchdog (``limit-cycle``, ``step``), 2 for bad arguments (negative/NaN/subnormal/over-limit/unknown
+gains, malformed ``--gains`` text, bad rig file), 130 when a sweep is interrupted (its files then
+hold every completed point).
 """
 
 from __future__ import annotations
@@ -147,7 +152,9 @@ def _command_line(args: argparse.Namespace) -> str:
 
 
 def _load(args: argparse.Namespace) -> JointParams:
-    return load_joint(args.rig, args.joint, gains=args.gains,
+    from servo.control.gains import parse_gains
+
+    return load_joint(args.rig, args.joint, gains=parse_gains(args.gains, what="--gains"),
                       switch_off_kp=getattr(args, "switch_off_kp", None))
 
 
@@ -177,6 +184,7 @@ def run_bode(args: argparse.Namespace) -> int:
     from vmehil.analysis.tuning import bode_analysis
 
     jp = _load(args)
+    verdict = _guard(jp)  # an unstable set is analysed and reported, not hidden (exit status 1)
     result = bode_analysis(jp)
     text = report.bode_text(result)
     print("vmehil tune bode — open loop broken at the plant input")
@@ -197,22 +205,41 @@ def run_bode(args: argparse.Namespace) -> int:
         files.append(write_json(args.json_path, result))
     for f in files:
         print(f"wrote {f}")
+    if not verdict.ok:
+        print(f"vmehil tune bode: gains {jp.cfg.gains} refused by servo.gain_guard (UNSTABLE): {verdict.reason}",
+              file=sys.stderr)
     if not result["stable"]:
         print(f"vmehil tune bode: the sampled closed loop is UNSTABLE with gains {jp.cfg.gains}", file=sys.stderr)
-        return 1
-    return 0
+    return 0 if verdict.ok and result["stable"] else 1
 
 
 # ------------------------------------------------------------------------ limit cycle
 
 
-def _unstable_message(jp: JointParams) -> str | None:
+def _unstable_message(jp: JointParams, switch_off: bool | None) -> str | None:
+    """Why the joint's gains may not be simulated, or None: refused by :mod:`servo.gain_guard` (the
+    servo's own check, the reason every entry point gives), or unstable in the sampled linear model
+    with the rig's sensor and amplifier lags. ``switch_off``: judge the switched-off loop too (None:
+    as the rig says). A value no gain may have is a :class:`GainRejected` (exit status 2)."""
     from vmehil.analysis.loop import is_stable
 
+    verdict = _guard(jp, switch_off)
+    if not verdict.ok:
+        return f"gains {jp.cfg.gains} refused by servo.gain_guard (UNSTABLE): {verdict.reason}"
     if is_stable(jp.cfg, sampled=True):
         return None
     return (f"the sampled linear loop is UNSTABLE with gains {jp.cfg.gains}: a limit-cycle analysis needs a "
             f"stable loop (see `vmehil tune bode`); lower the gains or raise Kv")
+
+
+def _guard(jp: JointParams, switch_off: bool | None = None):
+    """:meth:`JointParams.verdict`; raises :class:`GainRejected` for an invalid value (not unstable)."""
+    from servo.gain_guard import GainRejected
+
+    verdict = jp.verdict(switch_off)
+    if verdict.kind == "invalid":
+        raise GainRejected(str(jp.cfg.gains), None, verdict.reason)
+    return verdict
 
 
 def run_limit_cycle(args: argparse.Namespace) -> int:
@@ -222,7 +249,7 @@ def run_limit_cycle(args: argparse.Namespace) -> int:
     from vmehil.progress import TickProgress
 
     jp = _load(args)
-    bad = _unstable_message(jp)
+    bad = _unstable_message(jp, switch_off=True)  # it simulates the switched-off loop as well
     if bad:
         print(f"vmehil tune limit-cycle: {bad}", file=sys.stderr)
         return 1
@@ -336,10 +363,10 @@ def _strip_model_traces(result: dict) -> dict:
 
 
 def run_sweep(args: argparse.Namespace) -> int:
+    from servo.control.gains import GAIN_NAMES
     from vmehil.analysis import report
     from vmehil.analysis.sweep import (
         DEFAULT_GRID,
-        GAIN_KEYS,
         SweepInterrupted,
         SweepTask,
         evaluate_points,
@@ -356,7 +383,7 @@ def run_sweep(args: argparse.Namespace) -> int:
         raise ValueError("give either --grid/--set or --gains-file, not both")
     if args.gains_file:
         points = load_gains_file(args.gains_file, base)
-        axes_names = [k for k in GAIN_KEYS if len({p[k] for p in points}) > 1]
+        axes_names = [k for k in GAIN_NAMES if len({p[k] for p in points}) > 1]
         grid_text = None
     else:
         grid_text = ",".join(args.grid) if args.grid else DEFAULT_GRID
@@ -375,10 +402,10 @@ def run_sweep(args: argparse.Namespace) -> int:
                              "own in-process plant node)")
         jobs = 1
     x = args.x or (axes_names[0] if axes_names else "kp")
-    y = args.y or (axes_names[1] if len(axes_names) > 1 else next(k for k in GAIN_KEYS if k != x))
+    y = args.y or (axes_names[1] if len(axes_names) > 1 else next(k for k in GAIN_NAMES if k != x))
     for name, v in (("--x", x), ("--y", y)):
-        if v not in GAIN_KEYS:
-            raise ValueError(f"{name} {v!r} must be one of {', '.join(GAIN_KEYS)}")
+        if v not in GAIN_NAMES:
+            raise ValueError(f"{name} {v!r} must be one of {', '.join(GAIN_NAMES)}")
     settings = _sim_settings(args, allow_short=True)
     if settings.hold_s < 8.0 and not args.margins_only:
         print(f"note: a {settings.hold_s:g} s hold is too short for a reliable limit-cycle figure (use ≥ 8 s)",
@@ -438,7 +465,9 @@ def run_sweep(args: argparse.Namespace) -> int:
 
 
 def _point_text(r: dict[str, Any]) -> str:
-    g = f"kp={r['kp']:g} kpi={r['kpi']:g} kv={r['kv']:g} kvi={r['kvi']:g}"
+    from servo.control.gains import GAIN_NAMES
+
+    g = " ".join(f"{k}={r[k]:g}" for k in GAIN_NAMES)
     if r["status"] != "ok":
         return f"{g}: {r['status']}"
     lc = "no cycle" if r["lc_frequency_hz"] is None else f"±{r['lc_amplitude_deg']:.2f}°"
@@ -446,13 +475,13 @@ def _point_text(r: dict[str, Any]) -> str:
 
 
 def _sweep_table(rows: list[dict[str, Any]]) -> str:
+    from servo.control.gains import GAIN_NAMES
     from vmehil.analysis.report import fmt
 
-    head = ("kp", "kpi", "kv", "kvi", "PM °", "GM dB", "LC amp °", "LC Hz", "rms track °", "max track °", "settle s",
-            "status")
+    head = (*GAIN_NAMES, "PM °", "GM dB", "LC amp °", "LC Hz", "rms track °", "max track °", "settle s", "status")
     lines = [head]
     for r in rows:
-        lines.append((f"{r['kp']:g}", f"{r['kpi']:g}", f"{r['kv']:g}", f"{r['kvi']:g}",
+        lines.append((*(f"{r[k]:g}" for k in GAIN_NAMES),
                       fmt(r["phase_margin_deg"], ".1f", none="—"), fmt(r["gain_margin_db"], ".1f"),
                       fmt(r["lc_amplitude_deg"], ".3f", none="—"), fmt(r["lc_frequency_hz"], ".2f", none="—"),
                       fmt(r["rms_tracking_error_deg"], ".3f", none="—"),
@@ -475,12 +504,12 @@ def run_step(args: argparse.Namespace) -> int:
     from vmehil.progress import TickProgress
 
     jp = _load(args)
-    bad = _unstable_message(jp)
+    so = {"rig": None, "on": True, "off": False}[args.switch_off]
+    bad = _unstable_message(jp, switch_off=so)
     if bad:
         print(f"vmehil tune step: {bad}", file=sys.stderr)
         return 1
     settings = _sim_settings(args, allow_short=True)
-    so = {"rig": None, "on": True, "off": False}[args.switch_off]
     links = _link_factory(args)
     with TickProgress("step", quiet=args.quiet) as progress:
         step = simulate(jp, switch_off=so, settings=settings, step_deg=args.step_deg, progress=progress,

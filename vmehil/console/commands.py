@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hal.units import deg_to_rad, rad_to_deg
+from servo.control.gains import GAIN_NAMES
 from servo.gain_guard import GainRejected, check_gain_change
 from vmehil.console.protocol import (
     ARGS,
@@ -440,18 +441,17 @@ def _gain_lines(loop: Any) -> list[str]:
     g = getattr(law, "_pending_gains", None) or law.gains
     so = getattr(law, "_pending_switch_off", None) or law.switch_off
     kp_eff = law.kp_eff()
-    return [kv("DATA", "gains", joint=name, kp=float(g.kp[i]), kpi=float(g.kpi[i]), kv=float(g.kv[i]),
-               kvi=float(g.kvi[i]), kp_eff=float(kp_eff[i]), mode="auto" if so.enabled[i] else "integrate")
+    return [kv("DATA", "gains", joint=name, **g.joint(i).as_dict(), kp_eff=float(kp_eff[i]),
+               mode="auto" if so.enabled[i] else "integrate")
             for i, name in enumerate(loop.names)]
 
 
-@atom("gains", (Param("joint", JOINT, "all"), Param("kp", FLOAT, None), Param("kpi", FLOAT, None),
-                Param("kv", FLOAT, None), Param("kvi", FLOAT, None)),
-      "show the gains, or set some (kp= kpi= kv= kvi=) for one joint or all; checked like live tuning")
+@atom("gains", (Param("joint", JOINT, "all"), *(Param(k, FLOAT, None) for k in GAIN_NAMES)),
+      "show the gains, or set some (kp= kpi= kv= kvi=) for one joint or all; checked by servo.gain_guard")
 def _gains(s: Session, a: dict[str, Any]) -> Outcome:
     loop = s.loop
     law = _law(loop)
-    changes = {k: a[k] for k in ("kp", "kpi", "kv", "kvi") if a[k] is not None}
+    changes = {k: a[k] for k in GAIN_NAMES if a[k] is not None}
     if not changes:
         lines = _gain_lines(loop)
         if a["joint"] is not None:

@@ -13,6 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from servo.control.linear import delay_periods
 from vmehil.console.calibrate import calibrator_for
 from vmehil.console.compound import CompoundLibrary, load_compound_file
 from vmehil.console.server import Console, PtyTransport, open_transport
@@ -42,7 +43,7 @@ def start_console(port: str, loop: Any, *, runner: Any = None, commands: str | N
                else CompoundLibrary())
     delay = 0.0
     if runner is not None and getattr(runner, "period_s", 0):
-        delay = min(1.0, max(0.0, float(getattr(runner, "delay_s", 0.0)) / float(runner.period_s)))
+        delay = delay_periods(getattr(runner, "delay_s", 0.0), runner.period_s)
     transport = open_transport(port, baudrate=baudrate)
     if system is None and runner is not None:
         system = getattr(runner, "plant", None)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from servo.control.linear import delay_periods
 from vmehil.mavlink.endpoint import MavlinkEndpoint, MavlinkError
 from vmehil.mavlink.signing import load_key_file
 
@@ -51,12 +52,11 @@ def attach(args: argparse.Namespace, system: Any, loop: Any, runner: Any) -> Mav
     if not url:
         return None
     key = load_key_file(args.mavlink_key_file) if args.mavlink_key_file else None
-    period = float(loop.period_s)
-    delay_s = float(getattr(runner, "delay_s", 0.0) or 0.0)
+    delay = delay_periods(getattr(runner, "delay_s", 0.0) or 0.0, loop.period_s)
     endpoint = MavlinkEndpoint(
         loop, url, sysid=args.mavlink_sysid, rate_hz=args.mavlink_rate, key=key,
         allow_unsigned_read=args.mavlink_allow_unsigned_read, allow_remote=args.mavlink_allow_remote,
-        delay_periods=min(max(delay_s / period, 0.0), 1.0), min_margin=args.mavlink_min_margin,
+        delay_periods=delay, min_margin=args.mavlink_min_margin,
         telemetry=args.mavlink_telemetry)
     if args.mavlink_wait > 0:
         if not endpoint.wait_for_start(args.mavlink_wait):

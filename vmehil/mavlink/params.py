@@ -23,8 +23,9 @@ J1_VEL_MAX    rad/s     read-only                trajectory planning velocity li
 
 and, after the joints, ``SERVO_RATE_HZ`` (read-only, the loop rate). Gains, switch-off settings
 and limits are checked when received (finite, in range) and again when applied at the tick
-boundary: a gain or boost that would make the sampled loop of that joint unstable
-(:func:`vmehil.mavlink.stability.check_gains`, integrating and switched off) is refused. Limits may
+boundary: a gain or boost that :mod:`servo.gain_guard` refuses for that joint (the one rule of the
+console and the command line: the sampled loop unstable or marginal, integrating or switched off)
+is refused, with the guard's reason. Limits may
 be tightened, and loosened back up to the value the run started with — never beyond it.
 """
 
@@ -37,8 +38,9 @@ from typing import Any
 
 import numpy as np
 
+from servo.control.gains import GAIN_DESCRIPTIONS, GAIN_NAMES, GAIN_UNITS
 from servo.control.law import SwitchOffConfig
-from vmehil.mavlink.stability import check_gains
+from servo.gain_guard import GAIN_MAX, GainRejected, check_gain_change
 
 MAX_NAME_LEN = 16
 
@@ -89,8 +91,8 @@ class ParamSpec:
         return text
 
 
-GAIN_RANGES = {"kp": (1e5, "1/s²", "position gain Kp"), "kpi": (1e7, "1/s³", "position integral gain Kpi"),
-               "kv": (1e4, "1/s", "velocity gain Kv"), "kvi": (1e6, "1/s²", "velocity integral gain KvI")}
+#: gain name → (upper limit, unit, description): the guard's limits, advertised as the writable ranges
+GAIN_RANGES = {k: (GAIN_MAX[k], GAIN_UNITS[k], GAIN_DESCRIPTIONS[k]) for k in GAIN_NAMES}
 BAND_MAX_RAD = 0.5
 BOOST_MAX = 10.0
 SETTLE_MAX_S = 10.0
@@ -229,14 +231,10 @@ class ParamTable:
         assert j is not None
         if key in GAIN_RANGES or key.startswith("so_"):
             law = loop.law
-            gains = law.set_gains()  # the gains in force at this tick, with anything staged before
             so = self._switch_off_now()
-            g = {k: float(getattr(gains, k)[j]) for k in GAIN_RANGES}
             enabled, inner, outer = so.enabled.copy(), so.inner_band.copy(), so.outer_band.copy()
             boost, settle = so.kp_boost.copy(), so.settle_time.copy()
-            if key in GAIN_RANGES:
-                g[key] = v
-            elif key == "so_enabled":
+            if key == "so_enabled":
                 enabled[j] = bool(v)
             elif key == "so_inner":
                 inner[j] = v
@@ -246,14 +244,13 @@ class ParamTable:
                 boost[j] = math.nan if v == 0.0 else v
             elif key == "so_settle":
                 settle[j] = v
+            new = SwitchOffConfig(enabled, inner, outer, boost, settle, so.zero_crossing.copy())
             if key in GAIN_RANGES or key in ("so_enabled", "so_boost"):
-                kp_off = None
-                if enabled[j]:
-                    kp_off = g["kp"] + g["kvi"] if math.isnan(boost[j]) else g["kp"] * float(boost[j])
-                verdict = check_gains(g["kp"], g["kpi"], g["kv"], g["kvi"], self.period_s, delay=self.delay,
-                                      kp_off=kp_off, min_margin=self.min_margin)
-                if not verdict.ok:
-                    raise ParamRefused(OUT_OF_RANGE, spec.name, f"{v:g} refused: {verdict.reason}")
+                try:  # the one guard, as the console and the command line use it
+                    check_gain_change(law, j, {key: v} if key in GAIN_RANGES else {}, self.period_s, self.delay,
+                                      min_margin=self.min_margin, switch_off=new)
+                except GainRejected as e:
+                    raise ParamRefused(OUT_OF_RANGE, spec.name, f"{v:g} refused: {e.reason}") from None
             if key in GAIN_RANGES:
                 law.set_gains(**{key: v}, joint=j)
                 return v
@@ -261,7 +258,6 @@ class ParamTable:
                 raise ParamRefused(OUT_OF_RANGE, spec.name,
                                    f"{v:g} rad refused: the outer band ({outer[j]:g} rad) must exceed the inner band "
                                    f"({inner[j]:g} rad)")
-            new = SwitchOffConfig(enabled, inner, outer, boost, settle, so.zero_crossing.copy())
             law.set_switch_off(new)
             self._staged_so = (int(loop.tick_count), new)
             return v
