@@ -213,7 +213,7 @@ def test_temporary_files_of_live_processes_or_other_hosts_are_left_alone(tmp_pat
 
 def test_write_json_writes_null_for_nan_and_inf(tmp_path: Path) -> None:
     p = write_json(tmp_path / "r.json", {"gm": float("inf"), "x": [float("nan"), 1.0]})
-    assert json.loads(p.read_text()) == {"gm": None, "x": [None, 1.0]}
+    assert json.loads(p.read_text()) == {"written_by": "vmehil", "gm": None, "x": [None, 1.0]}
 
 
 def test_to_json_takes_numpy_and_complex_values() -> None:

@@ -28,6 +28,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from vmehil.cli_types import bounded_float, bounded_int
+
 PLANT_MODES = ("lockstep", "free-running")
 _node_channels = itertools.count()
 
@@ -51,8 +53,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_bus_arguments(g)  # type: ignore[arg-type]
     g.add_argument("--plant-mode", choices=PLANT_MODES, default="lockstep",
                    help="lockstep (tick per exchange; equals the in-process run) or free-running (latch newest)")
-    g.add_argument("--can-timeout", type=float, default=1.0, help="answer / heartbeat timeout in seconds (1.0)")
-    g.add_argument("--stale-ticks", type=int, default=None,
+    g.add_argument("--can-timeout", type=bounded_float(0.001, 3600.0, what="a timeout (s)"), default=1.0,
+                   help="answer / heartbeat timeout in seconds (1.0)")
+    g.add_argument("--stale-ticks", type=bounded_int(1, 100_000, what="a number of ticks"), default=None,
                    help="exchanges without fresh plant data before a safe stop (lockstep 1, free-running 5)")
 
 

@@ -12,6 +12,7 @@ from hal.config import ConfigError
 from hal.vme.errors import VmeError
 from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name, stop_signals_raise
 from vmehil.exit_status import EXIT_UNEXPECTED, EXIT_USAGE
+from vmehil.outputs import check_outputs
 
 # Subcommand modules; each defines ``register(subparsers)`` that sets ``func`` on its parser.
 COMMAND_MODULES = [
@@ -31,7 +32,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="VME hardware-in-the-loop emulation, drivers and servo tools for robot joints.",
     )
     parser.add_argument("--debug", action="store_true",
-                        help="show the traceback of an unexpected error (also VMEHIL_DEBUG=1)")
+                        help="show the traceback of an unexpected error (also VMEHIL_DEBUG=1); anywhere on the line")
+    parser.add_argument("--force", action="store_true",
+                        help="overwrite output files and directories vmehil did not write; anywhere on the line")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMAND_MODULES:
@@ -47,10 +50,12 @@ def main(argv: list[str] | None = None) -> int:
     # --debug is accepted anywhere on the line (before or after the subcommand)
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv or os.environ.get("VMEHIL_DEBUG", "") not in ("", "0")
-    argv = [a for a in argv if a != "--debug"]
+    force = "--force" in argv  # overwrite output files that vmehil did not write (vmehil.outputs)
+    argv = [a for a in argv if a not in ("--debug", "--force")]
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        check_outputs(args, force=force)
         with stop_signals_raise():
             return int(args.func(args) or 0)
     except (CliError, ConfigError, VmeError, FileNotFoundError, ValueError) as e:

@@ -185,8 +185,15 @@ def to_json(obj: Any) -> str:
     return json.dumps(_jsonable(obj), indent=2, allow_nan=False) + "\n"
 
 
+#: the mark vmehil leaves in the JSON objects it writes (``vmehil.outputs`` knows its own files by it)
+WRITTEN_BY = "vmehil"
+
+
 def write_json(path: str | Path, obj: Any) -> Path:
-    """Atomically write ``obj`` as :func:`to_json` text."""
+    """Atomically write ``obj`` as :func:`to_json` text; an object gets ``"written_by": "vmehil"``
+    first, so that a later run may overwrite it (``vmehil.outputs``)."""
+    if isinstance(obj, dict) and "written_by" not in obj:
+        obj = {"written_by": WRITTEN_BY, **obj}
     return write_atomic(path, to_json(obj))
 
 

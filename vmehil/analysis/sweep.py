@@ -74,6 +74,10 @@ class SweepInterrupted(Exception):
 # ------------------------------------------------------------------------- gain sets
 
 
+#: the most points one sweep runs (each is a full-stack simulation of seconds; 10⁵ is hours of work)
+MAX_GRID_POINTS = 100_000
+
+
 def _axis(name: str, text: str) -> list[float]:
     text = text.strip()
     try:
@@ -82,8 +86,8 @@ def _axis(name: str, text: str) -> list[float]:
             if len(parts) != 3:
                 raise SweepError(f"grid axis {name}={text!r}: write start:stop:count, e.g. {name}=80:140:4")
             a, b, n = float(parts[0]), float(parts[1]), int(parts[2])
-            if n < 1:
-                raise SweepError(f"grid axis {name}={text!r}: the count must be at least 1")
+            if not 1 <= n <= MAX_GRID_POINTS:
+                raise SweepError(f"grid axis {name}={text!r}: the count must be within 1..{MAX_GRID_POINTS}")
             vals = [a] if n == 1 else list(np.linspace(a, b, n))
         else:
             vals = [float(v) for v in text.split(";") if v.strip()]
@@ -115,6 +119,10 @@ def parse_grid(specs: str | Iterable[str]) -> dict[str, list[float]]:
             axes[key] = _axis(key, val)
     if not axes:
         raise SweepError("the grid is empty; give e.g. --grid kp=80:140:4,kv=30:70:5")
+    total = math.prod(len(v) for v in axes.values())
+    if total > MAX_GRID_POINTS:
+        raise SweepError(f"the grid has {total:,} points; at most {MAX_GRID_POINTS:,} are swept in one run "
+                         "(each point is a full-stack simulation): use fewer values per axis")
     return axes
 
 

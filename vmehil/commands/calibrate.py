@@ -20,6 +20,7 @@ import importlib
 import sys
 from pathlib import Path
 
+from vmehil.cli_types import bounded_int, joint_number, seed
 from vmehil.files import write_atomic, write_json
 
 #: Modules imported before the parser is built; each registers procedures at import.
@@ -44,8 +45,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                     + ").\n" + lines, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("procedure", choices=[*names, "all"], help="what to calibrate")
     p.add_argument("--rig", default=None, help="rig preset name or TOML path (default jpl-arm)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the emulated rig's noise (default 0)")
-    p.add_argument("--joint", type=int, action="append", default=None,
+    p.add_argument("--seed", type=seed, default=0, help="seed of the emulated rig's noise (default 0)")
+    p.add_argument("--joint", type=joint_number, action="append", default=None,
                    help="joint number (1-based) to calibrate; repeat for several (default: all)")
     p.add_argument("--auto", action="store_true",
                    help="use the rig's reference fixture instead of prompting the operator for angles")
@@ -54,8 +55,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", default=None, help="write the machine-readable results here")
     p.add_argument("--report", default=None, help="write results.txt, results.json and plots into this folder")
     p.add_argument("--write-on-fail", action="store_true", help="write the file even if a check failed")
-    p.add_argument("--points", type=int, default=9, help="pot: calibration points (default 9, the paper's)")
-    p.add_argument("--verify-per-segment", type=int, default=1, help="pot: verification stops per segment")
+    p.add_argument("--points", type=bounded_int(3, 64, what="a number of pot calibration points"), default=9,
+                   help="pot: calibration points (default 9, the paper's)")
+    p.add_argument("--verify-per-segment", type=bounded_int(0, 16, what="a number of verification points"), default=1,
+                   help="pot: verification stops per segment")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 

@@ -21,6 +21,7 @@ import warnings
 from pathlib import Path
 
 from servo.interrupts import Terminated, interrupt_name
+from vmehil.cli_types import bounded_int, duration_s
 from vmehil.realtime_options import add_overrun_args, overrun_options
 
 
@@ -35,10 +36,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--motion", default=None, help="motion file to play at start (default: hold the joints)")
     p.add_argument("--commands", default=None, help="compound command file (checked at load)")
     p.add_argument("--gains", default=None, help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=..")
-    p.add_argument("--baud", type=int, default=115200, help="baud rate for a serial device (default 115200)")
+    p.add_argument("--baud", type=bounded_int(50, 4_000_000, what="a baud rate"), default=115200,
+                   help="baud rate for a serial device (default 115200)")
     p.add_argument("--lockstep", action="store_true", help="do not pace ticks by the wall clock")
     add_overrun_args(p)
-    p.add_argument("--duration", type=float, default=None, help="end after this many seconds of loop time")
+    p.add_argument("--duration", type=duration_s, default=None, help="end after this many seconds of loop time")
     p.add_argument("--calibration", default=None,
                    help="calibration file for the drivers, and where the console's calibrate writes "
                         "(default: calibration/<rig>.toml or $VMEHIL_CALIBRATION_DIR/<rig>.toml)")

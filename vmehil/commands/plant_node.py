@@ -13,6 +13,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from vmehil.cli_types import duration_s
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     from vmehil.can_options import add_bus_arguments
@@ -23,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_bus_arguments(p)
     p.add_argument("--free-running", action="store_true",
                    help="step on the wall clock at the servo rate instead of on the controller's SYNC")
-    p.add_argument("--duration", type=float, default=None, help="serve this many seconds (default: until Ctrl-C)")
+    p.add_argument("--duration", type=duration_s, default=None, help="serve this many seconds (default: until Ctrl-C)")
     p.set_defaults(func=run)
 
 

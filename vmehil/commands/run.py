@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 from servo.interrupts import Terminated, interrupt_exit_status
+from vmehil.cli_types import duration_s, seed
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
 from vmehil.files import write_json
 from vmehil.realtime_options import add_overrun_args, overrun_options
@@ -35,14 +36,14 @@ RUN_EXTENSIONS: list[str] = [
 
 def add_rig_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rig", default=None, help="rig preset name or TOML path (default jpl-arm)")
-    p.add_argument("--seed", type=int, default=0, help="seed of every noise source (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of every noise source (default 0)")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run the servo loop on a rig (the main job)")
     add_rig_args(p)
     p.add_argument("--motion", default=None, help="motion file (TOML); default: a coordinated demo move + 10 s hold")
-    p.add_argument("--duration", type=float, default=None, help="seconds to run (default: the motion, +1 s)")
+    p.add_argument("--duration", type=duration_s, default=None, help="seconds to run (default: the motion, +1 s)")
     p.add_argument("--realtime", action="store_true", help="pace ticks by the wall clock at the servo rate")
     add_overrun_args(p)
     p.add_argument("--no-integrator-switch-off", action="store_true", help="keep the integrators fed at rest")

@@ -36,43 +36,14 @@ from pathlib import Path
 from typing import Any
 
 from vmehil.analysis.rigparams import JointParams, load_joint
+from vmehil.cli_types import bounded_int, joint_number, nonzero_float, positive_float, seed
 from vmehil.files import write_atomic, write_json
-
-
-def _joint_number(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"joint must be a whole number (1-based), not {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"joints are numbered from 1, not {n}")
-    return n
-
-
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive finite number")
-    return v
-
-
-def _finite_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not math.isfinite(v) or v == 0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be a non-zero finite number")
-    return v
 
 
 def _common() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(add_help=False)
     p.add_argument("--rig", default=None, help="rig preset name or TOML path (default jpl-arm)")
-    p.add_argument("--joint", type=_joint_number, default=1, help="joint number, 1-based (default 1)")
+    p.add_argument("--joint", type=joint_number, default=1, help="joint number, 1-based (default 1)")
     p.add_argument("--gains", default=None, metavar="kp=..,kpi=..,kv=..,kvi=..",
                    help="override some or all of the joint's gains (this joint only)")
     p.add_argument("--json", dest="json_path", default=None, metavar="PATH", help="write the results as JSON")
@@ -81,13 +52,13 @@ def _common() -> argparse.ArgumentParser:
 
 
 def _sim_args(p: argparse.ArgumentParser, hold: float, band: float) -> None:
-    p.add_argument("--seed", type=int, default=0, help="seed of every noise source of the emulated rig (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of every noise source of the emulated rig (default 0)")
     p.add_argument("--motion", choices=("joint", "demo"), default="joint",
                    help="joint: a quintic move of this joint only (default); demo: the demo move of every joint")
-    p.add_argument("--move-deg", type=_finite_float, default=None,
+    p.add_argument("--move-deg", type=nonzero_float, default=None,
                    help="size of the move (default: the demo's delta for the joint, 20° for joint 1)")
-    p.add_argument("--hold", type=_positive_float, default=hold, help=f"hold after the move, s (default {hold:g})")
-    p.add_argument("--settle-band-deg", type=_positive_float, default=band,
+    p.add_argument("--hold", type=positive_float, default=hold, help=f"hold after the move, s (default {hold:g})")
+    p.add_argument("--settle-band-deg", type=positive_float, default=band,
                    help=f"settling: into the steady-state envelope (last 2 s) ± this, deg (default {band:g})")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     from vmehil.can_options import add_plant_arguments
@@ -108,7 +79,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                               "with and without integrator switch-off")
     lc.add_argument("--predict-only", action="store_true",
                     help="only the describing-function prediction (no full-stack simulation)")
-    lc.add_argument("--switch-off-kp", type=_positive_float, default=None,
+    lc.add_argument("--switch-off-kp", type=positive_float, default=None,
                     help="position gain while the integrators are switched off in the prediction "
                          "(default: what the control law uses, PidLaw.kp_off)")
     _sim_args(lc, 8.0, 0.1)
@@ -121,7 +92,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     sw.add_argument("--set", dest="grid", action="append", metavar="kp=80:140:4", help="same as --grid")
     sw.add_argument("--gains-file", default=None, metavar="PATH",
                     help="a list of gain sets instead of a grid: CSV (header kp,kpi,kv,kvi) or TOML [[gains]]")
-    sw.add_argument("--jobs", type=int, default=None, help="worker processes (default: os.cpu_count())")
+    sw.add_argument("--jobs", type=bounded_int(1, 256, what="a number of worker processes"), default=None,
+                    help="worker processes (default: os.cpu_count())")
     sw.add_argument("--x", default=None, help="heat-map x gain (default: the first gain that varies)")
     sw.add_argument("--y", default=None, help="heat-map y gain (default: the second gain that varies)")
     sw.add_argument("--out", default=None, metavar="DIR",
@@ -131,7 +103,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sw.set_defaults(func=run_sweep)
     st = tsub.add_parser("step", parents=[common],
                          help="step and quintic-move responses through the full stack, over the linear prediction")
-    st.add_argument("--step-deg", type=_finite_float, default=2.0, help="step size, deg (default 2)")
+    st.add_argument("--step-deg", type=nonzero_float, default=2.0, help="step size, deg (default 2)")
     st.add_argument("--switch-off", choices=("rig", "on", "off"), default="rig",
                     help="integrator switch-off: as the rig says (default), forced on, or off")
     _sim_args(st, 4.0, 0.1)

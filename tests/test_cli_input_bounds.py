@@ -1,0 +1,61 @@
+"""Every number a command takes is finite and bounded, and every output path is checked before
+the command does any work; nothing that vmehil did not write is overwritten without --force."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from vmehil import cli
+from vmehil.exit_status import EXIT_USAGE
+from vmehil.outputs import MARKER
+
+
+@pytest.mark.parametrize("argv", [
+    ["run", "--duration", "inf"], ["run", "--duration", "1e12"], ["run", "--duration", "nan"],
+    ["run", "--duration", "0"], ["plant-node", "--duration", "nan"], ["console", "--duration", "-1"],
+    ["calibrate", "pot", "--points", "100000"], ["run", "--seed", "-1"], ["tune", "step", "--step-deg", "inf"],
+    ["run", "--realtime", "--max-lateness", "inf"],
+])
+def test_an_unbounded_or_non_finite_number_is_refused_by_the_parser(argv, capsys) -> None:
+    with pytest.raises(SystemExit) as e:
+        cli.main(argv)
+    assert e.value.code == 2
+    assert "expected" in capsys.readouterr().err or "must be" in capsys.readouterr().err
+
+
+def test_a_sweep_grid_of_1e8_points_is_refused_before_anything_is_built(tmp_path, capsys) -> None:
+    code = cli.main(["tune", "sweep", "--grid", "kp=80:140:10000,kv=30:70:10000", "--out", str(tmp_path / "s")])
+    assert code == EXIT_USAGE
+    assert "100,000,000 points" in capsys.readouterr().err
+
+
+def test_report_naming_an_existing_file_is_refused_before_the_run(tmp_path, capsys) -> None:
+    f = tmp_path / "notes.txt"
+    f.write_text("mine")
+    assert cli.main(["run", "--duration", "1", "--quiet", "--report", str(f)]) == EXIT_USAGE
+    assert "exists and is not a directory" in capsys.readouterr().err
+    assert f.read_text() == "mine"
+
+
+def test_a_foreign_json_file_is_kept_unless_forced_and_our_own_is_replaced(tmp_path, capsys) -> None:
+    f = tmp_path / "out.json"
+    f.write_text('{"someone": "else"}')
+    assert cli.main(["run", "--duration", "0.5", "--quiet", "--json", str(f)]) == EXIT_USAGE
+    assert "not written by vmehil" in capsys.readouterr().err and json.loads(f.read_text()) == {"someone": "else"}
+    assert cli.main(["run", "--duration", "0.5", "--quiet", "--json", str(f), "--force"]) == 0
+    assert json.loads(f.read_text())["written_by"] == "vmehil"
+    assert cli.main(["run", "--duration", "0.5", "--quiet", "--json", str(f)]) == 0  # ours now
+
+
+def test_a_report_directory_that_is_not_ours_is_not_written_into(tmp_path, capsys) -> None:
+    d = tmp_path / "photos"
+    d.mkdir()
+    (d / "holiday.png").write_bytes(b"x")
+    assert cli.main(["run", "--duration", "0.5", "--quiet", "--report", str(d)]) == EXIT_USAGE
+    assert sorted(p.name for p in d.iterdir()) == ["holiday.png"]
+    fresh = tmp_path / "rep"
+    assert cli.main(["run", "--duration", "0.5", "--quiet", "--report", str(fresh)]) == 0
+    assert (fresh / MARKER).exists()
+    assert cli.main(["run", "--duration", "0.5", "--quiet", "--report", str(fresh)]) == 0  # ours: rewritten

@@ -1,0 +1,83 @@
+"""Output paths are checked before a command does any work, and never overwrite what is not ours.
+
+"Ours" is a file vmehil wrote (JSON with ``"written_by": "vmehil"``, which
+:func:`vmehil.files.write_json` adds to every object it writes) or a directory vmehil created
+(it holds the marker file :data:`MARKER`). ``--force`` (anywhere on the command line) overrides.
+Checked at start, so that ``--report`` naming an existing file no longer dies with a traceback
+after the whole run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+from vmehil.files import WRITTEN_BY
+
+MARKER = ".vmehil-output"  #: the file that marks a directory as vmehil's (report, sweep output)
+
+#: the attributes of a parsed command line that name output files and output directories
+FILE_OPTIONS = {"json": "--json", "json_path": "--json", "can_log": "--can-log"}
+DIR_OPTIONS = {"report": "--report", "out": "--out"}
+
+
+class OutputPathError(ValueError):
+    """An output path that cannot or must not be written; the message names the flag."""
+
+
+def _is_ours(p: Path) -> bool:
+    try:
+        with p.open("rb") as f:
+            head = f.read(1 << 20)
+        data = json.loads(head)
+    except (OSError, ValueError):
+        return False
+    return isinstance(data, dict) and data.get("written_by") == WRITTEN_BY
+
+
+def check_output_file(path: str | Path, flag: str, *, force: bool = False) -> Path:
+    p = Path(path)
+    if p.is_dir():
+        raise OutputPathError(f"{flag} {p}: is a directory; give a file name")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise OutputPathError(f"{flag} {p}: the folder {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise OutputPathError(f"{flag} {p}: the folder {parent} is not writable")
+    if p.exists() and not force and not _is_ours(p):
+        raise OutputPathError(f"{flag} {p}: the file exists and was not written by vmehil; "
+                              "choose another name or add --force to overwrite it")
+    return p
+
+
+def prepare_output_dir(path: str | Path, flag: str, *, force: bool = False) -> Path:
+    """Check ``path`` and create it (with its marker) if needed."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise OutputPathError(f"{flag} {p}: exists and is not a directory; give a directory name")
+    if p.is_dir() and not (p / MARKER).exists() and any(p.iterdir()) and not force:
+        raise OutputPathError(f"{flag} {p}: the directory is not empty and was not made by vmehil; "
+                              "choose another one or add --force to write into it")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+        (p / MARKER).touch()
+    except OSError as e:
+        raise OutputPathError(f"{flag} {p}: cannot create it ({e.strerror or e})") from None
+    return p
+
+
+def check_outputs(args: argparse.Namespace, *, force: bool = False) -> None:
+    """Check every output option of a parsed command line (calibrate's ``--out`` is its
+    calibration file, kept with a ``.prev`` by the store, and is not checked here)."""
+    for attr, flag in FILE_OPTIONS.items():
+        value = getattr(args, attr, None)
+        if isinstance(value, str | Path):
+            check_output_file(value, flag, force=force)
+    for attr, flag in DIR_OPTIONS.items():
+        if attr == "out" and getattr(args, "command", None) == "calibrate":
+            continue
+        value = getattr(args, attr, None)
+        if isinstance(value, str | Path):
+            prepare_output_dir(value, flag, force=force)
