@@ -18,6 +18,7 @@ import pytest
 from vmehil.analysis.rigparams import load_joint
 from vmehil.analysis.sweep import SweepError, load_gains_file, parse_grid
 from vmehil.cli import main
+from vmehil.files import is_temp_file
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = ["--move-deg", "2", "--hold", "1"]  # a 0.375 s move and a 1 s hold: ~1.4 s simulated per point
@@ -178,7 +179,7 @@ def test_sweep_interrupted_by_sigint_keeps_the_finished_rows(tmp_path: Path) -> 
     assert d["interrupted"] and not d["finished"] and d["completed"] == len(rows) == len(d["rows"])
     assert all(r["status"] == "ok" for r in rows)
     assert [int(r["index"]) for r in rows] == sorted(int(r["index"]) for r in rows)
-    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temp files left
+    assert not [p for p in out.iterdir() if is_temp_file(p.name)]  # no temp files left
     assert math.isfinite(float(rows[0]["lc_amplitude_deg"]))
 
 

@@ -57,4 +57,4 @@ def nonzero_float(text: str) -> float:
 positive_float = bounded_float(0.0, 1e9, what="a positive number", lo_open=True)
 duration_s = bounded_float(0.0, MAX_DURATION_S, what="a duration in seconds", lo_open=True)
 seed = bounded_int(0, 2**32 - 1, what="a seed")
-joint_number = bounded_int(1, 64, what="a joint number (1-based)")
+joint_number = bounded_int(1, 64, what="a joint number (joints are numbered from 1)")

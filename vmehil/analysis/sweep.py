@@ -33,9 +33,10 @@ import math
 import multiprocessing
 import os
 import signal
+import threading
 import time
 from collections.abc import Callable, Iterable
-from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -272,16 +273,28 @@ def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None,
         executor = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_worker_init,
                                        initargs=(stop_event,))
     futures: dict[Future, SweepTask] = {}
+    # SIGINT sets a flag that the loop below checks between completions, instead of raising
+    # KeyboardInterrupt wherever the main thread happens to be (inside a file write, the progress
+    # bar or the executor's internals), where it could be lost.
+    sigint = threading.Event()
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGINT, lambda signum, frame: sigint.set())
     try:
         futures = {executor.submit(evaluate_point, t): t for t in tasks}
-        for fut in as_completed(futures):
-            row = fut.result()
-            if row["status"] == "interrupted":
-                continue
-            rows.append(row)
-            rows.sort(key=lambda r: r["index"])
-            if on_result is not None:
-                on_result(row, list(rows))
+        pending = set(futures)
+        while pending and not sigint.is_set():
+            done, pending = wait(pending, timeout=0.1, return_when=FIRST_COMPLETED)
+            for fut in sorted(done, key=lambda f: futures[f].index):
+                row = fut.result()
+                if row["status"] == "interrupted":
+                    continue
+                rows.append(row)
+                rows.sort(key=lambda r: r["index"])
+                if on_result is not None:
+                    on_result(row, list(rows))
+        if sigint.is_set():
+            raise KeyboardInterrupt
     except KeyboardInterrupt:
         if stop_event is not None:
             stop_event.set()
@@ -289,6 +302,8 @@ def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None,
             f.cancel()
         raise SweepInterrupted(sorted(rows, key=lambda r: r["index"])) from None
     finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
         if own:
             executor.shutdown(wait=True, cancel_futures=True)
     return rows
