@@ -12,6 +12,7 @@ from emulators.crate_file import build_crate
 from hal.bit3 import BIT3_CSR, CARD_ID, Bit3Driver, LinkDownError, RemoteBusError
 from hal.config import ConfigTable
 from hal.vme import BusError, BusErrorCause, Width
+from tests.support import REPO
 
 CSR, WIN = 0xC000, 0x400000
 
@@ -239,9 +240,7 @@ def test_crate_file_builds_a_bit3_card_with_its_window() -> None:
 
 
 def test_docs_register_table_matches_the_register_map() -> None:
-    from pathlib import Path
-
-    doc = (Path(__file__).resolve().parents[1] / "docs" / "bit3.md").read_text()
+    doc = (REPO / "docs" / "bit3.md").read_text()
     assert BIT3_CSR.markdown_table() in doc
 
 

@@ -17,6 +17,7 @@ from hal.pio import (
     UnknownLineError,
 )
 from hal.vme import BusError, BusErrorCause, Width
+from tests.support import REPO
 from vmehil.commands.crate import probe_all
 
 BASE = 0x4000
@@ -353,7 +354,5 @@ def test_crate_file_builds_a_wired_pio_board() -> None:
 
 
 def test_docs_page_carries_the_current_register_table() -> None:
-    from pathlib import Path
-
-    page = Path(__file__).resolve().parents[1] / "docs" / "boards" / "pio.md"
+    page = REPO / "docs" / "boards" / "pio.md"
     assert PIO_REGS.markdown_table() in page.read_text()

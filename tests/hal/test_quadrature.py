@@ -25,6 +25,7 @@ from hal.quadrature import (
     TrackingLostError,
 )
 from hal.vme import BusError, BusErrorCause, Width
+from tests.support import REPO
 from vmehil.commands.crate import probe_all
 
 BASE = 0x5000
@@ -562,7 +563,5 @@ def test_crate_file_builds_a_wired_decoder() -> None:
 
 
 def test_docs_page_carries_the_current_register_table() -> None:
-    from pathlib import Path
-
-    page = Path(__file__).resolve().parents[1] / "docs" / "boards" / "quadrature.md"
+    page = REPO / "docs" / "boards" / "quadrature.md"
     assert QUAD_REGS.markdown_table() in page.read_text()

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_console_support import make_loop, tick
 
 from servo.trajectory import Sequencer
+from tests.support.console import make_loop, tick
 
 
 def test_safe_stopped_loop_resumes_and_holds_the_measured_position():

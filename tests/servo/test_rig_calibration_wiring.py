@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import pytest
-from calib_bench import RIG_TOML, write_rig
 
 from hal.config import ConfigError
 from servo.rig import Pin, loopback_net, reference_net
+from tests.support.calib_bench import RIG_TOML, write_rig
 
 
 def test_references_and_loopback_are_parsed(tmp_path):

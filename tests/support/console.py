@@ -1,7 +1,7 @@
 """Shared test support for the console tests: a ServoLoop over a small simulated JointIO (a rigid
 double integrator per joint), and helpers that drive ticks and collect console replies.
 
-No tests here; the console tests import it (pytest puts tests/ on sys.path).
+No tests here; the console tests import it as ``tests.support.console``.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Each calibration procedure recovers errors injected into the board emulators / the bench arm.
 
-The bench (tests/calib_bench.py) is a rig built from board emulators with injected offset,
+The bench (tests/support/calib_bench.py) is a rig built from board emulators with injected offset,
 gain and non-linearity errors; procedures see only drivers, the positioner and the fixture.
 """
 
@@ -10,9 +10,9 @@ import math
 
 import numpy as np
 import pytest
-from calib_bench import Errors, build_bench
 
 import vmehil.calibration.procedures  # noqa: F401  (registers the procedures)
+from tests.support.calib_bench import Errors, build_bench
 from vmehil.calibration.adc import AdcProcedure
 from vmehil.calibration.amplifier import AmplifierProcedure
 from vmehil.calibration.base import PROCEDURES, CalibrationAbort, register_procedure

@@ -11,11 +11,12 @@ import warnings
 from pathlib import Path
 
 import pytest
-from calib_bench import RIG_TOML, build_bench, write_rig
 
 from hal.adc_dac.calibration import Calibration
 from servo.io import JointIO
 from servo.rig import load_rig
+from tests.support import REPO
+from tests.support.calib_bench import RIG_TOML, build_bench, write_rig
 from vmehil.calibration.store import (
     BoardCal,
     CalibrationFileError,
@@ -28,8 +29,6 @@ from vmehil.calibration.store import (
     rig_boards,
     utc_now,
 )
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def sample_store(rig, offset=0.012) -> CalibrationStore:
@@ -155,11 +154,10 @@ def test_killed_mid_write_leaves_the_previous_file_intact(tmp_path):
     sample_store(rig, 0.001).save(path)
     old = path.read_bytes()
     script = textwrap.dedent(f"""
-        import os, sys, time
-        sys.path.insert(0, {str(ROOT / "tests")!r})
-        from calib_bench import write_rig
+        import os, time
+        from tests.support.calib_bench import write_rig
         from pathlib import Path
-        from test_calibration_store import sample_store
+        from tests.vmehil.calibration.test_store import sample_store
         rig = write_rig(Path({str(tmp_path)!r}))
         real_replace = os.replace
         def slow_replace(src, dst):          # the test hook: stop between write and rename
@@ -169,8 +167,8 @@ def test_killed_mid_write_leaves_the_previous_file_intact(tmp_path):
         os.replace = slow_replace
         sample_store(rig, 0.999).save({str(path)!r})
     """)
-    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True, cwd=ROOT,
-                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True, cwd=REPO,
+                            env={**os.environ, "PYTHONPATH": str(REPO)})
     try:
         line = proc.stdout.readline()
         assert line.startswith("WRITTEN"), line

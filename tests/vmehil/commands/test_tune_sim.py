@@ -15,11 +15,11 @@ from pathlib import Path
 
 import pytest
 
+from tests.support import REPO
 from vmehil.analysis.rigparams import load_joint
 from vmehil.analysis.sweep import SweepError, load_gains_file, parse_grid
 from vmehil.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
 FAST = ["--move-deg", "2", "--hold", "1"]  # a 0.375 s move and a 1 s hold: ~1.4 s simulated per point
 
 # Stated agreement between the describing-function prediction and the full-stack simulation on
@@ -146,7 +146,7 @@ def test_grid_and_gains_file_errors_are_clear(tmp_path: Path) -> None:
 def test_sweep_interrupted_by_sigint_keeps_the_finished_rows(tmp_path: Path) -> None:
     """A real process sent SIGINT mid-sweep exits 130 with every completed point in both files."""
     out = tmp_path / "out"
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
     cmd = [sys.executable, "-m", "vmehil", "tune", "sweep", "--grid", "kp=80:140:8", "--jobs", "1",
            "--move-deg", "2", "--hold", "3", "--out", str(out), "--quiet"]
     proc = subprocess.Popen(cmd, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -7,10 +7,10 @@ from __future__ import annotations
 import threading
 
 import pytest
-from test_console_support import Driver, tap_poll
 
 from servo.motion import Motion, WaitMove
 from servo.runner import LockstepRunner
+from tests.support.console import Driver, tap_poll
 from vmehil.calibration.store import load_store
 from vmehil.console.extension import start_console
 from vmehil.console.protocol import parse_reply_line

@@ -9,8 +9,8 @@ import os
 import numpy as np
 import pytest
 import serial
-from test_console_support import Driver, LineReader, make_loop, tap_poll, tick, until
 
+from tests.support.console import Driver, LineReader, make_loop, tap_poll, tick, until
 from vmehil.console.commands import Outcome
 from vmehil.console.protocol import parse_reply_line
 from vmehil.console.server import Console, PtyTransport, open_transport

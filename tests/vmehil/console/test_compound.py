@@ -8,8 +8,8 @@ import math
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_console_support import make_loop, tick
 
+from tests.support.console import make_loop, tick
 from vmehil.console.commands import Session
 from vmehil.console.compound import (
     AsyncBlock,

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import pytest
 import serial
-from test_console_support import Driver, LineReader
 
 from servo.motion import default_demo_motion
 from servo.runner import LockstepRunner
+from tests.support.console import Driver, LineReader
 from vmehil.console.extension import attach
 from vmehil.console.protocol import parse_reply_line
 from vmehil.session import build_loop

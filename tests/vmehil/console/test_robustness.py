@@ -14,8 +14,8 @@ import time
 
 import pytest
 import serial
-from test_console_support import Driver, LineReader, make_loop, tap_poll, tick
 
+from tests.support.console import Driver, LineReader, make_loop, tap_poll, tick
 from vmehil.console.server import Console, ConsoleSetupError, ListenTransport, open_transport
 
 

@@ -9,10 +9,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from tests.support.fakes import fake_loop
 from vmehil.mavlink.client import Client
 from vmehil.mavlink.endpoint import MavlinkEndpoint, _mavutil, free_udp_port
 from vmehil.mavlink.signing import key_from_passphrase
-from vmehil.mavlink.testing import fake_loop
 
 ml = _mavutil().mavlink
 KEY = key_from_passphrase("fuzz")

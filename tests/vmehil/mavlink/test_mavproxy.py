@@ -16,9 +16,9 @@ import pytest
 
 pytest.importorskip("MAVProxy")
 
+from tests.support.fakes import fake_loop
 from vmehil.mavlink.endpoint import MavlinkEndpoint, free_udp_port
 from vmehil.mavlink.signing import key_from_passphrase
-from vmehil.mavlink.testing import fake_loop
 
 TIMEOUT_S = 25.0
 

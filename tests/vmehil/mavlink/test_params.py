@@ -9,10 +9,10 @@ import threading
 import numpy as np
 import pytest
 
+from tests.support.fakes import fake_loop
 from vmehil.mavlink.client import Client
 from vmehil.mavlink.endpoint import MavlinkEndpoint, free_udp_port
 from vmehil.mavlink.signing import key_from_passphrase
-from vmehil.mavlink.testing import fake_loop
 
 
 @pytest.fixture

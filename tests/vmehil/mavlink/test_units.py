@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from servo.control.linear import simulate_sampled_loop
+from tests.support.fakes import fake_loop
 from vmehil.mavlink.endpoint import MavlinkEndpoint, MavlinkError, check_url, free_udp_port
 from vmehil.mavlink.extension import add_arguments, attach
 from vmehil.mavlink.params import MAX_NAME_LEN, ParamRefused, ParamTable
 from vmehil.mavlink.signing import KeyFileError, key_from_passphrase, load_key_file, write_key_file
 from vmehil.mavlink.stability import check_gains, sampled_margin
-from vmehil.mavlink.testing import fake_loop
 
 T = 0.008
 
