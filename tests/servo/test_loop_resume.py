@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from servo.trajectory import Sequencer
-from tests.support.console import make_loop, tick
+from tests.support.fakes import make_loop, tick
 
 
 def test_safe_stopped_loop_resumes_and_holds_the_measured_position():

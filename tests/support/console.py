@@ -1,84 +1,16 @@
-"""Shared test support for the console tests: a ServoLoop over a small simulated JointIO (a rigid
-double integrator per joint), and helpers that drive ticks and collect console replies.
+"""Driving a console from a test: helpers that run ticks until a condition holds, collect the
+console's reply lines and talk to it the way a script does. The loop under the console is
+:func:`tests.support.fakes.make_loop` or the emulated rig.
 
 No tests here; the console tests import it as ``tests.support.console``.
 """
 
 from __future__ import annotations
 
-import math
 import time
 
-import numpy as np
-
-from servo.control.normalize import normalizing_chain
-from servo.control.objects import build_controller
-from servo.io import Measurement
-from servo.loop import ServoLoop, WatchdogConfig
-from servo.trajectory import JointLimits, PlanContext, Sequencer
-
-
-class SimIO:
-    """Stand-in for servo.io.JointIO: joints of inertia ``inertia`` kg·m² integrated exactly over
-    each period with the commanded torque held (ZOH); measured position = true position."""
-
-    def __init__(self, n: int = 2, period_s: float = 0.008, inertia: float = 1.0) -> None:
-        self.n = n
-        self.period_s = period_s
-        self.inertia = inertia
-        self.theta = np.zeros(n)
-        self.omega = np.zeros(n)
-        self.enabled = False
-        self.read_error: Exception | None = None
-        self.fault = np.zeros(n, bool)
-
-    def read(self) -> Measurement:
-        if self.read_error is not None:
-            raise self.read_error
-        nan = np.full(self.n, np.nan)
-        return Measurement(theta_pot=self.theta.copy(), theta_enc=self.theta.copy(), omega_tach=self.omega.copy(),
-                           omega_enc=self.omega.copy(), current=np.zeros(self.n), pot_v=nan,
-                           fault=self.fault.copy(), theta=self.theta.copy(), omega=self.omega.copy())
-
-    def write_torque(self, torque: np.ndarray, omega: np.ndarray | None = None) -> np.ndarray:
-        tau = np.asarray(torque, float) if self.enabled else np.zeros(self.n)
-        a = tau / self.inertia
-        T = self.period_s
-        self.theta = self.theta + self.omega * T + 0.5 * a * T * T
-        self.omega = self.omega + a * T
-        return tau.copy()
-
-    def enable(self, on: bool = True) -> None:
-        self.enabled = on
-
-    def clear_faults(self) -> None:
-        self.fault[:] = False
-
-    def safe_stop(self) -> list[str]:
-        self.enabled = False
-        return []
-
-
-def make_loop(n: int = 2, names: list[str] | None = None, inertia: float = 1.0) -> ServoLoop:
-    """A started ServoLoop (paper gains, pid only) over :class:`SimIO`."""
-    io = SimIO(n, inertia=inertia)
-    chain = normalizing_chain([inertia] * n, [1.0] * n, [1.0] * n, [1.0] * n)
-    ctrl = build_controller({"objects": ["pid"]}, chain, io.period_s)
-    ctx = PlanContext(JointLimits.make(n, math.radians(30.0)))
-    seq = Sequencer([], np.zeros(n), ctx)
-    wd = WatchdogConfig(following_error_rad=np.full(n, math.radians(10.0)))
-    loop = ServoLoop(io, ctrl, seq, wd, names=names or [f"j{i + 1}" for i in range(n)])
-    loop.plan_context = ctx  # type: ignore[attr-defined]
-    loop.start()
-    return loop
-
-
-def tick(loop: ServoLoop, console=None, n: int = 1) -> None:
-    """Run ``n`` ticks, calling the console's per-tick hook after each (what a runner does)."""
-    for _ in range(n):
-        loop.tick()
-        if console is not None:
-            console.on_tick(loop)
+from servo.loop import ServoLoop
+from tests.support.fakes import tick
 
 
 def until(pred, loop: ServoLoop, console=None, max_ticks: int = 400, pause_s: float = 0.002, step=None) -> int:

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from emulators.can.bus import Endpoint, open_bus, private_multicast_namespace
-from emulators.can.dbc import ID_SYNC
 from emulators.can.link import CONTROLLER_IDS, CanPlantLink
 from emulators.can.node import PLANT_IDS, PlantNode
+from tests.support.fakes import LossyEndpoint, sync_frames_of
 
 system_mod = pytest.importorskip("vmehil.system")
 session = pytest.importorskip("vmehil.session")
@@ -40,17 +40,6 @@ def _spec():
     return spec
 
 
-class DropSync(Endpoint):
-    def __init__(self, *a, ticks=(), **kw) -> None:
-        super().__init__(*a, **kw)
-        self.ticks = set(ticks)
-
-    def send(self, msg) -> None:
-        if msg.arbitration_id == ID_SYNC and int.from_bytes(msg.data[:4], "little") in self.ticks:
-            return
-        super().send(msg)
-
-
 def run(spec, link=None, n=TICKS):
     from servo.motion import default_demo_motion
 
@@ -68,7 +57,7 @@ def can_link(spec, drop=(), **kw):
     node = PlantNode(Endpoint(open_bus("virtual", chan), PLANT_IDS),
                      lambda s: Plant.from_config(spec.table, seed=s), spec.n_joints)
     thread, stop = node.start_thread()
-    link = CanPlantLink(DropSync(open_bus("virtual", chan), CONTROLLER_IDS, ticks=drop),
+    link = CanPlantLink(LossyEndpoint(open_bus("virtual", chan), CONTROLLER_IDS, drop=sync_frames_of(drop)),
                         [j.name for j in spec.joints], seed=3, **kw)
     return link, node, thread, stop
 

@@ -32,6 +32,7 @@ from emulators.can.link import CONTROLLER_IDS, CanPlantLink
 from emulators.can.node import PLANT_IDS, PlantNode
 from emulators.can.toy import ToyCommand, ToyPlant, ToySensors
 from emulators.harness import InProcessLink, PlantLostError, PlantRestartedError, StaleDataError
+from tests.support.fakes import LossyEndpoint
 
 TRANSPORTS = ["inprocess", "virtual", "socketcan", "udp_multicast"]
 CAN_TRANSPORTS = TRANSPORTS[1:]
@@ -45,18 +46,6 @@ def skip_unless_available(transport: str) -> None:
         pytest.skip("socketcan: no AF_CAN sockets or no vcan0 here (sudo ./vcan_setup.sh)")
     if transport == "udp_multicast" and not private_multicast_namespace():
         pytest.skip("udp_multicast: only inside a private loopback-only network namespace (make test)")
-
-
-class LossyEndpoint(Endpoint):
-    """Drops outgoing frames for which ``drop(msg)`` is true (fault injection)."""
-
-    def __init__(self, *a, drop=None, **kw) -> None:
-        super().__init__(*a, **kw)
-        self.drop = drop or (lambda m: False)
-
-    def send(self, msg: can.Message) -> None:
-        if not self.drop(msg):
-            super().send(msg)
 
 
 def command(k: int, n: int = N) -> ToyCommand:

@@ -17,25 +17,13 @@ from servo.control import (
     sampled_loop_matrix,
     simulate_sampled_loop,
 )
+from tests.support.fakes import DoubleIntegrator
 
 T = 0.008
 KP, KPI, KV, KVI = 100.0, 5000.0, 50.0, 1000.0
 
 
-class Plant:
-    """θ'' = a + d with a held constant over each period: exact (ZOH) discretisation."""
-
-    def __init__(self, n: int) -> None:
-        self.theta = np.zeros(n)
-        self.omega = np.zeros(n)
-
-    def step(self, a: np.ndarray, d: np.ndarray | float = 0.0, period: float = T) -> None:
-        acc = a + d
-        self.theta = self.theta + period * self.omega + 0.5 * period * period * acc
-        self.omega = self.omega + period * acc
-
-
-def run(law: PidLaw, plant: Plant, ticks: int, theta_d, omega_d, alpha_d=None, done=None, dist=None):
+def run(law: PidLaw, plant: DoubleIntegrator, ticks: int, theta_d, omega_d, alpha_d=None, done=None, dist=None):
     """Close the loop for ``ticks`` ticks; reference/disturbance args are callables of k or constants."""
     def val(f, k, default):
         if f is None:
@@ -71,11 +59,11 @@ def _numeric_loop_matrix(period: float) -> np.ndarray:
         law = PidLaw(1, period, switch_off=SwitchOffConfig.disabled(1))
         law.state.ie[:] = x[2]
         law.state.iv[:] = x[3]
-        plant = Plant(1)
+        plant = DoubleIntegrator(1)
         plant.theta[:] = x[0]
         plant.omega[:] = x[1]
         a = law.update(plant.theta, plant.omega, np.zeros(1), np.zeros(1))
-        plant.step(a, period=period)
+        plant.step(a, period_s=period)
         A[:, i] = [plant.theta[0], plant.omega[0], law.state.ie[0], law.state.iv[0]]
     return A
 
@@ -96,7 +84,7 @@ def test_sampled_loop_poles_are_near_exp_sT(period):
 
 def test_step_response_matches_linear_models():
     ticks = 250
-    y = run(no_switch_off(), Plant(1), ticks, 1.0, 0.0)[:, 0]
+    y = run(no_switch_off(), DoubleIntegrator(1), ticks, 1.0, 0.0)[:, 0]
     # the sampled linear model (independent state-space form) agrees to rounding
     y_lin = simulate_sampled_loop(KP, KPI, KV, KVI, T, np.ones(ticks), np.zeros(ticks))
     np.testing.assert_allclose(y, y_lin, atol=1e-10)
@@ -109,7 +97,7 @@ def test_step_response_matches_linear_models():
 
 def test_ramp_response_matches_linear_model_and_tracks_without_lag():
     ticks, rate = 400, 0.5  # rad/s
-    y = run(no_switch_off(), Plant(1), ticks, lambda k: rate * k * T, rate)[:, 0]
+    y = run(no_switch_off(), DoubleIntegrator(1), ticks, lambda k: rate * k * T, rate)[:, 0]
     t = np.arange(ticks) * T
     y_lin = simulate_sampled_loop(KP, KPI, KV, KVI, T, rate * t, np.full(ticks, rate))
     np.testing.assert_allclose(y, y_lin, atol=1e-10)
@@ -123,7 +111,7 @@ def test_feedforward_acceleration_gives_exact_tracking_of_a_consistent_trajector
     ticks = 300
     t = np.arange(ticks) * T
     # a quadratic path, consistent samples: θ(t) = t², ω = 2t, α = 2
-    law, plant = no_switch_off(), Plant(1)
+    law, plant = no_switch_off(), DoubleIntegrator(1)
     out = run(law, plant, ticks, lambda k: (k * T) ** 2, lambda k: 2 * k * T, 2.0)[:, 0]
     # with ZOH the plant integrates a = α exactly; the error stays at rounding level
     assert np.max(np.abs(out - t**2)) < 1e-9
@@ -131,7 +119,7 @@ def test_feedforward_acceleration_gives_exact_tracking_of_a_consistent_trajector
 
 def test_disturbance_step_is_rejected_to_zero_final_error():
     d = 1.4  # rad/s² (= T_F/J)
-    y = run(no_switch_off(), Plant(1), 1000, 0.0, 0.0, dist=lambda k: d if k >= 50 else 0.0)[:, 0]
+    y = run(no_switch_off(), DoubleIntegrator(1), 1000, 0.0, 0.0, dist=lambda k: d if k >= 50 else 0.0)[:, 0]
     assert np.max(np.abs(y[50:])) > 1e-4  # the disturbance did move the joint
     assert abs(y[-1]) < 1e-7
 
@@ -140,7 +128,7 @@ def test_without_integrators_the_static_error_is_disturbance_over_kp():
     d = 1.4
     law = PidLaw(1, T, switch_off=SwitchOffConfig.disabled(1))
     law.set_gains(kpi=0.0, kvi=0.0)
-    y = run(law, Plant(1), 1000, 0.0, 0.0, dist=d)[:, 0]
+    y = run(law, DoubleIntegrator(1), 1000, 0.0, 0.0, dist=d)[:, 0]
     assert y[-1] == pytest.approx(d / KP, rel=1e-6)  # θ = T_F/(J·Kp)
 
 
@@ -148,7 +136,7 @@ def test_without_integrators_the_static_error_is_disturbance_over_kp():
 def _settled_law(n=1, **so):
     """A law that tracked a step to rest (motion running), integrators populated."""
     law = PidLaw(n, T, switch_off=SwitchOffConfig.make(n, **so))
-    plant = Plant(n)
+    plant = DoubleIntegrator(n)
     run(law, plant, 400, 0.1, 0.0, done=False, dist=0.7)
     return law, plant
 

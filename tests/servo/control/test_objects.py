@@ -24,6 +24,7 @@ from servo.control import (
     normalizing_chain,
     unit_chain,
 )
+from tests.support.fakes import DoubleIntegrator
 
 T = 0.008
 
@@ -63,17 +64,15 @@ def _saturating_run(objects_factory, ticks=120, step=1.0):
     """Unit chain (torque = accel) double integrator driven to a large step."""
     ch = unit_chain(1)
     c = Controller(objects_factory(), ch, T)
-    th, w = np.zeros(1), np.zeros(1)
+    plant = DoubleIntegrator(1, T)
     ies, sats, taus, ths = [], [], [], []
     for k in range(ticks):
-        out = c.step(k, th, w, np.array([step]), np.zeros(1))
-        tau = np.clip(out.torque, -20.0, 20.0)  # the plant's actuator limit either way
-        th = th + T * w + 0.5 * T * T * tau
-        w = w + T * tau
+        out = c.step(k, plant.theta, plant.omega, np.array([step]), np.zeros(1))
+        plant.step(np.clip(out.torque, -20.0, 20.0))  # the plant's actuator limit either way
         ies.append(c.law.state.ie[0])
         sats.append(out.saturation[0])
         taus.append(out.torque[0])
-        ths.append(th[0])
+        ths.append(plant.theta[0])
     return np.array(ies), np.array(sats), np.array(taus), np.array(ths)
 
 
@@ -240,16 +239,15 @@ def test_demo_motion_closed_loop_on_an_ideal_plant():
     ch = jpl_chain(n)
     c = build_controller({"objects": ["pid", "torque_limit"], "torque_limit": {"current_max_a": 6.0}}, ch)
     seq = default_demo_motion(n).sequencer(np.zeros(n), PlanContext(JointLimits.make(n, 0.5)))
-    th, w = np.zeros(n), np.zeros(n)
+    plant = DoubleIntegrator(n, T, inertia=ch.j_eff)  # the ideal plant: θ'' = τ/J
     err, done_at = [], None
     for k in range(int(4.0 / T)):
         s = seq.sample(k * T)
         if s.done and done_at is None:
             done_at = k
-        err.append(s.theta_d - th)
-        out = c.step(k, th, w, s.theta_d, s.omega_d, s.alpha_d, s.done)
-        acc = out.torque / ch.j_eff  # the ideal plant: θ'' = τ/J
-        th, w = th + T * w + 0.5 * T * T * acc, w + T * acc
+        err.append(s.theta_d - plant.theta)
+        out = c.step(k, plant.theta, plant.omega, s.theta_d, s.omega_d, s.alpha_d, s.done)
+        plant.step(out.torque)
     err = np.abs(np.array(err))
     assert done_at is not None and np.degrees(err.max()) < 1e-3  # αd feedforward: tracks the quintic closely
     offs = [e for e in c.events if not e.integrating]

@@ -10,6 +10,7 @@ import control as ct
 import numpy as np
 import pytest
 
+from tests.support.fakes import DoubleIntegrator
 from vmehil.analysis.loop import (
     GainError,
     Gains,
@@ -30,10 +31,11 @@ from vmehil.analysis.loop import (
 def brute_force_step(cfg: LoopConfig, n: int, substeps: int = 8) -> np.ndarray:
     """The servo law written out by hand, the 1/s² plant integrated exactly between command changes."""
     g, T, d = cfg.gains, cfg.sample_period_s, cfg.delay_fraction
-    h = T / substeps
-    th = om = ie = iv = a_prev = th_prev = 0.0
+    plant = DoubleIntegrator(1, T / substeps)  # the command changes within a period: substeps
+    ie = iv = a_prev = th_prev = 0.0
     out = []
     for _ in range(n):
+        th, om = float(plant.theta[0]), float(plant.omega[0])
         e = 1.0 - th
         w_meas = om if cfg.velocity_source == "tach" else (th - th_prev) / T
         ed = 0.0 - w_meas
@@ -42,11 +44,9 @@ def brute_force_step(cfg: LoopConfig, n: int, substeps: int = 8) -> np.ndarray:
         a = g.kp * e + g.kpi * ie + g.kv * ed + g.kvi * iv
         th_prev = th
         for j in range(substeps):
-            acc = a_prev if j < round(d * substeps) else a
-            th += om * h + 0.5 * acc * h * h
-            om += acc * h
+            plant.step(a_prev if j < round(d * substeps) else a)
         a_prev = a
-        out.append(th)
+        out.append(float(plant.theta[0]))
     return np.array(out)
 
 

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import serial
 
-from tests.support.console import Driver, LineReader, make_loop, tap_poll, tick, until
+from tests.support.console import Driver, LineReader, tap_poll, until
+from tests.support.fakes import make_loop, tick
 from vmehil.console.commands import Outcome
 from vmehil.console.protocol import parse_reply_line
 from vmehil.console.server import Console, PtyTransport, open_transport

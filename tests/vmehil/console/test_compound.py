@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tests.support.console import make_loop, tick
+from tests.support.fakes import make_loop, tick
 from vmehil.console.commands import Session
 from vmehil.console.compound import (
     AsyncBlock,

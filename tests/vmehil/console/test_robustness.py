@@ -15,7 +15,8 @@ import time
 import pytest
 import serial
 
-from tests.support.console import Driver, LineReader, make_loop, tap_poll, tick
+from tests.support.console import Driver, LineReader, tap_poll
+from tests.support.fakes import make_loop, tick
 from vmehil.console.server import Console, ConsoleSetupError, ListenTransport, open_transport
 
 
