@@ -6,9 +6,17 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: run test lint venv bench clean
+.PHONY: run test lint venv tools bench clean
 
-venv: $(STAMP)
+venv: $(STAMP) tools
+
+# System tools some tests drive (socat: a terminal program on the console's pty). Installed when
+# missing and possible (root with apt-get, as on CI); elsewhere those tests skip, saying why.
+tools:
+	@command -v socat >/dev/null 2>&1 || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
+		{ apt-get install -y -qq socat >/dev/null 2>&1 || \
+		  { apt-get update -qq >/dev/null 2>&1 && apt-get install -y -qq socat >/dev/null 2>&1; }; }; } || \
+		echo "socat not installed and not installable here (root and apt-get): its console test will skip"
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -27,7 +35,7 @@ lint: $(STAMP)
 # without any traffic leaving the host. Elsewhere pytest runs plainly and those tests skip.
 NETNS := unshare -n sh -c 'ip link set lo up && ip route add 224.0.0.0/4 dev lo && exec "$$0" "$$@"'
 
-test: $(STAMP)
+test: $(STAMP) tools
 	$(PY) -m ruff check .
 	@if unshare -n true 2>/dev/null && command -v ip >/dev/null; then \
 		echo "pytest in a private network namespace (loopback only)"; \

@@ -10,6 +10,7 @@ import pytest
 from servo.control.law import PidLaw, SwitchOffConfig
 from servo.control.linear import continuous_poles, sampled_loop_matrix
 from servo.gain_guard import GainRejected, check_gain_change, loop_poles, spectral_radius
+from vmehil.mavlink import stability
 
 T = 0.008
 
@@ -126,7 +127,6 @@ def test_same_verdicts_as_mavlink_live_tuning():
 
     Known difference: Kpi = 0 with KvI > 0 puts a pole at exactly z = 1; gain_guard always refuses
     it, mavlink's margin test sees 1 − ρ ≈ ±1e-16 and decides by rounding — excluded here."""
-    stability = pytest.importorskip("vmehil.mavlink.stability")
     rng = np.random.default_rng(11)
     disagreements = []
     for _ in range(300):

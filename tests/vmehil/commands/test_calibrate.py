@@ -1,36 +1,20 @@
-"""`vmehil calibrate` end to end on the default rig (needs the plant: skipped until it is merged)."""
+"""`vmehil calibrate` end to end on the default rig (its preset wires the ADC references and the
+DAC→ADC loopbacks the adc and dac procedures need)."""
 
 from __future__ import annotations
 
 import json
-
-import pytest
-
-pytest.importorskip("emulators.plant")
 
 from emulators.presets import resolve_rig
 from servo.rig import load_rig
 from vmehil.calibration.store import load_store
 from vmehil.cli import main
 
-WIRING = """
-[rig.references]
-"adc1:12" = 5.0
-"adc1:13" = 0.0
-[rig.loopback]
-"dac0:6" = "adc1:14"
-"dac0:7" = "adc1:15"
-"""
-
 
 def default_rig_with_references(tmp_path):
-    text = resolve_rig("jpl-arm").read_text()
-    if not any(line.strip() == "[joint.wiring]" for line in text.splitlines()):
-        pytest.skip("the jpl-arm preset has no [joint.wiring] yet (integration pending)")
-    if "[rig.references]" not in text:
-        text += WIRING
+    """A copy of the jpl-arm preset, so that nothing the run writes lands beside the preset."""
     p = tmp_path / "jpl-arm.toml"
-    p.write_text(text)
+    p.write_text(resolve_rig("jpl-arm").read_text())
     return p
 
 
