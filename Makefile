@@ -6,7 +6,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: run test lint venv tools bench clean
+.PHONY: run test test-fast lint venv tools constraints bench clean
 
 venv: $(STAMP) tools
 
@@ -18,11 +18,24 @@ tools:
 		  { apt-get update -qq >/dev/null 2>&1 && apt-get install -y -qq socat >/dev/null 2>&1; }; }; } || \
 		echo "socat not installed and not installable here (root and apt-get): its console test will skip"
 
-$(STAMP): pyproject.toml
+# Every extra and the test tools, at the versions in constraints.txt (what CI ran).
+$(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -c constraints.txt -e '.[all,test]'
 	touch $(STAMP)
+
+# Refresh constraints.txt: what a fresh venv resolves today from pyproject.toml (then run make test
+# and commit both). tqdm and import-linter are named until pyproject.toml lists them.
+CVENV := .venv-constraints
+constraints:
+	rm -rf $(CVENV)
+	$(PYTHON) -m venv $(CVENV)
+	$(CVENV)/bin/python -m pip install --quiet --upgrade pip
+	$(CVENV)/bin/python -m pip install --quiet -e '.[all,test]' tqdm import-linter
+	{ echo "# What a fresh venv resolved from pyproject.toml (make constraints); make venv installs with -c this."; \
+	  $(CVENV)/bin/python -m pip freeze --exclude-editable; } > constraints.txt
+	rm -rf $(CVENV)
 
 run: $(STAMP)
 	$(VENV)/bin/vmehil run --report reports/run --json reports/run/run.json

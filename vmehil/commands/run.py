@@ -12,6 +12,7 @@ import math
 import sys
 from pathlib import Path
 
+from vmehil.commands import console_port_needs_serial, refuse_without
 from vmehil.files import write_json
 
 # Modules that extend `vmehil run` (live tuning over MAVLink, the operator console, ...). Each
@@ -80,6 +81,12 @@ def _extensions():
 
 
 def run(args: argparse.Namespace) -> int:
+    console = getattr(args, "console", None)
+    for option, extra, used in (("--report", "plots", bool(args.report)),
+                                ("--mavlink", "mavlink", bool(getattr(args, "mavlink", None))),
+                                ("--console", "console", bool(console) and console_port_needs_serial(console))):
+        if used and refuse_without(f"vmehil run {option}", extra):
+            return 2
     from emulators.presets import resolve_rig
     from servo.rig import load_rig
 

@@ -29,9 +29,12 @@ import shlex
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from vmehil.analysis.rigparams import JointParams, load_joint
+from vmehil.commands import needs_extra
+
+if TYPE_CHECKING:  # the analysis needs the 'tune' extra: imported when a tune command runs
+    from vmehil.analysis.rigparams import JointParams
 
 
 def _joint_number(text: str) -> int:
@@ -134,8 +137,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _default_grid() -> str:
-    from vmehil.analysis.sweep import DEFAULT_GRID
-
+    try:
+        from vmehil.analysis.sweep import DEFAULT_GRID
+    except ImportError:  # without the 'tune' extra the parser is still built; `vmehil tune` says what is missing
+        return "see vmehil.analysis.sweep"
     return DEFAULT_GRID
 
 
@@ -147,6 +152,8 @@ def _command_line(args: argparse.Namespace) -> str:
 
 
 def _load(args: argparse.Namespace) -> JointParams:
+    from vmehil.analysis.rigparams import load_joint
+
     return load_joint(args.rig, args.joint, gains=args.gains,
                       switch_off_kp=getattr(args, "switch_off_kp", None))
 
@@ -189,6 +196,7 @@ class _Ticker:
 # ------------------------------------------------------------------------------- bode
 
 
+@needs_extra("tune")
 def run_bode(args: argparse.Namespace) -> int:
     from vmehil.analysis import report
     from vmehil.analysis.tuning import bode_analysis
@@ -232,6 +240,7 @@ def _unstable_message(jp: JointParams) -> str | None:
             f"stable loop (see `vmehil tune bode`); lower the gains or raise Kv")
 
 
+@needs_extra("tune")
 def run_limit_cycle(args: argparse.Namespace) -> int:
     from vmehil.analysis import report
     from vmehil.analysis.simulate import simulate, strip_traces
@@ -350,6 +359,7 @@ def _strip_model_traces(result: dict) -> dict:
 # ------------------------------------------------------------------------------ sweep
 
 
+@needs_extra("tune")
 def run_sweep(args: argparse.Namespace) -> int:
     from vmehil.analysis import report
     from vmehil.analysis.sweep import (
@@ -493,6 +503,7 @@ def _sweep_table(rows: list[dict[str, Any]]) -> str:
 # ------------------------------------------------------------------------------- step
 
 
+@needs_extra("tune")
 def run_step(args: argparse.Namespace) -> int:
     import numpy as np
 
