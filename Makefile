@@ -1,6 +1,6 @@
 # vmehil: two commands do all the set-up on a fresh machine (Python >= 3.11 and make):
 #   make run    build .venv from pyproject.toml and run the main job on the embedded default
-#   make test   build .venv and run ruff + the test suite
+#   make test   build .venv and run ruff + the test suite (make test-fast: without the slow tests)
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
@@ -52,10 +52,14 @@ test: $(STAMP) tools
 	$(PY) -m ruff check .
 	@if unshare -n true 2>/dev/null && command -v ip >/dev/null; then \
 		echo "pytest in a private network namespace (loopback only)"; \
-		$(NETNS) $(PY) -m pytest -q; \
+		$(NETNS) $(PY) -m pytest -q $(PYTEST_ARGS); \
 	else \
-		$(PY) -m pytest -q; \
+		$(PY) -m pytest -q $(PYTEST_ARGS); \
 	fi
+
+# The same without the tests marked slow (over 10 s each): for the edit-test cycle; CI runs `test`.
+test-fast: PYTEST_ARGS = -m "not slow"
+test-fast: test
 
 bench: $(STAMP)
 	$(PY) -m benchmarks

@@ -113,6 +113,7 @@ def test_a_vanished_node_stops_the_loop_safely():
     assert loop.fault.tick == 21
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not private_multicast_namespace(), reason="udp_multicast only inside a private namespace")
 def test_vmehil_run_against_a_plant_node_process_equals_the_in_process_run(tmp_path):
     _spec()

@@ -74,6 +74,7 @@ def test_tune_step_json_over_can_equals_in_process_and_logs_each_run(tmp_path: P
         assert sum(f.arbitration_id == 0x080 for f in frames) > 100  # a SYNC per tick
 
 
+@pytest.mark.slow
 def test_tune_limit_cycle_json_over_can_equals_in_process(tmp_path: Path, monkeypatch) -> None:
     from vmehil.commands import tune
 
@@ -120,6 +121,7 @@ def test_can_options_validate_and_tag_logs() -> None:
     assert CanLinkFactory(o).shareable and not CanLinkFactory(CanPlantOptions("socketcan")).shareable
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not private_multicast_namespace(), reason="udp_multicast only inside a private namespace")
 def test_tune_step_against_a_plant_node_process_equals_in_process(tmp_path: Path) -> None:
     node = subprocess.Popen([sys.executable, "-m", "vmehil", "plant-node", "--interface", "udp_multicast",

@@ -37,6 +37,7 @@ def _checks(reply: list[str]) -> list[dict[str, str]]:
     return [parse_reply_line(x)[2] for x in reply if x.startswith("DATA calibration")]
 
 
+@pytest.mark.slow
 def test_calibrate_encoder_runs_on_the_live_loop_and_puts_the_result_in_force(rig):
     system, loop, runner, _console, drv, out = rig
     j1 = loop.names[0]
