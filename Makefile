@@ -1,20 +1,41 @@
 # vmehil: two commands do all the set-up on a fresh machine (Python >= 3.11 and make):
 #   make run    build .venv from pyproject.toml and run the main job on the embedded default
-#   make test   build .venv and run ruff + the test suite
+#   make test   build .venv and run ruff + the test suite (make test-fast: without the slow tests)
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: run test lint venv bench clean
+.PHONY: run test test-fast lint venv tools constraints bench clean
 
-venv: $(STAMP)
+venv: $(STAMP) tools
 
-$(STAMP): pyproject.toml
+# System tools some tests drive (socat: a terminal program on the console's pty). Installed when
+# missing and possible (root with apt-get, as on CI); elsewhere those tests skip, saying why.
+tools:
+	@command -v socat >/dev/null 2>&1 || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
+		{ apt-get install -y -qq socat >/dev/null 2>&1 || \
+		  { apt-get update -qq >/dev/null 2>&1 && apt-get install -y -qq socat >/dev/null 2>&1; }; }; } || \
+		echo "socat not installed and not installable here (root and apt-get): its console test will skip"
+
+# Every extra and the test tools, at the versions in constraints.txt (what CI ran).
+$(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -c constraints.txt -e '.[all,test]'
 	touch $(STAMP)
+
+# Refresh constraints.txt: what a fresh venv resolves today from pyproject.toml (then run make test
+# and commit both). tqdm and import-linter are named until pyproject.toml lists them.
+CVENV := .venv-constraints
+constraints:
+	rm -rf $(CVENV)
+	$(PYTHON) -m venv $(CVENV)
+	$(CVENV)/bin/python -m pip install --quiet --upgrade pip
+	$(CVENV)/bin/python -m pip install --quiet -e '.[all,test]' tqdm import-linter
+	{ echo "# What a fresh venv resolved from pyproject.toml (make constraints); make venv installs with -c this."; \
+	  $(CVENV)/bin/python -m pip freeze --exclude-editable; } > constraints.txt
+	rm -rf $(CVENV)
 
 run: $(STAMP)
 	$(VENV)/bin/vmehil run --report reports/run --json reports/run/run.json
@@ -27,14 +48,18 @@ lint: $(STAMP)
 # without any traffic leaving the host. Elsewhere pytest runs plainly and those tests skip.
 NETNS := unshare -n sh -c 'ip link set lo up && ip route add 224.0.0.0/4 dev lo && exec "$$0" "$$@"'
 
-test: $(STAMP)
+test: $(STAMP) tools
 	$(PY) -m ruff check .
 	@if unshare -n true 2>/dev/null && command -v ip >/dev/null; then \
 		echo "pytest in a private network namespace (loopback only)"; \
-		$(NETNS) $(PY) -m pytest -q; \
+		$(NETNS) $(PY) -m pytest -q $(PYTEST_ARGS); \
 	else \
-		$(PY) -m pytest -q; \
+		$(PY) -m pytest -q $(PYTEST_ARGS); \
 	fi
+
+# The same without the tests marked slow (over 10 s each): for the edit-test cycle; CI runs `test`.
+test-fast: PYTEST_ARGS = -m "not slow"
+test-fast: test
 
 bench: $(STAMP)
 	$(PY) -m benchmarks

@@ -21,15 +21,28 @@ import sys
 from pathlib import Path
 
 from vmehil.cli_types import bounded_int, joint_number, seed
+from vmehil.commands import missing_extra, refuse_without
 from vmehil.files import write_atomic, write_json
 
 #: Modules imported before the parser is built; each registers procedures at import.
 PROCEDURE_MODULES = ["vmehil.calibration.procedures", "vmehil.friction_id"]
 
+#: Procedure modules that need an extra: module → (the procedure it registers, the extra). Without
+#: the extra the module is not imported and asking for its procedure says what to install.
+PROCEDURE_EXTRAS = {"vmehil.friction_id": ("friction", "tune")}
+
+_unavailable: dict[str, str] = {}  # procedure → the missing extra it needs
+
 
 def _load_procedures():
     for name in PROCEDURE_MODULES:
-        importlib.import_module(name)
+        try:
+            importlib.import_module(name)
+        except ImportError:
+            proc, extra = PROCEDURE_EXTRAS.get(name, (None, None))
+            if extra is None or missing_extra(name, extra) is None:
+                raise
+            _unavailable[proc] = extra
     from vmehil.calibration.base import PROCEDURES
 
     return PROCEDURES
@@ -39,11 +52,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     procs = _load_procedures()
     names = sorted(procs, key=lambda n: procs[n].order)
     lines = "\n".join(f"  {n:<10s} {procs[n].help}" for n in names)
+    lines += "".join(f"\n  {n:<10s} (needs the '{extra}' extra)" for n, extra in _unavailable.items())
     p = sub.add_parser(
         "calibrate", help="run calibration procedures and write the rig's calibration file",
         description="Calibration procedures (order of `all`: " + ", ".join(n for n in names if procs[n].in_all)
                     + ").\n" + lines, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("procedure", choices=[*names, "all"], help="what to calibrate")
+    p.add_argument("procedure", choices=[*names, *_unavailable, "all"], help="what to calibrate")
     p.add_argument("--rig", default=None, help="rig preset name or TOML path (default jpl-arm)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the emulated rig's noise (default 0)")
     p.add_argument("--joint", type=joint_number, action="append", default=None,
@@ -64,6 +78,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.procedure in _unavailable:
+        refuse_without(f"vmehil calibrate {args.procedure}", _unavailable[args.procedure])
+        return 2
+    if args.report and refuse_without("vmehil calibrate --report", "plots"):
+        return 2
     from emulators.presets import resolve_rig
     from servo.rig import load_rig
     from vmehil.calibration.base import PROCEDURES, CalibrationContext, ProcedureSpec

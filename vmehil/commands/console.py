@@ -50,6 +50,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_console(args: argparse.Namespace) -> int:
     from servo.control.gains import parse_gains
     from servo.gain_guard import check_values
+    from vmehil.commands import console_port_needs_serial, refuse_without
+
+    if console_port_needs_serial(args.port) and refuse_without("vmehil console --port " + args.port, "console"):
+        return 2
     from servo.motion import Motion, WaitMove, load_motion
     from servo.rig import load_rig
     from servo.runner import LockstepRunner, RealtimeRunner

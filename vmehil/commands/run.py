@@ -15,6 +15,7 @@ from pathlib import Path
 
 from servo.interrupts import Terminated, interrupt_exit_status
 from vmehil.cli_types import duration_s, seed
+from vmehil.commands import console_port_needs_serial, refuse_without
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
 from vmehil.files import write_json
 from vmehil.realtime_options import add_overrun_args, overrun_options
@@ -67,6 +68,12 @@ def _extensions():
 
 
 def run(args: argparse.Namespace) -> int:
+    console = getattr(args, "console", None)
+    for option, extra, used in (("--report", "plots", bool(args.report)),
+                                ("--mavlink", "mavlink", bool(getattr(args, "mavlink", None))),
+                                ("--console", "console", bool(console) and console_port_needs_serial(console))):
+        if used and refuse_without(f"vmehil run {option}", extra):
+            return 2
     from emulators.presets import resolve_rig
     from servo.control.gains import parse_gains
     from servo.gain_guard import check_values

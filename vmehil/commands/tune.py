@@ -33,11 +33,14 @@ import math
 import shlex
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from vmehil.analysis.rigparams import JointParams, load_joint
 from vmehil.cli_types import bounded_int, joint_number, nonzero_float, positive_float, seed
+from vmehil.commands import needs_extra
 from vmehil.files import write_atomic, write_json
+
+if TYPE_CHECKING:  # the analysis needs the 'tune' extra: imported when a tune command runs
+    from vmehil.analysis.rigparams import JointParams
 
 
 def _common() -> argparse.ArgumentParser:
@@ -111,8 +114,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _default_grid() -> str:
-    from vmehil.analysis.sweep import DEFAULT_GRID
-
+    try:
+        from vmehil.analysis.sweep import DEFAULT_GRID
+    except ImportError:  # without the 'tune' extra the parser is still built; `vmehil tune` says what is missing
+        return "see vmehil.analysis.sweep"
     return DEFAULT_GRID
 
 
@@ -125,6 +130,7 @@ def _command_line(args: argparse.Namespace) -> str:
 
 def _load(args: argparse.Namespace) -> JointParams:
     from servo.control.gains import parse_gains
+    from vmehil.analysis.rigparams import load_joint
 
     return load_joint(args.rig, args.joint, gains=parse_gains(args.gains, what="--gains"),
                       switch_off_kp=getattr(args, "switch_off_kp", None))
@@ -151,6 +157,7 @@ def _sim_settings(args: argparse.Namespace, allow_short: bool = False):
 # ------------------------------------------------------------------------------- bode
 
 
+@needs_extra("tune")
 def run_bode(args: argparse.Namespace) -> int:
     from vmehil.analysis import report
     from vmehil.analysis.tuning import bode_analysis
@@ -214,6 +221,7 @@ def _guard(jp: JointParams, switch_off: bool | None = None):
     return verdict
 
 
+@needs_extra("tune")
 def run_limit_cycle(args: argparse.Namespace) -> int:
     from vmehil.analysis import report
     from vmehil.analysis.simulate import simulate, strip_traces
@@ -334,6 +342,7 @@ def _strip_model_traces(result: dict) -> dict:
 # ------------------------------------------------------------------------------ sweep
 
 
+@needs_extra("tune")
 def run_sweep(args: argparse.Namespace) -> int:
     from servo.control.gains import GAIN_NAMES
     from vmehil.analysis import report
@@ -468,6 +477,7 @@ def _sweep_table(rows: list[dict[str, Any]]) -> str:
 # ------------------------------------------------------------------------------- step
 
 
+@needs_extra("tune")
 def run_step(args: argparse.Namespace) -> int:
     import numpy as np
 

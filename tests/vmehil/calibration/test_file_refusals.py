@@ -1,0 +1,86 @@
+"""A bad calibration file is refused naming the file, the table and the key — never applied.
+Hypothesis mangles a valid file: the loader either loads it or raises CalibrationFileError."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from hal.adc_dac.calibration import Calibration
+from tests.support.calib_bench import write_rig
+from vmehil.calibration.store import (
+    BoardCal,
+    CalibrationFileError,
+    CalibrationStore,
+    JointCal,
+    load_store,
+    rig_boards,
+    utc_now,
+)
+
+
+def _store(rig) -> CalibrationStore:
+    s = CalibrationStore.empty(rig)
+    s.set_board(BoardCal(rig_boards(rig)["adc1"], Calibration((0.01,) * 16, (1.004,) * 16), "adc", 1, utc_now(), ()))
+    s.set_joint("j1", JointCal("pot", 1, utc_now(), {"volts": [-9.0, 0.0, 9.0], "angles_rad": [-2.7, 0.0, 2.7]}))
+    s.set_joint("j1", JointCal("encoder", 1, utc_now(), {"counts_per_joint_rev": 409600.0}))
+    s.set_joint("j1", JointCal("amplifier", 1, utc_now(), {"gain_a_per_v": 3.0, "offset_a": 0.01}))
+    return s
+
+
+@pytest.fixture
+def valid(tmp_path):
+    rig = write_rig(tmp_path)
+    path = _store(rig).save(tmp_path / "cal.toml")
+    return rig, path
+
+
+@pytest.mark.parametrize(("pattern", "replacement", "expected"), [
+    (r"counts_per_joint_rev = [0-9.e+]+", "counts_per_joint_rev = inf",
+     r"\[joint\.j1\.encoder\] counts_per_joint_rev = inf"),
+    (r"counts_per_joint_rev = [0-9.e+]+", "counts_per_joint_rev = 0.0", "counts_per_joint_rev = 0.0: expected 1"),
+    (r"gain_a_per_v = [0-9.e+]+", "gain_a_per_v = 0.0", r"\[joint\.j1\.amplifier\] gain_a_per_v = 0.0"),
+    (r"volts = \[[^\]]*\]", "volts = [-9.0, nan, 9.0]", r"volts\[1\] = nan: expected a finite number"),
+    (r"volts = \[[^\]]*\]", "volts = [-9.0, 1.0, 0.5]", "volts is not strictly monotonic"),
+    (r"volts = \[[^\]]*\]\n", "", r"\[joint\.j1\.pot\] has no volts"),
+    (r"gain = \[\s*1\.004,", "gain = [1e-300,", r"\[board\.adc1\] gain\[0\] = 1e-300"),
+])
+def test_a_mangled_value_is_refused_naming_file_table_and_key(valid, pattern, replacement, expected) -> None:
+    rig, path = valid
+    text, n = re.subn(pattern, replacement, path.read_text(), count=1)
+    assert n == 1, pattern
+    path.write_text(text)
+    with pytest.raises(CalibrationFileError) as e:
+        load_store(path, rig)
+    assert str(path) in str(e.value)
+    assert re.search(expected, str(e.value)), str(e.value)
+
+
+_garbage = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**12, 10**12),
+                     st.text(max_size=5), st.booleans(), st.lists(st.floats(), max_size=4))
+
+
+@settings(max_examples=60, suppress_health_check=[HealthCheck.function_scoped_fixture], deadline=None)
+@given(key=st.sampled_from(["counts_per_joint_rev", "gain_a_per_v", "offset_a", "volts", "angles_rad",
+                            "offset_v", "gain", "board_id", "base"]), value=_garbage)
+def test_any_mangled_value_loads_or_is_refused_typed(valid, key, value) -> None:
+    import tomli_w
+
+    rig, path = valid
+    text = path.read_text()
+    line = tomli_w.dumps({key: value}).strip() if value == value else f"{key} = nan"
+    text = re.sub(rf"^{key} = (?:\[[^\]]*\]|[^\n]*)", line.replace("\\", "\\\\"), text, count=1, flags=re.M)
+    bad = path.with_name("mangled.toml")
+    bad.write_text(text)
+    try:
+        store = load_store(bad, rig)
+    except CalibrationFileError:
+        return
+    # what loads is applicable: every joint value the drivers use is finite
+    for entry in store.joints.get("j1", {}).values():
+        for v in entry.values.values():
+            for x in v if isinstance(v, list) else [v]:
+                assert x == x and abs(x) != float("inf")

@@ -1,0 +1,44 @@
+"""`vmehil calibrate` end to end on the default rig (its preset wires the ADC references and the
+DAC→ADC loopbacks the adc and dac procedures need)."""
+
+from __future__ import annotations
+
+import json
+
+from emulators.presets import resolve_rig
+from servo.rig import load_rig
+from vmehil.calibration.store import load_store
+from vmehil.cli import main
+
+
+def default_rig_with_references(tmp_path):
+    """A copy of the jpl-arm preset, so that nothing the run writes lands beside the preset."""
+    p = tmp_path / "jpl-arm.toml"
+    p.write_text(resolve_rig("jpl-arm").read_text())
+    return p
+
+
+def test_calibrate_adc_dac_writes_a_file_the_drivers_load(tmp_path, capsys):
+    rig_path = default_rig_with_references(tmp_path)
+    out = tmp_path / "cal.toml"
+    rc = main(["calibrate", "dac", "--rig", str(rig_path), "--out", str(out), "--json", str(tmp_path / "r.json")])
+    assert rc == 0
+    assert main(["calibrate", "adc", "--rig", str(rig_path), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "procedure" in text and "pass" in text
+    store = load_store(out, load_rig(rig_path))
+    assert "adc1" in store.boards and "dac0" in store.boards  # the second run kept the first's tables
+    assert json.loads((tmp_path / "r.json").read_text())["passed"] is True
+    from vmehil.system import build_emulated_rig
+
+    system = build_emulated_rig(load_rig(rig_path), calibration=out)
+    assert system.io.calibration is not None
+
+
+def test_calibrate_refuses_a_foreign_file_before_running(tmp_path, capsys):
+    rig_path = default_rig_with_references(tmp_path)
+    out = tmp_path / "cal.toml"
+    out.write_text('[calibration]\nformat = "vmehil-calibration"\nformat_version = 1\nrig = "other"\ncrate = "x"\n')
+    assert main(["calibrate", "adc", "--rig", str(rig_path), "--out", str(out)]) == 2
+    assert "written for rig 'other'" in capsys.readouterr().err
+    assert "rig = \"other\"" in out.read_text()

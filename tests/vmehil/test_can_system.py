@@ -1,0 +1,136 @@
+"""End to end: the full rig (crate, drivers, servo loop) with its plant behind the CAN node.
+
+The lockstep run over CAN must equal the in-process run bit for bit; link faults must end in the
+servo loop's safe stop at the stated tick.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import servo.runner as runner_mod
+import vmehil.session as session
+import vmehil.system as system_mod
+from emulators.can.bus import Endpoint, open_bus, private_multicast_namespace
+from emulators.can.link import CONTROLLER_IDS, CanPlantLink
+from emulators.can.node import PLANT_IDS, PlantNode
+from emulators.presets import resolve_rig
+from servo.rig import load_rig
+from tests.support.fakes import LossyEndpoint, sync_frames_of
+
+RIG = "jpl-arm"
+TICKS = 150
+_chan = iter(range(1000))
+
+
+def _spec():
+    return load_rig(resolve_rig(RIG))
+
+
+def run(spec, link=None, n=TICKS):
+    from servo.motion import default_demo_motion
+
+    system = system_mod.build_emulated_rig(spec, seed=3, link=link)
+    loop = session.build_loop(system, motion=default_demo_motion(spec.n_joints), n_ticks=n)
+    loop.start()
+    runner_mod.LockstepRunner(system, loop).run(n)
+    return system, loop
+
+
+def can_link(spec, drop=(), **kw):
+    from emulators.plant import Plant
+
+    chan = f"system-{next(_chan)}"
+    node = PlantNode(Endpoint(open_bus("virtual", chan), PLANT_IDS),
+                     lambda s: Plant.from_config(spec.table, seed=s), spec.n_joints)
+    thread, stop = node.start_thread()
+    link = CanPlantLink(LossyEndpoint(open_bus("virtual", chan), CONTROLLER_IDS, drop=sync_frames_of(drop)),
+                        [j.name for j in spec.joints], seed=3, **kw)
+    return link, node, thread, stop
+
+
+def test_the_servo_loop_over_can_equals_the_in_process_run():
+    spec = _spec()
+    _, ref = run(spec)
+    link, node, thread, stop = can_link(spec)
+    try:
+        _, got = run(spec, link)
+    finally:
+        stop.set()
+        thread.join(10)
+        node.close()
+        link.close()
+    a, b = ref.recorder.trimmed(), got.recorder.trimmed()
+    assert ref.fault is None and got.fault is None
+    for key in ("theta", "omega", "torque", "current_cmd", "theta_enc", "theta_pot", "theta_true"):
+        assert np.array_equal(a[key], b[key], equal_nan=True), key
+    assert np.ptp(a["theta"][:, 0]) > 0  # the demo move moved
+    assert link.counters.answers == TICKS + 1
+
+
+def test_a_missing_answer_stops_the_loop_safely_in_that_tick():
+    spec = _spec()
+    # link tick 0 is the priming exchange; runner tick k exchanges link tick k + 1
+    link, node, thread, stop = can_link(spec, drop={51}, answer_timeout_s=0.3)
+    try:
+        _, loop = run(spec, link, n=80)
+    finally:
+        stop.set()
+        thread.join(10)
+        node.close()
+        link.close()
+    assert loop.fault is not None and loop.fault.cause == "stale_sensor"
+    assert loop.fault.tick == 51  # the tick after runner tick 50, whose answer never came
+    assert not loop.enabled
+
+
+def test_a_vanished_node_stops_the_loop_safely():
+    spec = _spec()
+    link, node, thread, stop = can_link(spec, answer_timeout_s=0.4, heartbeat_timeout_s=0.3)
+    try:
+        from servo.motion import default_demo_motion
+
+        system = system_mod.build_emulated_rig(spec, seed=3, link=link)
+        loop = session.build_loop(system, motion=default_demo_motion(spec.n_joints), n_ticks=60)
+        loop.start()
+        r = runner_mod.LockstepRunner(system, loop)
+        r.run(20)
+        stop.set()
+        thread.join(10)
+        t0 = time.monotonic()
+        r.run(40)
+        assert time.monotonic() - t0 < 30  # after the failure the link no longer waits per tick
+    finally:
+        node.close()
+        link.close()
+    assert loop.fault is not None and loop.fault.cause == "plant_lost"
+    assert loop.fault.tick == 21
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not private_multicast_namespace(), reason="udp_multicast only inside a private namespace")
+def test_vmehil_run_against_a_plant_node_process_equals_the_in_process_run(tmp_path):
+    _spec()
+    node = subprocess.Popen([sys.executable, "-m", "vmehil", "plant-node", "--rig", RIG, "--interface",
+                             "udp_multicast", "--duration", "120"], stderr=subprocess.PIPE, text=True)
+    try:
+        assert "plant node" in node.stderr.readline()
+        common = ["--rig", RIG, "--seed", "3", "--duration", "1.0", "--quiet"]
+        subprocess.run([sys.executable, "-m", "vmehil", "run", *common, "--json", str(tmp_path / "a.json")],
+                       check=False, capture_output=True)
+        subprocess.run([sys.executable, "-m", "vmehil", "run", *common, "--json", str(tmp_path / "b.json"),
+                        "--plant", "can", "--interface", "udp_multicast", "--can-log", str(tmp_path / "bus.log")],
+                       check=False, capture_output=True)
+    finally:
+        node.terminate()
+        node.wait(10)
+    a = json.loads((tmp_path / "a.json").read_text())
+    b = json.loads((tmp_path / "b.json").read_text())
+    assert a == b
+    assert (tmp_path / "bus.log").stat().st_size > 0
