@@ -13,9 +13,10 @@ Watchdog → safe stop (amplifiers disabled, DAC outputs 0 V, the reason recorde
 * a driver error (bus error, ADC timeout, decoder error, …) while reading or writing;
 * implausible sensor data: non-finite values, a potentiometer at the ADC rail (open wiper), a
   position jump larger than ``max_jump_rad`` in one tick;
-* stale data: a position sensor whose reading has not changed by one bit for ``stale_ticks``
-  ticks while its joint is commanded to move;
 * an amplifier fault line;
+* cross-checks (:mod:`servo.watchdog`): encoder against pot, tachometer against the position
+  derivative, current monitor against the commanded current, and a position reading that
+  stays put while its target moves on;
 * a following error beyond the joint's limit.
 """
 
@@ -32,19 +33,11 @@ import numpy as np
 from servo.control.objects import ControlContext, Controller, SwitchableController
 from servo.io import JointIO, Measurement
 from servo.trajectory.sequencer import Sequencer
+from servo.watchdog import CrossChecks, WatchdogConfig
+
+__all__ = ["Fault", "LiveCommand", "Recorder", "ServoLoop", "WatchdogConfig"]
 
 LiveCommand = Callable[["ServoLoop"], Any]
-
-
-@dataclass
-class WatchdogConfig:
-    """Limits of the watchdog (SI units; arrays over joints where per joint)."""
-
-    following_error_rad: np.ndarray
-    max_jump_rad: float = 0.2
-    pot_rail_v: float = 9.95
-    stale_ticks: int = 250
-    enabled: bool = True
 
 
 @dataclass
@@ -112,9 +105,8 @@ class ServoLoop:
         self._inbox: queue.SimpleQueue[tuple[LiveCommand, Callable[[Any, BaseException | None], None] | None]] = (
             queue.SimpleQueue())
         self._t_motion0 = 0.0
-        self._last_raw: np.ndarray | None = None
-        self._same_count = np.zeros(self.n, int)
         self._last_theta: np.ndarray | None = None
+        self.cross_checks = CrossChecks(io, watchdog)
         self.last: dict[str, Any] = {}
         self.log: list[tuple[float, str, str]] = []  # (time, source, message)
         #: set by the session/tools: the planning context for new moves, the motion being played,
@@ -184,8 +176,7 @@ class ServoLoop:
                 raise ValueError("a joint position reads as not finite; check the sensors before resuming")
         self.fault = None
         self._last_theta = None
-        self._last_raw = None
-        self._same_count = np.zeros(self.n, int)
+        self.cross_checks.reset()
         if theta is not None:
             ctx = self.plan_context or self.sequencer.ctx
             self.set_motion(Sequencer([], theta, ctx))
@@ -278,17 +269,11 @@ class ServoLoop:
                 self.safe_stop("implausible_sensor", f"position jumped {jump[i]:.3f} rad in one tick", i)
                 return True
         self._last_theta = m.theta.copy()
-        raw = np.where(np.isfinite(m.pot_v), m.pot_v, m.theta_enc)
-        if self._last_raw is not None:
-            moving = np.abs(np.asarray(sample.omega_d)) > 1e-3
-            same = (raw == self._last_raw) & moving
-            self._same_count = np.where(same, self._same_count + 1, 0)
-            if (self._same_count >= wd.stale_ticks).any():
-                i = int(np.argmax(self._same_count))
-                self.safe_stop("stale_sensor",
-                               f"position reading unchanged for {self._same_count[i]} ticks while moving", i)
-                return True
-        self._last_raw = raw
+        self.cross_checks.config = wd  # the limits in force now (live changes replace them)
+        trip = self.cross_checks.check(m, sample.theta_d, sample.omega_d)
+        if trip is not None:
+            self.safe_stop(trip.cause, trip.detail, trip.joint)
+            return True
         err = np.abs(np.asarray(sample.theta_d) - m.theta)
         over = err > wd.following_error_rad
         if over.any():
