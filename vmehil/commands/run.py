@@ -2,7 +2,7 @@
 
     vmehil run [--rig NAME|PATH] [--motion PATH] [--duration S] [--realtime] [--seed N]
                [--no-integrator-switch-off] [--gains kp=..,kpi=..,kv=..,kvi=..]
-               [--json PATH] [--report DIR]
+               [--json PATH] [--report DIR] [--fault NAME[@T][:k=v,...]]... [--faults FILE]
 """
 
 from __future__ import annotations
@@ -20,12 +20,14 @@ from vmehil.files import write_json
 # An extension may also define ``prepare(args, rig) -> dict | None``, called before the rig is
 # built: it may adjust the rig table and return defaults ``{"motion": Motion, "duration": s}``;
 # and ``make_link(args, rig) -> PlantLink | None`` to run the plant elsewhere (the CAN plant
-# node): the first link returned replaces the in-process plant.
+# node): the first link returned replaces the in-process plant. An attached object with
+# ``add_to_summary(summary)`` adds its keys to the run's summary.
 RUN_EXTENSIONS: list[str] = [
     "vmehil.mavlink.extension",
     "vmehil.vision_options",
     "vmehil.can_options",
     "vmehil.console.extension",
+    "vmehil.fault_options",  # after vision_options: a vision fault needs the attached vision system
 ]
 
 
@@ -82,7 +84,10 @@ def _extensions():
 def run(args: argparse.Namespace) -> int:
     from emulators.presets import resolve_rig
     from servo.rig import load_rig
+    from vmehil import fault_options
 
+    if fault_options.wants_list(args):
+        return fault_options.list_faults()
     gains = parse_gains(args.gains)
     rig = load_rig(resolve_rig(args.rig))
     try:
@@ -135,6 +140,10 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     timing = runner.timing.summary(system.rig.period_s) if args.realtime else None
     summary = summarize(loop, rig=system.rig.name, seed=args.seed, realtime=args.realtime,
                         overruns=runner.overruns, timing=timing)
+    for a in attached:
+        add = getattr(a, "add_to_summary", None)
+        if add is not None:
+            add(summary)
     print(table(summary))
     if timing:
         print(f"timing: compute p50 {timing['compute_p50_ms']:.3f} ms, p99 {timing['compute_p99_ms']:.3f} ms; "
