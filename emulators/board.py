@@ -40,6 +40,9 @@ class Board(FaultInjectable):
     """
 
     TYPE: ClassVar[str] = "board"
+    FAULTS: ClassVar[dict[str, str]] = {
+        "removed": "the board is pulled from the crate: every cycle to it ends in BERR after the bus timeout",
+    }
     irq_release: str = "roak"
     access_ns: int = 300
 
@@ -101,6 +104,11 @@ class Board(FaultInjectable):
         if self.irq_release == "roak":
             self.release_irq()
         return vector
+
+    @property
+    def removed(self) -> bool:
+        """True while the ``removed`` fault is on (the crate then finds no responder here)."""
+        return "removed" in self._faults()
 
     # --- time ----------------------------------------------------------------------------
     @property

@@ -145,7 +145,7 @@ class Crate(VmeBus):
                 if len(self._decode_cache) >= 4096:  # e.g. a large memory board swept once
                     self._decode_cache.clear()
                 self._decode_cache[dk] = s
-        if s is None:
+        if s is None or s.board.removed:  # a pulled board decodes nothing: the bus timer ends the cycle
             self.clock.advance(self.bus_timeout_ns)
             self.counters[f"error.{BusErrorCause.NO_RESPONDER.name}"] += 1
             self.irq.service()

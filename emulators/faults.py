@@ -1,7 +1,10 @@
-"""Named fault injection shared by every board emulator.
+"""Named fault injection shared by every board emulator (and the plant, the CAN plant node and
+the vision system).
 
-Each emulator declares the faults it supports (name → one-line description). Tests and,
-later, ``vmehil`` scenarios switch them on with parameters and off again.
+Each emulator declares the faults it supports (name → one-line description, parameters first)
+in a ``FAULTS`` class attribute; a class inherits its bases' faults (every board has
+``removed``). Tests and ``vmehil run --fault`` scenarios switch them on with parameters and off
+again.
 """
 
 from __future__ import annotations
@@ -18,6 +21,14 @@ class FaultInjectable:
 
     FAULTS: ClassVar[dict[str, str]] = {}
 
+    @classmethod
+    def known_faults(cls) -> dict[str, str]:
+        """Every fault of this class: its own ``FAULTS`` and those of its bases (name → description)."""
+        out: dict[str, str] = {}
+        for klass in reversed(cls.__mro__):
+            out.update(klass.__dict__.get("FAULTS", {}))
+        return out
+
     def _faults(self) -> dict[str, dict[str, Any]]:
         f = self.__dict__.get("_active_faults")
         if f is None:
@@ -26,8 +37,9 @@ class FaultInjectable:
 
     def inject(self, name: str, **params: Any) -> None:
         """Switch fault ``name`` on with its parameters (see the board's ``FAULTS``)."""
-        if name not in self.FAULTS:
-            known = ", ".join(sorted(self.FAULTS)) or "none"
+        known_faults = self.known_faults()
+        if name not in known_faults:
+            known = ", ".join(sorted(known_faults)) or "none"
             raise UnknownFaultError(f"{type(self).__name__} has no fault {name!r} (known: {known})")
         self._faults()[name] = dict(params)
         self._fault_changed(name)

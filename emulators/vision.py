@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from emulators.bit3 import Bit3Link, Bit3RemotePort
+from emulators.faults import FaultInjectable
 from hal.bit3.arm import ArmModel
 from hal.bit3.memory import BufferMemory
 from hal.bit3.protocol import (
@@ -93,8 +94,11 @@ class VisionStats:
     errors_m: list[float] = field(default_factory=list)
 
 
-class VisionSystem:
+class VisionSystem(FaultInjectable):
     """The emulated vision computer: camera model + controller + protocol endpoint.
+
+    Fault ``dead``: the vision process dies — :meth:`step` does nothing from then on (no
+    heartbeat, no frames, no commands), as a killed process on the vision computer.
 
     Args:
         server: the protocol endpoint on the vision side's memory.
@@ -103,6 +107,10 @@ class VisionSystem:
         params: frame rate, latency, gain, ...
         ee_pose: optional callable giving the true camera pose (position, rotation).
     """
+
+    FAULTS = {  # noqa: RUF012 - the FaultInjectable catalogue
+        "dead": "the vision process dies: no heartbeat, frames or commands from now on",
+    }
 
     def __init__(
         self,
@@ -148,6 +156,8 @@ class VisionSystem:
     def step(self, now: float) -> VisionState:
         """Run the protocol, take a frame when one is due, release commands whose latency has
         passed. ``now`` is the vision computer's time (s)."""
+        if self.fault("dead") is not None:
+            return self._was
         state = self.server.step(now)
         if state is VisionState.TRACKING and self._was is not VisionState.TRACKING:
             self.stats.tasks += 1

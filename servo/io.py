@@ -22,7 +22,7 @@ import numpy as np
 
 from hal.adc_dac.adc import AdcDriver
 from hal.adc_dac.calibration import Calibration
-from hal.adc_dac.conversions import DAC_V_MAX, DAC_V_MIN
+from hal.adc_dac.conversions import DAC_LSB_V, DAC_V_MAX, DAC_V_MIN, adc_lsb
 from hal.adc_dac.dac import DacDriver
 from hal.amplifiers import clamp_current, command_volts, current_for_torque, duty_for_current
 from hal.pio.pio import PioDriver
@@ -96,6 +96,21 @@ class Measurement:
     fault: np.ndarray
     theta: np.ndarray = field(default_factory=lambda: np.zeros(0))
     omega: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+@dataclass(frozen=True)
+class SensorResolution:
+    """Per joint (arrays): the size of one step of each wired sensor and of the amplifier command,
+    from the nominal scaling (SI units: one ADC code, one x4 encoder count, one DAC code); NaN
+    where the sensor is not wired. The watchdog's tolerances are multiples of these."""
+
+    pot_rad: np.ndarray
+    encoder_rad: np.ndarray
+    tach_rad_s: np.ndarray
+    monitor_a: np.ndarray
+    command_a: np.ndarray  #: linear amplifiers: one DAC code of command; NaN for H-bridges
+    current_limit_a: np.ndarray
+    linear: np.ndarray  #: bool: a linear (transconductance) amplifier, else an H-bridge
 
 
 class PotCalibration:
@@ -196,6 +211,11 @@ class JointIO:
                 if need not in j.wiring:
                     raise ValueError(f"rig {rig.name} joint {j.name}: servo uses {src} but '{need}' is not wired")
         self.last_dac_volts = np.zeros(self.n)
+        #: the current (A) the drivers last commanded per joint (what the current monitor should read)
+        self.last_current_a = np.zeros(self.n)
+        #: bumped whenever a calibration changes how readings convert (pot tables, encoder
+        #: counts): the watchdog then re-references its cross-checks
+        self.calibration_generation = 0
         # Fault lines as (joint, PIO board, port, bit): read() fetches each port once per tick.
         self._fault_lines = []
         for j in rig.joints:
@@ -240,12 +260,38 @@ class JointIO:
                 s.amp_gain_a_per_v = float(amp.values["gain_a_per_v"])
                 s.amp_offset_a = float(amp.values["offset_a"])
         self.calibration = store
+        self.calibration_generation += 1
 
     def set_pot_calibration(self, joint: int, cal: PotCalibration | None) -> None:
         if cal is None:
             self.pot_cal.pop(joint, None)
         else:
             self.pot_cal[joint] = cal
+        self.calibration_generation += 1
+
+    def resolution(self) -> SensorResolution:
+        """One step of every wired sensor and of the amplifier commands (see :class:`SensorResolution`)."""
+        nan = np.full(self.n, np.nan)
+        pot, enc, tach, mon, cmd = nan.copy(), nan.copy(), nan.copy(), nan.copy(), nan.copy()
+        limit = np.array([s.current_limit_a for s in self.scaling], float)
+        linear = np.array([j.amplifier == "linear" for j in self.rig.joints])
+
+        def lsb_v(pin) -> float:
+            return adc_lsb(self.adc[pin.board].range)
+
+        for j in self.rig.joints:
+            i, s, w = j.index, self.scaling[j.index], j.wiring
+            if "pot" in w:
+                pot[i] = lsb_v(w["pot"]) / s.pot_v_per_rad
+            if "encoder" in w and s.encoder_counts_per_rev:
+                enc[i] = 2.0 * np.pi / s.encoder_counts_per_rev
+            if "tach" in w and s.tach_v_per_rad_s:
+                tach[i] = lsb_v(w["tach"]) / abs(s.tach_v_per_rad_s)
+            if "imon" in w:
+                mon[i] = lsb_v(w["imon"]) / s.monitor_v_per_a
+            if linear[i]:
+                cmd[i] = DAC_LSB_V * s.amp_gain_a_per_v
+        return SensorResolution(pot, enc, tach, mon, cmd, limit, linear)
 
     def pot_angle(self, joint: int, volts: float) -> float:
         cal = self.pot_cal.get(joint)
@@ -307,7 +353,22 @@ class JointIO:
                 current[i] = amps
         for board, cmds in per_dac.items():
             self.dac[board].write_many(cmds, update=True)
+        self.last_current_a[:] = current
         return current
+
+    def write_command_volts(self, volts: Mapping[int, float]) -> None:
+        """Command linear amplifiers directly in DAC volts (joint index → V; one strobe per DAC
+        board), bypassing the torque conversion — calibration pulses. The current this commands
+        is recorded like :meth:`write_torque`'s, so the watchdog's current check follows it."""
+        per_dac: dict[str, dict[int, float]] = {}
+        for i, v in volts.items():
+            j, s = self.rig.joints[i], self.scaling[i]
+            pin = j.wiring["amp_command"]
+            per_dac.setdefault(pin.board, {})[pin.index] = v
+            self.last_dac_volts[i] = v
+            self.last_current_a[i] = v * s.amp_gain_a_per_v + s.amp_offset_a
+        for board, cmds in per_dac.items():
+            self.dac[board].write_many(cmds, update=True)
 
     def _set_hbridge(self, j, duty: float) -> None:
         pwm = j.wiring.get("pwm")
@@ -358,6 +419,7 @@ class JointIO:
             except Exception as e:
                 failures.append(f"{j.name}: {e}")
         self.last_dac_volts[:] = 0.0
+        self.last_current_a[:] = 0.0
         return failures + [f for f in self.verify_stopped() if f not in failures]
 
     def verify_stopped(self) -> list[str]:

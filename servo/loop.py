@@ -13,9 +13,10 @@ Watchdog → safe stop (amplifiers disabled, DAC outputs 0 V, the reason recorde
 * a driver error (bus error, ADC timeout, decoder error, …) while reading or writing;
 * implausible sensor data: non-finite values, a potentiometer at the ADC rail (open wiper), a
   position jump larger than ``max_jump_rad`` in one tick;
-* stale data: a position sensor whose reading has not changed by one bit for ``stale_ticks``
-  ticks while its joint is commanded to move;
 * an amplifier fault line;
+* cross-checks (:mod:`servo.watchdog`): encoder against pot, tachometer against the position
+  derivative, current monitor against the commanded current, and a position reading that
+  stays put while its target moves on;
 * a following error beyond the joint's limit.
 """
 
@@ -34,6 +35,9 @@ from servo.control.objects import ControlContext, Controller, SwitchableControll
 from servo.interrupts import Terminated, interrupt_name
 from servo.io import JointIO, Measurement
 from servo.trajectory.sequencer import PlanContext, Sequencer
+from servo.watchdog import CrossChecks, WatchdogConfig
+
+__all__ = ["Fault", "LiveCommand", "Recorder", "ServoLoop", "WatchdogConfig"]
 
 LiveCommand = Callable[["ServoLoop"], Any]
 
@@ -43,17 +47,6 @@ class VisionOutcome(Protocol):
     loop never steps it (its ``vservo`` trajectory does), the run report asks it how it went."""
 
     def summary(self) -> dict[str, Any]: ...
-
-
-@dataclass
-class WatchdogConfig:
-    """Limits of the watchdog (SI units; arrays over joints where per joint)."""
-
-    following_error_rad: np.ndarray
-    max_jump_rad: float = 0.2
-    pot_rail_v: float = 9.95
-    stale_ticks: int = 250
-    enabled: bool = True
 
 
 @dataclass
@@ -126,9 +119,8 @@ class ServoLoop:
         self._inbox: queue.SimpleQueue[tuple[LiveCommand, Callable[[Any, BaseException | None], None] | None]] = (
             queue.SimpleQueue())
         self._t_motion0 = 0.0
-        self._last_raw: np.ndarray | None = None
-        self._same_count = np.zeros(self.n, int)
         self._last_theta: np.ndarray | None = None
+        self.cross_checks = CrossChecks(io, watchdog)
         self.last: dict[str, Any] = {}
         self.log: list[tuple[float, str, str]] = []  # (time, source, message)
         self.plan_context = plan_context
@@ -234,8 +226,7 @@ class ServoLoop:
                 raise ValueError("a joint position reads as not finite; check the sensors before resuming")
         self.fault = None
         self._last_theta = None
-        self._last_raw = None
-        self._same_count = np.zeros(self.n, int)
+        self.cross_checks.reset()
         if theta is not None:
             ctx = self.plan_context or self.sequencer.ctx
             self.set_motion(Sequencer([], theta, ctx))
@@ -328,17 +319,11 @@ class ServoLoop:
                 self.safe_stop("implausible_sensor", f"position jumped {jump[i]:.3f} rad in one tick", i)
                 return True
         self._last_theta = m.theta.copy()
-        raw = np.where(np.isfinite(m.pot_v), m.pot_v, m.theta_enc)
-        if self._last_raw is not None:
-            moving = np.abs(np.asarray(sample.omega_d)) > 1e-3
-            same = (raw == self._last_raw) & moving
-            self._same_count = np.where(same, self._same_count + 1, 0)
-            if (self._same_count >= wd.stale_ticks).any():
-                i = int(np.argmax(self._same_count))
-                self.safe_stop("stale_sensor",
-                               f"position reading unchanged for {self._same_count[i]} ticks while moving", i)
-                return True
-        self._last_raw = raw
+        self.cross_checks.config = wd  # the limits in force now (live changes replace them)
+        trip = self.cross_checks.check(m, sample.theta_d, sample.omega_d)
+        if trip is not None:
+            self.safe_stop(trip.cause, trip.detail, trip.joint)
+            return True
         err = np.abs(np.asarray(sample.theta_d) - m.theta)
         over = err > wd.following_error_rad
         if over.any():

@@ -19,6 +19,26 @@ Rig-level ``[servo]`` gives defaults; each ``[joint.servo]`` may override them::
 The controller's plant figures (normalizing chain J, N, Kt, amplifier gain; the default torque
 limit) are the rig file's ``[joint.servo.nominal]`` values (:mod:`servo.nominal`), never the
 emulated plant's.
+
+The watchdog's cross-checks (:mod:`servo.watchdog`, docs/faults.md) take their limits from
+``[servo.watchdog]`` (rig-wide) and ``[joint.servo.watchdog]`` (per joint, wins); every key is
+optional — the defaults are derived from the sensors' resolution and, for the tach dead band,
+from ``[joint.tach]`` (``brush_drop_v / gradient_v_per_rad_s``)::
+
+    [servo.watchdog]
+    cross_checks = true                # false: encoder/pot, tach and current checks off
+    velocity_window_ticks = 12         # rig-wide only (with the other *_ticks and *_fraction keys)
+    current_mismatch_ticks = 3
+    stale_ticks = 25                   # with stale_travel_deg: a reading that stays put while moving
+    position_tolerance_fraction = 0.02
+    velocity_tolerance_fraction = 0.05
+    [joint.servo.watchdog]
+    position_tolerance_deg = 0.7       # encoder vs pot, plus the fraction of the travel
+    velocity_tolerance_deg_s = 1.0     # tach vs position derivative, beyond the dead band
+    tach_dead_band_deg_s = 6.9
+    current_tolerance_a = 0.2          # current monitor vs command
+    current_tolerance_fraction = 0.05
+    stale_travel_deg = 1.5
 """
 
 from __future__ import annotations
@@ -114,6 +134,45 @@ def _collapse(d: dict[str, list[Any]]) -> dict[str, Any]:
     return out
 
 
+#: per-joint keys of [servo.watchdog] / [joint.servo.watchdog]: rig-file key → (WatchdogConfig field, to SI)
+WATCHDOG_JOINT_KEYS: dict[str, tuple[str, float]] = {
+    "position_tolerance_deg": ("position_tolerance_rad", np.pi / 180.0),
+    "velocity_tolerance_deg_s": ("velocity_tolerance_rad_s", np.pi / 180.0),
+    "tach_dead_band_deg_s": ("tach_dead_band_rad_s", np.pi / 180.0),
+    "current_tolerance_a": ("current_tolerance_a", 1.0),
+    "current_tolerance_fraction": ("current_tolerance_fraction", 1.0),
+    "stale_travel_deg": ("stale_travel_rad", np.pi / 180.0),
+}
+WATCHDOG_RIG_INTS = ("velocity_window_ticks", "current_mismatch_ticks", "stale_ticks")
+WATCHDOG_RIG_FLOATS = ("position_tolerance_fraction", "velocity_tolerance_fraction")
+
+
+def watchdog_config(system: EmulatedRig, settings: ServoSettings, *, enabled: bool = True) -> WatchdogConfig:
+    """The watchdog's limits from the rig file (see the module docstring); NaN = derived default."""
+    rig = system.rig
+    top = rig.table.table("servo", {}).table("watchdog", {})
+    wd = WatchdogConfig(following_error_rad=np.asarray(settings.following_error_rad), enabled=enabled,
+                        cross_checks=top.get_bool("cross_checks", True))
+    for key in WATCHDOG_RIG_INTS:
+        setattr(wd, key, top.get_int(key, getattr(wd, key), min=1))
+    for key in WATCHDOG_RIG_FLOATS:
+        setattr(wd, key, top.get_float(key, getattr(wd, key), min=0.0))
+    per_joint: dict[str, list[float]] = {field: [] for field, _ in WATCHDOG_JOINT_KEYS.values()}
+    for j, p in zip(rig.joints, system.params, strict=True):
+        jt = j.servo.table("watchdog", {})
+        for key, (field, scale) in WATCHDOG_JOINT_KEYS.items():
+            table = jt if key in jt else top
+            value = table.get_float(key, min=0.0) * scale if key in table else np.nan
+            if field == "tach_dead_band_rad_s" and np.isnan(value) and p.tach.present:
+                value = p.tach.brush_drop_v / p.tach.gradient_v_per_rad_s  # the tach's datasheet dead band
+            per_joint[field].append(value)
+        jt.check_unknown(set(WATCHDOG_JOINT_KEYS))
+    top.check_unknown({*WATCHDOG_JOINT_KEYS, "cross_checks", *WATCHDOG_RIG_INTS, *WATCHDOG_RIG_FLOATS})
+    for field, values in per_joint.items():
+        setattr(wd, field, np.asarray(values, float))
+    return wd
+
+
 def build_loop(system: EmulatedRig, *, motion: Motion | None = None, gains: dict[str, float] | None = None,
                switch_off: bool | None = None, n_ticks: int = 0, watchdog: bool = True) -> ServoLoop:
     """A ready-to-start :class:`ServoLoop` for ``system`` (all settings from the rig file, with
@@ -140,7 +199,7 @@ def build_loop(system: EmulatedRig, *, motion: Motion | None = None, gains: dict
     start = system.io.read().theta
     limits = JointLimits.make(n, settings.max_velocity_rad_s)
     sequencer = Sequencer(list(motion.moves), start, PlanContext(limits))
-    wd = WatchdogConfig(following_error_rad=np.asarray(settings.following_error_rad), enabled=watchdog)
+    wd = watchdog_config(system, settings, enabled=watchdog)
     recorder = Recorder(n_ticks, n) if n_ticks else None
     return ServoLoop(system.io, controller, sequencer, wd, recorder=recorder, names=[j.name for j in system.rig.joints],
                      plan_context=PlanContext(limits))

@@ -12,10 +12,15 @@ leave the host, so :func:`open_bus` refuses it outside a private network namespa
 only loopback (see :func:`private_multicast_namespace`) unless ``VMEHIL_ALLOW_MULTICAST=1``
 says the network is yours. The IPv4 group 239.74.163.2 (python-can's IPv4 default) is used by
 default; inside the namespace it needs ``ip route add 224.0.0.0/4 dev lo``.
+
+An :class:`Endpoint` has named faults (:class:`emulators.faults.FaultInjectable`): ``frame_loss``
+(a percentage of frames lost, seeded) and ``frame_delay`` (frames held back before delivery).
 """
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import os
 import socket
 import subprocess
@@ -24,6 +29,9 @@ from pathlib import Path
 from typing import Any
 
 import can
+
+from emulators.faults import FaultInjectable
+from emulators.rng import rng_for
 
 DEFAULT_CHANNEL = {"virtual": "vmehil", "socketcan": "vcan0", "udp_multicast": "239.74.163.2"}
 INTERFACES = ("virtual", "socketcan", "udp_multicast")
@@ -118,12 +126,19 @@ def open_bus(interface: str | None = None, channel: str | None = None, **kwargs:
         raise BusConfigError(f"cannot open {iface} channel {chan!r}: {e}{hint}") from e
 
 
-class Endpoint:
+class Endpoint(FaultInjectable):
     """One node's view of a bus: sends and receives frames, logging both directions.
 
     Frames whose identifier this node sends itself (``own_ids``) are ignored on receive:
     ``udp_multicast`` loops a node's own frames back to it.
     """
+
+    FAULTS = {  # noqa: RUF012 - the FaultInjectable catalogue
+        "frame_loss": "percent=P[, direction=both|rx|tx, seed=S]: each frame sent (tx) or received (rx) "
+                      "here is lost with probability P %",
+        "frame_delay": "ms=D[, percent=P, seed=S]: P % (default 100) of the frames received here arrive D ms "
+                       "(wall clock) late, so later frames may overtake them",
+    }
 
     def __init__(self, bus: can.BusABC, own_ids: set[int], *, log_path: str | Path | None = None,
                  owns_bus: bool = True) -> None:
@@ -133,8 +148,34 @@ class Endpoint:
         self.logger: can.Listener | None = can.Logger(str(log_path)) if log_path else None
         self.sent = 0
         self.received = 0
+        self.lost = 0  #: frames dropped by an injected ``frame_loss``
+        self._held: list[tuple[float, int, can.Message]] = []  # frame_delay: (release time, order, frame)
+        self._order = itertools.count()
+
+    def _fault_changed(self, name: str) -> None:
+        f = self.fault(name)
+        if f is None:
+            return
+        for key in ("percent", "ms"):
+            if key in f and not 0.0 <= float(f[key]) <= (100.0 if key == "percent" else 60_000.0):
+                self.clear_fault(name)
+                raise ValueError(f"CAN fault {name}: {key} = {f[key]} is out of range")
+        if name == "frame_loss" and f.get("direction", "both") not in ("both", "rx", "tx"):
+            self.clear_fault(name)
+            raise ValueError(f"CAN fault frame_loss: direction {f['direction']!r} is not both, rx or tx")
+        f["_rng"] = rng_for(int(f.get("seed", 0)), "can", name)
+
+    def _hit(self, name: str, direction: str) -> bool:
+        """True when fault ``name`` takes this frame (seeded draw per frame)."""
+        f = self.fault(name)
+        if f is None or f.get("direction", "both") not in ("both", direction):
+            return False
+        return bool(f["_rng"].random() * 100.0 < float(f.get("percent", 100.0)))
 
     def send(self, msg: can.Message) -> None:
+        if self._hit("frame_loss", "tx"):
+            self.lost += 1
+            return
         msg.timestamp = time.time()
         msg.channel = msg.channel or "vmehil"
         msg.is_rx = False
@@ -147,19 +188,36 @@ class Endpoint:
         """The next frame from the other node(s), or ``None`` after ``timeout`` seconds."""
         deadline = None if timeout is None else time.monotonic() + max(0.0, timeout)
         while True:
-            left = None if deadline is None else max(0.0, deadline - time.monotonic())
+            now = time.monotonic()
+            if self._held and self._held[0][0] <= now:  # a delayed frame is due
+                m = heapq.heappop(self._held)[2]
+                break
+            left = None if deadline is None else max(0.0, deadline - now)
+            if self._held:
+                left = self._held[0][0] - now if left is None else min(left, self._held[0][0] - now)
             m = self.bus.recv(left)
             if m is None:
-                return None
+                now = time.monotonic()
+                if deadline is not None and now >= deadline and not (self._held and self._held[0][0] <= now):
+                    return None
+                continue  # woken for a delayed frame (or early): look again
             if not m.is_extended_id and m.arbitration_id in self.own_ids and not m.is_error_frame:
                 if deadline is not None and time.monotonic() >= deadline:
                     return None
                 continue
-            self.received += 1
-            if self.logger is not None:
-                m.channel = m.channel or "vmehil"
-                self.logger(m)
-            return m
+            if self._hit("frame_loss", "rx"):
+                self.lost += 1
+                continue
+            if self._hit("frame_delay", "rx"):
+                due = time.monotonic() + float(self.fault("frame_delay").get("ms", 0.0)) * 1e-3
+                heapq.heappush(self._held, (due, next(self._order), m))
+                continue
+            break
+        self.received += 1
+        if self.logger is not None:
+            m.channel = m.channel or "vmehil"
+            self.logger(m)
+        return m
 
     def close(self) -> None:
         if self.logger is not None:

@@ -39,6 +39,7 @@ import numpy as np
 from emulators.can.bus import Endpoint
 from emulators.can.codec import CanCodec
 from emulators.can.dbc import ID_HEARTBEAT_PLANT, ID_SENS, ID_STATUS, ID_TRUTH, MAX_JOINTS
+from emulators.faults import FaultInjectable
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +96,7 @@ class NodeCounters:
     controller_lost: int = 0
 
 
-class PlantNode:
+class PlantNode(FaultInjectable):
     """Serves one plant on a bus.
 
     Args:
@@ -109,7 +110,14 @@ class PlantNode:
         heartbeat_s: heartbeat interval (s, wall clock).
         controller_timeout_s: free-running: silence after which amplifiers are disabled (s).
         command_type: the plant's command class (default :class:`emulators.plant.PlantCommand`).
+
+    Fault ``dead``: the node process has died — it answers nothing and sends no heartbeat (frames
+    reaching it are read and ignored, as a dead node's controller sees nothing of them either).
     """
+
+    FAULTS = {  # noqa: RUF012 - the FaultInjectable catalogue
+        "dead": "the plant node dies: no answers, no heartbeats from now on",
+    }
 
     def __init__(self, endpoint: Endpoint | can.BusABC, plant_factory: Callable[[int], Any], n_joints: int, *,
                  seed: int = 0, free_running: bool = False, period_s: float = 0.008, delay_s: float = 0.0,
@@ -179,7 +187,7 @@ class PlantNode:
     def heartbeat(self, now: float | None = None) -> None:
         """Send the heartbeat if it is due."""
         now = time.monotonic() if now is None else now
-        if now < self._next_hb:
+        if now < self._next_hb or self.fault("dead") is not None:
             return
         self._next_hb = now + self.heartbeat_s
         self._hb_counter = (self._hb_counter + 1) & 0xFF
@@ -189,6 +197,8 @@ class PlantNode:
     # --- frames ---------------------------------------------------------------------------------
     def handle(self, m: can.Message) -> None:
         """Process one received frame (never raises on bad frames)."""
+        if self.fault("dead") is not None:
+            return
         f = self.codec.try_decode(m)
         if f is None:
             return
@@ -261,7 +271,7 @@ class PlantNode:
             if t_end is not None and now >= t_end:
                 return
             self.heartbeat(now)
-            if self.free_running and now >= next_step:
+            if self.free_running and now >= next_step and self.fault("dead") is None:
                 self.step(free_tick, self.period_s, self.delay_s)
                 free_tick += 1
                 next_step += self.period_s

@@ -13,6 +13,12 @@ One call of :meth:`Plant.step_period` integrates one servo period at the fixed p
 Sensor outputs are taken at the end of the period (the next sampling instant), with seeded
 noise; the encoder reports what happened during the period as ``QuadratureEvents``.
 Ground truth (``PlantSensors.truth``) is for reports and tests only — never for the servo.
+
+Faults of the sensors and power stages that live on the plant side of the connector panel are
+named faults (:class:`emulators.faults.FaultInjectable`, ``Plant.FAULTS``): ``pot_open``,
+``pot_frozen``, ``tach_stuck`` and ``amp_fault``, each for one joint (``joint=NAME``). They
+change what the sensors report (or latch the amplifier's fault), never the mechanics, and
+survive :meth:`Plant.reset` like a board's faults survive SYSRESET.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from emulators.faults import FaultInjectable
 from emulators.plant.amplifier import (
     AmpArrays,
     AmpConsts,
@@ -137,7 +144,14 @@ def _stack(joints: list, path: str, dtype: type = float) -> np.ndarray:
     return np.array(out, dtype=dtype)
 
 
-class Plant:
+FAULT_INJECTED = 8  #: ``amp_fault`` injected (truth ``amp_fault_cause`` bit; the others: emulators.plant.amplifier)
+
+#: default volts of an open pot wiper: the ADC input's bias resistor pulls a floating input to the
+#: +10 V rail (what the servo watchdog's rail check expects of an open wiper)
+OPEN_WIPER_V = 10.0
+
+
+class Plant(FaultInjectable):
     """Vectorised plant of ``n_joints`` joints with their amplifiers and sensors.
 
     Args:
@@ -146,6 +160,17 @@ class Plant:
         rate_hz: integration rate; ``None`` takes ``params.rate_hz`` (4 kHz by default). Each
             period is split into ``round(period·rate)`` equal substeps.
     """
+
+    FAULTS = {  # noqa: RUF012 - the FaultInjectable catalogue (a class attribute by design)
+        "pot_open": "joint=NAME[, volts=V]: the wiper lifts off the element; the floating ADC input is "
+                    f"pulled to V (default {OPEN_WIPER_V:+g} V, the rail)",
+        "pot_frozen": "joint=NAME[, volts=V]: the pot's shaft coupling slips: the wiper stays where it was "
+                      "(default: its noise-free voltage when injected) while the joint moves on",
+        "tach_stuck": "joint=NAME[, volts=V]: the tachometer output is held at V (default 0 V: an open lead or "
+                      "lifted brushes; ±10 V: shorted to a rail)",
+        "amp_fault": "joint=NAME: the joint's amplifier trips: output stage off, fault line asserted (latched "
+                     "again every period while injected, so a fault reset does not clear it)",
+    }
 
     def __init__(self, params: PlantParams, *, seed: int = 0, rate_hz: float | None = None) -> None:
         params.validate()
@@ -239,6 +264,11 @@ class Plant:
         self.has_tach_ripple = bool(np.any(self.tach.ripple != 0.0))
         self.enc_scale = self.enc_counts_per_rev / (2.0 * math.pi)  #: x4 counts per motor radian
         self._consts: dict[float, _StepConsts] = {}
+        # injected sensor faults: per joint the held volts (NaN: healthy); see _fault_changed
+        self._pot_held_v = np.full(self.n_joints, np.nan)
+        self._tach_held_v = np.full(self.n_joints, np.nan)
+        self._amp_tripped = np.zeros(self.n_joints, dtype=bool)
+        self._sensor_faults = False
         self.reset()
 
     # ---- construction helpers -----------------------------------------------------------
@@ -255,6 +285,42 @@ class Plant:
             return self.names.index(name)
         except ValueError:
             raise KeyError(f"no joint named {name!r} (joints: {', '.join(self.names)})") from None
+
+    # ---- faults ---------------------------------------------------------------------------
+    def _fault_joint(self, name: str) -> int | None:
+        """The joint index of an active fault (``None`` when it is off); a bad joint is refused."""
+        f = self.fault(name)
+        if f is None:
+            return None
+        if "joint" not in f:
+            self.clear_fault(name)
+            raise ValueError(f"plant fault {name}: name the joint (joint=...; joints: {', '.join(self.names)})")
+        try:
+            return self.index_of(str(f["joint"]))
+        except KeyError as e:
+            self.clear_fault(name)
+            raise ValueError(f"plant fault {name}: {e.args[0]}") from None
+
+    def _fault_changed(self, name: str) -> None:
+        f = self.fault(name)
+        if f is not None:
+            j = self._fault_joint(name)  # refuses a missing or unknown joint
+            if name == "pot_frozen" and "volts" not in f:  # the wiper stays where it is now
+                f["volts"] = float(self.pot.volts(self.joint_angle())[j])
+        self._pot_held_v[:] = np.nan
+        self._tach_held_v[:] = np.nan
+        self._amp_tripped[:] = False
+        held_faults = (("pot_frozen", self._pot_held_v, 0.0), ("pot_open", self._pot_held_v, OPEN_WIPER_V),
+                       ("tach_stuck", self._tach_held_v, 0.0))
+        for fault, held, default in held_faults:
+            j = self._fault_joint(fault)
+            if j is not None:
+                held[j] = float(self.fault(fault).get("volts", default))
+        j = self._fault_joint("amp_fault")
+        if j is not None:
+            self._amp_tripped[j] = True
+            self.amp_state.latch(self._amp_tripped, FAULT_INJECTED)
+        self._sensor_faults = bool(np.isfinite(self._pot_held_v).any() or np.isfinite(self._tach_held_v).any())
 
     def idle_command(self) -> PlantCommand:
         return PlantCommand.idle(self.n_joints)
@@ -380,6 +446,8 @@ class Plant:
         h = period_s / n_sub
         n_old = min(n_sub, max(0, round(delay_s / h)))
         c = self._step_consts(h)
+        if self._amp_tripped.any():  # an injected amplifier fault re-trips after every reset
+            self.amp_state.latch(self._amp_tripped, FAULT_INJECTED)
         prev = self._prev_cmd
         drv_old = self._drive(prev)
         drv_new = self._drive(cmd)
@@ -425,6 +493,9 @@ class Plant:
             self.tach_state + self.tach.offset + self.tach.noise * self._noise["tach"].draw(),
             0.0,
         )
+        if self._sensor_faults:  # injected: the held wiper / tach volts replace the sensor's output
+            pot_v = np.where(np.isnan(self._pot_held_v), pot_v, self._pot_held_v)
+            tach_v = np.where(np.isnan(self._tach_held_v), tach_v, self._tach_held_v)
         imon_v = self.amp.monitor_volts(self.i) + self.amp.monitor_noise * self._noise["imon"].draw()
         events = encoder_events(x4, h, self.enc_sample_hz, self.enc_counts_per_rev, self.enc_index_phase)
         truth = {

@@ -33,10 +33,10 @@ def test_resume_forgets_the_watchdog_memory_and_the_integrators():
     tick(loop, n=100)  # integrators build up while the joint settles
     assert np.any(loop.law.state.ie != 0.0) and np.all(np.isfinite(loop.law.state.e_prev))
     loop.safe_stop("operator_stop", "test")
-    loop._same_count[:] = 99
+    loop.cross_checks._stale_count[:] = 99
     loop.io.theta = np.array([0.3])
     loop.resume()
-    assert loop._last_theta is None and loop._last_raw is None and not loop._same_count.any()
+    assert loop._last_theta is None and not loop.cross_checks._stale_count.any()
     state = loop.law.export_state()
     assert not state.ie.any() and not state.iv.any() and np.all(np.isnan(state.e_prev))
     tick(loop)

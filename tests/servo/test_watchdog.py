@@ -60,11 +60,12 @@ def test_pot_at_rail_is_implausible() -> None:
 
 def test_stuck_pot_while_moving_is_stale() -> None:
     system, loop, runner = _started(n_ticks=600)
-    loop.watchdog.stale_ticks = 25
+    loop.watchdog.cross_checks = False  # the encoder would see it first: the stale rule on its own
     loop.watchdog.following_error_rad[:] = 10.0  # let staleness, not following error, trip
+    runner.run(60)  # j2 moving faster now
     code = system.io.adc["adc0"].read_counts(1)  # freeze the wiper where it is now
     system.crate.board("adc0").inject("stuck_channel", channel=1, code=code)
-    runner.run(60)
+    runner.run(100)
     _assert_safe(system, loop, "stale_sensor")
     assert loop.fault.joint == "j2"
 

@@ -66,12 +66,7 @@ class EmulatedPositioner:
             on_tick()
         self.loop.tick(truth=sys_.truth())
         if self._override and self.loop.enabled:
-            per_dac: dict[str, dict[int, float]] = {}
-            for j, v in self._override.items():
-                pin = self.system.rig.joints[j].wiring["amp_command"]
-                per_dac.setdefault(pin.board, {})[pin.index] = v
-            for board, cmds in per_dac.items():
-                self.io.dac[board].write_many(cmds, update=True)
+            self.io.write_command_volts(self._override)  # recorded for the watchdog's current check
         self._override = {}
         # The command reaches the amplifier at the computation delay: let the crate run to that
         # instant so the DAC outputs have settled onto their nets before the exchange reads them.

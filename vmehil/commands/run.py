@@ -2,7 +2,7 @@
 
     vmehil run [--rig NAME|PATH] [--motion PATH] [--duration S] [--realtime] [--seed N]
                [--no-integrator-switch-off] [--gains kp=..,kpi=..,kv=..,kvi=..]
-               [--json PATH] [--report DIR] [--quiet]
+               [--json PATH] [--report DIR] [--quiet] [--fault NAME[@T][:k=v,...]]... [--faults FILE]
 
 Progress: a bar on stderr when it is a terminal and ``--quiet`` is not given (:mod:`vmehil.progress`).
 """
@@ -26,12 +26,14 @@ from vmehil.realtime_options import add_overrun_args, overrun_options
 # An extension may also define ``prepare(args, rig) -> dict | None``, called before the rig is
 # built: it may adjust the rig table and return defaults ``{"motion": Motion, "duration": s}``;
 # and ``make_link(args, rig) -> PlantLink | None`` to run the plant elsewhere (the CAN plant
-# node): the first link returned replaces the in-process plant.
+# node): the first link returned replaces the in-process plant. An attached object with
+# ``add_to_summary(summary)`` adds its keys to the run's summary.
 RUN_EXTENSIONS: list[str] = [
     "vmehil.mavlink.extension",
     "vmehil.vision_options",
     "vmehil.can_options",
     "vmehil.console.extension",
+    "vmehil.fault_options",  # after vision_options: a vision fault needs the attached vision system
 ]
 
 
@@ -78,7 +80,10 @@ def run(args: argparse.Namespace) -> int:
     from servo.control.gains import parse_gains
     from servo.gain_guard import check_values
     from servo.rig import load_rig
+    from vmehil import fault_options
 
+    if fault_options.wants_list(args):
+        return fault_options.list_faults()
     # values now (before a rig is built); stability in build_loop, on the rig's loop
     gains = check_values(parse_gains(args.gains, what="--gains"))
     rig = load_rig(resolve_rig(args.rig))
@@ -140,6 +145,10 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     timing = runner.timing.summary(system.rig.period_s) if args.realtime else None
     summary = summarize(loop, rig=system.rig.name, seed=args.seed, realtime=args.realtime,
                         overruns=runner.overruns, timing=timing)
+    for a in attached:
+        add = getattr(a, "add_to_summary", None)
+        if add is not None:
+            add(summary)
     print(table(summary))
     if timing:
         print(f"timing: compute p50 {timing['compute_p50_ms']:.3f} ms, p99 {timing['compute_p99_ms']:.3f} ms; "

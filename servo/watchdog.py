@@ -1,0 +1,293 @@
+"""The servo watchdog's limits and its sensor/actuator cross-checks.
+
+:class:`WatchdogConfig` holds every limit (SI units, arrays over joints where per joint).
+:class:`CrossChecks` compares, once per tick and vectorised over the joints, what two
+independent paths say about the same physical quantity — a single failed sensor or actuator
+then shows as a disagreement within a few ticks, long before the following error grows:
+
+* **position** — encoder against pot (joints with both): their travel since the last
+  reference must agree within ``position_tolerance_rad + position_tolerance_fraction·travel``
+  (the fraction covers an uncalibrated pot's non-linearity; a calibration applied at run time
+  re-references).
+* **velocity** — tachometer against the position derivative (the encoder where wired, else the
+  pot), both integrated over the same window of ``velocity_window_ticks``: the tach's mean may
+  differ from the mean speed by at most its dead band (it reads ``ω − dead band·sign ω`` above
+  it, zero below) plus ``velocity_tolerance_rad_s`` and ``velocity_tolerance_fraction`` of the
+  speed (commutator ripple). A fault that keeps the tach's reading inside that envelope — a
+  tach stuck at 0 V while the joint moves slower than its dead band — is undetectable by
+  construction, and harmless (the loop gets no velocity feedback there anyway).
+* **current** — the current monitor against the current the drivers commanded one tick
+  earlier (the command of tick k takes effect 1 ms after t_k, and the monitor is sampled at
+  t_k+1): beyond ``current_tolerance_a + current_tolerance_fraction·|i|`` for
+  ``current_mismatch_ticks`` ticks in a row (a dead DAC channel, an amplifier that is not
+  enabled, a broken motor lead).
+* **stale position while moving** — the position reading stays within ±``stale_band_lsb``
+  steps of where it was for at least ``stale_ticks`` while the target moves on by
+  ``stale_travel_rad``. A joint held by stiction at the start of a move lags its target by
+  less than that; the band (not bit-equality) keeps ADC noise on a frozen signal from hiding it.
+
+Defaults (``None`` in the config) are derived per joint from the sensors' nominal resolution
+(:meth:`servo.io.JointIO.resolution`) and the tach dead band; docs/faults.md says how.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+#: Position sensor steps of uncertainty in the encoder/pot comparison: the pot's reference sample
+#: (noise ≈ ⅓ code, quantization ½ code, taken twice) and its non-linearity between calibration
+#: points; the largest disagreement of healthy jpl-arm and melmalec-16 runs is 5 pot codes.
+POSITION_TOLERANCE_POT_CODES = 8.0
+#: Steps of the reference position over the velocity window (quantization and noise at both ends).
+VELOCITY_TOLERANCE_REF_STEPS = 4.0
+#: Tach ADC codes of uncertainty in the window mean (offset, noise, filter lag).
+VELOCITY_TOLERANCE_TACH_CODES = 4.0
+#: Current-monitor codes of uncertainty (ADC and DAC offsets of an uncalibrated crate ≈ 4 codes).
+CURRENT_TOLERANCE_MONITOR_CODES = 10.0
+#: An H-bridge's current follows its PWM duty only as well as the voltage model (R·i + Ke·ω from
+#: the measured speed, no inductance) predicts it: a quarter of the current limit.
+HBRIDGE_CURRENT_TOLERANCE_OF_LIMIT = 0.25
+#: Largest target travel (rad) during which a healthy joint's reading may stay put: breakaway
+#: from stiction at the start of a move lags by < 0.9° on both presets; twice that less a bit.
+STALE_TRAVEL_RAD = float(np.radians(1.5))
+#: A target speed (rad/s) below which the joint is not "commanded to move".
+MOVING_RAD_S = 1e-3
+
+
+@dataclass
+class WatchdogConfig:
+    """Limits of the watchdog (SI units; arrays over joints where per joint; ``None`` or NaN:
+    derived from the sensors' resolution when the loop is built, see :class:`CrossChecks`)."""
+
+    following_error_rad: np.ndarray
+    max_jump_rad: float = 0.2
+    pot_rail_v: float = 9.95
+    stale_ticks: int = 25
+    enabled: bool = True
+    #: the position, velocity and current cross-checks (False: off; the stale check stays)
+    cross_checks: bool = True
+    stale_band_lsb: float = 2.0
+    stale_travel_rad: np.ndarray | None = None
+    position_tolerance_rad: np.ndarray | None = None
+    position_tolerance_fraction: float = 0.02
+    tach_dead_band_rad_s: np.ndarray | None = None
+    velocity_window_ticks: int = 12
+    velocity_tolerance_rad_s: np.ndarray | None = None
+    velocity_tolerance_fraction: float = 0.05
+    current_tolerance_a: np.ndarray | None = None
+    current_tolerance_fraction: np.ndarray | None = None
+    current_mismatch_ticks: int = 3
+
+
+@dataclass
+class Trip:
+    """A cross-check that failed: the stop's cause, the joint and what disagreed."""
+
+    cause: str
+    joint: int
+    detail: str
+
+
+def _per_joint(value: Any, default: np.ndarray) -> np.ndarray:
+    """``value`` per joint, ``default`` where it is ``None`` or NaN."""
+    if value is None:
+        return default
+    v = np.broadcast_to(np.asarray(value, float), default.shape)
+    return np.where(np.isnan(v), default, v)
+
+
+def _worst(bad: np.ndarray, off: np.ndarray, tol: np.ndarray | float) -> int | None:
+    """The joint furthest beyond its limit among ``bad`` (None: no joint is)."""
+    if not bad.any():
+        return None
+    return int(np.argmax(np.where(bad, off - tol, -np.inf)))
+
+
+def _deg(rad: float) -> str:
+    return f"{np.degrees(rad):+.2f}°"
+
+
+class CrossChecks:
+    """The per-tick cross-checks of one loop (state: references, windows, counters).
+
+    ``io``: the loop's drivers; without :meth:`~servo.io.JointIO.resolution` (a test double)
+    there is nothing to cross-check and :meth:`check` never trips.
+    """
+
+    def __init__(self, io: Any, config: WatchdogConfig) -> None:
+        self.io = io
+        self.config = config
+        self.n = n = io.n
+        self.period_s = float(io.period_s)
+        res = io.resolution() if hasattr(io, "resolution") else None
+        nan = np.full(n, np.nan)
+        self.pot_rad = res.pot_rad if res is not None else nan
+        self.enc_rad = res.encoder_rad if res is not None else nan
+        self.tach_rad_s = res.tach_rad_s if res is not None else nan
+        self.has_pot = np.isfinite(self.pot_rad)
+        self.has_enc = np.isfinite(self.enc_rad)
+        self.has_tach = np.isfinite(self.tach_rad_s)
+        self.has_imon = np.isfinite(res.monitor_a) if res is not None else np.zeros(n, bool)
+        self.both = self.has_pot & self.has_enc
+        self.window = max(1, int(config.velocity_window_ticks))
+        window_s = self.window * self.period_s
+        #: the position the tach is compared with: the encoder where wired (finer), else the pot
+        self.ref_rad = np.where(self.has_enc, self.enc_rad, self.pot_rad)
+        #: the reading the stale check watches: the pot where wired, else the encoder (as before)
+        self.stale_rad = np.where(self.has_pot, self.pot_rad, self.enc_rad)
+        zero = np.zeros(n)
+        self.defaults = {
+            "position_tolerance_rad": np.nan_to_num(POSITION_TOLERANCE_POT_CODES * self.pot_rad + 2 * self.enc_rad),
+            "tach_dead_band_rad_s": zero,
+            "velocity_tolerance_rad_s": np.nan_to_num(VELOCITY_TOLERANCE_REF_STEPS * self.ref_rad / window_s
+                                                      + VELOCITY_TOLERANCE_TACH_CODES * self.tach_rad_s),
+            "stale_travel_rad": np.full(n, STALE_TRAVEL_RAD),
+        }
+        if res is not None:
+            lin = res.linear
+            self.defaults["current_tolerance_a"] = np.nan_to_num(np.where(
+                lin, CURRENT_TOLERANCE_MONITOR_CODES * res.monitor_a + 2 * np.nan_to_num(res.command_a),
+                HBRIDGE_CURRENT_TOLERANCE_OF_LIMIT * res.current_limit_a))
+            self.defaults["current_tolerance_fraction"] = np.where(lin, 0.05, 0.2)
+        else:
+            self.defaults["current_tolerance_a"] = zero
+            self.defaults["current_tolerance_fraction"] = zero
+        self._limits_key: tuple[int, ...] = ()
+        self._limits: dict[str, np.ndarray] = {}
+        self._ratio = np.zeros(n)
+        self.reset()
+
+    def limit(self, name: str) -> np.ndarray:
+        """The limit in force for ``name`` (the config's, else the derived default), per joint."""
+        key = (id(self.config), *(id(getattr(self.config, f)) for f in self.defaults))
+        if key != self._limits_key:  # resolved once per config (the per-tick path only looks up)
+            self._limits = {f: _per_joint(getattr(self.config, f), d) for f, d in self.defaults.items()}
+            self._limits_key = key
+        return self._limits[name]
+
+    def reset(self) -> None:
+        """Forget references and windows (start, resume: the joints may have moved meanwhile)."""
+        n, w = self.n, self.window
+        self._generation = None
+        self._pot0 = np.full(n, np.nan)
+        self._enc0 = np.full(n, np.nan)
+        self._ring_ref = np.zeros((w + 1, n))
+        self._ring_int = np.zeros((w + 1, n))
+        self._slot = 0
+        self._filled = 0
+        self._tach_int = np.zeros(n)
+        self._last_tach = np.zeros(n)
+        self._cur_over = np.zeros(n, int)
+        self._stale_at = np.full(n, np.nan)
+        self._stale_count = np.zeros(n, int)
+        self._stale_travel = np.zeros(n)
+        self._last_theta_d: np.ndarray | None = None
+        #: per check and joint, the largest disagreement seen as a fraction of its limit (1 trips):
+        #: how close a healthy run came (reports, tests)
+        self.peak_ratio = {name: np.zeros(n) for name in ("position", "velocity", "current")}
+
+    def _over(self, name: str, off: np.ndarray, tol: np.ndarray, wired: np.ndarray) -> np.ndarray:
+        """Where ``off`` exceeds ``tol`` (wired joints only); keeps :attr:`peak_ratio` up to date."""
+        ratio = self._ratio
+        ratio[:] = 0.0
+        np.divide(off, tol, out=ratio, where=wired & (tol > 0.0))
+        np.fmax(self.peak_ratio[name], ratio, out=self.peak_ratio[name])
+        return wired & (off > tol)
+
+    # --- per tick ---------------------------------------------------------------------------
+    def check(self, m: Any, theta_d: np.ndarray, omega_d: np.ndarray) -> Trip | None:
+        """Update every check with this tick's measurement and target; the first that fails."""
+        generation = getattr(self.io, "calibration_generation", 0)
+        if generation != self._generation:  # a new calibration: readings convert differently now
+            self._generation = generation
+            self._pot0 = np.where(self.both, m.theta_pot, np.nan)
+            self._enc0 = np.where(self.both, m.theta_enc, np.nan)
+            self._filled = 0
+        stale = self._stale(m, np.asarray(theta_d, float), np.asarray(omega_d, float))
+        if not self.config.cross_checks:
+            return stale
+        return self._current(m) or self._velocity(m) or self._position(m) or stale
+
+    def _position(self, m: Any) -> Trip | None:
+        if not self.both.any():
+            return None
+        d_pot = m.theta_pot - self._pot0
+        d_enc = m.theta_enc - self._enc0
+        travel = np.fmax(np.abs(d_pot), np.abs(d_enc))
+        tol = self.limit("position_tolerance_rad") + self.config.position_tolerance_fraction * travel
+        off = np.abs(d_enc - d_pot)
+        i = _worst(self._over("position", off, tol, self.both), off, tol)
+        if i is None:
+            return None
+        return Trip("position_mismatch", i,
+                    f"pot and encoder disagree by {np.degrees(off[i]):.2f}° (limit {np.degrees(tol[i]):.2f}°): "
+                    f"since the reference the pot moved {_deg(d_pot[i])}, the encoder {_deg(d_enc[i])}")
+
+    def _velocity(self, m: Any) -> Trip | None:
+        if not self.has_tach.any():
+            return None
+        tach = np.where(self.has_tach, m.omega_tach, 0.0)
+        ref = np.where(self.has_enc, m.theta_enc, m.theta_pot)
+        w = self.window
+        if self._filled == 0:
+            self._tach_int[:] = 0.0
+        else:  # trapezoid: the tach is integrated over exactly the interval the positions span
+            self._tach_int += 0.5 * self.period_s * (tach + self._last_tach)
+        self._last_tach = tach
+        self._slot = (self._slot + 1) % (w + 1)
+        self._ring_ref[self._slot] = ref
+        self._ring_int[self._slot] = self._tach_int
+        self._filled = min(self._filled + 1, w + 1)
+        if self._filled <= w:
+            return None
+        old = (self._slot + 1) % (w + 1)
+        window_s = w * self.period_s
+        v_ref = (ref - self._ring_ref[old]) / window_s
+        v_tach = (self._tach_int - self._ring_int[old]) / window_s
+        off = np.abs(v_tach - v_ref)
+        tol = (self.limit("tach_dead_band_rad_s") + self.limit("velocity_tolerance_rad_s")
+               + self.config.velocity_tolerance_fraction * np.fmax(np.abs(v_ref), np.abs(v_tach)))
+        i = _worst(self._over("velocity", off, tol, self.has_tach), off, tol)
+        if i is None:
+            return None
+        src = "encoder" if self.has_enc[i] else "pot"
+        return Trip("velocity_mismatch", i,
+                    f"tachometer and {src} disagree: over the last {window_s * 1e3:.0f} ms the tach averaged "
+                    f"{v_tach[i]:+.3f} rad/s, the {src} moved at {v_ref[i]:+.3f} rad/s "
+                    f"(limit ±{tol[i]:.3f} rad/s, dead band included)")
+
+    def _current(self, m: Any) -> Trip | None:
+        if not self.has_imon.any():
+            return None
+        commanded = np.asarray(self.io.last_current_a, float)
+        off = np.abs(m.current - commanded)
+        tol = self.limit("current_tolerance_a") + self.limit("current_tolerance_fraction") * np.abs(commanded)
+        self._cur_over = np.where(self._over("current", off, tol, self.has_imon), self._cur_over + 1, 0)
+        i = _worst(self._cur_over >= max(1, int(self.config.current_mismatch_ticks)), off, tol)
+        if i is None:
+            return None
+        return Trip("current_mismatch", i,
+                    f"current monitor reads {m.current[i]:+.3f} A, {commanded[i]:+.3f} A commanded "
+                    f"(limit ±{tol[i]:.3f} A) for {self._cur_over[i]} ticks: no current reaches the motor?")
+
+    def _stale(self, m: Any, theta_d: np.ndarray, omega_d: np.ndarray) -> Trip | None:
+        cfg = self.config
+        reading = np.where(self.has_pot, m.theta_pot, m.theta_enc)
+        band = cfg.stale_band_lsb * self.stale_rad
+        step = np.zeros(self.n) if self._last_theta_d is None else np.abs(theta_d - self._last_theta_d)
+        self._last_theta_d = theta_d.copy()
+        keep = (np.abs(reading - self._stale_at) <= band) & (np.abs(omega_d) > MOVING_RAD_S)
+        self._stale_count = np.where(keep, self._stale_count + 1, 0)
+        self._stale_travel = np.where(keep, self._stale_travel + step, 0.0)
+        self._stale_at = np.where(keep, self._stale_at, reading)
+        bad = (self._stale_count >= cfg.stale_ticks) & (self._stale_travel >= self.limit("stale_travel_rad"))
+        i = _worst(bad, self._stale_travel, 0.0)
+        if i is None:
+            return None
+        src = "pot" if self.has_pot[i] else "encoder"
+        return Trip("stale_sensor", i,
+                    f"{src} reading within ±{cfg.stale_band_lsb:g} steps for {self._stale_count[i]} ticks while the "
+                    f"target moved {np.degrees(self._stale_travel[i]):.2f}°")
