@@ -12,6 +12,7 @@ itself. Each joint states them in ``[joint.servo.nominal]`` (SI units)::
     pot_v_per_rad = 3.3704           # wired pot: gradient (V/rad of joint angle)
     pot_zero_v = 0.0                 #            volts at joint angle 0
     tach_v_per_rad_s = 1.0           # wired tach: gradient (V per rad/s of joint velocity)
+    tach_dead_band_rad_s = 0.12      #   optional: below this speed it reads 0 (brush drop / gradient)
     encoder_counts_per_rev = 200000  # wired encoder: x4 counts per JOINT revolution (4·lines·N)
     monitor_v_per_a = 0.3333         # wired current monitor
     supply_v = 24.0                  # H-bridges: supply, motor resistance and back-emf constant
@@ -76,6 +77,7 @@ class JointNominal:
     pot_v_per_rad: float | None = None
     pot_zero_v: float | None = None
     tach_v_per_rad_s: float | None = None
+    tach_dead_band_rad_s: float | None = None
     encoder_counts_per_rev: float | None = None
     monitor_v_per_a: float | None = None
     supply_v: float | None = None
@@ -103,7 +105,7 @@ class JointNominal:
 
 
 NOMINAL_KEYS = tuple(f.name for f in fields(JointNominal) if f.name not in ("name", "amplifier"))
-SCALING_KEYS = tuple(k for k in NOMINAL_KEYS if k != "inertia_kg_m2")
+SCALING_KEYS = tuple(k for k in NOMINAL_KEYS if k not in ("inertia_kg_m2", "tach_dead_band_rad_s"))
 
 
 def required_keys(joint: JointSpec) -> tuple[str, ...]:

@@ -23,7 +23,8 @@ emulated plant's.
 The watchdog's cross-checks (:mod:`servo.watchdog`, docs/faults.md) take their limits from
 ``[servo.watchdog]`` (rig-wide) and ``[joint.servo.watchdog]`` (per joint, wins); every key is
 optional — the defaults are derived from the sensors' resolution and, for the tach dead band,
-from ``[joint.tach]`` (``brush_drop_v / gradient_v_per_rad_s``)::
+from the controller's own ``[joint.servo.nominal] tach_dead_band_rad_s`` (the datasheet's brush
+drop / gradient; never the plant's table)::
 
     [servo.watchdog]
     cross_checks = true                # false: encoder/pot, tach and current checks off
@@ -158,13 +159,13 @@ def watchdog_config(system: EmulatedRig, settings: ServoSettings, *, enabled: bo
     for key in WATCHDOG_RIG_FLOATS:
         setattr(wd, key, top.get_float(key, getattr(wd, key), min=0.0))
     per_joint: dict[str, list[float]] = {field: [] for field, _ in WATCHDOG_JOINT_KEYS.values()}
-    for j, p in zip(rig.joints, system.params, strict=True):
+    for j, nominal in zip(rig.joints, rig_nominal(rig), strict=True):
         jt = j.servo.table("watchdog", {})
         for key, (field, scale) in WATCHDOG_JOINT_KEYS.items():
             table = jt if key in jt else top
             value = table.get_float(key, min=0.0) * scale if key in table else np.nan
-            if field == "tach_dead_band_rad_s" and np.isnan(value) and p.tach.present:
-                value = p.tach.brush_drop_v / p.tach.gradient_v_per_rad_s  # the tach's datasheet dead band
+            if field == "tach_dead_band_rad_s" and np.isnan(value) and nominal.tach_dead_band_rad_s is not None:
+                value = nominal.tach_dead_band_rad_s  # the tach's datasheet dead band
             per_joint[field].append(value)
         jt.check_unknown(set(WATCHDOG_JOINT_KEYS))
     top.check_unknown({*WATCHDOG_JOINT_KEYS, "cross_checks", *WATCHDOG_RIG_INTS, *WATCHDOG_RIG_FLOATS})
