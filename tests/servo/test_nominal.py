@@ -51,6 +51,7 @@ def _expected_from_plant(p: PlantJoint) -> dict[str, float]:
         "amp_gain_a_per_v": p.linear_amp.gain_a_per_v, "pot_v_per_rad": span_v / p.pot.span_rad,
         "pot_zero_v": p.pot.v_low + span_v * (0.5 - p.pot.center_rad / p.pot.span_rad),
         "tach_v_per_rad_s": p.tach.gradient_v_per_rad_s,
+        "tach_dead_band_rad_s": p.tach.brush_drop_v / p.tach.gradient_v_per_rad_s,
         "encoder_counts_per_rev": 4.0 * p.encoder.lines_per_rev * p.gear.ratio,
         "supply_v": p.hbridge.supply_v, "resistance_ohm": p.motor.resistance_ohm,
         "ke_v_s_per_rad": p.motor.ke_v_s_per_rad, "pwm_period_s": 1.0 / p.hbridge.pwm_hz,
