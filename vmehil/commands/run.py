@@ -12,11 +12,15 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from types import ModuleType
 
 from servo.interrupts import Terminated, interrupt_exit_status
+from vmehil import can_options, vision_options
 from vmehil.cli_types import duration_s, seed
+from vmehil.console import extension as console_extension
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
 from vmehil.files import write_json
+from vmehil.mavlink import extension as mavlink_extension
 from vmehil.realtime_options import add_overrun_args, overrun_options
 
 # Modules that extend `vmehil run` (live tuning over MAVLink, the operator console, ...). Each
@@ -26,12 +30,12 @@ from vmehil.realtime_options import add_overrun_args, overrun_options
 # built: it may adjust the rig table and return defaults ``{"motion": Motion, "duration": s}``;
 # and ``make_link(args, rig) -> PlantLink | None`` to run the plant elsewhere (the CAN plant
 # node): the first link returned replaces the in-process plant.
-RUN_EXTENSIONS: list[str] = [
-    "vmehil.mavlink.extension",
-    "vmehil.vision_options",
-    "vmehil.can_options",
-    "vmehil.console.extension",
-]
+RUN_EXTENSIONS: tuple[ModuleType, ...] = (
+    mavlink_extension,
+    vision_options,
+    can_options,
+    console_extension,
+)
 
 
 def add_rig_args(p: argparse.ArgumentParser) -> None:
@@ -55,15 +59,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="calibration file for the drivers (default: calibration/<rig>.toml or "
                         "$VMEHIL_CALIBRATION_DIR/<rig>.toml; missing → nominal values with a warning)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
-    for ext in _extensions():
+    for ext in RUN_EXTENSIONS:
         ext.add_arguments(p)
     p.set_defaults(func=run)
-
-
-def _extensions():
-    import importlib
-
-    return [importlib.import_module(name) for name in RUN_EXTENSIONS]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -92,7 +90,7 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     from vmehil.system import build_emulated_rig
 
     defaults: dict = {}
-    for ext in _extensions():
+    for ext in RUN_EXTENSIONS:
         prep = getattr(ext, "prepare", None)
         if prep is not None:
             defaults.update(prep(args, rig) or {})
@@ -120,7 +118,7 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
         # armed(): whatever ends the block (its end, an exception, Ctrl-C, SIGTERM) ends with the
         # amplifiers disabled, 0 V on the DACs and PWM off, read back (loop.final_stop).
         with loop.armed():
-            attached = [a for a in (ext.attach(args, system, loop, runner) for ext in _extensions()) if a is not None]
+            attached = [a for a in (ext.attach(args, system, loop, runner) for ext in RUN_EXTENSIONS) if a is not None]
             if not args.quiet:
                 print(f"run: {n_ticks} ticks ({duration:g} s) on {rig.name}, amplifiers enabled", file=sys.stderr)
             with progress:
@@ -180,7 +178,7 @@ def _build_calibrated(args: argparse.Namespace, rig, build):
 
 def _make_link(args: argparse.Namespace, rig):
     """The plant link an extension asks for (``--plant can``), else ``None`` (in-process)."""
-    for ext in _extensions():
+    for ext in RUN_EXTENSIONS:
         make = getattr(ext, "make_link", None)
         link = make(args, rig) if make is not None else None
         if link is not None:
