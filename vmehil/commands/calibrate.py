@@ -7,43 +7,30 @@
 Progress is a bar on stderr (:mod:`vmehil.progress`) when it is a terminal and ``--quiet`` is
 not given; the procedures' lines and prompts are printed above it, never onto it.
 
-Procedures come from a registry (:data:`vmehil.calibration.base.PROCEDURES`). Another module
-adds one (e.g. the plant's ``friction``) by calling
-:func:`vmehil.calibration.base.register_procedure` at import and appending its module name to
-:data:`PROCEDURE_MODULES`.
+Procedures come from :data:`vmehil.calibration.procedures.PROCEDURES`: the built-in ones and
+the entry points of group ``vmehil.calibration_procedures`` (the plant's ``friction`` among them).
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 from pathlib import Path
 
+from vmehil.calibration.procedures import ALL, procedures_in_order
 from vmehil.cli_types import bounded_int, joint_number, seed
+from vmehil.commands.errors import CliError
 from vmehil.files import write_atomic, write_json
-
-#: Modules imported before the parser is built; each registers procedures at import.
-PROCEDURE_MODULES = ["vmehil.calibration.procedures", "vmehil.friction_id"]
-
-
-def _load_procedures():
-    for name in PROCEDURE_MODULES:
-        importlib.import_module(name)
-    from vmehil.calibration.base import PROCEDURES
-
-    return PROCEDURES
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    procs = _load_procedures()
-    names = sorted(procs, key=lambda n: procs[n].order)
-    lines = "\n".join(f"  {n:<10s} {procs[n].help}" for n in names)
+    procs = procedures_in_order()
+    lines = "\n".join(f"  {p.name:<10s} {p.help}" for p in procs)
     p = sub.add_parser(
         "calibrate", help="run calibration procedures and write the rig's calibration file",
-        description="Calibration procedures (order of `all`: " + ", ".join(n for n in names if procs[n].in_all)
+        description=f"Calibration procedures (order of `{ALL}`: " + ", ".join(p.name for p in procs if p.in_all)
                     + ").\n" + lines, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("procedure", choices=[*names, "all"], help="what to calibrate")
+    p.add_argument("procedure", choices=[*(p.name for p in procs), ALL], help="what to calibrate")
     p.add_argument("--rig", default=None, help="rig preset name or TOML path (default jpl-arm)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the emulated rig's noise (default 0)")
     p.add_argument("--joint", type=joint_number, action="append", default=None,
@@ -66,12 +53,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from emulators.presets import resolve_rig
     from servo.rig import load_rig
-    from vmehil.calibration.base import PROCEDURES, CalibrationContext, ProcedureSpec
-    from vmehil.calibration.emulated import EmulatedFixture, EmulatedPositioner
+    from vmehil.calibration.base import CalibrationContext
     from vmehil.calibration.pot import PotProcedure
     from vmehil.calibration.procedure_runner import procedure_results_table, resolve_procedure_names, run_procedures
     from vmehil.calibration.store import CalibrationStore, default_store_path, load_store
-    from vmehil.cli import CliError
+    from vmehil.emulated_calibration import EmulatedFixture, EmulatedPositioner
     from vmehil.progress import PhaseProgress
     from vmehil.system import build_emulated_rig
 
@@ -87,11 +73,9 @@ def run(args: argparse.Namespace) -> int:
     joints = None
     if args.joint:
         joints = [rig.joint(n).index for n in args.joint]
+    factories = {}
     if "pot" in names and (args.points != 9 or args.verify_per_segment != 1):
-        spec = PROCEDURES["pot"]
-        PROCEDURES["pot"] = ProcedureSpec("pot", lambda: PotProcedure(points=args.points,
-                                                                     verify_per_segment=args.verify_per_segment),
-                                          spec.order, spec.help, spec.in_all)
+        factories["pot"] = lambda: PotProcedure(points=args.points, verify_per_segment=args.verify_per_segment)
     system = build_emulated_rig(rig, seed=args.seed, calibration=store)
     progress = PhaseProgress(quiet=args.quiet)
     ctx = CalibrationContext(
@@ -103,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"calibrating {', '.join(names)} on rig {rig.name}" + (" (auto: reference fixture)" if args.auto else ""))
     try:
         with progress:
-            outcome = run_procedures(ctx, names, out_path=out, write_on_fail=args.write_on_fail)
+            outcome = run_procedures(ctx, names, out_path=out, write_on_fail=args.write_on_fail,
+                                     factories=factories)
     finally:
         # Procedures drive amplifiers (positioners, amplifier and friction tests): however they
         # end — done, failed, Ctrl-C, SIGTERM — the rig ends disabled, at 0 V, PWM off.
