@@ -24,8 +24,9 @@ from typing import Any, Generic, TypeVar
 T = TypeVar("T")
 
 
-class PluginError(Exception):
-    """An entry point that cannot be used: it fails to import, or is not what the group expects."""
+class PluginError(ValueError):
+    """An entry point that cannot be used: it fails to import, or is not what the group expects.
+    A ValueError, as a bad value in a config file is: the command line reports it in one line."""
 
 
 class UnknownPluginError(PluginError, KeyError):
@@ -61,7 +62,7 @@ class PluginTable(Mapping[str, T], Generic[T]):
                  validate: Callable[[str, Any], T] | None = None) -> None:
         self.group = group
         self.what = what
-        self._builtin = dict(builtin)
+        self._builtin = builtin  # the owning package's table stays the one source of the built-ins
         self._validate = validate
         self._lock = threading.Lock()
         self._declared: dict[str, list[EntryPoint]] | None = None

@@ -123,6 +123,17 @@ def test_an_unknown_board_type_lists_the_known_ones(install_distribution):
     assert BOARD_TYPES.names() == ["adc", "bit3", "dac", "pio", "quad", "ram", "scratch"]
 
 
+def test_a_broken_board_type_is_a_one_line_command_line_error(install_distribution, tmp_path, capsys):
+    install_distribution("acme-boards", {"acme_boards": SCRATCH_BOARDS},
+                         {"vmehil.board_types": {"scratch": "acme_boards:no_such_factory"}})
+    crate_file = tmp_path / "crate.toml"
+    crate_file.write_text('[crate]\n[[crate.board]]\ntype = "scratch"\nname = "s0"\nspace = "A24"\nbase = 0x300000\n')
+    assert main(["crate", "--rig", str(crate_file), "list"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("vmehil crate: error: board type 'scratch' (entry point 'acme_boards:no_such_factory' "
+                          "of acme-boards") and err.count("\n") == 1
+
+
 # ---- control objects (servo) ---------------------------------------------------------------------------
 DAMPER = """
     from servo.control.objects import BaseControlObject, cfg_per_joint
