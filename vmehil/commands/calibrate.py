@@ -15,8 +15,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
+from vmehil.calibration.base import Procedure
 from vmehil.calibration.procedures import ALL, procedures_in_order
 from vmehil.cli_types import bounded_int, joint_number, seed
 from vmehil.commands.errors import CliError
@@ -24,13 +26,14 @@ from vmehil.files import write_atomic, write_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    procs = procedures_in_order()
-    lines = "\n".join(f"  {p.name:<10s} {p.help}" for p in procs)
+    specs = procedures_in_order()
+    lines = "\n".join(f"  {spec.name:<10s} {spec.help}" for spec in specs)
     p = sub.add_parser(
         "calibrate", help="run calibration procedures and write the rig's calibration file",
-        description=f"Calibration procedures (order of `{ALL}`: " + ", ".join(p.name for p in procs if p.in_all)
-                    + ").\n" + lines, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("procedure", choices=[*(p.name for p in procs), ALL], help="what to calibrate")
+        description=f"Calibration procedures (order of `{ALL}`: "
+                    + ", ".join(spec.name for spec in specs if spec.in_all) + ").\n" + lines,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("procedure", choices=[*(spec.name for spec in specs), ALL], help="what to calibrate")
     p.add_argument("--rig", default=None, help="rig preset name or TOML path (default jpl-arm)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the emulated rig's noise (default 0)")
     p.add_argument("--joint", type=joint_number, action="append", default=None,
@@ -73,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     joints = None
     if args.joint:
         joints = [rig.joint(n).index for n in args.joint]
-    factories = {}
+    factories: dict[str, Callable[[], Procedure]] = {}
     if "pot" in names and (args.points != 9 or args.verify_per_segment != 1):
         factories["pot"] = lambda: PotProcedure(points=args.points, verify_per_segment=args.verify_per_segment)
     system = build_emulated_rig(rig, seed=args.seed, calibration=store)
