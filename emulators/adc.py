@@ -25,7 +25,7 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar
 
 from emulators.board import RegisterBoard
-from emulators.registry import BuildContext
+from emulators.board_factory import BuildContext
 from emulators.rng import rng_for
 from hal.adc_dac.adc_regs import ADC_BOARD_ID, ADC_CHANNELS, ADC_REGMAP, CSR_CONFIG_MASK, CSR_W1C_MASK
 from hal.adc_dac.conversions import CODE_MAX, AdcRange, adc_volts_to_code, gain_from_code

@@ -35,7 +35,7 @@ from multiprocessing import resource_tracker, shared_memory
 from typing import Any
 
 from emulators.board import Board, BoardAccessError, RegisterBoard
-from emulators.registry import BuildContext
+from emulators.board_factory import BuildContext
 from hal.bit3.memory import BufferMemory
 from hal.bit3.regs import BIT3_CSR, STICKY_ERROR_FIELDS
 from hal.config import ConfigTable

@@ -7,15 +7,25 @@ A board decodes ``size`` bytes from its base address. The crate converts the boa
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar, Protocol
 
+from emulators.clock import SimClock
 from emulators.faults import FaultInjectable
+from emulators.irq import IrqController
+from emulators.signals import Signals
 from hal.vme.errors import BusErrorCause
 from hal.vme.registers import Register, RegisterMap
 from hal.vme.types import AddressSpace, Width
 
-if TYPE_CHECKING:
-    from emulators.crate import Crate
+
+class Backplane(Protocol):
+    """What a board uses of the crate it is installed in (:class:`emulators.crate.Crate`): the
+    interrupt lines, the simulated clock and the nets. A protocol, so that boards do not import
+    the crate, which is built on them."""
+
+    irq: IrqController
+    clock: SimClock
+    signals: Signals
 
 
 class BoardAccessError(Exception):
@@ -52,12 +62,12 @@ class Board(FaultInjectable):
         self.base = 0
         self.space = AddressSpace.A16
         self.slot: int = 0
-        self.crate: Crate | None = None
+        self.crate: Backplane | None = None
         self._irq_level = 0
         self._irq_vector = 0
 
     # --- crate hooks ---------------------------------------------------------------------
-    def attach(self, crate: Crate) -> None:
+    def attach(self, crate: Backplane) -> None:
         """Called by the crate when the board is installed."""
         self.crate = crate
 

@@ -7,7 +7,7 @@ Schema::
     bus_timeout_us = 64          # optional
 
     [[crate.board]]
-    type = "ram"                 # a registered board type (see `vmehil crate types`)
+    type = "ram"                 # a board type: built in or an entry point (see `vmehil crate types`)
     name = "ram0"                # unique in the crate
     slot = 3                     # optional, 1..21
     space = "A24"                # A16, A24 or A32
@@ -19,8 +19,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from emulators.board_factory import BuildContext
+from emulators.board_types import BOARD_TYPES
 from emulators.crate import Crate
-from emulators.registry import BuildContext, board_factory, board_types
 from emulators.signals import Signals
 from hal.config import ConfigError, ConfigTable, load_toml
 from hal.vme.errors import VmeConfigError
@@ -39,9 +40,9 @@ def build_crate(cfg: ConfigTable, *, signals: Signals | None = None, seed: int =
     ctx = BuildContext(signals=crate.signals, seed=seed)
     for bcfg in crate_cfg.tables("board", []):
         type_name = bcfg.get_str("type")
-        factory = board_factory(type_name)
+        factory = BOARD_TYPES.get(type_name)
         if factory is None:
-            raise bcfg.error("type", "a board type (" + ", ".join(board_types()) + ")", type_name)
+            raise bcfg.error("type", "a board type (" + ", ".join(BOARD_TYPES.names()) + ")", type_name)
         name = bcfg.get_str("name")
         try:
             space = AddressSpace.parse(bcfg.get_str("space"))

@@ -25,7 +25,7 @@ from typing import Any, ClassVar
 
 from emulators.adc import wiring_from_config
 from emulators.board import RegisterBoard
-from emulators.registry import BuildContext
+from emulators.board_factory import BuildContext
 from hal.adc_dac.conversions import CODE_MAX, dac_code_to_volts
 from hal.adc_dac.dac_regs import DAC_BOARD_ID, DAC_CHANNELS, DAC_POWER_UP_CODE, DAC_REGMAP
 from hal.config import ConfigTable

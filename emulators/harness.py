@@ -12,30 +12,25 @@ modes give the same results by construction.
 
 from __future__ import annotations
 
-from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from emulators.plant import Plant, PlantCommand, PlantSensors
+from emulators.plant_link import (
+    ExchangeCodec,
+    PlantLink,
+    PlantLinkError,
+    PlantLostError,
+    PlantRestartedError,
+    StaleDataError,
+)
 from emulators.signals import QuadratureEvents, Signals
 
-
-class ExchangeCodec:
-    """Quantizes the exchanged values to the resolution of the wire encoding.
-
-    This base class is the identity (raw plant values). The default codec of every link is
-    :func:`default_codec`: the CAN message set's quantization (scale, offset and range of each
-    DBC signal, :class:`emulators.can.codec.DbcExchangeCodec`), so in-process runs and lockstep
-    runs over CAN see bit-identical values.
-    """
-
-    def command(self, cmd: PlantCommand) -> PlantCommand:
-        return cmd
-
-    def sensors(self, s: PlantSensors) -> PlantSensors:
-        return s
+# The link's types stay importable from here: the harness's users name them with it.
+__all__ = ["ExchangeCodec", "Harness", "InProcessLink", "JointNets", "PlantLink", "PlantLinkError", "PlantLostError",
+           "PlantRestartedError", "StaleDataError", "default_codec"]
 
 
 def default_codec() -> ExchangeCodec:
@@ -43,42 +38,6 @@ def default_codec() -> ExchangeCodec:
     from emulators.can.codec import DbcExchangeCodec
 
     return DbcExchangeCodec()  # type: ignore[return-value]
-
-
-class PlantLinkError(RuntimeError):
-    """The link to the plant failed; the runner turns it into a safe stop with ``cause``."""
-
-    cause = "plant_link"
-
-
-class StaleDataError(PlantLinkError):
-    """No fresh sensor data from the plant within the allowed number of ticks."""
-
-    cause = "stale_sensor"
-
-
-class PlantLostError(StaleDataError):
-    """The plant node fell silent (no answer and no heartbeat within the timeout)."""
-
-    cause = "plant_lost"
-
-
-class PlantRestartedError(PlantLinkError):
-    """The plant node restarted (new boot identifier): its state no longer matches the loop's."""
-
-    cause = "plant_restarted"
-
-
-class PlantLink(ABC):
-    """Where the plant runs. ``exchange`` advances it exactly one servo period (lockstep)."""
-
-    names: list[str]
-
-    @abstractmethod
-    def exchange(self, cmd: PlantCommand, period_s: float, delay_s: float) -> PlantSensors: ...
-
-    def close(self) -> None:  # noqa: B027 - optional hook, not abstract
-        """Release transports (no-op in-process)."""
 
 
 class InProcessLink(PlantLink):

@@ -10,10 +10,18 @@ source is re-entered (an interrupt storm, counted and cut after ``storm_limit`` 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-if TYPE_CHECKING:
-    from emulators.board import Board
+
+class InterruptSource(Protocol):
+    """What the arbiter needs of a board (:class:`emulators.board.Board`): its slot and name
+    for the daisy chain, and its answer to IACK. A protocol, so that this module does not import
+    the boards, which assert lines through it."""
+
+    name: str
+    slot: int
+
+    def iack(self, level: int) -> int: ...
 
 
 class IrqController:
@@ -27,18 +35,18 @@ class IrqController:
     ) -> None:
         self._lookup = lookup
         self._on_iack = on_iack
-        self._asserted: dict[int, set[Board]] = {level: set() for level in range(1, 8)}
+        self._asserted: dict[int, set[InterruptSource]] = {level: set() for level in range(1, 8)}
         self.ipl = 0  #: current interrupt priority level (handlers at or below it wait)
         self.storm_limit = storm_limit
         self.unhandled: list[int] = []  #: vectors that had no handler
         self.storms = 0
 
-    def assert_line(self, board: Board, level: int) -> None:
+    def assert_line(self, board: InterruptSource, level: int) -> None:
         for boards in self._asserted.values():
             boards.discard(board)
         self._asserted[level].add(board)
 
-    def release_line(self, board: Board) -> None:
+    def release_line(self, board: InterruptSource) -> None:
         for boards in self._asserted.values():
             boards.discard(board)
 

@@ -17,7 +17,7 @@ Format (angles in degrees at this edge, or radians with the ``_rad`` keys)::
     speed = 1.0
 
 Move types are looked up in :data:`MOVE_TYPES`, a plain table of the built-in types (the
-visual-servo move ``"vservo"`` among them); :func:`register_move_type` adds one. A parser
+visual-servo move ``"vservo"`` among them); a new type is a new entry there. A parser
 receives the move's :class:`hal.config.ConfigTable` (whose errors name the file and key, e.g.
 ``move[2].duration_s``) and the number of joints, and returns a
 :class:`servo.trajectory.MoveSpec`.
@@ -37,14 +37,6 @@ from servo.trajectory import Lspb, MoveSpec, PlanContext, Quintic, Sequencer, St
 from servo.vservo import parse_vservo
 
 MoveParser = Callable[[ConfigTable, int], MoveSpec]
-MOVE_TYPES: dict[str, MoveParser] = {}
-
-
-def register_move_type(name: str, parser: MoveParser) -> None:
-    """Make ``type = name`` available in motion files (raises if the name is taken)."""
-    if name in MOVE_TYPES:
-        raise ValueError(f"move type {name!r} is already registered")
-    MOVE_TYPES[name] = parser
 
 
 # ---- the built-in moves ------------------------------------------------------------------------------
@@ -141,8 +133,8 @@ def parse_wait(cfg: ConfigTable, n: int) -> MoveSpec:
     return move
 
 
-MOVE_TYPES.update({"quintic": parse_quintic, "lspb": parse_lspb, "wait": parse_wait, "stay": parse_wait,
-                   "vservo": parse_vservo})
+MOVE_TYPES: dict[str, MoveParser] = {"quintic": parse_quintic, "lspb": parse_lspb, "wait": parse_wait,
+                                     "stay": parse_wait, "vservo": parse_vservo}
 
 
 # ---- files --------------------------------------------------------------------------------------------

@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import os
+import sys
+import textwrap
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
 
 import pytest
 from hypothesis import settings
@@ -25,3 +29,42 @@ def crate() -> Crate:
     c.install(RamBoard("ram24", 0x10000), base=0x200000, space="A24", slot=3)
     c.install(RamBoard("ram32", 0x10000), base=0x80000000, space="A32", slot=4)
     return c
+
+
+InstallDistribution = Callable[[str, Mapping[str, str], Mapping[str, Mapping[str, str]]], Path]
+
+
+@pytest.fixture
+def install_distribution(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[InstallDistribution]:
+    """``install(dist, modules, entry_points)``: a third-party distribution installed for this test
+    only, as pip leaves one — its modules (``{name: source}``) and a ``.dist-info`` declaring
+    ``{group: {name: "module:attr"}}`` on ``sys.path``. The plug-in tables read it on their next
+    look-up; it is gone after the test."""
+    from emulators.board_types import BOARD_TYPES
+    from servo.control.objects import CONTROL_OBJECTS
+    from vmehil.calibration.procedures import PROCEDURES
+
+    tables = (BOARD_TYPES, CONTROL_OBJECTS, PROCEDURES)
+    modules_added: list[str] = []
+
+    def install(dist: str, modules: Mapping[str, str], entry_points: Mapping[str, Mapping[str, str]]) -> Path:
+        root = tmp_path / f"site-{dist}"
+        info = root / f"{dist}-1.0.dist-info"
+        info.mkdir(parents=True)
+        for name, source in modules.items():
+            (root / f"{name}.py").write_text(textwrap.dedent(source))
+            modules_added.append(name)
+        (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {dist}\nVersion: 1.0\n")
+        (info / "entry_points.txt").write_text("".join(
+            f"[{group}]\n" + "".join(f"{name} = {value}\n" for name, value in eps.items())
+            for group, eps in entry_points.items()))
+        monkeypatch.syspath_prepend(str(root))  # also invalidates the import system's caches
+        for table in tables:
+            table.refresh()
+        return root
+
+    yield install
+    for name in modules_added:
+        sys.modules.pop(name, None)
+    for table in tables:  # sys.path is restored after this; the next look-up reads it afresh
+        table.refresh()

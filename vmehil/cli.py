@@ -3,27 +3,32 @@
 from __future__ import annotations
 
 import argparse
-import importlib
 import os
 import sys
 import traceback
+from collections.abc import Callable
 
 from hal.config import ConfigError
 from hal.vme.errors import VmeError
 from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name, stop_signals_raise
+from vmehil.commands import calibrate, console, crate, plant_node, run, tune, vision
+from vmehil.commands.errors import CliError
 from vmehil.exit_status import EXIT_UNEXPECTED, EXIT_USAGE
 from vmehil.outputs import check_outputs
 
-# Subcommand modules; each defines ``register(subparsers)`` that sets ``func`` on its parser.
-COMMAND_MODULES = [
-    "vmehil.commands.crate",
-    "vmehil.commands.run",
-    "vmehil.commands.tune",
-    "vmehil.commands.vision",
-    "vmehil.commands.plant_node",
-    "vmehil.commands.console",
-    "vmehil.commands.calibrate",
-]
+__all__ = ["COMMANDS", "CliError", "build_parser", "main"]
+
+# The subcommands, in the order of `vmehil --help`; each ``register(subparsers)`` adds its parser
+# and sets ``func`` on it.
+COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
+    crate.register,
+    run.register,
+    tune.register,
+    vision.register,
+    plant_node.register,
+    console.register,
+    calibrate.register,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,13 +42,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="overwrite output files and directories vmehil did not write; anywhere on the line")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for name in COMMAND_MODULES:
-        importlib.import_module(name).register(sub)
+    for register in COMMANDS:
+        register(sub)
     return parser
-
-
-class CliError(Exception):
-    """A user-facing error: printed without a traceback, exit status 2."""
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -49,6 +49,7 @@ from servo.trajectory.base import Sample
 from servo.trajectory.quintic import Quintic
 from servo.trajectory.sequencer import Sequencer
 from servo.trajectory.stay import Stay
+from vmehil.calibration.base import CalibrationAbort, Check, ProcedureResult, ProcedureSpec
 from vmehil.files import save_figure, write_atomic
 from vmehil.session import build_loop
 from vmehil.system import EmulatedRig
@@ -465,7 +466,7 @@ def format_result(r: dict[str, Any]) -> str:
 
 
 class FrictionProcedure:
-    """``vmehil calibrate friction --joint N``: the calibration registry's wrapper of
+    """``vmehil calibrate friction --joint N``: the calibration procedure wrapping
     :func:`identify_friction` (not part of ``calibrate all``; writes no calibration entries).
 
     Result data: for one joint the figures at the top level of the procedure's result
@@ -478,8 +479,6 @@ class FrictionProcedure:
     title = "friction identification: running torque, ripple, breakout (drivers only)"
 
     def run(self, ctx: Any) -> Any:
-        from vmehil.calibration.base import CalibrationAbort, Check, ProcedureResult
-
         if not ctx.joints:
             raise CalibrationAbort("friction identification needs --joint N (1-based; repeat for several)")
         system = getattr(ctx.positioner(), "system", None)
@@ -506,13 +505,7 @@ class FrictionProcedure:
         return res
 
 
-def register() -> None:
-    """Add ``friction`` to the ``vmehil calibrate`` registry (idempotent)."""
-    from vmehil.calibration.base import PROCEDURES, register_procedure
-
-    if "friction" not in PROCEDURES:
-        register_procedure("friction", FrictionProcedure, order=90, in_all=False,
-                           help="friction: running torque, ripple, breakout of --joint N (not in `all`)")
-
-
-register()
+#: ``vmehil calibrate friction``: the entry point ``friction`` of group ``vmehil.calibration_procedures``
+#: in pyproject.toml names this (the calibration table cannot import this module, built on the rig).
+FRICTION_PROCEDURE = ProcedureSpec("friction", FrictionProcedure, order=90, in_all=False,
+                                   help="friction: running torque, ripple, breakout of --joint N (not in `all`)")

@@ -8,7 +8,7 @@ here comes from it:
   clip to the signal's declared range), packs raw values into frames with cantools
   (``scaling=False``) and unpacks them again; raw → physical is ``raw * scale + offset`` in
   numpy on both paths.
-* :class:`DbcExchangeCodec` is the harness's :class:`~emulators.harness.ExchangeCodec`: the
+* :class:`DbcExchangeCodec` is the harness's :class:`~emulators.plant_link.ExchangeCodec`: the
   same quantize → raw → physical round trip without the frames. The in-process link uses it,
   so an in-process run and a lockstep run over CAN see bit-identical values: the only extra step
   on CAN is cantools' bit packing, which is lossless for raw values inside the declared ranges.
@@ -336,7 +336,7 @@ def index_offsets(count: int, first: int, last: int) -> tuple[int, ...]:
 class DbcExchangeCodec:
     """The harness codec: quantizes commands and sensors exactly as the CAN frames do.
 
-    Duck-typed :class:`emulators.harness.ExchangeCodec` (``command(cmd)``, ``sensors(s)``);
+    Duck-typed :class:`emulators.plant_link.ExchangeCodec` (``command(cmd)``, ``sensors(s)``);
     ground truth passes unchanged.
     """
 

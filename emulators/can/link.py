@@ -1,4 +1,4 @@
-"""The controller side of the plant node: :class:`CanPlantLink`, a :class:`~emulators.harness.PlantLink`
+"""The controller side of the plant node: :class:`CanPlantLink`, a :class:`~emulators.plant_link.PlantLink`
 that exchanges frames of ``vmehil.dbc`` with a :class:`~emulators.can.node.PlantNode`.
 
 **Lockstep** (default): each :meth:`CanPlantLink.exchange` sends ``CMD_Jxx`` (``Seq`` = tick mod
@@ -11,7 +11,7 @@ so results are bit-identical to the in-process run with the same seed.
 every complete answer that arrived since the last exchange without waiting, latches the newest
 analog values and accumulates the encoder events of all of them.
 
-Faults (each raises a :class:`~emulators.harness.PlantLinkError` subclass, which the runner turns
+Faults (each raises a :class:`~emulators.plant_link.PlantLinkError` subclass, which the runner turns
 into a safe stop in the same tick):
 
 * no complete answer for ``stale_ticks`` consecutive exchanges → :class:`StaleDataError`
@@ -40,7 +40,7 @@ from emulators.can.bus import Endpoint
 from emulators.can.codec import CanCodec, Frame
 from emulators.can.dbc import ID_CMD, ID_CONTROL, ID_HEARTBEAT_CONTROLLER, ID_SYNC, MAX_JOINTS
 from emulators.can.node import new_boot_id
-from emulators.harness import (
+from emulators.plant_link import (
     PlantLink,
     PlantLinkError,
     PlantLostError,

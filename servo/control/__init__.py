@@ -29,6 +29,7 @@ from servo.control.linear import (
 )
 from servo.control.normalize import NormalizingChain, normalizing_chain, per_joint, unit_chain
 from servo.control.objects import (
+    BUILTIN_CONTROL_OBJECTS,
     CONTROL_OBJECTS,
     BaseControlObject,
     ControlContext,
@@ -41,10 +42,10 @@ from servo.control.objects import (
     SwitchableController,
     TorqueLimit,
     build_controller,
-    register_control_object,
 )
 
 __all__ = [
+    "BUILTIN_CONTROL_OBJECTS",
     "CONTROL_OBJECTS",
     "DEFAULT_GAINS",
     "DEFAULT_PERIOD_S",
@@ -78,7 +79,6 @@ __all__ = [
     "normalizing_chain",
     "parse_gains",
     "per_joint",
-    "register_control_object",
     "sampled_loop_matrix",
     "sampled_loop_ss",
     "simulate_sampled_loop",

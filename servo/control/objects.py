@@ -19,7 +19,8 @@ withheld (``ctx.windup_block``). Then :meth:`BaseControlObject.commit` stores th
 integrator never grows while the output is pinned at the limit in its direction, and it still
 unwinds (integration towards the inside is allowed).
 
-Objects are registered by name (:func:`register_control_object`) and built from a TOML table by
+Objects are named in :data:`CONTROL_OBJECTS` (the built-ins, plus the entry points of group
+``vmehil.control_objects`` that installed packages declare) and built from a TOML table by
 :func:`build_controller`::
 
     [joint.servo.controller]
@@ -43,6 +44,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 import numpy as np
 
 from hal.config import ConfigError, ConfigTable
+from hal.plugins import PluginTable
 from hal.units import deg_to_rad
 from servo.control.errors import ControlError, GainError
 from servo.control.gains import DEFAULT_GAINS, GAIN_NAMES, Gains
@@ -128,19 +130,8 @@ class BaseControlObject:
 
 
 ObjectFactory = Callable[[ConfigTable, int, NormalizingChain, float], BaseControlObject]
-CONTROL_OBJECTS: dict[str, ObjectFactory] = {}
-
-
-def register_control_object(name: str) -> Callable[[type], type]:
-    """Class decorator: make ``cls.from_config(cfg, n, chain, period)`` available under ``name``."""
-
-    def deco(cls: type) -> type:
-        if name in CONTROL_OBJECTS:
-            raise ControlError(f"control object {name!r} is already registered")
-        CONTROL_OBJECTS[name] = cls.from_config  # type: ignore[attr-defined]
-        return cls
-
-    return deco
+"""``factory(cfg, n, chain, period) -> object``: ``cfg`` is the object's sub-table of the controller
+table (e.g. ``[...controller.pid]``), ``n`` the number of joints, ``period`` the servo period in s."""
 
 
 # ---- config helpers ---------------------------------------------------------------------------------
@@ -164,7 +155,6 @@ def cfg_per_joint(cfg: ConfigTable, key: str, n: int, default: Any, *, positive:
 
 
 # ---- the objects ----------------------------------------------------------------------------------------
-@register_control_object("pid")
 class PidObject(BaseControlObject):
     """The JPL law as a source: τ += J_eff·a (see :class:`servo.control.law.PidLaw`)."""
 
@@ -251,7 +241,6 @@ def parse_switch_off(cfg: ConfigTable, n: int) -> SwitchOffConfig:
         raise ConfigError(cfg.source, cfg.key(key), e.expected + where, e.value) from None
 
 
-@register_control_object("torque_limit")
 class TorqueLimit(BaseControlObject):
     """Transform: clip τ to ±tau_max per joint (N·m at the joint); sets ``ctx.saturation``."""
 
@@ -288,7 +277,6 @@ class TorqueLimit(BaseControlObject):
         return {"tau_max_nm": [float(x) for x in self.tau_max]}
 
 
-@register_control_object("friction_comp")
 class FrictionComp(BaseControlObject):
     """Source: Coulomb + viscous friction feedforward, identified at the motor, referred to the joint.
 
@@ -328,7 +316,6 @@ class FrictionComp(BaseControlObject):
                 "velocity": "measured" if self.use_measured else "desired"}
 
 
-@register_control_object("gravity_comp")
 class GravityComp(BaseControlObject):
     """Source: τ = m·g·l·cos(θ + offset) per joint (θ desired by default, or measured)."""
 
@@ -502,11 +489,31 @@ class SwitchableController:
         return self.active.update(ctx)
 
 
+BUILTIN_CONTROL_OBJECTS: dict[str, ObjectFactory] = {
+    "pid": PidObject.from_config,
+    "torque_limit": TorqueLimit.from_config,
+    "friction_comp": FrictionComp.from_config,
+    "gravity_comp": GravityComp.from_config,
+}
+
+
+def _factory(name: str, obj: Any) -> ObjectFactory:
+    if not callable(obj):
+        raise TypeError(f"a control object is a factory (cfg, n, chain, period) -> object, not {type(obj).__name__}")
+    return obj
+
+
+#: The objects a controller table can name: the built-ins, plus the entry points of group
+#: ``vmehil.control_objects`` (e.g. ``damper = "acme.servo:Damper.from_config"``; docs/architecture.md).
+CONTROL_OBJECTS: PluginTable[ObjectFactory] = PluginTable("vmehil.control_objects", "control object",
+                                                          BUILTIN_CONTROL_OBJECTS, _factory)
+
+
 def build_controller(table: ConfigTable | dict[str, Any], chain: NormalizingChain,
                      period: float = DEFAULT_PERIOD_S, source: str = "<controller config>") -> Controller:
     """Build a :class:`Controller` from a parsed controller table (``[...servo.controller]``).
 
-    ``objects`` (list of registered names, default ``["pid"]``) gives the order; each object's
+    ``objects`` (list of names in :data:`CONTROL_OBJECTS`, default ``["pid"]``) gives the order; each object's
     parameters come from the sub-table of the same name (optional for pid). Errors are
     :class:`hal.config.ConfigError` naming the file and the key.
     """
@@ -516,11 +523,12 @@ def build_controller(table: ConfigTable | dict[str, Any], chain: NormalizingChai
         raise cfg.error("objects", "a non-empty list of control object names", names)
     objects: list[BaseControlObject] = []
     for i, name in enumerate(names):
-        if name not in CONTROL_OBJECTS:
-            raise cfg.error(f"objects[{i}]", "one of " + ", ".join(sorted(CONTROL_OBJECTS)), name)
+        factory = CONTROL_OBJECTS.get(name)
+        if factory is None:
+            raise cfg.error(f"objects[{i}]", "one of " + ", ".join(CONTROL_OBJECTS.names()), name)
         if name in names[:i]:
             raise cfg.error(f"objects[{i}]", "each object at most once", name)
         sub = cfg.table(name, {})
-        objects.append(CONTROL_OBJECTS[name](sub, chain.n, chain, period))
+        objects.append(factory(sub, chain.n, chain, period))
     cfg.check_unknown({"objects", *names})
     return Controller(objects, chain, period)

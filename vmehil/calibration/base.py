@@ -1,12 +1,13 @@
-"""What every calibration procedure shares: the context it runs in, its result, the registry.
+"""What every calibration procedure shares: the context it runs in, its result, its table entry.
 
 A procedure is a class with ``name``, ``version``, ``title`` and ``run(ctx) -> ProcedureResult``,
-registered with :func:`register_procedure`. It talks to the rig only through the context:
+named in :data:`vmehil.calibration.procedures.PROCEDURES` by a :class:`ProcedureSpec`. It talks
+to the rig only through the context:
 
 * ``ctx.adc(board)`` / ``ctx.dac(board)`` / ``ctx.quad(board)``: drivers opened on ``ctx.bus``
   from the rig's ``[crate]`` (raw or with the calibration in force);
 * ``ctx.positioner()``: moves joints with the servo loop and lets time pass (emulated rigs:
-  :class:`vmehil.calibration.emulated.EmulatedPositioner`);
+  :class:`vmehil.emulated_calibration.EmulatedPositioner`);
 * ``ctx.reference_angle(j)``: the joint's angle from the reference — the fixture in ``--auto``
   mode, the operator (stdin prompt) otherwise;
 * ``ctx.say`` / ``ctx.progress``: what it is doing, and how far it got.
@@ -216,25 +217,11 @@ class Procedure(Protocol):
 
 @dataclass(frozen=True)
 class ProcedureSpec:
-    """A registered procedure: its factory and its place in ``calibrate all`` (lower runs first)."""
+    """A procedure in the table: its factory, its place in ``calibrate all`` (lower runs first) and
+    its line in ``--help``. An entry point of group ``vmehil.calibration_procedures`` names one."""
 
     name: str
     factory: Callable[[], Procedure]
     order: int
     help: str
     in_all: bool = True
-
-
-PROCEDURES: dict[str, ProcedureSpec] = {}
-
-
-def register_procedure(name: str, factory: Callable[[], Procedure], *, order: int, help: str,
-                       in_all: bool = True) -> None:
-    """Make ``vmehil calibrate <name>`` available (e.g. the plant's ``friction`` procedure)."""
-    if name in PROCEDURES or name == "all":
-        raise ValueError(f"calibration procedure {name!r} is already registered")
-    PROCEDURES[name] = ProcedureSpec(name, factory, order, help, in_all)
-
-
-def procedures_for_all() -> list[ProcedureSpec]:
-    return sorted((p for p in PROCEDURES.values() if p.in_all), key=lambda p: p.order)

@@ -10,12 +10,13 @@ file in force.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from vmehil.calibration.base import PROCEDURES, CalibrationContext, ProcedureResult, procedures_for_all
+from vmehil.calibration.base import CalibrationContext, Procedure, ProcedureResult
+from vmehil.calibration.procedures import ALL, PROCEDURES, procedures_for_all
 
 
 @dataclass
@@ -36,11 +37,11 @@ class ProcedureRunOutcome:
 
 
 def resolve_procedure_names(name: str) -> list[str]:
-    """``all`` → every registered procedure in its order; otherwise the one name."""
-    if name == "all":
+    """``all`` → every procedure of ``calibrate all`` in its order; otherwise the one name."""
+    if name == ALL:
         return [p.name for p in procedures_for_all()]
     if name not in PROCEDURES:
-        raise ValueError(f"unknown calibration procedure {name!r}; choose from all, {', '.join(sorted(PROCEDURES))}")
+        raise ValueError(f"unknown calibration procedure {name!r}; choose from {ALL}, {', '.join(PROCEDURES.names())}")
     return [name]
 
 
@@ -62,14 +63,17 @@ def procedure_results_table(results: list[ProcedureResult]) -> str:
 
 
 def run_procedures(ctx: CalibrationContext, names: list[str], *, out_path: str | Path | None,
-                   write_on_fail: bool = False, before_write: Callable[[], None] | None = None) -> ProcedureRunOutcome:
-    """Run ``names`` in order; merge results into ``ctx.store``; write ``out_path`` once at the end."""
+                   write_on_fail: bool = False, before_write: Callable[[], None] | None = None,
+                   factories: Mapping[str, Callable[[], Procedure]] | None = None) -> ProcedureRunOutcome:
+    """Run ``names`` in order; merge results into ``ctx.store``; write ``out_path`` once at the end.
+
+    ``factories`` builds some procedures differently from the table (``--points`` of ``pot``)."""
     outcome = ProcedureRunOutcome()
     base_store = ctx.store
     merged = base_store
     for k, name in enumerate(names):
-        spec = PROCEDURES[name]
-        proc = spec.factory()
+        factory = (factories or {}).get(name) or PROCEDURES[name].factory
+        proc = factory()
         ctx.say(f"[{k + 1}/{len(names)}] {name}: {proc.title}")
         try:
             result = proc.run(ctx)

@@ -1,16 +1,25 @@
-"""Registers the built-in procedures (import this module to get them in ``PROCEDURES``)."""
+"""The calibration procedures ``vmehil calibrate`` (and the console's ``calibrate``) can run.
+
+:data:`PROCEDURES` is the built-in table plus the entry points of group
+``vmehil.calibration_procedures``: each names a :class:`~vmehil.calibration.base.ProcedureSpec`.
+The plant's ``friction`` procedure comes that way (this project's ``pyproject.toml``), as a
+third-party one would: it runs the servo loop on an emulated rig, which is built on this package,
+so the table cannot import it.
+"""
 
 from __future__ import annotations
 
+from typing import Any
+
+from hal.plugins import PluginTable
 from vmehil.calibration.adc import AdcProcedure
 from vmehil.calibration.amplifier import AmplifierProcedure
 from vmehil.calibration.base import (
-    PROCEDURES,
     CalibrationAbort,
     CalibrationContext,
     Check,
     ProcedureResult,
-    register_procedure,
+    ProcedureSpec,
 )
 from vmehil.calibration.dac import DacProcedure
 from vmehil.calibration.encoder import EncoderProcedure
@@ -22,16 +31,48 @@ from vmehil.calibration.store import (
     load_store,
 )
 
+#: ``calibrate all``: every procedure with ``in_all``, in order; no procedure may take the name.
+ALL = "all"
+
 # Order in `calibrate all`: converters first (everything else is measured through them), then
 # the encoder and the amplifiers (the servo loop uses them), then the pots (moved by the loop).
-register_procedure("adc", AdcProcedure, order=10, help="ADC offset/gain from references (+ loopback linearity)")
-register_procedure("dac", DacProcedure, order=20, help="DAC offset/gain through the loopback, with the calibrated ADC")
-register_procedure("encoder", EncoderProcedure, order=30, help="encoder counts/rev index to index, index, direction")
-register_procedure("amplifier", AmplifierProcedure, order=40,
-                   help="amplifier transconductance and offset from the current monitor, current limit")
-register_procedure("pot", PotProcedure, order=50, help="potentiometers: nine points 45° apart, eight segments")
+BUILTIN_PROCEDURES: dict[str, ProcedureSpec] = {spec.name: spec for spec in (
+    ProcedureSpec("adc", AdcProcedure, order=10, help="ADC offset/gain from references (+ loopback linearity)"),
+    ProcedureSpec("dac", DacProcedure, order=20, help="DAC offset/gain through the loopback, with the calibrated ADC"),
+    ProcedureSpec("encoder", EncoderProcedure, order=30, help="encoder counts/rev index to index, index, direction"),
+    ProcedureSpec("amplifier", AmplifierProcedure, order=40,
+                  help="amplifier transconductance and offset from the current monitor, current limit"),
+    ProcedureSpec("pot", PotProcedure, order=50, help="potentiometers: nine points 45° apart, eight segments"),
+)}
+
+
+def _spec(name: str, obj: Any) -> ProcedureSpec:
+    if not isinstance(obj, ProcedureSpec):
+        raise TypeError(f"a calibration procedure entry point names a ProcedureSpec, not {type(obj).__name__}")
+    if name == ALL:
+        raise ValueError(f"{ALL!r} means every procedure; choose another name")
+    if obj.name != name:
+        raise ValueError(f"the entry point is named {name!r} but its ProcedureSpec {obj.name!r}")
+    return obj
+
+
+PROCEDURES: PluginTable[ProcedureSpec] = PluginTable("vmehil.calibration_procedures", "calibration procedure",
+                                                     BUILTIN_PROCEDURES, _spec)
+
+
+def procedures_in_order() -> list[ProcedureSpec]:
+    """Every procedure, in the order of ``calibrate all`` (for ``--help`` and the console)."""
+    return sorted(PROCEDURES.values(), key=lambda p: p.order)
+
+
+def procedures_for_all() -> list[ProcedureSpec]:
+    """What ``calibrate all`` runs, in order."""
+    return [p for p in procedures_in_order() if p.in_all]
+
 
 __all__ = [
+    "ALL",
+    "BUILTIN_PROCEDURES",
     "PROCEDURES",
     "AdcProcedure",
     "AmplifierProcedure",
@@ -46,5 +87,6 @@ __all__ = [
     "ProcedureResult",
     "default_store_path",
     "load_store",
-    "register_procedure",
+    "procedures_for_all",
+    "procedures_in_order",
 ]

@@ -7,57 +7,34 @@
 Progress is a bar on stderr (:mod:`vmehil.progress`) when it is a terminal and ``--quiet`` is
 not given; the procedures' lines and prompts are printed above it, never onto it.
 
-Procedures come from a registry (:data:`vmehil.calibration.base.PROCEDURES`). Another module
-adds one (e.g. the plant's ``friction``) by calling
-:func:`vmehil.calibration.base.register_procedure` at import and appending its module name to
-:data:`PROCEDURE_MODULES`.
+Procedures come from :data:`vmehil.calibration.procedures.PROCEDURES`: the built-in ones and
+the entry points of group ``vmehil.calibration_procedures`` (the plant's ``friction`` among them).
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
+from vmehil.calibration.base import Procedure
+from vmehil.calibration.procedures import ALL, procedures_in_order
 from vmehil.cli_types import bounded_int, joint_number, seed
-from vmehil.commands import missing_extra, refuse_without
+from vmehil.commands import refuse_without
+from vmehil.commands.errors import CliError
 from vmehil.files import write_atomic, write_json
-
-#: Modules imported before the parser is built; each registers procedures at import.
-PROCEDURE_MODULES = ["vmehil.calibration.procedures", "vmehil.friction_id"]
-
-#: Procedure modules that need an extra: module → (the procedure it registers, the extra). Without
-#: the extra the module is not imported and asking for its procedure says what to install.
-PROCEDURE_EXTRAS = {"vmehil.friction_id": ("friction", "tune")}
-
-_unavailable: dict[str, str] = {}  # procedure → the missing extra it needs
-
-
-def _load_procedures():
-    for name in PROCEDURE_MODULES:
-        try:
-            importlib.import_module(name)
-        except ImportError:
-            proc, extra = PROCEDURE_EXTRAS.get(name, (None, None))
-            if extra is None or missing_extra(name, extra) is None:
-                raise
-            _unavailable[proc] = extra
-    from vmehil.calibration.base import PROCEDURES
-
-    return PROCEDURES
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    procs = _load_procedures()
-    names = sorted(procs, key=lambda n: procs[n].order)
-    lines = "\n".join(f"  {n:<10s} {procs[n].help}" for n in names)
-    lines += "".join(f"\n  {n:<10s} (needs the '{extra}' extra)" for n, extra in _unavailable.items())
+    specs = procedures_in_order()
+    lines = "\n".join(f"  {spec.name:<10s} {spec.help}" for spec in specs)
     p = sub.add_parser(
         "calibrate", help="run calibration procedures and write the rig's calibration file",
-        description="Calibration procedures (order of `all`: " + ", ".join(n for n in names if procs[n].in_all)
-                    + ").\n" + lines, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("procedure", choices=[*names, *_unavailable, "all"], help="what to calibrate")
+        description=f"Calibration procedures (order of `{ALL}`: "
+                    + ", ".join(spec.name for spec in specs if spec.in_all) + ").\n" + lines,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("procedure", choices=[*(spec.name for spec in specs), ALL], help="what to calibrate")
     p.add_argument("--rig", default=None, help="rig preset name or TOML path (default jpl-arm)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the emulated rig's noise (default 0)")
     p.add_argument("--joint", type=joint_number, action="append", default=None,
@@ -78,19 +55,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.procedure in _unavailable:
-        refuse_without(f"vmehil calibrate {args.procedure}", _unavailable[args.procedure])
+    if args.procedure == "friction" and refuse_without("vmehil calibrate friction", "tune"):
         return 2
     if args.report and refuse_without("vmehil calibrate --report", "plots"):
         return 2
     from emulators.presets import resolve_rig
     from servo.rig import load_rig
-    from vmehil.calibration.base import PROCEDURES, CalibrationContext, ProcedureSpec
-    from vmehil.calibration.emulated import EmulatedFixture, EmulatedPositioner
+    from vmehil.calibration.base import CalibrationContext
     from vmehil.calibration.pot import PotProcedure
     from vmehil.calibration.procedure_runner import procedure_results_table, resolve_procedure_names, run_procedures
     from vmehil.calibration.store import CalibrationStore, default_store_path, load_store
-    from vmehil.cli import CliError
+    from vmehil.emulated_calibration import EmulatedFixture, EmulatedPositioner
     from vmehil.progress import PhaseProgress
     from vmehil.system import build_emulated_rig
 
@@ -106,11 +81,9 @@ def run(args: argparse.Namespace) -> int:
     joints = None
     if args.joint:
         joints = [rig.joint(n).index for n in args.joint]
+    factories: dict[str, Callable[[], Procedure]] = {}
     if "pot" in names and (args.points != 9 or args.verify_per_segment != 1):
-        spec = PROCEDURES["pot"]
-        PROCEDURES["pot"] = ProcedureSpec("pot", lambda: PotProcedure(points=args.points,
-                                                                     verify_per_segment=args.verify_per_segment),
-                                          spec.order, spec.help, spec.in_all)
+        factories["pot"] = lambda: PotProcedure(points=args.points, verify_per_segment=args.verify_per_segment)
     system = build_emulated_rig(rig, seed=args.seed, calibration=store)
     progress = PhaseProgress(quiet=args.quiet)
     ctx = CalibrationContext(
@@ -122,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"calibrating {', '.join(names)} on rig {rig.name}" + (" (auto: reference fixture)" if args.auto else ""))
     try:
         with progress:
-            outcome = run_procedures(ctx, names, out_path=out, write_on_fail=args.write_on_fail)
+            outcome = run_procedures(ctx, names, out_path=out, write_on_fail=args.write_on_fail,
+                                     factories=factories)
     finally:
         # Procedures drive amplifiers (positioners, amplifier and friction tests): however they
         # end — done, failed, Ctrl-C, SIGTERM — the rig ends disabled, at 0 V, PWM off.

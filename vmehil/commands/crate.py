@@ -17,10 +17,10 @@ import shlex
 import sys
 from typing import Any
 
+from emulators.board_types import BOARD_TYPES
 from emulators.crate import Crate
 from emulators.crate_file import load_crate
 from emulators.presets import resolve_rig
-from emulators.registry import board_types
 from hal.vme.errors import BusError
 from hal.vme.types import AddressSpace, Width
 
@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     crate = _load(resolve_rig(args.rig))
     cmd = args.crate_cmd
     if cmd == "types":
-        _emit(args, board_types(), lambda v: "\n".join(v))
+        _emit(args, BOARD_TYPES.names(), lambda v: "\n".join(v))
     elif cmd == "list":
         _emit(args, crate.describe(), _table)
     elif cmd in ("demo", "counters"):

@@ -12,12 +12,16 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from types import ModuleType
 
 from servo.interrupts import Terminated, interrupt_exit_status
+from vmehil import can_options, fault_options, vision_options
 from vmehil.cli_types import duration_s, seed
 from vmehil.commands import console_port_needs_serial, refuse_without
+from vmehil.console import extension as console_extension
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
 from vmehil.files import write_json
+from vmehil.mavlink import extension as mavlink_extension
 from vmehil.realtime_options import add_overrun_args, overrun_options
 
 # Modules that extend `vmehil run` (live tuning over MAVLink, the operator console, ...). Each
@@ -28,13 +32,13 @@ from vmehil.realtime_options import add_overrun_args, overrun_options
 # and ``make_link(args, rig) -> PlantLink | None`` to run the plant elsewhere (the CAN plant
 # node): the first link returned replaces the in-process plant. An attached object with
 # ``add_to_summary(summary)`` adds its keys to the run's summary.
-RUN_EXTENSIONS: list[str] = [
-    "vmehil.mavlink.extension",
-    "vmehil.vision_options",
-    "vmehil.can_options",
-    "vmehil.console.extension",
-    "vmehil.fault_options",  # after vision_options: a vision fault needs the attached vision system
-]
+RUN_EXTENSIONS: tuple[ModuleType, ...] = (
+    mavlink_extension,
+    vision_options,
+    can_options,
+    console_extension,
+    fault_options,  # after vision_options: a vision fault needs the attached vision system
+)
 
 
 def add_rig_args(p: argparse.ArgumentParser) -> None:
@@ -58,15 +62,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="calibration file for the drivers (default: calibration/<rig>.toml or "
                         "$VMEHIL_CALIBRATION_DIR/<rig>.toml; missing → nominal values with a warning)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
-    for ext in _extensions():
+    for ext in RUN_EXTENSIONS:
         ext.add_arguments(p)
     p.set_defaults(func=run)
-
-
-def _extensions():
-    import importlib
-
-    return [importlib.import_module(name) for name in RUN_EXTENSIONS]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -80,8 +78,6 @@ def run(args: argparse.Namespace) -> int:
     from servo.control.gains import parse_gains
     from servo.gain_guard import check_values
     from servo.rig import load_rig
-    from vmehil import fault_options
-
     if fault_options.wants_list(args):
         return fault_options.list_faults()
     # values now (before a rig is built); stability in build_loop, on the rig's loop
@@ -104,7 +100,7 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     from vmehil.system import build_emulated_rig
 
     defaults: dict = {}
-    for ext in _extensions():
+    for ext in RUN_EXTENSIONS:
         prep = getattr(ext, "prepare", None)
         if prep is not None:
             defaults.update(prep(args, rig) or {})
@@ -132,7 +128,7 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
         # armed(): whatever ends the block (its end, an exception, Ctrl-C, SIGTERM) ends with the
         # amplifiers disabled, 0 V on the DACs and PWM off, read back (loop.final_stop).
         with loop.armed():
-            attached = [a for a in (ext.attach(args, system, loop, runner) for ext in _extensions()) if a is not None]
+            attached = [a for a in (ext.attach(args, system, loop, runner) for ext in RUN_EXTENSIONS) if a is not None]
             if not args.quiet:
                 print(f"run: {n_ticks} ticks ({duration:g} s) on {rig.name}, amplifiers enabled", file=sys.stderr)
             with progress:
@@ -196,7 +192,7 @@ def _build_calibrated(args: argparse.Namespace, rig, build):
 
 def _make_link(args: argparse.Namespace, rig):
     """The plant link an extension asks for (``--plant can``), else ``None`` (in-process)."""
-    for ext in _extensions():
+    for ext in RUN_EXTENSIONS:
         make = getattr(ext, "make_link", None)
         link = make(args, rig) if make is not None else None
         if link is not None:

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from servo.trajectory.sequencer import Sequencer
-from vmehil.calibration.emulated import EmulatedFixture, EmulatedPositioner
+from vmehil.calibration.procedures import ALL, procedures_in_order
 from vmehil.calibration.store import CalibrationStore
 from vmehil.console.commands import (
     Outcome,
@@ -45,6 +45,7 @@ from vmehil.console.commands import (
     resolve_joint,
 )
 from vmehil.console.protocol import ARGS, FILE, STATE, VALUE, Arg, ConsoleError, kv
+from vmehil.emulated_calibration import EmulatedFixture, EmulatedPositioner
 from vmehil.system import EmulatedRig
 
 #: procedures that ask the operator for reference angles unless ``--auto`` (the console cannot prompt)
@@ -63,19 +64,12 @@ class CalibrationRequest:
     auto: bool
 
 
-def _procedures() -> dict[str, Any]:
-    from vmehil.commands.calibrate import _load_procedures
-
-    return _load_procedures()
-
-
 def parse_request(args: list[Arg], names: list[str]) -> CalibrationRequest:
     """``PROCEDURE [--joint N ...] [--auto]`` (or ``joint=N``, ``auto=1``) → a request;
     :class:`ConsoleError` ARGS/VALUE naming what is wrong."""
     from vmehil.calibration.procedure_runner import resolve_procedure_names
 
-    procs = _procedures()
-    choices = f"all, {', '.join(sorted(procs, key=lambda n: procs[n].order))}"
+    choices = f"{ALL}, {', '.join(p.name for p in procedures_in_order())}"
     usage = "usage: calibrate PROCEDURE [--joint N ...] [--auto]"
     procedure: str | None = None
     joints: list[int] = []

@@ -15,9 +15,9 @@ from __future__ import annotations
 import math
 import os
 import stat
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -28,6 +28,7 @@ from vmehil.console.protocol import (
     ARGS,
     FILE,
     GAIN,
+    INTERNAL,
     STATE,
     UNAVAILABLE,
     VALUE,
@@ -37,9 +38,6 @@ from vmehil.console.protocol import (
     kv,
     type_name,
 )
-
-if TYPE_CHECKING:
-    from vmehil.console.compound import CompoundLibrary, Executor
 
 # parameter types: the (DM)² four, plus "joint" (an int 1..n or a joint name, or "all")
 STRING, INT, FLOAT, VECTOR, JOINT = "string", "int", "float", "vector", "joint"
@@ -94,6 +92,32 @@ class Outcome:
     deferred: bool = False
 
 
+# The compound-command language (vmehil.console.compound) is built on the atoms; the atoms see its
+# library and executor only through these protocols, so this module does not import it.
+class CompoundCommand(Protocol):
+    """A loaded compound command as the atoms list it (:class:`vmehil.console.compound.CompoundDef`)."""
+
+    name: str
+
+    @property
+    def where(self) -> str: ...
+
+    def usage(self) -> str: ...
+
+
+class CompoundRunner(Protocol):
+    """The running compound commands as the atoms control them (:class:`vmehil.console.compound.Executor`)."""
+
+    @property
+    def active(self) -> Mapping[int, Any]: ...
+
+    def active_ids(self) -> list[int]: ...
+
+    def cancel(self, inv_id: int, reason: str) -> int: ...
+
+    def cancel_all(self, reason: str) -> int: ...
+
+
 @dataclass
 class Session:
     """What commands act on: the ``loop`` (a :class:`servo.loop.ServoLoop` or an object with the
@@ -103,8 +127,8 @@ class Session:
 
     loop: Any
     delay: float = 0.0
-    library: CompoundLibrary | None = None
-    executor: Executor | None = None
+    library: Mapping[str, CompoundCommand] | None = None
+    executor: CompoundRunner | None = None
     shutdown: Callable[[], None] | None = None
     calibrate: Callable[[Session, list[Arg]], Outcome] | None = None
     source: str = "console"
@@ -142,15 +166,10 @@ class Atom:
         return " ".join([self.name, *(p.usage() for p in self.params)] + (["..."] if self.varargs else []))
 
 
-ATOMS: dict[str, Atom] = {}
-
-
-def atom(name: str, params: tuple[Param, ...], summary: str, **flags: Any) -> Callable[[AtomHandler], AtomHandler]:
-    def deco(fn: AtomHandler) -> AtomHandler:
-        if name in ATOMS:
-            raise ValueError(f"console command {name!r} is already defined")
-        ATOMS[name] = Atom(name, params, fn, summary, **flags)
-        return fn
+def atom(name: str, params: tuple[Param, ...], summary: str, **flags: Any) -> Callable[[AtomHandler], Atom]:
+    """Decorator: the function becomes the :class:`Atom` ``name`` (listed in :data:`ATOMS`)."""
+    def deco(fn: AtomHandler) -> Atom:
+        return Atom(name, params, fn, summary, **flags)
     return deco
 
 
@@ -605,25 +624,13 @@ def _commands(s: Session, a: dict[str, Any]) -> Outcome:
     return Outcome(lines, kv(count=len(lines)))
 
 
-def _prepare_load(a: dict[str, Any], n_joints: int, names: list[str]) -> dict[str, Any]:
-    from vmehil.console.compound import CompoundError, load_compound_file
-
-    check_console_file(a["file"], "compound command file")
-    try:
-        lib = load_compound_file(a["file"], n_joints=n_joints, names=names)
-    except FileNotFoundError as e:
-        raise ConsoleError(FILE, f"compound command file {a['file']!r} not found ({e.strerror or e})") from None
-    except (CompoundError, OSError, UnicodeDecodeError) as e:
-        raise ConsoleError(FILE, str(e)) from None
-    return {**a, "library": lib}
-
-
 @atom("load", (Param("file", STRING),), "load (or reload) a compound command file, replacing the loaded commands",
       in_files=False)
 def _load(s: Session, a: dict[str, Any]) -> Outcome:
+    # The file was read off-loop by vmehil.console.compound.prepare (load is not allowed in files).
     lib = a.get("library")
     if lib is None:
-        lib = _prepare_load(a, s.n, s.names)["library"]
+        raise ConsoleError(INTERNAL, "load: the file was not read before the command ran")
     s.library = lib
     s.loop.note(s.source, f"loaded {len(lib)} compound command(s) from {a['file']}")
     return Outcome([kv("DATA", "command", name=d.name, usage=d.usage(), where=d.where) for d in lib.values()],
@@ -668,12 +675,18 @@ def _shutdown(s: Session, a: dict[str, Any]) -> Outcome:
     return Outcome(ok=kv(state=loop_state(s.loop)))
 
 
+#: The atomic commands by name, in the order of ``help``.
+ATOMS: dict[str, Atom] = {a.name: a for a in (
+    _help, _status, _move, _move_rel, _move_joint, _stay, _gains, _mode, _stop, _enable, _run, _calibrate, _log,
+    _commands, _load, _cancel, _pause, _echo, _shutdown,
+)}
+
+
 def prepare(name: str, bound: dict[str, Any], n_joints: int, names: list[str]) -> dict[str, Any]:
-    """The off-loop phase of a command (reading files); returns the arguments to run with."""
+    """The off-loop phase of an atom that reads a motion file (``run``); returns the arguments to
+    run with. ``load`` reads its file in :func:`vmehil.console.compound.prepare`, which wraps this."""
     if name == "run":
         return _prepare_run(bound, n_joints)
-    if name == "load":
-        return _prepare_load(bound, n_joints, names)
     return bound
 
 

@@ -50,8 +50,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Union
 
-from vmehil.console.commands import ATOMS, FLOAT, INT, STRING, VECTOR, Atom, Param, Session, Typed, bind, prepare
-from vmehil.console.protocol import BUSY, INTERNAL, STATE, ConsoleError, Value, kv, one_line, type_name
+from vmehil.console.commands import (
+    ATOMS,
+    FLOAT,
+    INT,
+    STRING,
+    VECTOR,
+    Atom,
+    Param,
+    Session,
+    Typed,
+    bind,
+    check_console_file,
+)
+from vmehil.console.commands import prepare as prepare_atom
+from vmehil.console.protocol import BUSY, FILE, INTERNAL, STATE, ConsoleError, Value, kv, one_line, type_name
 
 TYPES = (STRING, INT, FLOAT, VECTOR)
 KEYWORDS = {"command", "async", "sync"}
@@ -444,7 +457,7 @@ class _Parser:
                 if not path.is_absolute() and self.base_dir is not None and not path.exists():
                     path = self.base_dir / path
                 try:
-                    call.prepared = prepare("run", {"file": str(path)}, self.n_joints, self.names or [])
+                    call.prepared = prepare_atom("run", {"file": str(path)}, self.n_joints, self.names or [])
                 except ConsoleError as e:
                     raise call.pos.error(e.message) from None
 
@@ -483,6 +496,22 @@ def load_compound_file(path: str | Path, *, n_joints: int | None = None, names: 
         col = e.start - (data.rfind(b"\n", 0, e.start) + 1) + 1
         raise CompoundError(str(p), line, col, "the file is not UTF-8 text") from None
     return parse_compound(text, str(p), n_joints=n_joints, names=names, known=known, base_dir=p.parent)
+
+
+def prepare(name: str, bound: dict[str, Any], n_joints: int, names: list[str]) -> dict[str, Any]:
+    """The off-loop phase of an atom sent on the console line; returns the arguments to run with.
+    ``load`` reads and checks its compound file here (the atoms cannot import this language, which
+    is built on them); the others as :func:`vmehil.console.commands.prepare`."""
+    if name != "load":
+        return prepare_atom(name, bound, n_joints, names)
+    check_console_file(bound["file"], "compound command file")
+    try:
+        lib = load_compound_file(bound["file"], n_joints=n_joints, names=names)
+    except FileNotFoundError as e:
+        raise ConsoleError(FILE, f"compound command file {bound['file']!r} not found ({e.strerror or e})") from None
+    except (CompoundError, OSError, UnicodeDecodeError) as e:
+        raise ConsoleError(FILE, str(e)) from None
+    return {**bound, "library": lib}
 
 
 # ---- execution --------------------------------------------------------------------------------------------

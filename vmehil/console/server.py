@@ -37,8 +37,8 @@ from pathlib import Path
 from typing import Any, Protocol
 from urllib.parse import urlsplit
 
-from vmehil.console.commands import ATOMS, Atom, Outcome, Session, bind, bind_request, prepare
-from vmehil.console.compound import CompoundLibrary, Executor
+from vmehil.console.commands import ATOMS, Atom, Outcome, Session, bind, bind_request
+from vmehil.console.compound import CompoundLibrary, Executor, prepare
 from vmehil.console.protocol import (
     BINARY,
     BUSY,

@@ -11,11 +11,10 @@ import math
 import numpy as np
 import pytest
 
-import vmehil.calibration.procedures  # noqa: F401  (registers the procedures)
 from tests.support.calib_bench import Errors, build_bench
 from vmehil.calibration.adc import AdcProcedure
 from vmehil.calibration.amplifier import AmplifierProcedure
-from vmehil.calibration.base import PROCEDURES, CalibrationAbort, register_procedure
+from vmehil.calibration.base import CalibrationAbort
 from vmehil.calibration.dac import DacProcedure
 from vmehil.calibration.encoder import EncoderProcedure
 from vmehil.calibration.pot import ARCMIN_PER_RAD, PotProcedure, pot_targets
@@ -219,11 +218,7 @@ def test_a_failing_procedure_writes_nothing(tmp_path):
         def run(self, ctx):
             raise CalibrationAbort("wiper open")
 
-    register_procedure("boom_test", Boom, order=99, help="test", in_all=False)
-    try:
-        out = run_procedures(b.context(), ["adc", "boom_test"], out_path=path)
-    finally:
-        PROCEDURES.pop("boom_test")
+    out = run_procedures(b.context(), ["adc", "pot"], out_path=path, factories={"pot": Boom})
     assert out.error and "wiper open" in out.error
     assert path.read_text() == "old"
 
@@ -251,10 +246,7 @@ def test_the_written_message_claims_a_prev_only_when_one_was_kept(tmp_path):
     assert out.previous.exists()
 
 
-def test_registry_refuses_duplicates_and_all():
-    with pytest.raises(ValueError):
-        register_procedure("adc", AdcProcedure, order=1, help="x")
-    with pytest.raises(ValueError):
-        register_procedure("all", AdcProcedure, order=1, help="x")
+def test_all_runs_the_converters_first_and_not_friction():
+    assert resolve_procedure_names("all") == ["adc", "dac", "encoder", "amplifier", "pot"]
     with pytest.raises(ValueError, match="unknown calibration procedure"):
         resolve_procedure_names("frobnicate")

@@ -1,0 +1,40 @@
+"""The board types crate files can name (``type = "adc"``): the built-in table, plus the entry
+points of group ``vmehil.board_types`` that installed distributions declare (docs/architecture.md)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from emulators.adc import adc_factory
+from emulators.bit3 import bit3_factory
+from emulators.board_factory import BoardFactory, BuildContext
+from emulators.dac import dac_factory
+from emulators.pio import pio_from_config
+from emulators.quadrature import quad_from_config
+from emulators.ram import RamBoard
+from hal.config import ConfigTable
+from hal.plugins import PluginTable
+
+
+def _ram(name: str, cfg: ConfigTable, ctx: BuildContext) -> RamBoard:
+    return RamBoard(name, cfg.get_int("size", min=1, max=1 << 32))
+
+
+BUILTIN_BOARD_TYPES: dict[str, BoardFactory] = {
+    "ram": _ram,
+    "adc": adc_factory,
+    "dac": dac_factory,
+    "pio": pio_from_config,
+    "quad": quad_from_config,
+    "bit3": bit3_factory,
+}
+
+
+def _factory(name: str, obj: Any) -> BoardFactory:
+    if not callable(obj):
+        raise TypeError(f"a board type is a factory (name, cfg, ctx) -> Board, not {type(obj).__name__}")
+    return obj
+
+
+BOARD_TYPES: PluginTable[BoardFactory] = PluginTable("vmehil.board_types", "board type", BUILTIN_BOARD_TYPES,
+                                                     _factory)
