@@ -14,7 +14,7 @@ from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name, 
 from vmehil.commands import calibrate, console, crate, plant_node, run, tune, vision
 from vmehil.commands.errors import CliError
 from vmehil.exit_status import EXIT_UNEXPECTED, EXIT_USAGE
-from vmehil.outputs import check_outputs
+from vmehil.outputs import check_outputs, mark_output_dirs
 
 __all__ = ["COMMANDS", "CliError", "build_parser", "main"]
 
@@ -57,8 +57,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         check_outputs(args, force=force)
-        with stop_signals_raise():
-            return int(args.func(args) or 0)
+        try:
+            with stop_signals_raise():
+                return int(args.func(args) or 0)
+        finally:
+            mark_output_dirs(args)
     except (CliError, ConfigError, VmeError, FileNotFoundError, ValueError) as e:
         if debug:
             traceback.print_exc()

@@ -38,7 +38,6 @@ from typing import Any
 
 import numpy as np
 
-from emulators.plant.analysis import running_torque_metrics
 from hal.units import nm_to_oz_in
 from servo.control.law import SwitchOffConfig
 from servo.control.objects import BaseControlObject, ControlContext
@@ -250,6 +249,10 @@ def _identify(system: EmulatedRig, joint: int, amplitude_rad: float, frequency_h
         tau = np.asarray(rec.torque_nm)
         theta_m = np.asarray(rec.theta_enc) * ratio
         w_d = np.asarray(rec.omega_d)
+        # the analysis needs scipy (the 'tune' extra): imported here, so that listing the
+        # procedures (vmehil calibrate --help) works without it
+        from emulators.plant.analysis import running_torque_metrics
+
         metrics = running_torque_metrics(t, tau, theta_m, w_d, j_motor)
 
         # --- 2. breakout ramps -----------------------------------------------------------------------

@@ -52,20 +52,37 @@ def check_output_file(path: str | Path, flag: str, *, force: bool = False) -> Pa
     return p
 
 
-def prepare_output_dir(path: str | Path, flag: str, *, force: bool = False) -> Path:
-    """Check ``path`` and create it (with its marker) if needed."""
+def check_output_dir(path: str | Path, flag: str, *, force: bool = False) -> Path:
+    """Check ``path`` before the command runs; nothing is created (a refused command leaves no
+    trace). :func:`mark_output_dirs` marks it as vmehil's once the command has written it."""
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise OutputPathError(f"{flag} {p}: exists and is not a directory; give a directory name")
     if p.is_dir() and not (p / MARKER).exists() and any(p.iterdir()) and not force:
         raise OutputPathError(f"{flag} {p}: the directory is not empty and was not made by vmehil; "
                               "choose another one or add --force to write into it")
-    try:
-        p.mkdir(parents=True, exist_ok=True)
-        (p / MARKER).touch()
-    except OSError as e:
-        raise OutputPathError(f"{flag} {p}: cannot create it ({e.strerror or e})") from None
     return p
+
+
+def _dir_options(args: argparse.Namespace) -> list[tuple[str, Path]]:
+    out = []
+    for attr, flag in DIR_OPTIONS.items():
+        if attr == "out" and getattr(args, "command", None) == "calibrate":
+            continue
+        value = getattr(args, attr, None)
+        if isinstance(value, str | Path):
+            out.append((flag, Path(value)))
+    return out
+
+
+def mark_output_dirs(args: argparse.Namespace) -> None:
+    """After a command: mark the output directories it wrote (checked as ours or new at start)."""
+    for _flag, p in _dir_options(args):
+        if p.is_dir():
+            try:
+                (p / MARKER).touch()
+            except OSError:
+                pass
 
 
 def check_outputs(args: argparse.Namespace, *, force: bool = False) -> None:
@@ -75,9 +92,5 @@ def check_outputs(args: argparse.Namespace, *, force: bool = False) -> None:
         value = getattr(args, attr, None)
         if isinstance(value, str | Path):
             check_output_file(value, flag, force=force)
-    for attr, flag in DIR_OPTIONS.items():
-        if attr == "out" and getattr(args, "command", None) == "calibrate":
-            continue
-        value = getattr(args, attr, None)
-        if isinstance(value, str | Path):
-            prepare_output_dir(value, flag, force=force)
+    for flag, p in _dir_options(args):
+        check_output_dir(p, flag, force=force)

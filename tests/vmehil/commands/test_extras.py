@@ -74,4 +74,4 @@ def test_the_console_on_a_pty_needs_no_extra(tmp_path) -> None:
 def test_the_calibrate_help_lists_the_procedure_whose_extra_is_missing(tmp_path) -> None:
     r = vmehil_without(["scipy"], "calibrate", "--help", cwd=tmp_path)
     assert r.returncode == 0
-    assert "friction   (needs the 'tune' extra)" in r.stdout
+    assert "friction" in r.stdout  # listed; running it without the extra says what to install

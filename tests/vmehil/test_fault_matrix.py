@@ -5,14 +5,13 @@ outcome."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 
+from tests.support import REPO
 from vmehil.fault_injection import CATALOGUE
 from vmehil.fault_matrix import MATRIX, MatrixCase, outcome_ok, run_case
 
-DOC = Path(__file__).resolve().parents[1] / "docs" / "faults.md"
+DOC = REPO / "docs" / "faults.md"
 
 
 @pytest.mark.parametrize("case", MATRIX, ids=[c.spec for c in MATRIX])

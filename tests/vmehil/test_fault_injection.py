@@ -85,7 +85,7 @@ def test_the_summary_lists_the_injected_faults_where_they_struck_and_the_stop(tm
     scenario.write_text('[[fault]]\nname = "enable_stuck_high"\nat_s = 0.4\nparams = { joint = "hand" }\n')
     code = main(["run", "--duration", "1.2", "--quiet", "--json", str(out), "--faults", str(scenario),
                  "--fault", "dac_dead@0.8:joint=j1"])
-    assert code == 1  # the watchdog stopped the run
+    assert code == 4  # the watchdog stopped the run, and its read-back found the hand's enable still high
     data = json.loads(out.read_text())
     j1, hand = data["injected_faults"]  # --fault first, then the --faults file
     assert (hand["tick"], hand["target"], hand["emulator_fault"]) == (50, "pio0:PC7", "line_stuck")  # the wiring
