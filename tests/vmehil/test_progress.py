@@ -113,7 +113,7 @@ def test_log_records_and_warnings_during_a_bar_land_above_it(monkeypatch) -> Non
 
 def test_calibrate_prints_its_lines_above_the_progress_bar_not_on_it(tmp_path, monkeypatch) -> None:
     terminal = on_terminal(monkeypatch)
-    from test_calibration_cli import default_rig_with_references
+    from tests.vmehil.commands.test_calibrate import default_rig_with_references
 
     rig_path = default_rig_with_references(tmp_path)
     assert main(["calibrate", "adc", "--rig", str(rig_path), "--out", str(tmp_path / "cal.toml")]) == 0
@@ -131,7 +131,7 @@ def test_calibrate_prints_its_lines_above_the_progress_bar_not_on_it(tmp_path, m
 
 def test_calibrate_quiet_draws_no_bar(tmp_path, monkeypatch) -> None:
     terminal = on_terminal(monkeypatch)
-    from test_calibration_cli import default_rig_with_references
+    from tests.vmehil.commands.test_calibrate import default_rig_with_references
 
     rig_path = default_rig_with_references(tmp_path)
     assert main(["calibrate", "adc", "--quiet", "--rig", str(rig_path), "--out", str(tmp_path / "cal.toml")]) == 0
