@@ -30,6 +30,18 @@ Rig-level calibration wiring (used by ``vmehil calibrate adc|dac``)::
 Reference pins carry the net ``ref.<board>.<channel>``, loopback pairs the net
 ``loop.<dac board>.<channel>`` (see :func:`reference_net`, :func:`loopback_net`).
 
+Rig-level amplifier enable watchdog (optional; without it the amplifiers have none)::
+
+    [rig.watchdog]
+    line = "pio0:PB7"          # a free PIO line: the charge pump the drivers toggle every tick
+    timeout_s = 0.05           # the amplifiers drop their enables this long after its last edge
+
+One line serves every amplifier of the rig (it feeds their common enable chain, as one charge
+pump does on a real rack), so keeping it alive costs one PIO write per tick however many
+joints and PIO boards there are. The line carries the net ``rig.watchdog``
+(:data:`WATCHDOG_NET`); ``timeout_s`` is the amplifiers' (read by the plant too) and must
+exceed one servo period.
+
 ``[joint.servo]``: ``position = "pot" | "encoder"``, ``velocity = "tach" | "encoder"``,
 ``gains = {kp, kpi, kv, kvi}``, ``switch_off = {...}``, ``max_velocity_deg_s``,
 ``torque_limit_nm``, ``following_error_limit_deg``, ``controller = {objects = [...]}``.
@@ -41,6 +53,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from hal.config import ConfigError, ConfigTable, load_toml
+from hal.pio.pio_regs import ALL_LINES
 
 ANALOG_INPUTS = ("pot", "tach", "imon")
 DIGITAL_OUTPUTS = ("amp_enable", "amp_reset", "direction", "brake")
@@ -81,6 +94,17 @@ class JointSpec:
         return f"{self.name}.{signal}"
 
 
+@dataclass(frozen=True)
+class WatchdogSpec:
+    """The amplifiers' enable watchdog: the PIO line the drivers toggle and its timeout (s)."""
+
+    line: Pin
+    timeout_s: float
+
+
+WATCHDOG_NET = "rig.watchdog"  #: the net of the watchdog line
+
+
 @dataclass
 class RigSpec:
     """A parsed rig file."""
@@ -94,6 +118,7 @@ class RigSpec:
     description: str = ""
     references: dict[Pin, float] = field(default_factory=dict)  #: ADC pin → reference volts
     loopback: dict[Pin, Pin] = field(default_factory=dict)  #: DAC pin → ADC pin it is wired to
+    watchdog: WatchdogSpec | None = None  #: the amplifiers' enable watchdog (None: not wired)
 
     @property
     def period_s(self) -> float:
@@ -153,6 +178,7 @@ def load_rig(path: str | Path) -> RigSpec:
     if not spec.joints:
         raise ConfigError(str(path), "joint", "at least one [[joint]] table")
     _parse_calibration_wiring(spec, rig)
+    spec.watchdog = _parse_watchdog(spec, rig)
     return spec
 
 
@@ -187,3 +213,24 @@ def _parse_calibration_wiring(spec: RigSpec, rig: ConfigTable) -> None:
     loops = rig.table("loopback", {})
     for key in loops.keys():
         spec.loopback[pin(loops, key, key, "dac")] = pin(loops, key, loops.get_str(key), "adc")
+
+
+def _parse_watchdog(spec: RigSpec, rig: ConfigTable) -> WatchdogSpec | None:
+    if "watchdog" not in rig:
+        return None
+    wd = rig.table("watchdog")
+    wd.check_unknown({"line", "timeout_s"})
+    types = {b.get_str("name"): b.get_str("type") for b in spec.table.table("crate", {}).tables("board", [])}
+    text = wd.get_str("line")
+    line = parse_pin(wd, "line")
+    if types.get(line.board) != "pio" or line.channel not in ALL_LINES:
+        raise wd.error("line", 'a PIO line "board:PA0".."board:PC7" of a pio board in [crate]', text)
+    for j in spec.joints:
+        for sig, p in j.wiring.items():
+            if p == line:
+                raise wd.error("line", f"a free PIO line ({line} already carries {j.net(sig)})", text)
+    timeout = wd.get_float("timeout_s", min=1e-3, max=10.0)
+    if not timeout > spec.period_s:
+        raise wd.error("timeout_s", f"more than one servo period ({spec.period_s:g} s): the line has one "
+                                    "edge per tick", timeout)
+    return WatchdogSpec(line, timeout)

@@ -185,3 +185,8 @@ def test_rig_watchdog_table_sets_the_timeout_and_its_absence_none():
     with pytest.raises(ConfigError, match="timeout_ms"):
         plant_params_from_config(_rig_table({"line": "pio0:PB7", "timeout_ms": 50}))
 
+
+def test_the_presets_have_a_watchdog():
+    for rig in ("jpl-arm", "melmalec-16"):
+        p = load_plant_params(rig)
+        assert p.watchdog_timeout_s is not None and p.watchdog_timeout_s > 1 / 125.0, rig

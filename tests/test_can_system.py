@@ -92,6 +92,34 @@ def test_the_servo_loop_over_can_equals_the_in_process_run():
     assert link.counters.answers == TICKS + 1
 
 
+def _hang(system, loop, n: int) -> None:
+    """The controller hangs (no ticks) while the rig's simulated time goes on."""
+    for k in range(loop.tick_count, loop.tick_count + n):
+        system.advance_to(k * system.period_ns + round(system.computation_delay_s * 1e9))
+        system.exchange(k)
+        system.sense(k)
+    loop.tick_count += n
+
+
+def test_the_watchdog_line_reaches_the_node_a_hung_controller_trips_as_in_process():
+    spec = _spec()
+    ref_system, ref = run(spec, n=60)
+    _hang(ref_system, ref, 10)
+    link, node, thread, stop = can_link(spec)
+    try:
+        system, got = run(spec, link, n=60)
+        _hang(system, got, 10)
+    finally:
+        stop.set()
+        thread.join(10)
+        node.close()
+        link.close()
+    assert ref_system.plant.watchdog.trips == spec.n_joints  # every amplifier was on and tripped
+    assert np.array_equal(node.plant.watchdog.cause, ref_system.plant.watchdog.cause)
+    a, b = ref_system.truth(), system.truth()
+    assert np.array_equal(a["current_a"], b["current_a"]) and not a["current_a"].any()
+
+
 def test_a_missing_answer_stops_the_loop_safely_in_that_tick():
     spec = _spec()
     # link tick 0 is the priming exchange; runner tick k exchanges link tick k + 1

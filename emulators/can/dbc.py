@@ -10,7 +10,7 @@ Frame identifiers (11-bit; lower = higher bus priority). ``j`` is the joint inde
 ======  ==================  =====  =========================  =====================================
 ID      message             bytes  sender → receiver          content
 ======  ==================  =====  =========================  =====================================
-0x080   SYNC                24 FD  controller → plant         tick, servo period, computation delay
+0x080   SYNC                24 FD  controller → plant         tick, period, delay, watchdog line
 0x081   CONTROL             8      controller → plant         reset request (seed), joint count
 0x100+j CMD_Jjj             8      controller → plant         amplifier command / enable / reset, PWM
 0x200+j SENS_Jjj            24 FD  plant → controller         pot, tach, current monitor, encoder, fault
@@ -80,6 +80,7 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
             _sig("DelayS", 96, 64, is_float=True, unit="s", minimum=0, maximum=1,
                  comment="computation delay: the previous command holds this long (float64, exact)"),
             _sig("Seq", 160, 8, minimum=0, maximum=255, comment="Tick mod 256"),
+            _bit("Watchdog", 168, "amplifier enable-watchdog (charge-pump) line over the coming period", P),
         ], senders=[C], is_fd=True, comment="Lockstep: advance one servo period and answer."),
         Message(ID_CONTROL, "CONTROL", 8, [
             _sig("Command", 0, 8, minimum=0, maximum=255, choices={0: "NONE", 1: "RESET"},

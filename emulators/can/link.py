@@ -249,8 +249,7 @@ class CanPlantLink(PlantLink):
         raw = self.codec.command_raw(cmd)
         for m in self.codec.command_frames(raw, tick):
             self.ep.send(m)
-        self.ep.send(self.codec.frame("SYNC", Tick=tick & 0xFFFFFFFF, PeriodS=period_s, DelayS=delay_s,
-                                      Seq=tick & 0xFF))
+        self.ep.send(self.codec.sync_frame(raw, tick, period_s, delay_s))
         if self.failed is not None:
             while self._pump(0.0, accept_new_boot=True):
                 pass

@@ -150,6 +150,9 @@ class PlantNode:
         self.cmd_seq = np.full(self.n, -1)
         self.last_tick: int | None = None
         self.counters.steps = 0
+        self._watchdog_rx = 0  # the enable-watchdog line in the last SYNC
+        self._watchdog_edge = False  # an edge arrived since the last step
+        self._watchdog_fed = 0  # the line as the plant sees it
 
     # --- I/O ------------------------------------------------------------------------------------
     def _send(self, msg: can.Message) -> None:
@@ -202,6 +205,9 @@ class PlantNode:
                 self.cmd_raw[k][j] = f.raw[k]
             self.cmd_seq[j] = f.raw["Seq"]
         elif f.kind == "SYNC":
+            level = int(f.raw["Watchdog"])
+            self._watchdog_edge |= level != self._watchdog_rx
+            self._watchdog_rx = level
             if not self.free_running:
                 self.step(int(f.raw["Tick"]), float(f.raw["PeriodS"]), float(f.raw["DelayS"]))
         elif f.kind == "CONTROL":
@@ -227,6 +233,12 @@ class PlantNode:
         raw = self.cmd_raw
         if self.free_running and self._controller_lost():
             raw = self._idle_raw()
+        # One edge per step in which at least one arrived: in lockstep (one SYNC per step) that is
+        # the received level itself; free-running, toggles that arrive two to a step still count.
+        if self._watchdog_edge:
+            self._watchdog_fed ^= 1
+            self._watchdog_edge = False
+        raw = {**raw, "Watchdog": np.asarray(self._watchdog_fed, dtype=np.int64)}
         cmd = self.codec.command_from_raw(raw, self.command_type)
         try:
             sensors = self.plant.step_period(cmd, period_s, delay_s)
