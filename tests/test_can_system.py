@@ -7,6 +7,8 @@ servo loop's safe stop at the stated tick.
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -15,7 +17,8 @@ import numpy as np
 import pytest
 
 from emulators.can.bus import Endpoint, open_bus, private_multicast_namespace
-from emulators.can.dbc import ID_SYNC
+from emulators.can.codec import CanCodec
+from emulators.can.dbc import ID_HEARTBEAT_PLANT, ID_SENS, ID_SYNC
 from emulators.can.link import CONTROLLER_IDS, CanPlantLink
 from emulators.can.node import PLANT_IDS, PlantNode
 
@@ -179,3 +182,71 @@ def test_vmehil_run_against_a_plant_node_process_equals_the_in_process_run(tmp_p
     b = json.loads((tmp_path / "b.json").read_text())
     assert a == b
     assert (tmp_path / "bus.log").stat().st_size > 0
+
+
+def _next_frame(bus, codec: CanCodec, ids, deadline: float, what: str):
+    """The next decodable frame among ``ids`` (others are skipped undecoded: the listener must keep
+    up with a lockstep run's traffic); fails at ``deadline`` — a bound against hangs only."""
+    while True:
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        m = bus.recv(0.5)
+        if m is None or m.arbitration_id not in ids:
+            continue
+        f = codec.try_decode(m)
+        if f is not None:
+            return f
+
+
+@pytest.mark.skipif(not private_multicast_namespace(), reason="udp_multicast only inside a private namespace")
+def test_a_sigkilled_controller_leaves_the_node_with_every_amplifier_latched_off(tmp_path):
+    """SIGKILL runs no safe stop. In lockstep the plant's simulated time stops with the controller,
+    so the node's wall-clock command timeout is the amplifier-side watchdog that acts."""
+    spec = _spec()
+    n = spec.n_joints
+    timeout_s = 0.2
+    codec = CanCodec()
+    watched = {ID_HEARTBEAT_PLANT} | {ID_SENS + j for j in range(n)}
+    listener = open_bus("udp_multicast")
+    node = subprocess.Popen([sys.executable, "-m", "vmehil", "plant-node", "--rig", RIG, "--interface", "udp_multicast",
+                             "--command-timeout", str(timeout_s), "--json", str(tmp_path / "node.json"),
+                             "--duration", "300"], stderr=subprocess.PIPE, text=True)
+    try:
+        assert "plant node" in node.stderr.readline()
+        run = subprocess.Popen([sys.executable, "-m", "vmehil", "run", "--rig", RIG, "--duration", "300", "--quiet",
+                                "--plant", "can", "--interface", "udp_multicast"],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            # Wait for the condition, not for a time: the node says every amplifier is on, then a
+            # joint's encoder moves.
+            deadline = time.monotonic() + 120
+            enabled = moving = False
+            while not moving:
+                assert run.poll() is None, "the controller ended by itself"
+                f = _next_frame(listener, codec, watched, deadline, "the amplifiers enabled and moving")
+                if f.kind == "HEARTBEAT_PLANT":
+                    enabled = f.raw["AmpsEnabled"] == n
+                elif enabled and f.raw["EncoderCounts"] != 0:
+                    moving = True
+            os.kill(run.pid, signal.SIGKILL)
+        finally:
+            run.kill()
+            run.wait(10)
+        assert run.returncode == -signal.SIGKILL
+        deadline = time.monotonic() + 60
+        while True:
+            f = _next_frame(listener, codec, {ID_HEARTBEAT_PLANT}, deadline, "the command timeout in a heartbeat")
+            if f.raw["CommandTimeout"]:
+                break
+        assert (f.raw["AmpsEnabled"], f.raw["WatchdogTripped"], f.raw["OffCause"]) == (0, n, 2)
+    finally:
+        node.terminate()
+        node.wait(10)
+        listener.shutdown()
+    summary = json.loads((tmp_path / "node.json").read_text())
+    amps = summary["amplifiers"]
+    assert amps["enabled"] == 0 and amps["command_timeout"] is True
+    assert [j["latched_off_by"] for j in amps["per_joint"].values()] == [["command_timeout"]] * n
+    assert summary["command_timeouts"] == 1 and summary["watchdog_trips"] == n
+    # the node latched the amplifiers once the stated timeout had passed since the controller's
+    # last SYNC, not before (the upper bound only catches a node that hung instead)
+    assert timeout_s < summary["last_command_silence_s"] < timeout_s + 10.0

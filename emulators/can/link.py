@@ -65,6 +65,8 @@ class LinkCounters:
     peer_missing_cmd: int = 0
     peer_dropped: int = 0
     peer_seq_jumps: int = 0
+    #: the node's last status said an amplifier is latched off by its enable watchdog / command timeout
+    peer_watchdog_tripped: bool = False
 
 
 def merge_events(events: list[QuadratureEvents]) -> QuadratureEvents:
@@ -221,6 +223,7 @@ class CanPlantLink(PlantLink):
         self._check_boot(int(r["BootId"]), accept_new_boot)
         c.peer_missing_cmd, c.peer_dropped, c.peer_seq_jumps = int(r["MissingCmd"]), int(r["Dropped"]), int(
             r["SeqJumps"])
+        c.peer_watchdog_tripped = bool(r["WatchdogTripped"])
         tick = int(r["Tick"])
         sens, truth = self._sens, self._truth
         self._sens, self._truth = {}, {}
