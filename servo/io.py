@@ -348,12 +348,12 @@ class JointIO:
 
     def enable(self, on: bool = True) -> None:
         """Drive every amplifier enable line (and the PWM timers). Enabling starts the watchdog
-        line toggling (its first edge now, so the amplifiers see it with the enables: that
-        edge re-arms an amplifier the watchdog tripped); disabling stops it, low."""
-        if on and self._watchdog_pio is not None:
-            self._toggle_watchdog()
-            self.watchdog_running = True
-        elif not on:
+        line: its first edge comes with the tick's torque write, so the amplifiers see it
+        together with the rising enables (which re-arms one the watchdog tripped) — and never a
+        second edge in the same tick, which would cancel the first. Disabling stops it, low."""
+        if on:
+            self.watchdog_running = self._watchdog_pio is not None
+        else:
             self._stop_watchdog()
         for j in self.rig.joints:
             if "amp_enable" in j.wiring:

@@ -80,6 +80,22 @@ def test_resume_after_a_trip_re_arms_the_amplifiers() -> None:
     assert truth["amp_enabled"].all() and not truth["amp_watchdog_tripped"].any()
 
 
+def test_a_live_resume_long_after_a_stop_re_arms_with_one_edge_in_its_tick() -> None:
+    """The resume runs inside a tick (a live command) that then writes torque: one edge in that
+    tick, not two that would cancel and leave the rising enables facing a dead pump."""
+    system, loop, runner = _started()
+    loop.safe_stop("following_error", "test")
+    runner.run(50)  # 0.4 s: the pump is long dead
+    signals = system.crate.signals
+    before = signals.get_digital(WATCHDOG_NET)
+    loop.submit(lambda lp: lp.resume())
+    runner.run(1)
+    assert loop.enabled and signals.get_digital(WATCHDOG_NET) is not before
+    runner.run(2)
+    truth = system.truth()
+    assert truth["amp_enabled"].all() and system.plant.watchdog.trips == 0
+
+
 def test_a_safe_stop_leaves_the_line_low_and_trips_nothing() -> None:
     system, loop, runner = _started()
     loop.safe_stop("following_error", "test")

@@ -252,7 +252,7 @@ class EnableWatchdog:
     It arms at the first edge after a reset, like a watchdog timer started by its first kick:
     until then it holds nothing off, so a plant stepped without a controller (tests, benchmarks,
     ``load_plant`` users) behaves as it did without a watchdog. The drivers
-    (:class:`servo.io.JointIO`) give the first edge together with the enables.
+    (:class:`servo.io.JointIO`) give the first edge in the tick the enables rise.
 
     Per joint ``cause`` holds why the amplifier is latched off (``WATCHDOG_*`` bits, 0 = not
     latched). Only amplifiers whose enable line is high are latched: a controller that disabled
