@@ -327,8 +327,10 @@ class JointIO:
     def _toggle_watchdog(self) -> None:
         # Last write of the tick, after the commands: the pump is fed only by a tick that got
         # as far as commanding the amplifiers. No read-back: the amplifiers watch the line.
-        self._watchdog_level = not self._watchdog_level
-        self._watchdog_pio.set_line(WATCHDOG_NET, self._watchdog_level, verify=False)  # type: ignore[union-attr]
+        pio = self._watchdog_pio
+        if pio is not None:
+            self._watchdog_level = not self._watchdog_level
+            pio.set_line(WATCHDOG_NET, self._watchdog_level, verify=False)
 
     def _stop_watchdog(self) -> None:
         """Stop toggling and leave the line low (the amplifiers then drop their enables)."""

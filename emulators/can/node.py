@@ -285,9 +285,9 @@ class PlantNode:
         (call while no frame is waiting: a queued SYNC is no silence). True when it did now."""
         expiry = self._command_expiry()
         now = self.clock() if now is None else now
-        if expiry is None or now <= expiry:
+        if expiry is None or self._last_command is None or now <= expiry:
             return False
-        silence = now - self._last_command  # type: ignore[operator]
+        silence = now - self._last_command
         self.command_timed_out = True
         self.last_silence_s = silence
         self.counters.command_timeouts += 1
