@@ -2,12 +2,12 @@
 
 The boards see only nets (:class:`emulators.signals.Signals`). Once per servo period the
 harness reads the command nets (amplifier command volts, enables, PWM, direction, brake,
-fault reset) into a :class:`PlantCommand`, hands it to a :class:`PlantLink` — a function call
-in-process, frames on CAN for the plant node — and publishes the returned
-:class:`PlantSensors` (pot, tach and current-monitor volts at the next sampling instant, the
-encoder's quadrature events during the period, fault lines) on the sensor nets at the start
-of the next tick. Both links pass values through the same :class:`ExchangeCodec`, so the two
-modes give the same results by construction.
+fault reset, and the rig's amplifier enable-watchdog line) into a :class:`PlantCommand`, hands
+it to a :class:`PlantLink` — a function call in-process, frames on CAN for the plant node — and
+publishes the returned :class:`PlantSensors` (pot, tach and current-monitor volts at the next
+sampling instant, the encoder's quadrature events during the period, fault lines) on the sensor
+nets at the start of the next tick. Both links pass values through the same
+:class:`ExchangeCodec`, so the two modes give the same results by construction.
 """
 
 from __future__ import annotations
@@ -71,12 +71,18 @@ class JointNets:
 
 
 class Harness:
-    """Couples a crate's :class:`Signals` to a :class:`PlantLink`, once per servo period."""
+    """Couples a crate's :class:`Signals` to a :class:`PlantLink`, once per servo period.
 
-    def __init__(self, signals: Signals, joints: Sequence[JointNets], link: PlantLink) -> None:
+    ``watchdog_net``: the net of the amplifiers' enable-watchdog line (``None``: not wired; the
+    command then carries the line low, which a plant without a watchdog ignores).
+    """
+
+    def __init__(self, signals: Signals, joints: Sequence[JointNets], link: PlantLink,
+                 watchdog_net: str | None = None) -> None:
         self.signals = signals
         self.joints = list(joints)
         self.link = link
+        self.watchdog_net = watchdog_net
         self.n = len(self.joints)
         self.pending: PlantSensors | None = None
         self.last: PlantSensors | None = None
@@ -105,9 +111,10 @@ class Harness:
                 direction[i] = s.get_digital(j.direction)
             if j.brake:
                 brake[i] = s.get_digital(j.brake)
+        watchdog = s.get_digital(self.watchdog_net) if self.watchdog_net else False
         return PlantCommand(
             amp_command_v=cmd_v, amp_enable=enable, fault_reset=reset,
-            pwm_duty=duty, pwm_direction=direction, brake=brake,
+            pwm_duty=duty, pwm_direction=direction, brake=brake, watchdog_line=watchdog,
         )
 
     def step(self, period_s: float, delay_s: float) -> PlantSensors:

@@ -7,7 +7,11 @@ addresses and spaces come from there, for emulated and real crates alike) and, o
   each quadrature decoder, and the PIO ports for amplifier fault lines;
 * converts volts and counts to SI with each joint's nominal scaling (``SensorScaling``) and
   the loaded calibration (piecewise-linear potentiometer tables);
-* writes all amplifier commands of a DAC board with one simultaneous update strobe.
+* writes all amplifier commands of a DAC board with one simultaneous update strobe;
+* while the amplifiers are enabled, toggles the rig's enable-watchdog line (``[rig.watchdog]``,
+  a charge pump on the amplifier side) once per torque write, i.e. once per tick: one PIO
+  write. A controller that is killed or hangs stops toggling, and the amplifiers drop their
+  enables on their own.
 
 It imports ``hal`` only: it cannot tell an emulated crate from real hardware.
 """
@@ -28,7 +32,7 @@ from hal.amplifiers import clamp_current, command_volts, current_for_torque, dut
 from hal.pio.pio import PioDriver
 from hal.quadrature.quad import QuadratureDriver
 from hal.vme.bus import VmeBus
-from servo.rig import RigSpec
+from servo.rig import WATCHDOG_NET, RigSpec
 
 
 class CalibrationEntry(Protocol):
@@ -173,9 +177,13 @@ class JointIO:
                     pio_lines.setdefault(pin.board, {})[j.net(sig)] = str(pin.channel)
                 elif kind == "quad":
                     quad_cpr.setdefault(pin.board, {})[pin.index] = scaling[j.index].encoder_counts_per_rev
+        wd = rig.watchdog
+        if wd is not None:
+            pio_lines.setdefault(wd.line.board, {})[WATCHDOG_NET] = str(wd.line.channel)
         for name, kind in self._types.items():
             base, space = loc(name)
-            used = any(p.board == name for j in rig.joints for p in j.wiring.values())
+            used = any(p.board == name for j in rig.joints for p in j.wiring.values()) or (
+                wd is not None and wd.line.board == name)
             if not used:
                 continue
             if kind == "adc":
@@ -189,11 +197,17 @@ class JointIO:
                 cpr = quad_cpr[name]
                 self.quad[name] = QuadratureDriver(bus, base, space=space, counts_per_rev=cpr,
                                                    channels=sorted(cpr), errors="report")
-        # Configure PIO output lines (enables, resets, direction, brake) low = safe.
+        # Configure PIO output lines (enables, resets, direction, brake, watchdog) low = safe.
         for pname, drv in self.pio.items():
             outs = [j.net(s) for j in rig.joints for s, p in j.wiring.items()
                     if p.board == pname and s in ("amp_enable", "amp_reset", "direction", "brake")]
+            if wd is not None and wd.line.board == pname:
+                outs.append(WATCHDOG_NET)
             drv.configure(outputs=outs, initial={o: False for o in outs})
+        #: the PIO driver of the watchdog line (None: no watchdog), its level, and whether it toggles
+        self._watchdog_pio = self.pio[wd.line.board] if wd is not None else None
+        self._watchdog_level = False
+        self.watchdog_running = False
         for j in rig.joints:
             if "pwm" in j.wiring:
                 self.pio[j.wiring["pwm"].board].set_pwm_period(scaling[j.index].pwm_period_s)
@@ -354,6 +368,8 @@ class JointIO:
         for board, cmds in per_dac.items():
             self.dac[board].write_many(cmds, update=True)
         self.last_current_a[:] = current
+        if self.watchdog_running:
+            self._toggle_watchdog()
         return current
 
     def write_command_volts(self, volts: Mapping[int, float]) -> None:
@@ -370,6 +386,22 @@ class JointIO:
         for board, cmds in per_dac.items():
             self.dac[board].write_many(cmds, update=True)
 
+    def _toggle_watchdog(self) -> None:
+        # Last write of the tick, after the commands: the pump is fed only by a tick that got
+        # as far as commanding the amplifiers. No read-back: the amplifiers watch the line.
+        pio = self._watchdog_pio
+        if pio is not None:
+            self._watchdog_level = not self._watchdog_level
+            pio.set_line(WATCHDOG_NET, self._watchdog_level, verify=False)
+
+    def _stop_watchdog(self) -> None:
+        """Stop toggling and leave the line low (the amplifiers then drop their enables)."""
+        self.watchdog_running = False
+        if self._watchdog_pio is not None:
+            self._watchdog_level = False
+            # Not read back: a line stuck at either level gives no edges, which is what counts.
+            self._watchdog_pio.set_line(WATCHDOG_NET, False, verify=False)
+
     def _set_hbridge(self, j, duty: float) -> None:
         pwm = j.wiring.get("pwm")
         if pwm is None:
@@ -379,7 +411,14 @@ class JointIO:
         drv.set_pwm(duty, direction_line=direction)
 
     def enable(self, on: bool = True) -> None:
-        """Drive every amplifier enable line (and the PWM timers)."""
+        """Drive every amplifier enable line (and the PWM timers). Enabling starts the watchdog
+        line: its first edge comes with the tick's torque write, so the amplifiers see it
+        together with the rising enables (which re-arms one the watchdog tripped) — and never a
+        second edge in the same tick, which would cancel the first. Disabling stops it, low."""
+        if on:
+            self.watchdog_running = self._watchdog_pio is not None
+        else:
+            self._stop_watchdog()
         for j in self.rig.joints:
             if "amp_enable" in j.wiring:
                 self.pio[j.wiring["amp_enable"].board].set_line(j.net("amp_enable"), on)
@@ -394,7 +433,8 @@ class JointIO:
                 drv.set_line(j.net("amp_reset"), False)
 
     def safe_stop(self) -> list[str]:
-        """Amplifiers disabled, DAC outputs to 0 V, PWM off — then read back that it happened.
+        """Amplifiers disabled, DAC outputs to 0 V, PWM off, the watchdog line no longer
+        toggled (left low) — then read back that it happened.
 
         Keeps going past driver errors (a safe stop must do as much as it can) and returns what
         failed or could not be confirmed (:meth:`verify_stopped`): an empty list means every
@@ -418,6 +458,10 @@ class JointIO:
                     self.pio[j.wiring["amp_enable"].board].set_line(j.net("amp_enable"), False)
             except Exception as e:
                 failures.append(f"{j.name}: {e}")
+        try:
+            self._stop_watchdog()
+        except Exception as e:
+            failures.append(f"watchdog line: {e}")
         self.last_dac_volts[:] = 0.0
         self.last_current_a[:] = 0.0
         return failures + [f for f in self.verify_stopped() if f not in failures]

@@ -30,6 +30,18 @@ Rig-level calibration wiring (used by ``vmehil calibrate adc|dac``)::
 Reference pins carry the net ``ref.<board>.<channel>``, loopback pairs the net
 ``loop.<dac board>.<channel>`` (see :func:`reference_net`, :func:`loopback_net`).
 
+Rig-level amplifier enable watchdog (optional; without it the amplifiers have none)::
+
+    [rig.watchdog]
+    line = "pio0:PB7"          # a free PIO line: the charge pump the drivers toggle every tick
+    timeout_s = 0.05           # the amplifiers drop their enables this long after its last edge
+
+One line serves every amplifier of the rig (it feeds their common enable chain, as one charge
+pump does on a real rack), so keeping it alive costs one PIO write per tick however many
+joints and PIO boards there are. The line carries the net ``rig.watchdog``
+(:data:`WATCHDOG_NET`); ``timeout_s`` is the amplifiers' (read by the plant too) and must
+exceed one servo period.
+
 ``[joint.servo]``: ``position = "pot" | "encoder"``, ``velocity = "tach" | "encoder"``,
 ``gains = {kp, kpi, kv, kvi}``, ``switch_off = {...}``, ``max_velocity_deg_s``,
 ``torque_limit_nm`` (default: the nominal current limit · Kt · N), ``following_error_limit_deg``,
@@ -54,7 +66,7 @@ from pathlib import Path
 from hal.adc_dac.adc_regs import ADC_CHANNELS
 from hal.adc_dac.dac_regs import DAC_CHANNELS
 from hal.config import ConfigError, ConfigTable, load_toml
-from hal.pio.pio_regs import parse_line
+from hal.pio.pio_regs import ALL_LINES, parse_line
 from hal.quadrature.quad_regs import CHANNELS as QUAD_CHANNELS
 
 ANALOG_INPUTS = ("pot", "tach", "imon")
@@ -99,6 +111,17 @@ class JointSpec:
         return f"{self.name}.{signal}"
 
 
+@dataclass(frozen=True)
+class WatchdogSpec:
+    """The amplifiers' enable watchdog: the PIO line the drivers toggle and its timeout (s)."""
+
+    line: Pin
+    timeout_s: float
+
+
+WATCHDOG_NET = "rig.watchdog"  #: the net of the watchdog line
+
+
 @dataclass
 class RigSpec:
     """A parsed rig file."""
@@ -112,6 +135,7 @@ class RigSpec:
     description: str = ""
     references: dict[Pin, float] = field(default_factory=dict)  #: ADC pin → reference volts
     loopback: dict[Pin, Pin] = field(default_factory=dict)  #: DAC pin → ADC pin it is wired to
+    watchdog: WatchdogSpec | None = None  #: the amplifiers' enable watchdog (None: not wired)
 
     @property
     def period_s(self) -> float:
@@ -173,6 +197,7 @@ def load_rig(path: str | Path) -> RigSpec:
     _check_boards(table)
     _check_wiring(spec)
     _parse_calibration_wiring(spec, rig)
+    spec.watchdog = _parse_watchdog(spec, rig)
     return spec
 
 
@@ -264,3 +289,24 @@ def _parse_calibration_wiring(spec: RigSpec, rig: ConfigTable) -> None:
     loops = rig.table("loopback", {})
     for key in loops.keys():
         spec.loopback[pin(loops, key, key, "dac")] = pin(loops, key, loops.get_str(key), "adc")
+
+
+def _parse_watchdog(spec: RigSpec, rig: ConfigTable) -> WatchdogSpec | None:
+    if "watchdog" not in rig:
+        return None
+    wd = rig.table("watchdog")
+    wd.check_unknown({"line", "timeout_s"})
+    types = {b.get_str("name"): b.get_str("type") for b in spec.table.table("crate", {}).tables("board", [])}
+    text = wd.get_str("line")
+    line = parse_pin(wd, "line")
+    if types.get(line.board) != "pio" or line.channel not in ALL_LINES:
+        raise wd.error("line", 'a PIO line "board:PA0".."board:PC7" of a pio board in [crate]', text)
+    for j in spec.joints:
+        for sig, p in j.wiring.items():
+            if p == line:
+                raise wd.error("line", f"a free PIO line ({line} already carries {j.net(sig)})", text)
+    timeout = wd.get_float("timeout_s", min=1e-3, max=10.0)
+    if not timeout > spec.period_s:
+        raise wd.error("timeout_s", f"more than one servo period ({spec.period_s:g} s): the line has one "
+                                    "edge per tick", timeout)
+    return WatchdogSpec(line, timeout)

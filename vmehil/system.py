@@ -21,7 +21,7 @@ from hal.config import ConfigTable
 from servo.boundary import PlantBoundaryError
 from servo.io import JointIO
 from servo.nominal import nominal_scaling, rig_nominal
-from servo.rig import SERVO_JOINT_KEYS, RigSpec, load_rig, loopback_net, reference_net
+from servo.rig import SERVO_JOINT_KEYS, WATCHDOG_NET, RigSpec, load_rig, loopback_net, reference_net
 from vmehil.calibration.store import load_store_or_nominal
 
 #: The ``[[joint]]`` keys that are not the plant's: the servo side's and ``[joint.calibration]``
@@ -31,7 +31,8 @@ NON_PLANT_JOINT_KEYS = (*SERVO_JOINT_KEYS, "calibration")
 
 
 def wired_crate_table(rig: RigSpec) -> ConfigTable:
-    """The rig's ``[crate]`` with every joint pin's net added to its board's wiring table."""
+    """The rig's ``[crate]`` with every joint pin's net (and the calibration and watchdog nets)
+    added to its board's wiring table."""
     data = copy.deepcopy(rig.table.data)
     boards = {b["name"]: b for b in data.get("crate", {}).get("board", [])}
     for j in rig.joints:
@@ -51,6 +52,9 @@ def wired_crate_table(rig: RigSpec) -> ConfigTable:
             else:  # adc, dac: a table channel → net
                 b.setdefault("wiring", {})[str(pin.channel)] = j.net(sig)
     _wire_calibration_nets(rig, boards)
+    if rig.watchdog is not None:
+        pin = rig.watchdog.line
+        boards[pin.board].setdefault("lines", {})[str(pin.channel)] = WATCHDOG_NET
     return ConfigTable(data, rig.table.source)
 
 
@@ -144,7 +148,8 @@ def build_emulated_rig(rig: str | Path | RigSpec | None = None, *, seed: int = 0
         if initial_deg is not None:
             plant.reset(np.radians(np.asarray(initial_deg, float)))
         link = InProcessLink(plant)
-    harness = Harness(crate.signals, joint_nets(spec), link)
+    harness = Harness(crate.signals, joint_nets(spec), link,
+                      watchdog_net=WATCHDOG_NET if spec.watchdog is not None else None)
     _couple_hbridge_noise(crate, spec)
     if isinstance(calibration, str | Path):
         calibration = load_store_or_nominal(calibration, spec, bus=crate)

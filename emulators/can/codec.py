@@ -49,6 +49,9 @@ TRUTH_SIGNALS = {"ThetaJoint": "theta_joint", "OmegaJoint": "omega_joint", "Curr
                  "FrictionNm": "friction_torque_nm"}
 
 CMD_BITS = ("AmpEnable", "FaultReset", "PwmDirection", "Brake")
+#: the per-joint signals of CMD_Jxx (besides Seq); a command's raw dict also holds the rig-level
+#: ``Watchdog`` line, which travels in SYNC
+CMD_SIGNALS = ("AmpCommand", "PwmDuty", *CMD_BITS)
 
 
 class FrameError(ValueError):
@@ -190,13 +193,15 @@ class CanCodec:
 
     # --- commands --------------------------------------------------------------------------------
     def command_raw(self, cmd) -> dict[str, np.ndarray]:
-        """A plant command → raw signal arrays (one entry per joint)."""
+        """A plant command → raw signal arrays (one entry per joint; ``Watchdog``: the rig's one
+        enable-watchdog line, a 0-d array)."""
         out = {
             "AmpCommand": self._q("CMD", "AmpCommand", cmd.amp_command_v),
             "PwmDuty": self._q("CMD", "PwmDuty", cmd.pwm_duty),
         }
         for name, arr in zip(CMD_BITS, (cmd.amp_enable, cmd.fault_reset, cmd.pwm_direction, cmd.brake), strict=True):
             out[name] = np.asarray(arr, dtype=bool).astype(np.int64)
+        out["Watchdog"] = np.asarray(bool(cmd.watchdog_line), dtype=np.int64)
         return out
 
     def command_from_raw(self, raw: dict[str, np.ndarray], command_type: Callable[..., Any]):
@@ -208,6 +213,7 @@ class CanCodec:
             pwm_duty=self._p("CMD", "PwmDuty", raw["PwmDuty"]),
             pwm_direction=np.asarray(raw["PwmDirection"]) != 0,
             brake=np.asarray(raw["Brake"]) != 0,
+            watchdog_line=bool(raw["Watchdog"]),
         )
 
     # --- sensors ---------------------------------------------------------------------------------
@@ -264,9 +270,15 @@ class CanCodec:
                            bitrate_switch=msg.is_fd)
 
     def command_frames(self, raw: dict[str, np.ndarray], seq: int) -> list[can.Message]:
+        """CMD frames of every joint (the ``Watchdog`` line goes in SYNC: :meth:`sync_frame`)."""
         n = len(raw["AmpCommand"])
-        return [self._frame(self.message("CMD", j), {k: int(v[j]) for k, v in raw.items()} | {"Seq": seq & 0xFF})
+        return [self._frame(self.message("CMD", j), {k: int(raw[k][j]) for k in CMD_SIGNALS} | {"Seq": seq & 0xFF})
                 for j in range(n)]
+
+    def sync_frame(self, raw: dict[str, np.ndarray], tick: int, period_s: float, delay_s: float) -> can.Message:
+        """The SYNC of ``tick``, carrying the command's enable-watchdog line."""
+        return self.frame("SYNC", Tick=tick & 0xFFFFFFFF, PeriodS=period_s, DelayS=delay_s, Seq=tick & 0xFF,
+                          Watchdog=int(raw["Watchdog"]))
 
     def sensor_frames(self, raw: dict[str, np.ndarray], seq: int,
                       truth: dict[str, np.ndarray] | None = None) -> list[can.Message]:

@@ -10,14 +10,14 @@ Frame identifiers (11-bit; lower = higher bus priority). ``j`` is the joint inde
 ======  ==================  =====  =========================  =====================================
 ID      message             bytes  sender → receiver          content
 ======  ==================  =====  =========================  =====================================
-0x080   SYNC                24 FD  controller → plant         tick, servo period, computation delay
+0x080   SYNC                24 FD  controller → plant         tick, period, delay, watchdog line
 0x081   CONTROL             8      controller → plant         reset request (seed), joint count
 0x100+j CMD_Jjj             8      controller → plant         amplifier command / enable / reset, PWM
 0x200+j SENS_Jjj            24 FD  plant → controller         pot, tach, current monitor, encoder, fault
-0x280   PLANT_STATUS        16 FD  plant → controller         end of answer: tick echo, counters
+0x280   PLANT_STATUS        16 FD  plant → controller         end of answer: tick echo, counters, watchdog
 0x300+j TRUTH_Jjj           32 FD  plant → controller         ground truth (float64), reports only
 0x701   HEARTBEAT_CONTROLLER 8     controller → all           state, boot id, counter
-0x702   HEARTBEAT_PLANT     8      plant → all                state, boot id, counter
+0x702   HEARTBEAT_PLANT     12 FD  plant → all                state, boot id, counter, amplifier state
 ======  ==================  =====  =========================  =====================================
 """
 
@@ -67,6 +67,8 @@ def _bit(name: str, start: int, comment: str, receiver: str) -> Signal:
 
 
 NODE_STATES = {0: "BOOT", 1: "READY", 2: "RUNNING", 3: "STOPPED", 4: "FAULT"}
+#: HEARTBEAT_PLANT.OffCause: the bits of emulators.plant.amplifier.WATCHDOG_EXPIRED / _COMMAND_TIMEOUT
+OFF_CAUSES = {0: "NONE", 1: "WATCHDOG", 2: "COMMAND_TIMEOUT", 3: "WATCHDOG_AND_COMMAND_TIMEOUT"}
 
 
 def build_database(max_joints: int = MAX_JOINTS) -> Database:
@@ -80,6 +82,7 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
             _sig("DelayS", 96, 64, is_float=True, unit="s", minimum=0, maximum=1,
                  comment="computation delay: the previous command holds this long (float64, exact)"),
             _sig("Seq", 160, 8, minimum=0, maximum=255, comment="Tick mod 256"),
+            _bit("Watchdog", 168, "amplifier enable-watchdog (charge-pump) line over the coming period", P),
         ], senders=[C], is_fd=True, comment="Lockstep: advance one servo period and answer."),
         Message(ID_CONTROL, "CONTROL", 8, [
             _sig("Command", 0, 8, minimum=0, maximum=255, choices={0: "NONE", 1: "RESET"},
@@ -96,6 +99,8 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
             _sig("FreeRunning", 56, 1, minimum=0, maximum=1, receiver=C),
             _sig("StepError", 57, 1, minimum=0, maximum=1, receiver=C, comment="the plant rejected the step"),
             _sig("ResetAck", 58, 1, minimum=0, maximum=1, receiver=C, comment="answer to a CONTROL RESET"),
+            _sig("WatchdogTripped", 59, 1, minimum=0, maximum=1, receiver=C,
+                 comment="an amplifier is latched off by the enable watchdog or the command timeout"),
             _sig("MissingCmd", 64, 16, minimum=0, maximum=65535, receiver=C,
                  comment="command frames missing at a step (held), total, saturating"),
             _sig("Dropped", 80, 16, minimum=0, maximum=65535, receiver=C,
@@ -107,12 +112,27 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
     ]
     for node, fid in ((C, ID_HEARTBEAT_CONTROLLER), (P, ID_HEARTBEAT_PLANT)):
         other = P if node == C else C
-        msgs.append(Message(fid, f"HEARTBEAT_{node}", 8, [
+        signals = [
             _sig("State", 0, 8, minimum=0, maximum=255, choices=dict(NODE_STATES), receiver=other),
             _sig("BootId", 8, 16, minimum=0, maximum=65535, receiver=other),
             _sig("Counter", 24, 8, minimum=0, maximum=255, receiver=other),
             _sig("Tick", 32, 32, minimum=0, maximum=2**32 - 1, receiver=other, comment="last tick handled"),
-        ], senders=[node], comment="Sent every 100 ms (wall clock)."))
+        ]
+        comment = "Sent every 100 ms (wall clock)."
+        if node == P:  # the amplifier side's state: readable while no tick is answered (a dead controller)
+            signals += [
+                _sig("AmpsEnabled", 64, 8, minimum=0, maximum=255, receiver=C,
+                     comment="amplifiers whose output stage is on"),
+                _sig("WatchdogTripped", 72, 8, minimum=0, maximum=255, receiver=C,
+                     comment="amplifiers latched off by the enable watchdog or the command timeout"),
+                _sig("OffCause", 80, 8, minimum=0, maximum=255, receiver=C, choices=dict(OFF_CAUSES),
+                     comment="why they are latched off: 1 watchdog line stopped, 2 command timeout (bits)"),
+                _sig("CommandTimeout", 88, 1, minimum=0, maximum=1, receiver=C,
+                     comment="no CONTROL/SYNC for longer than the node's command timeout"),
+            ]
+            comment = "Sent every 100 ms (wall clock) and at once when the amplifier state changes."
+        msgs.append(Message(fid, f"HEARTBEAT_{node}", 8 if node == C else 12, signals, senders=[node],
+                            is_fd=node == P, comment=comment))
     for j in range(max_joints):
         msgs.append(Message(ID_CMD + j, f"CMD_J{j:02d}", 8, [
             _volts("AmpCommand", 0, "transconductance amplifier input", P),

@@ -65,6 +65,8 @@ class LinkCounters:
     peer_missing_cmd: int = 0
     peer_dropped: int = 0
     peer_seq_jumps: int = 0
+    #: the node's last status said an amplifier is latched off by its enable watchdog / command timeout
+    peer_watchdog_tripped: bool = False
 
 
 def merge_events(events: list[QuadratureEvents]) -> QuadratureEvents:
@@ -221,6 +223,7 @@ class CanPlantLink(PlantLink):
         self._check_boot(int(r["BootId"]), accept_new_boot)
         c.peer_missing_cmd, c.peer_dropped, c.peer_seq_jumps = int(r["MissingCmd"]), int(r["Dropped"]), int(
             r["SeqJumps"])
+        c.peer_watchdog_tripped = bool(r["WatchdogTripped"])
         tick = int(r["Tick"])
         sens, truth = self._sens, self._truth
         self._sens, self._truth = {}, {}
@@ -249,8 +252,7 @@ class CanPlantLink(PlantLink):
         raw = self.codec.command_raw(cmd)
         for m in self.codec.command_frames(raw, tick):
             self.ep.send(m)
-        self.ep.send(self.codec.frame("SYNC", Tick=tick & 0xFFFFFFFF, PeriodS=period_s, DelayS=delay_s,
-                                      Seq=tick & 0xFF))
+        self.ep.send(self.codec.sync_frame(raw, tick, period_s, delay_s))
         if self.failed is not None:
             while self._pump(0.0, accept_new_boot=True):
                 pass

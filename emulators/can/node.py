@@ -15,7 +15,15 @@ Protocol (frames of ``vmehil.dbc``; see ``docs/can.md``):
   commands and publishes the same answer with ``Tick`` = its own step count. If the controller
   falls silent for ``controller_timeout_s`` the node disables every amplifier (idle command)
   until it hears from the controller again.
-* **HEARTBEAT_PLANT** every ``heartbeat_s`` of wall-clock time, carrying the node's boot id.
+* **Command timeout** (both modes; ``command_timeout_s``, ``vmehil plant-node
+  --command-timeout``): when no CONTROL or SYNC has arrived for that long of wall-clock time,
+  the node latches every enabled amplifier off (the plant's enable-watchdog latch, cause
+  ``command_timeout``; re-armed by an enable rising while commands come again). In lockstep
+  simulated time stops with the controller, so the plant's own charge-pump watchdog cannot run
+  out: this is the amplifier side's watchdog on the clock that still runs.
+* **HEARTBEAT_PLANT** every ``heartbeat_s`` of wall-clock time, and at once when the amplifier
+  state changes (a trip, the command timeout): the node's boot id and the amplifiers' state
+  (how many are on, how many latched off and why, whether the command timeout is in force).
 
 Unknown, malformed or out-of-range frames are counted (``PLANT_STATUS.Dropped``) and dropped;
 SYNC ticks that are not the previous + 1 are counted (``SeqJumps``) and stepped anyway.
@@ -31,7 +39,7 @@ import time
 from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import can
 import numpy as np
@@ -40,6 +48,7 @@ from emulators.can.bus import Endpoint
 from emulators.can.codec import CanCodec
 from emulators.can.dbc import ID_HEARTBEAT_PLANT, ID_SENS, ID_STATUS, ID_TRUTH, MAX_JOINTS
 from emulators.faults import FaultInjectable
+from emulators.plant.amplifier import WATCHDOG_COMMAND_TIMEOUT, cause_names
 
 log = logging.getLogger(__name__)
 
@@ -94,6 +103,57 @@ class NodeCounters:
     step_errors: int = 0
     resets: int = 0
     controller_lost: int = 0
+    command_timeouts: int = 0  #: times the command timeout came into force
+    watchdog_trips: int = 0  #: amplifiers latched off (by the watchdog line or the command timeout)
+
+
+@runtime_checkable
+class AmplifierSide(Protocol):
+    """A plant whose amplifiers have the enable-watchdog latch (:class:`emulators.plant.Plant`).
+    Plants without it (the transport tests' toy) report their enable lines and cannot be held off."""
+
+    def amplifier_enabled(self) -> np.ndarray: ...
+
+    def amplifier_watchdog_cause(self) -> np.ndarray: ...
+
+    def hold_amplifiers_off(self, cause: int) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class AmplifierState:
+    """The amplifier side as the node reports it (per joint arrays)."""
+
+    enabled: np.ndarray  #: output stage on
+    cause: np.ndarray  #: why latched off (``WATCHDOG_*`` bits; 0 = not latched)
+    command_timeout: bool  #: no CONTROL/SYNC for longer than the command timeout, now
+
+    @property
+    def tripped(self) -> np.ndarray:
+        return self.cause != 0
+
+    @property
+    def off_cause(self) -> int:
+        """The union of the latched amplifiers' causes."""
+        return int(np.bitwise_or.reduce(self.cause)) if self.cause.size else 0
+
+    def as_dict(self, names: list[str]) -> dict[str, Any]:
+        """For the node's ``--json`` summary: per joint on/off and why."""
+        return {
+            "enabled": int(np.count_nonzero(self.enabled)),
+            "joints": len(names),
+            "command_timeout": self.command_timeout,
+            "per_joint": {name: {"enabled": bool(on), "latched_off_by": cause_names(int(c))}
+                          for name, on, c in zip(names, self.enabled, self.cause, strict=True)},
+        }
+
+    def describe(self, names: list[str]) -> str:
+        """One line for the log: ``amplifiers 0/7 enabled; 7 latched off (command_timeout)``."""
+        text = f"amplifiers {int(np.count_nonzero(self.enabled))}/{len(names)} enabled"
+        if self.tripped.any():
+            text += f"; {int(np.count_nonzero(self.tripped))} latched off ({', '.join(cause_names(self.off_cause))})"
+        if self.command_timeout:
+            text += "; command timeout in force"
+        return text
 
 
 class PlantNode(FaultInjectable):
@@ -109,7 +169,12 @@ class PlantNode(FaultInjectable):
         delay_s: free-running computation delay passed to the plant (s).
         heartbeat_s: heartbeat interval (s, wall clock).
         controller_timeout_s: free-running: silence after which amplifiers are disabled (s).
+        command_timeout_s: both modes: no CONTROL/SYNC for this long latches every enabled
+            amplifier off (s; ``None``: off — the default for a node in the controller's own
+            process, which dies with it; ``vmehil plant-node`` sets 0.2 s).
         command_type: the plant's command class (default :class:`emulators.plant.PlantCommand`).
+        names: joint names for the log (default ``joint0``, ``joint1``, …).
+        clock: monotonic wall clock (s), for the timeouts.
 
     Fault ``dead``: the node process has died — it answers nothing and sends no heartbeat (frames
     reaching it are read and ignored, as a dead node's controller sees nothing of them either).
@@ -122,19 +187,28 @@ class PlantNode(FaultInjectable):
     def __init__(self, endpoint: Endpoint | can.BusABC, plant_factory: Callable[[int], Any], n_joints: int, *,
                  seed: int = 0, free_running: bool = False, period_s: float = 0.008, delay_s: float = 0.0,
                  heartbeat_s: float = 0.1, controller_timeout_s: float = 0.5,
+                 command_timeout_s: float | None = None,
                  command_type: Callable[..., Any] | None = None, codec: CanCodec | None = None,
-                 boot_id: int | None = None) -> None:
+                 boot_id: int | None = None, names: list[str] | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        if command_timeout_s is not None and not command_timeout_s > 0:
+            raise ValueError(f"command_timeout_s must be > 0 (or None), got {command_timeout_s}")
         self.ep = endpoint if isinstance(endpoint, Endpoint) else Endpoint(endpoint, PLANT_IDS, owns_bus=False)
         self.ep.own_ids |= PLANT_IDS
         self.codec = codec or CanCodec()
         self.codec.check_joints(n_joints)
         self.n = n_joints
+        self.names = list(names) if names is not None else [f"joint{j}" for j in range(n_joints)]
+        if len(self.names) != n_joints:
+            raise ValueError(f"{len(self.names)} names for {n_joints} joints")
         self.factory = plant_factory
         self.free_running = free_running
         self.period_s = float(period_s)
         self.delay_s = float(delay_s)
         self.heartbeat_s = heartbeat_s
         self.controller_timeout_s = controller_timeout_s
+        self.command_timeout_s = command_timeout_s
+        self.clock = clock
         if command_type is None:
             from emulators.plant import PlantCommand as command_type
         self.command_type = command_type
@@ -143,6 +217,9 @@ class PlantNode(FaultInjectable):
         self._hb_counter = 0
         self._next_hb = 0.0
         self._last_controller = None  # monotonic time of the last controller frame
+        self._last_command: float | None = None  # monotonic time of the last CONTROL or SYNC
+        self.command_timed_out = False  #: the command timeout is in force
+        self.last_silence_s: float | None = None  #: the silence that brought the last command timeout
         self.state = STATE_READY
         self._reset_state(seed)
 
@@ -159,6 +236,10 @@ class PlantNode(FaultInjectable):
         self.cmd_seq = np.full(self.n, -1)
         self.last_tick: int | None = None
         self.counters.steps = 0
+        self._watchdog_rx = 0  # the enable-watchdog line in the last SYNC
+        self._watchdog_edge = False  # an edge arrived since the last step
+        self._watchdog_fed = 0  # the line as the plant sees it
+        self._trips_seen = 0  # latched amplifiers of this plant already reported
 
     # --- I/O ------------------------------------------------------------------------------------
     def _send(self, msg: can.Message) -> None:
@@ -173,6 +254,7 @@ class PlantNode(FaultInjectable):
         self._send(self.codec.frame(
             "PLANT_STATUS", Tick=tick & 0xFFFFFFFF, BootId=self.boot_id, NJoints=self.n,
             FreeRunning=int(self.free_running), StepError=int(step_error), ResetAck=int(reset_ack),
+            WatchdogTripped=int(self.amplifiers().tripped.any()),
             MissingCmd=c.missing_cmd, Dropped=c.dropped + self._codec_dropped(), SeqJumps=c.seq_jumps,
             Steps=c.steps & 0xFFFF))
 
@@ -184,15 +266,73 @@ class PlantNode(FaultInjectable):
         k = self.codec.counters
         return k.unknown_id + k.wrong_length + k.undecodable + k.out_of_range
 
-    def heartbeat(self, now: float | None = None) -> None:
-        """Send the heartbeat if it is due."""
-        now = time.monotonic() if now is None else now
-        if now < self._next_hb or self.fault("dead") is not None:
+    def heartbeat(self, now: float | None = None, *, force: bool = False) -> None:
+        """Send the heartbeat if it is due (or at once with ``force``: the amplifier state changed)."""
+        now = self.clock() if now is None else now
+        if (now < self._next_hb and not force) or self.fault("dead") is not None:
             return
         self._next_hb = now + self.heartbeat_s
         self._hb_counter = (self._hb_counter + 1) & 0xFF
+        amps = self.amplifiers()
         self._send(self.codec.frame("HEARTBEAT_PLANT", State=self.state, BootId=self.boot_id,
-                                    Counter=self._hb_counter, Tick=(self.last_tick or 0) & 0xFFFFFFFF))
+                                    Counter=self._hb_counter, Tick=(self.last_tick or 0) & 0xFFFFFFFF,
+                                    AmpsEnabled=int(np.count_nonzero(amps.enabled)),
+                                    WatchdogTripped=int(np.count_nonzero(amps.tripped)), OffCause=amps.off_cause,
+                                    CommandTimeout=int(amps.command_timeout)))
+
+    # --- the amplifier side ---------------------------------------------------------------------
+    def amplifiers(self) -> AmplifierState:
+        """The amplifiers now: which are on, which the watchdog or the command timeout latched off."""
+        if isinstance(self.plant, AmplifierSide):
+            enabled, cause = self.plant.amplifier_enabled(), self.plant.amplifier_watchdog_cause()
+        else:
+            enabled, cause = self.cmd_raw["AmpEnable"] != 0, np.zeros(self.n, dtype=np.int64)
+        return AmplifierState(np.asarray(enabled, bool), np.asarray(cause, np.int64), self.command_timed_out)
+
+    def check_command_timeout(self, now: float | None = None) -> bool:
+        """Bring the command timeout into force when no CONTROL/SYNC came for ``command_timeout_s``
+        (call while no frame is waiting: a queued SYNC is no silence). True when it did now."""
+        expiry = self._command_expiry()
+        now = self.clock() if now is None else now
+        if expiry is None or self._last_command is None or now <= expiry:
+            return False
+        silence = now - self._last_command
+        self.command_timed_out = True
+        self.last_silence_s = silence
+        self.counters.command_timeouts += 1
+        latched = np.zeros(self.n, dtype=bool)
+        if isinstance(self.plant, AmplifierSide):
+            latched = np.asarray(self.plant.hold_amplifiers_off(WATCHDOG_COMMAND_TIMEOUT), bool)
+        # A warning only when it cut power: a controller pausing with its amplifiers off is no event.
+        log.log(logging.WARNING if latched.any() else logging.INFO,
+                "plant node: command timeout: no CONTROL/SYNC for %.3f s (limit %g s); %d amplifier(s) latched off",
+                silence, self.command_timeout_s, int(np.count_nonzero(latched)))
+        self._note_trips()
+        self.heartbeat(now, force=True)
+        return True
+
+    def _command_expiry(self) -> float | None:
+        """When the command timeout comes into force unless a CONTROL/SYNC arrives (None: not armed)."""
+        if self.command_timeout_s is None or self._last_command is None or self.command_timed_out:
+            return None
+        return self._last_command + self.command_timeout_s
+
+    def _note_trips(self) -> bool:
+        """Count amplifiers newly latched off (True when there are some)."""
+        tripped = int(np.count_nonzero(self.amplifiers().tripped))
+        new = tripped > self._trips_seen
+        if new:
+            self.counters.watchdog_trips += tripped - self._trips_seen
+        self._trips_seen = tripped
+        return new
+
+    def _commands_again(self, now: float | None) -> None:
+        self._last_command = now
+        if self.command_timed_out:
+            self.command_timed_out = False
+            if self.amplifiers().tripped.any():
+                log.warning("plant node: commands again after the command timeout (latched amplifiers re-arm "
+                            "when their enable rises)")
 
     # --- frames ---------------------------------------------------------------------------------
     def handle(self, m: can.Message) -> None:
@@ -203,7 +343,7 @@ class PlantNode(FaultInjectable):
         if f is None:
             return
         if f.kind in ("CMD", "SYNC", "CONTROL", "HEARTBEAT_CONTROLLER"):
-            self._last_controller = time.monotonic()
+            self._last_controller = self.clock()
         if f.kind == "CMD":
             j = int(f.joint or 0)
             if j >= self.n:
@@ -213,6 +353,10 @@ class PlantNode(FaultInjectable):
                 self.cmd_raw[k][j] = f.raw[k]
             self.cmd_seq[j] = f.raw["Seq"]
         elif f.kind == "SYNC":
+            self._commands_again(self._last_controller)  # SYNC and CONTROL are the command stream
+            level = int(f.raw["Watchdog"])
+            self._watchdog_edge |= level != self._watchdog_rx
+            self._watchdog_rx = level
             if not self.free_running:
                 self.step(int(f.raw["Tick"]), float(f.raw["PeriodS"]), float(f.raw["DelayS"]))
         elif f.kind == "CONTROL":
@@ -221,8 +365,9 @@ class PlantNode(FaultInjectable):
                 self._reset_state(int(f.raw["Seed"]))
                 self.state = STATE_RUNNING
                 self._status(0, reset_ack=True)
+            self._commands_again(self._last_controller)
         elif f.kind == "HEARTBEAT_CONTROLLER":
-            pass
+            pass  # alive, but no command: it does not hold the command timeout off
         else:  # another plant's frames on our bus
             self.counters.dropped += 1
 
@@ -238,6 +383,12 @@ class PlantNode(FaultInjectable):
         raw = self.cmd_raw
         if self.free_running and self._controller_lost():
             raw = self._idle_raw()
+        # One edge per step in which at least one arrived: in lockstep (one SYNC per step) that is
+        # the received level itself; free-running, toggles that arrive two to a step still count.
+        if self._watchdog_edge:
+            self._watchdog_fed ^= 1
+            self._watchdog_edge = False
+        raw = {**raw, "Watchdog": np.asarray(self._watchdog_fed, dtype=np.int64)}
         cmd = self.codec.command_from_raw(raw, self.command_type)
         try:
             sensors = self.plant.step_period(cmd, period_s, delay_s)
@@ -250,9 +401,12 @@ class PlantNode(FaultInjectable):
         for msg in self.codec.sensor_frames(self.codec.sensors_raw(sensors), tick, sensors.truth):
             self._send(msg)
         self._status(tick)
+        if self._note_trips():  # the watchdog line stopped (free-running), or an enable into a dead pump
+            log.warning("plant node: step %d: %s", tick, self.amplifiers().describe(self.names))
+            self.heartbeat(force=True)
 
     def _controller_lost(self) -> bool:
-        lost = self._last_controller is None or time.monotonic() - self._last_controller > self.controller_timeout_s
+        lost = self._last_controller is None or self.clock() - self._last_controller > self.controller_timeout_s
         if lost and self.state == STATE_RUNNING:
             self.counters.controller_lost += 1
             self.state = STATE_STOPPED
@@ -263,11 +417,11 @@ class PlantNode(FaultInjectable):
     # --- serving --------------------------------------------------------------------------------
     def serve(self, stop: threading.Event | None = None, duration_s: float | None = None) -> None:
         """Serve until ``stop`` is set or ``duration_s`` of wall time has passed."""
-        t_end = None if duration_s is None else time.monotonic() + duration_s
-        next_step = time.monotonic() + self.period_s
+        t_end = None if duration_s is None else self.clock() + duration_s
+        next_step = self.clock() + self.period_s
         free_tick = 0
         while not (stop is not None and stop.is_set()):
-            now = time.monotonic()
+            now = self.clock()
             if t_end is not None and now >= t_end:
                 return
             self.heartbeat(now)
@@ -281,11 +435,16 @@ class PlantNode(FaultInjectable):
             wait = self._next_hb - now
             if self.free_running:
                 wait = min(wait, next_step - now)
+            expiry = self._command_expiry()
+            if expiry is not None:  # wake just past it: the timeout acts on time, not at the next poll
+                wait = min(wait, expiry - now + 1e-3)
             if t_end is not None:
                 wait = min(wait, t_end - now)
             m = self.ep.recv(max(0.0, min(wait, 0.05)))
             if m is not None:
                 self.handle(m)
+            else:  # nothing waiting: a silence is real (frames queued behind a stall are not one)
+                self.check_command_timeout()
 
     def start_thread(self) -> tuple[threading.Thread, threading.Event]:
         """Serve in a daemon thread; set the returned event to stop it."""

@@ -23,10 +23,19 @@ H-bridge (``amplifier = "hbridge"``), sign-magnitude PWM averaged over the PWM p
     chopped) and over-temperature (I²t as above); reset as for the linear amplifier.
 
 Current monitor: ``imon_v = i·monitor_v_per_a + offset`` (+ noise added at sampling).
+
+Enable watchdog (:class:`EnableWatchdog`, rig-level ``[rig.watchdog]``): a retriggerable
+charge pump on one line that feeds the enable chain of every amplifier. It arms at the line's
+first edge; from then on each edge keeps the chain closed for ``timeout_s``, and when the edges
+stop, every amplifier whose enable is high is latched off (an open output stage, like disabled)
+until its enable line rises again while the pump runs. The plant node's wall-clock command
+timeout latches the same way (:meth:`EnableWatchdog.hold_off`). A latch is not a fault: the
+fault line stays low and ``fault_reset`` does not clear it.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +43,10 @@ import numpy as np
 FAULT_THERMAL = 1  #: I²t over-temperature
 FAULT_COMPLIANCE = 2  #: compliance (voltage) saturation held too long (linear amplifier)
 FAULT_OVERCURRENT = 4  #: current above the trip level (H-bridge)
+
+WATCHDOG_EXPIRED = 1  #: the charge-pump line stopped toggling for ``timeout_s`` (simulated time)
+WATCHDOG_COMMAND_TIMEOUT = 2  #: the plant node heard no CONTROL/SYNC for its command timeout (wall clock)
+WATCHDOG_CAUSES = {WATCHDOG_EXPIRED: "watchdog", WATCHDOG_COMMAND_TIMEOUT: "command_timeout"}
 
 
 @dataclass
@@ -221,3 +234,98 @@ def current_step(
     if trip_oc.any():
         st.latch(trip_oc, FAULT_OVERCURRENT)
     return i1
+
+
+def cause_names(cause: int) -> list[str]:
+    """The names of the bits of a watchdog cause (``WATCHDOG_CAUSES``), lowest bit first."""
+    return [name for bit, name in WATCHDOG_CAUSES.items() if cause & bit]
+
+
+class EnableWatchdog:
+    """The amplifiers' enable watchdog: a retriggerable charge pump shared by every amplifier.
+
+    The plant sees the line once per servo period, when the period's command takes effect, so an
+    edge is dated at that instant; the pump then runs out ``timeout_s`` later, on the substep
+    grid (:meth:`expiry_substep`). ``timeout_s = None``: no watchdog wired — the pump never runs
+    out (old rig files), but :meth:`hold_off` and the re-arm rule still apply.
+
+    It arms at the first edge after a reset, like a watchdog timer started by its first kick:
+    until then it holds nothing off, so a plant stepped without a controller (tests, benchmarks,
+    ``load_plant`` users) behaves as it did without a watchdog. The drivers
+    (:class:`servo.io.JointIO`) give the first edge in the tick the enables rise.
+
+    Per joint ``cause`` holds why the amplifier is latched off (``WATCHDOG_*`` bits, 0 = not
+    latched). Only amplifiers whose enable line is high are latched: a controller that disabled
+    its amplifiers before it stopped the pump (a safe stop) leaves nothing tripped. Re-arm: a
+    rising edge of the enable line while the pump runs.
+    """
+
+    def __init__(self, n: int, timeout_s: float | None) -> None:
+        if timeout_s is not None and not timeout_s > 0:
+            raise ValueError(f"watchdog timeout_s must be > 0, got {timeout_s}")
+        self.timeout_s = timeout_s
+        self.level = False  #: the line's level in the last command
+        self.last_edge_s = -math.inf  #: plant time of the last edge (never: the pump has not run)
+        self.cause = np.zeros(n, dtype=np.int64)
+        self.trips = 0  #: amplifiers latched off so far (each latching counts once)
+
+    @property
+    def latched(self) -> np.ndarray:
+        return self.cause != 0
+
+    @property
+    def armed(self) -> bool:
+        """A pump wired and started (its line has had an edge since the reset)."""
+        return self.timeout_s is not None and self.last_edge_s > -math.inf
+
+    def alive(self, t_s: float) -> bool:
+        """Whether the pump keeps the enable chain closed at plant time ``t_s``."""
+        if self.timeout_s is None or not self.armed:
+            return True
+        return t_s < self.last_edge_s + self.timeout_s
+
+    def effective(self, enable: np.ndarray) -> np.ndarray:
+        """The enables the output stages obey: the enable lines less the latched amplifiers."""
+        return np.asarray(enable, dtype=bool) & (self.cause == 0)
+
+    def _latch(self, enable: np.ndarray, cause: int) -> bool:
+        new = np.asarray(enable, dtype=bool) & (self.cause == 0)
+        if not new.any():
+            return False
+        self.cause = np.where(new, cause, self.cause)
+        self.trips += int(np.count_nonzero(new))
+        return True
+
+    def command(self, line: bool, enable: np.ndarray, prev_enable: np.ndarray, t_s: float) -> None:
+        """A period's command takes effect at ``t_s``: an edge of the line retriggers the pump
+        (first, so an enable raised together with the first toggle is accepted), a rising enable
+        re-arms its amplifier while the pump runs, an enable high into a dead pump latches."""
+        line = bool(line)
+        if line != self.level:
+            self.level = line
+            self.last_edge_s = t_s
+        if self.alive(t_s):
+            rising = np.asarray(enable, dtype=bool) & ~np.asarray(prev_enable, dtype=bool)
+            if rising.any():
+                self.cause = np.where(rising, 0, self.cause)
+        else:
+            self._latch(enable, WATCHDOG_EXPIRED)
+
+    def expiry_substep(self, t0_s: float, h: float, n_sub: int) -> int:
+        """The first substep of the period starting at ``t0_s`` during which the pump is out
+        (``-1``: it runs through the whole period). An already dead pump gives 0."""
+        if self.timeout_s is None or not self.armed:
+            return -1
+        k = math.ceil((self.last_edge_s + self.timeout_s - t0_s) / h - 1e-9)
+        return max(0, k) if k < n_sub else -1
+
+    def expire(self, enable: np.ndarray) -> bool:
+        """The pump ran out: latch every enabled amplifier (True when one was latched)."""
+        return self._latch(enable, WATCHDOG_EXPIRED)
+
+    def hold_off(self, enable: np.ndarray, cause: int = WATCHDOG_COMMAND_TIMEOUT) -> np.ndarray:
+        """Latch every enabled amplifier off now for ``cause`` (the plant node's command
+        timeout); returns the amplifiers this latched."""
+        before = self.cause.copy()
+        self._latch(enable, cause)
+        return (self.cause != 0) & (before == 0)

@@ -26,6 +26,10 @@ Rig-file layout (``emulators/presets/*.toml``)::
     [joint.encoder]  ...               # EncoderParams
     [joint.tach]     ...               # TachParams
 
+    [rig.watchdog]                     # optional: the amplifiers' enable watchdog (charge pump)
+    line = "pio0:PB7"                  # the PIO output the controller toggles (read by servo.rig)
+    timeout_s = 0.05                   # enables drop this long after the line's last edge
+
 Every key has a default (the dataclass default); unknown keys are errors naming file and key.
 
 A ``[[joint]]`` table is shared with the rig file's other readers (the controller's tables sit
@@ -33,6 +37,8 @@ beside the plant subtables). The plant does not know them: whoever knows every r
 passes their keys as ``foreign_keys`` (skipped unread, any other key the plant does not own is
 an error); without ``foreign_keys`` the plant cannot tell another reader's table from a typo and
 leaves the ``[[joint]]`` keys it does not own unchecked. Its own subtables are always checked.
+
+Without ``[rig.watchdog]`` the amplifiers have no enable watchdog.
 """
 
 from __future__ import annotations
@@ -252,10 +258,12 @@ class JointParams:
 
 @dataclass
 class PlantParams:
-    """The whole plant: the joints (in order) and the integration rate."""
+    """The whole plant: the joints (in order), the integration rate and the amplifiers' enable
+    watchdog timeout (``None``: no watchdog)."""
 
     joints: list[JointParams]
     rate_hz: float = 4000.0
+    watchdog_timeout_s: float | None = None
 
     @property
     def names(self) -> list[str]:
@@ -269,6 +277,8 @@ class PlantParams:
             raise ValueError(f"joint names must be unique, got {names}")
         if not self.rate_hz > 0:
             raise ValueError("plant rate_hz must be > 0")
+        if self.watchdog_timeout_s is not None and not self.watchdog_timeout_s > 0:
+            raise ValueError("watchdog timeout_s must be > 0")
         for j in self.joints:
             j.validate()
 
@@ -355,9 +365,23 @@ def plant_params_from_config(cfg: ConfigTable, *, foreign_keys: Collection[str] 
     joints = [joint_from_config(t, templates, foreign_keys) for t in cfg.tables("joint")]
     if not joints:
         raise cfg.error("joint", "at least one [[joint]] table")
-    params = PlantParams(joints=joints, rate_hz=rate)
+    params = PlantParams(joints=joints, rate_hz=rate, watchdog_timeout_s=watchdog_timeout_from_config(cfg))
     try:
         params.validate()
     except ValueError as e:
         raise ConfigError(cfg.source, "joint", "a valid joint set", str(e)) from None
     return params
+
+
+#: the keys of ``[rig.watchdog]``: the line is the controller's wiring, the timeout the amplifiers'
+WATCHDOG_KEYS = ("line", "timeout_s")
+
+
+def watchdog_timeout_from_config(cfg: ConfigTable) -> float | None:
+    """``[rig.watchdog] timeout_s`` of a rig file's root table (s), ``None`` without the table."""
+    rig = cfg.table("rig", {})
+    if "watchdog" not in rig:
+        return None
+    wd = rig.table("watchdog")
+    wd.check_unknown(set(WATCHDOG_KEYS))
+    return wd.get_float("timeout_s", min=1e-3, max=10.0)

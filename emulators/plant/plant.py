@@ -35,6 +35,7 @@ from emulators.plant.amplifier import (
     AmpConsts,
     AmpDrive,
     AmpState,
+    EnableWatchdog,
     check_slow_faults,
     current_step,
     current_step_linear,
@@ -60,6 +61,8 @@ class PlantCommand:
         pwm_duty: H-bridge PWM duty 0..1.
         pwm_direction: H-bridge direction line (True = positive voltage).
         brake: H-bridge brake line (True = winding shorted through the low-side switches).
+        watchdog_line: the level of the amplifiers' enable-watchdog (charge-pump) line, one
+            line for the whole rig (False where none is wired).
     """
 
     amp_command_v: np.ndarray
@@ -68,6 +71,7 @@ class PlantCommand:
     pwm_duty: np.ndarray
     pwm_direction: np.ndarray
     brake: np.ndarray
+    watchdog_line: bool = False
 
     def copy(self) -> PlantCommand:
         """A copy with its own arrays."""
@@ -78,11 +82,12 @@ class PlantCommand:
             pwm_duty=np.array(self.pwm_duty, dtype=float),
             pwm_direction=np.array(self.pwm_direction, dtype=bool),
             brake=np.array(self.brake, dtype=bool),
+            watchdog_line=bool(self.watchdog_line),
         )
 
     @classmethod
     def idle(cls, n: int) -> PlantCommand:
-        """All amplifiers disabled, zero command, no brake."""
+        """All amplifiers disabled, zero command, no brake, the watchdog line low."""
         return cls(
             amp_command_v=np.zeros(n),
             amp_enable=np.zeros(n, dtype=bool),
@@ -109,8 +114,12 @@ class PlantSensors:
         truth: ground truth for reports/tests (SI): ``theta_joint``, ``omega_joint``,
             ``theta_motor``, ``omega_motor``, ``current_a``, ``friction_torque_nm`` (motor shaft,
             end of period), ``motor_torque_nm``,
-            ``stuck``, ``at_stop``, ``amp_thermal``, ``amp_fault_cause``, ``time_s``; and
-            ``encoder_x4`` (float encoder position at the end).
+            ``stuck``, ``at_stop``, ``amp_thermal``, ``amp_fault_cause``, ``time_s``;
+            ``amp_enabled`` (the output stage is on: enable line high, not latched off by the
+            enable watchdog, no latched fault), ``amp_watchdog_cause`` (why the enable watchdog
+            latched the amplifier off: ``WATCHDOG_*`` bits, 0 = not latched),
+            ``amp_watchdog_tripped`` (cause ≠ 0); and ``encoder_x4`` (float encoder position at
+            the end).
     """
 
     pot_v: np.ndarray
@@ -263,6 +272,7 @@ class Plant(FaultInjectable):
         self.has_tach = bool(self.tach.present.any())
         self.has_tach_ripple = bool(np.any(self.tach.ripple != 0.0))
         self.enc_scale = self.enc_counts_per_rev / (2.0 * math.pi)  #: x4 counts per motor radian
+        self.watchdog_timeout_s = params.watchdog_timeout_s
         self._consts: dict[float, _StepConsts] = {}
         # injected sensor faults: per joint the held volts (NaN: healthy); see _fault_changed
         self._pot_held_v = np.full(self.n_joints, np.nan)
@@ -328,7 +338,8 @@ class Plant(FaultInjectable):
     # ---- state ---------------------------------------------------------------------------
     def reset(self, theta_joint: np.ndarray | None = None) -> None:
         """Return to rest at ``theta_joint`` (rad; default each link's ``initial_angle_rad``),
-        currents zero, amplifiers disabled with faults cleared, noise streams restarted."""
+        currents zero, amplifiers disabled with faults and watchdog latches cleared, noise
+        streams restarted."""
         n = self.n_joints
         if theta_joint is None:
             theta = _stack(self.params.joints, "link.initial_angle_rad")
@@ -344,6 +355,7 @@ class Plant(FaultInjectable):
         self.i = np.zeros(n)
         self.tach_state = np.zeros(n)
         self.amp_state = AmpState(n)
+        self.watchdog = EnableWatchdog(n, self.watchdog_timeout_s)
         self.at_stop = np.zeros(n, dtype=bool)
         self.external_torque_nm = np.zeros(n)
         self.has_external = False
@@ -438,7 +450,9 @@ class Plant(FaultInjectable):
 
         The previous period's command holds for the first ``delay_s`` seconds (computation
         delay, rounded to the substep grid), then ``cmd`` takes effect; a rising edge of
-        ``cmd.fault_reset`` clears latched amplifier faults at that moment.
+        ``cmd.fault_reset`` clears latched amplifier faults at that moment, and the enable
+        watchdog sees ``cmd.watchdog_line`` then. When the watchdog's pump runs out inside the
+        period, the enabled amplifiers open from that substep on.
         """
         if not period_s > 0:
             raise ValueError(f"period_s must be > 0, got {period_s}")
@@ -449,19 +463,29 @@ class Plant(FaultInjectable):
         if self._amp_tripped.any():  # an injected amplifier fault re-trips after every reset
             self.amp_state.latch(self._amp_tripped, FAULT_INJECTED)
         prev = self._prev_cmd
-        drv_old = self._drive(prev)
-        drv_new = self._drive(cmd)
+        wd = self.watchdog
+        t0 = self.time_s
         reset_edge = np.asarray(cmd.fault_reset, dtype=bool) & ~np.asarray(prev.fault_reset, dtype=bool)
         x4 = np.empty((n_sub + 1, self.n_joints))
         x4[0] = self.theta_m * self.enc_scale
         switching = np.zeros(self.n_joints, dtype=bool)
-        drv = drv_old
+        held = prev  # the command the amplifiers obey in the current segment
+        drv = self._drive(held)
+        s_out = wd.expiry_substep(t0, h, n_sub)
         for s in range(n_sub + 1):
+            segment = s == 0
             if s == n_old:
                 if reset_edge.any():
                     self.amp_state.reset_latches(reset_edge)
-                drv = drv_new
-            if s == n_old or s == 0:
+                wd.command(cmd.watchdog_line, cmd.amp_enable, prev.amp_enable, t0 + s * h)
+                s_out = wd.expiry_substep(t0, h, n_sub)  # an edge retriggers the pump
+                held = cmd
+                drv = self._drive(held)
+                segment = True
+            if s == s_out and wd.expire(held.amp_enable):
+                drv = self._drive(held)
+                segment = True
+            if segment:
                 fast = bool(np.all(drv.lin_on & ~self.amp_state.fault))
                 i_ref_term = drv.i_ref * (1.0 - c.amp.loop)
                 if not drv.hb_drive.any():
@@ -480,9 +504,27 @@ class Plant(FaultInjectable):
         return self._sense(x4, h, c, switching)
 
     def _drive(self, cmd: PlantCommand) -> AmpDrive:
+        """The drive of ``cmd`` as the output stages obey it (watchdog-latched amplifiers off)."""
         return prepare_drive(
-            self.amp, cmd.amp_command_v, cmd.amp_enable, cmd.pwm_duty, cmd.pwm_direction, cmd.brake
+            self.amp, cmd.amp_command_v, self.watchdog.effective(cmd.amp_enable), cmd.pwm_duty,
+            cmd.pwm_direction, cmd.brake
         )
+
+    # ---- amplifier side's state (the plant node reports it) ------------------------------
+    def amplifier_enabled(self) -> np.ndarray:
+        """Per joint: the output stage is on under the command in force (its enable line high,
+        not latched off by the enable watchdog, no latched fault)."""
+        return self.watchdog.effective(self._prev_cmd.amp_enable) & ~self.amp_state.fault
+
+    def amplifier_watchdog_cause(self) -> np.ndarray:
+        """Per joint: why the enable watchdog latched the amplifier off (``WATCHDOG_*`` bits)."""
+        return self.watchdog.cause.copy()
+
+    def hold_amplifiers_off(self, cause: int) -> np.ndarray:
+        """Latch every amplifier enabled now off for ``cause`` (an amplifier-side watchdog outside
+        simulated time: the plant node's command timeout); re-armed like a watchdog trip.
+        Returns the joints this latched."""
+        return self.watchdog.hold_off(self._prev_cmd.amp_enable, cause)
 
     def _sense(self, x4: np.ndarray, h: float, c: _StepConsts, switching: np.ndarray) -> PlantSensors:
         th_j = self.joint_angle()
@@ -511,6 +553,9 @@ class Plant(FaultInjectable):
             "at_stop": self.at_stop.copy(),
             "amp_thermal": self.amp_state.thermal.copy(),
             "amp_fault_cause": self.amp_state.cause.copy(),
+            "amp_enabled": self.amplifier_enabled(),
+            "amp_watchdog_cause": self.amplifier_watchdog_cause(),
+            "amp_watchdog_tripped": self.watchdog.latched,
             "encoder_x4": x4[-1].copy(),
         }
         return PlantSensors(

@@ -7,6 +7,8 @@ servo loop's safe stop at the stated tick.
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -18,6 +20,8 @@ import servo.runner as runner_mod
 import vmehil.session as session
 import vmehil.system as system_mod
 from emulators.can.bus import Endpoint, open_bus, private_multicast_namespace
+from emulators.can.codec import CanCodec
+from emulators.can.dbc import ID_HEARTBEAT_PLANT, ID_SENS
 from emulators.can.link import CONTROLLER_IDS, CanPlantLink
 from emulators.can.node import PLANT_IDS, PlantNode
 from emulators.presets import resolve_rig
@@ -72,6 +76,34 @@ def test_the_servo_loop_over_can_equals_the_in_process_run():
         assert np.array_equal(a[key], b[key], equal_nan=True), key
     assert np.ptp(a["theta"][:, 0]) > 0  # the demo move moved
     assert link.counters.answers == TICKS + 1
+
+
+def _hang(system, loop, n: int) -> None:
+    """The controller hangs (no ticks) while the rig's simulated time goes on."""
+    for k in range(loop.tick_count, loop.tick_count + n):
+        system.advance_to(k * system.period_ns + round(system.computation_delay_s * 1e9))
+        system.exchange(k)
+        system.sense(k)
+    loop.tick_count += n
+
+
+def test_the_watchdog_line_reaches_the_node_a_hung_controller_trips_as_in_process():
+    spec = _spec()
+    ref_system, ref = run(spec, n=60)
+    _hang(ref_system, ref, 10)
+    link, node, thread, stop = can_link(spec)
+    try:
+        system, got = run(spec, link, n=60)
+        _hang(system, got, 10)
+    finally:
+        stop.set()
+        thread.join(10)
+        node.close()
+        link.close()
+    assert ref_system.plant.watchdog.trips == spec.n_joints  # every amplifier was on and tripped
+    assert np.array_equal(node.plant.watchdog.cause, ref_system.plant.watchdog.cause)
+    a, b = ref_system.truth(), system.truth()
+    assert np.array_equal(a["current_a"], b["current_a"]) and not a["current_a"].any()
 
 
 def test_a_missing_answer_stops_the_loop_safely_in_that_tick():
@@ -134,3 +166,71 @@ def test_vmehil_run_against_a_plant_node_process_equals_the_in_process_run(tmp_p
     b = json.loads((tmp_path / "b.json").read_text())
     assert a == b
     assert (tmp_path / "bus.log").stat().st_size > 0
+
+
+def _next_frame(bus, codec: CanCodec, ids, deadline: float, what: str):
+    """The next decodable frame among ``ids`` (others are skipped undecoded: the listener must keep
+    up with a lockstep run's traffic); fails at ``deadline`` — a bound against hangs only."""
+    while True:
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        m = bus.recv(0.5)
+        if m is None or m.arbitration_id not in ids:
+            continue
+        f = codec.try_decode(m)
+        if f is not None:
+            return f
+
+
+@pytest.mark.skipif(not private_multicast_namespace(), reason="udp_multicast only inside a private namespace")
+def test_a_sigkilled_controller_leaves_the_node_with_every_amplifier_latched_off(tmp_path):
+    """SIGKILL runs no safe stop. In lockstep the plant's simulated time stops with the controller,
+    so the node's wall-clock command timeout is the amplifier-side watchdog that acts."""
+    spec = _spec()
+    n = spec.n_joints
+    timeout_s = 0.2
+    codec = CanCodec()
+    watched = {ID_HEARTBEAT_PLANT} | {ID_SENS + j for j in range(n)}
+    listener = open_bus("udp_multicast")
+    node = subprocess.Popen([sys.executable, "-m", "vmehil", "plant-node", "--rig", RIG, "--interface", "udp_multicast",
+                             "--command-timeout", str(timeout_s), "--json", str(tmp_path / "node.json"),
+                             "--duration", "300"], stderr=subprocess.PIPE, text=True)
+    try:
+        assert "plant node" in node.stderr.readline()
+        run = subprocess.Popen([sys.executable, "-m", "vmehil", "run", "--rig", RIG, "--duration", "300", "--quiet",
+                                "--plant", "can", "--interface", "udp_multicast"],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            # Wait for the condition, not for a time: the node says every amplifier is on, then a
+            # joint's encoder moves.
+            deadline = time.monotonic() + 120
+            enabled = moving = False
+            while not moving:
+                assert run.poll() is None, "the controller ended by itself"
+                f = _next_frame(listener, codec, watched, deadline, "the amplifiers enabled and moving")
+                if f.kind == "HEARTBEAT_PLANT":
+                    enabled = f.raw["AmpsEnabled"] == n
+                elif enabled and f.raw["EncoderCounts"] != 0:
+                    moving = True
+            os.kill(run.pid, signal.SIGKILL)
+        finally:
+            run.kill()
+            run.wait(10)
+        assert run.returncode == -signal.SIGKILL
+        deadline = time.monotonic() + 60
+        while True:
+            f = _next_frame(listener, codec, {ID_HEARTBEAT_PLANT}, deadline, "the command timeout in a heartbeat")
+            if f.raw["CommandTimeout"]:
+                break
+        assert (f.raw["AmpsEnabled"], f.raw["WatchdogTripped"], f.raw["OffCause"]) == (0, n, 2)
+    finally:
+        node.terminate()
+        node.wait(10)
+        listener.shutdown()
+    summary = json.loads((tmp_path / "node.json").read_text())
+    amps = summary["amplifiers"]
+    assert amps["enabled"] == 0 and amps["command_timeout"] is True
+    assert [j["latched_off_by"] for j in amps["per_joint"].values()] == [["command_timeout"]] * n
+    assert summary["command_timeouts"] == 1 and summary["watchdog_trips"] == n
+    # the node latched the amplifiers once the stated timeout had passed since the controller's
+    # last SYNC, not before (the upper bound only catches a node that hung instead)
+    assert timeout_s < summary["last_command_silence_s"] < timeout_s + 10.0

@@ -2,10 +2,17 @@
 
     vmehil plant-node [--rig NAME|PATH] [--seed N] [--interface virtual|socketcan|udp_multicast]
                       [--channel NAME] [--free-running] [--can-log PATH] [--duration S]
+                      [--command-timeout S] [--json PATH]
 
 The controller side is ``vmehil run --plant can`` with the same rig, interface and channel (see
 docs/can.md). A controller's RESET rebuilds the plant with the controller's seed, so one node
-serves any number of runs. Stop with Ctrl-C (or ``--duration``).
+serves any number of runs. Stop with Ctrl-C, SIGTERM (or ``--duration``).
+
+``--command-timeout`` (default 0.2 s, 0 = off): no CONTROL/SYNC from the controller for that long
+(wall clock) latches every enabled amplifier off — a killed or hung controller leaves no
+powered joints, also in lockstep, where the plant's own enable watchdog cannot run out because
+simulated time stops with the controller. ``--json PATH`` writes the node's summary at exit:
+counters and the amplifiers' state (on or off, and why).
 """
 
 from __future__ import annotations
@@ -13,7 +20,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from vmehil.cli_types import duration_s
+from vmehil.cli_types import bounded_float, duration_s
+from vmehil.files import write_json
+
+DEFAULT_COMMAND_TIMEOUT_S = 0.2
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,6 +36,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--free-running", action="store_true",
                    help="step on the wall clock at the servo rate instead of on the controller's SYNC")
     p.add_argument("--duration", type=duration_s, default=None, help="serve this many seconds (default: until Ctrl-C)")
+    p.add_argument("--command-timeout", type=bounded_float(0.0, 3600.0, what="seconds (0 = off)"),
+                   default=DEFAULT_COMMAND_TIMEOUT_S, metavar="S",
+                   help="latch every enabled amplifier off when no CONTROL/SYNC came for S seconds of wall-clock "
+                        f"time (default {DEFAULT_COMMAND_TIMEOUT_S:g}; 0 = off)")
+    p.add_argument("--json", default=None, metavar="PATH",
+                   help="write the node's summary here at exit (counters, amplifier state and why)")
     p.set_defaults(func=run)
 
 
@@ -39,11 +55,13 @@ def run(args: argparse.Namespace) -> int:
     bus = open_bus(args.interface, args.channel)
     ep = Endpoint(bus, PLANT_IDS, log_path=args.can_log)
     node = PlantNode(ep, lambda seed: Plant.from_config(spec.table, seed=seed), spec.n_joints, seed=args.seed,
-                     free_running=args.free_running, period_s=spec.period_s, delay_s=spec.delay_s)
+                     free_running=args.free_running, period_s=spec.period_s, delay_s=spec.delay_s,
+                     command_timeout_s=args.command_timeout or None, names=spec.names)
     mode = "free-running" if args.free_running else "lockstep"
     iface, chan = resolve(args.interface, args.channel)
     exit_on_sigterm()
-    print(f"plant node: rig {spec.name} ({spec.n_joints} joints), {mode}, {iface} {chan}, "
+    timeout = f"command timeout {args.command_timeout:g} s" if args.command_timeout else "no command timeout"
+    print(f"plant node: rig {spec.name} ({spec.n_joints} joints), {mode}, {iface} {chan}, {timeout}, "
           f"boot id {node.boot_id:#06x}", file=sys.stderr, flush=True)
     try:
         node.serve(duration_s=args.duration)
@@ -53,5 +71,21 @@ def run(args: argparse.Namespace) -> int:
         node.close()
         c = node.counters
         print(f"plant node: {c.steps} steps, {c.resets} resets, missing commands {c.missing_cmd}, dropped "
-              f"{node.dropped_total()}, sequence jumps {c.seq_jumps}", file=sys.stderr)
+              f"{node.dropped_total()}, sequence jumps {c.seq_jumps}; {node.amplifiers().describe(spec.names)}",
+              file=sys.stderr)
+        if args.json:
+            write_json(args.json, summary(node, spec, mode))
     return 0
+
+
+def summary(node, spec, mode: str) -> dict:
+    """The node's ``--json`` summary: what it served and the amplifiers' state at exit."""
+    c = node.counters
+    return {
+        "rig": spec.name, "mode": mode, "boot_id": node.boot_id, "steps": c.steps, "resets": c.resets,
+        "missing_cmd": c.missing_cmd, "dropped": node.dropped_total(), "seq_jumps": c.seq_jumps,
+        "step_errors": c.step_errors, "controller_lost": c.controller_lost,
+        "command_timeout_s": node.command_timeout_s, "command_timeouts": c.command_timeouts,
+        "last_command_silence_s": node.last_silence_s, "watchdog_trips": c.watchdog_trips,
+        "amplifiers": node.amplifiers().as_dict(spec.names),
+    }

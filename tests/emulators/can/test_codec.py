@@ -72,6 +72,17 @@ def test_values_beyond_the_range_are_clipped_and_counted():
     assert c.counters.clipped == 5
 
 
+@pytest.mark.parametrize("level", [False, True])
+def test_the_watchdog_line_rides_in_sync_not_in_the_joint_frames(level):
+    cmd = ToyCommand.idle(2)
+    cmd.watchdog_line = level
+    assert DbcExchangeCodec(CODEC).command(cmd).watchdog_line is level  # the in-process path
+    raw = CODEC.command_raw(cmd)
+    assert all("Watchdog" not in CODEC.decode(m).raw for m in CODEC.command_frames(raw, 5))
+    sync = CODEC.decode(CODEC.sync_frame(raw, 5, 0.008, 0.001))
+    assert (sync.raw["Watchdog"], sync.raw["Tick"], sync.raw["Seq"]) == (int(level), 5, 5)
+
+
 volts = st.floats(-20, 20, allow_nan=False)
 events = st.builds(QuadratureEvents, counts=st.integers(-(2**24), 2**24), illegal=st.integers(0, 70000),
                    index_offsets=st.lists(st.integers(-(2**23), 2**23 - 1), max_size=3).map(tuple),
