@@ -19,7 +19,7 @@ from servo.motion import QuinticMove, WaitMove
 from servo.trajectory.sequencer import Sequencer
 from vmehil.calibration.base import TickHook
 from vmehil.calibration.store import CalibrationStore
-from vmehil.session import build_loop
+from vmehil.session import build_loop, plan_context_of
 from vmehil.system import EmulatedRig
 
 
@@ -48,7 +48,7 @@ class EmulatedPositioner:
         self.loop = build_loop(system, motion=None, watchdog=True)
         # Start holding where the joints are.
         start = self.io.read().theta
-        self.loop.set_motion(Sequencer([WaitMove(0.0)], start, self.loop.plan_context))
+        self.loop.set_motion(Sequencer([WaitMove(0.0)], start, plan_context_of(self.loop)))
         self._theta_d = np.asarray(start, float)
         self._override: dict[int, float] = {}
         period_ns = system.period_ns
@@ -87,7 +87,7 @@ class EmulatedPositioner:
         goal = start.copy()
         for j, a in targets.items():
             goal[j] = a
-        ctx = self.loop.plan_context
+        ctx = plan_context_of(self.loop)
         speed = 1.0
         if speed_rad_s is not None:
             vmax = np.asarray(ctx.limits.v_max, float)

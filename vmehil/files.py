@@ -62,7 +62,7 @@ def is_temp_file(name: str) -> bool:
 
 def remove_stale_temp_files(folder: str | Path) -> list[Path]:
     """Remove the temporary files left in ``folder`` by dead processes of this host; returns them."""
-    removed = []
+    removed: list[Path] = []
     try:
         names = os.listdir(folder)
     except OSError:

@@ -50,7 +50,7 @@ from servo.trajectory.sequencer import Sequencer
 from servo.trajectory.stay import Stay
 from vmehil.calibration.base import CalibrationAbort, Check, ProcedureResult, ProcedureSpec
 from vmehil.files import save_figure, write_atomic
-from vmehil.session import build_loop
+from vmehil.session import build_loop, plan_context_of
 from vmehil.system import EmulatedRig
 
 PAPER_AMPLITUDE_RAD = 0.4
@@ -213,7 +213,7 @@ def _identify(system: EmulatedRig, joint: int, amplitude_rad: float, frequency_h
         target = io.read().theta.copy()
 
         def play(traj: Any) -> None:
-            loop.set_motion(Sequencer([_Play(traj)], traj.start, loop.plan_context))
+            loop.set_motion(Sequencer([_Play(traj)], traj.start, plan_context_of(loop)))
 
         def ticks(seconds: float) -> int:
             return max(1, round(seconds / period))

@@ -113,6 +113,8 @@ def write_report(loop: ServoLoop, summary: dict[str, Any], out_dir: str | Path) 
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if loop.recorder is None:
+        raise ValueError("write_report: the servo loop has no recorder (nothing to report)")
     rec = loop.recorder.trimmed()
     t = rec["t"]
     files: list[Path] = []

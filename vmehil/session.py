@@ -204,3 +204,10 @@ def build_loop(system: EmulatedRig, *, motion: Motion | None = None, gains: dict
     recorder = Recorder(n_ticks, n) if n_ticks else None
     return ServoLoop(system.io, controller, sequencer, wd, recorder=recorder, names=[j.name for j in system.rig.joints],
                      plan_context=PlanContext(limits))
+
+
+def plan_context_of(loop: ServoLoop) -> PlanContext:
+    """The limits ``loop`` plans new moves with (:func:`build_loop` always sets them)."""
+    if loop.plan_context is None:
+        raise RuntimeError("the servo loop has no plan context (it was not built by vmehil.session.build_loop)")
+    return loop.plan_context

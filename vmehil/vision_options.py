@@ -127,7 +127,7 @@ def attach(args: argparse.Namespace, system, loop, runner) -> _Attachment | None
         format_layout(drv.memory())
         server = VisionServoServer(remote.memory, ring=remote.ring)
         remote.on_doorbell(server.notify)
-        vision = VisionSystem(server, target, arm, params)
+        vision = VisionSystem(server, target.tolist(), arm, params)
         timeouts = Timeouts()
     else:
         shm = args._vision_shm

@@ -481,8 +481,8 @@ def predict_joint_velocity(cfg: LoopConfig, nls: list[Nonlinearity], sampled: bo
 
 def headline(cycles: list[Cycle]) -> Cycle | None:
     """The cycle to report first: the largest stable one (None when no stable cycle is predicted)."""
-    stable = [c for c in cycles if c.stable and c.amplitude_rad is not None]
-    return max(stable, key=lambda c: c.amplitude_rad) if stable else None
+    stable = [(c.amplitude_rad, c) for c in cycles if c.stable and c.amplitude_rad is not None]
+    return max(stable, key=lambda ac: ac[0])[1] if stable else None
 
 
 # ------------------------------------------------------------- time-domain check

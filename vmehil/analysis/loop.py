@@ -224,7 +224,7 @@ def _controller_matrices(gains: Gains[float], T: float | None, velocity_source: 
     # error rows over the inputs q = [r, rv, thin, win] (and, for the encoder, the state thprev)
     e_q = np.array([1.0, 0.0, -1.0, 0.0])
     ed_q = np.array([0.0, 1.0, 0.0, -1.0])
-    if encoder:
+    if encoder and T is not None:  # encoder implies T is not None
         ed_q = np.array([0.0, 1.0, -1.0 / T, 0.0])  # + thprev/T, added below
     states: list[str] = []
     if gains.kpi:
@@ -236,7 +236,7 @@ def _controller_matrices(gains: Gains[float], T: float | None, velocity_source: 
     n = len(states)
     ix = {k: i for i, k in enumerate(states)}
     ed_s = np.zeros(n)
-    if encoder:
+    if encoder and T is not None:
         ed_s[ix["thprev"]] = 1.0 / T
     A = np.zeros((n, n))
     B = np.zeros((n, 4))
@@ -383,7 +383,7 @@ def controllable_poles(A: np.ndarray, B: np.ndarray, rtol: float = 1e-9) -> np.n
     """Eigenvalues of A whose modes are controllable from B (PBH test: rank [A − λI, B] = n)."""
     lam = np.linalg.eigvals(A)
     n = A.shape[0]
-    scale = max(np.linalg.norm(A), np.linalg.norm(B), 1.0)
+    scale = max(float(np.linalg.norm(A)), float(np.linalg.norm(B)), 1.0)
     keep = []
     for v in lam:
         M = np.hstack([A - v * np.eye(n), B])

@@ -43,7 +43,7 @@ import copy
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from emulators.plant import plant_params_from_config
 from emulators.presets import resolve_rig
@@ -54,7 +54,7 @@ from servo.control.linear import delay_periods
 from servo.gain_guard import GainVerdict, check_values, judge
 from servo.rig import RigSpec, load_rig
 from vmehil.analysis.describing import DeadZone, Nonlinearity, Quantizer, Relay, Saturation
-from vmehil.analysis.loop import LoopConfig
+from vmehil.analysis.loop import LoopConfig, VelocitySource
 
 
 @dataclass
@@ -238,7 +238,8 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
     breakout = n_gear * fr.breakout_nm * (1.0 + fr.ripple_fraction)
     viscous = n_gear**2 * fr.viscous_nm_s_per_rad
 
-    velocity = js.servo.get_str("velocity", "tach", choices=("tach", "encoder"))
+    # get_str has checked the choices: narrow the str to the literal type LoopConfig takes
+    velocity = cast(VelocitySource, js.servo.get_str("velocity", "tach", choices=("tach", "encoder")))
     position = js.servo.get_str("position", "pot", choices=("pot", "encoder"))
     if "velocity" not in js.servo.data:
         notes.append("[joint.servo] velocity not in the rig: the servo's default, the tachometer")

@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 
@@ -191,6 +191,8 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
     finally:
         system.close()
     js = summary["joints"][j]
+    if loop.recorder is None:
+        raise RuntimeError("simulate: the servo loop was built without a recorder")
     rec = loop.recorder.trimmed()
     t = rec["t"]
     th_true, th_meas, th_d = rec["theta_true"][:, j], rec["theta"][:, j], rec["theta_d"][:, j]
@@ -249,6 +251,14 @@ def _deg(x: float) -> float:
 
 
 TRACE_KEYS = ("t_s", "theta_deg", "theta_meas_deg", "theta_d_deg", "omega_d_deg_s")
+
+
+@overload
+def strip_traces(d: dict[str, Any]) -> dict[str, Any]: ...
+@overload
+def strip_traces(d: None) -> None: ...
+@overload
+def strip_traces(d: dict[str, Any] | None) -> dict[str, Any] | None: ...
 
 
 def strip_traces(d: dict[str, Any] | None) -> dict[str, Any] | None:

@@ -266,7 +266,7 @@ def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None,
     rows: list[dict[str, Any]] = []
     own = executor is None
     stop_event = None
-    if own:
+    if executor is None:
         n = max(1, min(jobs or os.cpu_count() or 1, len(tasks) or 1))
         ctx = multiprocessing.get_context("spawn" if os.name == "nt" else "fork")
         stop_event = ctx.Event()

@@ -98,7 +98,7 @@ def model_check(cfg: LoopConfig, jp: JointParams, seconds: float = 30.0) -> dict
     tail = sim["theta"][len(sim["theta"]) // 2:]
     return {
         "model": "sampled servo law + 1/s² + tach dead band + Coulomb/viscous friction with stiction",
-        "amplitude_deg": math.degrees(amp) if cyc else None,
+        "amplitude_deg": math.degrees(amp) if cyc and amp is not None else None,
         "frequency_hz": freq if cyc else None,
         "final_error_deg": None if cyc else float(math.degrees(abs(tail[-1]))),
         "t_s": sim["t"].tolist(), "theta_deg": np.degrees(sim["theta"]).tolist(),

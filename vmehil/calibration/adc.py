@@ -51,13 +51,14 @@ class AdcProcedure:
         self.samples = samples
 
     def run(self, ctx: CalibrationContext) -> ProcedureResult:
-        res = ProcedureResult(self.name, self.version, update=CalibrationStore.empty(ctx.rig))
+        update = CalibrationStore.empty(ctx.rig)
+        res = ProcedureResult(self.name, self.version, update=update)
         idents = rig_boards(ctx.rig)
         boards = ctx.boards_of("adc")
         res.data["boards"] = {}
         for bi, board in enumerate(boards):
             ctx.progress(f"adc {board}", bi, len(boards))
-            refs = sorted((p.channel, v) for p, v in ctx.rig.references.items() if p.board == board)
+            refs = sorted((p.index, v) for p, v in ctx.rig.references.items() if p.board == board)
             if len({round(v, 6) for _, v in refs}) < 2:
                 res.skipped.append(f"{board}: fewer than two reference levels wired ([rig.references]); nominal")
                 ctx.say(f"  {board}: no references wired — left nominal (pot channels are calibrated end to end)")
@@ -87,7 +88,7 @@ class AdcProcedure:
                 res.checks.append(Check(f"{board}:{ch} loopback INL", worst / LSB_V, "LSB", self.inl_limit_lsb))
             info["loopback_inl_lsb"] = {str(ch): w / LSB_V for ch, w in inl.items()}
             res.data["boards"][board] = info
-            res.update.set_board(BoardCal(idents[board], cal, self.name, self.version, utc_now(),
+            update.set_board(BoardCal(idents[board], cal, self.name, self.version, utc_now(),
                                           tuple(ch for ch, _ in refs)))
         ctx.progress("adc", len(boards), len(boards))
         return res

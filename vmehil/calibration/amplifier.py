@@ -53,7 +53,8 @@ class AmplifierProcedure:
         self.settle_s = settle_s
 
     def run(self, ctx: CalibrationContext) -> ProcedureResult:
-        res = ProcedureResult(self.name, self.version, update=CalibrationStore.empty(ctx.rig))
+        update = CalibrationStore.empty(ctx.rig)
+        res = ProcedureResult(self.name, self.version, update=update)
         joints = [ctx.rig.joints[i] for i in ctx.selected_joints()]
         todo = []
         for j in joints:
@@ -111,7 +112,7 @@ class AmplifierProcedure:
             ]
             values = {"gain_a_per_v": float(gain), "offset_a": float(offset), "monitor_v_per_a": mon,
                       "current_limit_a": limit, "peak_current_a": float(max(peak))}
-            res.update.set_joint(j.name, JointCal(self.name, self.version, utc_now(), values))
+            update.set_joint(j.name, JointCal(self.name, self.version, utc_now(), values))
             res.data["joints"][j.name] = {**values, "commands_v": cmds, "currents_a": amps, "fit_residual_a": resid}
         ctx.progress("amplifier", len(todo), len(todo))
         return res

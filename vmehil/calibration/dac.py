@@ -39,7 +39,8 @@ class DacProcedure:
         self.samples = samples
 
     def run(self, ctx: CalibrationContext) -> ProcedureResult:
-        res = ProcedureResult(self.name, self.version, update=CalibrationStore.empty(ctx.rig))
+        update = CalibrationStore.empty(ctx.rig)
+        res = ProcedureResult(self.name, self.version, update=update)
         idents = rig_boards(ctx.rig)
         if not ctx.rig.loopback:
             res.skipped.append("no [rig.loopback] wiring: DAC left nominal")
@@ -82,7 +83,7 @@ class DacProcedure:
         ctx.progress("dac", len(pairs), len(pairs))
         for board, chans in by_board.items():
             cal = _board_cal(chans, 8)
-            res.update.set_board(BoardCal(idents[board], cal, self.name, self.version, utc_now(), tuple(sorted(chans))))
+            update.set_board(BoardCal(idents[board], cal, self.name, self.version, utc_now(), tuple(sorted(chans))))
         return res
 
     def _measure(self, ctx: CalibrationContext, dac, dch: int, adc, ach: int, volts: float) -> float:

@@ -65,7 +65,8 @@ class EncoderProcedure:
         self.speed = speed_motor_rev_s
 
     def run(self, ctx: CalibrationContext) -> ProcedureResult:
-        res = ProcedureResult(self.name, self.version, update=CalibrationStore.empty(ctx.rig))
+        update = CalibrationStore.empty(ctx.rig)
+        res = ProcedureResult(self.name, self.version, update=update)
         joints = [j for j in (ctx.rig.joints[i] for i in ctx.selected_joints()) if "encoder" in j.wiring]
         if not joints:
             res.skipped.append("no joint with an encoder wired")
@@ -134,7 +135,7 @@ class EncoderProcedure:
                       "index_spacing_rad": 2 * math.pi / ratio}
             if backlash is not None:
                 values["index_hysteresis_counts"] = backlash
-            res.update.set_joint(j.name, JointCal(self.name, self.version, utc_now(), values))
+            update.set_joint(j.name, JointCal(self.name, self.version, utc_now(), values))
             res.data["joints"][j.name] = {**values, "captures": [list(c) for c in captures], "spread_counts": spread}
         ctx.progress("encoder", len(joints), len(joints))
         return res

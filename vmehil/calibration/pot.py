@@ -79,7 +79,8 @@ class PotProcedure:
         self.average_s = average_s
 
     def run(self, ctx: CalibrationContext) -> ProcedureResult:
-        res = ProcedureResult(self.name, self.version, update=CalibrationStore.empty(ctx.rig))
+        update = CalibrationStore.empty(ctx.rig)
+        res = ProcedureResult(self.name, self.version, update=update)
         joints = [j for j in (ctx.rig.joints[i] for i in ctx.selected_joints()) if "pot" in j.wiring]
         if not joints:
             res.skipped.append("no joint with a potentiometer wired")
@@ -108,8 +109,8 @@ class PotProcedure:
             fault = pos.faulted()
             if fault:
                 raise CalibrationAbort(f"the servo loop stopped on the way to stop {s + 1}: {fault}")
-            acc_v = {j.index: [] for j in joints}
-            acc_a = {j.index: [] for j in joints}
+            acc_v: dict[int, list[float]] = {j.index: [] for j in joints}
+            acc_a: dict[int, list[float]] = {j.index: [] for j in joints}
 
             def sample(acc_v=acc_v, acc_a=acc_a) -> None:
                 for j in joints:
@@ -133,10 +134,10 @@ class PotProcedure:
                 raise CalibrationAbort(f"{j.name}: two calibration points read the same pot volts; is the wiper "
                                        "connected and the joint moving?")
             table = PotCalibration(list(v[is_cal]), list(a[is_cal]))
-            s = pos.io.scaling[j.index]
+            sc = pos.io.scaling[j.index]
             verify = ~is_cal if (~is_cal).any() else is_cal
             after = np.array([table.angle(x) for x in v[verify]]) - a[verify]
-            before = (v[verify] - s.pot_zero_v) / s.pot_v_per_rad - a[verify]
+            before = (v[verify] - sc.pot_zero_v) / sc.pot_v_per_rad - a[verify]
             figures = {
                 "before_rms_arcmin": _rms(before) * ARCMIN_PER_RAD,
                 "before_max_arcmin": float(np.max(np.abs(before))) * ARCMIN_PER_RAD,
@@ -156,7 +157,7 @@ class PotProcedure:
             ]
             values = {"volts": [float(x) for x in table.volts], "angles_rad": [float(x) for x in table.angles],
                       **figures, "verification_points": int(verify.sum())}
-            res.update.set_joint(j.name, JointCal(self.name, self.version, utc_now(), values))
+            update.set_joint(j.name, JointCal(self.name, self.version, utc_now(), values))
             res.data["joints"][j.name] = {
                 "points": [{"volts": float(x), "angle_deg": math.degrees(y)} for x, y in zip(v[is_cal], a[is_cal],
                                                                                                strict=True)],

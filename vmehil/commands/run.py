@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     console = getattr(args, "console", None)
     for option, extra, used in (("--report", "plots", bool(args.report)),
                                 ("--mavlink", "mavlink", bool(getattr(args, "mavlink", None))),
-                                ("--console", "console", bool(console) and console_port_needs_serial(console))):
+                                ("--console", "console", bool(console and console_port_needs_serial(console)))):
         if used and refuse_without(f"vmehil run {option}", extra):
             return 2
     from emulators.presets import resolve_rig
@@ -138,7 +138,7 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     finally:
         for a in attached:
             a.close()
-    timing = runner.timing.summary(system.rig.period_s) if args.realtime else None
+    timing = runner.timing.summary(system.rig.period_s) if isinstance(runner, RealtimeRunner) else None
     summary = summarize(loop, rig=system.rig.name, seed=args.seed, realtime=args.realtime,
                         overruns=runner.overruns, timing=timing)
     for a in attached:

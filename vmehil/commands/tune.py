@@ -264,18 +264,18 @@ def run_limit_cycle(args: argparse.Namespace) -> int:
             fig = report.nyquist_df_figure(cfg_plot, nl, cyc, title=title)
             files += report.save_figure_both(fig, d, stem)
             imgs.append(f"{stem}.png")
-        fig = report.limit_cycle_sim_figure(result.get("simulated"), result["switch_off"].get("simulated"),
-                                            result["predicted"],
-                                            f"Full-stack simulation, {jp.rig} joint {jp.joint} ({jp.name}), "
-                                            f"{report._gain_text(jp.cfg)}")
-        if fig is not None:
-            files += report.save_figure_both(fig, d, "cycle_simulated")
+        sim_fig = report.limit_cycle_sim_figure(result.get("simulated"), result["switch_off"].get("simulated"),
+                                                result["predicted"],
+                                                f"Full-stack simulation, {jp.rig} joint {jp.joint} ({jp.name}), "
+                                                f"{report._gain_text(jp.cfg)}")
+        if sim_fig is not None:
+            files += report.save_figure_both(sim_fig, d, "cycle_simulated")
             imgs.append("cycle_simulated.png")
         traces = [("integrators on: reduced nonlinear joint", result.get("model_check")),
                   ("switched off: reduced nonlinear joint", result["switch_off"].get("model_check"))]
-        fig = report.cycle_time_figure(traces, f"Reduced-model check, {jp.rig} joint {jp.joint}")
-        if fig is not None:
-            files += report.save_figure_both(fig, d, "cycle_model_check")
+        check_fig = report.cycle_time_figure(traces, f"Reduced-model check, {jp.rig} joint {jp.joint}")
+        if check_fig is not None:
+            files += report.save_figure_both(check_fig, d, "cycle_model_check")
             imgs.append("cycle_model_check.png")
         md = report.markdown(f"Limit cycles — {jp.rig} joint {jp.joint}", _command_line(args), text, imgs)
         files.append(write_atomic(d / "summary.md", md))
@@ -515,14 +515,14 @@ def run_step(args: argparse.Namespace) -> int:
     print(text)
     files: list[Path] = []
     if args.report:
-        d = Path(args.report)
+        out_dir = Path(args.report)
         fig = report.step_figure(step, lin["step"], move, lin["move"],
                                  f"{jp.rig} joint {jp.joint} ({jp.name}), {report._gain_text(jp.cfg)}, "
                                  f"switch-off: {args.switch_off}")
-        files += report.save_figure_both(fig, d, "step_and_move")
+        files += report.save_figure_both(fig, out_dir, "step_and_move")
         md = report.markdown(f"Step and move — {jp.rig} joint {jp.joint}", _command_line(args), text,
                              ["step_and_move.png"])
-        files.append(write_atomic(d / "summary.md", md))
+        files.append(write_atomic(out_dir / "summary.md", md))
     if args.json_path:
         files.append(write_json(args.json_path, result))
     for f in files:

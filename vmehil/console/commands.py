@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import os
 import stat
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
@@ -98,6 +98,9 @@ class CompoundCommand(Protocol):
     """A loaded compound command as the atoms list it (:class:`vmehil.console.compound.CompoundDef`)."""
 
     name: str
+
+    @property
+    def params(self) -> tuple[Param, ...]: ...
 
     @property
     def where(self) -> str: ...
@@ -215,7 +218,7 @@ def check_arg(cmd: str, p: Param, value: Value | Typed, n_joints: int | None, na
     return value
 
 
-def bind(cmd: str, params: tuple[Param, ...], args: list[tuple[str | None, Value | Typed]],
+def bind(cmd: str, params: tuple[Param, ...], args: Sequence[tuple[str | None, Value | Typed]],
          n_joints: int | None = None, names: list[str] | None = None) -> dict[str, Any]:
     """Match positional and keyword ``args`` to ``params``; :class:`ConsoleError` ARGS on a missing,
     unknown, repeated or ill-typed argument."""

@@ -42,8 +42,9 @@ def start_console(port: str, loop: Any, *, runner: Any = None, commands: str | N
     library = (load_compound_file(commands, n_joints=loop.n, names=list(loop.names)) if commands
                else CompoundLibrary())
     delay = 0.0
-    if runner is not None and getattr(runner, "period_s", 0):
-        delay = delay_periods(getattr(runner, "delay_s", 0.0), runner.period_s)
+    period_s = getattr(runner, "period_s", 0) if runner is not None else 0
+    if period_s:
+        delay = delay_periods(getattr(runner, "delay_s", 0.0), period_s)
     transport = open_transport(port, baudrate=baudrate)
     if system is None and runner is not None:
         system = getattr(runner, "plant", None)
