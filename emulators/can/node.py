@@ -136,13 +136,15 @@ class PlantNode(FaultInjectable):
         self.heartbeat_s = heartbeat_s
         self.controller_timeout_s = controller_timeout_s
         if command_type is None:
-            from emulators.plant import PlantCommand as command_type
+            from emulators.plant import PlantCommand
+
+            command_type = PlantCommand
         self.command_type = command_type
         self.boot_id = new_boot_id() if boot_id is None else boot_id & 0xFFFF
         self.counters = NodeCounters()
         self._hb_counter = 0
         self._next_hb = 0.0
-        self._last_controller = None  # monotonic time of the last controller frame
+        self._last_controller: float | None = None  # monotonic time of the last controller frame
         self.state = STATE_READY
         self._reset_state(seed)
 
