@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from functools import partial
 from typing import Any, ClassVar
 
 from emulators.adc import wiring_from_config
@@ -149,7 +150,7 @@ class DacBoard(RegisterBoard):
             if self.settling_time_ns == 0 or self.crate is None:
                 self._drive(ch)
             else:
-                self.crate.clock.schedule_in(self.settling_time_ns, lambda ch=ch, gen=gen: self._settled(ch, gen))
+                self.crate.clock.schedule_in(self.settling_time_ns, partial(self._settled, ch, gen))
         self.updates += 1
 
     def _settled(self, ch: int, gen: int) -> None:

@@ -43,11 +43,21 @@ class PlantBoundaryError(RuntimeError):
 class PlantBoundary(Protocol):
     """What a runner drives between the loop's ticks (see the module docstring)."""
 
-    #: the plant joints this boundary serves, in the loop's joint order
-    joints: Sequence[str]
-    #: the servo period (s) and the delay from sampling to the command taking effect (s)
-    period_s: float
-    computation_delay_s: float
+    # read-only for the runner (plain attributes or properties both implement them)
+    @property
+    def joints(self) -> Sequence[str]:
+        """The plant joints this boundary serves, in the loop's joint order."""
+        ...
+
+    @property
+    def period_s(self) -> float:
+        """The servo period (s)."""
+        ...
+
+    @property
+    def computation_delay_s(self) -> float:
+        """The delay from sampling to the command taking effect (s)."""
+        ...
 
     def advance_to(self, t_ns: int) -> None:
         """Let time pass on the rig up to ``t_ns`` (integer nanoseconds since the run's start)."""

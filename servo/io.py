@@ -255,7 +255,8 @@ class JointIO:
         """Put a calibration in force: ADC/DAC per-channel offset and gain in the board drivers,
         pot tables, encoder counts per revolution, amplifier gain and offset. Entries the store
         lacks keep their nominal values."""
-        for name, drv in [*self.adc.items(), *self.dac.items()]:
+        drivers: list[tuple[str, AdcDriver | DacDriver]] = [*self.adc.items(), *self.dac.items()]
+        for name, drv in drivers:
             cal = store.board_calibration(name)
             if cal is not None:
                 drv.calibration = cal

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import queue
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -255,7 +255,7 @@ class ServoLoop:
         self.enabled = False
 
     # --- one tick ---------------------------------------------------------------------------------
-    def tick(self, truth: dict[str, np.ndarray] | None = None) -> None:
+    def tick(self, truth: Mapping[str, np.ndarray] | None = None) -> None:
         """Run one servo period's work at tick ``self.tick_count``."""
         k = self.tick_count
         t0 = time.perf_counter()

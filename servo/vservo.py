@@ -98,7 +98,8 @@ class VisualServoTrajectory:
     """Targets that follow the vision commands; ``duration`` is open until the task ends."""
 
     def __init__(self, start: np.ndarray, link: VisionLink, timeout_s: float) -> None:
-        self.target = np.asarray(start, float).copy()
+        self.start = np.asarray(start, float).copy()  # where the move began (Trajectory.start)
+        self.target = self.start.copy()
         self.link = link
         self.timeout_s = float(timeout_s)
         self._t_end: float | None = None

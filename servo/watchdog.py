@@ -171,7 +171,7 @@ class CrossChecks:
     def reset(self) -> None:
         """Forget references and windows (start, resume: the joints may have moved meanwhile)."""
         n, w = self.n, self.window
-        self._generation = None
+        self._generation: int | None = None
         self._pot0 = np.full(n, np.nan)
         self._enc0 = np.full(n, np.nan)
         self._ring_ref = np.zeros((w + 1, n))

@@ -25,6 +25,7 @@ import os
 import socket
 import subprocess
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,7 @@ def resolve(interface: str | None = None, channel: str | None = None) -> tuple[s
     """Interface and channel after python-can's config resolution (arguments, environment,
     config file), defaulting to ``virtual``/``vmehil``."""
     given: dict[str, Any] = {}
+    cfg: Mapping[str, Any]  # python-can's BusConfig (a TypedDict) or our plain dict
     if interface:
         given["interface"] = interface
     if channel:
@@ -187,6 +189,7 @@ class Endpoint(FaultInjectable):
     def recv(self, timeout: float | None) -> can.Message | None:
         """The next frame from the other node(s), or ``None`` after ``timeout`` seconds."""
         deadline = None if timeout is None else time.monotonic() + max(0.0, timeout)
+        m: can.Message | None
         while True:
             now = time.monotonic()
             if self._held and self._held[0][0] <= now:  # a delayed frame is due
@@ -209,7 +212,9 @@ class Endpoint(FaultInjectable):
                 self.lost += 1
                 continue
             if self._hit("frame_delay", "rx"):
-                due = time.monotonic() + float(self.fault("frame_delay").get("ms", 0.0)) * 1e-3
+                delay = self.fault("frame_delay")
+                assert delay is not None  # _hit is only True while the fault is on
+                due = time.monotonic() + float(delay.get("ms", 0.0)) * 1e-3
                 heapq.heappush(self._held, (due, next(self._order), m))
                 continue
             break

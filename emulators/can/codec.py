@@ -24,11 +24,12 @@ import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import can
 import cantools
 import numpy as np
+from cantools.database.can import Database as CanDatabase
 
 from emulators.can.dbc import (
     DBC_PATH,
@@ -144,7 +145,8 @@ class CanCodec:
 
     def __init__(self, dbc_path: str | Path | None = None) -> None:
         self.path = Path(dbc_path) if dbc_path is not None else DBC_PATH
-        self.db = cantools.database.load_file(str(self.path))
+        # a DBC file loads as a CAN database (load_file's return type also admits a CDD diagnostics one)
+        self.db = cast(CanDatabase, cantools.database.load_file(str(self.path)))
         by_id = {m.frame_id: m for m in self.db.messages}
         self.max_joints = sum(1 for m in self.db.messages if m.name.startswith("CMD_J"))
         if self.max_joints == 0:

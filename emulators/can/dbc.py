@@ -23,11 +23,14 @@ ID      message             bytes  sender → receiver          content
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from pathlib import Path
+from typing import cast
 
 import cantools
 from cantools.database.can import Database, Message, Node, Signal
 from cantools.database.conversion import BaseConversion
+from cantools.typechecking import Choices
 
 DBC_PATH = Path(__file__).with_name("vmehil.dbc")
 
@@ -52,8 +55,10 @@ def _sig(name: str, start: int, length: int, *, signed: bool = False, scale: flo
          minimum: float | None = None, maximum: float | None = None, unit: str | None = None,
          comment: str | None = None, is_float: bool = False, choices: dict[int, str] | None = None,
          receiver: str = PLANT) -> Signal:
+    # cantools annotates ``choices`` as an OrderedDict (its parser's type); same items, same order
+    named: Choices | None = None if choices is None else OrderedDict(choices)
     return Signal(name, start, length, "little_endian", is_signed=signed,
-                  conversion=BaseConversion.factory(scale, offset, choices, is_float),
+                  conversion=BaseConversion.factory(scale, offset, named, is_float),
                   minimum=minimum, maximum=maximum, unit=unit, comment=comment, receivers=[receiver])
 
 
@@ -171,7 +176,8 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
     msgs.sort(key=lambda m: m.frame_id)
     # A CAN FD bus: the DBC writer marks FD messages (VFrameFormat) only when the database
     # carries the BusType attribute, which is easiest to give it by parsing a header.
-    db = cantools.database.load_string(_FD_HEADER, database_format="dbc")
+    # a DBC string always loads as a CAN database (load_string's return type also admits CDD)
+    db = cast(Database, cantools.database.load_string(_FD_HEADER, database_format="dbc"))
     db.messages.extend(msgs)
     db.nodes.extend([Node(CONTROLLER), Node(PLANT)])
     db.version = "vmehil-1"

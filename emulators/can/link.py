@@ -119,7 +119,9 @@ class CanPlantLink(PlantLink):
         self.heartbeat_timeout_s = heartbeat_timeout_s
         self.heartbeat_s = heartbeat_s
         if sensors_type is None:
-            from emulators.plant import PlantSensors as sensors_type
+            from emulators.plant import PlantSensors
+
+            sensors_type = PlantSensors
         self.sensors_type = sensors_type
         self.boot_id = new_boot_id() if boot_id is None else boot_id & 0xFFFF
         self.counters = LinkCounters()

@@ -210,13 +210,15 @@ class PlantNode(FaultInjectable):
         self.command_timeout_s = command_timeout_s
         self.clock = clock
         if command_type is None:
-            from emulators.plant import PlantCommand as command_type
+            from emulators.plant import PlantCommand
+
+            command_type = PlantCommand
         self.command_type = command_type
         self.boot_id = new_boot_id() if boot_id is None else boot_id & 0xFFFF
         self.counters = NodeCounters()
         self._hb_counter = 0
         self._next_hb = 0.0
-        self._last_controller = None  # monotonic time of the last controller frame
+        self._last_controller: float | None = None  # monotonic time of the last controller frame
         self._last_command: float | None = None  # monotonic time of the last CONTROL or SYNC
         self.command_timed_out = False  #: the command timeout is in force
         self.last_silence_s: float | None = None  #: the silence that brought the last command timeout

@@ -324,8 +324,9 @@ class Plant(FaultInjectable):
                        ("tach_stuck", self._tach_held_v, 0.0))
         for fault, held, default in held_faults:
             j = self._fault_joint(fault)
-            if j is not None:
-                held[j] = float(self.fault(fault).get("volts", default))
+            params = self.fault(fault)
+            if j is not None and params is not None:  # j is only set while the fault is on
+                held[j] = float(params.get("volts", default))
         j = self._fault_joint("amp_fault")
         if j is not None:
             self._amp_tripped[j] = True

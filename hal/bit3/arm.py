@@ -23,8 +23,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import TypeAlias
 
 import numpy as np
+
+#: A vector of floats: a sequence, or a 1-D numpy array (what the callers mostly pass).
+FloatVector: TypeAlias = Sequence[float] | np.ndarray
 
 
 @dataclass(frozen=True)
@@ -56,17 +60,17 @@ class ArmModel:
         """Distance from the shoulder to the end effector at full extension (m)."""
         return self.a2 + self.a3
 
-    def _q(self, theta: Sequence[float]) -> tuple[float, float, float]:
+    def _q(self, theta: FloatVector) -> tuple[float, float, float]:
         return (float(theta[self.joints[0]]), float(theta[self.joints[1]]), float(theta[self.joints[2]]))
 
-    def position(self, theta: Sequence[float]) -> np.ndarray:
+    def position(self, theta: FloatVector) -> np.ndarray:
         """End-effector position in the base frame (m)."""
         q1, q2, q3 = self._q(theta)
         r = self.a2 * np.cos(q2) + self.a3 * np.cos(q2 + q3)
         h = self.d1 + self.a2 * np.sin(q2) + self.a3 * np.sin(q2 + q3)
         return np.array([r * np.cos(q1), r * np.sin(q1), h])
 
-    def rotation(self, theta: Sequence[float]) -> np.ndarray:
+    def rotation(self, theta: FloatVector) -> np.ndarray:
         """End-effector (camera) orientation: columns x_e, y_e, z_e in base coordinates."""
         q1, q2, q3 = self._q(theta)
         c1, s1, c23, s23 = np.cos(q1), np.sin(q1), np.cos(q2 + q3), np.sin(q2 + q3)
@@ -74,11 +78,11 @@ class ArmModel:
         y = np.array([-s1, c1, 0.0])
         return np.column_stack([x, y, np.cross(x, y)])
 
-    def pose(self, theta: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    def pose(self, theta: FloatVector) -> tuple[np.ndarray, np.ndarray]:
         """(position, rotation) of the end effector."""
         return self.position(theta), self.rotation(theta)
 
-    def jacobian(self, theta: Sequence[float]) -> np.ndarray:
+    def jacobian(self, theta: FloatVector) -> np.ndarray:
         """3×3 position Jacobian ∂p/∂(q1, q2, q3) in the base frame (m/rad)."""
         q1, q2, q3 = self._q(theta)
         c1, s1 = np.cos(q1), np.sin(q1)
@@ -94,7 +98,7 @@ class ArmModel:
         ])
 
     def ee_delta_to_joint_delta(
-        self, theta: Sequence[float], dxyz: Sequence[float], *, frame: str = "ee", damping: float = 0.02
+        self, theta: FloatVector, dxyz: FloatVector, *, frame: str = "ee", damping: float = 0.02
     ) -> np.ndarray:
         """Joint increments (rad, same length as ``theta``) for an end-effector translation.
 
@@ -115,7 +119,7 @@ class ArmModel:
             out[j] = dq3[i]
         return out
 
-    def inverse(self, p: Sequence[float], theta0: Sequence[float], *, iterations: int = 100,
+    def inverse(self, p: FloatVector, theta0: FloatVector, *, iterations: int = 100,
                 tol: float = 1e-9) -> np.ndarray:
         """Joint angles reaching ``p`` (m, base frame), by damped-least-squares iteration from
         ``theta0`` (elbow branch chosen by the start). Raises ``ValueError`` if out of reach."""

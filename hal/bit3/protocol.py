@@ -49,7 +49,7 @@ import enum
 import math
 import struct
 import zlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 
 from hal.bit3.errors import Bit3Error, ProtocolError
@@ -390,7 +390,7 @@ class VisionServoClient(_Endpoint):
             self._enter(RobotState.ENDING, now)
             self._safe_write_status(DOORBELL_STATE)
 
-    def publish_joints(self, theta: Sequence[float], now: float) -> None:
+    def publish_joints(self, theta: Collection[float], now: float) -> None:
         """Write the TELEMETRY record (joint angles in rad, at most 8) for the vision side."""
         if len(theta) > MAX_JOINTS:
             raise ValueError(f"{len(theta)} joints; the telemetry record holds {MAX_JOINTS}")
@@ -439,15 +439,17 @@ class VisionServoClient(_Endpoint):
         before = self.state
         peer = self._read_peer(now)
         cmd = None
-        ours = peer is not None and peer.task_id == self.task_id
+        # ``mine`` is the peer status when it is for our task (so the type checker sees it is not None)
+        mine = peer if peer is not None and peer.task_id == self.task_id else None
+        ours = mine is not None
         if self.state is RobotState.REQUESTED:
-            if ours and peer.state == VisionState.TRACKING:
+            if mine is not None and mine.state == VisionState.TRACKING:
                 self._enter(RobotState.SERVOING, now)
                 self._last_cmd_seq = self._current_cmd_seq()
-            elif ours and peer.state == VisionState.IDLE and peer.end_reason != EndReason.NONE:
-                refused = peer.end_reason == EndReason.REFUSED
+            elif mine is not None and mine.state == VisionState.IDLE and mine.end_reason != EndReason.NONE:
+                refused = mine.end_reason == EndReason.REFUSED
                 self._finish(now, EndReason.REFUSED if refused else EndReason.PEER_ENDED)
-            elif ours and peer.state == VisionState.ENDING:
+            elif mine is not None and mine.state == VisionState.ENDING:
                 self._finish(now, EndReason.PEER_ENDED)
             elif self._stale(now):
                 self._finish(now, EndReason.PEER_TIMEOUT)

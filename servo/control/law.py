@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
@@ -48,7 +49,8 @@ def switched_off_kp(kp: V, kvi: V, kp_boost: V) -> V:
     """Kp while the integrators are switched off (1/s²): ``kp·kp_boost``, or with ``kp_boost`` NaN
     (auto) ``kp + kvi`` — frozen, the KvI·∫ė term no longer follows e, so the boost puts its
     stiffness back (module docstring). Floats or per-joint arrays."""
-    return np.where(np.isnan(kp_boost), kp + kvi, kp * np.nan_to_num(kp_boost, nan=1.0))[()]
+    # ``[()]`` gives a numpy scalar for float inputs, an array for arrays: V either way
+    return cast(V, np.where(np.isnan(kp_boost), kp + kvi, kp * np.nan_to_num(kp_boost, nan=1.0))[()])
 
 
 @dataclass(frozen=True)
@@ -81,9 +83,12 @@ class SwitchOffConfig:
         zc = _bools("switch_off.zero_crossing", zero_crossing, n)
         inner = per_joint("switch_off.inner_band", inner_band, n)
         outer = per_joint("switch_off.outer_band", outer_band, n, positive=True)
+        boost_in: float | list[float] | np.ndarray
         if isinstance(kp_boost, list):
-            kp_boost = [np.nan if b is None else b for b in kp_boost]
-        boost = per_joint("switch_off.kp_boost", np.nan if kp_boost is None else kp_boost, n, allow_nan=True)
+            boost_in = [np.nan if b is None else b for b in kp_boost]
+        else:
+            boost_in = np.nan if kp_boost is None else kp_boost
+        boost = per_joint("switch_off.kp_boost", boost_in, n, allow_nan=True)
         settle = per_joint("switch_off.settle_time", settle_time, n)
         for j in range(n):
             if not outer[j] > inner[j]:
@@ -193,7 +198,7 @@ class PidLaw:
                 if np.ndim(value) != 0:
                     raise GainError(name, value, "a single number when a joint is given")
                 try:
-                    cur[joint] = per_joint(name, [value], 1)[0]
+                    cur[joint] = per_joint(name, [cast(float, value)], 1)[0]  # a scalar: np.ndim checked above
                 except GainError as e:
                     raise GainError(name, e.value, "a finite non-negative number", joint) from None
                 new[name] = cur

@@ -29,9 +29,13 @@ class Trajectory(Protocol):
     """``sample(t)`` with ``t`` seconds since the trajectory started; ``duration`` s (0 for an
     immediate hold); ``start`` and ``end`` positions (rad)."""
 
-    duration: float
-    start: np.ndarray
-    end: np.ndarray
+    # read-only for the callers (properties or plain attributes both implement them)
+    @property
+    def duration(self) -> float: ...
+    @property
+    def start(self) -> np.ndarray: ...
+    @property
+    def end(self) -> np.ndarray: ...
 
     def sample(self, t: float) -> Sample: ...
 

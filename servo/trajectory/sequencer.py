@@ -30,7 +30,8 @@ class PlanContext:
 class MoveSpec(Protocol):
     """A planned-on-start move: ``kind`` (its motion-file type) and ``build(start, ctx)``."""
 
-    kind: str
+    @property
+    def kind(self) -> str: ...  # read-only: the moves are frozen dataclasses
 
     def build(self, start: np.ndarray, ctx: PlanContext) -> Trajectory: ...
 
