@@ -1,6 +1,6 @@
 # vmehil: two commands do all the set-up on a fresh machine (Python >= 3.11 and make):
 #   make run    build .venv from pyproject.toml and run the main job on the embedded default
-#   make test   build .venv and run ruff, the import contracts (lint-imports) and the test suite
+#   make test   build .venv and run ruff, the import contracts (lint-imports), mypy and the test suite
 #               (make test-fast: the same without the slow tests)
 PYTHON ?= python3
 VENV   ?= .venv
@@ -44,6 +44,7 @@ run: $(STAMP)
 lint: $(STAMP)
 	$(PY) -m ruff check .
 	$(VENV)/bin/lint-imports --no-logo
+	$(PY) -m mypy
 
 # The tests run inside a private network namespace with only loopback (and the IPv4 multicast
 # range routed over it) when `unshare -n` works (root, CI): the udp_multicast CAN tests then run
@@ -53,6 +54,7 @@ NETNS := unshare -n sh -c 'ip link set lo up && ip route add 224.0.0.0/4 dev lo 
 test: $(STAMP) tools
 	$(PY) -m ruff check .
 	$(VENV)/bin/lint-imports --no-logo
+	$(PY) -m mypy
 	@if unshare -n true 2>/dev/null && command -v ip >/dev/null; then \
 		echo "pytest in a private network namespace (loopback only)"; \
 		$(NETNS) $(PY) -m pytest -q $(PYTEST_ARGS); \

@@ -38,7 +38,8 @@ from servo.rig import WATCHDOG_NET, RigSpec
 class CalibrationEntry(Protocol):
     """One measured entry of a joint (``values``: the procedure's figures, SI units)."""
 
-    values: Mapping[str, Any]
+    @property
+    def values(self) -> Mapping[str, Any]: ...
 
 
 class CalibrationSource(Protocol):
