@@ -32,6 +32,7 @@ SYNC ticks that are not the previous + 1 are counted (``SeqJumps``) and stepped 
 from __future__ import annotations
 
 import logging
+import math
 import os
 import signal
 import threading
@@ -105,6 +106,7 @@ class NodeCounters:
     controller_lost: int = 0
     command_timeouts: int = 0  #: times the command timeout came into force
     watchdog_trips: int = 0  #: amplifiers latched off (by the watchdog line or the command timeout)
+    bad_sync: int = 0  #: SYNC frames refused: a period other than the rig's, or a delay outside it
 
 
 @runtime_checkable
@@ -328,6 +330,20 @@ class PlantNode(FaultInjectable):
         self._trips_seen = tripped
         return new
 
+    def _sync_plausible(self, period: float, delay: float) -> bool:
+        """A SYNC asks for the rig's servo period (the node's ``period_s``) and a delay within
+        it; anything else is dropped and counted (``bad_sync``), never stepped: one frame asking
+        for a 10 s period would otherwise keep the node integrating for many seconds. The
+        controller then sees no answer and safe-stops on its own stale-data check."""
+        ok = (math.isfinite(period) and math.isclose(period, self.period_s, rel_tol=1e-6)
+              and math.isfinite(delay) and 0.0 <= delay <= period)
+        if not ok:
+            self.counters.bad_sync += 1
+            if self.counters.bad_sync == 1:  # the first one is news; the rest are counted
+                log.warning("plant node: SYNC refused: period %r s, delay %r s (this rig: period %g s, "
+                            "delay 0..period)", period, delay, self.period_s)
+        return ok
+
     def _commands_again(self, now: float | None) -> None:
         self._last_command = now
         if self.command_timed_out:
@@ -360,7 +376,10 @@ class PlantNode(FaultInjectable):
             self._watchdog_edge |= level != self._watchdog_rx
             self._watchdog_rx = level
             if not self.free_running:
-                self.step(int(f.raw["Tick"]), float(f.raw["PeriodS"]), float(f.raw["DelayS"]))
+                period, delay = float(f.raw["PeriodS"]), float(f.raw["DelayS"])
+                if not self._sync_plausible(period, delay):
+                    return
+                self.step(int(f.raw["Tick"]), period, delay)
         elif f.kind == "CONTROL":
             if int(f.raw["Command"]) == 1:
                 self.counters.resets += 1

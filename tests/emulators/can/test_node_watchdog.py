@@ -182,3 +182,20 @@ def test_the_lockstep_node_feeds_the_plant_the_received_level():
         assert np.array_equal(c.node.plant.amplifier_enabled(), np.ones(N, bool))
     finally:
         c.close()
+
+
+@pytest.mark.parametrize(("period", "delay"), [(10.0, 0.0), (0.004, 0.0), (PERIOD, 2 * PERIOD), (PERIOD, -1e-3),
+                                               (float("nan"), 0.0)])
+def test_a_sync_asking_for_another_period_or_an_impossible_delay_is_refused_not_stepped(period, delay) -> None:
+    """One frame asking for a 10 s period used to keep the node integrating for 20 s."""
+    ctl = Controller(command_timeout_s=None)
+    try:
+        ctl.send()
+        steps = ctl.node.counters.steps
+        raw = CODEC.command_raw(ctl.cmd)
+        ctl.node.handle(CODEC.sync_frame(raw, ctl.tick, period, delay))
+        assert ctl.node.counters.steps == steps and ctl.node.counters.bad_sync == 1
+        ctl.send()  # a proper SYNC is served as before
+        assert ctl.node.counters.steps == steps + 1
+    finally:
+        ctl.close()
