@@ -225,7 +225,6 @@ class RealtimeRunner(LockstepRunner):
                 if self.overrun == "stop":
                     self.stop_now("overrun", f"the loop fell {behind:.1f} periods behind its deadline "
                                   f"(limit {self.max_lateness_periods:g}; --overrun warn runs on)")
-                    self.overruns = self.timing.overruns
                     return i
             self.tick()
             self._completed = i + 1
@@ -238,7 +237,6 @@ class RealtimeRunner(LockstepRunner):
                 self.timing.overruns += 1
             if progress is not None:
                 progress(i + 1, n_ticks)
-        self.overruns = self.timing.overruns
         return n_ticks
 
     def _wait_until(self, deadline: float) -> None:
