@@ -7,13 +7,13 @@ from __future__ import annotations
 import os
 import signal
 
-import numpy as np
 import pytest
 
 from emulators.board import BoardAccessError
 from hal.vme import BusErrorCause
 from servo.interrupts import Terminated, stop_signals_raise
 from servo.runner import LockstepRunner, RealtimeRunner
+from tests.support.boards import assert_boards_safe, driving
 from vmehil.session import build_loop
 from vmehil.system import build_emulated_rig
 
@@ -31,26 +31,6 @@ def _rig(realtime_clock=None):
     return system, loop, runner
 
 
-def _assert_boards_safe(system) -> None:
-    signals = system.crate.signals
-    for j in system.rig.joints:
-        if "amp_enable" in j.wiring:
-            assert signals.get_digital(j.net("amp_enable")) is False, f"{j.name} enable still high"
-        if "amp_command" in j.wiring:
-            # 0 V commanded; the uncalibrated DAC's offset error (≤ 10 mV in the preset) remains
-            assert signals.get_analog(j.net("amp_command")) == pytest.approx(0.0, abs=0.0125), j.name
-        if "pwm" in j.wiring:
-            assert signals.get_analog(j.net("pwm")) == 0.0, f"{j.name} PWM still running"
-    # the plant has seen the stop (the exchange that carried it over): no drive current any more
-    answer = system.harness.pending or system.harness.last
-    assert np.all(np.abs(answer.truth["current_a"]) < 0.5)
-
-
-def _driving(system) -> bool:
-    s = system.crate.signals
-    return any(s.get_digital(j.net("amp_enable")) for j in system.rig.joints if "amp_enable" in j.wiring)
-
-
 def _raise_at(k: int, exc: BaseException):
     def hook(loop) -> None:
         if loop.tick_count == k:
@@ -62,7 +42,7 @@ def _raise_at(k: int, exc: BaseException):
 def test_an_exception_in_any_part_of_a_tick_safe_stops_in_that_tick(source, monkeypatch) -> None:
     system, loop, runner = _rig()
     runner.run(FAIL_AT - 1)
-    assert _driving(system) and loop.fault is None
+    assert driving(system) and loop.fault is None
     boom = RuntimeError(f"injected failure in the {source}")
     if source == "trajectory":
         monkeypatch.setattr(loop.sequencer, "sample", lambda t: (_ for _ in ()).throw(boom))
@@ -83,7 +63,7 @@ def test_an_exception_in_any_part_of_a_tick_safe_stops_in_that_tick(source, monk
         signals = system.crate.signals
         assert not any(signals.get_digital(j.net("amp_enable")) for j in system.rig.joints if "amp_enable" in j.wiring)
     else:
-        _assert_boards_safe(system)
+        assert_boards_safe(system)
 
 
 @pytest.mark.parametrize("interrupt", [KeyboardInterrupt(), Terminated(signal.SIGTERM)], ids=["SIGINT", "SIGTERM"])
@@ -93,7 +73,7 @@ def test_an_interrupt_safe_stops_with_cause_interrupted(interrupt) -> None:
     runner.run(300)
     assert loop.fault is not None and loop.fault.cause == "interrupted"
     assert ("SIGTERM" if isinstance(interrupt, Terminated) else "SIGINT") in loop.fault.detail
-    _assert_boards_safe(system)
+    assert_boards_safe(system)
 
 
 def test_a_real_sigterm_becomes_a_safe_stop() -> None:
@@ -108,7 +88,7 @@ def test_a_real_sigterm_becomes_a_safe_stop() -> None:
         runner.run(300)
     assert isinstance(runner.ended_by, Terminated)
     assert loop.fault is not None and loop.fault.cause == "interrupted" and "SIGTERM" in loop.fault.detail
-    _assert_boards_safe(system)
+    assert_boards_safe(system)
 
 
 def test_a_stop_that_cannot_be_confirmed_is_reported_as_incomplete(monkeypatch) -> None:
@@ -147,7 +127,7 @@ def test_realtime_loop_that_falls_behind_stops_with_cause_overrun() -> None:
     done = runner.run(400)
     assert loop.fault is not None and loop.fault.cause == "overrun", loop.fault
     assert 50 < done < 60  # 5 periods behind after three slow ticks
-    _assert_boards_safe(system)
+    assert_boards_safe(system)
 
 
 def test_realtime_overrun_warn_policy_runs_on() -> None:

@@ -3,10 +3,13 @@ thread, a writer thread, and the hand-over of commands to the loop at tick bound
 
 Threads and bounds (the console never blocks the 125 Hz loop):
 
-* the **reader** thread reads bytes, assembles lines (:class:`~vmehil.console.protocol.LineAssembler`,
-  bounded to ``MAX_LINE``), parses and type-checks them, reads files a command needs (motion and
-  compound files), and puts the command in a bounded queue (``queue_size``); when the queue is
-  full the line is answered ``ERR BUSY`` at once and dropped;
+* the **reader** thread reads bytes and assembles lines (:class:`~vmehil.console.protocol.LineAssembler`,
+  bounded to ``MAX_LINE``); it acts on ``stop`` itself and hands every other line to the
+  preparer through a bounded queue (``queue_size``; full: ``ERR BUSY`` at once, line dropped).
+  It never opens a file, so nothing a command names can keep it from hearing ``stop``;
+* the **preparer** thread parses and type-checks the lines in order, reads the files a command
+  needs (motion and compound files: regular files under a size bound), and puts the command in
+  the loop's bounded queue (``queue_size``; full: ``ERR BUSY``, dropped);
 * the **loop** thread runs :meth:`Console.on_tick` after every tick (a runner's ``after_tick``
   hook). When work is waiting it submits one *pump* with :meth:`servo.loop.ServoLoop.submit`;
   the pump runs at the next tick boundary, executes at most ``per_tick`` queued commands and
@@ -386,6 +389,15 @@ class _Item:
     lines: list[str] = field(default_factory=list)
 
 
+def _is_stop(text: str) -> bool:
+    """Whether a request line is ``stop`` (which the reader acts on itself, ahead of the queue)."""
+    try:
+        req = parse_line(text)
+    except ConsoleError:
+        return False
+    return req is not None and req.name == "stop"
+
+
 class Console:
     """An operator console serving ``transport`` for ``loop``.
 
@@ -427,6 +439,8 @@ class Console:
         self._stop_pending = threading.Event()
         self._closing = threading.Event()
         self._threads: list[threading.Thread] = []
+        # lines from the reader to the preparer; None: handle_line runs in the caller (no threads)
+        self._lines: queue.Queue[str] | None = None
         self._last_fault = loop.fault
         self._dropped_since = 0
 
@@ -434,7 +448,9 @@ class Console:
     def start(self) -> Console:
         if self.transport is None:
             raise ConsoleSetupError("no transport to serve")
-        for name, fn in (("console-reader", self._reader), ("console-writer", self._writer)):
+        self._lines = queue.Queue(maxsize=self._queue.maxsize)
+        for name, fn in (("console-reader", self._reader), ("console-preparer", self._preparer),
+                         ("console-writer", self._writer)):
             t = threading.Thread(target=fn, name=name, daemon=True)
             t.start()
             self._threads.append(t)
@@ -471,8 +487,28 @@ class Console:
             elif ev.kind == "binary":
                 self.stats.binary += 1
                 self._enqueue_reply([f"ERR {BINARY} line with non-text bytes discarded"])
-            else:
+            elif self._lines is None or _is_stop(ev.text):
                 self.handle_line(ev.text)
+            else:
+                try:
+                    self._lines.put_nowait(ev.text)
+                except queue.Full:
+                    self.stats.busy += 1
+                    self._send([f"ERR {BUSY} console input queue full ({self._lines.maxsize} lines being "
+                                "prepared); line dropped, wait for the replies before sending more"])
+
+    def _preparer(self) -> None:
+        """Parse, check and read the files of the lines the reader hands over, in their order."""
+        assert self._lines is not None
+        while not self._closing.is_set():
+            try:
+                text = self._lines.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            try:
+                self.handle_line(text)
+            except Exception as e:  # a bug in one command's preparation must not end the console
+                self._send([f"ERR {INTERNAL} {one_line(f'{type(e).__name__}: {e}')}"])
 
     def handle_line(self, text: str) -> None:
         """Parse, check and queue one request line."""
@@ -644,6 +680,10 @@ class Console:
                     self.transport.write(f"EVT overflow dropped={n}\r\n".encode())
             except Exception:
                 continue
+
+    def preparing(self) -> int:
+        """Lines the reader handed over that the preparer has not taken yet."""
+        return self._lines.qsize() if self._lines is not None else 0
 
     def pending(self) -> int:
         """Commands waiting in the queue."""

@@ -294,3 +294,45 @@ def test_run_and_load_refuse_devices_fifos_and_huge_files_and_stop_still_works(t
     assert drv.ask("stop")[-1].startswith("OK stop")
     client.close()
     console.close()
+
+
+def test_stop_is_heard_while_a_motion_file_is_still_being_read(tmp_path, monkeypatch):
+    """The reader thread never opens a file: a `run FILE` whose read does not return (a slow or hung
+    file system) leaves `stop` working, and the stop is on the emulated boards."""
+    import servo.motion
+    from servo.runner import LockstepRunner
+    from tests.support.boards import assert_boards_safe, driving
+    from vmehil.session import build_loop
+    from vmehil.system import build_emulated_rig
+
+    entered, release = threading.Event(), threading.Event()
+    real_load = servo.motion.load_motion
+
+    def hung_load(path, n_joints):
+        entered.set()
+        release.wait()
+        return real_load(path, n_joints)
+
+    monkeypatch.setattr(servo.motion, "load_motion", hung_load)
+    motion = tmp_path / "m.toml"
+    motion.write_text('name = "hold"\n[[move]]\ntype = "wait"\nduration_s = 0.1\n')
+    system = build_emulated_rig(None, seed=0)
+    loop = build_loop(system, n_ticks=0)
+    loop.start()
+    runner = LockstepRunner(system, loop)
+    console = Console(loop, open_transport("loop://")).start()
+    runner.after_tick.append(console.on_tick)
+    drv = Driver(loop, console, console.transport.write, tap_poll(console), step=runner.tick)
+    try:
+        runner.run(100)  # the demo move is under way
+        assert driving(system)
+        console.transport.write(f"run {motion}\r\n".encode())
+        assert entered.wait(30.0)  # the preparer is inside the read; it will not come back by itself
+        reply = drv.ask("stop")
+        assert reply[-1].startswith("OK stop"), reply
+        assert loop.fault is not None and loop.fault.cause == "operator_stop"
+        assert_boards_safe(system)
+    finally:
+        release.set()
+        console.close()
+        system.close()
