@@ -127,6 +127,15 @@ def test_read_only_parameter_refused(rig):
     assert param_values(c, "J1_VEL_MAX")[0].param_value == pytest.approx(0.5)
 
 
+def test_a_refusal_reaches_the_ground_station_in_ascii(rig):
+    """The reason says "1/s²" and "0 … 1e5"; MAVProxy shows "?" for those, so they go out as ASCII."""
+    _loop, _, runner, _ep, c = rig()
+    c.set("J1_KP", 1e6)
+    text = "".join(m.text for m in c.wait(lambda: c.of("STATUSTEXT"), runner.tick))
+    assert text == "J1_KP: 1e+06 1/s^2 is out of range (allowed: 0 ... 100000)", text
+    assert text.isascii() and "?" not in text, text
+
+
 def test_gain_making_the_sampled_loop_unstable_is_refused_with_old_value(rig):
     loop, _, runner, _ep, c = rig()
     c.set("J1_KP", 90000.0)  # in range, but Kp·T² ≫ 4: the sampled loop diverges
