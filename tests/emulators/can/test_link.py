@@ -275,7 +275,8 @@ def test_sequence_jumps_and_missing_commands_are_counted_by_the_node(transport):
         raw = open_bus(transport, p.channel, **p.kw)
         try:
             # a SYNC for tick 1000 with no commands: a jump, and N missing command frames
-            raw.send(p.link.codec.frame("SYNC", Tick=1000, PeriodS=PERIOD, DelayS=DELAY, Seq=1000 & 0xFF))
+            raw.send(p.link.codec.frame("SYNC", Tick=1000, PeriodS=PERIOD, DelayS=DELAY, Seq=1000 & 0xFF,
+                                        BootId=p.link.boot_id))
             deadline = time.monotonic() + 10
             while p.node.counters.seq_jumps == 0 and time.monotonic() < deadline:
                 time.sleep(0.01)
