@@ -251,7 +251,8 @@ class PlantNode(FaultInjectable):
         self._owner_seen: float | None = None  # clock of the owner's last frame
         self._session_commanded = False  # the owner sent CMD/SYNC since its RESET
         self.refused_boot: int | None = None  #: boot id of the last controller refused
-        self._refused_boots: set[int] = set()  # logged once each
+        self._refused_boots: set[int] = set()  # controllers whose refused RESET was logged
+        self._refused_at_open = 0  # counters.refused when the session opened
         self._reset_state(seed)
 
     # --- state ----------------------------------------------------------------------------------
@@ -344,10 +345,15 @@ class PlantNode(FaultInjectable):
         if reset:
             c.refused_resets += 1
             self._session_frame()  # at once: the refused controller learns why it gets no acknowledgement
-        if boot not in self._refused_boots and len(self._refused_boots) < 64:  # news once per controller
-            self._refused_boots.add(boot)
+        # News: the first refused frame of a session, and each controller's first refused RESET
+        # (at most 64 of them); the rest are counted (PLANT_SESSION.Refused).
+        first = c.refused - self._refused_at_open == 1
+        if first or (reset and boot not in self._refused_boots and len(self._refused_boots) < 64):
+            if reset:
+                self._refused_boots.add(boot)
+            sender = f"boot id low byte {boot:#04x}" if kind == "CMD" else f"controller {boot:#06x}"
             owner = "no session" if self.session_owner is None else f"session of {self.session_owner:#06x}"
-            log.warning("plant node: %s from controller %#06x refused (%s)", kind, boot, owner)
+            log.warning("plant node: %s from %s refused (%s); further refusals are counted", kind, sender, owner)
 
     def _control(self, raw: dict[str, Any], now: float) -> None:
         boot, command = int(raw["BootId"]), int(raw["Command"])
@@ -364,6 +370,7 @@ class PlantNode(FaultInjectable):
                 self._reset_state(int(raw["Seed"]))
                 self._sessions += 1
                 self.session_owner, self.session_no = boot, (self._sessions - 1) % 15 + 1
+                self._refused_at_open = self.counters.refused
                 self._session_commanded = False
                 self._session_frame()
             self.state = STATE_RUNNING
