@@ -38,6 +38,7 @@ from emulators.can.dbc import (
     ID_HEARTBEAT_CONTROLLER,
     ID_HEARTBEAT_PLANT,
     ID_SENS,
+    ID_SESSION,
     ID_STATUS,
     ID_SYNC,
     ID_TRUTH,
@@ -165,7 +166,8 @@ class CanCodec:
     @staticmethod
     def _kind_of(fid: int) -> tuple[str | None, int | None]:
         fixed = {ID_SYNC: "SYNC", ID_CONTROL: "CONTROL", ID_STATUS: "PLANT_STATUS",
-                 ID_HEARTBEAT_CONTROLLER: "HEARTBEAT_CONTROLLER", ID_HEARTBEAT_PLANT: "HEARTBEAT_PLANT"}
+                 ID_HEARTBEAT_CONTROLLER: "HEARTBEAT_CONTROLLER", ID_HEARTBEAT_PLANT: "HEARTBEAT_PLANT",
+                 ID_SESSION: "PLANT_SESSION"}
         if fid in fixed:
             return fixed[fid], None
         for base, kind in ((ID_CMD, "CMD"), (ID_SENS, "SENS"), (ID_TRUTH, "TRUTH")):
@@ -271,16 +273,19 @@ class CanCodec:
         return can.Message(arbitration_id=msg.frame_id, data=data, is_extended_id=False, is_fd=msg.is_fd,
                            bitrate_switch=msg.is_fd)
 
-    def command_frames(self, raw: dict[str, np.ndarray], seq: int) -> list[can.Message]:
-        """CMD frames of every joint (the ``Watchdog`` line goes in SYNC: :meth:`sync_frame`)."""
+    def command_frames(self, raw: dict[str, np.ndarray], seq: int, boot_id: int = 0) -> list[can.Message]:
+        """CMD frames of every joint (the ``Watchdog`` line goes in SYNC: :meth:`sync_frame`),
+        marked with the low byte of the sender's boot id (the node takes its session owner's only)."""
         n = len(raw["AmpCommand"])
-        return [self._frame(self.message("CMD", j), {k: int(raw[k][j]) for k in CMD_SIGNALS} | {"Seq": seq & 0xFF})
+        tail = {"Seq": seq & 0xFF, "BootIdLow": boot_id & 0xFF}
+        return [self._frame(self.message("CMD", j), {k: int(raw[k][j]) for k in CMD_SIGNALS} | tail)
                 for j in range(n)]
 
-    def sync_frame(self, raw: dict[str, np.ndarray], tick: int, period_s: float, delay_s: float) -> can.Message:
-        """The SYNC of ``tick``, carrying the command's enable-watchdog line."""
+    def sync_frame(self, raw: dict[str, np.ndarray], tick: int, period_s: float, delay_s: float,
+                   boot_id: int = 0) -> can.Message:
+        """The SYNC of ``tick``, carrying the command's enable-watchdog line and the sender's boot id."""
         return self.frame("SYNC", Tick=tick & 0xFFFFFFFF, PeriodS=period_s, DelayS=delay_s, Seq=tick & 0xFF,
-                          Watchdog=int(raw["Watchdog"]))
+                          Watchdog=int(raw["Watchdog"]), BootId=boot_id & 0xFFFF)
 
     def sensor_frames(self, raw: dict[str, np.ndarray], seq: int,
                       truth: dict[str, np.ndarray] | None = None) -> list[can.Message]:

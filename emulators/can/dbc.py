@@ -18,6 +18,7 @@ ID      message             bytes  sender → receiver          content
 0x300+j TRUTH_Jjj           32 FD  plant → controller         ground truth (float64), reports only
 0x701   HEARTBEAT_CONTROLLER 8     controller → all           state, boot id, counter
 0x702   HEARTBEAT_PLANT     12 FD  plant → all                state, boot id, counter, amplifier state
+0x703   PLANT_SESSION       8      plant → all                session owner and number, refused frames
 ======  ==================  =====  =========================  =====================================
 """
 
@@ -43,6 +44,7 @@ ID_STATUS = 0x280
 ID_TRUTH = 0x300
 ID_HEARTBEAT_CONTROLLER = 0x701
 ID_HEARTBEAT_PLANT = 0x702
+ID_SESSION = 0x703
 
 VOLT_LSB = 2e-6  # V per bit of every analog voltage on the wire (24-bit signed: ±16.78 V)
 DUTY_LSB = 1e-6  # PWM duty per bit (20-bit unsigned)
@@ -74,6 +76,9 @@ def _bit(name: str, start: int, comment: str, receiver: str) -> Signal:
 NODE_STATES = {0: "BOOT", 1: "READY", 2: "RUNNING", 3: "STOPPED", 4: "FAULT"}
 #: HEARTBEAT_PLANT.OffCause: the bits of emulators.plant.amplifier.WATCHDOG_EXPIRED / _COMMAND_TIMEOUT
 OFF_CAUSES = {0: "NONE", 1: "WATCHDOG", 2: "COMMAND_TIMEOUT", 3: "WATCHDOG_AND_COMMAND_TIMEOUT"}
+#: CONTROL.Command
+CONTROL_NONE, CONTROL_RESET, CONTROL_END = 0, 1, 2
+CONTROL_COMMANDS = {CONTROL_NONE: "NONE", CONTROL_RESET: "RESET", CONTROL_END: "END"}
 
 
 def build_database(max_joints: int = MAX_JOINTS) -> Database:
@@ -88,17 +93,21 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
                  comment="computation delay: the previous command holds this long (float64, exact)"),
             _sig("Seq", 160, 8, minimum=0, maximum=255, comment="Tick mod 256"),
             _bit("Watchdog", 168, "amplifier enable-watchdog (charge-pump) line over the coming period", P),
+            _sig("BootId", 176, 16, minimum=0, maximum=65535,
+                 comment="sender's controller boot id: the node steps only its session owner's SYNC"),
         ], senders=[C], is_fd=True, comment="Lockstep: advance one servo period and answer."),
         Message(ID_CONTROL, "CONTROL", 8, [
-            _sig("Command", 0, 8, minimum=0, maximum=255, choices={0: "NONE", 1: "RESET"},
-                 comment="RESET: rebuild the plant with Seed and start at rest"),
+            _sig("Command", 0, 8, minimum=0, maximum=255, choices=dict(CONTROL_COMMANDS),
+                 comment="RESET: rebuild the plant with Seed, start at rest and open a session for BootId; "
+                         "END: the session's owner closes it (amplifiers idle)"),
             _sig("Seed", 8, 32, minimum=0, maximum=2**32 - 1, comment="seed of every plant noise source"),
             _sig("NJoints", 40, 8, minimum=0, maximum=255, comment="joints the controller expects"),
-            _sig("BootId", 48, 16, minimum=0, maximum=65535, comment="controller boot identifier"),
+            _sig("BootId", 48, 16, minimum=0, maximum=65535, comment="controller boot identifier (session owner)"),
         ], senders=[C]),
         Message(ID_STATUS, "PLANT_STATUS", 16, [
             _sig("Tick", 0, 32, minimum=0, maximum=2**32 - 1, receiver=C,
-                 comment="tick answered (lockstep: SYNC Tick; free-running: plant step count)"),
+                 comment="tick answered (lockstep: SYNC Tick; free-running: plant step count); "
+                         "with ResetAck: the BootId of the RESET acknowledged"),
             _sig("BootId", 32, 16, minimum=0, maximum=65535, receiver=C, comment="plant boot identifier"),
             _sig("NJoints", 48, 8, minimum=0, maximum=255, receiver=C),
             _sig("FreeRunning", 56, 1, minimum=0, maximum=1, receiver=C),
@@ -106,6 +115,8 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
             _sig("ResetAck", 58, 1, minimum=0, maximum=1, receiver=C, comment="answer to a CONTROL RESET"),
             _sig("WatchdogTripped", 59, 1, minimum=0, maximum=1, receiver=C,
                  comment="an amplifier is latched off by the enable watchdog or the command timeout"),
+            _sig("Session", 60, 4, minimum=0, maximum=15, receiver=C,
+                 comment="session this answer belongs to (1..15, one per accepted RESET; 0: none)"),
             _sig("MissingCmd", 64, 16, minimum=0, maximum=65535, receiver=C,
                  comment="command frames missing at a step (held), total, saturating"),
             _sig("Dropped", 80, 16, minimum=0, maximum=65535, receiver=C,
@@ -138,6 +149,19 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
             comment = "Sent every 100 ms (wall clock) and at once when the amplifier state changes."
         msgs.append(Message(fid, f"HEARTBEAT_{node}", 8 if node == C else 12, signals, senders=[node],
                             is_fd=node == P, comment=comment))
+    msgs.append(Message(ID_SESSION, "PLANT_SESSION", 8, [
+        _sig("Owner", 0, 16, minimum=0, maximum=65535, receiver=C,
+             comment="boot id of the controller whose session runs (with Active)"),
+        _sig("Session", 16, 4, minimum=0, maximum=15, receiver=C, comment="its number, as in PLANT_STATUS.Session"),
+        _sig("Active", 20, 1, minimum=0, maximum=1, receiver=C,
+             comment="a session runs: RESET, CONTROL, SYNC and CMD from other boot ids are refused"),
+        _sig("Open", 21, 1, minimum=0, maximum=1, receiver=C,
+             comment="a RESET from another boot id would be accepted now (no session, or its owner silent)"),
+        _sig("Refused", 24, 16, minimum=0, maximum=65535, receiver=C,
+             comment="frames from controllers other than the owner refused, total, saturating"),
+        _sig("RefusedBoot", 40, 16, minimum=0, maximum=65535, receiver=C,
+             comment="boot id of the last controller refused"),
+    ], senders=[P], comment="Sent with every HEARTBEAT_PLANT and at once on a session change or a refused RESET."))
     for j in range(max_joints):
         msgs.append(Message(ID_CMD + j, f"CMD_J{j:02d}", 8, [
             _volts("AmpCommand", 0, "transconductance amplifier input", P),
@@ -147,6 +171,8 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
             _bit("PwmDirection", 46, "H-bridge direction (1 = positive)", P),
             _bit("Brake", 47, "H-bridge brake (winding shorted)", P),
             _sig("Seq", 48, 8, minimum=0, maximum=255, comment="Tick mod 256 of the SYNC this belongs to"),
+            _sig("BootIdLow", 56, 8, minimum=0, maximum=255,
+                 comment="low byte of the sender's controller boot id: the node takes only its session owner's"),
         ], senders=[C], comment=f"Joint {j}: commands held over the coming servo period."))
         msgs.append(Message(ID_SENS + j, f"SENS_J{j:02d}", 24, [
             _volts("PotVoltage", 0, "joint potentiometer wiper at the sampling instant", C),

@@ -21,6 +21,17 @@ into a safe stop in the same tick):
   :class:`PlantLostError`.
 * a frame from the node with a boot id other than the one that acknowledged our RESET →
   :class:`PlantRestartedError`.
+* the node acknowledging another controller's RESET, or reporting another owner
+  (``PLANT_SESSION``), after it acknowledged ours → :class:`SessionLostError` (a
+  :class:`PlantRestartedError`: the plant is no longer ours).
+
+**Sessions.** RESET carries this link's boot id; the node's acknowledgement names it (``Tick``)
+and the session number (``Session``). Only answers of that session are used: frames the node
+sent before it acknowledged our RESET (its previous session's plant, still queued — in
+free-running mode the first exchange used to read them), or for another session, are
+discarded and counted (``LinkCounters.other_session``). CMD and SYNC carry our boot id so the
+node obeys only its session's owner; :meth:`CanPlantLink.close` sends ``END``, which frees the
+node for the next controller at once.
 
 After a failure the link keeps sending commands (so a live node sees the safe outputs) but
 no longer waits: it returns the held values at once.
@@ -38,7 +49,15 @@ import numpy as np
 
 from emulators.can.bus import Endpoint
 from emulators.can.codec import CanCodec, Frame
-from emulators.can.dbc import ID_CMD, ID_CONTROL, ID_HEARTBEAT_CONTROLLER, ID_SYNC, MAX_JOINTS
+from emulators.can.dbc import (
+    CONTROL_END,
+    CONTROL_RESET,
+    ID_CMD,
+    ID_CONTROL,
+    ID_HEARTBEAT_CONTROLLER,
+    ID_SYNC,
+    MAX_JOINTS,
+)
 from emulators.can.node import new_boot_id
 from emulators.plant_link import (
     PlantLink,
@@ -52,7 +71,11 @@ from emulators.signals import QuadratureEvents
 CONTROLLER_IDS = {ID_SYNC, ID_CONTROL, ID_HEARTBEAT_CONTROLLER} | {ID_CMD + j for j in range(MAX_JOINTS)}
 
 __all__ = ["CanPlantLink", "LinkCounters", "PlantLinkError", "PlantLostError", "PlantRestartedError",
-           "StaleDataError"]
+           "SessionLostError", "StaleDataError"]
+
+
+class SessionLostError(PlantRestartedError):
+    """The plant node now serves another controller's session: its plant is no longer ours."""
 
 
 @dataclass
@@ -67,6 +90,10 @@ class LinkCounters:
     peer_seq_jumps: int = 0
     #: the node's last status said an amplifier is latched off by its enable watchdog / command timeout
     peer_watchdog_tripped: bool = False
+    #: answers discarded: sent before the node acknowledged our RESET, or for another session
+    other_session: int = 0
+    #: the node's count of frames it refused from controllers other than its session's owner
+    peer_refused: int = 0
 
 
 def merge_events(events: list[QuadratureEvents]) -> QuadratureEvents:
@@ -138,6 +165,8 @@ class CanPlantLink(PlantLink):
         self._truth: dict[int, dict[str, Any]] = {}
         self._fresh: list[tuple[int, Any]] = []  # complete answers not yet consumed: (tick, sensors)
         self._reset_acked = False
+        self.session: int | None = None  #: the node's number of our session (from its acknowledgement)
+        self._refused_by: int | None = None  # while connecting: the owner of the session that refused us
 
     # --- sending --------------------------------------------------------------------------------
     def _heartbeat(self, now: float) -> None:
@@ -155,8 +184,8 @@ class CanPlantLink(PlantLink):
         self._reset_acked = False
         while True:
             now = time.monotonic()
-            self.ep.send(self.codec.frame("CONTROL", Command=1, Seed=self.seed & 0xFFFFFFFF, NJoints=self.n,
-                                          BootId=self.boot_id))
+            self.ep.send(self.codec.frame("CONTROL", Command=CONTROL_RESET, Seed=self.seed & 0xFFFFFFFF,
+                                          NJoints=self.n, BootId=self.boot_id))
             t_resend = min(now + 0.2, t_end)
             while time.monotonic() < t_resend:
                 self._pump(t_resend - time.monotonic(), accept_new_boot=True)
@@ -165,6 +194,11 @@ class CanPlantLink(PlantLink):
                     self._last_peer = time.monotonic()
                     return
             if time.monotonic() >= t_end:
+                if self._refused_by is not None:
+                    raise PlantLinkError(
+                        f"the plant node serves another controller (boot id {self._refused_by:#06x}) and refused "
+                        f"our RESET for {self.connect_timeout_s:g} s: it accepts a new controller when that one "
+                        "ends its run or has been silent for the node's controller timeout (0.5 s)")
                 raise PlantLostError(f"no plant node answered RESET within {self.connect_timeout_s:g} s: start "
                                      "`vmehil plant-node` on the same interface and channel")
 
@@ -193,6 +227,8 @@ class CanPlantLink(PlantLink):
             self._last_peer = time.monotonic()
         if kind == "HEARTBEAT_PLANT":
             self._check_boot(int(f.raw["BootId"]), accept_new_boot)
+        elif kind == "PLANT_SESSION":
+            self._session_report(f.raw)
         elif kind == "SENS":
             if f.joint is not None and f.joint < self.n:
                 self._sens[f.joint] = f.raw
@@ -206,10 +242,32 @@ class CanPlantLink(PlantLink):
         else:  # frames of another controller
             self.counters.foreign += 1
 
+    def _session_report(self, r: dict[str, Any]) -> None:
+        owner, active = int(r["Owner"]), bool(r["Active"])
+        self.counters.peer_refused = int(r["Refused"])
+        if not self._reset_acked:  # connecting: remember who holds the node if it refused us
+            if active and owner != self.boot_id and int(r["RefusedBoot"]) == self.boot_id:
+                self._refused_by = owner
+            return
+        if active and owner != self.boot_id:
+            raise SessionLostError(f"the plant node now serves another controller (boot id {owner:#06x}): "
+                                   "its plant is no longer this run's; restart the run")
+
     def _status(self, f: Frame, accept_new_boot: bool) -> None:
         r = f.raw
         c = self.counters
         if r["ResetAck"]:
+            acked, session = int(r["Tick"]), int(r["Session"])
+            if acked != self.boot_id:  # another controller's RESET acknowledged
+                if self._reset_acked and int(r["BootId"]) == self.peer_boot:
+                    raise SessionLostError(f"the plant node acknowledged another controller's RESET (boot id "
+                                           f"{acked:#06x}): its plant is no longer this run's; restart the run")
+                return
+            if self._reset_acked:
+                if session == self.session and int(r["BootId"]) == self.peer_boot:
+                    return  # our resent RESET acknowledged again (the node did not rebuild)
+                raise PlantRestartedError(f"the plant node reset our session again (session {self.session} → "
+                                          f"{session}): its state no longer matches the servo loop's")
             if int(r["NJoints"]) != self.n:
                 raise PlantLinkError(f"the plant node has {int(r['NJoints'])} joints, this rig {self.n}: "
                                      "start both sides with the same --rig")
@@ -218,11 +276,19 @@ class CanPlantLink(PlantLink):
                 raise PlantLinkError(f"the plant node runs {mode}; start this side with the same mode "
                                      "(--plant-mode) or restart the node")
             self.peer_boot = int(r["BootId"])
+            self.session = session
             self._reset_acked = True
             self._sens.clear()
             self._truth.clear()
+            self.counters.other_session += len(self._fresh)
+            self._fresh.clear()  # answers of the node's previous session
             return
         self._check_boot(int(r["BootId"]), accept_new_boot)
+        if not self._reset_acked or int(r["Session"]) != self.session:  # not an answer to us
+            c.other_session += 1
+            self._sens.clear()
+            self._truth.clear()
+            return
         c.peer_missing_cmd, c.peer_dropped, c.peer_seq_jumps = int(r["MissingCmd"]), int(r["Dropped"]), int(
             r["SeqJumps"])
         c.peer_watchdog_tripped = bool(r["WatchdogTripped"])
@@ -252,12 +318,16 @@ class CanPlantLink(PlantLink):
         tick = self.tick
         self.tick += 1
         raw = self.codec.command_raw(cmd)
-        for m in self.codec.command_frames(raw, tick):
+        for m in self.codec.command_frames(raw, tick, self.boot_id):
             self.ep.send(m)
-        self.ep.send(self.codec.sync_frame(raw, tick, period_s, delay_s))
+        self.ep.send(self.codec.sync_frame(raw, tick, period_s, delay_s, self.boot_id))
         if self.failed is not None:
-            while self._pump(0.0, accept_new_boot=True):
-                pass
+            while True:  # read what came, without waiting; the failure is already reported
+                try:
+                    if not self._pump(0.0, accept_new_boot=True):
+                        break
+                except PlantLinkError:
+                    pass
             self._fresh.clear()
             return self._held_sensors()
         try:
@@ -286,13 +356,16 @@ class CanPlantLink(PlantLink):
         return self._held_sensors()
 
     def _collect_tick(self, tick: int):
-        """Lockstep (and the first free-running exchange): wait for the answer of ``tick``."""
+        """Lockstep (and the first free-running exchange): wait for the answer of ``tick``
+        (free-running: for the first answer of our session, taking every one that came)."""
         t_end = time.monotonic() + self.answer_timeout_s
         while True:
+            if self.free_running and self._fresh:
+                return self._take_fresh()
             for k, (t_ans, s) in enumerate(self._fresh):
-                if self.free_running or t_ans == tick:
+                if t_ans == tick:
                     self.counters.late += k
-                    self._fresh = self._fresh[k + 1:] if not self.free_running else []
+                    self._fresh = self._fresh[k + 1:]
                     return s
             if self._fresh and not self.free_running:
                 self.counters.late += len(self._fresh)
@@ -307,6 +380,11 @@ class CanPlantLink(PlantLink):
         """Free-running: everything that arrived, without waiting; newest analog, summed encoder."""
         while self._pump(0.0):
             pass
+        return self._take_fresh()
+
+    def _take_fresh(self):
+        """Every complete answer not yet consumed as one: the newest analog values, encoder
+        events and switching of all of them (None when there is none)."""
         fresh = [s for _, s in self._fresh]
         self._fresh.clear()
         if not fresh:
@@ -328,4 +406,12 @@ class CanPlantLink(PlantLink):
                                  switching=np.zeros(self.n, dtype=bool), truth=h.truth)
 
     def close(self) -> None:
+        """End our session on the node (it idles the amplifiers and takes the next controller's
+        RESET at once), then close the endpoint."""
+        if self._reset_acked:
+            self._reset_acked = False
+            try:
+                self.ep.send(self.codec.frame("CONTROL", Command=CONTROL_END, BootId=self.boot_id, NJoints=self.n))
+            except can.CanError:  # a vanished bus: the node's controller timeout frees it instead
+                pass
         self.ep.close()

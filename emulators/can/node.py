@@ -4,7 +4,15 @@ node on a CAN bus.
 Protocol (frames of ``vmehil.dbc``; see ``docs/can.md``):
 
 * **CONTROL** ``RESET`` (from the controller's link when it connects): rebuild the plant with
-  the given seed, at rest; answer ``PLANT_STATUS`` with ``ResetAck = 1``.
+  the given seed, at rest; answer ``PLANT_STATUS`` with ``ResetAck = 1`` (its ``Tick`` = the
+  RESET's ``BootId``) and open a **session** for that controller boot id (numbered 1..15 in
+  ``PLANT_STATUS.Session``). **Sessions**: while one runs, CONTROL, SYNC and CMD frames of
+  other boot ids (SYNC carries ``BootId``, CMD its low byte) are refused and counted
+  (``PLANT_SESSION.Refused``), never obeyed; a RESET of another boot id is accepted only when
+  the session is over: its owner sent ``END`` or has been silent (no frame at all) for
+  ``controller_timeout_s``. A RESET the owner resends before commanding anything (same seed) is
+  acknowledged again without rebuilding the plant. Without a session nothing is obeyed but a
+  RESET.
 * **CMD_Jxx** frames set each joint's command (held until the next one).
 * **Lockstep** — on **SYNC** (tick ``k``, period, delay) the node advances the plant exactly one
   period with the commands whose ``Seq`` is ``k mod 256`` (a joint without one keeps its previous
@@ -47,13 +55,22 @@ import numpy as np
 
 from emulators.can.bus import Endpoint
 from emulators.can.codec import CanCodec
-from emulators.can.dbc import ID_HEARTBEAT_PLANT, ID_SENS, ID_STATUS, ID_TRUTH, MAX_JOINTS
+from emulators.can.dbc import (
+    CONTROL_END,
+    CONTROL_RESET,
+    ID_HEARTBEAT_PLANT,
+    ID_SENS,
+    ID_SESSION,
+    ID_STATUS,
+    ID_TRUTH,
+    MAX_JOINTS,
+)
 from emulators.faults import FaultInjectable
 from emulators.plant.amplifier import WATCHDOG_COMMAND_TIMEOUT, cause_names
 
 log = logging.getLogger(__name__)
 
-PLANT_IDS = {ID_STATUS, ID_HEARTBEAT_PLANT} | {ID_SENS + j for j in range(MAX_JOINTS)} | {
+PLANT_IDS = {ID_STATUS, ID_HEARTBEAT_PLANT, ID_SESSION} | {ID_SENS + j for j in range(MAX_JOINTS)} | {
     ID_TRUTH + j for j in range(MAX_JOINTS)}
 STATE_READY, STATE_RUNNING, STATE_STOPPED, STATE_FAULT = 1, 2, 3, 4
 
@@ -107,6 +124,9 @@ class NodeCounters:
     command_timeouts: int = 0  #: times the command timeout came into force
     watchdog_trips: int = 0  #: amplifiers latched off (by the watchdog line or the command timeout)
     bad_sync: int = 0  #: SYNC frames refused: a period other than the rig's, or a delay outside it
+    refused: int = 0  #: CONTROL, SYNC and CMD frames refused: not from the session's owner (or no session)
+    refused_resets: int = 0  #: of them, RESETs from another controller while the session runs
+    duplicate_resets: int = 0  #: RESETs resent by the owner before it commanded: acknowledged again, not rebuilt
 
 
 @runtime_checkable
@@ -225,6 +245,14 @@ class PlantNode(FaultInjectable):
         self.command_timed_out = False  #: the command timeout is in force
         self.last_silence_s: float | None = None  #: the silence that brought the last command timeout
         self.state = STATE_READY
+        self.session_owner: int | None = None  #: boot id of the controller whose session runs
+        self.session_no = 0  #: its number (1..15; 0: no session)
+        self._sessions = 0  # sessions opened
+        self._owner_seen: float | None = None  # clock of the owner's last frame
+        self._session_commanded = False  # the owner sent CMD/SYNC since its RESET
+        self.refused_boot: int | None = None  #: boot id of the last controller refused
+        self._refused_boots: set[int] = set()  # controllers whose refused RESET was logged
+        self._refused_at_open = 0  # counters.refused when the session opened
         self._reset_state(seed)
 
     # --- state ----------------------------------------------------------------------------------
@@ -258,6 +286,7 @@ class PlantNode(FaultInjectable):
         self._send(self.codec.frame(
             "PLANT_STATUS", Tick=tick & 0xFFFFFFFF, BootId=self.boot_id, NJoints=self.n,
             FreeRunning=int(self.free_running), StepError=int(step_error), ResetAck=int(reset_ack),
+            Session=self.session_no,
             WatchdogTripped=int(self.amplifiers().tripped.any()),
             MissingCmd=c.missing_cmd, Dropped=c.dropped + self._codec_dropped(), SeqJumps=c.seq_jumps,
             Steps=c.steps & 0xFFFF))
@@ -283,6 +312,84 @@ class PlantNode(FaultInjectable):
                                     AmpsEnabled=int(np.count_nonzero(amps.enabled)),
                                     WatchdogTripped=int(np.count_nonzero(amps.tripped)), OffCause=amps.off_cause,
                                     CommandTimeout=int(amps.command_timeout)))
+        self._session_frame()
+
+    def _session_frame(self) -> None:
+        """PLANT_SESSION: who owns the node, and what was refused."""
+        c = self.counters
+        self._send(self.codec.frame("PLANT_SESSION", Owner=self.session_owner or 0, Session=self.session_no,
+                                    Active=int(self.session_owner is not None), Open=int(self.session_open()),
+                                    Refused=c.refused, RefusedBoot=self.refused_boot or 0))
+
+    # --- sessions -------------------------------------------------------------------------------
+    def session_open(self, now: float | None = None) -> bool:
+        """True when a RESET from another controller would be accepted: no session runs, or its
+        owner has been silent (no frame at all) for ``controller_timeout_s``."""
+        if self.session_owner is None or self._owner_seen is None:
+            return True
+        now = self.clock() if now is None else now
+        return now - self._owner_seen > self.controller_timeout_s
+
+    def _from_owner(self, kind: str, raw: dict[str, Any]) -> bool:
+        """The frame comes from the session's owner (CMD carries the low byte of its boot id)."""
+        if self.session_owner is None:
+            return False
+        if kind == "CMD":
+            return int(raw["BootIdLow"]) == self.session_owner & 0xFF
+        return int(raw["BootId"]) == self.session_owner
+
+    def _refuse(self, kind: str, boot: int, *, reset: bool = False) -> None:
+        c = self.counters
+        c.refused += 1
+        self.refused_boot = boot
+        if reset:
+            c.refused_resets += 1
+            self._session_frame()  # at once: the refused controller learns why it gets no acknowledgement
+        # News: the first refused frame of a session, and each controller's first refused RESET
+        # (at most 64 of them); the rest are counted (PLANT_SESSION.Refused).
+        first = c.refused - self._refused_at_open == 1
+        if first or (reset and boot not in self._refused_boots and len(self._refused_boots) < 64):
+            if reset:
+                self._refused_boots.add(boot)
+            sender = f"boot id low byte {boot:#04x}" if kind == "CMD" else f"controller {boot:#06x}"
+            owner = "no session" if self.session_owner is None else f"session of {self.session_owner:#06x}"
+            log.warning("plant node: %s from %s refused (%s); further refusals are counted", kind, sender, owner)
+
+    def _control(self, raw: dict[str, Any], now: float) -> None:
+        boot, command = int(raw["BootId"]), int(raw["Command"])
+        owner = self._from_owner("CONTROL", raw)
+        if command == CONTROL_RESET:
+            if not (owner or self.session_open(now)):
+                self._refuse("RESET", boot, reset=True)
+                return
+            self._owner_seen = self._last_controller = now
+            if owner and not self._session_commanded and int(raw["Seed"]) == self.seed:
+                self.counters.duplicate_resets += 1  # a resend crossing our acknowledgement
+            else:
+                self.counters.resets += 1
+                self._reset_state(int(raw["Seed"]))
+                self._sessions += 1
+                self.session_owner, self.session_no = boot, (self._sessions - 1) % 15 + 1
+                self._refused_at_open = self.counters.refused
+                self._session_commanded = False
+                self._session_frame()
+            self.state = STATE_RUNNING
+            self._status(boot, reset_ack=True)
+            self._commands_again(now)
+            return
+        if not owner:
+            self._refuse("CONTROL", boot)
+            return
+        self._owner_seen = self._last_controller = now
+        if command == CONTROL_END:  # the owner closes its session: amplifiers idle, the node is free
+            log.info("plant node: controller %#06x ended its session %d", boot, self.session_no)
+            self.cmd_raw = self._idle_raw()
+            self.session_owner, self.session_no = None, 0
+            self._owner_seen = self._last_controller = None  # the command timeout stays armed
+            self.state = STATE_READY
+            self._session_frame()
+            return
+        self._commands_again(now)  # NONE (or a command this node does not know): alive, no action
 
     # --- the amplifier side ---------------------------------------------------------------------
     def amplifiers(self) -> AmplifierState:
@@ -360,8 +467,18 @@ class PlantNode(FaultInjectable):
         f = self.codec.try_decode(m)
         if f is None:
             return
-        if f.kind in ("CMD", "SYNC", "CONTROL", "HEARTBEAT_CONTROLLER"):
-            self._last_controller = self.clock()
+        if f.kind == "CONTROL":
+            self._control(f.raw, self.clock())
+            return
+        if f.kind in ("CMD", "SYNC", "HEARTBEAT_CONTROLLER"):
+            if not self._from_owner(f.kind, f.raw):
+                if f.kind != "HEARTBEAT_CONTROLLER":  # another controller's heartbeat commands nothing
+                    boot = f.raw["BootIdLow"] if f.kind == "CMD" else f.raw["BootId"]
+                    self._refuse(f.kind, int(boot))
+                return
+            self._owner_seen = self._last_controller = self.clock()
+            if f.kind != "HEARTBEAT_CONTROLLER":
+                self._session_commanded = True
         if f.kind == "CMD":
             j = int(f.joint or 0)
             if j >= self.n:
@@ -380,13 +497,6 @@ class PlantNode(FaultInjectable):
                 if not self._sync_plausible(period, delay):
                     return
                 self.step(int(f.raw["Tick"]), period, delay)
-        elif f.kind == "CONTROL":
-            if int(f.raw["Command"]) == 1:
-                self.counters.resets += 1
-                self._reset_state(int(f.raw["Seed"]))
-                self.state = STATE_RUNNING
-                self._status(0, reset_ack=True)
-            self._commands_again(self._last_controller)
         elif f.kind == "HEARTBEAT_CONTROLLER":
             pass  # alive, but no command: it does not hold the command timeout off
         else:  # another plant's frames on our bus

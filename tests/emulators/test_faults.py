@@ -174,12 +174,13 @@ def test_a_dead_plant_node_answers_nothing_and_sends_no_heartbeat() -> None:
     node_ep = Endpoint(open_bus("virtual", "fault-node"), PLANT_IDS)
     node = PlantNode(node_ep, lambda s: ToyPlant(2, seed=s), 2, command_type=ToyCommand)
     codec = CanCodec()
-    sync = codec.frame("SYNC", Tick=0, PeriodS=T, DelayS=0.0, Seq=0)
+    node.handle(codec.frame("CONTROL", Command=1, NJoints=2, BootId=1))  # a session: the node obeys boot id 1
+    sync = codec.frame("SYNC", Tick=0, PeriodS=T, DelayS=0.0, Seq=0, BootId=1)
     node.handle(sync)
     answered = node_ep.sent
     assert answered > 0  # alive: SYNC is answered
     node.inject("dead")
-    node.handle(codec.frame("SYNC", Tick=1, PeriodS=T, DelayS=0.0, Seq=1))
+    node.handle(codec.frame("SYNC", Tick=1, PeriodS=T, DelayS=0.0, Seq=1, BootId=1))
     node.heartbeat(now=1e9)
     assert node_ep.sent == answered and node.counters.steps == 1
     node.close()

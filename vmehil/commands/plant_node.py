@@ -71,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
         node.close()
         c = node.counters
         print(f"plant node: {c.steps} steps, {c.resets} resets, missing commands {c.missing_cmd}, dropped "
-              f"{node.dropped_total()}, sequence jumps {c.seq_jumps}; {node.amplifiers().describe(spec.names)}",
+              f"{node.dropped_total()}, sequence jumps {c.seq_jumps}, refused {c.refused} (other controllers); "
+              f"{node.amplifiers().describe(spec.names)}",
               file=sys.stderr)
         if args.json:
             write_json(args.json, summary(node, spec, mode))
@@ -87,5 +88,6 @@ def summary(node, spec, mode: str) -> dict:
         "step_errors": c.step_errors, "controller_lost": c.controller_lost,
         "command_timeout_s": node.command_timeout_s, "command_timeouts": c.command_timeouts,
         "last_command_silence_s": node.last_silence_s, "watchdog_trips": c.watchdog_trips,
+        "refused": c.refused, "refused_resets": c.refused_resets, "session_owner": node.session_owner,
         "amplifiers": node.amplifiers().as_dict(spec.names),
     }

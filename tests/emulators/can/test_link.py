@@ -275,7 +275,8 @@ def test_sequence_jumps_and_missing_commands_are_counted_by_the_node(transport):
         raw = open_bus(transport, p.channel, **p.kw)
         try:
             # a SYNC for tick 1000 with no commands: a jump, and N missing command frames
-            raw.send(p.link.codec.frame("SYNC", Tick=1000, PeriodS=PERIOD, DelayS=DELAY, Seq=1000 & 0xFF))
+            raw.send(p.link.codec.frame("SYNC", Tick=1000, PeriodS=PERIOD, DelayS=DELAY, Seq=1000 & 0xFF,
+                                        BootId=p.link.boot_id))
             deadline = time.monotonic() + 10
             while p.node.counters.seq_jumps == 0 and time.monotonic() < deadline:
                 time.sleep(0.01)
@@ -331,3 +332,114 @@ def test_a_mode_mismatch_is_refused_with_advice():
         with pytest.raises(PlantLinkError, match="same mode"):
             link.connect()
         link.close()
+
+
+def _wait_for(condition, what: str, limit_s: float = 30.0) -> None:
+    """Wait for ``condition()`` (a generous limit only against a hang: no timing is asserted)."""
+    deadline = time.monotonic() + limit_s
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"gave up waiting for {what}")
+        time.sleep(0.001)
+
+
+def test_free_running_the_first_answers_after_connect_are_the_new_sessions_not_queued_old_ones():
+    """Free-running, the node steps its previous plant until our RESET; those answers were still
+    queued when the link read its first one (the servo loop saw the joints jump 0.1–0.9 rad).
+    Every answer the link returns must come from the plant rebuilt by our RESET, in order."""
+    from emulators.can.node import node_spec
+    from emulators.plant import Plant, PlantCommand
+
+    spec = node_spec("jpl-arm")
+    chan = f"vmehil-test-{next(_port)}"
+    node = PlantNode(Endpoint(open_bus("virtual", chan), PLANT_IDS), lambda s: Plant.from_config(spec.table, seed=s),
+                     spec.n_joints, seed=3, free_running=True, period_s=spec.period_s, delay_s=spec.delay_s)
+    ep = Endpoint(open_bus("virtual", chan), CONTROLLER_IDS)  # frames queue here from now on
+    thread, stop = node.start_thread()
+    link = CanPlantLink(ep, spec.names, seed=3, free_running=True, stale_ticks=10_000, heartbeat_timeout_s=30.0)
+    cmd = PlantCommand.idle(spec.n_joints)
+    try:
+        _wait_for(lambda: node.counters.steps >= 100, "100 steps of the node's first plant")  # gravity moves it
+        link.connect()
+        thetas = []
+        for _ in range(30):
+            seen = node.counters.steps
+            _wait_for(lambda seen=seen: node.counters.steps > seen, "a node step")
+            thetas.append(link.exchange(cmd, spec.period_s, spec.delay_s).truth["theta_joint"].copy())
+    finally:
+        stop.set()
+        thread.join(10)
+        node.close()
+        link.close()
+    assert link.counters.other_session > 0  # old answers were queued, and discarded
+    # the plant our RESET built, stepped as the node steps it (our idle commands), row k = step k + 1
+    ref_plant = Plant.from_config(spec.table, seed=3)
+    ref_cmd = node.codec.command_from_raw({**node.codec.command_raw(cmd), "Watchdog": np.asarray(0)}, PlantCommand)
+    ref = np.array([ref_plant.step_period(ref_cmd, spec.period_s, spec.delay_s).truth["theta_joint"].copy()
+                    for _ in range(node.counters.steps)])
+    assert np.ptp(ref[:, 1]) > 0.01  # the joints really move (gravity): the states are distinct
+    steps = []
+    for theta in thetas:
+        err = np.abs(ref - theta).max(axis=1)
+        assert err.min() == 0.0, "an answer that is no step of the plant our RESET built"
+        steps.append(int(err.argmin()))
+    assert steps == sorted(steps)  # continuous: never back to an older state
+
+
+@contextmanager
+def node_and_links(n_links: int, *, controller_timeout_s: float, **link_kw):
+    """A lockstep toy node (thread) on ``virtual`` and ``n_links`` links (not yet connected)."""
+    chan = f"vmehil-test-{next(_port)}"
+    node = PlantNode(Endpoint(open_bus("virtual", chan), PLANT_IDS), lambda s: ToyPlant(N, seed=s), N,
+                     command_type=ToyCommand, period_s=PERIOD, delay_s=DELAY,
+                     controller_timeout_s=controller_timeout_s)
+    links = [CanPlantLink(Endpoint(open_bus("virtual", chan), CONTROLLER_IDS), [f"j{i}" for i in range(N)], seed=7,
+                          sensors_type=ToySensors, **link_kw) for _ in range(n_links)]
+    thread, stop = node.start_thread()
+    try:
+        yield node, links
+    finally:
+        stop.set()
+        thread.join(10)
+        node.close()
+        for link in links:
+            link.close()
+
+
+def test_a_second_controller_is_refused_while_the_first_runs_and_told_why():
+    from emulators.harness import PlantLinkError
+
+    ref = reference(40)
+    with node_and_links(2, controller_timeout_s=60.0, connect_timeout_s=0.5) as (node, (first, second)):
+        got = run_ticks(first, 20)
+        with pytest.raises(PlantLinkError, match=r"serves another controller \(boot id"):
+            second.connect()
+        got += run_ticks(first, 20, start=20)  # undisturbed
+        assert_same(got, ref)
+        assert node.counters.refused_resets >= 1 and node.refused_boot == second.boot_id
+        assert first.counters.peer_refused >= 1  # reported in PLANT_SESSION
+
+
+def test_a_closed_link_ends_its_session_and_the_next_controller_connects_at_once():
+    ref = reference(30)
+    # a controller timeout far beyond the connect timeout: only END can free the node in time
+    with node_and_links(2, controller_timeout_s=60.0, connect_timeout_s=5.0) as (node, (first, second)):
+        assert_same(run_ticks(first, 30), ref)
+        first.close()
+        assert_same(run_ticks(second, 30), ref)
+        assert node.session_owner == second.boot_id
+
+
+def test_a_link_whose_session_was_taken_over_stops():
+    from emulators.can.link import SessionLostError
+
+    with node_and_links(2, controller_timeout_s=0.05, answer_timeout_s=2.0) as (node, (first, second)):
+        run_ticks(first, 10)
+        _wait_for(node.session_open, "the first controller's session to time out")
+        second.connect()
+        with pytest.raises(SessionLostError) as e:
+            first.exchange(command(10), PERIOD, DELAY)
+        assert e.value.cause == "plant_restarted"
+        steps = node.counters.steps
+        run_ticks(second, 5)
+        assert node.counters.steps == steps + 5

@@ -23,6 +23,7 @@ N = SPEC.n_joints
 PERIOD, DELAY = SPEC.period_s, SPEC.delay_s
 CODEC = CanCodec()
 _chan = itertools.count()
+BOOT = 7  # the controller boot id of the session these tests play
 
 
 class Clock:
@@ -47,7 +48,7 @@ class Controller:
         self.cmd = PlantCommand.idle(N)
         self.cmd.amp_command_v[:] = 0.2
         self.tick = 0
-        self.node.handle(CODEC.frame("CONTROL", Command=1, Seed=3, NJoints=N, BootId=7))
+        self.node.handle(CODEC.frame("CONTROL", Command=1, Seed=3, NJoints=N, BootId=BOOT))
 
     def close(self) -> None:
         self.node.close()
@@ -60,9 +61,9 @@ class Controller:
         if toggle:
             self.cmd.watchdog_line = not self.cmd.watchdog_line
         raw = CODEC.command_raw(self.cmd)
-        for m in CODEC.command_frames(raw, self.tick):
+        for m in CODEC.command_frames(raw, self.tick, BOOT):
             self.node.handle(m)
-        self.node.handle(CODEC.sync_frame(raw, self.tick, PERIOD, DELAY))
+        self.node.handle(CODEC.sync_frame(raw, self.tick, PERIOD, DELAY, BOOT))
         if step and self.node.free_running:
             self.node.step(self.tick, PERIOD, DELAY)
         self.tick += 1
@@ -125,7 +126,7 @@ def test_syncs_hold_the_command_timeout_off_and_a_heartbeat_alone_does_not(ctl):
         assert not ctl.node.check_command_timeout()
     for counter in range(5):  # a hung loop whose heartbeat still runs
         ctl.clock.t += 0.1
-        ctl.node.handle(CODEC.frame("HEARTBEAT_CONTROLLER", State=2, BootId=7, Counter=counter))
+        ctl.node.handle(CODEC.frame("HEARTBEAT_CONTROLLER", State=2, BootId=BOOT, Counter=counter))
     assert ctl.node.check_command_timeout()
 
 
@@ -193,7 +194,7 @@ def test_a_sync_asking_for_another_period_or_an_impossible_delay_is_refused_not_
         ctl.send()
         steps = ctl.node.counters.steps
         raw = CODEC.command_raw(ctl.cmd)
-        ctl.node.handle(CODEC.sync_frame(raw, ctl.tick, period, delay))
+        ctl.node.handle(CODEC.sync_frame(raw, ctl.tick, period, delay, BOOT))
         assert ctl.node.counters.steps == steps and ctl.node.counters.bad_sync == 1
         ctl.send()  # a proper SYNC is served as before
         assert ctl.node.counters.steps == steps + 1
