@@ -34,6 +34,7 @@ from emulators.plant.kernel_layout import (
     F_EXTERNAL,
     F_GRAVITY,
     F_KE,
+    F_LAYOUT,
     F_TACH,
     F_TACH_RIPPLE,
     FR_PHASE,
@@ -54,6 +55,7 @@ from emulators.plant.kernel_layout import (
     KE_AMP,
     KE_PHASE,
     KT,
+    LAYOUT_ID,
     LIN_LIMIT,
     LOOP,
     LOWER,
@@ -251,6 +253,9 @@ def period_kernel(
             or idx.shape[0] != n or X.shape[1] != n or seg_enable.shape[0] != n_seg or n_seg < 1
             or seg_cmd.shape[0] != n_seg or cmd_f.shape[2] != n or cmd_b.shape[2] != n):
         raise ValueError("period_kernel: array shapes do not match the plant")
+    if F[F_LAYOUT] != LAYOUT_ID:
+        raise RuntimeError("period_kernel: numba's cached machine code is stale (kernel_layout.py changed): "
+                           "delete emulators/plant/__pycache__/numba_kernel.*.nb[ic]")
     has_ext = F[F_EXTERNAL] != 0
     any_comp = F[F_COMPLIANT] != 0
     has_grav = F[F_GRAVITY] != 0

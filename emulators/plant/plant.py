@@ -182,6 +182,7 @@ class _StepConsts:
         F[_k.F_TACH] = plant.has_tach
         F[_k.F_TACH_RIPPLE] = plant.has_tach_ripple
         F[_k.F_DIRECT] = st.direct
+        F[_k.F_LAYOUT] = _k.LAYOUT_ID
         self.set_external(plant)
         self.enci = np.ascontiguousarray(np.stack([plant.enc_counts_per_rev, plant.enc_index_phase]), dtype=np.int64)
         self._max_fs = float(np.max(plant.enc_sample_hz, initial=0.0))

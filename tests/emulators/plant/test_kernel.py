@@ -160,3 +160,16 @@ def test_the_kernel_is_compiled_once_and_can_never_compile_again() -> None:
     assert len(disp.signatures) == 1
     with pytest.raises(TypeError):  # other types are refused, not compiled
         disp(*([np.zeros(1, dtype=np.float32)] * 23))
+
+
+def test_stale_cached_machine_code_is_refused() -> None:
+    """Numba's cache is keyed on the kernel's source file only: a layout change in kernel_layout.py
+    must not run old machine code with new row numbers."""
+    from emulators.plant import kernel_layout
+
+    p = Plant(load_plant_params("jpl-arm"))
+    p.step_period(p.idle_command(), T)
+    consts = p._step_consts(T / round(T * p.rate_hz))
+    consts.F[kernel_layout.F_LAYOUT] = kernel_layout.LAYOUT_ID + 1  # as if the layout had changed
+    with pytest.raises(RuntimeError, match="stale"):
+        p.step_period(p.idle_command(), T)
