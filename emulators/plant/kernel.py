@@ -1,7 +1,7 @@
 """The plant's compiled period kernel (numba), and the choice between it and the numpy path.
 
-:func:`emulators.plant.numba_kernel.period_kernel` integrates one servo period of every joint in one call: the substeps
-(amplifier current loop and limits, H-bridge, exact stick/slip with zero-crossing capture,
+:func:`emulators.plant.numba_kernel.period_kernel` integrates one servo period of every joint in
+one call: the substeps (amplifier current loop and limits, H-bridge, exact stick/slip with zero-crossing capture,
 flexspline, gravity, hard stops, tachometer), the slow amplifier faults, the encoder's
 quadrature events and the sensor outputs. It is the same physics as the numpy path of
 :class:`emulators.plant.Plant` (``plant.py``, ``amplifier.py``, ``friction.py``,
@@ -9,16 +9,17 @@ quadrature events and the sensor outputs. It is the same physics as the numpy pa
 joint's state in registers: the joints do not interact inside a period, so the kernel loops
 joints outside and substeps inside.
 
-What stays in Python (``Plant.step_period``): the enable watchdog's events (they cut the period
+What stays in Python (``Plant._step_compiled``): the enable watchdog's events (they cut the period
 into at most three segments, passed in as ``seg_start``/``seg_cmd``/``seg_enable``), the noise
 draws from the seeded numpy generators (passed in as arrays, so the streams are numpy's in both
 paths), the injected faults, and building the ``PlantSensors``.
 
 Choice (``VMEHIL_PLANT_KERNEL``): ``numba`` (default) or ``numpy`` (the vectorised reference
-path). Numba compiles :func:`period_kernel` once, with an explicit signature, and keeps the
+path). Numba compiles the kernel once, with an explicit signature, and keeps the
 machine code in its on-disk cache (``cache=True``: ``__pycache__`` beside this file, or
 ``NUMBA_CACHE_DIR``); :func:`warm_up` loads or compiles it when a plant is built, before any
-loop, and says on stderr when it had to compile and how long it took. Because the signature is
+loop, and says on stderr when it had to compile and how long it took (a cache load is logged at
+INFO). Because the signature is
 explicit the dispatcher can never compile again later (a call with other types raises), so no
 compile can happen inside a real-time loop.
 
@@ -34,6 +35,7 @@ deterministic per seed.
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 import time
@@ -74,6 +76,7 @@ def compiled_kernel() -> Any:
         print(_report, file=sys.stderr, flush=True)
     else:
         _report = f"plant kernel: numba, loaded from its on-disk cache in {dt:.2f} s"
+        logging.getLogger(__name__).info(_report)
     _compiled = disp
     return disp
 
