@@ -173,3 +173,22 @@ def test_stale_cached_machine_code_is_refused() -> None:
     consts.F[kernel_layout.F_LAYOUT] = kernel_layout.LAYOUT_ID + 1  # as if the layout had changed
     with pytest.raises(RuntimeError, match="stale"):
         p.step_period(p.idle_command(), T)
+
+
+@pytest.mark.slow
+def test_a_compile_is_reported_once_and_the_next_process_loads_it_from_the_disk_cache(tmp_path) -> None:
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    code = "from emulators.plant import kernel; print(kernel.warm_up())"
+    first = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stderr
+    compiled = [line for line in first.stderr.splitlines() if line.startswith("plant kernel:")]
+    assert len(compiled) == 1 and "compiled by numba" in compiled[0] and " s, cached on disk in " in compiled[0]
+    assert any((tmp_path / "cache").rglob("*.nbi"))
+    second = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
+    assert second.returncode == 0, second.stderr
+    assert "plant kernel" not in second.stderr  # nothing compiled, nothing said
+    assert "loaded from its on-disk cache" in second.stdout
