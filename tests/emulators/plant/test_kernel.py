@@ -103,8 +103,8 @@ def test_faults_and_the_watchdog_behave_the_same_on_both_paths() -> None:
 def test_the_compiled_kernel_is_bit_identical_to_its_python_source() -> None:
     """No fast-math: the machine code computes exactly what the Python source says."""
     pp = _compliant_params()
-    a = Plant(pp, seed=3)
-    b = Plant(pp, seed=3)
+    a = Plant(pp, seed=3, kernel="numba")
+    b = Plant(pp, seed=3, kernel="numba")
     b._kernel_fn = numba_kernel.period_kernel.py_func
     for k in range(40):
         c = _drive(a, k)
@@ -146,7 +146,7 @@ def test_the_kernel_choice_follows_the_environment(monkeypatch: pytest.MonkeyPat
 
 
 def test_the_kernel_is_compiled_once_and_can_never_compile_again() -> None:
-    p = Plant(load_plant_params("jpl-arm"))
+    p = Plant(load_plant_params("jpl-arm"), kernel="numba")
     disp = numba_kernel.period_kernel
     assert kernel_mod.report() is not None and "plant kernel" in kernel_mod.report()
     # odd inputs (lists, ints, other periods and delays) still reach the one compiled signature
@@ -167,7 +167,7 @@ def test_stale_cached_machine_code_is_refused() -> None:
     must not run old machine code with new row numbers."""
     from emulators.plant import kernel_layout
 
-    p = Plant(load_plant_params("jpl-arm"))
+    p = Plant(load_plant_params("jpl-arm"), kernel="numba")
     p.step_period(p.idle_command(), T)
     consts = p._step_consts(T / round(T * p.rate_hz))
     consts.F[kernel_layout.F_LAYOUT] = kernel_layout.LAYOUT_ID + 1  # as if the layout had changed
