@@ -11,7 +11,11 @@ periods of 8 ms with a new amplifier command each period, as a HIL loop must:
   stiction capture, no sensors).
 
 Prints plant substeps per second, simulated seconds per wall second for both, and the ratio
-(plant ÷ solve_ivp; > 1 means the plant is faster), and the full jpl-arm rig's speed.
+(plant ÷ solve_ivp; > 1 means the plant is faster), and the full jpl-arm rig's speed. The plant
+runs its default kernel (the compiled one, :mod:`emulators.plant.kernel`; loaded or compiled
+before any timing, and said so) and, for comparison, the numpy path (``VMEHIL_PLANT_KERNEL=numpy``).
+Goal (issue "Fast enough to tune"): the plant ≥ 20× solve_ivp for 1, 6 and 16 joints, recorded
+with :func:`benchmarks.goals.record`, the baseline from the same run.
 Run: ``python -m benchmarks bench_plant`` or ``python benchmarks/bench_plant.py``.
 """
 
@@ -25,9 +29,12 @@ from dataclasses import replace
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from benchmarks.goals import Goal, record
 from emulators.plant import Plant, PlantParams, load_plant_params
+from emulators.plant import kernel as plant_kernel
 
 PERIOD = 0.008
+GOAL_RATIO = 20.0  #: plant ÷ solve_ivp
 
 
 def _params(n: int) -> PlantParams:
@@ -41,9 +48,10 @@ def _commands(n: int, periods: int) -> np.ndarray:
     return 2.0 * np.sin(2 * math.pi * 0.5 * t + np.arange(n)[None, :])  # volts, ±6 A
 
 
-def bench_plant(n: int, periods: int, params: PlantParams | None = None) -> tuple[float, float]:
+def bench_plant(n: int, periods: int, params: PlantParams | None = None,
+                kernel: str | None = None) -> tuple[float, float]:
     """(substeps per wall second, simulated seconds per wall second)."""
-    p = Plant(params or _params(n))
+    p = Plant(params or _params(n), kernel=kernel)
     n = p.n_joints
     cmds = _commands(n, periods)
     c = p.idle_command()
@@ -87,21 +95,33 @@ def bench_solve_ivp(n: int, periods: int) -> tuple[float, int]:
 
 def main(quick: bool = False) -> list[str]:
     periods = 60 if quick else 250
+    t0 = time.perf_counter()
+    report = plant_kernel.warm_up() if plant_kernel.choice() == "numba" else "plant kernel: numpy path"
     lines = [
+        f"{report} (warm-up {time.perf_counter() - t0:.2f} s, not timed below)",
         f"plant (4 kHz fixed step, exact stick/slip) vs solve_ivp RK45 per 8 ms period; {periods} periods",
-        f"{'joints':>6} {'plant substeps/s':>17} {'plant sim-s/s':>14} {'solve_ivp sim-s/s':>18} "
-        f"{'ivp rhs evals':>14} {'ratio':>7}",
+        f"{'joints':>6} {'plant substeps/s':>17} {'plant sim-s/s':>14} {'numpy path sim-s/s':>19} "
+        f"{'solve_ivp sim-s/s':>18} {'ivp rhs evals':>14} {'ratio':>7}",
     ]
-    for n in (1, 6, 16):
-        steps_s, sim_plant = bench_plant(n, periods)
-        sim_ivp, nfev = bench_solve_ivp(n, periods)
-        lines.append(
-            f"{n:>6} {steps_s:>17,.0f} {sim_plant:>14.2f} {sim_ivp:>18.2f} {nfev:>14,} {sim_plant / sim_ivp:>6.1f}x"
-        )
-    steps_s, sim_plant = bench_plant(7, periods, load_plant_params("jpl-arm"))
-    lines.append(f"jpl-arm rig (6 linear + H-bridge hand): {steps_s:,.0f} substeps/s, {sim_plant:.2f} sim-s/s")
     for line in lines:
         print(line, flush=True)
+    ratios = []
+    for n in (1, 6, 16):
+        steps_s, sim_plant = bench_plant(n, periods)
+        _, sim_numpy = bench_plant(n, max(periods // 5, 10), kernel="numpy")
+        sim_ivp, nfev = bench_solve_ivp(n, periods)
+        lines.append(
+            f"{n:>6} {steps_s:>17,.0f} {sim_plant:>14.2f} {sim_numpy:>19.2f} {sim_ivp:>18.2f} {nfev:>14,} "
+            f"{sim_plant / sim_ivp:>6.1f}x"
+        )
+        print(lines[-1], flush=True)
+        ratios.append((n, sim_plant, sim_ivp))
+    steps_s, sim_plant = bench_plant(7, periods, load_plant_params("jpl-arm"))
+    lines.append(f"jpl-arm rig (6 linear + H-bridge hand): {steps_s:,.0f} substeps/s, {sim_plant:.2f} sim-s/s")
+    print(lines[-1], flush=True)
+    for n, sim_plant, sim_ivp in ratios:
+        record(Goal(f"plant vs solve_ivp, {n} joint{'s' if n > 1 else ''}", sim_plant, GOAL_RATIO, "sim-s/s",
+                    baseline=sim_ivp, baseline_name="solve_ivp RK45"))
     return lines
 
 

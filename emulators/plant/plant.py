@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from emulators.faults import FaultInjectable
+from emulators.plant import kernel as _kernel
+from emulators.plant import kernel_layout as _k
 from emulators.plant.amplifier import (
     AmpArrays,
     AmpConsts,
@@ -141,6 +143,65 @@ class _StepConsts:
         tau = plant.tach.tau
         self.tach_decay = np.where(tau > 0.0, np.exp(-h / np.maximum(tau, 1e-300)), 0.0)
         self.stick_slip = StickSlipStepper(plant.fr, plant.J_m, h)
+        self.P: np.ndarray | None = None  #: the compiled kernel's parameter matrix (built on first use)
+        self.F = np.zeros(_k.N_FLAGS, dtype=np.int64)
+
+    def kernel_arrays(self, plant: Plant) -> None:
+        """Build what the compiled kernel reads (:mod:`emulators.plant.kernel`), once per step."""
+        n = plant.n_joints
+        P = np.zeros((_k.N_ROWS, n))
+        a, amp, fr, st, tach, pot = self.amp, plant.amp, plant.fr, self.stick_slip, plant.tach, plant.pot
+        rows = {
+            _k.IS_LIN: amp.is_lin, _k.GAIN: amp.gain, _k.LIN_LIMIT: amp.lin_limit,
+            _k.HB_DEADTIME: amp.hb_deadtime_duty, _k.HB_SUPPLY: amp.hb_supply, _k.HB_LIMIT: amp.hb_limit,
+            _k.HB_TRIP: amp.hb_trip, _k.RL: a.rl, _k.RL_GAIN: a.rl_gain, _k.EMF_GAIN: a.emf_gain,
+            _k.RAIL_GAIN: a.rail_gain, _k.LOOP: a.loop, _k.THERMAL: a.thermal, _k.THERMAL_GAIN: a.thermal_gain,
+            _k.SAT_FAULT_S: amp.sat_fault_s, _k.KT: plant.Kt, _k.N_RATIO: plant.N, _k.INV_N: plant.inv_N,
+            _k.COMPLIANT: plant.compliant, _k.K_FLEX: plant.K_flex, _k.C_FLEX: plant.C_flex,
+            _k.KE_AMP: plant.ke_amp, _k.KE_PHASE: plant.ke_phase, _k.J_LINK: plant.J_link,
+            _k.G_TORQUE: plant.G, _k.G_PHASE: plant.G_phase, _k.LOWER: plant.lower, _k.UPPER: plant.upper,
+            _k.EXT_TORQUE: plant.external_torque_nm, _k.FR_RIPPLE: fr.ripple, _k.FR_PHASE: fr.ripple_phase,
+            _k.INV_WS: st.inv_ws, _k.D_TS: st.d_ts, _k.COULOMB: fr.coulomb, _k.BJH: st.bjh, _k.INV_J: st.inv_j,
+            _k.BREAKOUT: fr.breakout, _k.VISCOUS: fr.viscous, _k.T_PRESENT: tach.present,
+            _k.T_GRADIENT: tach.gradient, _k.T_BRUSH: tach.brush_drop, _k.T_RIPPLE: tach.ripple,
+            _k.T_CYCLES: tach.cycles, _k.T_DECAY: self.tach_decay, _k.T_OFFSET: tach.offset,
+            _k.T_NOISE: tach.noise, _k.ENC_SCALE: plant.enc_scale, _k.ENC_FS: plant.enc_sample_hz,
+            _k.POT_SPAN: pot.span, _k.POT_CENTER: pot.center, _k.POT_VLOW: pot.v_low, _k.POT_VHIGH: pot.v_high,
+            _k.POT_BOW: pot.bow, _k.POT_PERIODIC: pot.periodic, _k.POT_CYCLES: pot.cycles,
+            _k.POT_NOISE: pot.noise, _k.MON_GAIN: np.where(amp.is_lin, amp.lin_monitor, amp.hb_monitor),
+            _k.MON_OFFSET: np.where(amp.is_lin, amp.lin_monitor_offset, amp.hb_monitor_offset),
+            _k.MON_NOISE: amp.monitor_noise, _k.SW_NOISE: plant.hb_switching_noise,
+        }
+        for row, values in rows.items():
+            P[row] = values
+        self.P = P
+        F = self.F
+        F[_k.F_COMPLIANT] = plant.any_compliant
+        F[_k.F_GRAVITY] = plant.has_gravity
+        F[_k.F_KE] = plant.has_ke
+        F[_k.F_TACH] = plant.has_tach
+        F[_k.F_TACH_RIPPLE] = plant.has_tach_ripple
+        F[_k.F_DIRECT] = st.direct
+        F[_k.F_LAYOUT] = _k.LAYOUT_ID
+        self.set_external(plant)
+        self.enci = np.ascontiguousarray(np.stack([plant.enc_counts_per_rev, plant.enc_index_phase]), dtype=np.int64)
+        self._max_fs = float(np.max(plant.enc_sample_hz, initial=0.0))
+        self._buffers: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def kernel_buffers(self, n: int, n_sub: int) -> tuple[np.ndarray, np.ndarray]:
+        """The kernel's scratch for periods of ``n_sub`` substeps: x4 positions, index offsets."""
+        b = self._buffers.get(n_sub)
+        if b is None:
+            # index pulses in one period are bounded by the substep transitions plus the decoder samples
+            cap = 2 * n_sub + round(n_sub * self.h * self._max_fs) + 4
+            b = self._buffers[n_sub] = (np.zeros(n_sub + 1), np.zeros((n, cap), dtype=np.int64))
+        return b
+
+    def set_external(self, plant: Plant) -> None:
+        """The environment's torque changed (kernel parameters follow)."""
+        if self.P is not None:
+            self.P[_k.EXT_TORQUE] = plant.external_torque_nm
+            self.F[_k.F_EXTERNAL] = plant.has_external
 
 
 def _stack(joints: list, path: str, dtype: type = float) -> np.ndarray:
@@ -152,6 +213,9 @@ def _stack(joints: list, path: str, dtype: type = float) -> np.ndarray:
         out.append(v)
     return np.array(out, dtype=dtype)
 
+
+#: the compiled path's QuadratureEvents without index pulses, by (counts, illegal, phase)
+_EVENTS: dict[tuple[int, int, int], QuadratureEvents] = {}
 
 FAULT_INJECTED = 8  #: ``amp_fault`` injected (truth ``amp_fault_cause`` bit; the others: emulators.plant.amplifier)
 
@@ -168,6 +232,10 @@ class Plant(FaultInjectable):
         seed: seed of all noise streams (``emulators.rng.rng_for(seed, "plant", joint, source)``).
         rate_hz: integration rate; ``None`` takes ``params.rate_hz`` (4 kHz by default). Each
             period is split into ``round(period·rate)`` equal substeps.
+        kernel: ``"numba"`` (the compiled period kernel, :mod:`emulators.plant.kernel`) or
+            ``"numpy"`` (the vectorised reference path); ``None`` takes ``$VMEHIL_PLANT_KERNEL``,
+            else ``"numba"``. The compiled kernel is loaded (or compiled, once, into numba's
+            on-disk cache) here, before any loop runs.
     """
 
     FAULTS = {  # noqa: RUF012 - the FaultInjectable catalogue (a class attribute by design)
@@ -181,8 +249,10 @@ class Plant(FaultInjectable):
                      "again every period while injected, so a fault reset does not clear it)",
     }
 
-    def __init__(self, params: PlantParams, *, seed: int = 0, rate_hz: float | None = None) -> None:
+    def __init__(self, params: PlantParams, *, seed: int = 0, rate_hz: float | None = None,
+                 kernel: str | None = None) -> None:
         params.validate()
+        self.kernel, self._kernel_fn = _kernel.kernel_for(kernel)
         self.params = params
         self.seed = int(seed)
         self.rate_hz = float(rate_hz if rate_hz is not None else params.rate_hz)
@@ -275,19 +345,24 @@ class Plant(FaultInjectable):
         self.watchdog_timeout_s = params.watchdog_timeout_s
         self._consts: dict[float, _StepConsts] = {}
         # injected sensor faults: per joint the held volts (NaN: healthy); see _fault_changed
-        self._pot_held_v = np.full(self.n_joints, np.nan)
-        self._tach_held_v = np.full(self.n_joints, np.nan)
+        self._held_v = np.full((2, self.n_joints), np.nan)  # rows: pot, tach (the kernel reads both)
+        self._pot_held_v = self._held_v[0]
+        self._tach_held_v = self._held_v[1]
         self._amp_tripped = np.zeros(self.n_joints, dtype=bool)
         self._sensor_faults = False
+        # the compiled path's segments of a period (at most three: start, new command, watchdog out)
+        self._segments = (np.zeros(3, dtype=np.int64), np.zeros(3, dtype=np.int64),
+                          np.zeros((3, self.n_joints), dtype=bool))
         self.reset()
 
     # ---- construction helpers -----------------------------------------------------------
     @classmethod
     def from_config(cls, cfg: ConfigTable, *, seed: int = 0, rate_hz: float | None = None,
-                    foreign_keys: Collection[str] | None = None) -> Plant:
+                    foreign_keys: Collection[str] | None = None, kernel: str | None = None) -> Plant:
         """Build from a rig file's root table (reads ``[plant]`` and ``[[joint]]``; ``foreign_keys``
         as for :func:`~emulators.plant.params.plant_params_from_config`)."""
-        return cls(plant_params_from_config(cfg, foreign_keys=foreign_keys), seed=seed, rate_hz=rate_hz)
+        return cls(plant_params_from_config(cfg, foreign_keys=foreign_keys), seed=seed, rate_hz=rate_hz,
+                   kernel=kernel)
 
     def index_of(self, name: str) -> int:
         """Position of joint ``name`` in the arrays."""
@@ -360,6 +435,8 @@ class Plant(FaultInjectable):
         self.at_stop = np.zeros(n, dtype=bool)
         self.external_torque_nm = np.zeros(n)
         self.has_external = False
+        for c in self._consts.values():
+            c.set_external(self)
         self.time_s = 0.0
         self._prev_cmd = PlantCommand.idle(n)
         self._noise = {
@@ -371,6 +448,8 @@ class Plant(FaultInjectable):
         e.g. a torque gauge or a contact load. Held until changed; :meth:`reset` clears it."""
         self.external_torque_nm = np.broadcast_to(np.asarray(torque_nm, dtype=float), (self.n_joints,)).copy()
         self.has_external = bool(np.any(self.external_torque_nm != 0.0))
+        for c in self._consts.values():
+            c.set_external(self)
 
     # ---- kinematics ----------------------------------------------------------------------
     def _theta_out(self, theta_m: np.ndarray) -> np.ndarray:
@@ -463,6 +542,8 @@ class Plant(FaultInjectable):
         c = self._step_consts(h)
         if self._amp_tripped.any():  # an injected amplifier fault re-trips after every reset
             self.amp_state.latch(self._amp_tripped, FAULT_INJECTED)
+        if self._kernel_fn is not None:
+            return self._step_compiled(cmd, period_s, c, n_sub, n_old)
         prev = self._prev_cmd
         wd = self.watchdog
         t0 = self.time_s
@@ -503,6 +584,168 @@ class Plant(FaultInjectable):
         self._prev_cmd = cmd.copy()  # callers may mutate their command in place
         self.time_s += period_s
         return self._sense(x4, h, c, switching)
+
+    # ---- the compiled path (emulators.plant.kernel) -------------------------------------
+    _STATE = ("theta_m", "omega_m", "theta_l", "omega_l", "i", "tach_state")
+
+    def _bind_state(self) -> np.ndarray:
+        """The state matrix the kernel integrates in place; the state attributes (``theta_m``,
+        ``omega_m``, ..., ``amp_state.thermal``/``sat_time``) are its rows. An attribute replaced
+        from outside (a test setting ``omega_m``) is copied in first."""
+        X = getattr(self, "_X", None)
+        if X is None:
+            X = self._X = np.zeros((8, self.n_joints))
+            self._X_rows = [X[k] for k in range(8)]
+            for k, name in enumerate(self._STATE):
+                X[k] = getattr(self, name)
+                setattr(self, name, self._X_rows[k])
+        rows = self._X_rows
+        d = self.__dict__
+        st = self.amp_state
+        if (d["theta_m"] is rows[0] and d["omega_m"] is rows[1] and d["theta_l"] is rows[2]
+                and d["omega_l"] is rows[3] and d["i"] is rows[4] and d["tach_state"] is rows[5]
+                and st.thermal is rows[6] and st.sat_time is rows[7] and st.fault.dtype == np.bool_
+                and st.cause.dtype == np.int64 and st.saturated.dtype == np.bool_):
+            return X  # the usual case: nothing replaced (AmpState's arrays are always contiguous)
+        for k, name in enumerate(self._STATE):
+            if d[name] is not rows[k]:
+                rows[k][:] = d[name]
+                d[name] = rows[k]
+        st = self.amp_state
+        if st.thermal is not rows[6]:
+            rows[6][:] = st.thermal
+            st.thermal = rows[6]
+        if st.sat_time is not rows[7]:
+            rows[7][:] = st.sat_time
+            st.sat_time = rows[7]
+        if st.fault.dtype != np.bool_ or not st.fault.flags.c_contiguous:
+            st.fault = np.ascontiguousarray(st.fault, dtype=bool)
+        if st.cause.dtype != np.int64 or not st.cause.flags.c_contiguous:
+            st.cause = np.ascontiguousarray(st.cause, dtype=np.int64)
+        if st.saturated.dtype != np.bool_ or not st.saturated.flags.c_contiguous:
+            st.saturated = np.ascontiguousarray(st.saturated, dtype=bool)
+        return X
+
+    def _step_compiled(self, cmd: PlantCommand, period_s: float, c: _StepConsts, n_sub: int,
+                       n_old: int) -> PlantSensors:
+        """:meth:`step_period` by the compiled kernel: the watchdog's events cut the period into
+        segments here; the kernel integrates them and computes the sensors."""
+        if c.P is None:
+            c.kernel_arrays(self)
+        assert c.P is not None
+        n = self.n_joints
+        h = c.h
+        prev = self._prev_cmd
+        wd = self.watchdog
+        t0 = self.time_s
+        new_enable = np.asarray(cmd.amp_enable, dtype=bool)
+        reset_edge = np.ascontiguousarray(np.asarray(cmd.fault_reset, dtype=bool)
+                                          & ~np.asarray(prev.fault_reset, dtype=bool))
+        seg_start, seg_cmd, seg_enable = self._segments
+        k_seg = 0
+        held, held_k = prev.amp_enable, 0
+        s_out = wd.expiry_substep(t0, h, n_sub)
+        s = 0
+        while True:
+            changed = s == 0
+            if s == n_old:
+                wd.command(cmd.watchdog_line, new_enable, prev.amp_enable, t0 + s * h)
+                s_out = wd.expiry_substep(t0, h, n_sub)  # an edge retriggers the pump
+                held, held_k = new_enable, 1
+                changed = True
+            if s == s_out and wd.expire(held):
+                changed = True
+            if s >= n_sub:
+                break
+            if changed:
+                seg_start[k_seg] = s
+                seg_cmd[k_seg] = held_k
+                seg_enable[k_seg] = held
+                seg_enable[k_seg] &= wd.cause == 0  # the enables less the watchdog's latches
+                k_seg += 1
+            nxt = n_sub
+            if s < n_old < nxt:
+                nxt = n_old
+            if s < s_out < nxt:
+                nxt = s_out
+            s = nxt
+        cmd_f = np.empty((2, 2, n))
+        cmd_f[0, 0] = prev.amp_command_v
+        cmd_f[0, 1] = prev.pwm_duty
+        cmd_f[1, 0] = cmd.amp_command_v
+        cmd_f[1, 1] = cmd.pwm_duty
+        cmd_b = np.empty((2, 2, n), dtype=bool)
+        cmd_b[0, 0] = prev.pwm_direction
+        cmd_b[0, 1] = prev.brake
+        cmd_b[1, 0] = cmd.pwm_direction
+        cmd_b[1, 1] = cmd.brake
+        noise = np.empty((3, n))
+        noise[0] = self._noise["pot"].draw()
+        noise[1] = self._noise["tach"].draw()
+        noise[2] = self._noise["imon"].draw()
+        X = self._bind_state()
+        st = self.amp_state
+        O = np.empty((_k.O_ROWS, n))
+        B = np.empty((_k.B_ROWS, n), dtype=bool)
+        E = np.empty((_k.E_ROWS, n), dtype=np.int64)
+        x4, idx = c.kernel_buffers(n, n_sub)
+        kernel = self._kernel_fn
+        assert kernel is not None
+        kernel(
+            c.P, c.enci, c.F, h, n_sub, n_old, cmd_f, cmd_b, seg_start[:k_seg], seg_cmd[:k_seg],
+            seg_enable[:k_seg], reset_edge, X, st.fault, st.cause, st.saturated, noise, self._held_v, x4, O, B, E, idx,
+        )
+        self.at_stop = B[_k.B_AT_STOP]
+        self._prev_cmd = cmd.copy()  # callers may mutate their command in place
+        self.time_s += period_s
+        events = []
+        cache = _EVENTS
+        counts, illegal, phase, nidx = E.tolist()
+        for j in range(n):
+            k = nidx[j]
+            if k:
+                if k > idx.shape[1]:
+                    raise RuntimeError(f"plant kernel: {k} index pulses in one period (room for {idx.shape[1]})")
+                events.append(QuadratureEvents(counts=counts[j], illegal=illegal[j],
+                                               index_offsets=tuple(idx[j, :k].tolist()), phase=phase[j]))
+                continue
+            key = (counts[j], illegal[j], phase[j])
+            ev = cache.get(key)
+            if ev is None:  # QuadratureEvents is frozen: equal events can be one object
+                if len(cache) > 4096:
+                    cache.clear()
+                ev = cache[key] = QuadratureEvents(counts=key[0], illegal=key[1], phase=key[2])
+            events.append(ev)
+        fault = B[_k.B_FAULT]
+        switching = B[_k.B_SWITCHING]
+        truth = {
+            "time_s": np.full(n, self.time_s),
+            "theta_joint": O[_k.O_THETA_J],
+            "omega_joint": O[_k.O_OMEGA_J],
+            "theta_motor": O[_k.O_THETA_M],
+            "omega_motor": O[_k.O_OMEGA_M],
+            "current_a": O[_k.O_CURRENT],
+            "motor_torque_nm": O[_k.O_TORQUE],
+            "friction_torque_nm": O[_k.O_FRICTION],
+            "stuck": B[_k.B_STUCK],
+            "at_stop": B[_k.B_AT_STOP].copy(),
+            "amp_thermal": O[_k.O_THERMAL],
+            "amp_fault_cause": st.cause.copy(),
+            "amp_enabled": wd.effective(new_enable) & ~fault,
+            "amp_watchdog_cause": wd.cause.copy(),
+            "amp_watchdog_tripped": wd.latched,
+            "encoder_x4": O[_k.O_X4],
+        }
+        return PlantSensors(
+            pot_v=O[_k.O_POT],
+            tach_v=O[_k.O_TACH],
+            imon_v=O[_k.O_IMON],
+            amp_fault=fault,
+            encoder=events,
+            switching=switching,
+            switching_noise_v=O[_k.O_SW_NOISE],
+            truth=truth,
+        )
 
     def _drive(self, cmd: PlantCommand) -> AmpDrive:
         """The drive of ``cmd`` as the output stages obey it (watchdog-latched amplifiers off)."""

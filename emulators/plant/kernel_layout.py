@@ -1,0 +1,40 @@
+"""The layout of the arrays :func:`emulators.plant.numba_kernel.period_kernel` reads and writes:
+rows of the parameter matrix ``P``, the flags ``F`` and the outputs ``O``, ``B``, ``E``."""
+
+from __future__ import annotations
+
+import zlib
+
+from emulators.plant.amplifier import FAULT_COMPLIANCE, FAULT_OVERCURRENT, FAULT_THERMAL
+
+# ---- rows of the per-joint parameter matrix P (float64, [N_ROWS, n]) --------------------------
+(IS_LIN, GAIN, LIN_LIMIT, HB_DEADTIME, HB_SUPPLY, HB_LIMIT, HB_TRIP, RL, RL_GAIN, EMF_GAIN, RAIL_GAIN,
+ LOOP, THERMAL, THERMAL_GAIN, SAT_FAULT_S, KT, N_RATIO, INV_N, COMPLIANT, K_FLEX, C_FLEX, KE_AMP, KE_PHASE,
+ J_LINK, G_TORQUE, G_PHASE, LOWER, UPPER, EXT_TORQUE, FR_RIPPLE, FR_PHASE, INV_WS, D_TS, COULOMB, BJH, INV_J,
+ BREAKOUT, VISCOUS, T_PRESENT, T_GRADIENT, T_BRUSH, T_RIPPLE, T_CYCLES, T_DECAY, T_OFFSET, T_NOISE,
+ ENC_SCALE, ENC_FS, POT_SPAN, POT_CENTER, POT_VLOW, POT_VHIGH, POT_BOW, POT_PERIODIC, POT_CYCLES, POT_NOISE,
+ MON_GAIN, MON_OFFSET, MON_NOISE, SW_NOISE, N_ROWS) = range(61)
+
+# ---- flags F (int64) -------------------------------------------------------------------------
+F_EXTERNAL, F_COMPLIANT, F_GRAVITY, F_KE, F_TACH, F_TACH_RIPPLE, F_DIRECT, F_LAYOUT, N_FLAGS = range(9)
+
+# ---- rows of the float output O ([O_ROWS, n]) and of the bool output B ([B_ROWS, n]) ----------
+(O_POT, O_TACH, O_IMON, O_SW_NOISE, O_THETA_J, O_OMEGA_J, O_THETA_M, O_OMEGA_M, O_CURRENT, O_TORQUE,
+ O_FRICTION, O_THERMAL, O_X4, O_ROWS) = range(14)
+B_SWITCHING, B_STUCK, B_AT_STOP, B_FAULT, B_ROWS = range(5)
+
+# ---- encoder output E (int64, [E_ROWS, n]) ---------------------------------------------------
+E_COUNTS, E_ILLEGAL, E_PHASE, E_NIDX, E_ROWS = range(5)
+
+
+def _layout_id() -> int:
+    """A fingerprint of this layout (and the fault bits the kernel sets). Numba's cache is keyed on
+    the kernel's own source file only, so the kernel compares the fingerprint it was compiled with
+    to the one passed in ``F[F_LAYOUT]`` and refuses to run stale machine code."""
+    names = sorted(k for k, v in globals().items() if k.isupper() and isinstance(v, int))
+    text = ",".join(f"{k}={globals()[k]}" for k in names)
+    text += f";{FAULT_THERMAL},{FAULT_COMPLIANCE},{FAULT_OVERCURRENT}"
+    return zlib.crc32(text.encode())
+
+
+LAYOUT_ID = _layout_id()
