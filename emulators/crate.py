@@ -66,6 +66,7 @@ class Crate(VmeBus):
         self._cycles: dict[tuple[AddressModifier, int, Width, bool], Any] = {}
         self._reads: dict[tuple[int, Any, Width], Callable[[], int]] = {}
         self._writes: dict[tuple[int, Any, Width], Callable[[int], None]] = {}
+        self._blocks: dict[tuple[int, int, Any, Width], tuple[Callable[[], int], ...]] = {}
         self._generation = 0
         self.irq = IrqController(self.irq_handler, on_iack=self._count_iack)
 
@@ -175,6 +176,19 @@ class Crate(VmeBus):
             self._remember(self._writes, (address, space, width), c)
         return c
 
+    def read_block(self, address: int, count: int, *, space: SpaceLike = AddressSpace.A24,
+                   width: Width = Width.D32) -> list[int]:
+        """Block read: the cycles of the block resolved once (the ADC buffer is read so each tick)."""
+        key = (address, count, space, width)
+        cycles = self._blocks.get(key) if type(width) is Width else None
+        if cycles is None:
+            am, w = self._check(address, space, width, write=False)
+            am = self._block_am(am)
+            cycles = tuple(self._cycle_for(am, address + i * w, w, False) for i in range(count))
+            if type(width) is Width:
+                self._remember(self._blocks, key, cycles)
+        return [c() for c in cycles]
+
     def _read(self, am: AddressModifier, address: int, width: Width) -> int:
         return self._cycle_for(am, address, width, False)()
 
@@ -209,6 +223,7 @@ class Crate(VmeBus):
         self._cycles.clear()
         self._reads.clear()
         self._writes.clear()
+        self._blocks.clear()
 
     def _resolve_cycle(self, am: AddressModifier, address: int, width: Width, write: bool) -> Any:
         ck = (write, am.code, width)

@@ -6,6 +6,7 @@ window resolved earlier."""
 from __future__ import annotations
 
 import random
+from functools import partial
 from typing import Any
 
 import pytest
@@ -17,7 +18,7 @@ from emulators.dac import DacBoard
 from emulators.pio import PioBoard
 from emulators.quadrature import QuadratureBoard
 from emulators.ram import RamBoard
-from hal.adc_dac.adc_regs import ADC_REGMAP
+from hal.adc_dac.adc_regs import ADC_BUFFER_OFFSET, ADC_REGMAP
 from hal.vme import AddressSpace, BusError, BusErrorCause, Width
 from hal.vme.types import AddressModifier, resolve_am
 from hal.vme.window import BoardWindow
@@ -120,38 +121,57 @@ def _state(crate: Crate) -> Any:
             list(crate.interrupts_seen), list(crate.irq.unhandled), crate.irq.storms)  # type: ignore[attr-defined]
 
 
+def _write_both(fast: Crate, ref: Crate, address: int, width: Width, value: int) -> tuple[Any, Any]:
+    am = resolve_am(AddressSpace.A16)
+    got = _outcome(partial(fast.write, address, value, space=AddressSpace.A16, width=width))
+    want = _outcome(partial(_reference_cycle, ref, am, address, width, value))
+    return (got[0], 0 if got[0] == "ok" else got[1]), want
+
+
+def _read_both(fast: Crate, ref: Crate, address: int, width: Width) -> tuple[Any, Any]:
+    am = resolve_am(AddressSpace.A16)
+    got = _outcome(partial(fast.read, address, space=AddressSpace.A16, width=width))
+    return got, _outcome(partial(_reference_cycle, ref, am, address, width, None))
+
+
+def _block_both(fast: Crate, ref: Crate, first: int, count: int) -> tuple[Any, Any]:
+    am = resolve_am(AddressSpace.A16)
+    got = _outcome(partial(fast.read_block, first, count, space=AddressSpace.A16, width=Width.D16))
+
+    def reference() -> list[int]:
+        return [_reference_cycle(ref, am, first + 2 * i, Width.D16, None) for i in range(count)]
+
+    return got, _outcome(reference)
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_resolved_cycles_match_decoding_every_cycle(seed: int) -> None:
-    """Random reads and writes of every width over every board's whole window and the holes
-    after it: the resolved path and the decode-every-cycle oracle agree after each cycle."""
+    """Random reads, writes and block reads of every width over every board's whole window
+    and the holes after it, with conversions and interrupts: the resolved path and the
+    decode-every-cycle oracle agree after each cycle."""
     fast, ref = _rack(), _rack()
-    am = resolve_am(AddressSpace.A16)
     rnd = random.Random(seed)
+    adc = BASES["adc"]
     for step in range(3000):
         kind = rnd.choice(list(BASES))
         board = fast.board(kind)
         address = BASES[kind] + rnd.randrange(0, board.size + 8) // 2 * 2
         width = rnd.choice([Width.D8, Width.D16, Width.D16, Width.D32])
         address -= address % int(width)
-        if rnd.random() < 0.08:  # a conversion or scan with its end-of-conversion interrupt
+        r = rnd.random()
+        if r < 0.04:  # the driver's block read of the scan buffers
+            got, want = _block_both(fast, ref, adc + ADC_BUFFER_OFFSET + 2 * rnd.randrange(0, 4), rnd.randrange(1, 6))
+        elif r < 0.12:  # a conversion or scan with its end-of-conversion interrupt
             for reg, v in (("VECTOR", 0x40), ("SCAN_LAST", 3)):  # (a random write may have reset them)
-                fast.write(BASES["adc"] + ADC_REGMAP[reg].offset, v)
-                _reference_cycle(ref, am, BASES["adc"] + ADC_REGMAP[reg].offset, Width.D16, v)
-            address, width, kind = BASES["adc"] + ADC_REGMAP["CSR"].offset, Width.D16, "adc"
-            value = _IRQ_ON | rnd.choice([1, 2])
-            got = _outcome(lambda: fast.write(address, value, space=AddressSpace.A16, width=width))
-            want = _outcome(lambda: _reference_cycle(ref, am, address, width, value))
-            got = (got[0], 0 if got[0] == "ok" else got[1])
-        elif rnd.random() < 0.4:
+                assert _write_both(fast, ref, adc + ADC_REGMAP[reg].offset, Width.D16, v) == (("ok", 0),) * 2
+            got, want = _write_both(fast, ref, adc + ADC_REGMAP["CSR"].offset, Width.D16, _IRQ_ON | rnd.choice([1, 2]))
+        elif r < 0.45:
             value = rnd.randrange(0, width.max_value + 1)
             if rnd.random() < 0.5:  # mostly harmless bits: do not reset the boards every cycle
                 value &= 0x00F0
-            got = _outcome(lambda: fast.write(address, value, space=AddressSpace.A16, width=width))
-            want = _outcome(lambda: _reference_cycle(ref, am, address, width, value))
-            got = (got[0], 0 if got[0] == "ok" else got[1])
+            got, want = _write_both(fast, ref, address, width, value)
         else:
-            got = _outcome(lambda: fast.read(address, space=AddressSpace.A16, width=width))
-            want = _outcome(lambda: _reference_cycle(ref, am, address, width, None))
+            got, want = _read_both(fast, ref, address, width)
         assert got == want, f"step {step}: {kind} +0x{address - BASES[kind]:X} {width.name}"
         if rnd.random() < 0.05:  # let conversions, settling and interrupts happen
             dt = rnd.randrange(1, 40_000)
