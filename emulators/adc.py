@@ -147,8 +147,14 @@ class AdcBoard(RegisterBoard):
             stuck = self.fault("stuck_channel")
             if stuck is not None and int(stuck.get("channel", -1)) == channel:
                 return int(stuck.get("code", 0)) & CODE_MAX
-        v = self.input_volts(channel)
-        sigma = self._noise_rms(channel)
+            v = self.input_volts(channel)
+            sigma = self._noise_rms(channel)
+        else:  # _noise_rms without a fault: the same sum, in the same order
+            v = self.input_volts(channel)
+            var = self.noise_rms_v**2
+            for fn in self._noise_sources:
+                var += float(fn()) ** 2
+            sigma = math.sqrt(var)
         if sigma > 0:
             v += sigma * self._normal()
         v = v * (1.0 + self.gain_error[channel]) + self.offset_v[channel]
@@ -275,13 +281,22 @@ class _Conversion:
         """Sample-and-hold of conversion ``i`` now; its word appears at the conversion's end."""
         b = self.board
         ch = self.channels[self.i]
-        code = b.sample(ch, b._gain_of(ch, self.scan), b._range)  # S/H at conversion start
+        regs = b.regs
+        rng = AdcRange.UNIPOLAR_10V if regs["CSR"] & _RANGE else AdcRange.BIPOLAR_10V  # b._range
+        if self.scan:  # b._gain_of(ch, scan), read at each conversion's start
+            gain = gain_from_code(regs[_SCAN_GAIN[ch >= 8]] >> (2 * (ch % 8)))
+        else:
+            gain = gain_from_code(regs["CHAN"] >> 4)
+        code = b.sample(ch, gain, rng)  # S/H at conversion start
         self.word = (ch << 12) | code
         assert b.crate is not None
-        b.crate.clock.schedule_in(b.conversion_time_ns, self.end)
+        clock = b.crate.clock
+        clock.schedule(clock.now_ns + b.conversion_time_ns, self.end)
 
 
 _BUF = tuple(f"BUF{ch}" for ch in range(ADC_CHANNELS))
+_SCAN_GAIN = ("SCAN_GAIN0", "SCAN_GAIN1")
+_RANGE = _BIT["RANGE"]
 
 
 def _per_channel(name: str, key: str, values: Sequence[float] | None, default: float) -> tuple[float, ...]:
