@@ -204,11 +204,10 @@ class AdcBoard(RegisterBoard):
         reg = self.REGMAP.containing(offset)
         if reg is None or not reg.name.startswith("BUF"):
             return read
-        note = self._note_read
-
-        def read_buffer() -> int:  # a BUF word read while BUSY sets CSR.EARLY
+        def read_buffer() -> int:  # a BUF word read while BUSY sets CSR.EARLY (_note_read)
             value = read()
-            note()
+            if self._busy:
+                self.regs["CSR"] |= _BIT["EARLY"]
             return value
 
         return read_buffer

@@ -171,7 +171,7 @@ class Crate(VmeBus):
     def writer(self, address: int, *, space: SpaceLike = AddressSpace.A16,
                width: Width = Width.D16) -> Callable[[int], None]:
         am, w = self._check(address, space, width, write=True)
-        c = partial(_checked_value, self._cycle_for(am, address, w, True), w)
+        c = partial(_checked_value, self._cycle_for(am, address, w, True), w, w.max_value)
         if type(width) is Width:
             self._remember(self._writes, (address, space, width), c)
         return c
@@ -337,8 +337,9 @@ class Crate(VmeBus):
             b.reset()
 
 
-def _checked_value(cycle: Callable[[int], None], width: Width, value: int) -> None:
+def _checked_value(cycle: Callable[[int], None], width: Width, max_value: int, value: int) -> None:
     """:meth:`VmeBus.write`'s value check, then the resolved cycle with ``int(value)``."""
-    if not 0 <= int(value) <= width.max_value:
-        raise ValueError(f"value {value} does not fit {width.name} (0..{width.max_value})")
-    cycle(int(value))
+    v = int(value)
+    if not 0 <= v <= max_value:
+        raise ValueError(f"value {value} does not fit {width.name} (0..{max_value})")
+    cycle(v)
