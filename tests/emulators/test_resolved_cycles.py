@@ -273,3 +273,26 @@ def test_ram_block_transfers_through_resolved_cycles() -> None:
     assert crate.read_block(0x200000, 4) == [1, 2, 3, 0xFFFFFFFF]
     assert crate.read(0x20000C, space="A24", width=Width.D16) == 0xFFFF
     assert crate.counters["write.A24.D32"] == 4 and crate.counters["read.A24.D32"] == 4
+
+
+def test_bus_read_and_write_replaced_after_resolution_take_effect_at_once(monkeypatch) -> None:
+    """Tests pull a board by replacing its bus_read/bus_write (instance or class) mid-run: the
+    next cycle calls the replacement, also through a driver's already resolved window."""
+    crate = _rack()
+    win = BoardWindow(crate, BASES["adc"], ADC_REGMAP, "A16")
+    win.write("VECTOR", 0x21)
+    assert win.read("VECTOR") == 0x21
+    adc = crate.board("adc")
+
+    def berr(*a: Any, **k: Any) -> int:
+        raise BoardAccessError(BusErrorCause.NO_RESPONDER, "board pulled from the crate")
+
+    monkeypatch.setattr(adc, "bus_read", berr)
+    monkeypatch.setattr(adc, "bus_write", berr)
+    for op in (lambda: win.read("VECTOR"), lambda: win.write("VECTOR", 2)):
+        with pytest.raises(BusError, match="board pulled"):
+            op()
+    monkeypatch.undo()
+    assert win.read("VECTOR") == 0x21
+    monkeypatch.setattr(AdcBoard, "bus_read", lambda self, offset, width: 0x77)
+    assert win.read("VECTOR") == 0x77
