@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
+from functools import partial
 from typing import Any, ClassVar
 
 from emulators.board import RegisterBoard
@@ -30,12 +31,14 @@ from emulators.rng import rng_for
 from hal.adc_dac.adc_regs import ADC_BOARD_ID, ADC_CHANNELS, ADC_REGMAP, CSR_CONFIG_MASK, CSR_W1C_MASK
 from hal.adc_dac.conversions import CODE_MAX, AdcRange, adc_volts_to_code, gain_from_code
 from hal.config import ConfigTable
+from hal.vme.types import Width
 
 _CSR = ADC_REGMAP["CSR"]
 _F = {f.name: f for f in _CSR.fields}
 _BIT = {name: f.mask for name, f in _F.items()}
 
 DEFAULT_CONVERSION_TIME_NS = 15_000
+_NORMAL_BLOCK = 256  #: noise normals drawn per numpy call
 
 NoiseSource = Callable[[], float]
 
@@ -86,6 +89,8 @@ class AdcBoard(RegisterBoard):
             raise ValueError(f"{name}: conversion_time_ns must be > 0")
         self.conversion_time_ns = int(conversion_time_ns)
         self._rng = rng_for(seed, name, "noise")
+        self._normals: list[float] = []  # drawn ahead from _rng (see _normal)
+        self._normal_next = 0
         self._noise_sources: list[NoiseSource] = []
         self._gen = 0  # bumped on reset: events of an aborted conversion are ignored
         self._busy = False
@@ -113,24 +118,45 @@ class AdcBoard(RegisterBoard):
 
     def _noise_rms(self, channel: int) -> float:
         var = self.noise_rms_v**2
-        burst = self.fault("noise_burst")
-        if burst is not None:
-            chans = burst.get("channels")
-            if chans is None or channel in chans:
-                var += float(burst.get("rms_v", 0.0)) ** 2
+        if self.faulted:
+            burst = self.fault("noise_burst")
+            if burst is not None:
+                chans = burst.get("channels")
+                if chans is None or channel in chans:
+                    var += float(burst.get("rms_v", 0.0)) ** 2
         for fn in self._noise_sources:
             var += float(fn()) ** 2
         return math.sqrt(var)
 
+    def _normal(self) -> float:
+        """The next standard normal of the noise stream. Drawn in blocks: a block holds the
+        same numbers, in the same order, as one ``standard_normal()`` call per sample would
+        give (numpy's Generator fills arrays from the same stream), without a numpy call and
+        a numpy scalar per sample. The stream is this board's own."""
+        i = self._normal_next
+        block = self._normals
+        if i >= len(block):
+            block = self._normals = self._rng.standard_normal(_NORMAL_BLOCK).tolist()
+            i = 0
+        self._normal_next = i + 1
+        return block[i]  # type: ignore[no-any-return]
+
     def sample(self, channel: int, gain: int, rng: AdcRange) -> int:
         """Sample-and-hold plus conversion of ``channel`` now: the 12-bit code."""
-        stuck = self.fault("stuck_channel")
-        if stuck is not None and int(stuck.get("channel", -1)) == channel:
-            return int(stuck.get("code", 0)) & CODE_MAX
-        v = self.input_volts(channel)
-        sigma = self._noise_rms(channel)
+        if self.faulted:
+            stuck = self.fault("stuck_channel")
+            if stuck is not None and int(stuck.get("channel", -1)) == channel:
+                return int(stuck.get("code", 0)) & CODE_MAX
+            v = self.input_volts(channel)
+            sigma = self._noise_rms(channel)
+        else:  # _noise_rms without a fault: the same sum, in the same order
+            v = self.input_volts(channel)
+            var = self.noise_rms_v**2
+            for fn in self._noise_sources:
+                var += float(fn()) ** 2
+            sigma = math.sqrt(var)
         if sigma > 0:
-            v += sigma * float(self._rng.standard_normal())
+            v += sigma * self._normal()
         v = v * (1.0 + self.gain_error[channel]) + self.offset_v[channel]
         return adc_volts_to_code(v, rng, gain)
 
@@ -173,12 +199,18 @@ class AdcBoard(RegisterBoard):
         self._note_read()
         return self.regs["DATA"]
 
-    def bus_read(self, offset: int, width) -> int:
-        value = super().bus_read(offset, width)
+    def _resolve_read(self, offset: int, width: Width) -> Callable[[], int]:
+        read = super()._resolve_read(offset, width)
         reg = self.REGMAP.containing(offset)
-        if reg is not None and reg.name.startswith("BUF"):
-            self._note_read()
-        return value
+        if reg is None or not reg.name.startswith("BUF"):
+            return read
+        def read_buffer() -> int:  # a BUF word read while BUSY sets CSR.EARLY (_note_read)
+            value = read()
+            if self._busy:
+                self.regs["CSR"] |= _BIT["EARLY"]
+            return value
+
+        return read_buffer
 
     def _note_read(self) -> None:
         if self._busy:
@@ -195,23 +227,19 @@ class AdcBoard(RegisterBoard):
         self._busy = True
         self.regs["CSR"] &= ~_BIT["DONE"]
         self._drop_irq()
-        self._begin(channels, 0, scan, self._gen)
+        _Conversion(self, channels, scan, self._gen).begin()
 
-    def _begin(self, channels: list[int], i: int, scan: bool, gen: int) -> None:
-        ch = channels[i]
-        code = self.sample(ch, self._gain_of(ch, scan), self._range)  # S/H at conversion start
-        word = (ch << 12) | code
-        assert self.crate is not None
-        self.crate.clock.schedule_in(self.conversion_time_ns, lambda: self._end(channels, i, scan, gen, word))
-
-    def _end(self, channels: list[int], i: int, scan: bool, gen: int, word: int) -> None:
-        if gen != self._gen:
+    def _converted(self, conv: _Conversion) -> None:
+        """End of one conversion of ``conv`` (scheduled by :meth:`_Conversion.begin`)."""
+        if conv.gen != self._gen:
             return  # reset while converting
         self.conversions += 1
-        ch = channels[i]
-        self.regs[f"BUF{ch}" if scan else "DATA"] = word
-        if i + 1 < len(channels):
-            self._begin(channels, i + 1, scan, gen)
+        i = conv.i
+        ch = conv.channels[i]
+        self.regs[_BUF[ch] if conv.scan else "DATA"] = conv.word
+        if i + 1 < len(conv.channels):
+            conv.i = i + 1
+            conv.begin()
             return
         self._busy = False
         self.regs["CSR"] |= _BIT["DONE"]
@@ -234,6 +262,40 @@ class AdcBoard(RegisterBoard):
             "wired": len(self.wiring),
             "conversion_us": self.conversion_time_ns / 1000,
         }
+
+
+class _Conversion:
+    """One single conversion or scan in progress: one object per start, not per sample; the
+    same bound callback is scheduled at each conversion's end."""
+
+    __slots__ = ("board", "channels", "end", "gains", "gen", "i", "range", "scan", "word")
+
+    def __init__(self, board: AdcBoard, channels: list[int], scan: bool, gen: int) -> None:
+        self.board, self.channels, self.scan, self.gen = board, channels, scan, gen
+        self.i = 0
+        self.word = 0
+        self.end = partial(board._converted, self)
+
+    def begin(self) -> None:
+        """Sample-and-hold of conversion ``i`` now; its word appears at the conversion's end."""
+        b = self.board
+        ch = self.channels[self.i]
+        regs = b.regs
+        rng = AdcRange.UNIPOLAR_10V if regs["CSR"] & _RANGE else AdcRange.BIPOLAR_10V  # b._range
+        if self.scan:  # b._gain_of(ch, scan), read at each conversion's start
+            gain = gain_from_code(regs[_SCAN_GAIN[ch >= 8]] >> (2 * (ch % 8)))
+        else:
+            gain = gain_from_code(regs["CHAN"] >> 4)
+        code = b.sample(ch, gain, rng)  # S/H at conversion start
+        self.word = (ch << 12) | code
+        assert b.crate is not None
+        clock = b.crate.clock
+        clock.schedule(clock.now_ns + b.conversion_time_ns, self.end)
+
+
+_BUF = tuple(f"BUF{ch}" for ch in range(ADC_CHANNELS))
+_SCAN_GAIN = ("SCAN_GAIN0", "SCAN_GAIN1")
+_RANGE = _BIT["RANGE"]
 
 
 def _per_channel(name: str, key: str, values: Sequence[float] | None, default: float) -> tuple[float, ...]:

@@ -7,6 +7,8 @@ A board decodes ``size`` bytes from its base address. The crate converts the boa
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from functools import partial
 from typing import Any, ClassVar, Protocol
 
 from emulators.clock import SimClock
@@ -77,8 +79,19 @@ class Board(FaultInjectable):
     def bus_write(self, offset: int, width: Width, value: int) -> None:
         raise NotImplementedError
 
+    def reader(self, offset: int, width: Width) -> Callable[[], int]:
+        """The read of ``width`` at ``offset`` as a callable, resolved once: the crate keeps
+        it per address and calls it on every cycle there. ``reader(o, w)()`` is
+        ``bus_read(o, w)`` (this default calls exactly that)."""
+        return partial(self.bus_read, offset, width)
+
+    def writer(self, offset: int, width: Width) -> Callable[[int], None]:
+        """The write of ``width`` at ``offset``: ``writer(o, w)(v)`` is ``bus_write(o, w, v)``."""
+        return partial(self.bus_write, offset, width)
+
     def cycle_ns(self, width: Width, block: bool) -> int:
-        """Simulated duration of one data cycle at this board."""
+        """Simulated duration of one data cycle at this board (the crate reads it once per
+        address: a board's timing does not change while it is installed)."""
         t = self.access_ns + (100 if width is Width.D32 else 0)
         return t * 2 // 3 if block else t
 
@@ -118,7 +131,7 @@ class Board(FaultInjectable):
     @property
     def removed(self) -> bool:
         """True while the ``removed`` fault is on (the crate then finds no responder here)."""
-        return "removed" in self._faults()
+        return self.faulted and "removed" in self._faults()
 
     # --- time ----------------------------------------------------------------------------
     @property
@@ -172,31 +185,102 @@ class RegisterBoard(Board):
             raise BoardAccessError(BusErrorCause.UNSUPPORTED_WIDTH, f"{self.name}.{reg.name} too wide")
         return reg, offset - reg.offset
 
+    # --- dispatch, resolved once per (offset, width) -------------------------------------
+    # The register map is the one source of truth: the first access at an offset and width
+    # locates the register, checks width and access and looks up the hook, exactly as every
+    # access did before; the result (a callable, or one that raises the same BERR) is kept.
     def bus_read(self, offset: int, width: Width) -> int:
-        reg, sub = self._locate(offset, width)
-        if not reg.access.readable:
-            raise BoardAccessError(BusErrorCause.ACCESS, f"{self.name}.{reg.name} is write-only")
-        handler = self._hook("read_", reg.name)
-        value = handler() if handler is not None else self.regs[reg.name]
-        return _slice(value, reg.width, sub, width)
+        return self._resolved_reader(offset, width)()
 
     def bus_write(self, offset: int, width: Width, value: int) -> None:
-        reg, sub = self._locate(offset, width)
-        if not reg.access.writable:
-            raise BoardAccessError(BusErrorCause.ACCESS, f"{self.name}.{reg.name} is read-only")
-        if width is not reg.width:
-            value = _merge(self.regs[reg.name], reg.width, sub, width, value)
-        handler = self._hook("write_", reg.name)
+        self._resolved_writer(offset, width)(value)
+
+    def reader(self, offset: int, width: Width) -> Callable[[], int]:
+        if type(self).bus_read is not RegisterBoard.bus_read:  # a subclass decodes itself
+            return partial(self.bus_read, offset, width)
+        return self._resolved_reader(offset, width)
+
+    def writer(self, offset: int, width: Width) -> Callable[[int], None]:
+        if type(self).bus_write is not RegisterBoard.bus_write:
+            return partial(self.bus_write, offset, width)
+        return self._resolved_writer(offset, width)
+
+    def _resolved_reader(self, offset: int, width: Width) -> Callable[[], int]:
+        cache = self.__dict__.get("_readers")
+        if cache is None:
+            cache = self.__dict__["_readers"] = {}
+        key = (offset, width)
+        f = cache.get(key)
+        if f is None:
+            f = cache[key] = self._resolve_read(offset, width)
+        return f
+
+    def _resolved_writer(self, offset: int, width: Width) -> Callable[[int], None]:
+        cache = self.__dict__.get("_writers")
+        if cache is None:
+            cache = self.__dict__["_writers"] = {}
+        key = (offset, width)
+        f = cache.get(key)
+        if f is None:
+            f = cache[key] = self._resolve_write(offset, width)
+        return f
+
+    def _resolve_read(self, offset: int, width: Width) -> Callable[[], int]:
+        """Locate the register once; the callable reads it (hook or stored value) and slices
+        the bytes ``width`` covers. Subclasses may wrap it (the ADC notes buffer reads)."""
+        try:
+            reg, sub = self._locate(offset, width)
+            if not reg.access.readable:
+                raise BoardAccessError(BusErrorCause.ACCESS, f"{self.name}.{reg.name} is write-only")
+        except BoardAccessError as e:
+            return partial(_raise, e.cause, e.detail)
+        handler = self._hook("read_", reg.name)
+        name = reg.name
+        shift = 8 * (int(reg.width) - sub - int(width))
+        mask = width.max_value
         if handler is not None:
-            handler(value)
-        else:
-            self.regs[reg.name] = value
+            if shift == 0:
+                return lambda: handler() & mask
+            return lambda: (handler() >> shift) & mask
+        if shift == 0:
+            return lambda: self.regs[name] & mask
+        return lambda: (self.regs[name] >> shift) & mask
+
+    def _resolve_write(self, offset: int, width: Width) -> Callable[[int], None]:
+        try:
+            reg, sub = self._locate(offset, width)
+            if not reg.access.writable:
+                raise BoardAccessError(BusErrorCause.ACCESS, f"{self.name}.{reg.name} is read-only")
+        except BoardAccessError as e:
+            return partial(_raise_on_write, e.cause, e.detail)
+        handler = self._hook("write_", reg.name)
+        name = reg.name
+        if width is not reg.width:
+            reg_width = reg.width
+
+            def merged(value: int) -> None:
+                value = _merge(self.regs[name], reg_width, sub, width, value)
+                if handler is not None:
+                    handler(value)
+                else:
+                    self.regs[name] = value
+
+            return merged
+        if handler is not None:
+            return handler  # type: ignore[no-any-return]
+
+        def store(value: int) -> None:
+            self.regs[name] = value
+
+        return store
 
 
-def _slice(value: int, reg_width: Width, sub: int, width: Width) -> int:
-    """Bytes ``sub..sub+width`` of a big-endian register value."""
-    shift = 8 * (int(reg_width) - sub - int(width))
-    return (value >> shift) & width.max_value
+def _raise(cause: BusErrorCause, detail: str) -> int:
+    raise BoardAccessError(cause, detail)
+
+
+def _raise_on_write(cause: BusErrorCause, detail: str, value: int) -> None:
+    raise BoardAccessError(cause, detail)
 
 
 def _merge(old: int, reg_width: Width, sub: int, width: Width, value: int) -> int:

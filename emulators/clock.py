@@ -12,6 +12,7 @@ import itertools
 from collections.abc import Callable
 
 NS_PER_S = 1_000_000_000
+_NEVER = 1 << 126  #: "no event queued" for :attr:`SimClock.next_due_ns` (later than any time)
 
 
 def seconds_to_ns(seconds: float) -> int:
@@ -27,6 +28,9 @@ class SimClock:
         self._queue: list[tuple[int, int, Callable[[], None]]] = []
         self._seq = itertools.count()
         self._running = False
+        #: time of the earliest queued event (a huge value when none): a bus cycle that ends
+        #: before it only moves ``_now`` (see :meth:`advance_to`)
+        self.next_due_ns = _NEVER
 
     @property
     def now_ns(self) -> int:
@@ -40,7 +44,10 @@ class SimClock:
     def schedule(self, at_ns: int, callback: Callable[[], None]) -> None:
         """Run ``callback()`` when the clock reaches ``at_ns`` (immediately-due events run at
         the next advance)."""
-        heapq.heappush(self._queue, (int(at_ns), next(self._seq), callback))
+        at_ns = int(at_ns)
+        heapq.heappush(self._queue, (at_ns, next(self._seq), callback))
+        if at_ns < self.next_due_ns:
+            self.next_due_ns = at_ns
 
     def schedule_in(self, delay_ns: int, callback: Callable[[], None]) -> None:
         self.schedule(self._now + int(delay_ns), callback)
@@ -52,14 +59,24 @@ class SimClock:
         self.advance_to(self._now + int(delta_ns))
 
     def advance_to(self, t_ns: int) -> None:
-        """Advance to ``t_ns`` if it is later than now, running due events in order."""
+        """Advance to ``t_ns`` if it is later than now, running due events in order.
+
+        The queue is looked at only when an event is due by ``t_ns`` (``next_due_ns``): most
+        bus cycles end before the next event and just move the time."""
         t_ns = int(t_ns)
+        if t_ns < self.next_due_ns:
+            if t_ns > self._now:
+                self._now = t_ns
+            return
         q = self._queue
-        while q and q[0][0] <= t_ns:
-            at, _, cb = heapq.heappop(q)
-            if at > self._now:
-                self._now = at
-            cb()
+        try:
+            while q and q[0][0] <= t_ns:
+                at, _, cb = heapq.heappop(q)
+                if at > self._now:
+                    self._now = at
+                cb()
+        finally:
+            self.next_due_ns = q[0][0] if q else _NEVER
         if t_ns > self._now:
             self._now = t_ns
 

@@ -9,14 +9,16 @@ that takes interrupts between instructions.
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 from emulators.board import Board, BoardAccessError
 from emulators.clock import SimClock, seconds_to_ns
 from emulators.irq import IrqController
 from emulators.signals import Signals
-from hal.vme.bus import VmeBus
+from hal.vme.bus import SpaceLike, VmeBus
 from hal.vme.errors import BusError, BusErrorCause, VmeConfigError
 from hal.vme.types import AddressModifier, AddressSpace, Width
 
@@ -57,10 +59,15 @@ class Crate(VmeBus):
         self._slots: list[Slot] = []
         self.boards: dict[str, Board] = {}
         self.counters: Counter[str] = Counter()
-        # hot-path caches (a servo tick makes ~100 cycles): counter key per (write, AM, width),
-        # decoded slot per (AM, address, width); cleared when a board is installed
+        # hot-path caches (a servo tick makes ~60-130 cycles): counter key per (write, AM code,
+        # width); resolved cycles per (AM, address, width, write) and per the arguments of
+        # read()/write(); forgotten when a board is installed (see _resolve_cycle)
         self._counter_keys: dict[tuple[bool, int, Width], str] = {}
-        self._decode_cache: dict[tuple[int, int, Width], Slot] = {}
+        self._cycles: dict[tuple[AddressModifier, int, Width, bool], Any] = {}
+        self._reads: dict[tuple[int, Any, Width], Callable[[], int]] = {}
+        self._writes: dict[tuple[int, Any, Width], Callable[[int], None]] = {}
+        self._blocks: dict[tuple[int, int, Any, Width], tuple[Callable[[], int], ...]] = {}
+        self._generation = 0
         self.irq = IrqController(self.irq_handler, on_iack=self._count_iack)
 
     # --- configuration -------------------------------------------------------------------
@@ -92,7 +99,7 @@ class Crate(VmeBus):
             raise VmeConfigError(f"crate {self.name}: board {board.name!r} slot {slot} is not 1..21")
         board.base, board.space, board.slot = base, space, slot
         self._slots.append(Slot(board, space, base, end))
-        self._decode_cache.clear()
+        self.invalidate()
         self.boards[board.name] = board
         board.attach(self)
         return board
@@ -115,12 +122,14 @@ class Crate(VmeBus):
         if seconds < 0:
             raise ValueError("delay must be >= 0")
         self.clock.advance(seconds_to_ns(seconds))
-        self.irq.service()
+        if self.irq.highest > self.irq.ipl:
+            self.irq.service()
 
     def advance_to(self, t_ns: int) -> None:
         """Jump simulated time forward (runners align the crate to tick boundaries)."""
         self.clock.advance_to(t_ns)
-        self.irq.service()
+        if self.irq.highest > self.irq.ipl:
+            self.irq.service()
 
     def _decode(self, am: AddressModifier, address: int, width: Width) -> Slot | None:
         for s in self._slots:
@@ -130,46 +139,174 @@ class Crate(VmeBus):
                 return s
         return None
 
-    def _cycle(self, am: AddressModifier, address: int, width: Width, value: int | None) -> int:
-        write = value is not None
+    # --- cycles, resolved once per (space, address, width) -------------------------------
+    # A servo tick makes ~60-130 cycles to the same few dozen registers. The first cycle to an
+    # address resolves everything that does not change between cycles there: the VmeBus
+    # checks, the counter key, the board decoding it, the board's cycle time and the board's
+    # dispatch on its register map (Board.reader/writer). The resolved cycle then does only
+    # what each cycle must: count, check the board is still in the crate, advance the clock
+    # (events only when due), call the board, service interrupts when a line is up. Installing
+    # a board bumps the layout generation: every resolved cycle decodes again.
+    def read(self, address: int, *, space: SpaceLike = AddressSpace.A16, width: Width = Width.D16) -> int:
+        c = self._reads.get((address, space, width)) if type(width) is Width else None
+        if c is None:
+            c = self.reader(address, space=space, width=width)
+        return c()
+
+    def write(self, address: int, value: int, *, space: SpaceLike = AddressSpace.A16,
+              width: Width = Width.D16) -> None:
+        c = self._writes.get((address, space, width)) if type(width) is Width else None
+        if c is None:
+            c = self.writer(address, space=space, width=width)
+        c(value)
+
+    def reader(self, address: int, *, space: SpaceLike = AddressSpace.A16,
+               width: Width = Width.D16) -> Callable[[], int]:
+        am, w = self._check(address, space, width, write=False)
+        c = self._cycle_for(am, address, w, False)
+        if type(width) is Width:
+            self._remember(self._reads, (address, space, width), c)
+        return c
+
+    def writer(self, address: int, *, space: SpaceLike = AddressSpace.A16,
+               width: Width = Width.D16) -> Callable[[int], None]:
+        am, w = self._check(address, space, width, write=True)
+        c = partial(_checked_value, self._cycle_for(am, address, w, True), w, w.max_value)
+        if type(width) is Width:
+            self._remember(self._writes, (address, space, width), c)
+        return c
+
+    def read_block(self, address: int, count: int, *, space: SpaceLike = AddressSpace.A24,
+                   width: Width = Width.D32) -> list[int]:
+        """Block read: the cycles of the block resolved once (the ADC buffer is read so each tick)."""
+        key = (address, count, space, width)
+        cycles = self._blocks.get(key) if type(width) is Width else None
+        if cycles is None:
+            am, w = self._check(address, space, width, write=False)
+            am = self._block_am(am)
+            cycles = tuple(self._cycle_for(am, address + i * w, w, False) for i in range(count))
+            if type(width) is Width:
+                self._remember(self._blocks, key, cycles)
+        return [c() for c in cycles]
+
+    def _read(self, am: AddressModifier, address: int, width: Width) -> int:
+        return self._cycle_for(am, address, width, False)()
+
+    def _write(self, am: AddressModifier, address: int, width: Width, value: int) -> None:
+        self._cycle_for(am, address, width, True)(value)
+
+    @staticmethod
+    def _remember(cache: dict, key: Any, value: Any) -> None:
+        if len(cache) >= 4096:  # e.g. a large memory board swept once
+            cache.clear()
+        cache[key] = value
+
+    def _cycle_for(self, am: AddressModifier, address: int, width: Width, write: bool) -> Any:
+        key = (am, address, width, write)
+        c = self._cycles.get(key)
+        if c is None:
+            c = self._resolve_cycle(am, address, width, write)
+            self._remember(self._cycles, key, c)
+        return c
+
+    def invalidate(self) -> None:
+        """Forget every resolved cycle (the crate's layout changed): the next cycle at each
+        address decodes again, including cycles resolved by drivers' windows."""
+        self._generation += 1
+        self._cycles.clear()
+        self._reads.clear()
+        self._writes.clear()
+        self._blocks.clear()
+
+    def _resolve_cycle(self, am: AddressModifier, address: int, width: Width, write: bool) -> Any:
         ck = (write, am.code, width)
         key = self._counter_keys.get(ck)
         if key is None:
             key = self._counter_keys[ck] = f"{'write' if write else 'read'}.{am.space.name}.{width.name}"
-        self.counters[key] += 1
-        dk = (am.code, address, width)
-        s = self._decode_cache.get(dk)
+        counters, clock, irq = self.counters, self.clock, self.irq
+        generation = self._generation
+        s = self._decode(am, address, width)
         if s is None:
-            s = self._decode(am, address, width)
-            if s is not None:
-                if len(self._decode_cache) >= 4096:  # e.g. a large memory board swept once
-                    self._decode_cache.clear()
-                self._decode_cache[dk] = s
-        if s is None or s.board.removed:  # a pulled board decodes nothing: the bus timer ends the cycle
-            self.clock.advance(self.bus_timeout_ns)
-            self.counters[f"error.{BusErrorCause.NO_RESPONDER.name}"] += 1
-            self.irq.service()
-            raise BusError(address, am, width, BusErrorCause.NO_RESPONDER, write=write)
+            def nobody(*value: int) -> int:
+                if self._generation != generation:
+                    return self._cycle_for(am, address, width, write)(*value)  # type: ignore[no-any-return]
+                counters[key] += 1
+                return self._no_responder(am, address, width, write)
+
+            return nobody
         board = s.board
-        self.clock.advance(board.cycle_ns(width, am.block))
-        try:
-            if write:
-                board.bus_write(address - s.base, width, value)  # type: ignore[arg-type]
-                result = 0
+        offset = address - s.base
+        ns = int(board.cycle_ns(width, am.block))
+        custom_removed = type(board).removed is not Board.removed  # a board that decides it itself
+        # bus_read/bus_write replaced after resolution (a test pulling a board by patching its
+        # instance or class): the cycle calls the replacement, as decoding every cycle did
+        own = board.__dict__
+        cls_read, cls_write = type(board).bus_read, type(board).bus_write
+
+        def error(e: BoardAccessError) -> BusError:
+            counters[f"error.{e.cause.name}"] += 1
+            if irq.highest > irq.ipl:
+                irq.service()
+            return BusError(address, am, width, e.cause, e.detail, write=write)
+
+        if write:
+            put = board.writer(offset, width)
+
+            def write_cycle(value: int) -> None:
+                if self._generation != generation:
+                    return self._cycle_for(am, address, width, True)(value)  # type: ignore[no-any-return]
+                counters[key] += 1
+                if (board.faulted or custom_removed) and board.removed:
+                    self._no_responder(am, address, width, True)
+                t = clock._now + ns
+                if t < clock.next_due_ns:
+                    clock._now = t
+                else:
+                    clock.advance_to(t)
+                try:
+                    if "bus_write" in own or type(board).bus_write is not cls_write:
+                        board.bus_write(offset, width, value)
+                    else:
+                        put(value)
+                except BoardAccessError as e:
+                    raise error(e) from None
+                if irq.highest > irq.ipl:
+                    irq.service()
+                return None
+
+            return write_cycle
+        get = board.reader(offset, width)
+
+        def read_cycle() -> int:
+            if self._generation != generation:
+                return self._cycle_for(am, address, width, False)()  # type: ignore[no-any-return]
+            counters[key] += 1
+            if (board.faulted or custom_removed) and board.removed:
+                self._no_responder(am, address, width, False)
+            t = clock._now + ns
+            if t < clock.next_due_ns:
+                clock._now = t
             else:
-                result = board.bus_read(address - s.base, width)
-        except BoardAccessError as e:
-            self.counters[f"error.{e.cause.name}"] += 1
-            self.irq.service()
-            raise BusError(address, am, width, e.cause, e.detail, write=write) from None
+                clock.advance_to(t)
+            try:
+                if "bus_read" in own or type(board).bus_read is not cls_read:
+                    result = board.bus_read(offset, width)
+                else:
+                    result = get()
+            except BoardAccessError as e:
+                raise error(e) from None
+            if irq.highest > irq.ipl:
+                irq.service()
+            return result
+
+        return read_cycle
+
+    def _no_responder(self, am: AddressModifier, address: int, width: Width, write: bool) -> int:
+        """Nobody answers (no board, or a pulled one): the bus timer ends the cycle in BERR."""
+        self.clock.advance(self.bus_timeout_ns)
+        self.counters[f"error.{BusErrorCause.NO_RESPONDER.name}"] += 1
         self.irq.service()
-        return result
-
-    def _read(self, am: AddressModifier, address: int, width: Width) -> int:
-        return self._cycle(am, address, width, None)
-
-    def _write(self, am: AddressModifier, address: int, width: Width, value: int) -> None:
-        self._cycle(am, address, width, value)
+        raise BusError(address, am, width, BusErrorCause.NO_RESPONDER, write=write)
 
     def _count_iack(self, level: int, vector: int) -> None:
         self.counters[f"iack.IRQ{level}"] += 1
@@ -201,3 +338,11 @@ class Crate(VmeBus):
         """SYSRESET: every board returns to its power-up state."""
         for b in self.boards.values():
             b.reset()
+
+
+def _checked_value(cycle: Callable[[int], None], width: Width, max_value: int, value: int) -> None:
+    """:meth:`VmeBus.write`'s value check, then the resolved cycle with ``int(value)``."""
+    v = int(value)
+    if not 0 <= v <= max_value:
+        raise ValueError(f"value {value} does not fit {width.name} (0..{max_value})")
+    cycle(v)

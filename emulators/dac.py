@@ -36,6 +36,8 @@ _CSR = DAC_REGMAP["CSR"]
 _UPDATE_ALL = _CSR.field("UPDATE_ALL").mask
 _SETTLING = _CSR.field("SETTLING").mask
 _RESET = _CSR.field("RESET").mask
+_DATA = tuple(f"DATA{ch}" for ch in range(DAC_CHANNELS))
+_OUT = tuple(f"OUT{ch}" for ch in range(DAC_CHANNELS))
 
 
 class DacBoard(RegisterBoard):
@@ -105,6 +107,8 @@ class DacBoard(RegisterBoard):
         return min(max(v, -self.rail_v), self.rail_v)
 
     def _dead_volts(self, ch: int) -> float | None:
+        if not self.faulted:
+            return None
         f = self.fault("dead_channel")
         if f is not None and int(f.get("channel", -1)) == ch:
             return float(f.get("volts", 0.0))
@@ -142,8 +146,8 @@ class DacBoard(RegisterBoard):
             if not mask & (1 << ch):
                 continue
             v_now = self._converter_volts(ch, now)
-            code = self.regs[f"DATA{ch}"]
-            self.regs[f"OUT{ch}"] = code
+            code = self.regs[_DATA[ch]]
+            self.regs[_OUT[ch]] = code
             self._step[ch] = (now, v_now, self._analog(ch, code))
             self._gen[ch] += 1
             gen = self._gen[ch]
@@ -190,7 +194,7 @@ class DacBoard(RegisterBoard):
 
 def _data_writer(ch: int):
     def write(self: DacBoard, value: int) -> None:
-        self.regs[f"DATA{ch}"] = value & CODE_MAX  # 12 bits; bits 15:12 ignored, read 0
+        self.regs[_DATA[ch]] = value & CODE_MAX  # 12 bits; bits 15:12 ignored, read 0
 
     write.__name__ = f"write_DATA{ch}"
     return write

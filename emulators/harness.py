@@ -88,33 +88,35 @@ class Harness:
         self.last: PlantSensors | None = None
         self.exchanges = 0
 
+    def _wiring(self) -> tuple[tuple, tuple]:
+        """The joints' nets as flat tuples, built once (``joints`` is fixed after construction)."""
+        w = self.__dict__.get("_wired")
+        if w is None:
+            cmd = tuple((j.amp_command, j.amp_enable, j.amp_reset, j.pwm, j.direction, j.brake) for j in self.joints)
+            sens = tuple((i, j.pot, j.tach, j.imon, j.amp_fault, j.encoder) for i, j in enumerate(self.joints)
+                         if j.pot or j.tach or j.imon or j.amp_fault or j.encoder)
+            w = self.__dict__["_wired"] = (cmd, sens)
+        return w  # type: ignore[no-any-return]
+
     def collect(self) -> PlantCommand:
         """Read the command nets into a :class:`PlantCommand`."""
         s = self.signals
-        n = self.n
-        cmd_v = np.zeros(n)
-        enable = np.zeros(n, bool)
-        reset = np.zeros(n, bool)
-        duty = np.zeros(n)
-        direction = np.zeros(n, bool)
-        brake = np.zeros(n, bool)
-        for i, j in enumerate(self.joints):
-            if j.amp_command:
-                cmd_v[i] = s.get_analog(j.amp_command)
+        analog, digital = s.analog, s.digital
+        cmd_v, enable, reset, duty, direction, brake = [], [], [], [], [], []
+        for command, en, rst, pwm, dirn, brk in self._wiring()[0]:
+            cmd_v.append(analog.get(command, 0.0) if command else 0.0)
             # An unwired enable is tied high on the amplifier (always enabled).
-            enable[i] = s.get_digital(j.amp_enable) if j.amp_enable else True
-            if j.amp_reset:
-                reset[i] = s.get_digital(j.amp_reset)
-            if j.pwm:
-                duty[i] = s.get_analog(j.pwm)
-            if j.direction:
-                direction[i] = s.get_digital(j.direction)
-            if j.brake:
-                brake[i] = s.get_digital(j.brake)
+            enable.append(digital.get(en, False) if en else True)
+            reset.append(digital.get(rst, False) if rst else False)
+            duty.append(analog.get(pwm, 0.0) if pwm else 0.0)
+            direction.append(digital.get(dirn, False) if dirn else False)
+            brake.append(digital.get(brk, False) if brk else False)
         watchdog = s.get_digital(self.watchdog_net) if self.watchdog_net else False
         return PlantCommand(
-            amp_command_v=cmd_v, amp_enable=enable, fault_reset=reset,
-            pwm_duty=duty, pwm_direction=direction, brake=brake, watchdog_line=watchdog,
+            amp_command_v=np.array(cmd_v, dtype=float), amp_enable=np.array(enable, dtype=bool),
+            fault_reset=np.array(reset, dtype=bool), pwm_duty=np.array(duty, dtype=float),
+            pwm_direction=np.array(direction, dtype=bool), brake=np.array(brake, dtype=bool),
+            watchdog_line=watchdog,
         )
 
     def step(self, period_s: float, delay_s: float) -> PlantSensors:
@@ -129,18 +131,24 @@ class Harness:
         if sensors is None:
             return
         s = self.signals
-        for i, j in enumerate(self.joints):
-            if j.pot:
-                s.set_analog(j.pot, float(sensors.pot_v[i]))
-            if j.tach:
-                s.set_analog(j.tach, float(sensors.tach_v[i]))
-            if j.imon:
-                s.set_analog(j.imon, float(sensors.imon_v[i]))
-            if j.amp_fault:
-                s.set_digital(j.amp_fault, bool(sensors.amp_fault[i]))
-            if j.encoder:
-                ev = sensors.encoder[i]
+        # one conversion per array (the same Python floats and bools as indexing each element)
+        pot = np.asarray(sensors.pot_v, dtype=float).tolist()
+        tach = np.asarray(sensors.tach_v, dtype=float).tolist()
+        imon = np.asarray(sensors.imon_v, dtype=float).tolist()
+        fault = np.asarray(sensors.amp_fault, dtype=bool).tolist()
+        encoder = sensors.encoder
+        for i, pot_net, tach_net, imon_net, fault_net, enc_net in self._wiring()[1]:
+            if pot_net:
+                s.set_analog(pot_net, pot[i])
+            if tach_net:
+                s.set_analog(tach_net, tach[i])
+            if imon_net:
+                s.set_analog(imon_net, imon[i])
+            if fault_net:
+                s.set_digital(fault_net, fault[i])
+            if enc_net:
+                ev = encoder[i]
                 if isinstance(ev, QuadratureEvents):
-                    s.publish_quadrature(j.encoder, ev)
+                    s.publish_quadrature(enc_net, ev)
         self.last = sensors
         self.pending = None

@@ -40,15 +40,20 @@ class IrqController:
         self.storm_limit = storm_limit
         self.unhandled: list[int] = []  #: vectors that had no handler
         self.storms = 0
+        #: the highest asserted level (0: none), kept by assert/release: the crate calls
+        #: :meth:`service` after a cycle only when this is above the IPL
+        self.highest = 0
 
     def assert_line(self, board: InterruptSource, level: int) -> None:
         for boards in self._asserted.values():
             boards.discard(board)
         self._asserted[level].add(board)
+        self.highest = self.highest_pending()
 
     def release_line(self, board: InterruptSource) -> None:
         for boards in self._asserted.values():
             boards.discard(board)
+        self.highest = self.highest_pending()
 
     def pending_levels(self) -> list[int]:
         return [lvl for lvl in range(7, 0, -1) if self._asserted[lvl]]

@@ -31,6 +31,8 @@ from emulators.board import RegisterBoard
 from hal.pio.pio_regs import ALL_LINES, LINES_PER_PORT, PIO_REGS, PORTS, PWM_CLOCK_HZ, parse_line
 
 _NS_PER_TICK = 1_000_000_000 // PWM_CLOCK_HZ
+_DDR = tuple(f"DDR_{p}" for p in PORTS)
+_DATA = tuple(f"DATA_{p}" for p in PORTS)
 
 
 class PioBoard(RegisterBoard):
@@ -54,6 +56,10 @@ class PioBoard(RegisterBoard):
         for pin, net in (lines or {}).items():
             self.nets[parse_line(pin)] = str(net)
         self.pwm_net = pwm_net
+        # the wired lines in (port, bit) order, and per port; the wiring is fixed at construction
+        self._wired = tuple((port, bit, net) for (port, bit), net in sorted(self.nets.items()))
+        self._port_nets = tuple(tuple((bit, net) for p, bit, net in self._wired if p == port)
+                                for port in range(len(PORTS)))
         self._prev_inputs = [0, 0, 0]
         for i, p in enumerate(PORTS):
             setattr(self, f"read_DATA_{p}", partial(self._read_data, i))
@@ -93,12 +99,12 @@ class PioBoard(RegisterBoard):
 
     def pin_level(self, port: int, bit: int) -> bool:
         """The level on the wire of one line."""
-        stuck = self._stuck()
-        if stuck is not None and stuck[0] == (port, bit):
-            return stuck[1]
-        p = PORTS[port]
-        if self.regs[f"DDR_{p}"] >> bit & 1:
-            return bool(self.regs[f"DATA_{p}"] >> bit & 1)
+        if self.faulted:
+            stuck = self._stuck()
+            if stuck is not None and stuck[0] == (port, bit):
+                return stuck[1]
+        if self.regs[_DDR[port]] >> bit & 1:
+            return bool(self.regs[_DATA[port]] >> bit & 1)
         net = self.nets.get((port, bit))
         if net is None or self.crate is None:
             return False
@@ -106,28 +112,37 @@ class PioBoard(RegisterBoard):
 
     def pins(self, port: int) -> int:
         """The eight pin levels of ``port`` as a byte."""
-        return sum(int(self.pin_level(port, b)) << b for b in range(LINES_PER_PORT))
+        if self.faulted or self.crate is None:
+            return sum(int(self.pin_level(port, b)) << b for b in range(LINES_PER_PORT))
+        # no stuck line: outputs show the latch, wired inputs their net, unwired inputs 0
+        ddr = self.regs[_DDR[port]]
+        value = self.regs[_DATA[port]] & ddr
+        digital = self.crate.signals.digital
+        for bit, net in self._port_nets[port]:
+            if not ddr >> bit & 1 and digital.get(net, False):
+                value |= 1 << bit
+        return value
 
     def _read_data(self, port: int) -> int:
-        p = PORTS[port]
-        ddr = self.regs[f"DDR_{p}"]
-        return (self.regs[f"DATA_{p}"] & ddr) | (self.pins(port) & ~ddr & 0xFF)
+        ddr = self.regs[_DDR[port]]
+        return (self.regs[_DATA[port]] & ddr) | (self.pins(port) & ~ddr & 0xFF)
 
     def _write_data(self, port: int, value: int) -> None:
-        self.regs[f"DATA_{PORTS[port]}"] = value & 0xFF
+        self.regs[_DATA[port]] = value & 0xFF
         self._drive_outputs()
 
     def _write_ddr(self, port: int, value: int) -> None:
-        self.regs[f"DDR_{PORTS[port]}"] = value & 0xFF
+        self.regs[_DDR[port]] = value & 0xFF
         self._drive_outputs()
         self._resample(port, flag=False)  # direction changes are not input changes
 
     def _drive_outputs(self) -> None:
         if self.crate is None:
             return
-        for (port, bit), net in sorted(self.nets.items()):
-            if self.regs[f"DDR_{PORTS[port]}"] >> bit & 1:
-                self.crate.signals.set_digital(net, self.pin_level(port, bit))
+        signals, regs = self.crate.signals, self.regs
+        for port, bit, net in self._wired:
+            if regs[_DDR[port]] >> bit & 1:
+                signals.set_digital(net, self.pin_level(port, bit))
 
     # --- input change detection and interrupt --------------------------------------------
     def _on_net(self, net: str, value: Any) -> None:

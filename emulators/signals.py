@@ -57,7 +57,10 @@ class Signals:
 
     def set_analog(self, net: str, volts: float) -> None:
         self.analog[net] = float(volts)
-        self._notify(net, volts)
+        listeners = self._listeners.get(net)  # most analog nets have none (the ADC samples them)
+        if listeners:
+            for cb in listeners:
+                cb(net, volts)
 
     def get_analog(self, net: str, default: float = 0.0) -> float:
         return self.analog.get(net, default)

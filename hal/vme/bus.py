@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
+from functools import partial
 
 from hal.vme.errors import BusError, BusErrorCause
 from hal.vme.types import AddressModifier, AddressSpace, Width, am_for, resolve_am
@@ -46,6 +47,30 @@ class VmeBus(ABC):
         if not 0 <= int(value) <= width.max_value:
             raise ValueError(f"value {value} does not fit {width.name} (0..{width.max_value})")
         self._write(am, address, width, int(value))
+
+    # --- resolved cycles -----------------------------------------------------------------
+    def reader(self, address: int, *, space: SpaceLike = AddressSpace.A16,
+               width: Width = Width.D16) -> Callable[[], int]:
+        """The read of one fixed address, space and width as a callable: ``reader(...)()`` is
+        ``read(...)``. Callers that access the same register every tick (a driver's
+        :class:`hal.vme.window.BoardWindow`) resolve it once; the address is checked here
+        (a misaligned or out-of-space address raises now, as :meth:`read` would). A bus may
+        resolve the cycle itself (the emulated crate decodes the board and register once);
+        this default performs the checked cycle on every call.
+        """
+        if type(self).read is not VmeBus.read:  # a subclass with its own read(): call it
+            return partial(self.read, address, space=space, width=width)
+        am, w = self._check(address, space, width, write=False)
+        return partial(self._read, am, address, w)
+
+    def writer(self, address: int, *, space: SpaceLike = AddressSpace.A16,
+               width: Width = Width.D16) -> Callable[[int], None]:
+        """The write of one fixed address, space and width: ``writer(...)(value)`` is
+        ``write(..., value)`` (the value is range-checked on every call)."""
+        if type(self).write is not VmeBus.write:
+            return partial(_call_write, self.write, address, space, width)
+        am, w = self._check(address, space, width, write=True)
+        return partial(_checked_write, self._write, am, address, w, w.max_value)
 
     # --- block transfers -----------------------------------------------------------------
     def read_block(
@@ -117,3 +142,14 @@ class VmeBus(ABC):
         if am.space is AddressSpace.A16 or am.block:
             return am
         return am_for(am.space, supervisory=am.supervisory, block=True)
+
+
+def _call_write(write: Callable[..., None], address: int, space: SpaceLike, width: Width, value: int) -> None:
+    write(address, value, space=space, width=width)
+
+
+def _checked_write(write: Callable[[AddressModifier, int, Width, int], None], am: AddressModifier, address: int,
+                   width: Width, max_value: int, value: int) -> None:
+    if not 0 <= int(value) <= max_value:
+        raise ValueError(f"value {value} does not fit {width.name} (0..{max_value})")
+    write(am, address, width, int(value))

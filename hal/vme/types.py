@@ -35,6 +35,11 @@ class AddressSpace(enum.Enum):
     A24 = 24
     A32 = 32
 
+    # Members are singletons compared by identity: the identity hash agrees with that and is
+    # computed in C (Enum's default hashes the member's name in Python, on every bus cycle's
+    # cache lookup).
+    __hash__ = object.__hash__
+
     @property
     def size(self) -> int:
         """Number of byte addresses in the space."""
@@ -57,6 +62,10 @@ class Width(enum.IntEnum):
     D8 = 1
     D16 = 2
     D32 = 4
+
+    # ``Width.D16 == 2``, so the hash must be the int's (Enum's default hashes the name, in
+    # Python, and breaks the hash/equality contract with the plain ints it equals).
+    __hash__ = int.__hash__
 
     @property
     def bits(self) -> int:
@@ -94,6 +103,10 @@ class AddressModifier:
     supervisory: bool
     program: bool = False
     block: bool = False
+
+    def __hash__(self) -> int:
+        # Equal modifiers have equal codes; one int instead of hashing every field.
+        return self.code
 
     def __str__(self) -> str:
         kind = "block" if self.block else ("program" if self.program else "data")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from hal.vme.bus import SpaceLike, VmeBus
 from hal.vme.errors import BoardIdError
 from hal.vme.registers import Register, RegisterMap
@@ -18,6 +20,10 @@ class BoardWindow:
         self.base = base
         self.regmap = regmap
         self.am: AddressModifier = resolve_am(space if space is not None else regmap.space)
+        # The bus cycle of each register, resolved once (VmeBus.reader/writer): a driver reads
+        # the same registers every tick. Keyed by register name, natural width only.
+        self._readers: dict[str, Callable[[], int]] = {}
+        self._writers: dict[str, Callable[[int], None]] = {}
 
     def _reg(self, reg: str | Register) -> Register:
         return reg if isinstance(reg, Register) else self.regmap[reg]
@@ -33,10 +39,23 @@ class BoardWindow:
             )
 
     def read(self, reg: str | Register, width: Width | None = None) -> int:
+        if width is None and type(reg) is str:
+            f = self._readers.get(reg)
+            if f is None:
+                r = self.regmap[reg]
+                f = self._readers[reg] = self.bus.reader(self.base + r.offset, space=self.am, width=r.width)
+            return f()
         r = self._reg(reg)
         return self.bus.read(self.base + r.offset, space=self.am, width=width or r.width)
 
     def write(self, reg: str | Register, value: int, width: Width | None = None) -> None:
+        if width is None and type(reg) is str:
+            f = self._writers.get(reg)
+            if f is None:
+                r = self.regmap[reg]
+                f = self._writers[reg] = self.bus.writer(self.base + r.offset, space=self.am, width=r.width)
+            f(value)
+            return
         r = self._reg(reg)
         self.bus.write(self.base + r.offset, value, space=self.am, width=width or r.width)
 
