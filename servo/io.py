@@ -28,7 +28,7 @@ from hal.adc_dac.adc import AdcDriver
 from hal.adc_dac.calibration import Calibration
 from hal.adc_dac.conversions import DAC_LSB_V, DAC_V_MAX, DAC_V_MIN, adc_lsb
 from hal.adc_dac.dac import DacDriver
-from hal.amplifiers import clamp_current, command_volts, current_for_torque, duty_for_current
+from hal.amplifiers import duty_for_current
 from hal.pio.pio import PioDriver
 from hal.quadrature.quad import QuadratureDriver
 from hal.vme.bus import VmeBus
@@ -290,7 +290,8 @@ class JointIO:
             js, chs = dac_groups.setdefault(pin.board, ([], []))
             js.append(j.index)
             chs.append(pin.index)
-        self._dac_plan = [(b, np.array(js, dtype=np.intp), [int(c) for c in chs]) for b, (js, chs) in dac_groups.items()]
+        self._dac_plan = [(b, np.array(js, dtype=np.intp), [int(c) for c in chs])
+                          for b, (js, chs) in dac_groups.items()]
         self._linear_idx = np.array([j.index for j in linear], dtype=np.intp)
         self._hbridge_joints = [j for j in self.rig.joints if j.amplifier != "linear"]
 
