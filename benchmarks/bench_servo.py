@@ -12,6 +12,16 @@
     overruns, and the compute split into controller (what a real HIL controller would run;
     its board accesses here go to the emulated crate) and harness/plant. Goal (issue 5): no
     overruns and controller p99 under 25 % of the 8 ms period for 16 axes.
+(c) **python-control per joint**: what a python-control user gets for one joint — the joint's
+    linear plant (:func:`vmehil.analysis.loop.continuous_plant`, jpl-arm joint 1) advanced one
+    8 ms period at a time by ``control.input_output_response`` with a PD command computed between
+    periods — in joint-seconds simulated per wall second; the full stack's figure is its lockstep
+    rate times its joints. Skipped (said so) when python-control is not installed.
+
+Goals (:mod:`benchmarks.goals`, each with its baseline from this run): lockstep jpl-arm ≥ 50×
+and melmalec-16 ≥ 25× real time (the baseline is real time, 1×; the plant alone measured in the
+same run is printed with it); real time melmalec-16: zero overruns, controller p99 < 25 % of the
+period; the full stack per joint ≥ 30× the python-control user's rate per joint.
 
 Run: ``python -m benchmarks bench_servo [--seconds 10]`` or ``python benchmarks/bench_servo.py``.
 """
@@ -22,12 +32,18 @@ import argparse
 import sys
 import time
 
+from benchmarks.goals import Goal, record
 from servo.runner import LockstepRunner, RealtimeRunner
 from vmehil.session import build_loop
 from vmehil.system import build_emulated_rig
 
 RIGS = ("jpl-arm", "melmalec-16")
 LOCKSTEP_TICKS = 1250  # 10 s simulated
+#: lockstep goals, × real time (issue 5)
+LOCKSTEP_GOAL = {"jpl-arm": 50.0, "melmalec-16": 25.0}
+REALTIME_GOAL_RIG = "melmalec-16"
+CONTROLLER_P99_GOAL = 0.25  #: of the period
+PYTHON_CONTROL_GOAL = 30.0  #: × the python-control user's joint-seconds per wall second
 
 
 def _setup(rig: str, n_ticks: int, runner_cls=LockstepRunner, **runner_options):
@@ -60,7 +76,7 @@ def bench_lockstep(rig: str, n_ticks: int) -> dict[str, float]:
         plant.step_period(cmd, system.rig.period_s, system.rig.computation_delay_s)
     plant_wall = time.perf_counter() - t0
     system.close()
-    return {"sim_per_wall": sim / wall, "plant_alone_sim_per_wall": sim / plant_wall,
+    return {"joints": system.rig.n_joints, "sim_per_wall": sim / wall, "plant_alone_sim_per_wall": sim / plant_wall,
             "ratio_vs_plant_alone": plant_wall / wall, "controller_ms_per_tick": ctrl / n_ticks * 1e3,
             "harness_ms_per_tick": harness / n_ticks * 1e3}
 
@@ -74,8 +90,36 @@ def bench_realtime(rig: str, seconds: float) -> dict[str, float]:
     s = runner.timing.summary(system.rig.period_s)
     s["joints"] = system.rig.n_joints
     s["ticks_over_5_periods_late"] = runner.late_ticks
+    s["period_ms"] = system.rig.period_s * 1e3
     system.close()
     return s
+
+
+def bench_python_control(periods: int) -> float | None:
+    """Joint-seconds simulated per wall second by a python-control user for one joint (see the
+    module docstring, (c)); ``None`` when python-control is not installed."""
+    try:
+        import control as ct
+    except ImportError:
+        return None
+    import numpy as np
+
+    from vmehil.analysis.loop import continuous_plant
+    from vmehil.analysis.rigparams import load_joint
+
+    cfg = load_joint("jpl-arm", 1).cfg
+    plant = continuous_plant(cfg)
+    period = cfg.sample_period_s
+    g = cfg.gains
+    x = np.zeros(plant.nstates)
+    target = 0.01  # rad: a small step, held
+    t0 = time.perf_counter()
+    for _ in range(periods):
+        y = plant.C @ x  # [ths, ws, th, om]
+        u = g.kp * (target - y[0]) - g.kv * y[1]
+        r = ct.input_output_response(plant, [0.0, period], U=[[u, u], [0.0, 0.0]], X0=x, return_x=True)
+        x = r.states[:, -1]
+    return periods * period / (time.perf_counter() - t0)
 
 
 def main(quick: bool = False, seconds: float | None = None) -> list[str]:
@@ -86,13 +130,36 @@ def main(quick: bool = False, seconds: float | None = None) -> list[str]:
              f"{'rig':<12s} {'sim-s/wall-s':>12s} {'plant alone':>12s} {'ratio':>7s} "
              f"{'controller ms/tick':>19s} {'harness ms/tick':>16s}"]
     print("\n".join(lines), flush=True)
+    lockstep: dict[str, dict[str, float]] = {}
     for rig in RIGS:
-        r = bench_lockstep(rig, ticks)
+        r = lockstep[rig] = bench_lockstep(rig, ticks)
         line = (f"{rig:<12s} {r['sim_per_wall']:12.2f} {r['plant_alone_sim_per_wall']:12.2f} "
                 f"{r['ratio_vs_plant_alone']:7.2f} {r['controller_ms_per_tick']:19.3f} "
                 f"{r['harness_ms_per_tick']:16.3f}")
         print(line, flush=True)
         lines.append(line)
+        record(Goal(f"lockstep {rig}, full stack ({ticks} ticks; plant alone this run "
+                    f"{r['plant_alone_sim_per_wall']:.3g}x real time)", r["sim_per_wall"], LOCKSTEP_GOAL[rig],
+                    "sim-s/wall-s", baseline=1.0, baseline_name="real time"))
+    pc_periods = 125 if quick else 625
+    pc = bench_python_control(pc_periods)
+    if pc is None:
+        line = "(c) python-control per joint: skipped (python-control is not installed)"
+        print(line, flush=True)
+        lines.append(line)
+    else:
+        head = [f"(c) python-control user, one joint (input_output_response per 8 ms period, {pc_periods} periods)",
+                f"{'':<12s} {'joint-s/wall-s':>14s}", f"{'python-control':<12s} {pc:14.2f}"]
+        for rig in RIGS:
+            per_joint = lockstep[rig]["sim_per_wall"] * lockstep[rig]["joints"]
+            head.append(f"{rig:<12s} {per_joint:14.2f}   ({per_joint / pc:.3g}x)")
+        print("\n".join(head), flush=True)
+        lines += head
+        for rig in RIGS:
+            per_joint = lockstep[rig]["sim_per_wall"] * lockstep[rig]["joints"]
+            record(Goal(f"lockstep {rig} per joint vs a python-control user per joint", per_joint,
+                        PYTHON_CONTROL_GOAL, "joint-s/wall-s", baseline=pc,
+                        baseline_name="python-control input_output_response, one joint"))
     head = [f"(b) real time, 125 Hz, {seconds:g} s per rig (ms; period 8 ms)",
             f"{'rig':<12s} {'joints':>6s} {'ticks':>6s} {'overruns':>8s} {'compute p50/p99/max':>22s} "
             f"{'controller p50/p99/max':>24s} {'ctrl p99 %T':>11s} {'plant+harness p50/p99':>22s} "
@@ -109,6 +176,10 @@ def main(quick: bool = False, seconds: float | None = None) -> list[str]:
                 f"{s['lateness_p50_ms']:6.3f}/{s['lateness_p99_ms']:5.3f}/{s['lateness_max_ms']:6.2f}")
         print(line, flush=True)
         lines.append(line)
+        if rig == REALTIME_GOAL_RIG:
+            record(Goal(f"real time {rig}, {seconds:g} s: overruns", s["overruns"], 0, "ticks", "at_most"))
+            record(Goal(f"real time {rig}, {seconds:g} s: controller p99", s["controller_p99_ms"],
+                        CONTROLLER_P99_GOAL, "ms", "at_most", baseline=s["period_ms"], baseline_name="the period"))
     return lines
 
 

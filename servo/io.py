@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
@@ -28,7 +28,7 @@ from hal.adc_dac.adc import AdcDriver
 from hal.adc_dac.calibration import Calibration
 from hal.adc_dac.conversions import DAC_LSB_V, DAC_V_MAX, DAC_V_MIN, adc_lsb
 from hal.adc_dac.dac import DacDriver
-from hal.amplifiers import clamp_current, command_volts, current_for_torque, duty_for_current
+from hal.amplifiers import duty_for_current
 from hal.pio.pio import PioDriver
 from hal.quadrature.quad import QuadratureDriver
 from hal.vme.bus import VmeBus
@@ -86,6 +86,14 @@ class SensorScaling:
     resistance_ohm: float = 1.0
     ke_v_s_per_rad: float = 0.0
     pwm_period_s: float = 50e-6
+
+    #: bumped by every attribute write of any instance (not a field): :class:`JointIO` keeps the
+    #: scalings as per-joint arrays for its per-tick conversions and rebuilds them when it moves
+    generation: ClassVar[int] = 0
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        object.__setattr__(self, name, value)
+        SensorScaling.generation += 1
 
 
 @dataclass
@@ -238,9 +246,77 @@ class JointIO:
                 board = j.wiring["amp_fault"].board
                 port, bit = self.pio[board].resolve(j.net("amp_fault"))
                 self._fault_lines.append((j.index, board, port, bit))
+        # Per-tick plans, resolved once from the wiring (see _build_plans / _scaling_arrays).
+        self._build_plans()
+        self._scaling_key: tuple[int, int] | None = None
         self.calibration: CalibrationSource | None = None
         if calibration is not None:
             self.apply_calibration(calibration)
+
+    # --- per-tick plans -----------------------------------------------------------------------
+    def _build_plans(self) -> None:
+        """Resolve the wiring once into index arrays, so a tick reads and converts every joint
+        with a few array operations instead of looking up each joint's pins."""
+
+        def by_board(sig: str) -> list[tuple[str, np.ndarray, np.ndarray]]:
+            groups: dict[str, tuple[list[int], list[int]]] = {}
+            for j in self.rig.joints:
+                if sig in j.wiring:
+                    pin = j.wiring[sig]
+                    js, chs = groups.setdefault(pin.board, ([], []))
+                    js.append(j.index)
+                    chs.append(pin.index)
+            return [(b, np.array(js, dtype=np.intp), np.array(chs, dtype=np.intp)) for b, (js, chs) in groups.items()]
+
+        self._pot_plan = by_board("pot")
+        self._tach_plan = by_board("tach")
+        self._imon_plan = by_board("imon")
+        self._has_pot = np.array(["pot" in j.wiring for j in self.rig.joints], dtype=bool)
+        self._enc_plan = [(b, js, [int(c) for c in chs]) for b, js, chs in by_board("encoder")]
+        # fault lines: each port read once per tick, in the order the joints first name it
+        ports: dict[tuple[str, int], tuple[list[int], list[int]]] = {}
+        for i, board, port, bit in self._fault_lines:
+            js, bits = ports.setdefault((board, port), ([], []))
+            js.append(i)
+            bits.append(bit)
+        self._fault_plan = [(board, port, np.array(js, dtype=np.intp), np.array(bits, dtype=np.int64))
+                            for (board, port), (js, bits) in ports.items()]
+        # actuators: linear amplifiers grouped per DAC board (joint order within a board, boards in
+        # the order of their first joint), H-bridges in joint order
+        linear = [j for j in self.rig.joints if j.amplifier == "linear"]
+        dac_groups: dict[str, tuple[list[int], list[int]]] = {}
+        for j in linear:
+            pin = j.wiring["amp_command"]
+            js, chs = dac_groups.setdefault(pin.board, ([], []))
+            js.append(j.index)
+            chs.append(pin.index)
+        self._dac_plan = [(b, np.array(js, dtype=np.intp), [int(c) for c in chs])
+                          for b, (js, chs) in dac_groups.items()]
+        self._linear_idx = np.array([j.index for j in linear], dtype=np.intp)
+        self._hbridge_joints = [j for j in self.rig.joints if j.amplifier != "linear"]
+
+    def _scaling_arrays(self) -> None:
+        """(Re)build the per-joint scaling arrays when a :class:`SensorScaling` changed."""
+        key = (SensorScaling.generation, id(self.scaling))
+        if key == self._scaling_key:
+            return
+        sc = self.scaling
+
+        def col(name: str) -> np.ndarray:
+            return np.array([float(getattr(s, name)) for s in sc], dtype=float)
+
+        self._pot_zero_v = col("pot_zero_v")
+        self._pot_v_per_rad = col("pot_v_per_rad")
+        self._tach_v_per_rad_s = col("tach_v_per_rad_s")
+        self._monitor_v_per_a = col("monitor_v_per_a")
+        self._torque_per_a = np.array([s.ratio * s.kt_nm_per_a for s in sc], dtype=float)
+        self._limit_a = col("current_limit_a")
+        self._amp_gain = col("amp_gain_a_per_v")
+        self._amp_offset = col("amp_offset_a")
+        # a tach with a zero gradient is not read (as before: NaN)
+        self._tach_read = [(b, js[self._tach_v_per_rad_s[js] != 0.0], chs[self._tach_v_per_rad_s[js] != 0.0])
+                           for b, js, chs in self._tach_plan]
+        self._scaling_key = key
 
     def set_sources(self, joint: int, position: str, velocity: str) -> None:
         """Choose where joint ``joint`` (0-based) takes its position (``"pot"``/``"encoder"``) and
@@ -319,56 +395,69 @@ class JointIO:
     # --- per tick ---------------------------------------------------------------------------
     def read(self) -> Measurement:
         """Read every wired sensor once (one scan per ADC, one latch per decoder)."""
+        self._scaling_arrays()
         n = self.n
-        nan = np.full(n, np.nan)
-        m = Measurement(nan.copy(), nan.copy(), nan.copy(), nan.copy(), nan.copy(), nan.copy(), np.zeros(n, bool))
+        block = np.full((6, n), np.nan)  # one allocation for the six per-joint readings
+        theta_pot, theta_enc, omega_tach, omega_enc, current, pot_v = block
+        fault = np.zeros(n, bool)
         volts = {name: drv.scan(self._adc_last[name]) for name, drv in self.adc.items()}
         readings = {name: drv.update(self.period_s) for name, drv in self.quad.items()}
-        for j in self.rig.joints:
-            i, s, w = j.index, self.scaling[j.index], j.wiring
-            if "pot" in w:
-                v = float(volts[w["pot"].board][w["pot"].index])
-                m.pot_v[i] = v
-                m.theta_pot[i] = self.pot_angle(i, v)
-            if "tach" in w and s.tach_v_per_rad_s:
-                m.omega_tach[i] = float(volts[w["tach"].board][w["tach"].index]) / s.tach_v_per_rad_s
-            if "imon" in w:
-                m.current[i] = float(volts[w["imon"].board][w["imon"].index]) / s.monitor_v_per_a
-            if "encoder" in w:
-                r = readings[w["encoder"].board][w["encoder"].index]
-                m.theta_enc[i] = r.position_rad
-                m.omega_enc[i] = r.velocity_rad_s
-        ports: dict[tuple[str, int], int] = {}
-        for i, board, port, bit in self._fault_lines:
-            value = ports.get((board, port))
-            if value is None:
-                value = ports[(board, port)] = self.pio[board].read_port(port)  # DATA_x, as get_line reads
-            m.fault[i] = bool(value >> bit & 1)
-        m.theta = np.where(self._position_from_pot, m.theta_pot, m.theta_enc)
-        m.omega = np.where(self._velocity_from_tach, m.omega_tach, m.omega_enc)
+        for board, js, chs in self._pot_plan:
+            pot_v[js] = volts[board][chs]
+        theta_pot[self._has_pot] = (pot_v[self._has_pot] - self._pot_zero_v[self._has_pot]) / \
+            self._pot_v_per_rad[self._has_pot]
+        for i, cal in self.pot_cal.items():  # calibrated joints: their piecewise-linear table
+            if self._has_pot[i]:
+                theta_pot[i] = cal.angle(float(pot_v[i]))
+        for board, js, chs in self._tach_read:
+            omega_tach[js] = volts[board][chs] / self._tach_v_per_rad_s[js]
+        for board, js, chs in self._imon_plan:
+            current[js] = volts[board][chs] / self._monitor_v_per_a[js]
+        for board, js, chans in self._enc_plan:
+            r = readings[board]
+            got = [r[c] for c in chans]
+            theta_enc[js] = [x.position_rad for x in got]
+            omega_enc[js] = [x.velocity_rad_s for x in got]
+        for board, port, js, bits in self._fault_plan:
+            value = self.pio[board].read_port(port)  # DATA_x, as get_line reads
+            fault[js] = (value >> bits) & 1
+        m = Measurement(theta_pot, theta_enc, omega_tach, omega_enc, current, pot_v, fault)
+        m.theta = np.where(self._position_from_pot, theta_pot, theta_enc)
+        m.omega = np.where(self._velocity_from_tach, omega_tach, omega_enc)
         return m
 
     def write_torque(self, torque_nm: np.ndarray, omega: np.ndarray | None = None) -> np.ndarray:
         """Command joint torques (N·m). Linear amps: DAC volts = τ/(N·Kt·gain), one strobe per
-        DAC board. H-bridges: V = R·i + Ke·ω_motor as PWM duty. Returns the commanded current (A)."""
+        DAC board. H-bridges: V = R·i + Ke·ω_motor as PWM duty. Returns the commanded current (A).
+
+        The conversions run over all joints as arrays; they give the same numbers, bit for bit,
+        as :func:`~hal.amplifiers.current_for_torque`, :func:`~hal.amplifiers.clamp_current`
+        and :func:`~hal.amplifiers.command_volts` joint by joint (the clamps are written as the
+        same comparisons, so a NaN clamps to the limit as ``min``/``max`` do)."""
+        self._scaling_arrays()
+        tau = np.asarray(torque_nm, dtype=float)
+        limit = self._limit_a
+        amps = tau / self._torque_per_a
+        amps = np.where(amps < limit, amps, limit)  # min(limit, amps)
+        amps = np.where(amps > -limit, amps, -limit)  # max(-limit, ·)
         current = np.zeros(self.n)
-        per_dac: dict[str, dict[int, float]] = {}
-        for j in self.rig.joints:
+        for j in self._hbridge_joints:
             i, s = j.index, self.scaling[j.index]
-            amps = clamp_current(current_for_torque(float(torque_nm[i]), s.ratio, s.kt_nm_per_a), s.current_limit_a)
-            if j.amplifier == "linear":
-                volts = min(DAC_V_MAX, max(DAC_V_MIN, command_volts(amps, s.amp_gain_a_per_v, s.amp_offset_a)))
-                pin = j.wiring["amp_command"]
-                per_dac.setdefault(pin.board, {})[pin.index] = volts
-                self.last_dac_volts[i] = volts
-                current[i] = volts * s.amp_gain_a_per_v + s.amp_offset_a
-            else:
-                w_m = 0.0 if omega is None or not np.isfinite(omega[i]) else float(omega[i]) * s.ratio
-                duty = duty_for_current(amps, s.resistance_ohm, s.ke_v_s_per_rad, w_m, s.supply_v)
-                self._set_hbridge(j, duty)
-                current[i] = amps
-        for board, cmds in per_dac.items():
-            self.dac[board].write_many(cmds, update=True)
+            w_m = 0.0 if omega is None or not np.isfinite(omega[i]) else float(omega[i]) * s.ratio
+            duty = duty_for_current(float(amps[i]), s.resistance_ohm, s.ke_v_s_per_rad, w_m, s.supply_v)
+            self._set_hbridge(j, duty)
+            current[i] = amps[i]
+        lin = self._linear_idx
+        if lin.size:
+            gain, off = self._amp_gain[lin], self._amp_offset[lin]
+            volts = (amps[lin] - off) / gain
+            volts = np.where(volts > DAC_V_MIN, volts, DAC_V_MIN)  # max(DAC_V_MIN, v)
+            volts = np.where(volts < DAC_V_MAX, volts, DAC_V_MAX)  # min(DAC_V_MAX, ·)
+            self.last_dac_volts[lin] = volts
+            current[lin] = volts * gain + off
+            dv = self.last_dac_volts
+            for board, js, chans in self._dac_plan:
+                self.dac[board].write_many(dict(zip(chans, dv[js].tolist(), strict=True)), update=True)
         self.last_current_a[:] = current
         if self.watchdog_running:
             self._toggle_watchdog()

@@ -298,10 +298,10 @@ class ServoLoop:
         wd = self.watchdog
         if not wd.enabled:
             return False
-        for i in range(self.n):
-            if m.fault[i]:
-                self.safe_stop("amplifier_fault", "amplifier fault line asserted", i)
-                return True
+        fault = np.asarray(m.fault, bool)
+        if fault.any():
+            self.safe_stop("amplifier_fault", "amplifier fault line asserted", int(np.argmax(fault)))
+            return True
         bad = ~np.isfinite(m.theta) | ~np.isfinite(m.omega)
         if bad.any():
             i = int(np.argmax(bad))

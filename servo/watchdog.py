@@ -206,6 +206,7 @@ class CrossChecks:
             self._pot0 = np.where(self.both, m.theta_pot, np.nan)
             self._enc0 = np.where(self.both, m.theta_enc, np.nan)
             self._filled = 0
+        self.limit("stale_travel_rad")  # the limits in force, resolved once for this tick's checks
         stale = self._stale(m, np.asarray(theta_d, float), np.asarray(omega_d, float))
         if not self.config.cross_checks:
             return stale
@@ -217,7 +218,7 @@ class CrossChecks:
         d_pot = m.theta_pot - self._pot0
         d_enc = m.theta_enc - self._enc0
         travel = np.fmax(np.abs(d_pot), np.abs(d_enc))
-        tol = self.limit("position_tolerance_rad") + self.config.position_tolerance_fraction * travel
+        tol = self._limits["position_tolerance_rad"] + self.config.position_tolerance_fraction * travel
         off = np.abs(d_enc - d_pot)
         i = _worst(self._over("position", off, tol, self.both), off, tol)
         if i is None:
@@ -248,7 +249,7 @@ class CrossChecks:
         v_ref = (ref - self._ring_ref[old]) / window_s
         v_tach = (self._tach_int - self._ring_int[old]) / window_s
         off = np.abs(v_tach - v_ref)
-        tol = (self.limit("tach_dead_band_rad_s") + self.limit("velocity_tolerance_rad_s")
+        tol = (self._limits["tach_dead_band_rad_s"] + self._limits["velocity_tolerance_rad_s"]
                + self.config.velocity_tolerance_fraction * np.fmax(np.abs(v_ref), np.abs(v_tach)))
         i = _worst(self._over("velocity", off, tol, self.has_tach), off, tol)
         if i is None:
@@ -264,7 +265,7 @@ class CrossChecks:
             return None
         commanded = np.asarray(self.io.last_current_a, float)
         off = np.abs(m.current - commanded)
-        tol = self.limit("current_tolerance_a") + self.limit("current_tolerance_fraction") * np.abs(commanded)
+        tol = self._limits["current_tolerance_a"] + self._limits["current_tolerance_fraction"] * np.abs(commanded)
         self._cur_over = np.where(self._over("current", off, tol, self.has_imon), self._cur_over + 1, 0)
         i = _worst(self._cur_over >= max(1, int(self.config.current_mismatch_ticks)), off, tol)
         if i is None:
@@ -283,7 +284,7 @@ class CrossChecks:
         self._stale_count = np.where(keep, self._stale_count + 1, 0)
         self._stale_travel = np.where(keep, self._stale_travel + step, 0.0)
         self._stale_at = np.where(keep, self._stale_at, reading)
-        bad = (self._stale_count >= cfg.stale_ticks) & (self._stale_travel >= self.limit("stale_travel_rad"))
+        bad = (self._stale_count >= cfg.stale_ticks) & (self._stale_travel >= self._limits["stale_travel_rad"])
         i = _worst(bad, self._stale_travel, 0.0)
         if i is None:
             return None

@@ -30,11 +30,12 @@ from hal.adc_dac.adc_regs import (
 )
 from hal.adc_dac.calibration import Calibration
 from hal.adc_dac.conversions import (
+    ADC_FULL_SCALE_V,
+    N_CODES,
     AdcDacError,
     AdcRange,
     BoardIdError,
     adc_code_to_volts,
-    adc_codes_to_volts,
     check_gain,
     gain_code,
 )
@@ -91,6 +92,34 @@ class AdcStatus:
         )
 
 
+class _ScanPlan:
+    """What one form of :meth:`AdcDriver.scan` needs each time: channels, gains, and the code →
+    volts → calibrated volts arrays (bound to a calibration and range, rebound when they change)."""
+
+    def __init__(self, chans: list[int], last: int, gains: list[int]) -> None:
+        self.chans = np.asarray(chans, dtype=np.intp)
+        self.last = last
+        self.gains = gains
+        self.what = f"scan of channels 0..{last}"
+        self.cal: Calibration | None = None
+        self.range: AdcRange | None = None
+        self.bipolar = True
+        self.v0 = self.lsb = self.offset_v = self.cal_gain = np.zeros(0)
+
+    def bind(self, cal: Calibration, rng: AdcRange) -> None:
+        g = np.asarray([self.gains[c] for c in self.chans], dtype=float)
+        self.bipolar = rng is AdcRange.BIPOLAR_10V
+        if self.bipolar:
+            self.lsb = 2 * ADC_FULL_SCALE_V / g / N_CODES
+            self.v0 = -ADC_FULL_SCALE_V / g
+        else:
+            self.lsb = ADC_FULL_SCALE_V / g / N_CODES
+            self.v0 = np.zeros_like(g)
+        self.offset_v = np.asarray(cal.offset_v, dtype=float)[self.chans]
+        self.cal_gain = np.asarray(cal.gain, dtype=float)[self.chans]
+        self.cal, self.range = cal, rng
+
+
 class AdcDriver:
     """Driver of one ADC board.
 
@@ -137,6 +166,7 @@ class AdcDriver:
         self._irq_count = 0
         self._irq_csr = 0
         self._scan_cfg: tuple[int, int, int] | None = None
+        self._scan_plans: dict[tuple[int, int], _ScanPlan] = {}
         self.win.write("CSR", _B["RESET"])
         self.range = AdcRange.parse(range)
         self._config = _B["RANGE"] if self.range is AdcRange.UNIPOLAR_10V else 0
@@ -226,14 +256,8 @@ class AdcDriver:
     # --- scans ------------------------------------------------------------------------------
     def scan_counts(self, channels: int | Sequence[int], gain: int | Mapping[int, int] = 1) -> np.ndarray:
         """Raw codes of a scan (see :meth:`scan`), in the order of ``channels``."""
-        chans, last = self._scan_channels(channels)
-        gains = self._scan_gains(gain)
-        self._configure_scan(last, gains)
-        self.win.write_offset(_CSR_LOW, _B["SCAN"], Width.D8)
-        self._wait(last + 1, f"scan of channels 0..{last}")
-        words = self.bus.read_block(self.win.base + ADC_BUFFER_OFFSET, last + 1, space=self.win.am, width=Width.D16)
-        codes = np.asarray(words, dtype=np.int64) & 0xFFF
-        return codes[np.asarray(chans, dtype=int)]
+        plan = self._scan_plan(channels, gain)
+        return self._run_scan(plan)[plan.chans]
 
     def scan(self, channels: int | Sequence[int], gain: int | Mapping[int, int] = 1) -> np.ndarray:
         """Scan with the board's sequencer and return calibrated volts.
@@ -241,12 +265,40 @@ class AdcDriver:
         ``channels`` is either the last channel (scan 0..last, result index = channel) or a
         list of channels (the board scans 0..max(list); the result follows the list order).
         ``gain`` is one gain for all channels or ``{channel: gain}`` (others at 1).
+
+        The scan's plan (channel list, gain codes, conversion and calibration arrays) is kept
+        per (channels, gain) when they are plain numbers, the servo loop's case: a tick then
+        costs the bus cycles and a few array operations.
         """
-        chans, _ = self._scan_channels(channels)
-        codes = self.scan_counts(channels, gain)
-        gains = self._scan_gains(gain)
-        volts = adc_codes_to_volts(codes, self.range, [gains[c] for c in chans])
-        return self.calibration.correct_array(chans, volts)
+        plan = self._scan_plan(channels, gain)
+        codes = self._run_scan(plan)[plan.chans]
+        cal = self.calibration
+        if plan.cal is not cal or plan.range is not self.range:
+            plan.bind(cal, self.range)
+        # the same operations as adc_codes_to_volts and Calibration.correct_array
+        volts = plan.v0 + codes * plan.lsb if plan.bipolar else codes * plan.lsb
+        return (volts - plan.offset_v) / plan.cal_gain
+
+    def _scan_plan(self, channels: int | Sequence[int], gain: int | Mapping[int, int]) -> _ScanPlan:
+        key = (int(channels), int(gain)) if (isinstance(channels, int | np.integer) and isinstance(gain, int)
+                                             and not isinstance(gain, bool)) else None
+        plan = self._scan_plans.get(key) if key is not None else None
+        if plan is None:
+            chans, last = self._scan_channels(channels)
+            gains = self._scan_gains(gain)
+            plan = _ScanPlan(chans, last, gains)
+            if key is not None:
+                self._scan_plans[key] = plan
+        return plan
+
+    def _run_scan(self, plan: _ScanPlan) -> np.ndarray:
+        """Configure (if needed), start, wait, and block-read the buffer: codes of 0..last."""
+        last = plan.last
+        self._configure_scan(last, plan.gains)
+        self.win.write_offset(_CSR_LOW, _B["SCAN"], Width.D8)
+        self._wait(last + 1, plan.what)
+        words = self.bus.read_block(self.win.base + ADC_BUFFER_OFFSET, last + 1, space=self.win.am, width=Width.D16)
+        return np.asarray(words, dtype=np.int64) & 0xFFF
 
     def _scan_channels(self, channels: int | Sequence[int]) -> tuple[list[int], int]:
         if isinstance(channels, int | np.integer):

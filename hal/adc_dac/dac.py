@@ -34,6 +34,7 @@ from hal.vme.bus import SpaceLike, VmeBus
 from hal.vme.window import BoardWindow
 
 _CSR = DAC_REGMAP["CSR"]
+_DATA_REGS = tuple(DAC_REGMAP[f"DATA{i}"] for i in range(DAC_CHANNELS))  #: DATAn by channel
 
 
 class DacRangeError(AdcDacError, ValueError):
@@ -118,8 +119,9 @@ class DacDriver:
             codes[ch], c = self.code_for(ch, v)
             if c:
                 clamped.append(ch)
+        data = _DATA_REGS
         for ch, code in codes.items():
-            self.win.write(f"DATA{ch}", code)
+            self.win.write(data[ch], code)
         if update and codes:
             self.update(codes)
         self.clamp_events += len(clamped)

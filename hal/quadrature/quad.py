@@ -115,8 +115,16 @@ class ChannelStatus:
 
     @classmethod
     def decode(cls, raw: int) -> ChannelStatus:
-        return cls(bool(raw & ST_INDEX), bool(raw & ST_ILLEGAL), bool(raw & ST_OVERFLOW),
-                   bool(raw & ST_UNDERFLOW), bool(raw >> 8 & 1), bool(raw >> 9 & 1), raw)
+        st = _STATUS_CACHE.get(raw)  # immutable: one object per register value, shared
+        if st is None:
+            st = cls(bool(raw & ST_INDEX), bool(raw & ST_ILLEGAL), bool(raw & ST_OVERFLOW),
+                     bool(raw & ST_UNDERFLOW), bool(raw >> 8 & 1), bool(raw >> 9 & 1), raw)
+            if len(_STATUS_CACHE) < 1 << 16:
+                _STATUS_CACHE[raw] = st
+        return st
+
+
+_STATUS_CACHE: dict[int, ChannelStatus] = {}
 
 
 @dataclass(frozen=True)
@@ -201,6 +209,11 @@ class QuadratureDriver:
         self.low_speed_counts = max(1, int(low_speed_counts))
         self.stop_ticks = max(1, int(stop_ticks))
         self._latch_mask = sum(1 << ch for ch in self.channels)
+        self._gcmd = QUAD_REGS["GCMD"]
+        self._gcmd_latch = self._gcmd.pack(latch=self._latch_mask)
+        #: per channel its registers, resolved once (the per-tick reads name no strings)
+        self._regs = {ch: {name: QUAD_REGS[reg_name(ch, name)] for name in ("CMD", "STATUS", "OL_HI", "OL_LO")}
+                      for ch in self.channels}
         self._track: dict[int, _Track] = {}
         for ch in self.channels:
             self.win.write(reg_name(ch, "CMD"), CMD_LATCH)
@@ -224,8 +237,12 @@ class QuadratureDriver:
         return {v: k for k, v in MODE_CODES.items()}.get(code, 4)
 
     def _read_ol(self, ch: int) -> int:
-        hi = self.win.read(reg_name(ch, "OL_HI")) & 0xFF
-        return hi << 16 | self.win.read(reg_name(ch, "OL_LO"))
+        regs = self._regs.get(ch)
+        if regs is None:
+            hi = self.win.read(reg_name(ch, "OL_HI")) & 0xFF
+            return hi << 16 | self.win.read(reg_name(ch, "OL_LO"))
+        hi = self.win.read(regs["OL_HI"]) & 0xFF
+        return hi << 16 | self.win.read(regs["OL_LO"])
 
     def counts_per_rev(self, ch: int) -> float:
         """Counts per revolution in the channel's current mode."""
@@ -325,13 +342,14 @@ class QuadratureDriver:
 
     def _read_tracked(self, ch: int, *, latch: bool = True) -> tuple[int, ChannelStatus]:
         t = self._t(ch)
+        regs = self._regs[ch]
         if latch:
-            self.win.write(reg_name(ch, "CMD"), CMD_LATCH)
-        st = self.win.read(reg_name(ch, "STATUS"))
+            self.win.write(regs["CMD"], CMD_LATCH)
+        st = self.win.read(regs["STATUS"])
         raw = self._read_ol(ch)
         wrap = st & (ST_OVERFLOW | ST_UNDERFLOW)
         if wrap:
-            self.win.write(reg_name(ch, "STATUS"), wrap)
+            self.win.write(regs["STATUS"], wrap)
         self._unwrap(ch, t, raw, st)
         return raw, ChannelStatus.decode(st)
 
@@ -406,7 +424,7 @@ class QuadratureDriver:
         Call once per servo tick. Every channel is processed before an error is raised; the
         error carries all readings in ``err.readings``.
         """
-        self.win.write_fields("GCMD", latch=self._latch_mask)
+        self.win.write(self._gcmd, self._gcmd_latch)
         out: dict[int, ChannelReading] = {}
         first_error: QuadratureError | None = None
         for ch in self.channels:

@@ -253,28 +253,35 @@ class PidLaw:
         self.state.e_prev = e.copy()
 
     def _switch_off_step(self, e: np.ndarray, done: np.ndarray) -> None:
+        """The switch-off state machine of every joint at once (each joint changes at most once a
+        tick; its events are recorded in joint order)."""
         st, so, T = self.state, self.switch_off, self.period
         abs_e = np.abs(e)
         crossed = so.zero_crossing & np.isfinite(st.e_prev) & (e * np.nan_to_num(st.e_prev) < 0)
-        for j in range(self.n):
-            if not so.enabled[j]:
-                if not st.integrating[j]:
+        enabled = np.asarray(so.enabled, bool)
+        integ = st.integrating.copy()  # each joint's state before this tick
+        done = np.asarray(done, bool)
+        # fed joints: in the inner band (or crossing zero) at the end of a motion, long enough
+        feeding = enabled & integ
+        near = feeding & done & ((abs_e <= so.inner_band) | crossed)
+        settled = near & (st.in_band_time + 1e-12 >= so.settle_time)
+        # frozen joints: a new motion, or the error left the outer band
+        frozen = enabled & ~integ
+        new_motion = frozen & ~done
+        outside = frozen & done & (abs_e > so.outer_band)
+        disabled = ~enabled & ~integ
+        # the band timer runs while settling, restarts otherwise; a frozen joint's stays as it is
+        st.in_band_time[:] = np.where(frozen, st.in_band_time, np.where(near & ~settled, st.in_band_time + T, 0.0))
+        changed = disabled | settled | new_motion | outside
+        if changed.any():
+            for j in np.flatnonzero(changed).tolist():
+                if disabled[j]:
                     self._event(j, True, "disabled")
-                st.in_band_time[j] = 0.0
-                continue
-            if st.integrating[j]:
-                if done[j] and (abs_e[j] <= so.inner_band[j] or crossed[j]):
-                    if st.in_band_time[j] + 1e-12 >= so.settle_time[j]:
-                        self._event(j, False, "settled")
-                        st.in_band_time[j] = 0.0
-                    else:
-                        st.in_band_time[j] += T
-                else:
-                    st.in_band_time[j] = 0.0
-            else:
-                if not done[j]:
+                elif settled[j]:
+                    self._event(j, False, "settled")
+                elif new_motion[j]:
                     self._event(j, True, "new_motion")
-                elif abs_e[j] > so.outer_band[j]:
+                else:
                     self._event(j, True, "error_outside_band")
 
     def _event(self, j: int, integrating: bool, reason: str) -> None:
