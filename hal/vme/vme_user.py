@@ -312,8 +312,12 @@ class VmeUserBus(VmeBus):
             raise VmeUserError(f"no master window in {self.device_dir} ({', '.join(missing)} missing): "
                                "is the vme_user module loaded with bus=...? (docs/vme-user.md)")
         self.layout: abi.Layout = self.windows[0].layout
-        for w in self.windows:
-            w.setting = w.get()
+        try:
+            for w in self.windows:
+                w.setting = w.get()
+        except BaseException:
+            self.close()
+            raise
 
     def _layout(self, layout: str, fd: int, path: str) -> abi.Layout:
         if layout == "auto":

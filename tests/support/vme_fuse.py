@@ -222,7 +222,8 @@ class MountedVmeUser:
 
     def __exit__(self, *exc: object) -> None:
         tool = shutil.which("fusermount3") or shutil.which("fusermount")
-        cmd = [tool, "-u", str(self.dir)] if tool else ["umount", str(self.dir)]
+        # lazy: a file a failed test left open cannot keep the mount (and this join) hanging
+        cmd = [tool, "-u", "-z", str(self.dir)] if tool else ["umount", "-l", str(self.dir)]
         subprocess.run(cmd, check=False, capture_output=True)
         if self._thread is not None:
             self._thread.join()
