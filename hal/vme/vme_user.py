@@ -182,7 +182,7 @@ class MasterWindow:
 
     def covers(self, am: AddressModifier, address: int, width: int) -> bool:
         s = self.setting
-        return (s is not None and s.enable and self.am is am
+        return (s is not None and s.enable and self.am == am
                 and s.vme_addr <= address and address + width <= s.vme_addr + s.size)
 
     def get(self) -> WindowSetting:

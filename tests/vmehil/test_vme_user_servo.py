@@ -43,6 +43,7 @@ def test_servo_run_through_vme_user_matches_the_in_process_run(tmp_path: Path) -
         with VmeUserBus(fs.dir, clock=system.crate.now, sleep=system.crate.delay) as bus:
             theta, err = _run(system, bus)
     assert fs.ops.calls["read"] > 1000 and fs.ops.calls["write"] > 100  # it did go through the kernel
+    assert fs.ops.calls["ioctl"] <= 4 + 2 * 4  # probe/read-back, then each window set once and reused
     assert len(theta) == round(SECONDS * ref.rig.servo_rate_hz)
     np.testing.assert_array_equal(err[-1], err_ref[-1])  # the same final error, joint by joint
     np.testing.assert_array_equal(theta, theta_ref)
