@@ -11,13 +11,18 @@ STAMP  := $(VENV)/.installed-stamp
 
 venv: $(STAMP) tools
 
-# System tools some tests drive (socat: a terminal program on the console's pty). Installed when
+# System tools some tests drive (socat: a terminal program on the console's pty; libfuse 3: the
+# FUSE stand-in for /dev/bus/vme). Installed when
 # missing and possible (root with apt-get, as on CI); elsewhere those tests skip, saying why.
 tools:
 	@command -v socat >/dev/null 2>&1 || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
 		{ apt-get install -y -qq socat >/dev/null 2>&1 || \
 		  { apt-get update -qq >/dev/null 2>&1 && apt-get install -y -qq socat >/dev/null 2>&1; }; }; } || \
 		echo "socat not installed and not installable here (root and apt-get): its console test will skip"
+	@{ command -v fusermount3 >/dev/null 2>&1 && ldconfig -p | grep -q libfuse3.so.3; } || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
+		{ apt-get install -y -qq fuse3 libfuse3-3 >/dev/null 2>&1 || \
+		  { apt-get update -qq >/dev/null 2>&1 && apt-get install -y -qq fuse3 libfuse3-3 >/dev/null 2>&1; }; }; } || \
+		echo "libfuse 3 not installed and not installable here: the vme_user FUSE tests will skip"
 
 # Every extra and the test tools, at the versions in constraints.txt (what CI ran).
 $(STAMP): pyproject.toml constraints.txt

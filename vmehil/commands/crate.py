@@ -21,7 +21,7 @@ from emulators.board_types import BOARD_TYPES
 from emulators.crate import Crate
 from emulators.crate_file import load_crate
 from emulators.presets import resolve_rig
-from hal.vme.errors import BusError
+from hal.vme.errors import BusError, VmeError
 from hal.vme.types import AddressSpace, Width
 
 
@@ -29,6 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("crate", help="list, probe, read and write an emulated VME crate")
     p.add_argument("--rig", default=None, help="rig preset name or crate/rig TOML path (default jpl-arm)")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
+    p.add_argument("--bus", default="emulated",
+                   help="emulated (default) or vme_user[:DIR] — a real crate through Linux's /dev/bus/vme "
+                        "(list, read, write, shell; docs/vme-user.md)")
     csub = p.add_subparsers(dest="crate_cmd", metavar="ACTION")
     csub.required = True
     csub.add_parser("list", help="list the boards and their windows")
@@ -53,6 +56,8 @@ def _int(text: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.bus != "emulated":
+        return _run_real(args)
     crate = _load(resolve_rig(args.rig))
     cmd = args.crate_cmd
     if cmd == "types":
@@ -76,6 +81,34 @@ def run(args: argparse.Namespace) -> int:
         _emit(args, {"ok": True}, lambda d: "ok")
     elif cmd == "shell":
         return shell(crate, sys.stdin, sys.stdout)
+    return 0
+
+
+def _run_real(args: argparse.Namespace) -> int:
+    """The same actions on a real bus: ``list`` shows the rig file's boards with the dry pass
+    (ID and status reads) and the master windows; reads and writes go to the hardware."""
+    from servo.rig import load_rig
+    from vmehil.real_bus import dry_pass, open_bus
+
+    cmd = args.crate_cmd
+    if cmd not in ("list", "read", "write", "shell"):
+        print(f"vmehil crate {cmd}: emulated crates only (on a real bus: list, read, write, shell)", file=sys.stderr)
+        return 2
+    with open_bus(args.bus) as bus:
+        if cmd == "list":
+            checks = [c.as_dict() for c in dry_pass(bus, load_rig(resolve_rig(args.rig)))]
+            _emit(args, {"boards": checks, "windows": bus.describe()},
+                  lambda d: _table(d["boards"]) + "\n\n" + _table(d["windows"]))
+            return 0 if all(c["ok"] for c in checks) else 1
+        if cmd == "read":
+            width = Width.parse(args.width)
+            value = bus.read(args.address, space=args.space, width=width)
+            _emit(args, {"value": value}, lambda d: f"0x{d['value']:0{int(width) * 2}X}  ({d['value']})")
+        elif cmd == "write":
+            bus.write(args.address, args.value, space=args.space, width=Width.parse(args.width))
+            _emit(args, {"ok": True}, lambda d: "ok")
+        else:
+            return shell(bus, sys.stdin, sys.stdout)  # type: ignore[arg-type]
     return 0
 
 
@@ -124,7 +157,7 @@ def shell(crate: Crate, stdin, stdout) -> int:
                 continue
             try:
                 stdout.write(_shell_one(crate, words) + "\n")
-            except (BusError, ValueError, IndexError) as e:
+            except (VmeError, ValueError, IndexError) as e:
                 stdout.write(f"error: {e}\n")
                 status = 1
     return status
@@ -143,6 +176,8 @@ def _shell_one(crate: Crate, words: list[str]) -> str:
     if op == "list":
         return _table(crate.describe())
     if op == "counters":
+        if not hasattr(crate, "counter_snapshot"):
+            raise ValueError("no access counters on a real bus")
         return "\n".join(f"{k} {v}" for k, v in crate.counter_snapshot().items())
     if op == "time":
         return f"{crate.now() * 1e6:.3f} us"
@@ -156,7 +191,8 @@ def _emit(args: argparse.Namespace, data: Any, text) -> None:
     print(json.dumps(data, indent=2) if args.json else text(data))
 
 
-_TEXT_COLUMNS = ("slot", "name", "space", "base", "end", "type", "id", "wired")
+_TEXT_COLUMNS = ("slot", "name", "space", "base", "end", "type", "id", "wired", "ok", "detail",
+                 "window", "layout", "am", "setting")
 
 
 def _table(rows: list[dict[str, Any]]) -> str:

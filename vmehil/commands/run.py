@@ -62,6 +62,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="calibration file for the drivers (default: calibration/<rig>.toml or "
                         "$VMEHIL_CALIBRATION_DIR/<rig>.toml; missing → nominal values with a warning)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
+    p.add_argument("--bus", default="emulated",
+                   help="emulated (default) or vme_user[:DIR]: a real crate (dry pass, start-up safe stop; "
+                        "docs/vme-user.md)")
+    p.add_argument("--enable-amplifiers", action="store_true",
+                   help="on a real bus, run the loop after the dry pass (without it: the checks only)")
     for ext in RUN_EXTENSIONS:
         ext.add_arguments(p)
     p.set_defaults(func=run)
@@ -92,6 +97,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
+    if getattr(args, "bus", "emulated") != "emulated":
+        from vmehil.commands.run_real import run_on_real_bus
+        return run_on_real_bus(args, rig, gains, exit_status=run_exit_status)
     from servo.motion import default_demo_motion, load_motion
     from servo.runner import LockstepRunner, RealtimeRunner
     from vmehil.progress import TickProgress
