@@ -26,12 +26,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, overload
+from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 
-from vmehil.analysis.rigparams import JointParams
 from vmehil.metrics import limit_cycle, settling_time
+
+if TYPE_CHECKING:  # rigparams brings python-control and scipy (≈1 s): only where a joint is analysed
+    from vmehil.analysis.rigparams import JointParams
 
 MOTIONS = ("joint", "demo")
 STATIC_WINDOW_S = 1.0  #: the static error is the mean error over the last second of the hold
