@@ -77,6 +77,28 @@ def test_encoder_counts_per_rev_index_and_direction(tmp_path):
     assert (fwd[1][1] - fwd[0][1]) == pytest.approx(spacing, abs=spacing / 200)
 
 
+def test_encoder_moves_every_joint_in_one_tour_each_at_its_own_motor_speed(tmp_path):
+    """One forward and one backward move for all joints together (not one tour per joint), with
+    a per-joint speed limit of ``speed`` motor rev/s; each joint's figures as if alone."""
+    b = build_bench(tmp_path, ERRORS)
+    calls: list[tuple[dict, object]] = []
+    move_to = b.move_to
+
+    def spy(targets, **kw):
+        calls.append((dict(targets), kw.get("speed_rad_s")))
+        return move_to(targets, **kw)
+
+    b.move_to = spy  # type: ignore[method-assign]
+    res = EncoderProcedure(speed_motor_rev_s=1.0).run(b.context())
+    assert res.passed, procedure_results_table([res])
+    assert [sorted(t) for t, _ in calls] == [[0, 1], [0, 1]]
+    ratio = 100  # both bench joints
+    for _targets, speed in calls:
+        assert speed == {0: pytest.approx(2 * math.pi / ratio), 1: pytest.approx(2 * math.pi / ratio)}
+    for name in ("j1", "j2"):
+        assert res.update.joint_entry(name, "encoder").values["counts_per_motor_rev"] == 2000
+
+
 def test_encoder_with_other_line_count_is_measured_not_assumed(tmp_path):
     b = build_bench(tmp_path, Errors(encoder_lines=(512, 500)))
     res = EncoderProcedure().run(b.context())
