@@ -248,6 +248,30 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
     return out
 
 
+@dataclass(frozen=True)
+class SimJob:
+    """One :func:`simulate` call to run in a worker process (:func:`run_job`); picklable."""
+
+    jp: JointParams
+    switch_off: bool | None
+    settings: SimSettings
+    link_factory: LinkFactory | None = None
+    step_deg: float | None = None
+    traces: bool = True
+
+
+def run_job(job: SimJob) -> dict[str, Any] | None:
+    """:func:`simulate` for ``job`` in a :func:`vmehil.analysis.sweep.run_parallel` worker: stops
+    when the parent is interrupted (every tick polls it; the run ends safe-stopped as any run),
+    and then returns None."""
+    from vmehil.analysis.sweep import stop_requested
+
+    stop = stop_requested()
+    out = simulate(job.jp, switch_off=job.switch_off, settings=job.settings, step_deg=job.step_deg,
+                   traces=job.traces, stop=stop, link_factory=job.link_factory)
+    return None if stop is not None and stop() else out
+
+
 def _deg(x: float) -> float:
     return float(np.degrees(x))
 

@@ -229,7 +229,7 @@ def evaluate_point(task: SweepTask) -> dict[str, Any]:
     elif not task.simulate:
         row["status"] = "margins only"
     else:
-        stop = (lambda: _STOP.is_set()) if _STOP is not None else None
+        stop = stop_requested()
         r = simulate(jp, switch_off=False, settings=task.sim, traces=False, stop=stop,
                      link_factory=task.link_factory)
         if stop is not None and stop():
@@ -253,26 +253,47 @@ def evaluate_point(task: SweepTask) -> dict[str, Any]:
 # --------------------------------------------------------------------------- running
 
 
-def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None, jobs: int | None = None,
-              on_result: Callable[[dict[str, Any], list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
-    """Evaluate ``tasks`` in parallel; returns the rows sorted by index.
+class ParallelInterrupted(Exception):
+    """:func:`run_parallel` was interrupted; ``done`` maps item positions to finished results."""
 
-    ``executor``: any :class:`concurrent.futures.Executor` (the caller owns and shuts it down; it is
-    not sent the stop event, so an interruption only cancels what has not started). Default: a
-    process pool of ``jobs`` workers (default ``os.cpu_count()``). ``on_result(row, rows_so_far)``
-    is called in the calling thread as each point completes. A ``KeyboardInterrupt`` (SIGINT)
-    stops the workers, cancels the rest and raises :class:`SweepInterrupted` with the finished rows.
+    def __init__(self, done: dict[int, Any]) -> None:
+        super().__init__(f"interrupted after {len(done)} result(s)")
+        self.done = done
+
+
+def stop_requested() -> Callable[[], bool] | None:
+    """In a :func:`run_parallel` worker: a ``stop()`` poll for a runner (True once the parent was
+    interrupted); None elsewhere."""
+    stop_event = _STOP
+    return None if stop_event is None else stop_event.is_set
+
+
+def run_parallel(fn: Callable[[Any], Any], items: list[Any], *, executor: Executor | None = None,
+                 jobs: int | None = None, on_result: Callable[[int, Any], None] | None = None,
+                 finished: Callable[[Any], bool] = lambda result: True) -> list[Any]:
+    """``fn(item)`` for every item in worker processes; the results in item order.
+
+    ``fn`` is a top-level (picklable) function; a long one polls :func:`stop_requested` (every
+    tick: a runner's ``stop``) and returns early once it is set, leaving its rig safe-stopped as any
+    run does. ``executor``: any :class:`concurrent.futures.Executor` (the caller owns and shuts it
+    down; it is not sent the stop event, so an interruption only cancels what has not started).
+    Default: a process pool of ``jobs`` workers (default ``os.cpu_count()``, at most one per item),
+    forked, so a worker starts with the parent's imports. ``on_result(position, result)`` is called
+    in the calling thread as each completes, in completion order; a result ``finished`` says is not
+    (it was cut short by an interruption) is neither passed on nor kept. SIGINT in the calling
+    thread sets the workers' stop event, cancels what has not started and raises
+    :class:`ParallelInterrupted` with the finished results.
     """
-    rows: list[dict[str, Any]] = []
+    done: dict[int, Any] = {}
     own = executor is None
     stop_event = None
     if executor is None:
-        n = max(1, min(jobs or os.cpu_count() or 1, len(tasks) or 1))
+        n = max(1, min(jobs or os.cpu_count() or 1, len(items) or 1))
         ctx = multiprocessing.get_context("spawn" if os.name == "nt" else "fork")
         stop_event = ctx.Event()
         executor = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_worker_init,
                                        initargs=(stop_event,))
-    futures: dict[Future, SweepTask] = {}
+    futures: dict[Future, int] = {}
     # SIGINT sets a flag that the loop below checks between completions, instead of raising
     # KeyboardInterrupt wherever the main thread happens to be (inside a file write, the progress
     # bar or the executor's internals), where it could be lost.
@@ -281,18 +302,17 @@ def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None,
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGINT, lambda signum, frame: sigint.set())
     try:
-        futures = {executor.submit(evaluate_point, t): t for t in tasks}
+        futures = {executor.submit(fn, item): i for i, item in enumerate(items)}
         pending = set(futures)
         while pending and not sigint.is_set():
-            done, pending = wait(pending, timeout=0.1, return_when=FIRST_COMPLETED)
-            for fut in sorted(done, key=lambda f: futures[f].index):
-                row = fut.result()
-                if row["status"] == "interrupted":
+            completed, pending = wait(pending, timeout=0.1, return_when=FIRST_COMPLETED)
+            for fut in sorted(completed, key=lambda f: futures[f]):
+                result = fut.result()
+                if not finished(result):
                     continue
-                rows.append(row)
-                rows.sort(key=lambda r: r["index"])
+                done[futures[fut]] = result
                 if on_result is not None:
-                    on_result(row, list(rows))
+                    on_result(futures[fut], result)
         if sigint.is_set():
             raise KeyboardInterrupt
     except KeyboardInterrupt:
@@ -300,13 +320,39 @@ def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None,
             stop_event.set()
         for f in futures:
             f.cancel()
-        raise SweepInterrupted(sorted(rows, key=lambda r: r["index"])) from None
+        raise ParallelInterrupted(done) from None
     finally:
         if previous is not None:
             signal.signal(signal.SIGINT, previous)
         if own:
             executor.shutdown(wait=True, cancel_futures=True)
-    return rows
+    return [done.get(i) for i in range(len(items))]  # None: cut short (a caller's executor only)
+
+
+def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None, jobs: int | None = None,
+              on_result: Callable[[dict[str, Any], list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
+    """Evaluate ``tasks`` in parallel (:func:`run_parallel`); returns the rows sorted by index.
+
+    ``executor``: any :class:`concurrent.futures.Executor` (the caller owns and shuts it down; it is
+    not sent the stop event, so an interruption only cancels what has not started). Default: a
+    process pool of ``jobs`` workers (default ``os.cpu_count()``). ``on_result(row, rows_so_far)``
+    is called in the calling thread as each point completes. A ``KeyboardInterrupt`` (SIGINT)
+    stops the workers, cancels the rest and raises :class:`SweepInterrupted` with the finished rows.
+    """
+    rows: list[dict[str, Any]] = []
+
+    def got(_position: int, row: dict[str, Any]) -> None:
+        rows.append(row)
+        rows.sort(key=lambda r: r["index"])
+        if on_result is not None:
+            on_result(row, list(rows))
+
+    try:
+        run_parallel(evaluate_point, tasks, executor=executor, jobs=jobs, on_result=got,
+                     finished=lambda row: row["status"] != "interrupted")
+    except ParallelInterrupted:
+        raise SweepInterrupted(sorted(rows, key=lambda r: r["index"])) from None
+    return sorted(rows, key=lambda r: r["index"])
 
 
 # ------------------------------------------------------------------------------ files
