@@ -282,8 +282,13 @@ def continuous_controller(gains: Gains[float]) -> ct.StateSpace:
 # ------------------------------------------------------------------------- the loop
 
 
+@functools.lru_cache(maxsize=256)
 def build_loop(cfg: LoopConfig, sampled: bool, break_at: str | None = None) -> ct.StateSpace:
     """Close the loop with python-control's ``interconnect``.
+
+    Cached per (frozen) configuration: the margins, poles and responses of one gain set all start
+    from the same few loops (``interconnect`` is most of a sweep point's analysis time); callers
+    derive new systems from the result (indexing, arithmetic) and never change it.
 
     Without ``break_at``: inputs [r, rv, d] (θd rad, ωd rad/s, disturbance acceleration rad/s²),
     outputs [th, om, a].
