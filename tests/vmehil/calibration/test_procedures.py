@@ -133,6 +133,27 @@ def test_amplifier_recovers_gain_offset_and_checks_limit(tmp_path):
     assert j1["peak_current_a"] <= 30.0 * 1.001
 
 
+def test_amplifier_pulses_every_joint_together_in_one_series(tmp_path):
+    """Each pulse overrides both joints' commands in the same period (one series for the arm,
+    not one per joint), and each joint's fit is its own."""
+    b = build_bench(tmp_path, ERRORS)
+    overrides: list[tuple[int, int]] = []  # (bench tick, joint)
+    override = b.override_command
+
+    def spy(joint, volts):
+        overrides.append((b.ticks, joint))
+        return override(joint, volts)
+
+    b.override_command = spy  # type: ignore[method-assign]
+    res = AmplifierProcedure().run(b.context())
+    ticks = sorted({t for t, _ in overrides})
+    assert len(ticks) == 2 * len(AmplifierProcedure().levels) + 2  # ± each level, ± full command
+    assert sorted(overrides) == sorted((t, j) for t in ticks for j in (0, 1))
+    j1, j2 = (res.update.joint_entry(n, "amplifier").values for n in ("j1", "j2"))
+    assert j1["gain_a_per_v"] == pytest.approx(3.09, rel=1e-2)
+    assert j2["gain_a_per_v"] == pytest.approx(1.95, rel=1e-2)
+
+
 def test_amplifier_limit_check_fails_when_the_limit_is_set_too_low(tmp_path):
     b = build_bench(tmp_path, Errors(amp_limit_a=(20.0, 20.0)))
     res = AmplifierProcedure().run(b.context())
