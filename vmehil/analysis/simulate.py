@@ -261,10 +261,10 @@ class SimJob:
 
 
 def run_job(job: SimJob) -> dict[str, Any] | None:
-    """:func:`simulate` for ``job`` in a :func:`vmehil.analysis.sweep.run_parallel` worker: stops
+    """:func:`simulate` for ``job`` in a :func:`vmehil.analysis.parallel.run_parallel` worker: stops
     when the parent is interrupted (every tick polls it; the run ends safe-stopped as any run),
     and then returns None."""
-    from vmehil.analysis.sweep import stop_requested
+    from vmehil.analysis.parallel import stop_requested
 
     stop = stop_requested()
     out = simulate(job.jp, switch_off=job.switch_off, settings=job.settings, step_deg=job.step_deg,

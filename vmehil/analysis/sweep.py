@@ -30,13 +30,9 @@ import csv
 import io
 import itertools
 import math
-import multiprocessing
-import os
-import signal
-import threading
 import time
 from collections.abc import Callable, Iterable
-from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
+from concurrent.futures import Executor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,6 +43,7 @@ from hal.config import ConfigError, load_toml
 from servo.control.errors import GainError, GainSyntaxError
 from servo.control.gains import GAIN_NAMES, Gains, gain_items
 from servo.gain_guard import check_values
+from vmehil.analysis.parallel import ParallelInterrupted, run_parallel, stop_requested
 from vmehil.analysis.simulate import SimSettings
 
 DEFAULT_GRID = "kp=80:140:3,kvi=600:1400:3"  #: 9 points: about 40 s on 2 busy cores
@@ -190,16 +187,6 @@ class SweepTask:
     link_factory: Callable[[str, int], Any] | None = None  #: picklable; None = in-process plant
 
 
-_STOP: Any = None  # a multiprocessing.Event in workers (set by the pool initializer)
-
-
-def _worker_init(stop_event: Any) -> None:
-    """Pool initializer: the parent handles SIGINT; workers watch ``stop_event`` instead."""
-    global _STOP
-    _STOP = stop_event
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
 def evaluate_point(task: SweepTask) -> dict[str, Any]:
     """Margins and (unless unstable) a full-stack run for one gain set; a flat, JSON/CSV-ready row."""
     from vmehil.analysis.rigparams import load_joint
@@ -251,82 +238,6 @@ def evaluate_point(task: SweepTask) -> dict[str, Any]:
 
 
 # --------------------------------------------------------------------------- running
-
-
-class ParallelInterrupted(Exception):
-    """:func:`run_parallel` was interrupted; ``done`` maps item positions to finished results."""
-
-    def __init__(self, done: dict[int, Any]) -> None:
-        super().__init__(f"interrupted after {len(done)} result(s)")
-        self.done = done
-
-
-def stop_requested() -> Callable[[], bool] | None:
-    """In a :func:`run_parallel` worker: a ``stop()`` poll for a runner (True once the parent was
-    interrupted); None elsewhere."""
-    stop_event = _STOP
-    return None if stop_event is None else stop_event.is_set
-
-
-def run_parallel(fn: Callable[[Any], Any], items: list[Any], *, executor: Executor | None = None,
-                 jobs: int | None = None, on_result: Callable[[int, Any], None] | None = None,
-                 finished: Callable[[Any], bool] = lambda result: True) -> list[Any]:
-    """``fn(item)`` for every item in worker processes; the results in item order.
-
-    ``fn`` is a top-level (picklable) function; a long one polls :func:`stop_requested` (every
-    tick: a runner's ``stop``) and returns early once it is set, leaving its rig safe-stopped as any
-    run does. ``executor``: any :class:`concurrent.futures.Executor` (the caller owns and shuts it
-    down; it is not sent the stop event, so an interruption only cancels what has not started).
-    Default: a process pool of ``jobs`` workers (default ``os.cpu_count()``, at most one per item),
-    forked, so a worker starts with the parent's imports. ``on_result(position, result)`` is called
-    in the calling thread as each completes, in completion order; a result ``finished`` says is not
-    (it was cut short by an interruption) is neither passed on nor kept. SIGINT in the calling
-    thread sets the workers' stop event, cancels what has not started and raises
-    :class:`ParallelInterrupted` with the finished results.
-    """
-    done: dict[int, Any] = {}
-    own = executor is None
-    stop_event = None
-    if executor is None:
-        n = max(1, min(jobs or os.cpu_count() or 1, len(items) or 1))
-        ctx = multiprocessing.get_context("spawn" if os.name == "nt" else "fork")
-        stop_event = ctx.Event()
-        executor = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_worker_init,
-                                       initargs=(stop_event,))
-    futures: dict[Future, int] = {}
-    # SIGINT sets a flag that the loop below checks between completions, instead of raising
-    # KeyboardInterrupt wherever the main thread happens to be (inside a file write, the progress
-    # bar or the executor's internals), where it could be lost.
-    sigint = threading.Event()
-    previous = None
-    if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGINT, lambda signum, frame: sigint.set())
-    try:
-        futures = {executor.submit(fn, item): i for i, item in enumerate(items)}
-        pending = set(futures)
-        while pending and not sigint.is_set():
-            completed, pending = wait(pending, timeout=0.1, return_when=FIRST_COMPLETED)
-            for fut in sorted(completed, key=lambda f: futures[f]):
-                result = fut.result()
-                if not finished(result):
-                    continue
-                done[futures[fut]] = result
-                if on_result is not None:
-                    on_result(futures[fut], result)
-        if sigint.is_set():
-            raise KeyboardInterrupt
-    except KeyboardInterrupt:
-        if stop_event is not None:
-            stop_event.set()
-        for f in futures:
-            f.cancel()
-        raise ParallelInterrupted(done) from None
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
-        if own:
-            executor.shutdown(wait=True, cancel_futures=True)
-    return [done.get(i) for i in range(len(items))]  # None: cut short (a caller's executor only)
 
 
 def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None, jobs: int | None = None,

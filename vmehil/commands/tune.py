@@ -128,8 +128,8 @@ def _simulate_runs(args: argparse.Namespace, jobs: list, labels: list[str], link
     Ctrl-C stops every run (amplifiers safe) and raises KeyboardInterrupt (exit status 130)."""
     import os
 
+    from vmehil.analysis.parallel import ParallelInterrupted, run_parallel
     from vmehil.analysis.simulate import run_job, simulate
-    from vmehil.analysis.sweep import ParallelInterrupted, run_parallel
     from vmehil.progress import TickProgress, progress_bar
 
     n = min(len(jobs), args.jobs or os.cpu_count() or 1)
