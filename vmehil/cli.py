@@ -2,19 +2,28 @@
 
 from __future__ import annotations
 
-import argparse
 import os
-import sys
-import traceback
-from collections.abc import Callable
 
-from hal.config import ConfigError
-from hal.vme.errors import VmeError
-from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name, stop_signals_raise
-from vmehil.commands import calibrate, console, crate, plant_node, run, tune, vision
-from vmehil.commands.errors import CliError
-from vmehil.exit_status import EXIT_UNEXPECTED, EXIT_USAGE
-from vmehil.outputs import check_outputs, mark_output_dirs
+# One BLAS thread unless the user says otherwise — set before anything imports numpy/scipy. The
+# largest matrix vmehil multiplies is ~8×8 (the analysis' sampled loops, the plant's joints):
+# a BLAS thread pool only adds hand-offs, and on a shared 2-core machine its spinning threads
+# made `tune limit-cycle`'s describing-function search 3× slower (48 s → 16 s, docs/benchmarks.md);
+# sweep workers (one per core) would each bring a pool of their own.
+for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402  (after the BLAS setting above)
+import sys  # noqa: E402
+import traceback  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+
+from hal.config import ConfigError  # noqa: E402
+from hal.vme.errors import VmeError  # noqa: E402
+from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name, stop_signals_raise  # noqa: E402
+from vmehil.commands import calibrate, console, crate, plant_node, run, tune, vision  # noqa: E402
+from vmehil.commands.errors import CliError  # noqa: E402
+from vmehil.exit_status import EXIT_UNEXPECTED, EXIT_USAGE  # noqa: E402
+from vmehil.outputs import check_outputs, mark_output_dirs  # noqa: E402
 
 __all__ = ["COMMANDS", "CliError", "build_parser", "main"]
 

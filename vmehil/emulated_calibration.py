@@ -13,6 +13,8 @@ a real-hardware positioner (the same loop under the real-time runner) slots in u
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
 from servo.motion import QuinticMove, WaitMove
@@ -81,7 +83,7 @@ class EmulatedPositioner:
                 return
 
     def move_to(self, targets: dict[int, float], *, settle_s: float = 1.0, on_tick: TickHook | None = None,
-                speed_rad_s: float | None = None) -> None:
+                speed_rad_s: float | Mapping[int, float] | None = None) -> None:
         last = self.loop.last.get("theta_d")
         start = np.asarray(last if last is not None else self._theta_d, float).copy()
         goal = start.copy()
@@ -92,8 +94,9 @@ class EmulatedPositioner:
         if speed_rad_s is not None:
             vmax = np.asarray(ctx.limits.v_max, float)
             moving = [j for j in targets if abs(goal[j] - start[j]) > 0]
-            if moving:
-                speed = min(1.0, min(speed_rad_s / vmax[j] for j in moving))
+            if moving:  # one coordinated move: no joint faster than its own limit
+                limit = speed_rad_s if isinstance(speed_rad_s, Mapping) else dict.fromkeys(moving, speed_rad_s)
+                speed = min(1.0, min(limit[j] / vmax[j] for j in moving))
         seq = Sequencer([QuinticMove(goal, None, speed)], start, ctx)
         self.loop.set_motion(seq)
         ticks = 0

@@ -195,8 +195,8 @@ class Bench:
     # --- Positioner protocol -----------------------------------------------------------------
     def move_to(self, targets, *, settle_s=1.0, on_tick=None, speed_rad_s=None):
         saved = self.speed_rad_s
-        if speed_rad_s is not None:
-            self.speed_rad_s = speed_rad_s
+        if speed_rad_s is not None:  # one speed, or one per joint (the slowest, for this stepper)
+            self.speed_rad_s = min(speed_rad_s.values()) if isinstance(speed_rad_s, dict) else speed_rad_s
         while any(abs(self.theta[i] - a) > 1e-12 for i, a in targets.items()):
             self._tick(targets, on_tick)
         self.speed_rad_s = saved

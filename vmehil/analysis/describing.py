@@ -79,7 +79,7 @@ class Nonlinearity(ABC):
         """All amplitudes A with N(A) = k (found on a log grid, refined by Brent's method)."""
         lo, hi = self.amplitude_range()
         a = np.logspace(math.log10(lo), math.log10(hi), 4000)
-        r = np.array([self.df(x) for x in a]) - k
+        r = self.df_array(a) - k
         out = []
         for i in range(len(a) - 1):
             if r[i] == 0:
@@ -87,6 +87,10 @@ class Nonlinearity(ABC):
             elif r[i] * r[i + 1] < 0:
                 out.append(float(brentq(lambda x: self.df(x) - k, a[i], a[i + 1], xtol=1e-14, rtol=1e-12)))
         return out
+
+    def df_array(self, a: np.ndarray) -> np.ndarray:
+        """:meth:`df` at every amplitude of ``a`` (a subclass may compute them at once)."""
+        return np.array([self.df(x) for x in a])
 
     def describe(self) -> dict:
         return {"type": self.name, "location": self.location}
@@ -201,6 +205,23 @@ class Quantizer(Nonlinearity):
         t = (2 * i - 1) * q / (2 * a)
         t = t[t < 1.0]
         return float(4 * q / (math.pi * a) * np.sum(np.sqrt(1.0 - t * t)))
+
+    def df_array(self, a: np.ndarray) -> np.ndarray:
+        """:meth:`df` at every amplitude at once: level i counts where (2i − 1)q/(2A) < 1."""
+        q = self.step
+        a = np.asarray(a, dtype=float)
+        out = np.zeros(a.shape)
+        ok = a >= q / 2
+        if not ok.any():
+            return out
+        aa = a[ok]
+        n_max = math.floor(float(aa.max()) / q + 0.5)
+        i = np.arange(1, n_max + 1)
+        t = (2 * i[None, :] - 1) * q / (2 * aa[:, None])
+        n = np.floor(aa / q + 0.5)
+        terms = np.where((i[None, :] <= n[:, None]) & (t < 1.0), np.sqrt(np.clip(1.0 - t * t, 0.0, None)), 0.0)
+        out[ok] = 4 * q / (math.pi * aa) * terms.sum(axis=1)
+        return out
 
     def __call__(self, x):
         return self.step * np.round(np.asarray(x, dtype=float) / self.step)

@@ -282,8 +282,13 @@ def continuous_controller(gains: Gains[float]) -> ct.StateSpace:
 # ------------------------------------------------------------------------- the loop
 
 
+@functools.lru_cache(maxsize=256)
 def build_loop(cfg: LoopConfig, sampled: bool, break_at: str | None = None) -> ct.StateSpace:
     """Close the loop with python-control's ``interconnect``.
+
+    Cached per (frozen) configuration: the margins, poles and responses of one gain set all start
+    from the same few loops (``interconnect`` is most of a sweep point's analysis time); callers
+    derive new systems from the result (indexing, arithmetic) and never change it.
 
     Without ``break_at``: inputs [r, rv, d] (θd rad, ωd rad/s, disturbance acceleration rad/s²),
     outputs [th, om, a].
@@ -302,15 +307,16 @@ def build_loop(cfg: LoopConfig, sampled: bool, break_at: str | None = None) -> c
         raise LoopConfigError("a velocity-sensor nonlinearity needs velocity_source='tach' (the encoder path "
                               "derives velocity from the position; break at position_sensor instead)")
     if sampled:
-        P = sampled_plant(cfg)
-        K = sampled_controller(cfg.gains, cfg.sample_period_s, cfg.velocity_source)
+        Ap, Bp, Cp = _sampled_plant_arrays(cfg.replace(gains=Gains.paper(), velocity_source="tach"))
+        Ak, Bk, Ck, Dk = _controller_matrices(cfg.gains, cfg.sample_period_s, cfg.velocity_source)
+        dt: float = cfg.sample_period_s
     else:
-        P = continuous_plant(cfg)
-        K = continuous_controller(cfg.gains)
-    # rename signals so that interconnect wires them by name
+        Ap, Bp, Cp = _plant_matrices(cfg, ideal_velocity=True)
+        Ak, Bk, Ck, Dk = _controller_matrices(cfg.gains, None, "tach")
+        dt = 0.0
+    # where each block's inputs come from (signal names)
     p_in = {"u": "a", "w": "d"}
     k_in = {"thin": "ths", "win": "ws"}
-    extra: list[ct.StateSpace] = []
     x_sig = None
     if break_at == "actuator":
         p_in["u"], x_sig = "v", "a"
@@ -319,20 +325,57 @@ def build_loop(cfg: LoopConfig, sampled: bool, break_at: str | None = None) -> c
     elif break_at == "velocity_sensor":
         k_in["win"], x_sig = "v", "ws"
     elif break_at == "friction":
-        p_in["w"], x_sig = "wf", "om"
-        extra.append(ct.summing_junction(inputs=["d", "-v"], output="wf", name="F"))
-    P = _renamed(P, inputs=[p_in["u"], p_in["w"]], outputs=["ths", "ws", "th", "om"])
-    K = _renamed(K, inputs=["r", "rv", k_in["thin"], k_in["win"]], outputs=["a"])
+        p_in["w"], x_sig = "wf", "om"  # wf = d − v
     inputs = ["r", "rv", "d"] + (["v"] if break_at else [])
     outputs = ["th", "om", "a"] + ([x_sig] if x_sig else [])
-    sys = ct.interconnect([P, K, *extra], inplist=inputs, outlist=outputs, name="loop")
-    ss = ct.ss(sys)  # a plain StateSpace (LinearICSystem is one, but drop the subsystem bookkeeping)
-    return ct.ss(ss.A, ss.B, ss.C, ss.D, ss.dt, inputs=inputs, outputs=outputs[:3] + (["x"] if x_sig else []),
-                 name="loop")
+    return _closed(Ap, Bp, Cp, Ak, Bk, Ck, Dk, dt, p_in, k_in, inputs, outputs,
+                   output_names=outputs[:3] + (["x"] if x_sig else []))
 
 
-def _renamed(sys: ct.StateSpace, inputs: list[str], outputs: list[str]) -> ct.StateSpace:
-    return ct.ss(sys.A, sys.B, sys.C, sys.D, sys.dt, inputs=inputs, outputs=outputs, name=sys.name)
+def _closed(Ap: np.ndarray, Bp: np.ndarray, Cp: np.ndarray, Ak: np.ndarray, Bk: np.ndarray, Ck: np.ndarray,
+            Dk: np.ndarray, dt: float, p_in: dict[str, str], k_in: dict[str, str], inputs: list[str],
+            outputs: list[str], output_names: list[str]) -> ct.StateSpace:
+    """The loop's state space, states [plant; controller], assembled directly.
+
+    The wiring of :func:`build_loop`: plant inputs [u, w], outputs [ths, ws, th, om] (no direct
+    feedthrough, D = 0: the loop has no algebraic cycle); controller inputs [r, rv, thin, win],
+    output a; ``wf`` = d − v. Each signal is a row over the states and a row over the loop's
+    inputs, so the closed loop is a few outer products — what ``ct.interconnect`` computes for
+    these blocks, without its general machinery (≈100× faster; the describing-function search
+    builds hundreds of loops).
+    """
+    n_p, n_k, m = Ap.shape[0], Ak.shape[0], len(inputs)
+    n = n_p + n_k
+    sig: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for i, name in enumerate(("ths", "ws", "th", "om")):
+        sig[name] = (np.concatenate([Cp[i], np.zeros(n_k)]), np.zeros(m))
+    for i, name in enumerate(inputs):
+        u = np.zeros(m)
+        u[i] = 1.0
+        sig[name] = (np.zeros(n), u)
+    if "v" in sig:
+        sig["wf"] = (sig["d"][0] - sig["v"][0], sig["d"][1] - sig["v"][1])
+    k_sources = [sig["r"], sig["rv"], sig[k_in["thin"]], sig[k_in["win"]]]
+    a_x = np.concatenate([np.zeros(n_p), Ck[0]])
+    a_u = np.zeros(m)
+    for j, (sx, su) in enumerate(k_sources):
+        a_x = a_x + Dk[0, j] * sx
+        a_u = a_u + Dk[0, j] * su
+    sig["a"] = (a_x, a_u)
+    A = np.zeros((n, n))
+    B = np.zeros((n, m))
+    A[:n_p, :n_p] = Ap
+    A[n_p:, n_p:] = Ak
+    for col, name in enumerate(("u", "w")):
+        sx, su = sig[p_in[name]]
+        A[:n_p] += np.outer(Bp[:, col], sx)
+        B[:n_p] += np.outer(Bp[:, col], su)
+    for col, (sx, su) in enumerate(k_sources):
+        A[n_p:] += np.outer(Bk[:, col], sx)
+        B[n_p:] += np.outer(Bk[:, col], su)
+    C = np.array([sig[o][0] for o in outputs]).reshape(len(outputs), n)
+    D = np.array([sig[o][1] for o in outputs]).reshape(len(outputs), m)
+    return ct.ss(A, B, C, D, dt, inputs=inputs, outputs=output_names, name="loop")
 
 
 def open_loop(cfg: LoopConfig, sampled: bool) -> ct.StateSpace:

@@ -77,12 +77,17 @@ def _at(sys: ct.StateSpace, f: float) -> complex:
     return complex(freqresp(sys, np.array([f]))[0])
 
 
-def crossings(L: ct.StateSpace, f_max_hz: float, f_min_hz: float = F_MIN_HZ) -> dict[str, list[tuple[float, complex]]]:
-    """Gain crossovers (|L| = 1) and phase crossovers (L real negative) as (f Hz, L(f)) lists."""
+def crossings(L: ct.StateSpace, f_max_hz: float, f_min_hz: float = F_MIN_HZ, *,
+              grid: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, list[tuple[float, complex]]]:
+    """Gain crossovers (|L| = 1) and phase crossovers (L real negative) as (f Hz, L(f)) lists.
+    ``grid``: (f, L(f)) on this function's own grid, when the caller has it already."""
     sampled = L.isdtime(strict=True)
     f_top = f_max_hz * (1 - 1e-9) if sampled else f_max_hz
-    f = frequency_grid(f_top, f_min_hz)
-    H = freqresp(L, f)
+    if grid is None:
+        f = frequency_grid(f_top, f_min_hz)
+        H = freqresp(L, f)
+    else:
+        f, H = grid
     finite = np.isfinite(H) & (np.abs(H) < 1e12)
     gain: list[tuple[float, complex]] = []
     phase: list[tuple[float, complex]] = []
@@ -105,10 +110,16 @@ def crossings(L: ct.StateSpace, f_max_hz: float, f_min_hz: float = F_MIN_HZ) -> 
     return {"gain": gain, "phase": phase}
 
 
-def bandwidth_hz(T: ct.StateSpace, f_max_hz: float, f_min_hz: float = F_MIN_HZ, drop_db: float = -3.0) -> float | None:
-    """First frequency (Hz) where |T| falls ``drop_db`` below |T(f_min)|; None if it never does."""
-    f = frequency_grid(f_max_hz, f_min_hz)
-    mag = np.abs(freqresp(T, f))
+def bandwidth_hz(T: ct.StateSpace, f_max_hz: float, f_min_hz: float = F_MIN_HZ, drop_db: float = -3.0, *,
+                 grid: tuple[np.ndarray, np.ndarray] | None = None) -> float | None:
+    """First frequency (Hz) where |T| falls ``drop_db`` below |T(f_min)|; None if it never does.
+    ``grid``: (f, T(f)) on this function's own grid, when the caller has it already."""
+    if grid is None:
+        f = frequency_grid(f_max_hz, f_min_hz)
+        HT = freqresp(T, f)
+    else:
+        f, HT = grid
+    mag = np.abs(HT)
     ref = mag[0] * 10 ** (drop_db / 20)
     below = np.nonzero(mag < ref)[0]
     if below.size == 0:
@@ -125,7 +136,12 @@ def compute_margins(cfg: LoopConfig, sampled: bool, f_max_hz: float | None = Non
     T = closed_loop(cfg, sampled)
     if f_max_hz is None:
         f_max_hz = cfg.nyquist_hz if sampled else F_MAX_CONTINUOUS_HZ
-    cr = crossings(L, f_max_hz)
+    # one grid for every figure below (the crossings', the peak's, the bandwidth's: the same
+    # frequencies), each response evaluated once on it
+    f_top = f_max_hz * (1 - 1e-9) if sampled else f_max_hz
+    f = frequency_grid(f_top)
+    HL, HT = freqresp(L, f), freqresp(T, f)
+    cr = crossings(L, f_max_hz, grid=(f, HL))
     up = [(f, -20 * math.log10(abs(h))) for f, h in cr["phase"] if abs(h) < 1]
     down = [(f, -20 * math.log10(abs(h))) for f, h in cr["phase"] if abs(h) > 1]
     gm = min(up, key=lambda t: t[1]) if up else (None, None)
@@ -135,17 +151,16 @@ def compute_margins(cfg: LoopConfig, sampled: bool, f_max_hz: float | None = Non
     delay = None
     if pm[0] is not None and pm[1] is not None and pm[1] > 0:
         delay = math.radians(pm[1]) / (2 * math.pi * pm[0])
-    f = frequency_grid(f_max_hz * (1 - 1e-9) if sampled else f_max_hz)
-    Tm = np.abs(freqresp(T, f))
+    Tm = np.abs(HT)
     k = int(np.argmax(Tm))
-    S = np.abs(1.0 / (1.0 + freqresp(L, f)))
+    S = np.abs(1.0 / (1.0 + HL))
     poles = closed_loop_poles(cfg, sampled)
     return Margins(
         stable=poles_stable(poles, sampled),
         gain_margin_db=gm[1], gain_margin_hz=gm[0],
         gain_reduction_margin_db=gr[1], gain_reduction_hz=gr[0],
         phase_margin_deg=pm[1], crossover_hz=pm[0], delay_margin_s=delay,
-        bandwidth_hz=bandwidth_hz(T, f_max_hz * (1 - 1e-9) if sampled else f_max_hz),
+        bandwidth_hz=bandwidth_hz(T, f_top, grid=(f, HT)),
         peak_db=20 * math.log10(Tm[k] / Tm[0]) if k > 0 else 0.0, peak_hz=float(f[k]) if k > 0 else None,
         sensitivity_peak_db=20 * math.log10(float(np.max(S))),
         poles=sorted((complex(p) for p in poles), key=lambda p: (p.real, p.imag)),

@@ -26,12 +26,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, overload
+from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 
-from vmehil.analysis.rigparams import JointParams
 from vmehil.metrics import limit_cycle, settling_time
+
+if TYPE_CHECKING:  # rigparams brings python-control and scipy (≈1 s): only where a joint is analysed
+    from vmehil.analysis.rigparams import JointParams
 
 MOTIONS = ("joint", "demo")
 STATIC_WINDOW_S = 1.0  #: the static error is the mean error over the last second of the hold
@@ -244,6 +246,30 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
             "omega_d_deg_s": np.degrees(rec["omega_d"][:, j]).tolist(),
         })
     return out
+
+
+@dataclass(frozen=True)
+class SimJob:
+    """One :func:`simulate` call to run in a worker process (:func:`run_job`); picklable."""
+
+    jp: JointParams
+    switch_off: bool | None
+    settings: SimSettings
+    link_factory: LinkFactory | None = None
+    step_deg: float | None = None
+    traces: bool = True
+
+
+def run_job(job: SimJob) -> dict[str, Any] | None:
+    """:func:`simulate` for ``job`` in a :func:`vmehil.analysis.parallel.run_parallel` worker: stops
+    when the parent is interrupted (every tick polls it; the run ends safe-stopped as any run),
+    and then returns None."""
+    from vmehil.analysis.parallel import stop_requested
+
+    stop = stop_requested()
+    out = simulate(job.jp, switch_off=job.switch_off, settings=job.settings, step_deg=job.step_deg,
+                   traces=job.traces, stop=stop, link_factory=job.link_factory)
+    return None if stop is not None and stop() else out
 
 
 def _deg(x: float) -> float:

@@ -30,13 +30,9 @@ import csv
 import io
 import itertools
 import math
-import multiprocessing
-import os
-import signal
-import threading
 import time
 from collections.abc import Callable, Iterable
-from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
+from concurrent.futures import Executor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,6 +43,7 @@ from hal.config import ConfigError, load_toml
 from servo.control.errors import GainError, GainSyntaxError
 from servo.control.gains import GAIN_NAMES, Gains, gain_items
 from servo.gain_guard import check_values
+from vmehil.analysis.parallel import ParallelInterrupted, run_parallel, stop_requested
 from vmehil.analysis.simulate import SimSettings
 
 DEFAULT_GRID = "kp=80:140:3,kvi=600:1400:3"  #: 9 points: about 40 s on 2 busy cores
@@ -190,16 +187,6 @@ class SweepTask:
     link_factory: Callable[[str, int], Any] | None = None  #: picklable; None = in-process plant
 
 
-_STOP: Any = None  # a multiprocessing.Event in workers (set by the pool initializer)
-
-
-def _worker_init(stop_event: Any) -> None:
-    """Pool initializer: the parent handles SIGINT; workers watch ``stop_event`` instead."""
-    global _STOP
-    _STOP = stop_event
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
 def evaluate_point(task: SweepTask) -> dict[str, Any]:
     """Margins and (unless unstable) a full-stack run for one gain set; a flat, JSON/CSV-ready row."""
     from vmehil.analysis.rigparams import load_joint
@@ -229,7 +216,7 @@ def evaluate_point(task: SweepTask) -> dict[str, Any]:
     elif not task.simulate:
         row["status"] = "margins only"
     else:
-        stop = (lambda: _STOP.is_set()) if _STOP is not None else None
+        stop = stop_requested()
         r = simulate(jp, switch_off=False, settings=task.sim, traces=False, stop=stop,
                      link_factory=task.link_factory)
         if stop is not None and stop():
@@ -255,7 +242,7 @@ def evaluate_point(task: SweepTask) -> dict[str, Any]:
 
 def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None, jobs: int | None = None,
               on_result: Callable[[dict[str, Any], list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
-    """Evaluate ``tasks`` in parallel; returns the rows sorted by index.
+    """Evaluate ``tasks`` in parallel (:func:`run_parallel`); returns the rows sorted by index.
 
     ``executor``: any :class:`concurrent.futures.Executor` (the caller owns and shuts it down; it is
     not sent the stop event, so an interruption only cancels what has not started). Default: a
@@ -264,49 +251,19 @@ def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None,
     stops the workers, cancels the rest and raises :class:`SweepInterrupted` with the finished rows.
     """
     rows: list[dict[str, Any]] = []
-    own = executor is None
-    stop_event = None
-    if executor is None:
-        n = max(1, min(jobs or os.cpu_count() or 1, len(tasks) or 1))
-        ctx = multiprocessing.get_context("spawn" if os.name == "nt" else "fork")
-        stop_event = ctx.Event()
-        executor = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_worker_init,
-                                       initargs=(stop_event,))
-    futures: dict[Future, SweepTask] = {}
-    # SIGINT sets a flag that the loop below checks between completions, instead of raising
-    # KeyboardInterrupt wherever the main thread happens to be (inside a file write, the progress
-    # bar or the executor's internals), where it could be lost.
-    sigint = threading.Event()
-    previous = None
-    if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGINT, lambda signum, frame: sigint.set())
+
+    def got(_position: int, row: dict[str, Any]) -> None:
+        rows.append(row)
+        rows.sort(key=lambda r: r["index"])
+        if on_result is not None:
+            on_result(row, list(rows))
+
     try:
-        futures = {executor.submit(evaluate_point, t): t for t in tasks}
-        pending = set(futures)
-        while pending and not sigint.is_set():
-            done, pending = wait(pending, timeout=0.1, return_when=FIRST_COMPLETED)
-            for fut in sorted(done, key=lambda f: futures[f].index):
-                row = fut.result()
-                if row["status"] == "interrupted":
-                    continue
-                rows.append(row)
-                rows.sort(key=lambda r: r["index"])
-                if on_result is not None:
-                    on_result(row, list(rows))
-        if sigint.is_set():
-            raise KeyboardInterrupt
-    except KeyboardInterrupt:
-        if stop_event is not None:
-            stop_event.set()
-        for f in futures:
-            f.cancel()
+        run_parallel(evaluate_point, tasks, executor=executor, jobs=jobs, on_result=got,
+                     finished=lambda row: row["status"] != "interrupted")
+    except ParallelInterrupted:
         raise SweepInterrupted(sorted(rows, key=lambda r: r["index"])) from None
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
-        if own:
-            executor.shutdown(wait=True, cancel_futures=True)
-    return rows
+    return sorted(rows, key=lambda r: r["index"])
 
 
 # ------------------------------------------------------------------------------ files

@@ -5,6 +5,9 @@ The arm must stay where it is while currents are applied (gravity joints would f
 servo off), so the servo loop keeps holding every joint and the procedure borrows one joint's
 amplifier command for one servo period at a time (:meth:`Positioner.override_command`):
 
+Every joint is pulsed at once (independent mechanisms, each on its own DAC channel and monitor
+input: one series of pulses for the arm, not one per joint).
+
 1. For each test level ``v`` (fractions of full command), command ``+v`` for one period, read
    the current monitor at the next sampling instant, then ``−v`` for one period (which undoes
    the small motion of the first pulse), read again; give the joint back to the loop to
@@ -68,33 +71,48 @@ class AmplifierProcedure:
             return res
         pos = ctx.positioner()
         res.data["joints"] = {}
-        for k, j in enumerate(todo):
-            ctx.progress(f"amplifier {j.name}", k, len(todo))
+        # Every joint's pulses at once: the joints are independent mechanisms, each amplifier on
+        # its own DAC channel and monitor input, so each reads what it would alone — in one
+        # series of pulses instead of one per joint.
+        plan = []
+        for j in todo:
             gain_n, mon, limit = amp_nominal(j)
             pin = j.wiring["imon"]
-            adc = pos.io.adc[pin.board]
             full_v = min(DAC_V_MAX, limit / gain_n)
-            cmds, amps = [], []
+            plan.append((j, gain_n, mon, limit, pos.io.adc[pin.board], pin.index, full_v))
             ctx.say(f"  {j.name}: {2 * len(self.levels)} one-period pulses up to ±{self.levels[-1] * full_v:.2f} V")
 
-            def pulse(v: float, adc=adc, ch=pin.index, j=j, mon=mon) -> float:
-                pos.override_command(j.index, v)
-                pos.hold(pos.period_s)  # the pulse period
-                reading: list[float] = []
-                pos.hold(pos.period_s, on_tick=lambda: reading.append(adc.read_volts(ch)) if not reading else None)
-                return reading[0] / mon
+        def pulse(fraction: float) -> dict[int, tuple[float, float]]:
+            """Every joint commanded ``fraction`` of its full command for one period: (v, i) each."""
+            for j, _g, _m, _l, _adc, _ch, full_v in plan:
+                pos.override_command(j.index, fraction * full_v)
+            pos.hold(pos.period_s)  # the pulse period
+            reading: dict[int, tuple[float, float]] = {}
 
-            for frac in self.levels:
-                for sign in (1.0, -1.0):
-                    v = sign * frac * full_v
-                    cmds.append(v)
-                    amps.append(pulse(v))
-                pos.hold(self.settle_s)
-            peak = [abs(pulse(full_v)), abs(pulse(-full_v))]
+            def read() -> None:
+                if not reading:
+                    for j, _g, mon, _l, adc, ch, full_v in plan:
+                        reading[j.index] = (fraction * full_v, adc.read_volts(ch) / mon)
+
+            pos.hold(pos.period_s, on_tick=read)
+            return reading
+
+        series: list[dict[int, tuple[float, float]]] = []
+        for k, frac in enumerate(self.levels):
+            ctx.progress("amplifier pulses", k, len(self.levels))
+            for sign in (1.0, -1.0):
+                series.append(pulse(sign * frac))
             pos.hold(self.settle_s)
-            fault = pos.faulted()
-            if fault:
-                raise CalibrationAbort(f"{j.name}: the servo loop stopped during the pulses: {fault}")
+        peaks = [pulse(1.0), pulse(-1.0)]
+        pos.hold(self.settle_s)
+        ctx.progress("amplifier pulses", len(self.levels), len(self.levels))
+        fault = pos.faulted()
+        if fault:
+            raise CalibrationAbort(f"the servo loop stopped during the amplifier pulses: {fault}")
+        for j, gain_n, mon, limit, _adc, _ch, full_v in plan:
+            cmds = [p[j.index][0] for p in series]
+            amps = [p[j.index][1] for p in series]
+            peak = [abs(p[j.index][1]) for p in peaks]
             cmds_a, amps_a = np.array(cmds), np.array(amps)
             gain, offset = np.polyfit(cmds_a, amps_a, 1)
             resid = float(np.max(np.abs(amps_a - np.polyval([gain, offset], cmds_a))))
@@ -114,5 +132,4 @@ class AmplifierProcedure:
                       "current_limit_a": limit, "peak_current_a": float(max(peak))}
             update.set_joint(j.name, JointCal(self.name, self.version, utc_now(), values))
             res.data["joints"][j.name] = {**values, "commands_v": cmds, "currents_a": amps, "fit_residual_a": resid}
-        ctx.progress("amplifier", len(todo), len(todo))
         return res

@@ -20,7 +20,7 @@ writes the store once, after success.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -102,9 +102,10 @@ class Positioner(Protocol):
     io: JointIO  #: the drivers the loop uses (calibration in force applied)
 
     def move_to(self, targets: dict[int, float], *, settle_s: float = 1.0, on_tick: TickHook | None = None,
-                speed_rad_s: float | None = None) -> None:
+                speed_rad_s: float | Mapping[int, float] | None = None) -> None:
         """Move the given joints (0-based) to ``targets`` with the servo loop (at most
-        ``speed_rad_s``, default the rig's limit), then hold ``settle_s``; others hold."""
+        ``speed_rad_s``: one speed for every joint or one per joint; default the rig's limit),
+        then hold ``settle_s``; others hold."""
         ...
 
     def hold(self, seconds: float, *, on_tick: TickHook | None = None) -> None:

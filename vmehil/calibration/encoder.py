@@ -1,11 +1,13 @@
 """``vmehil calibrate encoder``: counts per revolution index to index, index position, direction.
 
-Method, per joint with an encoder wired (a motor-shaft encoder with one index per motor
-revolution):
+Method, for every joint with an encoder wired (a motor-shaft encoder with one index per motor
+revolution) — all of them in one tour, as the pot procedure does (the joints are independent
+mechanisms, each on its own decoder channel; one tour instead of one per joint):
 
-1. Open a decoder driver on the joint's channel and arm the index latch.
-2. With the servo loop, move the joint slowly forward by ``revs`` motor revolutions
-   (``revs · 2π / N`` of joint angle), then back to where it started. After every servo tick,
+1. Open a decoder driver on each joint's channel and arm the index latch.
+2. With the servo loop, move the joints slowly forward by ``revs`` motor revolutions
+   (``revs · 2π / N`` of joint angle; one coordinated move, no motor faster than ``speed``
+   rev/s), then back to where they started. After every servo tick, for each joint,
    if the index was captured, take its count (:meth:`QuadratureDriver.home_at_index`, which
    re-arms the latch) and the joint angle at that instant (fixture in ``--auto``, else the
    loop's own position reading).
@@ -73,34 +75,46 @@ class EncoderProcedure:
             return res
         pos = ctx.positioner()
         res.data["joints"] = {}
-        for k, j in enumerate(joints):
-            ctx.progress(f"encoder {j.name}", k, len(joints))
+        # Every joint at once (as the pot tour): one decoder channel each, all moved forward
+        # together by ``revs`` motor revolutions and back, no faster than ``speed`` motor rev/s
+        # each; the joints are independent mechanisms, so a joint's captures are those it would
+        # give alone — in one tour instead of one per joint.
+        setup = []
+        for j in joints:
             pin = j.wiring["encoder"]
             ident = rig_boards(ctx.rig)[pin.board]
             nominal, ratio = encoder_nominal(j)
             drv = QuadratureDriver(ctx.bus, ident.base, space=ident.space, counts_per_rev=nominal,
                                    channels=[pin.index], errors="report")
             drv.arm_index(pin.index)
-            captures: list[tuple[int, float, int]] = []  # (index count, joint angle, direction)
-            direction = [1]
+            start = pos.position(j.index)
+            span = self.revs * 2 * math.pi / ratio
+            setup.append((j, pin.index, drv, nominal, ratio, start, span))
+            ctx.say(f"  {j.name}: moving {math.degrees(span):+.2f}° and back "
+                    f"({self.revs:g} motor revolutions each way)")
+        captured: dict[int, list[tuple[int, float, int]]] = {j.index: [] for j in joints}  # (count, angle, dir)
+        direction = [1]
 
-            def on_tick(j=j, drv=drv, ch=pin.index, captures=captures, direction=direction) -> None:
+        def on_tick() -> None:
+            for j, ch, drv, *_ in setup:
                 if drv.index_seen(ch):
                     idx = drv.home_at_index(ch)
                     angle = ctx.fixture.joint_angle(j.index) if ctx.auto and ctx.fixture else pos.position(j.index)
-                    captures.append((idx, float(angle), direction[0]))
+                    captured[j.index].append((idx, float(angle), direction[0]))
 
-            start = pos.position(j.index)
-            span = self.revs * 2 * math.pi / ratio
-            ctx.say(f"  {j.name}: moving {math.degrees(span):+.2f}° and back "
-                    f"({self.revs:g} motor revolutions each way)")
-            pos.move_to({j.index: start + span}, settle_s=0.3, on_tick=on_tick,
-                        speed_rad_s=self.speed * 2 * math.pi / ratio)
-            direction[0] = -1
-            pos.move_to({j.index: start}, settle_s=0.3, on_tick=on_tick, speed_rad_s=self.speed * 2 * math.pi / ratio)
-            fault = pos.faulted()
-            if fault:
-                raise CalibrationAbort(f"{j.name}: the servo loop stopped while moving: {fault}")
+        speeds = {j.index: self.speed * 2 * math.pi / ratio for j, _c, _d, _n, ratio, _s, _sp in setup}
+        ctx.progress("encoder", 0, 2)
+        pos.move_to({j.index: start + span for j, _c, _d, _n, _r, start, span in setup}, settle_s=0.3,
+                    on_tick=on_tick, speed_rad_s=speeds)
+        direction[0] = -1
+        ctx.progress("encoder", 1, 2)
+        pos.move_to({j.index: start for j, _c, _d, _n, _r, start, _sp in setup}, settle_s=0.3, on_tick=on_tick,
+                    speed_rad_s=speeds)
+        fault = pos.faulted()
+        if fault:
+            raise CalibrationAbort(f"the servo loop stopped while moving the encoders' joints: {fault}")
+        for j, _ch, _drv, nominal, ratio, _start, _span in setup:
+            captures = captured[j.index]
             # A joint at rest may dither across an index (limit cycle, noise): the same index is
             # then captured again and again, from either side (±1 count). Group the captures
             # by index (within a quarter of the nominal revolution) and use one count per index.
@@ -137,5 +151,5 @@ class EncoderProcedure:
                 values["index_hysteresis_counts"] = backlash
             update.set_joint(j.name, JointCal(self.name, self.version, utc_now(), values))
             res.data["joints"][j.name] = {**values, "captures": [list(c) for c in captures], "spread_counts": spread}
-        ctx.progress("encoder", len(joints), len(joints))
+        ctx.progress("encoder", 2, 2)
         return res

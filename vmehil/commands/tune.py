@@ -86,6 +86,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="position gain while the integrators are switched off in the prediction "
                          "(default: what the control law uses, PidLaw.kp_off)")
     _sim_args(lc, 8.0, 0.1)
+    _jobs_arg(lc, "the two runs (integrators on, switch-off)")
     lc.set_defaults(func=run_limit_cycle)
     sw = tsub.add_parser("sweep", parents=[common],
                          help="many gain sets: margins, simulated limit cycle, tracking and settling; "
@@ -110,7 +111,43 @@ def register(sub: argparse._SubParsersAction) -> None:
     st.add_argument("--switch-off", choices=("rig", "on", "off"), default="rig",
                     help="integrator switch-off: as the rig says (default), forced on, or off")
     _sim_args(st, 4.0, 0.1)
+    _jobs_arg(st, "the two runs (step, quintic move)")
     st.set_defaults(func=run_step)
+
+
+def _jobs_arg(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--jobs", type=bounded_int(1, 256, what="a number of worker processes"), default=None,
+                   help=f"worker processes for {what}: side by side, one per core (default: os.cpu_count()); "
+                        "1: one after the other in this process, with a bar per run")
+
+
+def _simulate_runs(args: argparse.Namespace, jobs: list, labels: list[str], links) -> list[dict[str, Any]]:
+    """The full-stack runs ``jobs`` (:class:`~vmehil.analysis.simulate.SimJob`), side by side in
+    worker processes (one per core, ``--jobs``), each a complete safe-stopping run, or one after
+    the other here (``--jobs 1``, or a CAN plant that serves one run at a time). Results in order;
+    Ctrl-C stops every run (amplifiers safe) and raises KeyboardInterrupt (exit status 130)."""
+    import os
+
+    from vmehil.analysis.parallel import ParallelInterrupted, run_parallel
+    from vmehil.analysis.simulate import run_job, simulate
+    from vmehil.progress import TickProgress, progress_bar
+
+    n = min(len(jobs), args.jobs or os.cpu_count() or 1)
+    if links is not None and not links.shareable:
+        n = 1
+    if n <= 1:
+        out = []
+        for job, label in zip(jobs, labels, strict=True):
+            with TickProgress(f"simulating ({label})", quiet=args.quiet) as progress:
+                out.append(simulate(job.jp, switch_off=job.switch_off, settings=job.settings, step_deg=job.step_deg,
+                                    traces=job.traces, progress=progress, link_factory=job.link_factory))
+        return out
+    with progress_bar(f"simulating ({', '.join(labels)})", len(jobs), quiet=args.quiet, unit="run") as bar:
+        try:
+            return run_parallel(run_job, jobs, jobs=n, on_result=lambda _i, _r: bar.update(1),
+                                finished=lambda r: r is not None)
+        except ParallelInterrupted:
+            raise KeyboardInterrupt from None
 
 
 def _default_grid() -> str:
@@ -224,9 +261,8 @@ def _guard(jp: JointParams, switch_off: bool | None = None):
 @needs_extra("tune")
 def run_limit_cycle(args: argparse.Namespace) -> int:
     from vmehil.analysis import report
-    from vmehil.analysis.simulate import simulate, strip_traces
+    from vmehil.analysis.simulate import SimJob, strip_traces
     from vmehil.analysis.tuning import limit_cycle_analysis
-    from vmehil.progress import TickProgress
 
     jp = _load(args)
     bad = _unstable_message(jp, switch_off=True)  # it simulates the switched-off loop as well
@@ -237,12 +273,16 @@ def run_limit_cycle(args: argparse.Namespace) -> int:
     if not args.predict_only:
         settings = _sim_settings(args)
         links = _link_factory(args)
+        runs: dict[bool, dict[str, Any]] = {}
 
         def sim(jp_: JointParams, switch_off: bool) -> dict[str, Any]:
-            label = "switch-off" if switch_off else "integrators on"
-            with TickProgress(f"simulating ({label})", quiet=args.quiet) as progress:
-                return simulate(jp_, switch_off=switch_off, settings=settings, progress=progress,
-                                link_factory=_tagged(links, label.replace(" ", "-")))
+            if not runs:  # both runs at the first call, side by side (--jobs)
+                modes = (False, True)
+                labels = ["integrators on", "switch-off"]
+                jobs = [SimJob(jp_, mode, settings, _tagged(links, label.replace(" ", "-")))
+                        for mode, label in zip(modes, labels, strict=True)]
+                runs.update(zip(modes, _simulate_runs(args, jobs, labels, links), strict=True))
+            return runs[switch_off]
 
     result = limit_cycle_analysis(jp, simulate=sim, with_traces=bool(args.report))
     text = report.limit_cycle_text(result)
@@ -482,8 +522,7 @@ def run_step(args: argparse.Namespace) -> int:
     import numpy as np
 
     from vmehil.analysis import report
-    from vmehil.analysis.simulate import linear_prediction, simulate, step_metrics, strip_traces
-    from vmehil.progress import TickProgress
+    from vmehil.analysis.simulate import SimJob, linear_prediction, step_metrics, strip_traces
 
     jp = _load(args)
     so = {"rig": None, "on": True, "off": False}[args.switch_off]
@@ -493,11 +532,9 @@ def run_step(args: argparse.Namespace) -> int:
         return 1
     settings = _sim_settings(args, allow_short=True)
     links = _link_factory(args)
-    with TickProgress("step", quiet=args.quiet) as progress:
-        step = simulate(jp, switch_off=so, settings=settings, step_deg=args.step_deg, progress=progress,
-                        link_factory=_tagged(links, "step"))
-    with TickProgress("quintic move", quiet=args.quiet) as progress:
-        move = simulate(jp, switch_off=so, settings=settings, progress=progress, link_factory=_tagged(links, "move"))
+    step, move = _simulate_runs(args, [SimJob(jp, so, settings, _tagged(links, "step"), step_deg=args.step_deg),
+                                       SimJob(jp, so, settings, _tagged(links, "move"))],
+                                ["step", "quintic move"], links)
     T = jp.cfg.sample_period_s
     lin = {}
     for name, d in (("step", step), ("move", move)):

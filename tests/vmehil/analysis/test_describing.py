@@ -210,3 +210,13 @@ def test_switch_off_with_friction_predicts_and_simulates_no_cycle() -> None:
     tail = sim["theta"][len(sim["theta"]) // 2:]
     assert np.ptp(tail) < 1e-9  # stuck: no motion at all in the second half
     assert abs(tail[-1]) <= (4.24 / 3.0) / 1100 * (1 + 1e-9)
+
+
+def test_quantizer_df_at_many_amplitudes_at_once_equals_one_at_a_time() -> None:
+    from vmehil.analysis.describing import Quantizer
+
+    q = Quantizer(0.001449)
+    lo, hi = q.amplitude_range()
+    a = np.concatenate([[0.1 * q.step, 0.5 * q.step], np.logspace(np.log10(lo), np.log10(hi), 997)])
+    np.testing.assert_allclose(q.df_array(a), [q.df(x) for x in a], rtol=0, atol=1e-14)
+    assert q.df_array(a)[0] == 0.0

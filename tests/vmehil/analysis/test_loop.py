@@ -15,6 +15,7 @@ from tests.support.fakes import DoubleIntegrator
 from vmehil.analysis.loop import (
     LoopConfig,
     LoopConfigError,
+    build_loop,
     closed_loop,
     closed_loop_poles,
     continuous_plant,
@@ -128,3 +129,51 @@ def test_loop_config_rejects_out_of_range_parameters() -> None:
         LoopConfig(velocity_source="resolver")  # type: ignore[arg-type]
     with pytest.raises(LoopConfigError, match="Hz"):
         LoopConfig(amplifier_bandwidth_hz=-3.0)
+
+
+def _interconnected(cfg, sampled, break_at):
+    """The loop as python-control's interconnect closes it (the reference for build_loop)."""
+    from vmehil.analysis.loop import (
+        continuous_controller,
+        continuous_plant,
+        sampled_controller,
+        sampled_plant,
+    )
+
+    if sampled:
+        P, K = sampled_plant(cfg), sampled_controller(cfg.gains, cfg.sample_period_s, cfg.velocity_source)
+    else:
+        P, K = continuous_plant(cfg), continuous_controller(cfg.gains)
+    p_in, k_in, extra, x_sig = {"u": "a", "w": "d"}, {"thin": "ths", "win": "ws"}, [], None
+    if break_at == "actuator":
+        p_in["u"], x_sig = "v", "a"
+    elif break_at == "position_sensor":
+        k_in["thin"], x_sig = "v", "ths"
+    elif break_at == "velocity_sensor":
+        k_in["win"], x_sig = "v", "ws"
+    elif break_at == "friction":
+        p_in["w"], x_sig = "wf", "om"
+        extra.append(ct.summing_junction(inputs=["d", "-v"], output="wf", name="F"))
+    P = ct.ss(P.A, P.B, P.C, P.D, P.dt, inputs=[p_in["u"], p_in["w"]], outputs=["ths", "ws", "th", "om"])
+    K = ct.ss(K.A, K.B, K.C, K.D, K.dt, inputs=["r", "rv", k_in["thin"], k_in["win"]], outputs=["a"])
+    inputs = ["r", "rv", "d"] + (["v"] if break_at else [])
+    outputs = ["th", "om", "a"] + ([x_sig] if x_sig else [])
+    return ct.ss(ct.interconnect([P, K, *extra], inplist=inputs, outlist=outputs))
+
+
+@pytest.mark.parametrize("sampled", [True, False])
+@pytest.mark.parametrize("break_at", [None, "actuator", "position_sensor", "velocity_sensor", "friction"])
+@pytest.mark.parametrize("velocity", ["tach", "encoder"])
+def test_the_directly_assembled_loop_is_the_interconnected_one(sampled, break_at, velocity) -> None:
+    cfg = LoopConfig(gains=Gains(kp=120.0, kpi=4000.0, kv=45.0, kvi=900.0), velocity_source=velocity,
+                     amplifier_bandwidth_hz=300.0, position_filter_hz=200.0, velocity_filter_hz=150.0,
+                     viscous_damping=0.7, delay_fraction=0.125)
+    try:
+        got = build_loop(cfg, sampled, break_at)
+    except LoopConfigError:
+        pytest.skip("a break point this configuration does not have")
+    ref = _interconnected(cfg, sampled, break_at)
+    for a, b in ((got.A, ref.A), (got.B, ref.B), (got.C, ref.C), (got.D, ref.D)):
+        assert a.shape == b.shape
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-9)
+    assert got.dt == ref.dt

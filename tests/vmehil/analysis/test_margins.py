@@ -86,3 +86,28 @@ def test_unstable_gain_set_is_reported_unstable() -> None:
     assert not m.stable
     assert any(abs(complex(p["re"], p["im"])) >= 1 for p in m.as_dict()["poles"])
     assert compute_margins(LoopConfig(), sampled=True).stable
+
+
+def test_margins_read_off_one_shared_grid_equal_those_of_each_function_on_its_own() -> None:
+    """compute_margins evaluates L and T once on one grid; crossings and bandwidth given that
+    grid find exactly what they find on their own."""
+    from vmehil.analysis.margins import bandwidth_hz, crossings, frequency_grid
+
+    cfg = LoopConfig(gains=Gains(kp=100.0, kpi=5000.0, kv=50.0, kvi=1000.0))
+    for sampled in (True, False):
+        L, T = open_loop(cfg, sampled), closed_loop(cfg, sampled)
+        f_max = cfg.nyquist_hz if sampled else 1000.0
+        f_top = f_max * (1 - 1e-9) if sampled else f_max
+        f = frequency_grid(f_top)
+        assert crossings(L, f_max, grid=(f, freqresp(L, f))) == crossings(L, f_max)
+        assert bandwidth_hz(T, f_top, grid=(f, freqresp(T, f))) == bandwidth_hz(T, f_top)
+
+
+def test_the_cached_loop_of_one_gain_set_is_never_served_for_another() -> None:
+    from vmehil.analysis.loop import build_loop
+
+    a = LoopConfig(gains=Gains(kp=100.0, kpi=5000.0, kv=50.0, kvi=1000.0))
+    b = a.replace(gains=Gains(kp=140.0, kpi=5000.0, kv=50.0, kvi=1000.0))
+    assert build_loop(a, True) is build_loop(a, True)
+    assert not np.array_equal(build_loop(a, True).A, build_loop(b, True).A)
+    assert compute_margins(a, True).phase_margin_deg != compute_margins(b, True).phase_margin_deg

@@ -77,6 +77,28 @@ def test_encoder_counts_per_rev_index_and_direction(tmp_path):
     assert (fwd[1][1] - fwd[0][1]) == pytest.approx(spacing, abs=spacing / 200)
 
 
+def test_encoder_moves_every_joint_in_one_tour_each_at_its_own_motor_speed(tmp_path):
+    """One forward and one backward move for all joints together (not one tour per joint), with
+    a per-joint speed limit of ``speed`` motor rev/s; each joint's figures as if alone."""
+    b = build_bench(tmp_path, ERRORS)
+    calls: list[tuple[dict, object]] = []
+    move_to = b.move_to
+
+    def spy(targets, **kw):
+        calls.append((dict(targets), kw.get("speed_rad_s")))
+        return move_to(targets, **kw)
+
+    b.move_to = spy  # type: ignore[method-assign]
+    res = EncoderProcedure(speed_motor_rev_s=1.0).run(b.context())
+    assert res.passed, procedure_results_table([res])
+    assert [sorted(t) for t, _ in calls] == [[0, 1], [0, 1]]
+    ratio = 100  # both bench joints
+    for _targets, speed in calls:
+        assert speed == {0: pytest.approx(2 * math.pi / ratio), 1: pytest.approx(2 * math.pi / ratio)}
+    for name in ("j1", "j2"):
+        assert res.update.joint_entry(name, "encoder").values["counts_per_motor_rev"] == 2000
+
+
 def test_encoder_with_other_line_count_is_measured_not_assumed(tmp_path):
     b = build_bench(tmp_path, Errors(encoder_lines=(512, 500)))
     res = EncoderProcedure().run(b.context())
@@ -109,6 +131,27 @@ def test_amplifier_recovers_gain_offset_and_checks_limit(tmp_path):
     assert j2["gain_a_per_v"] == pytest.approx(1.95, rel=3e-3)
     assert j2["offset_a"] == pytest.approx(-0.03, abs=0.02)
     assert j1["peak_current_a"] <= 30.0 * 1.001
+
+
+def test_amplifier_pulses_every_joint_together_in_one_series(tmp_path):
+    """Each pulse overrides both joints' commands in the same period (one series for the arm,
+    not one per joint), and each joint's fit is its own."""
+    b = build_bench(tmp_path, ERRORS)
+    overrides: list[tuple[int, int]] = []  # (bench tick, joint)
+    override = b.override_command
+
+    def spy(joint, volts):
+        overrides.append((b.ticks, joint))
+        return override(joint, volts)
+
+    b.override_command = spy  # type: ignore[method-assign]
+    res = AmplifierProcedure().run(b.context())
+    ticks = sorted({t for t, _ in overrides})
+    assert len(ticks) == 2 * len(AmplifierProcedure().levels) + 2  # ± each level, ± full command
+    assert sorted(overrides) == sorted((t, j) for t in ticks for j in (0, 1))
+    j1, j2 = (res.update.joint_entry(n, "amplifier").values for n in ("j1", "j2"))
+    assert j1["gain_a_per_v"] == pytest.approx(3.09, rel=1e-2)
+    assert j2["gain_a_per_v"] == pytest.approx(1.95, rel=1e-2)
 
 
 def test_amplifier_limit_check_fails_when_the_limit_is_set_too_low(tmp_path):

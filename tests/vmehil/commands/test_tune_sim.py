@@ -197,3 +197,46 @@ def test_heat_maps_draw_unstable_points_as_their_own_class_not_as_values() -> No
         # x: kp 100 → 0, 5e4 → 1; y: kv 2 → 0, 50 → 1; margins of an unstable point are not shown
         assert cells == {(0, 1): "40" if "margin" in ax.get_title() else "1", (1, 1): "unstable",
                          (0, 0): "unstable", (1, 0): "unstable"}
+
+
+def test_step_runs_side_by_side_give_the_figures_of_runs_one_after_the_other(tmp_path: Path) -> None:
+    """`--jobs 2` runs the step and the move in two worker processes; each is the same seeded run
+    as in this process (`--jobs 1`), so the JSON is identical."""
+    paths = {n: tmp_path / f"step{n}.json" for n in ("1", "2")}
+    for n, path in paths.items():
+        assert main(["tune", "step", *FAST, "--seed", "3", "--jobs", n, "--json", str(path), "--quiet"]) == 0
+    one, two = (json.loads(p.read_text()) for p in paths.values())
+    assert one["step"]["simulated"]["final_error_deg"] is not None
+    assert one == two
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        text = Path(f"/proc/{pid}/task/{pid}/children").read_text()
+    except OSError:
+        return []
+    return [int(c) for c in text.split()]
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs /proc to see the worker processes")
+def test_limit_cycle_side_by_side_interrupted_by_sigint_stops_every_worker(tmp_path: Path) -> None:
+    """SIGINT while both runs go on in workers: every worker stops its run (safe stop) and exits,
+    the command exits 130 without a traceback."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    cmd = [sys.executable, "-m", "vmehil", "tune", "limit-cycle", "--jobs", "2", "--hold", "60", "--quiet"]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    try:
+        while len(_children(proc.pid)) < 2:  # the two workers are running
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "the workers did not start"
+            time.sleep(0.05)
+        workers = _children(proc.pid)
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, (stdout, stderr)
+    assert "Traceback" not in stderr and "interrupted" in stderr
+    assert not [w for w in workers if Path(f"/proc/{w}").exists()]

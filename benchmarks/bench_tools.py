@@ -1,0 +1,112 @@
+"""The tools' speed: gain sweep, limit-cycle analysis, calibration, and ``vmehil run``'s cold start.
+
+Every figure is the wall time of the real command in a fresh process (``python -m vmehil ...``,
+the default rig jpl-arm, seed 0, ``--quiet``, outputs in a temporary folder), as a user runs it:
+
+* ``tune sweep --grid kp=80:140:20,kvi=600:1400:20`` (400 points, one worker per core) — with
+  ``--quick`` a 4-point grid of the same ranges, its time scaled by points (×100; the goal's
+  name says so); the same small grid with ``--jobs 1`` is printed next to it;
+* ``tune limit-cycle`` (prediction and both full-stack runs, side by side) — and ``--jobs 1``
+  (the runs one after the other in one process) next to it;
+* ``calibrate all --auto`` (adc, dac, encoder, amplifier, pot; reference fixture);
+* ``run --duration 0.008``: launch to the end of a one-tick run — an upper bound of the time to
+  the first tick (it adds the tick, the summary and the teardown); and ``run --help`` with the
+  interpreter's import time (``-X importtime``) of ``vmehil run --help``.
+
+The goals are absolute (seconds on 2 cores), so they have no baseline; the ``--jobs 1`` lines
+show what running side by side brings. On a loaded machine every figure is longer: say so.
+Run: ``python -m benchmarks bench_tools`` (``--quick``: the small sweep grid).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from benchmarks.goals import Goal, record
+
+REPO = Path(__file__).resolve().parents[1]
+SWEEP_GRID = "kp=80:140:20,kvi=600:1400:20"  #: the issue's 400 points
+QUICK_GRID = "kp=80:140:2,kvi=600:1400:2"  #: 4 points over the same ranges
+SWEEP_GOAL_S = 60.0
+LIMIT_CYCLE_GOAL_S = 3.0
+CALIBRATE_GOAL_S = 60.0
+FIRST_TICK_GOAL_S = 3.0
+
+
+def _env() -> dict[str, str]:
+    env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    env.pop("VMEHIL_CALIBRATION_DIR", None)
+    return env
+
+
+def timed(args: list[str], *, cwd: Path,
+          python_flags: tuple[str, ...] = ()) -> tuple[float, subprocess.CompletedProcess]:
+    """Wall seconds of ``python [flags] -m vmehil ARGS`` (it must exit 0)."""
+    cmd = [sys.executable, *python_flags, "-m", "vmehil", *args]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, cwd=cwd, env=_env(), capture_output=True, text=True, check=False)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} exited {proc.returncode}:\n{proc.stderr[-2000:]}")
+    return wall, proc
+
+
+def import_seconds(stderr: str) -> float:
+    """Total of the self times in ``-X importtime`` output (s)."""
+    return sum(int(m.group(1)) for m in re.finditer(r"^import time:\s+(\d+)\s*\|", stderr, re.M)) / 1e6
+
+
+def main(quick: bool = False) -> list[str]:
+    lines: list[str] = []
+    cores = os.cpu_count() or 1
+
+    def say(line: str) -> None:
+        print(line, flush=True)
+        lines.append(line)
+
+    say(f"tools, wall time of the command in a fresh process ({cores} cores; jpl-arm, seed 0)")
+    with tempfile.TemporaryDirectory(prefix="bench-tools-") as tmp:
+        d = Path(tmp)
+        # --- cold start -----------------------------------------------------------------------
+        help_s, _ = timed(["run", "--help"], cwd=d)
+        _, imp = timed(["run", "--help"], cwd=d, python_flags=("-X", "importtime"))
+        timed(["run", "--duration", "0.008", "--quiet"], cwd=d)  # caches exist (bytecode, ...)
+        tick_s, _ = timed(["run", "--duration", "0.008", "--quiet"], cwd=d)
+        say(f"  vmehil run --help: {help_s:.2f} s, of which imports {import_seconds(imp.stderr):.2f} s")
+        say(f"  vmehil run --duration 0.008 (one tick), launch to exit: {tick_s:.2f} s")
+        record(Goal("vmehil run: launch to first tick (bounded by a one-tick run's launch to exit)", tick_s,
+                    FIRST_TICK_GOAL_S, "s", "at_most"))
+        # --- limit cycle ----------------------------------------------------------------------
+        lc_s, _ = timed(["tune", "limit-cycle", "--quiet"], cwd=d)
+        lc1_s, _ = timed(["tune", "limit-cycle", "--quiet", "--jobs", "1"], cwd=d)
+        say(f"  tune limit-cycle: {lc_s:.2f} s (runs side by side); --jobs 1: {lc1_s:.2f} s")
+        record(Goal("tune limit-cycle", lc_s, LIMIT_CYCLE_GOAL_S, "s", "at_most"))
+        # --- sweep ----------------------------------------------------------------------------
+        grid = QUICK_GRID if quick else SWEEP_GRID
+        points = 4 if quick else 400
+        sw_s, _ = timed(["tune", "sweep", "--grid", grid, "--out", str(d / "sweep"), "--quiet"], cwd=d)
+        say(f"  tune sweep --grid {grid} ({points} points, {cores} workers): {sw_s:.2f} s "
+            f"({sw_s / points:.2f} s per point)")
+        if quick:
+            sw1_s, _ = timed(["tune", "sweep", "--grid", grid, "--jobs", "1", "--out", str(d / "sweep1"),
+                              "--quiet"], cwd=d)
+            say(f"  same grid, --jobs 1: {sw1_s:.2f} s")
+            record(Goal(f"tune sweep, 400 points (scaled ×{400 // points} from {points} points)",
+                        sw_s * 400 / points, SWEEP_GOAL_S, "s", "at_most"))
+        else:
+            record(Goal("tune sweep, 400 points", sw_s, SWEEP_GOAL_S, "s", "at_most"))
+        # --- calibration ----------------------------------------------------------------------
+        cal_s, _ = timed(["calibrate", "all", "--auto", "--out", str(d / "cal.toml"), "--quiet"], cwd=d)
+        say(f"  calibrate all --auto: {cal_s:.2f} s")
+        record(Goal("calibrate all --auto", cal_s, CALIBRATE_GOAL_S, "s", "at_most"))
+    return lines
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main(quick="--quick" in sys.argv)
