@@ -32,6 +32,7 @@ Defaults (``None`` in the config) are derived per joint from the sensors' nomina
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -80,6 +81,10 @@ class WatchdogConfig:
     current_tolerance_a: np.ndarray | None = None
     current_tolerance_fraction: np.ndarray | None = None
     current_mismatch_ticks: int = 3
+    #: ticks an answer may lag the command behind lockstep timing (0: the current monitor reads
+    #: the previous tick's command, as in lockstep; a free-running plant answers 1-2 periods late):
+    #: the current check then accepts any command of the last ``1 + command_lag_ticks`` ticks
+    command_lag_ticks: int = 0
 
 
 @dataclass
@@ -181,6 +186,7 @@ class CrossChecks:
         self._tach_int = np.zeros(n)
         self._last_tach = np.zeros(n)
         self._cur_over = np.zeros(n, int)
+        self._cur_history: deque[np.ndarray] = deque(maxlen=1 + max(0, int(self.config.command_lag_ticks)))
         self._stale_at = np.full(n, np.nan)
         self._stale_count = np.zeros(n, int)
         self._stale_travel = np.zeros(n)
@@ -264,8 +270,15 @@ class CrossChecks:
         if not self.has_imon.any():
             return None
         commanded = np.asarray(self.io.last_current_a, float)
-        off = np.abs(m.current - commanded)
-        tol = self._limits["current_tolerance_a"] + self._limits["current_tolerance_fraction"] * np.abs(commanded)
+        if self._cur_history.maxlen == 1:  # lockstep: the previous tick's command
+            off = np.abs(m.current - commanded)
+            largest = np.abs(commanded)
+        else:  # a lagging answer: how far the monitor is from every command it may be answering
+            self._cur_history.append(commanded.copy())
+            lo, hi = np.min(self._cur_history, axis=0), np.max(self._cur_history, axis=0)
+            off = np.maximum(np.maximum(lo - m.current, m.current - hi), 0.0)
+            largest = np.maximum(np.abs(lo), np.abs(hi))
+        tol = self._limits["current_tolerance_a"] + self._limits["current_tolerance_fraction"] * largest
         self._cur_over = np.where(self._over("current", off, tol, self.has_imon), self._cur_over + 1, 0)
         i = _worst(self._cur_over >= max(1, int(self.config.current_mismatch_ticks)), off, tol)
         if i is None:

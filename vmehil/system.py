@@ -110,6 +110,12 @@ class EmulatedRig:
     def computation_delay_s(self) -> float:
         return self.rig.computation_delay_s
 
+    @property
+    def answer_lag_ticks(self) -> int:
+        """Ticks the plant's answers may lag the commands beyond lockstep timing: a free-running
+        plant node steps on its own clock and answers 1-2 periods late (0: lockstep, in-process)."""
+        return 2 if getattr(self.link, "free_running", False) else 0
+
     def advance_to(self, t_ns: int) -> None:
         self.crate.advance_to(t_ns)
 

@@ -151,3 +151,31 @@ def test_the_rig_file_sets_the_limits_per_joint_and_refuses_unknown_keys(tmp_pat
     rig.write_text(text.replace("position_tolerance_deg = 2.0", "position_tolerence_deg = 2.0"))
     with pytest.raises(ConfigError, match=r"servo\.watchdog\.position_tolerence_deg"):
         build_loop(build_emulated_rig(load_rig(rig), seed=0))
+
+
+def _current_trip(lag_ticks: int, answer_lag: int):
+    """A current monitor that answers the command ``answer_lag`` ticks late, through a ramp of
+    commands; the first trip of a current check that allows ``lag_ticks`` of lag."""
+    io = _FakeIO()
+    res = io.resolution()
+    res.monitor_a, res.command_a = np.full(1, 0.003), np.full(1, 0.0006)
+    io.resolution = lambda: res
+    io.last_current_a = np.zeros(1)
+    checks = CrossChecks(io, WatchdogConfig(following_error_rad=np.ones(1), command_lag_ticks=lag_ticks))
+    commands = [0.0] * 3 + [0.5 * k for k in range(1, 20)]  # amperes: a move starts
+    for k in range(3, len(commands)):
+        io.last_current_a = np.array([commands[k - 1]])  # the command the plant was sent last tick
+        m = SimpleNamespace(theta_pot=np.zeros(1), theta_enc=np.zeros(1), omega_tach=np.zeros(1),
+                            current=np.array([commands[k - 1 - answer_lag]]))
+        trip = checks.check(m, np.zeros(1), np.zeros(1))
+        if trip is not None:
+            return trip
+    return None
+
+
+def test_the_current_check_allows_for_a_free_running_plants_late_answers_and_only_for_those() -> None:
+    assert _current_trip(0, 0) is None  # lockstep: the monitor reads last tick's command
+    trip = _current_trip(0, 2)  # answers two periods late, judged with lockstep timing: a false trip
+    assert trip is not None and trip.cause == "current_mismatch"
+    assert _current_trip(2, 2) is None  # free-running: the lag is allowed for
+    assert _current_trip(2, 4) is not None  # but not more than it

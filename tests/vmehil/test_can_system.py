@@ -301,11 +301,8 @@ def test_free_running_the_loop_starts_on_the_reset_plant_not_on_answers_queued_b
         system = system_mod.build_emulated_rig(spec, seed=3, link=link)
         loop = session.build_loop(system, motion=default_demo_motion(spec.n_joints), n_ticks=TICKS)
         loop.start()
-        # Free-running answers lag one period more than the current cross-check allows for (it
-        # compares the monitor with the previous tick's command: lockstep timing), so at the start
-        # of the move it trips on its own (servo/watchdog.py; reported). Off here: this test is
-        # about which plant the answers come from.
-        loop.watchdog.current_mismatch_ticks = 10**6
+        # free-running answers lag the commands: the current cross-check allows for it
+        assert loop.watchdog.command_lag_ticks == system.answer_lag_ticks == 2
         runner = runner_mod.LockstepRunner(system, loop)
         for _ in range(TICKS):
             driven.step()
