@@ -39,6 +39,8 @@ def load_toml(path: str | Path) -> ConfigTable:
         raise ConfigError(str(p), "<file>", "an existing TOML file") from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(str(p), "<file>", f"valid TOML ({e})") from None
+    except UnicodeDecodeError as e:  # tomllib decodes the whole file first
+        raise ConfigError(str(p), "<file>", f"a UTF-8 text file ({e})") from None
     return ConfigTable(data, str(p))
 
 

@@ -232,7 +232,8 @@ class JointIO:
             for src, sig in ((self.position_source[j.index], "pot"), (self.velocity_source[j.index], "tach")):
                 need = "encoder" if src == "encoder" else sig
                 if need not in j.wiring:
-                    raise ValueError(f"rig {rig.name} joint {j.name}: servo uses {src} but '{need}' is not wired")
+                    raise j.servo.error("position" if sig == "pot" else "velocity",
+                                        f"a sensor wired in [joint.wiring] ('{need}' is not wired)", src)
         self.last_dac_volts = np.zeros(self.n)
         #: the current (A) the drivers last commanded per joint (what the current monitor should read)
         self.last_current_a = np.zeros(self.n)

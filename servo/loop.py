@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import queue
 import time
+from collections import deque
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -66,35 +67,61 @@ class Fault:
 
 @dataclass
 class Recorder:
-    """Per-tick arrays (preallocated; ``n_ticks`` × joints)."""
+    """Per-tick arrays (preallocated; ``min(n_ticks, max_rows)`` × joints).
+
+    A run of up to ``max_rows`` ticks keeps every tick. A longer one stays memory-flat: the
+    arrays are a ring holding its last ``max_rows`` ticks (``dropped`` counts the older ones
+    overwritten); :meth:`trimmed` returns them in time order. ``max_rows=None``: no bound."""
 
     n_ticks: int
     n: int
     count: int = 0
     data: dict[str, np.ndarray] = field(default_factory=dict)
+    #: the most ticks kept (default: 2**15, 262 s at 125 Hz; ~8 MiB for 2 joints)
+    max_rows: int | None = 2**15
 
     FIELDS = ("theta_d", "omega_d", "theta", "omega", "theta_pot", "theta_enc", "omega_tach", "omega_enc",
               "torque", "current_cmd", "current", "integrating", "kp_eff", "theta_true", "omega_true")
 
     def __post_init__(self) -> None:
+        if self.max_rows is not None and self.max_rows < 1:
+            raise ValueError(f"Recorder max_rows {self.max_rows!r}: expected at least 1 or None")
+        rows = self.rows
         for f in self.FIELDS:
-            self.data[f] = np.full((self.n_ticks, self.n), np.nan)
-        self.data["t"] = np.full(self.n_ticks, np.nan)
-        self.data["compute_s"] = np.full(self.n_ticks, np.nan)
+            self.data[f] = np.full((rows, self.n), np.nan)
+        self.data["t"] = np.full(rows, np.nan)
+        self.data["compute_s"] = np.full(rows, np.nan)
+
+    @property
+    def rows(self) -> int:
+        """How many ticks the arrays hold."""
+        return max(0, self.n_ticks) if self.max_rows is None else max(0, min(self.n_ticks, self.max_rows))
+
+    @property
+    def dropped(self) -> int:
+        """Ticks recorded and since overwritten by later ones (0 unless the run outgrew ``max_rows``)."""
+        return max(0, self.count - self.rows)
 
     def put(self, k: int, **values: Any) -> None:
         if not 0 <= k < self.n_ticks:
             return
+        i = k % self.rows
         for name, v in values.items():
-            self.data[name][k] = v
+            self.data[name][i] = v
         self.count = max(self.count, k + 1)
 
     def trimmed(self) -> dict[str, np.ndarray]:
-        return {k: v[: self.count] for k, v in self.data.items()}
+        """The ticks kept, in time order: all of them (``count``) unless some were ``dropped``."""
+        if self.count <= self.rows:
+            return {k: v[: self.count] for k, v in self.data.items()}
+        start = self.count % self.rows
+        return {k: np.concatenate((v[start:], v[:start])) for k, v in self.data.items()}
 
 
 class ServoLoop:
     """Per-tick control of all joints of a rig."""
+
+    LOG_MAX = 10_000  #: notes kept in :attr:`log`
 
     def __init__(self, io: JointIO, controller: Controller, sequencer: Sequencer, watchdog: WatchdogConfig,
                  *, recorder: Recorder | None = None, names: list[str] | None = None,
@@ -122,7 +149,10 @@ class ServoLoop:
         self._last_theta: np.ndarray | None = None
         self.cross_checks = CrossChecks(io, watchdog)
         self.last: dict[str, Any] = {}
-        self.log: list[tuple[float, str, str]] = []  # (time, source, message)
+        #: live changes and notes, (time, source, message), the newest ``LOG_MAX`` of them
+        self.log: deque[tuple[float, str, str]] = deque(maxlen=self.LOG_MAX)
+        #: notes dropped from the front of ``log`` to keep it bounded (long runs)
+        self.log_dropped = 0
         self.plan_context = plan_context
         #: the run's visual-servo link when it has one (set by ``vmehil run --vision``), for the report
         self.vision: VisionOutcome | None = None
@@ -150,7 +180,10 @@ class ServoLoop:
                 done(result, None)
 
     def note(self, source: str, message: str) -> None:
-        """Log a change with simulated time and its source (``mavlink``, ``console``, ``api``)."""
+        """Log a change with simulated time and its source (``mavlink``, ``console``, ``api``); past
+        ``LOG_MAX`` notes the oldest is dropped (counted in ``log_dropped``)."""
+        if len(self.log) == self.LOG_MAX:
+            self.log_dropped += 1
         self.log.append((self.tick_count * self.period_s, source, message))
 
     def set_motion(self, sequencer: Sequencer) -> None:

@@ -69,6 +69,11 @@ def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns:
         out["timing"] = timing
     if loop.log:  # live changes (MAVLink, console, API), in the order they took effect
         out["changes"] = [{"time_s": t, "source": src, "change": msg} for t, src, msg in loop.log]
+    if loop.log_dropped:  # a long run: the oldest changes were dropped to keep the log bounded
+        out["changes_dropped"] = loop.log_dropped
+    if loop.recorder is not None and loop.recorder.dropped:  # a long run: the joints' figures are of its end
+        out["recorded"] = {"ticks_kept": loop.recorder.rows, "ticks_dropped": loop.recorder.dropped,
+                           "from_s": float(t[0]) if t.size else None}
     vision = loop.vision
     if vision is not None:
         out["vision"] = vision.summary()

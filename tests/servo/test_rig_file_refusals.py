@@ -56,3 +56,21 @@ def test_overlapping_board_windows_are_refused_when_the_crate_is_built(tmp_path)
     text = _swap_first(r"^base = 0x6100", "base = 0x6010")
     with pytest.raises(ConfigError, match=r"crate\.board\[1\]\.base.*a free window"):
         build_emulated_rig(load_rig(_rig(tmp_path, text)))
+
+
+def test_a_rig_file_that_is_not_utf8_is_refused_naming_the_file(tmp_path) -> None:
+    """Found by tests/fuzz/test_rig_file.py: a stray byte used to end in UnicodeDecodeError."""
+    path = tmp_path / "bad.toml"
+    path.write_bytes(b"\x80" + PRESET.encode())
+    with pytest.raises(ConfigError, match="a UTF-8 text file") as e:
+        load_rig(path)
+    assert str(path) in str(e.value) and e.value.key == "<file>"
+
+
+def test_a_servo_sensor_that_is_not_wired_is_refused_naming_file_and_key(tmp_path) -> None:
+    """Found by tests/fuzz/test_rig_file.py: this used to be a bare ValueError naming neither."""
+    path = _rig(tmp_path, _swap_first(r'^tach = "adc0:8"\n', ""))
+    with pytest.raises(ConfigError) as e:
+        build_emulated_rig(load_rig(path))
+    assert str(path) in str(e.value) and "'tach' is not wired" in str(e.value)
+    assert e.value.key.endswith("servo.velocity"), e.value.key

@@ -247,36 +247,6 @@ def test_pty_link_never_replaces_a_regular_file(tmp_path):
     t.close()
 
 
-def test_fuzzed_bytes_through_the_console_only_produce_typed_replies():
-    from hypothesis import given, settings
-    from hypothesis import strategies as st
-
-    loop = make_loop(2)
-    console = Console(loop, None)
-    out: list[str] = []
-    console.taps.append(out.append)
-
-    @settings(max_examples=150, deadline=None)
-    @given(st.lists(st.one_of(st.binary(max_size=80),
-                              st.sampled_from([b"status\n", b"gains j1 kp=\n", b"move 1,2\r", b"move [\n",
-                                               b"echo \"x\n", b"\x7f\x7f\n", b"log 999\n", b"hop 1\n"])),
-                    max_size=10))
-    def run(chunks):
-        for c in chunks:
-            console.feed(c)
-        for _ in range(20):
-            tick(loop, console)
-            if console.pending() == 0:
-                break
-        for line in out:
-            assert line.split(" ", 1)[0] in ("OK", "ERR", "DATA", "INFO", "EVT"), line
-            assert not line.startswith("ERR INTERNAL"), line
-        out.clear()
-
-    run()
-    assert loop.tick_count > 0
-
-
 def test_run_and_load_refuse_devices_fifos_and_huge_files_and_stop_still_works(tmp_path):
     """`run /dev/zero` used to end in MemoryError and `run FIFO` blocked the reader thread so
     that `stop` was no longer heard."""
