@@ -169,7 +169,8 @@ def watchdog_config(system: EmulatedRig, settings: ServoSettings, *, enabled: bo
             per_joint[field].append(value)
         jt.check_unknown(set(WATCHDOG_JOINT_KEYS))
     top.check_unknown({*WATCHDOG_JOINT_KEYS, "cross_checks", *WATCHDOG_RIG_INTS, *WATCHDOG_RIG_FLOATS})
-    wd.command_lag_ticks = system.answer_lag_ticks  # a free-running plant node answers late
+    # a free-running plant node answers late; a real rig or an in-process plant does not
+    wd.command_lag_ticks = int(getattr(system, "answer_lag_ticks", 0))
     for field, values in per_joint.items():
         setattr(wd, field, np.asarray(values, float))
     return wd
