@@ -29,7 +29,7 @@ from hal.adc_dac.calibration import Calibration
 from hal.adc_dac.conversions import DAC_LSB_V, DAC_V_MAX, DAC_V_MIN, adc_lsb
 from hal.adc_dac.dac import DacDriver
 from hal.amplifiers import duty_for_current
-from hal.pio.pio import PioDriver
+from hal.pio.pio import PioDriver, PwmRangeError
 from hal.quadrature.quad import QuadratureDriver
 from hal.vme.bus import VmeBus
 from servo.rig import WATCHDOG_NET, RigSpec
@@ -219,7 +219,11 @@ class JointIO:
         self.watchdog_running = False
         for j in rig.joints:
             if "pwm" in j.wiring:
-                self.pio[j.wiring["pwm"].board].set_pwm_period(scaling[j.index].pwm_period_s)
+                try:
+                    self.pio[j.wiring["pwm"].board].set_pwm_period(scaling[j.index].pwm_period_s)
+                except PwmRangeError as e:
+                    raise j.servo.error("nominal.pwm_period_s", f"a period the PIO's PWM timer can take ({e})",
+                                        scaling[j.index].pwm_period_s) from None
         # ADC scan plans: per board, the last channel to convert.
         self._adc_last = {name: max(p.index for j in rig.joints for p in j.wiring.values() if p.board == name)
                           for name in self.adc}

@@ -74,3 +74,12 @@ def test_a_servo_sensor_that_is_not_wired_is_refused_naming_file_and_key(tmp_pat
         build_emulated_rig(load_rig(path))
     assert str(path) in str(e.value) and "'tach' is not wired" in str(e.value)
     assert e.value.key.endswith("servo.velocity"), e.value.key
+
+
+def test_a_pwm_period_the_pio_cannot_take_is_refused_naming_file_and_key(tmp_path) -> None:
+    """Found by tests/fuzz/test_rig_file.py: this used to be a bare PwmRangeError from the driver."""
+    path = _rig(tmp_path, _swap_first(r"^pwm_period_s = 5\.0e-5", "pwm_period_s = 2066.0"))
+    with pytest.raises(ConfigError) as e:
+        build_emulated_rig(load_rig(path))
+    assert str(path) in str(e.value) and "PWM timer" in str(e.value)
+    assert e.value.key.endswith("servo.nominal.pwm_period_s"), e.value.key
