@@ -62,6 +62,9 @@ from servo.trajectory.base import JointLimits
 from servo.trajectory.sequencer import PlanContext, Sequencer
 from vmehil.system import EmulatedRig
 
+#: the smallest planning speed limit a rig file may set (deg/s; 0 would plan endless moves)
+MIN_VELOCITY_DEG_S = 1e-3
+
 
 @dataclass
 class ServoSettings:
@@ -97,8 +100,10 @@ def servo_settings(rig: RigSpec) -> ServoSettings:
             v = jso.raw(k) if k in jso else base_so.raw(k, None)  # None: the law's default
             so.setdefault(k, []).append(v)
         tl.append(j.servo.get_float("torque_limit_nm", nominal.torque_limit_nm, min=0.0))
+        # a planning limit of 0 would make every move infinitely long: refused here, naming the key
         vmax.append(np.radians(j.servo.get_float("max_velocity_deg_s",
-                                                 top.get_float("max_velocity_deg_s", 30.0, min=0.0))))
+                                                 top.get_float("max_velocity_deg_s", 30.0, min=MIN_VELOCITY_DEG_S),
+                                                 min=MIN_VELOCITY_DEG_S)))
         ferr.append(np.radians(j.servo.get_float("following_error_limit_deg",
                                              top.get_float("following_error_limit_deg", 10.0, min=0.0))))
     if not isinstance(objects, list):

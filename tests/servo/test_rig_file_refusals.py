@@ -83,3 +83,17 @@ def test_a_pwm_period_the_pio_cannot_take_is_refused_naming_file_and_key(tmp_pat
         build_emulated_rig(load_rig(path))
     assert str(path) in str(e.value) and "PWM timer" in str(e.value)
     assert e.value.key.endswith("servo.nominal.pwm_period_s"), e.value.key
+
+
+def test_a_zero_planning_speed_limit_is_refused_naming_file_and_key(tmp_path) -> None:
+    """Found by tests/fuzz/test_rig_file.py: this used to escape as a TrajectoryError naming neither."""
+    from vmehil.session import build_loop
+
+    path = _rig(tmp_path, _swap_first(r"^max_velocity_deg_s = 20\.0", "max_velocity_deg_s = 0.0"))
+    system = build_emulated_rig(load_rig(path))
+    try:
+        with pytest.raises(ConfigError) as e:
+            build_loop(system)
+        assert str(path) in str(e.value) and e.value.key.endswith("servo.max_velocity_deg_s"), e.value.key
+    finally:
+        system.close()
