@@ -13,35 +13,20 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hal.adc_dac.calibration import Calibration
 from tests.fuzz.harness import refused
 from tests.fuzz.mutate import mutated
-from tests.support.calib_bench import write_rig
+from tests.support.calib_bench import sample_store, write_rig
 from vmehil.calibration.store import (
-    BoardCal,
     CalibrationFileError,
-    CalibrationStore,
-    JointCal,
     load_store,
-    rig_boards,
-    utc_now,
 )
-
-
-def _store(rig) -> CalibrationStore:
-    s = CalibrationStore.empty(rig)
-    s.set_board(BoardCal(rig_boards(rig)["adc1"], Calibration((0.01,) * 16, (1.004,) * 16), "adc", 1, utc_now(), ()))
-    s.set_joint("j1", JointCal("pot", 1, utc_now(), {"volts": [-9.0, 0.0, 9.0], "angles_rad": [-2.7, 0.0, 2.7]}))
-    s.set_joint("j1", JointCal("encoder", 1, utc_now(), {"counts_per_joint_rev": 409600.0}))
-    s.set_joint("j1", JointCal("amplifier", 1, utc_now(), {"gain_a_per_v": 3.0, "offset_a": 0.01}))
-    return s
 
 
 @pytest.fixture(scope="module")
 def valid(tmp_path_factory):
     folder = tmp_path_factory.mktemp("calibration")
     rig = write_rig(folder)
-    path = _store(rig).save(folder / "cal.toml")
+    path = sample_store(rig).save(folder / "cal.toml")
     return rig, path
 
 

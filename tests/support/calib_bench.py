@@ -18,10 +18,11 @@ from emulators.dac import DacBoard
 from emulators.encoder_edges import EncoderSampler
 from emulators.quadrature import QuadratureBoard
 from emulators.rng import rng_for
+from hal.adc_dac.calibration import Calibration
 from servo.io import JointIO, SensorScaling
 from servo.rig import RigSpec, load_rig, loopback_net, reference_net
 from vmehil.calibration.base import CalibrationContext
-from vmehil.calibration.store import CalibrationStore
+from vmehil.calibration.store import BoardCal, CalibrationStore, JointCal, rig_boards, utc_now
 
 RIG_TOML = """
 [rig]
@@ -263,3 +264,14 @@ def build_bench(folder: Path, errors: Errors | None = None, seed: int = 0, rig_t
     bench._pending = np.zeros(2)
     bench._publish(np.zeros(2), 1e-3)
     return bench
+
+
+def sample_store(rig: RigSpec) -> CalibrationStore:
+    """A small valid calibration file's content: adc1's coefficients and j1's pot, encoder and
+    amplifier entries (the refusal tests and the calibration-file fuzz harness mutate it)."""
+    s = CalibrationStore.empty(rig)
+    s.set_board(BoardCal(rig_boards(rig)["adc1"], Calibration((0.01,) * 16, (1.004,) * 16), "adc", 1, utc_now(), ()))
+    s.set_joint("j1", JointCal("pot", 1, utc_now(), {"volts": [-9.0, 0.0, 9.0], "angles_rad": [-2.7, 0.0, 2.7]}))
+    s.set_joint("j1", JointCal("encoder", 1, utc_now(), {"counts_per_joint_rev": 409600.0}))
+    s.set_joint("j1", JointCal("amplifier", 1, utc_now(), {"gain_a_per_v": 3.0, "offset_a": 0.01}))
+    return s
