@@ -37,12 +37,18 @@ def _is_ours(p: Path) -> bool:
     return isinstance(data, dict) and data.get("written_by") == WRITTEN_BY
 
 
-def check_output_file(path: str | Path, flag: str, *, force: bool = False) -> Path:
+def check_output_file(path: str | Path, flag: str, *, force: bool = False,
+                      made_here: tuple[Path, ...] = ()) -> Path:
+    """Check an output file before the command runs. Its folder must exist, or be one of
+    ``made_here`` (or lie inside one): the output directories this command creates, as
+    ``make run``'s ``--report reports/run --json reports/run/run.json`` does."""
     p = Path(path)
     if p.is_dir():
         raise OutputPathError(f"{flag} {p}: is a directory; give a file name")
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():
+        if _inside_any(parent, made_here):
+            return p
         raise OutputPathError(f"{flag} {p}: the folder {parent} does not exist")
     if not os.access(parent, os.W_OK):
         raise OutputPathError(f"{flag} {p}: the folder {parent} is not writable")
@@ -85,12 +91,24 @@ def mark_output_dirs(args: argparse.Namespace) -> None:
                 pass
 
 
+def _inside_any(p: Path, dirs: tuple[Path, ...]) -> bool:
+    rp = p.resolve()
+    return any(rp == d.resolve() or d.resolve() in rp.parents for d in dirs)
+
+
 def check_outputs(args: argparse.Namespace, *, force: bool = False) -> None:
     """Check every output option of a parsed command line (calibrate's ``--out`` is its
-    calibration file, kept with a ``.prev`` by the store, and is not checked here)."""
+    calibration file, kept with a ``.prev`` by the store, and is not checked here). Once all are
+    accepted, the folder of an output file that lies in a new output directory is created."""
+    dirs = _dir_options(args)
+    for flag, p in dirs:
+        check_output_dir(p, flag, force=force)
+    made_here = tuple(p for _flag, p in dirs if not p.exists())
+    files = []
     for attr, flag in FILE_OPTIONS.items():
         value = getattr(args, attr, None)
         if isinstance(value, str | Path):
-            check_output_file(value, flag, force=force)
-    for flag, p in _dir_options(args):
-        check_output_dir(p, flag, force=force)
+            files.append(check_output_file(value, flag, force=force, made_here=made_here))
+    for f in files:  # every check passed: nothing is created for a refused command
+        if not f.parent.is_dir():
+            f.parent.mkdir(parents=True, exist_ok=True)

@@ -59,3 +59,21 @@ def test_a_report_directory_that_is_not_ours_is_not_written_into(tmp_path, capsy
     assert cli.main(["run", "--duration", "0.5", "--quiet", "--report", str(fresh)]) == 0
     assert (fresh / MARKER).exists()
     assert cli.main(["run", "--duration", "0.5", "--quiet", "--report", str(fresh)]) == 0  # ours: rewritten
+
+
+def test_make_runs_json_inside_the_report_directory_it_creates_is_accepted(tmp_path, monkeypatch) -> None:
+    """`make run` on a fresh clone: `--report reports/run --json reports/run/run.json`, no
+    reports/ yet. The JSON's folder is the report directory the run creates."""
+    monkeypatch.chdir(tmp_path)
+    argv = ["run", "--duration", "0.2", "--quiet", "--report", "reports/run", "--json", "reports/run/run.json"]
+    assert cli.main(argv) == 0
+    assert json.loads((tmp_path / "reports/run/run.json").read_text())["written_by"] == "vmehil"
+    assert (tmp_path / "reports/run" / MARKER).exists()
+
+
+def test_a_json_in_a_folder_nothing_creates_is_refused_and_nothing_is_made(tmp_path, capsys) -> None:
+    out = tmp_path / "missing" / "run.json"
+    assert cli.main(["run", "--duration", "0.2", "--quiet", "--report", str(tmp_path / "rep"),
+                     "--json", str(out)]) == EXIT_USAGE
+    assert "does not exist" in capsys.readouterr().err
+    assert not (tmp_path / "missing").exists() and not (tmp_path / "rep").exists()
