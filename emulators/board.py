@@ -206,23 +206,19 @@ class RegisterBoard(Board):
         return self._resolved_writer(offset, width)
 
     def _resolved_reader(self, offset: int, width: Width) -> Callable[[], int]:
-        cache = self.__dict__.get("_readers")
-        if cache is None:
-            cache = self.__dict__["_readers"] = {}
-        key = (offset, width)
-        f = cache.get(key)
-        if f is None:
-            f = cache[key] = self._resolve_read(offset, width)
-        return f
+        return self._resolved("_readers", self._resolve_read, offset, width)
 
     def _resolved_writer(self, offset: int, width: Width) -> Callable[[int], None]:
-        cache = self.__dict__.get("_writers")
-        if cache is None:
-            cache = self.__dict__["_writers"] = {}
+        return self._resolved("_writers", self._resolve_write, offset, width)
+
+    def _resolved(self, cache_name: str, resolve: Callable[[int, Width], Any], offset: int, width: Width) -> Any:
+        """The access callable for ``(offset, width)``, resolved on first use and kept (in the
+        instance dict: subclasses need not call our ``__init__``)."""
+        cache = self.__dict__.setdefault(cache_name, {})
         key = (offset, width)
         f = cache.get(key)
         if f is None:
-            f = cache[key] = self._resolve_write(offset, width)
+            f = cache[key] = resolve(offset, width)
         return f
 
     def _resolve_read(self, offset: int, width: Width) -> Callable[[], int]:
