@@ -9,7 +9,7 @@ import numpy as np
 
 from servo.loop import ServoLoop
 from vmehil.files import save_figure, write_atomic, write_json
-from vmehil.metrics import limit_cycle
+from vmehil.metrics import CYCLE_RULE, limit_cycle
 
 SETTLE_S = 2.0  #: the limit cycle window starts this long after the last motion ended
 
@@ -30,6 +30,7 @@ def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns:
     t_end_motion = motion_end_time(loop)
     t_window = t_end_motion + SETTLE_S
     joints = []
+    pot_step_rad = loop.io.resolution().pot_rad  # one ADC code of each pot (NaN: no pot)
     for i, name in enumerate(loop.names):
         th_true = rec["theta_true"][:, i] if rec else np.zeros(0)
         th_d = rec["theta_d"][:, i] if rec else np.zeros(0)
@@ -38,16 +39,21 @@ def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns:
         moving = t <= t_end_motion
         finite = np.isfinite(err)
         lc = limit_cycle(t, th_true, t_window)
-        lc_pot = limit_cycle(t, th_pot, t_window)
+        q = float(pot_step_rad[i]) if np.isfinite(pot_step_rad[i]) else 0.0
+        lc_pot = limit_cycle(t, th_pot, t_window, quantum_rad=q)
         so_events = [e for e in loop.law.events if e.joint == i] if loop.law is not None else []
         joints.append({
             "name": name,
             "final_error_deg": _deg(err[finite][-1]) if finite.any() else None,
             "max_tracking_error_deg": _deg(np.max(np.abs(err[moving & finite]))) if (moving & finite).any() else None,
-            "limit_cycle": {"amplitude_deg": lc.amplitude_deg if t.size else None, "frequency_hz": lc.frequency_hz,
+            # amplitude_deg: half peak-to-peak of the hold (a cycle or not; None: window too short);
+            # cycle / frequency_hz: by the rule of vmehil.metrics (CYCLE_RULE)
+            "limit_cycle": {"amplitude_deg": lc.amplitude_deg, "frequency_hz": lc.frequency_hz,
+                            "cycle": lc.cycle, "spectrum_peak_hz": lc.spectrum_peak_hz,
                             "window_s": list(lc.window_s), "source": "true angle"},
-            "limit_cycle_pot": {"amplitude_deg": lc_pot.amplitude_deg if t.size else None,
-                                "frequency_hz": lc_pot.frequency_hz, "source": "potentiometer"},
+            "limit_cycle_pot": {"amplitude_deg": lc_pot.amplitude_deg, "frequency_hz": lc_pot.frequency_hz,
+                                "cycle": lc_pot.cycle, "spectrum_peak_hz": lc_pot.spectrum_peak_hz,
+                                "source": "potentiometer"},
             "switch_off_events": len(so_events),
             "final_integrating": bool(loop.law.integrating[i]) if loop.law is not None else None,
         })
@@ -88,8 +94,8 @@ def table(summary: dict[str, Any]) -> str:
     rows = [("joint", "final err °", "max track err °", "LC amp ° (true)", "LC Hz", "LC amp ° (pot)")]
     for j in summary["joints"]:
         lc, lp = j["limit_cycle"], j["limit_cycle_pot"]
-        rows.append((j["name"], _f(j["final_error_deg"]), _f(j["max_tracking_error_deg"]), _f(lc["amplitude_deg"]),
-                     _f(lc["frequency_hz"], 2), _f(lp["amplitude_deg"])))
+        rows.append((j["name"], _f(j["final_error_deg"]), _f(j["max_tracking_error_deg"]), _f(_cycle_amp(lc)),
+                     _f(lc["frequency_hz"], 2), _f(_cycle_amp(lp))))
     widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]))]
     lines = ["  ".join(r[c].rjust(widths[c]) if c else r[c].ljust(widths[c]) for c in range(len(r))) for r in rows]
     lines.insert(1, "  ".join("-" * w for w in widths))
@@ -101,7 +107,14 @@ def table(summary: dict[str, Any]) -> str:
         f"end effector {_f(v['final_distance_mm'], 2)} mm from the target"]
     tail = [*vis] + [f"fault: {f['cause']} at {f['time_s']:.3f} s ({f['joint']}): {f['detail']}"
                      for f in summary["faults"]]
-    return "\n".join([head, "", *lines, *tail])
+    note = [f"LC: limit cycle over the hold from {SETTLE_S:g} s after the last move; \"—\": none ({CYCLE_RULE})."]
+    return "\n".join([head, "", *lines, *note, *tail])
+
+
+def _cycle_amp(lc: dict[str, Any]) -> float | None:
+    """The amplitude to print in a limit-cycle column: only that of a cycle (older JSON without
+    ``cycle``: a frequency means a cycle)."""
+    return lc["amplitude_deg"] if lc.get("cycle", lc.get("frequency_hz") is not None) else None
 
 
 def _f(v: float | None, nd: int = 3) -> str:
@@ -139,12 +152,14 @@ def write_report(loop: ServoLoop, summary: dict[str, Any], out_dir: str | Path) 
         ax[3].step(t, rec["integrating"][:, i], where="post", lw=1, label="integrating (1) / switched off (0)")
         ax3b = ax[3].twinx()
         ax3b.plot(t, rec["kp_eff"][:, i], "r", lw=0.8, label="Kp effective")
-        ax3b.set_ylabel("Kp eff", color="r")
+        ax3b.set_ylabel("Kp effective (s⁻², normalized)", color="r")
         ax[3].set_ylabel("integrators")
         ax[3].set_xlabel("time (s)")
         j = summary["joints"][i]
-        fig.suptitle(f"{name}: final error {_f(j['final_error_deg'])}°, limit cycle "
-                     f"{_f(j['limit_cycle']['amplitude_deg'])}° @ {_f(j['limit_cycle']['frequency_hz'], 2)} Hz")
+        lc = j["limit_cycle"]
+        lc_text = (f"limit cycle {_f(lc['amplitude_deg'])}° @ {_f(lc['frequency_hz'], 2)} Hz" if _cycle_amp(lc)
+                   is not None else "no limit cycle")
+        fig.suptitle(f"{name}: final error {_f(j['final_error_deg'])}°, {lc_text}")
         for a in ax:
             a.grid(alpha=0.3)
             if summary["motion_end_s"]:

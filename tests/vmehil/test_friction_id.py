@@ -64,6 +64,7 @@ def test_cli_finds_the_papers_friction_figures_on_jpl_arm_joint_1(tmp_path) -> N
     assert 5.0 <= r["breakout_input_oz_in"] <= 9.0
     assert 550.0 <= r["breakout_output_oz_in"] <= 750.0
     assert math.isclose(r["breakout_output_oz_in"], 100.0 * r["breakout_input_oz_in"], rel_tol=1e-9)
+    assert not cal.exists()  # friction writes no calibration entry: no header-only file is created
     plots = rep / "friction-j1"
     assert {p.name for p in plots.iterdir()} >= {"torque_vs_time.png", "torque_vs_velocity.png", "summary.md"}
 

@@ -307,7 +307,8 @@ def limit_cycle_text(r: dict[str, Any]) -> str:
             elif sim.get("frequency_hz") is not None:
                 got = f"±{sim['amplitude_deg']:.3f}° at {sim['frequency_hz']:.2f} Hz"
             else:
-                got = f"no cycle (±{sim['amplitude_deg']:.3f}°)"
+                got = ("no cycle (hold too short to measure)" if sim["amplitude_deg"] is None
+                       else f"no cycle (±{sim['amplitude_deg']:.3f}°)")
             lines.append("    full-stack simulation: " + got + f"; static error {sim['static_error_deg']:.3f}° "
                          f"(servo), {sim['static_error_true_deg']:.3f}° (true angle)" if not sim.get("fault") else
                          "    full-stack simulation: " + got)

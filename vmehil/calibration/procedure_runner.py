@@ -5,18 +5,20 @@ successful procedure its entries are merged into ``ctx.store`` (so ``dac`` measu
 ``adc`` result, and the servo loop of ``pot`` runs with the amplifier and encoder results).
 The file is written once, at the end, and only if every procedure ran to completion and
 passed (or ``write_on_fail`` is set): a procedure that raises or is interrupted leaves the old
-file in force.
+file in force. When no entry changed (``friction`` writes none) nothing is written: no file is
+rewritten with only a new timestamp, and no header-only file is created.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from vmehil.calibration.base import CalibrationContext, Procedure, ProcedureResult
 from vmehil.calibration.procedures import ALL, PROCEDURES, procedures_for_all
+from vmehil.calibration.store import CalibrationStore
 
 
 @dataclass
@@ -26,14 +28,22 @@ class ProcedureRunOutcome:
     #: where the file that ``written`` replaced was kept (``.prev``); None when there was none
     previous: Path | None = None
     error: str | None = None
+    #: every procedure passed but none changed an entry (``friction`` writes none): nothing written
+    unchanged: bool = False
 
     @property
     def passed(self) -> bool:
         return self.error is None and all(r.passed for r in self.results)
 
     def as_dict(self) -> dict[str, Any]:
-        return {"passed": self.passed, "written": str(self.written) if self.written else None, "error": self.error,
+        return {"passed": self.passed, "written": str(self.written) if self.written else None,
+                "unchanged": self.unchanged, "error": self.error,
                 "procedures": {r.procedure: r.as_dict() for r in self.results}}
+
+
+def _same_entries(a: CalibrationStore, b: CalibrationStore) -> bool:
+    """True when ``a`` and ``b`` would write the same file apart from its ``written`` timestamp."""
+    return replace(a, written="-").to_toml() == replace(b, written="-").to_toml()
 
 
 def resolve_procedure_names(name: str) -> list[str]:
@@ -90,7 +100,13 @@ def run_procedures(ctx: CalibrationContext, names: list[str], *, out_path: str |
                 f"({sum(c.passed for c in result.checks)}/{len(result.checks)} checks)")
     ctx.say("")
     ctx.say(procedure_results_table(outcome.results))
-    if out_path is not None and (outcome.passed or write_on_fail):
+    if out_path is not None and outcome.error is None and _same_entries(merged, base_store):
+        # nothing to write: rewriting the file would change its timestamp only, and with no file
+        # yet it would create one with a header and no entries
+        outcome.unchanged = True
+        state = "unchanged" if Path(out_path).exists() else "not created"
+        ctx.say(f"no calibration entry changed: {out_path} {state}")
+    elif out_path is not None and (outcome.passed or write_on_fail):
         if before_write is not None:
             before_write()
         outcome.written = merged.save(out_path)

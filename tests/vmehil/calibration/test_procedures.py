@@ -293,3 +293,43 @@ def test_all_runs_the_converters_first_and_not_friction():
     assert resolve_procedure_names("all") == ["adc", "dac", "encoder", "amplifier", "pot"]
     with pytest.raises(ValueError, match="unknown calibration procedure"):
         resolve_procedure_names("frobnicate")
+
+
+class _NoEntries:
+    """A procedure that measures and passes but writes no calibration entry (as ``friction``)."""
+
+    name, version, title = "noentries", 1, "measures only"
+
+    def run(self, ctx):
+        from vmehil.calibration.base import ProcedureResult
+
+        return ProcedureResult(self.name, self.version)
+
+
+def test_a_procedure_without_entries_creates_no_header_only_file(tmp_path):
+    b = build_bench(tmp_path, ERRORS)
+    path = tmp_path / "cal.toml"
+    ctx = b.context()
+    said: list[str] = []
+    ctx.say = said.append
+    out = run_procedures(ctx, ["pot"], out_path=path, factories={"pot": _NoEntries})
+    assert out.passed and out.unchanged and out.written is None
+    assert not path.exists() and not (tmp_path / "cal.toml.prev").exists()
+    assert any("not created" in s for s in said)
+
+
+def test_a_procedure_without_entries_leaves_an_existing_file_byte_for_byte(tmp_path):
+    b = build_bench(tmp_path, ERRORS)
+    path = tmp_path / "cal.toml"
+    assert run_procedures(b.context(), ["adc"], out_path=path).written == path
+    before = path.read_bytes()
+    ctx = b.context()  # the bench's store now holds what the file holds
+    ctx.store = load_store(path, ctx.rig)
+    out = run_procedures(ctx, ["pot"], out_path=path, factories={"pot": _NoEntries})
+    assert out.unchanged and out.written is None
+    assert path.read_bytes() == before and not (tmp_path / "cal.toml.prev").exists()
+    # and a procedure that does change an entry still writes
+    ctx = b.context()
+    ctx.store = load_store(path, ctx.rig)
+    assert run_procedures(ctx, ["encoder"], out_path=path).written == path
+    assert path.read_bytes() != before
