@@ -2,7 +2,8 @@
 
 Limit cycle (docs/jpl-figures.md, issue 5): over the hold after the last motion has ended and the
 joint has settled, amplitude = half the peak-to-peak of the angle about its mean; frequency
-from the zero crossings of the angle about its mean, cross-checked against the spectrum peak.
+from the crossings of ± half the amplitude about the mean (hysteresis), cross-checked against
+the spectrum peak.
 
 **The rule (what counts as a limit cycle)**, :func:`is_cycle`: the motion is reported as a cycle
 only when
@@ -13,7 +14,8 @@ only when
 * its spectrum peaks at or below :data:`CYCLE_MAX_NYQUIST_FRACTION` of the Nyquist frequency of
   the samples (ADC noise has its peak anywhere up to Nyquist, 26–31 Hz at 125 Hz; the paper's
   cycle is at 1–3 Hz);
-* the window holds at least two full periods (four zero crossings).
+* the window holds at least two full periods (four crossings of ± half the amplitude, with
+  hysteresis: :func:`_crossing_times`).
 
 Otherwise :attr:`LimitCycle.frequency_hz` is ``None`` and :attr:`LimitCycle.cycle` false; the
 amplitude is still the residual motion's half peak-to-peak. A window too short to measure
@@ -77,14 +79,29 @@ def limit_cycle(t: np.ndarray, x: np.ndarray, t_start: float, *, min_amplitude_r
     peak = spectrum_peak(tw, dev)
     nyquist_hz = 0.5 / float(np.median(np.diff(tw)))
     if is_cycle(amp, peak, nyquist_hz, min_amplitude_rad=min_amplitude_rad, quantum_rad=quantum_rad):
-        s = np.signbit(dev)
-        crossings = np.nonzero(s[1:] != s[:-1])[0]
-        if crossings.size >= 4:
-            # interpolate crossing instants; frequency = (crossings - 1) / 2 / span
-            tc = tw[crossings] + (tw[crossings + 1] - tw[crossings]) * (
-                dev[crossings] / (dev[crossings] - dev[crossings + 1]))
+        tc = _crossing_times(tw, dev, 0.5 * amp)
+        if tc.size >= 4:
             freq = float((tc.size - 1) / 2.0 / (tc[-1] - tc[0]))
     return LimitCycle(amp, freq, mean, window, peak)
+
+
+def _crossing_times(t: np.ndarray, dev: np.ndarray, level: float) -> np.ndarray:
+    """Instants ``dev`` crosses ``+level`` upwards after having been below ``-level``, and
+    ``-level`` downwards after having been above ``+level`` (a Schmitt trigger: sensor noise
+    about the mean adds no crossings), interpolated between samples. On a sine the up and
+    down crossings are half a period apart, so consecutive instants are half periods."""
+    out: list[float] = []
+    state = 0
+    for k in range(1, dev.size):
+        if state <= 0 and dev[k] >= level > dev[k - 1]:
+            lv = level
+        elif state >= 0 and dev[k] <= -level < dev[k - 1]:
+            lv = -level
+        else:
+            continue
+        out.append(float(t[k - 1] + (t[k] - t[k - 1]) * (lv - dev[k - 1]) / (dev[k] - dev[k - 1])))
+        state = 1 if lv > 0 else -1
+    return np.asarray(out)
 
 
 def is_cycle(amplitude_rad: float, spectrum_peak_hz: float | None, nyquist_hz: float, *,
