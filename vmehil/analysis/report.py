@@ -88,7 +88,9 @@ def bode_figure(cfg: LoopConfig, result: dict[str, Any]) -> Figure:
             x = m["gain_margin_hz"]
             ax1.annotate("", xy=(x, 0), xytext=(x, -m["gain_margin_db"]),
                          arrowprops={"arrowstyle": "<->", "color": col})
-            ax1.text(x * 0.7, -m["gain_margin_db"] - 8, f"GM {m['gain_margin_db']:.1f} dB", color=col, fontsize=8)
+            # beside the middle of its arrow: |L| reaches −GM on the curve, so this is inside the axes
+            ax1.text(x * 0.93, -m["gain_margin_db"] / 2, f"GM {m['gain_margin_db']:.1f} dB", color=col, fontsize=8,
+                     ha="right", va="center")
     ax1.axvline(cfg.nyquist_hz, color="grey", ls="--", lw=0.8)
     ax1.text(cfg.nyquist_hz * 0.97, ax1.get_ylim()[1] - 10, "Nyquist", ha="right", fontsize=8, color="grey")
     ax1.set_ylabel("|L| (dB)")
@@ -448,6 +450,10 @@ HEATMAP_METRICS = (("lc_amplitude_deg", "limit-cycle amplitude (deg)", "viridis_
                    ("settling_time_s", "settling time into the steady state (s)", "viridis_r"))
 
 
+IN_BAND_METRIC = "settling_time_s"
+IN_BAND_LABEL = "in band\nfrom start"  #: settling 0 s: never left the band (not "settled at once")
+
+
 def _unstable_point(row: dict) -> bool:
     """A sweep point in the ``unstable`` class: refused by servo.gain_guard (``stable`` false) or
     unstable in the sampled linear model (``sampled_stable`` false); neither was simulated."""
@@ -457,7 +463,10 @@ def _unstable_point(row: dict) -> bool:
 def sweep_heatmaps(rows: list[dict], x: str, y: str, title: str) -> Figure | None:
     """One heat map per metric over gains ``x`` and ``y``; cells show the value (mean over any other
     gains that vary); red hatched "unstable" = every point of the cell is unstable (its class, not a
-    value: :func:`_unstable_point`); grey "—" = no value (not simulated, no cycle, never settled)."""
+    value: :func:`_unstable_point`); grey "—" = no value (not simulated, no cycle, never settled);
+    on the settling map, green dotted "in band from start" = every point's settling time is exactly
+    0 s: the joint never left its steady-state band after the move (a joint that left it and came
+    back settles after ≥ one servo period, and shows that time)."""
     if not rows:
         return None
     xs = sorted({r[x] for r in rows})
@@ -470,12 +479,16 @@ def sweep_heatmaps(rows: list[dict], x: str, y: str, title: str) -> Figure | Non
     fig, axes = plt.subplots(2, 2, figsize=(11, 9))
     for a, (key, label, cmap) in zip(axes.flat, HEATMAP_METRICS, strict=True):
         grid = np.full((len(ys), len(xs)), np.nan)
+        in_band = np.zeros((len(ys), len(xs)), bool)
         for iy, yv in enumerate(ys):
             for ix, xv in enumerate(xs):
                 vals = [r[key] for r in rows if r[x] == xv and r[y] == yv and r.get(key) is not None
                         and not _unstable_point(r)]
                 if vals:
                     grid[iy, ix] = float(np.mean(vals))
+                    if key == IN_BAND_METRIC and all(v == 0.0 for v in vals):
+                        in_band[iy, ix] = True
+                        grid[iy, ix] = np.nan  # a class, not a colour on the scale
         a.set_facecolor("#dddddd")
         m = np.ma.masked_invalid(grid)
         im = a.imshow(m, origin="lower", aspect="auto", cmap=cmap,
@@ -487,7 +500,11 @@ def sweep_heatmaps(rows: list[dict], x: str, y: str, title: str) -> Figure | Non
                 if unstable[iy, ix]:
                     a.add_patch(Rectangle((ix - 0.5, iy - 0.5), 1, 1, facecolor="#f4cccc", edgecolor="#cc0000",
                                           hatch="//", lw=0))
-                text = "unstable" if unstable[iy, ix] else "—" if not np.isfinite(v) else f"{v:.3g}"
+                if in_band[iy, ix]:
+                    a.add_patch(Rectangle((ix - 0.5, iy - 0.5), 1, 1, facecolor="#d9ead3", edgecolor="#38761d",
+                                          hatch="..", lw=0))
+                text = ("unstable" if unstable[iy, ix] else IN_BAND_LABEL if in_band[iy, ix]
+                        else "—" if not np.isfinite(v) else f"{v:.3g}")
                 a.text(ix, iy, text, ha="center", va="center", fontsize=8, color="w",
                        path_effects=[patheffects.withStroke(linewidth=2, foreground="k")])
         a.set_xticks(range(len(xs)), [f"{v:g}" for v in xs])

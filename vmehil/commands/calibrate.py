@@ -136,22 +136,41 @@ def _write_report(folder: Path, summary: dict, table: str, outcome) -> None:
     pot = next((r for r in outcome.results if r.procedure == "pot"), None)
     if pot is None or "joints" not in pot.data:
         return
+    fig = pot_residuals_figure(pot.data["joints"], f"{summary['rig']} (seed {summary['seed']})")
+    import matplotlib.pyplot as plt
+
+    from vmehil.files import save_figure
+
+    save_figure(fig, folder / "pot_residuals", ("png",))
+    plt.close(fig)
+
+
+def pot_residuals_figure(joints: dict, rig: str):
+    """``pot_residuals.png``: the pot error at the verification points before (nominal scaling) and
+    after the calibration, one colour per joint, the legends beside the axes (never over data)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from vmehil.files import save_figure
-
-    fig, ax = plt.subplots(figsize=(8, 4.5))
-    for name, d in pot.data["joints"].items():
+    colours = plt.get_cmap("tab10" if len(joints) <= 10 else "tab20").colors  # one colour per joint
+    fig, (before, after) = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
+    for k, (name, d) in enumerate(joints.items()):
         ver = d["verification"]
-        ax.plot([p["angle_deg"] for p in ver], [p["before_arcmin"] for p in ver], "x--", label=f"{name} nominal")
-        ax.plot([p["angle_deg"] for p in ver], [p["residual_arcmin"] for p in ver], "o-", label=f"{name} 8 segments")
-    ax.axhspan(-3, 3, color="0.9", label="±3 arcmin (≈ 1 mm at full reach)")
-    ax.set_xlabel("joint angle (deg)")
-    ax.set_ylabel("pot error at verification points (arcmin)")
-    ax.legend(fontsize=7, ncol=2)
-    ax.grid(True, alpha=0.3)
-    save_figure(fig, folder / "pot_residuals", ("png",))
-    plt.close(fig)
+        angles = [p["angle_deg"] for p in ver]
+        col = colours[k % len(colours)]
+        before.plot(angles, [p["before_arcmin"] for p in ver], "x--", color=col, label=name)
+        after.plot(angles, [p["residual_arcmin"] for p in ver], "o-", color=col, label=name)
+    after.axhspan(-3, 3, color="0.9", zorder=0, label="±3 arcmin (≈ 1 mm at full reach)")
+    before.set_title("nominal pot scaling (before)", fontsize=10)
+    after.set_title("after the calibration: eight linear segments", fontsize=10)
+    before.set_ylabel("pot error (arcmin)")
+    after.set_ylabel("pot error (arcmin)")
+    after.set_xlabel("joint angle at the verification point (deg)")
+    for a in (before, after):
+        a.grid(True, alpha=0.3)
+    after.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+    before.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, title="joint")
+    fig.suptitle(f"Pot calibration of rig {rig}: error at the verification points, between the calibration points")
+    fig.tight_layout()
+    return fig
