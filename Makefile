@@ -7,7 +7,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: run test test-fast lint venv tools constraints bench clean
+.PHONY: run test test-fast lint venv tools constraints bench clean reproduce
 
 venv: $(STAMP) tools
 
@@ -45,6 +45,11 @@ constraints:
 
 run: $(STAMP)
 	$(VENV)/bin/vmehil run --report reports/run --json reports/run/run.json
+
+# The README's "What it reproduces" table, re-run in a temporary directory and compared with the
+# paper's bands (exit 1 when a figure leaves its band): docs/jpl-figures.md.
+reproduce: $(STAMP)
+	$(VENV)/bin/vmehil reproduce
 
 lint: $(STAMP)
 	$(PY) -m ruff check .

@@ -95,8 +95,9 @@ def test_run_table_prints_a_dash_for_no_cycle_and_states_the_rule() -> None:
         return {"name": name, "final_error_deg": 0.1, "max_tracking_error_deg": 0.2, "limit_cycle": lc,
                 "limit_cycle_pot": dict(lc)}
 
+    joints = [joint("j1", 0.74, 1.5, True), joint("j2", 0.249, None, False), joint("j3", None, None, False)]
     summary = {"rig": "r", "mode": "lockstep", "ticks": 1, "duration_s": 0.008, "overruns": 0, "faults": [],
-               "joints": [joint("j1", 0.74, 1.5, True), joint("j2", 0.249, None, False), joint("j3", None, None, False)]}
+               "joints": joints}
     lines = table(summary).splitlines()
     j1, j2, j3 = (next(line for line in lines if line.startswith(n)) for n in ("j1", "j2", "j3"))
     assert "0.740" in j1 and "1.50" in j1

@@ -153,7 +153,8 @@ def pot_residuals_figure(joints: dict, rig: str):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    colours = plt.get_cmap("tab10" if len(joints) <= 10 else "tab20").colors  # one colour per joint
+    cmap = plt.get_cmap("tab10" if len(joints) <= 10 else "tab20")
+    colours = [cmap(k % cmap.N) for k in range(cmap.N)]  # one colour per joint (qualitative map)
     fig, (before, after) = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
     for k, (name, d) in enumerate(joints.items()):
         ver = d["verification"]

@@ -9,8 +9,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import pytest
 
-from vmehil.analysis.tuning import margins_summary
 from vmehil.analysis.report import HEATMAP_METRICS, IN_BAND_LABEL, bode_figure, sweep_heatmaps
+from vmehil.analysis.tuning import margins_summary
 from vmehil.commands.calibrate import pot_residuals_figure
 
 

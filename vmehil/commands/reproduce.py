@@ -1,0 +1,44 @@
+"""``vmehil reproduce``: re-run the README's "What it reproduces" table and compare with the paper.
+
+    vmehil reproduce [--seed N] [--json PATH] [--quiet]
+
+Runs each figure's own command (``vmehil run …``, ``vmehil calibrate …``) in a temporary directory,
+in the README's order, from a fresh clone's state (no calibration file; nothing in the current
+directory is read or written but ``--json``), then prints paper / ours / band / command side by
+side. Exit status 0 when every figure lies in the paper's band, 1 when one does not
+(:mod:`vmehil.reproduce`). Progress: a bar on stderr when it is a terminal, without ``--quiet``.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from vmehil.cli_types import seed
+from vmehil.exit_status import EXIT_CHECK_FAILED, EXIT_OK
+from vmehil.files import write_json
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("reproduce", help="re-run the README's table of the JPL paper's figures and compare",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--seed", type=seed, default=0, help="seed of every step's emulated rig (default 0, the README's)")
+    p.add_argument("--json", default=None, help="write the figures, bands and steps here")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from vmehil.progress import progress_bar, say
+    from vmehil.reproduce import STEPS, reproduce
+
+    say(f"reproducing the README's table (seed {args.seed}): {len(STEPS)} commands in a temporary directory, "
+        "no calibration file (a fresh clone's state)")
+    with progress_bar("reproduce", len(STEPS), quiet=args.quiet, unit="command") as bar:
+        result = reproduce(seed=args.seed, say=say, advance=lambda: bar.update(1))
+    say("")
+    say(result["table"])
+    say("")
+    say("every figure in the paper's band" if result["passed"] else "a figure is OUTSIDE the paper's band")
+    if args.json:
+        write_json(args.json, {k: v for k, v in result.items() if k != "table"})
+    return EXIT_OK if result["passed"] else EXIT_CHECK_FAILED
