@@ -21,9 +21,11 @@ motion through the motor encoder (quadrature decoder). Nothing reads the emulato
    friction ripple repeats twice per wave-generator turn), so the spread of the local breakout
    shows. Between ramps the loop is closed again and the joint moved to the next angle (and a
    whole motor turn on every other ramp).
-3. **Output breakout** = ``N × input breakout`` (mean of the ramps): the drive's input-shaft
-   friction seen from the output. The JPL paper measured ~600 oz-in directly with a torque
-   gauge on the output; a gauge is not part of this procedure.
+3. **Output breakout** = ``N × input breakout`` (mean of the ramps): **derived, not measured**
+   (``breakout_output_method`` says so in the JSON). The JPL paper measured ~600 oz-in directly
+   with a torque gauge on the output; this procedure has no gauge, and the plant has no friction
+   on the output side (wave generator/flexspline/output bearing), so a gauge would read N × input
+   by construction.
 
 Torques are reported in oz-in at the motor (input) shaft unless named ``output``.
 """
@@ -156,7 +158,8 @@ def identify_friction(system: EmulatedRig, joint: int, *, amplitude_rad: float =
     Returns:
         A JSON-ready dict: ``running_torque_oz_in.mean``, ``running_torque_oz_in.ripple_amplitude``,
         ``ripple_frequency_hz``, ``breakout_input_oz_in`` (mean of the ramps),
-        ``breakout_input_range_oz_in``, ``breakout_output_oz_in`` (= N × input), ``breakout_ramps``,
+        ``breakout_input_range_oz_in``, ``breakout_output_oz_in`` (DERIVED = N × input, not measured),
+        ``breakout_output_method`` (says so), ``breakout_ramps``,
         ``test`` (the settings used) and the joint's identity.
     """
     rig = system.rig
@@ -339,7 +342,8 @@ def _identify(system: EmulatedRig, joint: int, amplitude_rad: float, frequency_h
         "breakout_input_oz_in": float(nm_to_oz_in(b_in)),
         "breakout_input_range_oz_in": [float(nm_to_oz_in(min(found))), float(nm_to_oz_in(max(found)))],
         "breakout_output_oz_in": float(nm_to_oz_in(ratio * b_in)),
-        "breakout_output_method": f"N x input breakout (N = {ratio:g}); not measured with a torque gauge",
+        "breakout_output_method": f"DERIVED: N x input breakout (N = {ratio:g}), not measured at the output "
+                                  "(the paper used a torque gauge; the model has no output-side friction)",
         "breakout_ramps": ramp_out,
         "test": {
             "amplitude_rad": amplitude_rad,
@@ -429,8 +433,8 @@ def write_friction_report(result: dict[str, Any], folder: str | Path) -> list[Pa
         ax.plot([info["ramp_s"]], [info["torque_oz_in"]], "o", color=line.get_color())
     ax.set_xlabel("time into the ramp (s)")
     ax.set_ylabel("|Kt·i| (oz-in, current monitor)")
-    ax.set_title(f"{name}: breakout ramps (dot = first encoder motion); output = N × input "
-                 f"= {result['breakout_output_oz_in']:.0f} oz-in", fontsize=9)
+    ax.set_title(f"{name}: breakout ramps (dot = first encoder motion); output {result['breakout_output_oz_in']:.0f} "
+                 "oz-in DERIVED (N × input, not measured)", fontsize=9)
     ax.legend(fontsize=8)
     fig.tight_layout()
     files += save_figure(fig, out / "breakout_ramps")
@@ -443,7 +447,7 @@ def write_friction_report(result: dict[str, Any], folder: str | Path) -> list[Pa
           f"| ripple amplitude | ±{rt['ripple_amplitude']:.2f} oz-in |",
           f"| ripple frequency | {result['ripple_frequency_hz']:.2f} Hz |",
           f"| breakout at the input | {result['breakout_input_oz_in']:.2f} oz-in (ramps: {lo:.2f}–{hi:.2f}) |",
-          f"| breakout at the output | {result['breakout_output_oz_in']:.0f} oz-in "
+          f"| breakout at the output (**derived**, not measured) | {result['breakout_output_oz_in']:.0f} oz-in "
           f"({result['breakout_output_method']}) |", "",
           "Measurement definition: docs/plant.md (Friction measurement); procedure: vmehil/friction_id.py.", ""]
     files.append(write_atomic(out / "summary.md", "\n".join(md)))
@@ -464,7 +468,8 @@ def format_result(r: dict[str, Any]) -> str:
         f"  running torque     {rt['mean']:7.2f} oz-in  (ripple ±{rt['ripple_amplitude']:.2f} oz-in "
         f"at {r['ripple_frequency_hz']:.2f} Hz)",
         f"  breakout (input)   {r['breakout_input_oz_in']:7.2f} oz-in  (ramps {lo:.2f}–{hi:.2f})",
-        f"  breakout (output)  {r['breakout_output_oz_in']:7.1f} oz-in  ({r['breakout_output_method']})",
+        f"  breakout (output)  {r['breakout_output_oz_in']:7.1f} oz-in  DERIVED = N x input, not measured "
+        f"(the paper's torque gauge)",
     ])
 
 

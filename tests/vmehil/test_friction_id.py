@@ -3,7 +3,9 @@
 Tolerances on jpl-arm joint 1 (the paper's figures): running torque 24 ± 5 oz-in, ripple
 frequency 4.2–5.4 Hz (the paper's ~5 Hz; 4.8 Hz expected at the test's peak speed), ripple
 amplitude 3.5–6.5 oz-in (the preset's ±5), every breakout ramp within the paper's 5–9 oz-in at
-the input, output breakout (N × input) 550–750 oz-in (the paper's ~600 measured with a gauge).
+the input and their mean and spread within 8 % / 15 % of what the plant's friction parameters
+give; the output breakout is DERIVED (N × input, 550–750 oz-in; the paper's ~600 was measured
+with a gauge), and the JSON says so.
 """
 
 from __future__ import annotations
@@ -14,7 +16,9 @@ import math
 import numpy as np
 import pytest
 
+from emulators.plant import load_plant_params
 from emulators.presets import resolve_rig
+from hal.units import nm_to_oz_in
 from vmehil.cli import main
 from vmehil.friction_id import FrictionIdError, Sinusoid, identify_friction
 from vmehil.system import build_emulated_rig
@@ -62,8 +66,15 @@ def test_cli_finds_the_papers_friction_figures_on_jpl_arm_joint_1(tmp_path) -> N
     assert len(ramps) == 4 and all(5.0 <= b <= 9.0 for b in ramps)
     assert max(ramps) - min(ramps) > 0.5  # the wave-generator angle matters
     assert 5.0 <= r["breakout_input_oz_in"] <= 9.0
-    assert 550.0 <= r["breakout_output_oz_in"] <= 750.0
-    assert math.isclose(r["breakout_output_oz_in"], 100.0 * r["breakout_input_oz_in"], rel_tol=1e-9)
+    assert 550.0 <= r["breakout_output_oz_in"] <= 750.0  # derived (N × input), and labelled so:
+    assert r["breakout_output_method"].startswith("DERIVED")
+    # against an independent expectation from the plant's parameters (not the procedure's): the
+    # local breakout is T_s·(1 + m·sin(2θm + φ)); the four ramps sit a quarter ripple period
+    # apart, so their mean is T_s and their spread 2·m·T_s·max(|sin|, |cos|) of the first phase
+    fr = load_plant_params("jpl-arm").joints[0].friction
+    ts_oz, m = nm_to_oz_in(fr.breakout_nm), fr.ripple_fraction
+    assert r["breakout_input_oz_in"] == pytest.approx(ts_oz, rel=0.08)
+    assert 2 * m * ts_oz * math.sqrt(0.5) * 0.85 <= max(ramps) - min(ramps) <= 2 * m * ts_oz * 1.1
     assert not cal.exists()  # friction writes no calibration entry: no header-only file is created
     plots = rep / "friction-j1"
     assert {p.name for p in plots.iterdir()} >= {"torque_vs_time.png", "torque_vs_velocity.png", "summary.md"}
@@ -89,4 +100,4 @@ def test_finds_another_friction_without_looking_at_the_emulator(tmp_path) -> Non
     for ramp in r["breakout_ramps"]:
         assert ramp["torque_oz_in"] == pytest.approx(10.0, rel=0.05)
     assert r["running_torque_oz_in"]["ripple_amplitude"] < 1.0
-    assert r["breakout_output_oz_in"] == pytest.approx(1000.0, rel=0.05)
+    assert r["breakout_input_oz_in"] == pytest.approx(10.0, rel=0.05)

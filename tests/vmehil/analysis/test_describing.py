@@ -92,12 +92,11 @@ def test_sampled_describing_function_matches_time_simulation(nl) -> None:
     assert abs(cont.frequency_hz / freq - 1) > 0.2 and abs(cont.amplitude_x / amp - 1) > 0.3
 
 
-def _deadband_for(amplitude_deg: float, g: Gains) -> tuple[float, float]:
-    """Analytic harmonic balance of the continuous loop with a velocity dead band.
-
-    G(s) = s(Kv·s + KvI)/(s³ + Kp·s + Kpi) is real where Kv·Ω²(Kp − Ω²) = −KvI·Kpi. Returns
-    (dead band rad/s, Ω rad/s) for a joint-angle amplitude ``amplitude_deg``.
-    """
+def _harmonic_balance(deadband_rad_s: float, g: Gains) -> tuple[float, float]:
+    """Analytic harmonic balance of the continuous loop with a velocity dead band, independent of
+    :func:`predict_cycles`: G(s) = s(Kv·s + KvI)/(s³ + Kp·s + Kpi) is real where
+    Kv·Ω²(Kp − Ω²) = −KvI·Kpi; there the dead zone's DF must equal −1/G. Returns (joint-angle
+    amplitude rad, Ω rad/s) for the dead band."""
     x = (g.kp + math.sqrt(g.kp**2 + 4 * g.kvi * g.kpi / g.kv)) / 2
     w = math.sqrt(x)
     s = 1j * w
@@ -105,20 +104,29 @@ def _deadband_for(amplitude_deg: float, g: Gains) -> tuple[float, float]:
     assert abs(G.imag) < 1e-9 * abs(G) and G.real < 0
     k = -1 / G.real
     r = brentq(lambda r: 1 - (2 / math.pi) * (math.asin(r) + r * math.sqrt(1 - r * r)) - k, 1e-12, 1 - 1e-12)
-    a_vel = math.radians(amplitude_deg) * w  # θ = ω/s on the continuous plant
-    return r * a_vel, w
+    a_vel = deadband_rad_s / r  # the rate amplitude whose dead-zone gain is k
+    return a_vel / w, w  # θ = ω/s on the continuous plant
 
 
-def test_continuous_velocity_dead_band_reproduces_the_papers_cycle() -> None:
-    """docs/jpl-figures.md: a DF of the tach dead band on the normalized loop predicts ±0.73° at 3.1 Hz."""
+def test_continuous_velocity_dead_band_prediction_against_harmonic_balance_and_simulation() -> None:
+    """docs/jpl-figures.md: a 0.15 rad/s tach dead band on the normalized loop with the paper's
+    gains. The DF prediction agrees with the analytic harmonic balance (two derivations), and —
+    the check that fails if the loop or the DF is wrong — with a brute-force simulation of the
+    nearly continuous loop (T = 1 ms, no delay) within the DF's approximation (15 %)."""
     g = Gains.paper()
-    delta, w = _deadband_for(0.73, g)
-    assert 0.10 < delta < 0.16  # the band docs/jpl-figures.md quotes (exactly 0.1506 rad/s)
+    delta = 0.15
+    amp_rad, w = _harmonic_balance(delta, g)
     (c,) = predict_cycles(LoopConfig(gains=g), DeadZone(delta), sampled=False)
-    assert c.frequency_hz == pytest.approx(w / (2 * math.pi), rel=1e-7)
-    assert c.frequency_hz == pytest.approx(3.06, abs=0.01)
-    assert c.amplitude_deg == pytest.approx(0.73, rel=1e-6)
     assert c.stable
+    assert c.frequency_hz == pytest.approx(w / (2 * math.pi), rel=1e-7)
+    assert c.amplitude_rad == pytest.approx(amp_rad, rel=1e-6)
+    fine = LoopConfig(gains=g, sample_period_s=1e-3, delay_fraction=0.0)
+    sim = simulate_sampled(fine, DeadZone(delta), 8000, kick=1.0)
+    amp, freq = measure_cycle(sim["t"], sim["theta"])
+    assert amp is not None and freq is not None
+    assert c.amplitude_rad == pytest.approx(amp, rel=0.15)  # DF ±0.73°, simulated ±0.80°
+    assert c.frequency_hz == pytest.approx(freq, rel=0.15)  # DF 3.06 Hz, simulated 2.82 Hz
+    assert 0.5 <= math.degrees(amp) <= 1.0 and 1.0 <= freq <= 3.0  # the paper's band
 
 
 def test_sampled_velocity_dead_band_cycle_matches_simulation_of_the_sampled_loop() -> None:
