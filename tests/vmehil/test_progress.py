@@ -10,6 +10,8 @@ import re
 import sys
 import warnings
 
+import pytest
+
 from vmehil.cli import main
 from vmehil.progress import PhaseProgress, TickProgress, progress_bar, say
 
@@ -156,3 +158,40 @@ def test_sweep_bar_counts_points_and_names_the_last(tmp_path, monkeypatch, capsy
     out = tty.getvalue()
     assert re.search(r"sweep: 100%\|.*\| 2/2", out) and "last: kp=" in out
     assert (tmp_path / "sweep.csv").exists()
+
+
+@pytest.mark.slow
+def test_calibrate_pot_log_records_and_remarks_each_land_on_a_line_of_their_own(tmp_path, monkeypatch) -> None:
+    """`calibrate pot --auto` on a terminal, with a library logging through the root logger's
+    console handler (as a user's `logging.basicConfig` sets up) at every fixture reading while the
+    bar is drawn: the captured output holds every record and remark whole, on its own line."""
+    from vmehil.emulated_calibration import EmulatedFixture
+
+    terminal = on_terminal(monkeypatch)
+    root = logging.getLogger()
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("LOG %(message)s"))
+    root.addHandler(handler)
+    reading = EmulatedFixture.joint_angle
+    count = {"n": 0}
+
+    def logged_reading(self, joint: int) -> float:
+        count["n"] += 1
+        logging.getLogger("vmehil.test.fixture").warning("fixture reading %d", count["n"])
+        return reading(self, joint)
+
+    monkeypatch.setattr(EmulatedFixture, "joint_angle", logged_reading)
+    try:
+        argv = ["calibrate", "pot", "--auto", "--joint", "1", "--points", "5", "--out", str(tmp_path / "c.toml")]
+        assert main(argv) == 0
+    finally:
+        root.removeHandler(handler)
+    raw, screen = terminal.getvalue(), terminal.screen()
+    assert BAR.search(raw), "the bar was drawn"
+    assert count["n"] >= 5
+    for k in range(1, count["n"] + 1):  # every record whole, alone on its line
+        assert f"LOG fixture reading {k}" in screen
+    assert any(line.startswith("  j1: residual ") for line in screen)
+    for line in screen:  # a line with a bar holds the bar and nothing after it, nothing before it
+        assert not BAR.search(line) or re.fullmatch(r"[^|]*\d+%\|.*\| \d+/\d+ \[[^\]]*\]", line), line
+    assert not any(BAR.search(line) for line in screen)  # and none is left behind
