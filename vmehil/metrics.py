@@ -2,8 +2,8 @@
 
 Limit cycle (docs/jpl-figures.md, issue 5): over the hold after the last motion has ended and the
 joint has settled, amplitude = half the peak-to-peak of the angle about its mean; frequency
-from the crossings of ± half the amplitude about the mean (hysteresis), cross-checked against
-the spectrum peak.
+from the crossings about the mean (with hysteresis: sensor noise adds none), cross-checked
+against the spectrum peak.
 
 **The rule (what counts as a limit cycle)**, :func:`is_cycle`: the motion is reported as a cycle
 only when
@@ -14,8 +14,8 @@ only when
 * its spectrum peaks at or below :data:`CYCLE_MAX_NYQUIST_FRACTION` of the Nyquist frequency of
   the samples (ADC noise has its peak anywhere up to Nyquist, 26–31 Hz at 125 Hz; the paper's
   cycle is at 1–3 Hz);
-* the window holds at least two full periods (four crossings of ± half the amplitude, with
-  hysteresis: :func:`_crossing_times`).
+* the window holds at least two full periods (four crossings about the mean with a hysteresis
+  of 3 sensor steps or a tenth of the amplitude, whichever is larger: :func:`_crossing_times`).
 
 Otherwise :attr:`LimitCycle.frequency_hz` is ``None`` and :attr:`LimitCycle.cycle` false; the
 amplitude is still the residual motion's half peak-to-peak. A window too short to measure
@@ -32,6 +32,8 @@ import numpy as np
 CYCLE_MIN_QUANTA = 4.0
 #: and its spectrum peak at or below this fraction of the Nyquist frequency (12.5 Hz at 125 Hz)
 CYCLE_MAX_NYQUIST_FRACTION = 0.2
+#: the crossings that count periods have this many sensor steps of hysteresis (at least 0.1 × amplitude)
+HYSTERESIS_QUANTA = 3.0
 #: the rule in one line, for reports' footnotes
 CYCLE_RULE = (f"a limit cycle is reported only when its half peak-to-peak is >= {CYCLE_MIN_QUANTA:g} sensor steps "
               f"(pot: ADC codes) and >= 0.02 deg, its spectrum peak is <= {CYCLE_MAX_NYQUIST_FRACTION:g} x Nyquist "
@@ -79,7 +81,9 @@ def limit_cycle(t: np.ndarray, x: np.ndarray, t_start: float, *, min_amplitude_r
     peak = spectrum_peak(tw, dev)
     nyquist_hz = 0.5 / float(np.median(np.diff(tw)))
     if is_cycle(amp, peak, nyquist_hz, min_amplitude_rad=min_amplitude_rad, quantum_rad=quantum_rad):
-        tc = _crossing_times(tw, dev, 0.5 * amp)
+        # hysteresis: above the sensor's noise (3 steps), small against the cycle (a tenth of
+        # its amplitude), so that cycles of varying size all count
+        tc = _crossing_times(tw, dev, max(HYSTERESIS_QUANTA * quantum_rad, 0.1 * amp))
         if tc.size >= 4:
             freq = float((tc.size - 1) / 2.0 / (tc[-1] - tc[0]))
     return LimitCycle(amp, freq, mean, window, peak)

@@ -30,7 +30,9 @@ def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns:
     t_end_motion = motion_end_time(loop)
     t_window = t_end_motion + SETTLE_S
     joints = []
-    pot_step_rad = loop.io.resolution().pot_rad  # one ADC code of each pot (NaN: no pot)
+    # one ADC code of each pot (NaN: no pot); an I/O without converters (a test's fake) has none
+    resolution = getattr(loop.io, "resolution", None)
+    pot_step_rad = resolution().pot_rad if resolution is not None else np.full(len(loop.names), np.nan)
     for i, name in enumerate(loop.names):
         th_true = rec["theta_true"][:, i] if rec else np.zeros(0)
         th_d = rec["theta_d"][:, i] if rec else np.zeros(0)

@@ -106,7 +106,10 @@ def test_sweep_grid_writes_csv_json_and_heat_map(tmp_path: Path, capsys) -> None
     rows = list(csv.DictReader((out / "sweep.csv").open()))
     assert [(float(r["kp"]), float(r["kvi"])) for r in rows] == [(90, 800), (90, 1200), (120, 800), (120, 1200)]
     assert all(r["status"] == "ok" and float(r["phase_margin_deg"]) > 0 for r in rows)
-    assert all(r["lc_amplitude_deg"] != "" and r["rms_tracking_error_deg"] != "" for r in rows)
+    assert all(r["rms_tracking_error_deg"] != "" for r in rows)
+    # a 1 s hold ends before the limit-cycle window opens (2 s after the move): "too short to
+    # measure" is an empty cell (printed "—"), never 0.000
+    assert all(r["lc_amplitude_deg"] == "" and r["lc_frequency_hz"] == "" for r in rows)
     d = json.loads((out / "sweep.json").read_text())
     assert d["finished"] and d["completed"] == 4 and d["heatmap_axes"] == ["kp", "kvi"]
     assert d["rows"][0]["kv"] == 50.0  # gains not on the grid keep the rig's
