@@ -15,7 +15,9 @@ only when
   the samples (ADC noise has its peak anywhere up to Nyquist, 26–31 Hz at 125 Hz; the paper's
   cycle is at 1–3 Hz);
 * the window holds at least two full periods (four crossings about the mean with a hysteresis
-  of 3 sensor steps or a tenth of the amplitude, whichever is larger: :func:`_crossing_times`).
+  of 3 sensor steps or a tenth of the amplitude, whichever is larger: :func:`_crossing_times`),
+  and the frequency they give agrees with the spectrum peak within a factor of 2 (a periodic
+  cycle, not irregular hunting).
 
 Otherwise :attr:`LimitCycle.frequency_hz` is ``None`` and :attr:`LimitCycle.cycle` false; the
 amplitude is still the residual motion's half peak-to-peak. A window too short to measure
@@ -37,7 +39,8 @@ HYSTERESIS_QUANTA = 3.0
 #: the rule in one line, for reports' footnotes
 CYCLE_RULE = (f"a limit cycle is reported only when its half peak-to-peak is >= {CYCLE_MIN_QUANTA:g} sensor steps "
               f"(pot: ADC codes) and >= 0.02 deg, its spectrum peak is <= {CYCLE_MAX_NYQUIST_FRACTION:g} x Nyquist "
-              "and the window holds two full periods; otherwise \"—\" (quantization noise is not a cycle)")
+              "and the window holds two full periods at that frequency; otherwise \"—\" "
+              "(quantization noise is not a cycle)")
 
 
 @dataclass(frozen=True)
@@ -85,7 +88,10 @@ def limit_cycle(t: np.ndarray, x: np.ndarray, t_start: float, *, min_amplitude_r
         # its amplitude), so that cycles of varying size all count
         tc = _crossing_times(tw, dev, max(HYSTERESIS_QUANTA * quantum_rad, 0.1 * amp))
         if tc.size >= 4:
-            freq = float((tc.size - 1) / 2.0 / (tc[-1] - tc[0]))
+            f = float((tc.size - 1) / 2.0 / (tc[-1] - tc[0]))
+            # a periodic cycle: its crossings and its spectrum agree (irregular hunting does not)
+            if peak is not None and 0.5 <= f / peak <= 2.0:
+                freq = f
     return LimitCycle(amp, freq, mean, window, peak)
 
 

@@ -104,3 +104,16 @@ def test_run_table_prints_a_dash_for_no_cycle_and_states_the_rule() -> None:
     assert "0.249" not in j2 and j2.split()[3:] == ["—", "—", "—"]
     assert "0.000" not in j3 and j3.split()[3:] == ["—", "—", "—"]
     assert any("4 sensor steps" in line and "Nyquist" in line for line in lines)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 3])
+def test_irregular_hunting_whose_crossings_disagree_with_its_spectrum_is_not_a_cycle(seed: int) -> None:
+    """A slow random wander of ±0.04° (high-passed random walk): big enough, slow enough, but not
+    periodic — its crossing rate and its spectrum peak disagree by more than a factor of 2."""
+    t = np.arange(0, 12, 0.008)
+    w = np.cumsum(np.random.default_rng(seed).normal(0, 1, t.size))
+    w -= np.convolve(w, np.ones(250) / 250, "same")
+    x = np.radians(0.04) * w / np.max(np.abs(w[250:-250]))
+    lc = limit_cycle(t, x, 2.0, t_end=10.0)
+    assert lc.amplitude_deg is not None and lc.amplitude_deg > 0.02
+    assert not lc.cycle
