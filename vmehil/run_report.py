@@ -154,12 +154,12 @@ def write_report(loop: ServoLoop, summary: dict[str, Any], out_dir: str | Path) 
         ax[3].step(t, rec["integrating"][:, i], where="post", lw=1, label="integrating (1) / switched off (0)")
         ax3b = ax[3].twinx()
         ax3b.plot(t, rec["kp_eff"][:, i], "r", lw=0.8, label="Kp effective")
-        ax3b.set_ylabel("Kp effective (s⁻², normalized)", color="r")
+        ax3b.set_ylabel("Kp effective (s⁻²)", color="r")
         ax[3].set_ylabel("integrators")
         ax[3].set_xlabel("time (s)")
         j = summary["joints"][i]
         lc = j["limit_cycle"]
-        lc_text = (f"limit cycle {_f(lc['amplitude_deg'])}° @ {_f(lc['frequency_hz'], 2)} Hz" if _cycle_amp(lc)
+        lc_text = (f"limit cycle ±{_f(lc['amplitude_deg'])}° @ {_f(lc['frequency_hz'], 2)} Hz" if _cycle_amp(lc)
                    is not None else "no limit cycle")
         fig.suptitle(f"{name}: final error {_f(j['final_error_deg'])}°, {lc_text}")
         for a in ax:

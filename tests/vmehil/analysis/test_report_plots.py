@@ -67,7 +67,7 @@ def test_run_report_axes_all_carry_units(tmp_path, monkeypatch) -> None:
 
     monkeypatch.setattr(run_report, "save_figure", keep_labels)
     assert main(["run", "--duration", "0.4", "--quiet", "--report", str(tmp_path)]) in (0, 1)
-    assert "Kp effective (s⁻², normalized)" in labels
+    assert "Kp effective (s⁻²)" in labels
     unitless = [lab for lab in labels if lab and "(" not in lab and lab != "integrators"]
     assert not unitless, unitless
 
