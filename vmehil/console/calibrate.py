@@ -312,6 +312,13 @@ class ConsoleCalibrator:
             where = f" (the loop stopped: {f.cause})" if f is not None else ""
             lines.append(f"ERR {STATE} calibrate {req.procedure}: {outcome.error}{where}; {self.path} left unchanged"
                          + (", enable to servo again" if f is not None else ""))
+        elif outcome.unchanged:
+            # every check passed and no entry changed (friction writes none): nothing to write is
+            # success, not a failed check
+            lines.append(kv("OK", "calibrate", procedures=",".join(req.names),
+                            checks=sum(len(r.checks) for r in outcome.results), written="unchanged",
+                            loop_s=round(seconds, 3),
+                            state="running" if loop.fault is None and loop.enabled else "stopped"))
         elif outcome.written is None:
             lines.append(f"ERR {VALUE} calibrate {req.procedure}: {failed} check(s) failed; {self.path} left unchanged")
         else:

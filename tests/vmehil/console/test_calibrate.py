@@ -134,3 +134,21 @@ def test_stop_aborts_a_calibration_and_leaves_file_and_drivers_as_they_were(rig)
     assert drv.ask("enable")[-1].startswith("OK enable state=running")
     runner.run(250)
     assert loop.fault is None
+
+
+def test_a_calibration_that_changes_no_entry_answers_ok_unchanged_not_a_failed_check(rig, monkeypatch):
+    # friction passes its checks and writes no entry: the runner leaves the file alone, and the
+    # console must say so as success, not as "0 check(s) failed"
+    from vmehil.calibration import procedure_runner
+    from vmehil.calibration.base import Check, ProcedureResult
+
+    def passes_and_changes_nothing(ctx, names, out_path=None, **_kw):
+        result = ProcedureResult("friction", 1, checks=[Check("j1 running torque", 23.8, "oz-in", 29.0)])
+        return procedure_runner.ProcedureRunOutcome(results=[result], unchanged=True)
+
+    monkeypatch.setattr(procedure_runner, "run_procedures", passes_and_changes_nothing)
+    _system, loop, _runner, _console, drv, out = rig
+    reply = drv.ask("calibrate friction --joint 1", max_ticks=20)
+    prefix, _, end = parse_reply_line(reply[-1])
+    assert prefix == "OK" and end["written"] == "unchanged" and end["checks"] == "1", reply
+    assert not out.exists() and loop.fault is None
