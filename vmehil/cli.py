@@ -22,7 +22,7 @@ from hal.vme.errors import VmeError  # noqa: E402
 from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name, stop_signals_raise  # noqa: E402
 from vmehil.commands import calibrate, console, crate, plant_node, run, tune, vision  # noqa: E402
 from vmehil.commands.errors import CliError  # noqa: E402
-from vmehil.exit_status import EXIT_UNEXPECTED, EXIT_USAGE  # noqa: E402
+from vmehil.exit_status import EXIT_BROKEN_PIPE, EXIT_UNEXPECTED, EXIT_USAGE  # noqa: E402
 from vmehil.outputs import check_outputs, mark_output_dirs  # noqa: E402
 
 __all__ = ["COMMANDS", "CliError", "build_parser", "main"]
@@ -76,6 +76,12 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         print(f"vmehil {args.command}: error: {e}", file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError:
+        # the reader of stdout went away (`| head`): end quietly, as a shell tool does; the
+        # interpreter's own flush at exit must not fail again
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
     except (KeyboardInterrupt, Terminated) as e:
         print(f"vmehil {args.command}: interrupted ({interrupt_name(e)})", file=sys.stderr)
         return interrupt_exit_status(e)

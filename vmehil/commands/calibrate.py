@@ -41,8 +41,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="joint number (1-based) to calibrate; repeat for several (default: all)")
     p.add_argument("--auto", action="store_true",
                    help="use the rig's reference fixture instead of prompting the operator for angles")
-    p.add_argument("--out", default=None,
-                   help="calibration file (default $VMEHIL_CALIBRATION_DIR or ./calibration, /<rig>.toml)")
+    p.add_argument("--calibration", "--out", dest="out", default=None, metavar="PATH",
+                   help="calibration file to read and write, as run's and console's --calibration "
+                        "(default $VMEHIL_CALIBRATION_DIR or ./calibration, /<rig>.toml)")
     p.add_argument("--json", default=None, help="write the machine-readable results here")
     p.add_argument("--report", default=None, help="write results.txt, results.json and plots into this folder")
     p.add_argument("--write-on-fail", action="store_true", help="write the file even if a check failed")

@@ -14,7 +14,6 @@ Example::
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 
@@ -22,6 +21,7 @@ from emulators.vision import VisionParams, run_vision_process
 from hal.bit3.arm import ArmModel
 from hal.bit3.protocol import Timeouts
 from vmehil.cli_types import bounded_float, bounded_int, duration_s, positive_float
+from vmehil.files import to_json, write_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -47,6 +47,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="robot silent this long: end the task")
     p.add_argument("--duration", type=duration_s, default=None, help="exit after this many seconds")
     p.add_argument("--exit-after-task", action="store_true", help="exit when the first task has ended")
+    p.add_argument("--json", default=None, metavar="PATH",
+                   help="also write the summary here (it is always printed as one JSON line on stdout)")
     p.add_argument("-v", "--verbose", action="store_true", help="log to stderr")
     p.set_defaults(func=run)
 
@@ -72,5 +74,7 @@ def run(args: argparse.Namespace) -> int:
         timeouts=Timeouts(peer_timeout_s=args.peer_timeout_ms * 1e-3), offset=args.offset,
         duration_s=args.duration, exit_after_task=args.exit_after_task,
     )
-    print(json.dumps(summary))
+    print(to_json(summary, indent=None), end="")  # one line of standard JSON (NaN → null), as --json writes
+    if args.json:
+        write_json(args.json, summary)
     return 0

@@ -165,8 +165,9 @@ def test_vmehil_run_console_through_a_terminal_program(tmp_path):
     cmd_file = tmp_path / "ops.cmd"
     cmd_file.write_text(COMMANDS)
     # a loaded test machine must not decide the outcome: the overrun policy warns instead of stopping
+    # a script's client: no prompt, no echo (a person at a terminal gets both by default)
     proc = _vmehil("run", "--realtime", "--overrun", "warn", "--duration", "120", "--quiet", "--console", f"pty:{link}",
-                   "--console-commands", str(cmd_file))
+                   "--console-commands", str(cmd_file), "--console-prompt", "off", "--console-echo", "off")
     term = None
     try:
         _wait_for(link, proc)
@@ -194,7 +195,9 @@ def test_vmehil_run_console_through_a_terminal_program(tmp_path):
 
 def test_vmehil_console_serves_and_shuts_down(tmp_path):
     link = tmp_path / "console"
-    proc = _vmehil("console", "--overrun", "warn", "--port", f"pty:{link}")
+    # the shipped spelling --port (an alias of --console)
+    proc = _vmehil("console", "--overrun", "warn", "--port", f"pty:{link}", "--console-prompt", "off",
+                   "--console-echo", "off")
     term = None
     try:
         _wait_for(link, proc)
