@@ -36,10 +36,11 @@ _node_channels = itertools.count()
 
 def add_bus_arguments(p: argparse.ArgumentParser) -> None:
     """``--interface``, ``--channel``, ``--can-log`` (python-can conventions)."""
-    p.add_argument("--interface", default=None,
-                   help="python-can interface: virtual, socketcan or udp_multicast (default: CAN_INTERFACE, "
-                        "python-can's config file, else virtual)")
-    p.add_argument("--channel", default=None,
+    p.add_argument("--interface", default=None, metavar="NAME",
+                   help="python-can interface: virtual (this process only: `run` starts the plant node itself), "
+                        "socketcan or udp_multicast (between processes) (default: CAN_INTERFACE, python-can's "
+                        "config file, else virtual)")
+    p.add_argument("--channel", default=None, metavar="NAME",
                    help="python-can channel (default: CAN_CHANNEL, config file, else vmehil / vcan0 / 239.74.163.2)")
     p.add_argument("--can-log", default=None, metavar="PATH",
                    help="record the bus from this side (.log = candump format, decodable with cantools decode)")
@@ -53,9 +54,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_bus_arguments(g)  # type: ignore[arg-type]
     g.add_argument("--plant-mode", choices=PLANT_MODES, default="lockstep",
                    help="lockstep (tick per exchange; equals the in-process run) or free-running (latch newest)")
-    g.add_argument("--can-timeout", type=bounded_float(0.001, 3600.0, what="a timeout (s)"), default=1.0,
+    g.add_argument("--can-timeout", type=bounded_float(0.001, 3600.0, what="a timeout (s)"), default=1.0, metavar="S",
                    help="answer / heartbeat timeout in seconds (1.0)")
-    g.add_argument("--stale-ticks", type=bounded_int(1, 100_000, what="a number of ticks"), default=None,
+    g.add_argument("--stale-ticks", type=bounded_int(1, 100_000, what="a number of ticks"), default=None, metavar="N",
                    help="exchanges without fresh plant data before a safe stop (lockstep 1, free-running 5)")
 
 

@@ -99,3 +99,10 @@ def test_no_node_advice_on_virtual_says_it_does_not_cross_processes():
     opts = CanPlantOptions("virtual", None)
     advice = opts._advice(PlantLostError("x"), None, "virtual", "vmehil", own_node=False)
     assert "reaches this process only" in advice and "plant-node" not in advice
+
+
+def test_a_plant_node_on_the_default_virtual_interface_is_refused_with_what_works(no_can_config, capsys):
+    assert main(["plant-node", "--duration", "0.1"]) == 2
+    err = capsys.readouterr().err
+    assert "virtual does not cross processes" in err and "--interface udp_multicast" in err
+    assert "`vmehil run --plant can` alone starts its node itself" in err

@@ -38,11 +38,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_rig_args(p)
     p.add_argument("--motion", default=None, metavar="PATH|none",
                    help="motion file to play at start (default, and none: hold the joints)")
-    p.add_argument("--gains", default=None, help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=..")
+    p.add_argument("--gains", default=None, metavar="kp=..,kpi=..,kv=..,kvi=..",
+                   help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=..")
     add_pacing_args(p, default="realtime")
     add_overrun_args(p)
-    p.add_argument("--duration", type=duration_s, default=None, help="end after this many seconds of loop time")
-    p.add_argument("--calibration", default=None,
+    p.add_argument("--duration", metavar="S", type=duration_s, default=None,
+                   help="end after this many seconds of loop time")
+    p.add_argument("--calibration", metavar="PATH", default=None,
                    help="calibration file for the drivers, and where the console's calibrate writes "
                         "(default: calibration/<rig>.toml or $VMEHIL_CALIBRATION_DIR/<rig>.toml)")
     p.add_argument("--json", default=None, metavar="PATH",

@@ -58,7 +58,8 @@ def _add_common(p: argparse.ArgumentParser, *, defaults: bool) -> None:
     def default(value: Any) -> Any:
         return value if defaults else argparse.SUPPRESS
 
-    p.add_argument("--rig", default=default(None), help="rig preset name or crate/rig TOML path (default jpl-arm)")
+    p.add_argument("--rig", metavar="NAME|PATH", default=default(None),
+                   help="rig preset name or crate/rig TOML path (default jpl-arm)")
     p.add_argument("--json", action="store_true", default=default(False), help="print machine-readable JSON")
     p.add_argument("--bus", default=default("emulated"),
                    help="emulated (default) or vme_user[:DIR]: a real crate through Linux's /dev/bus/vme "

@@ -42,8 +42,8 @@ RUN_EXTENSIONS: tuple[ModuleType, ...] = (
 
 
 def add_rig_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--rig", default=None, help="rig preset name or TOML path (default jpl-arm)")
-    p.add_argument("--seed", type=seed, default=0, help="seed of every noise source (default 0)")
+    p.add_argument("--rig", metavar="NAME|PATH", default=None, help="rig preset name or TOML path (default jpl-arm)")
+    p.add_argument("--seed", metavar="N", type=seed, default=0, help="seed of every noise source (default 0)")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -52,15 +52,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--motion", default=None, metavar="PATH|none",
                    help="motion file (TOML); none: hold the joints where they are (give --duration); "
                         "default: a coordinated demo move + 10 s hold")
-    p.add_argument("--duration", type=duration_s, default=None, help="seconds to run (default: the motion, +1 s)")
+    p.add_argument("--duration", metavar="S", type=duration_s, default=None,
+                   help="seconds to run (default: the motion, +1 s)")
     add_pacing_args(p, default="lockstep; realtime with --console")
     add_overrun_args(p)
     p.add_argument("--no-integrator-switch-off", action="store_true", help="keep the integrators fed at rest")
-    p.add_argument("--gains", default=None,
+    p.add_argument("--gains", default=None, metavar="kp=..,kpi=..,kv=..,kvi=..",
                    help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=.. (checked by servo.gain_guard)")
-    p.add_argument("--json", default=None, help="write the machine-readable summary here")
-    p.add_argument("--report", default=None, help="write plots and summary.md into this folder")
-    p.add_argument("--calibration", default=None,
+    p.add_argument("--json", metavar="PATH", default=None, help="write the machine-readable summary here")
+    p.add_argument("--report", metavar="DIR", default=None, help="write plots and summary.md into this folder")
+    p.add_argument("--calibration", metavar="PATH", default=None,
                    help="calibration file for the drivers (default: calibration/<rig>.toml or "
                         "$VMEHIL_CALIBRATION_DIR/<rig>.toml; missing → nominal values with a warning)")
     p.add_argument("--quiet", action="store_true", help="no progress display")

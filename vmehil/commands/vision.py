@@ -45,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--offset", type=lambda s: int(s, 0), default=0, help="protocol base offset in the memory")
     p.add_argument("--peer-timeout-ms", type=bounded_float(1.0, 3_600_000.0, what="a timeout (ms)"), default=250.0,
                    help="robot silent this long: end the task")
-    p.add_argument("--duration", type=duration_s, default=None, help="exit after this many seconds")
+    p.add_argument("--duration", metavar="S", type=duration_s, default=None, help="exit after this many seconds")
     p.add_argument("--exit-after-task", action="store_true", help="exit when the first task has ended")
     p.add_argument("--json", default=None, metavar="PATH",
                    help="also write the summary here (it is always printed as one JSON line on stdout)")
