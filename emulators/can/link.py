@@ -295,7 +295,8 @@ class CanPlantLink(PlantLink):
         sens, truth = self._sens, self._truth
         self._sens, self._truth = {}, {}
         if r["StepError"]:
-            raise PlantLinkError(f"the plant node could not step tick {tick} (see its log)")
+            raise PlantLinkError(f"the plant node could not step tick {tick}: its stderr says why "
+                                 f"(`plant node: step {tick} failed: ...`)")
         seq = tick & 0xFF
         if len(sens) != self.n or any(sens.get(j, {}).get("Seq") != seq for j in range(self.n)):
             c.incomplete += 1
