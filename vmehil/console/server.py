@@ -472,9 +472,10 @@ class Console:
             t = threading.Thread(target=fn, name=name, daemon=True)
             t.start()
             self._threads.append(t)
-        if hasattr(self.transport, "on_connect"):  # a pty: greet each terminal program that opens it
+        if hasattr(self.transport, "on_connect"):  # a pty: greet each terminal program when it opens it
             self.transport.on_connect = self._hello
-        self._hello()
+        else:
+            self._hello()
         return self
 
     def _hello(self) -> None:

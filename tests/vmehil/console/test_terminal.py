@@ -145,9 +145,9 @@ def test_run_console_on_a_pty_prompts_echoes_swallows_arrows_answers_in_ascii_an
         ser = serial.Serial(str(link), timeout=0.1)
         term = _Reader(lambda: ser.read(4096))
         hello = term.until(b"\r\n" + PROMPT)  # the greeting and the prompt, without typing anything
-        assert b"EVT hello vmehil console" in hello
+        assert hello.count(b"EVT hello vmehil console") == 1
         ser.write(b"stat")
-        assert term.until(b"stat") == b"stat"  # echoed as typed
+        term.until(b"stat")  # echoed as typed (an event may come first: it redraws the prompt line)
         ser.write(b"us" + LEFT + UP + b"\r")  # cursor keys: swallowed (history is empty)
         r = term.reply(b"OK status")
         assert b"ERR BINARY" not in r and b"DATA loop" in r and b"motion=idle" in r
