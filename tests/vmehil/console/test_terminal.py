@@ -20,10 +20,10 @@ import subprocess
 import sys
 import time
 import tty
-from pathlib import Path
 
 import pytest
 
+from tests.support.console import wait_for_link
 from vmehil.console.protocol import LineAssembler
 from vmehil.console.terminal import ERASE_LINE, TerminalView
 
@@ -125,23 +125,13 @@ def _vmehil(*args: str) -> subprocess.Popen:
                             text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
 
 
-def _wait_for_link(link: Path, proc: subprocess.Popen, timeout_s: float = 120.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not link.is_symlink():
-        if proc.poll() is not None:
-            raise AssertionError(f"vmehil exited early: {proc.communicate()[1]}")
-        if time.monotonic() > deadline:
-            raise AssertionError("the console pty did not appear")
-        time.sleep(0.05)
-
-
 def test_run_console_on_a_pty_prompts_echoes_swallows_arrows_answers_in_ascii_and_moves_at_once(tmp_path):
     link, out = tmp_path / "console", tmp_path / "run.json"
     # what a new user types: a console, no demo motion (so move_joint is accepted at once)
     proc = _vmehil("run", "--console", f"pty:{link}", "--motion", "none", "--duration", "600", "--quiet",
                    "--overrun", "warn", "--json", str(out))
     try:
-        _wait_for_link(link, proc)
+        wait_for_link(link, proc)
         ser = serial.Serial(str(link), timeout=0.1)
         term = _Reader(lambda: ser.read(4096))
         hello = term.until(b"\r\n" + PROMPT)  # the greeting and the prompt, without typing anything
