@@ -1,7 +1,7 @@
 """``vmehil calibrate``: calibration procedures that write the rig's calibration file.
 
     vmehil calibrate adc|dac|encoder|amplifier|pot|all [--rig NAME|PATH] [--seed N]
-                     [--joint N ...] [--auto] [--out CAL.toml] [--json PATH] [--report DIR]
+                     [--joint N ...] [--auto] [--calibration CAL.toml] [--json PATH] [--report DIR]
                      [--write-on-fail] [--points 9] [--verify-per-segment 1] [--quiet]
 
 Progress is a bar on stderr (:mod:`vmehil.progress`) when it is a terminal and ``--quiet`` is
