@@ -473,10 +473,18 @@ class Console:
             t.start()
             self._threads.append(t)
         if hasattr(self.transport, "on_connect"):  # a pty: greet each terminal program when it opens it
-            self.transport.on_connect = self._hello
+            self.transport.on_connect = self._connected
         else:
             self._hello()
         return self
+
+    def _connected(self) -> None:
+        """A terminal program opened the pty (the reader thread): forget what an earlier one had
+        half typed, and greet it."""
+        self._assembler.replace("")
+        if self.terminal is not None:
+            self.terminal.reset()
+        self._hello()
 
     def _hello(self) -> None:
         self._emit(kv("EVT", "hello", "vmehil console", joints=self.loop.n, names=",".join(self.loop.names),

@@ -47,6 +47,11 @@ class TerminalView:
     def active(self) -> bool:
         return bool(self.prompt) or self.echo
 
+    def reset(self) -> None:
+        """A new terminal: nothing typed, nothing on its screen yet (history kept)."""
+        with self._lock:
+            self._shown, self._visible, self._recall, self._last = "", False, None, 0
+
     # ---- input side (the reader thread) ---------------------------------------------------------------
     def feed(self, data: bytes, assembler: LineAssembler) -> list[LineEvent]:
         """Feed ``data`` to ``assembler`` byte by byte, echoing; returns its line events (keys used)."""

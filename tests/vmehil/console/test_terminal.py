@@ -202,3 +202,52 @@ def test_console_on_a_pty_the_test_opened_serves_the_serial_device_and_writes_it
     summary = json.loads(out.read_text())
     assert summary["commands"] == 2 and summary["mode"] == "lockstep"
     assert summary["stopped"]["cause"] == "operator_shutdown" and summary["stop_incomplete"] is False
+
+
+class _FakePty:
+    """A pty-like transport: ``on_connect`` as PtyTransport has it, writes collected."""
+
+    description = "fake pty"
+
+    def __init__(self) -> None:
+        self.on_connect = None
+        self.out = bytearray()
+
+    def read(self, n: int) -> bytes:
+        time.sleep(0.01)  # an idle line (the reader thread's poll), not synchronisation
+        return b""
+
+    def write(self, data: bytes) -> None:
+        self.out += data
+
+    def close(self) -> None:
+        pass
+
+
+def _wait_until(cond, what: str, timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s  # a bound against a hang only
+    while not cond():
+        assert time.monotonic() < deadline, what
+        time.sleep(0.005)
+
+
+def test_each_terminal_that_opens_the_pty_is_greeted_once_and_starts_with_an_empty_line():
+    from tests.support.fakes import make_loop
+    from vmehil.console.server import Console
+
+    pty = _FakePty()
+    console = Console(make_loop(2), pty, prompt="> ", echo=True).start()
+    try:
+        assert pty.on_connect is not None and bytes(pty.out) == b""  # nobody there: no greeting yet
+        pty.on_connect()
+        _wait_until(lambda: bytes(pty.out).endswith(b"\r\n> "), "the greeting")
+        assert bytes(pty.out).count(b"EVT hello") == 1
+        console.feed(b"half")  # typed, then the terminal program hangs up
+        pty.out.clear()
+        pty.on_connect()  # the next one
+        _wait_until(lambda: bytes(pty.out).endswith(b"\r\n> "), "the second greeting")
+        assert b"half" not in bytes(pty.out) and bytes(pty.out).count(b"EVT hello") == 1
+        console.feed(b"\r")  # an empty line: nothing of the first terminal's is sent
+        assert console.stats.lines == 0
+    finally:
+        console.close()
