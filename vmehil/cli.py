@@ -76,7 +76,9 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         print(f"vmehil {args.command}: error: {e}", file=sys.stderr)
         return EXIT_USAGE
-    except BrokenPipeError:
+    except BrokenPipeError as e:
+        if not _stdout_closed():  # another pipe or socket: not the reader of our output
+            return _unexpected(args.command, e, debug)
         # the reader of stdout went away (`| head`): end quietly, as a shell tool does; the
         # interpreter's own flush at exit must not fail again
         devnull = os.open(os.devnull, os.O_WRONLY)
@@ -86,11 +88,27 @@ def main(argv: list[str] | None = None) -> int:
         print(f"vmehil {args.command}: interrupted ({interrupt_name(e)})", file=sys.stderr)
         return interrupt_exit_status(e)
     except Exception as e:
-        if debug:
-            traceback.print_exc()
-        print(f"vmehil {args.command}: unexpected error: {type(e).__name__}: {e} "
-              "(run with --debug or VMEHIL_DEBUG=1 for the traceback)", file=sys.stderr)
-        return EXIT_UNEXPECTED
+        return _unexpected(args.command, e, debug)
+
+
+def _unexpected(command: str, e: BaseException, debug: bool) -> int:
+    if debug:
+        traceback.print_exception(e)
+    print(f"vmehil {command}: unexpected error: {type(e).__name__}: {e} "
+          "(run with --debug or VMEHIL_DEBUG=1 for the traceback)", file=sys.stderr)
+    return EXIT_UNEXPECTED
+
+
+def _stdout_closed() -> bool:
+    """Whether stdout is a pipe whose reader has gone (poll reports an error on its write end)."""
+    import select
+
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(ev & select.POLLERR for _, ev in poller.poll(0))
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 if __name__ == "__main__":  # pragma: no cover

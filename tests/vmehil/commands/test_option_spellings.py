@@ -79,3 +79,15 @@ def test_vision_writes_its_summary_with_json(tmp_path, capsys):
     printed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     written = json.loads(out.read_text())
     assert written.pop("written_by") == "vmehil" and written == printed
+
+
+def test_a_stdout_closed_by_its_reader_ends_the_command_quietly():
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "vmehil", "crate", "list"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    assert proc.stdout is not None
+    proc.stdout.close()  # no reader at all: the first write fails with EPIPE (as `| head` once it has had enough)
+    _out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 141 and b"BrokenPipeError" not in err and err.strip() == b""
