@@ -24,14 +24,12 @@ def overrun_options(args: argparse.Namespace) -> dict[str, Any]:
 
 def add_pacing_args(p: argparse.ArgumentParser, *, default: str) -> None:
     """``--realtime`` / ``--lockstep``: one spelling for the pacing of ticks in every command
-    (``default``: what the command does without either, named in the help)."""
+    (``default``: what the command does without either, said in the help)."""
     g = p.add_mutually_exclusive_group()
     g.add_argument("--realtime", dest="realtime", action="store_true", default=None,
-                   help="pace ticks by the wall clock at the servo rate" + (" (default)" if default == "realtime"
-                                                                             else ""))
+                   help=f"pace ticks by the wall clock at the servo rate ({default})")
     g.add_argument("--lockstep", dest="realtime", action="store_false",
-                   help="tick as fast as the CPU allows, on simulated time" + (" (default)" if default == "lockstep"
-                                                                                else ""))
+                   help="tick as fast as the CPU allows, on simulated time")
 
 
 def realtime(args: argparse.Namespace, default: bool) -> bool:

@@ -40,7 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="motion file to play at start (default, and none: hold the joints)")
     p.add_argument("--gains", default=None, metavar="kp=..,kpi=..,kv=..,kvi=..",
                    help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=..")
-    add_pacing_args(p, default="realtime")
+    add_pacing_args(p, default="the default")
     add_overrun_args(p)
     p.add_argument("--duration", metavar="S", type=duration_s, default=None,
                    help="end after this many seconds of loop time")

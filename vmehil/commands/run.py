@@ -54,7 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "default: a coordinated demo move + 10 s hold")
     p.add_argument("--duration", metavar="S", type=duration_s, default=None,
                    help="seconds to run (default: the motion, +1 s)")
-    add_pacing_args(p, default="lockstep; realtime with --console")
+    add_pacing_args(p, default="the default with --console; otherwise --lockstep is")
     add_overrun_args(p)
     p.add_argument("--no-integrator-switch-off", action="store_true", help="keep the integrators fed at rest")
     p.add_argument("--gains", default=None, metavar="kp=..,kpi=..,kv=..,kvi=..",
