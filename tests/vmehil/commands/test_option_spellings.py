@@ -91,3 +91,12 @@ def test_a_stdout_closed_by_its_reader_ends_the_command_quietly():
     proc.stdout.close()  # no reader at all: the first write fails with EPIPE (as `| head` once it has had enough)
     _out, err = proc.communicate(timeout=120)
     assert proc.returncode == 141 and b"BrokenPipeError" not in err and err.strip() == b""
+
+
+@pytest.mark.parametrize(("extra", "mode"), [([], "realtime"), (["--lockstep"], "lockstep")])
+def test_run_with_a_console_paces_by_the_wall_clock_unless_lockstep(tmp_path, extra, mode):
+    pytest.importorskip("serial")
+    out = tmp_path / "run.json"
+    assert main(["run", "--console", "loop://", "--motion", "none", "--duration", "0.2", "--quiet",
+                 "--overrun", "warn", "--json", str(out), *extra]) == 0
+    assert json.loads(out.read_text())["mode"] == mode
