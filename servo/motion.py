@@ -171,6 +171,15 @@ def load_motion(path: str | Path, n_joints: int) -> Motion:
     return parse_motion(load_toml(path), n_joints)
 
 
+#: the ``--motion`` value that means "no motion: hold the joints where they are"
+NO_MOTION = "none"
+
+
+def hold_motion(source: str = "<hold>") -> Motion:
+    """No motion: the loop holds the joints where they are (a console then moves them)."""
+    return Motion((WaitMove(0.0),), "hold", source)
+
+
 DEMO_DELTAS_DEG = (20.0, -15.0, 10.0, -10.0, 15.0, -20.0)
 
 

@@ -36,10 +36,11 @@ _node_channels = itertools.count()
 
 def add_bus_arguments(p: argparse.ArgumentParser) -> None:
     """``--interface``, ``--channel``, ``--can-log`` (python-can conventions)."""
-    p.add_argument("--interface", default=None,
-                   help="python-can interface: virtual, socketcan or udp_multicast (default: CAN_INTERFACE, "
-                        "python-can's config file, else virtual)")
-    p.add_argument("--channel", default=None,
+    p.add_argument("--interface", default=None, metavar="NAME",
+                   help="python-can interface: virtual (this process only: `run` starts the plant node itself), "
+                        "socketcan or udp_multicast (between processes) (default: CAN_INTERFACE, python-can's "
+                        "config file, else virtual)")
+    p.add_argument("--channel", default=None, metavar="NAME",
                    help="python-can channel (default: CAN_CHANNEL, config file, else vmehil / vcan0 / 239.74.163.2)")
     p.add_argument("--can-log", default=None, metavar="PATH",
                    help="record the bus from this side (.log = candump format, decodable with cantools decode)")
@@ -53,9 +54,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_bus_arguments(g)  # type: ignore[arg-type]
     g.add_argument("--plant-mode", choices=PLANT_MODES, default="lockstep",
                    help="lockstep (tick per exchange; equals the in-process run) or free-running (latch newest)")
-    g.add_argument("--can-timeout", type=bounded_float(0.001, 3600.0, what="a timeout (s)"), default=1.0,
+    g.add_argument("--can-timeout", type=bounded_float(0.001, 3600.0, what="a timeout (s)"), default=1.0, metavar="S",
                    help="answer / heartbeat timeout in seconds (1.0)")
-    g.add_argument("--stale-ticks", type=bounded_int(1, 100_000, what="a number of ticks"), default=None,
+    g.add_argument("--stale-ticks", type=bounded_int(1, 100_000, what="a number of ticks"), default=None, metavar="N",
                    help="exchanges without fresh plant data before a safe stop (lockstep 1, free-running 5)")
 
 
@@ -153,10 +154,29 @@ class CanPlantOptions:
             return link
         except PlantLinkError as e:  # no node / wrong rig or mode: a user error, not a crash
             link.close()
-            raise ValueError(str(e)) from e
+            raise ValueError(f"{e}{self._advice(e, rig, iface, chan, node is not None)}") from e
         except BaseException:
             link.close()
             raise
+
+    def _advice(self, e: Exception, rig: Any, iface: str, chan: str, own_node: bool) -> str:
+        """What to do when connecting failed — advice that works when followed."""
+        from emulators.harness import PlantLostError
+
+        if not isinstance(e, PlantLostError):
+            return ""
+        if own_node:
+            return (f" (the plant node this process started on {iface} {chan} did not answer: a bug; "
+                    "run again with --debug and report it)")
+        if iface == "virtual":
+            return (": python-can's virtual bus reaches this process only; leave --interface out (vmehil run "
+                    "--plant can then starts the node in this process) or use udp_multicast/socketcan")
+        rig_name = _rig_argument(rig)
+        mode = " --free-running" if self.plant_mode == "free-running" else ""
+        where = (" in the same network namespace (docs/can.md, 'Running it')" if iface == "udp_multicast"
+                 else "")
+        return (f": start the node first, in another shell{where}: vmehil plant-node --rig {rig_name} "
+                f"--interface {iface} --channel {chan}{mode}")
 
     @staticmethod
     def _names(rig: Any) -> list[str]:
@@ -166,6 +186,21 @@ class CanPlantOptions:
         from emulators.can.node import node_spec
 
         return node_spec(None if rig is None else str(rig)).names
+
+
+def _rig_argument(rig: Any) -> str:
+    """What to give ``--rig`` for ``rig`` (a RigSpec, name or path): a preset's name, else its file."""
+    from emulators.presets import resolve_rig
+
+    path, name = getattr(rig, "path", None), getattr(rig, "name", None)
+    if path is None:
+        return "jpl-arm" if rig is None else str(rig)
+    try:
+        if name and Path(resolve_rig(name)).resolve() == Path(path).resolve():
+            return str(name)
+    except FileNotFoundError:
+        pass
+    return str(path)
 
 
 class _PlantNodeThread:
@@ -245,9 +280,20 @@ def link_factory(args: argparse.Namespace) -> CanLinkFactory | None:
 
 def make_link(args: argparse.Namespace, rig: Any):
     """``vmehil run``: the :class:`~emulators.can.link.CanPlantLink` for ``--plant can``, else
-    ``None``. It talks to a node already on the bus (never starts one)."""
-    opts = CanPlantOptions.from_args(args, own_node=False)
-    return None if opts is None else opts.open_link(rig, args.seed)
+    ``None``. On ``virtual`` (the default: python-can's virtual bus reaches this process only) it
+    starts the plant node in this process, as ``vmehil tune`` does; on ``socketcan`` and
+    ``udp_multicast`` it talks to the ``vmehil plant-node`` already on the bus."""
+    opts = CanPlantOptions.from_args(args)
+    if opts is None:
+        return None
+    link = opts.open_link(rig, args.seed)
+    if link.node is not None and not getattr(args, "quiet", False):
+        import sys
+
+        iface = opts.resolved()[0]
+        print(f"plant node: in this process on {iface} (python-can's virtual bus does not cross processes; "
+              f"for a node in another process use --interface udp_multicast or socketcan)", file=sys.stderr)
+    return link
 
 
 def attach(args: argparse.Namespace, system: Any, loop: Any, runner: Any) -> None:

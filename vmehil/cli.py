@@ -22,7 +22,7 @@ from hal.vme.errors import VmeError  # noqa: E402
 from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name, stop_signals_raise  # noqa: E402
 from vmehil.commands import calibrate, console, crate, plant_node, reproduce, run, tune, vision  # noqa: E402
 from vmehil.commands.errors import CliError  # noqa: E402
-from vmehil.exit_status import EXIT_UNEXPECTED, EXIT_USAGE  # noqa: E402
+from vmehil.exit_status import EXIT_BROKEN_PIPE, EXIT_UNEXPECTED, EXIT_USAGE  # noqa: E402
 from vmehil.outputs import check_outputs, mark_output_dirs  # noqa: E402
 
 __all__ = ["COMMANDS", "CliError", "build_parser", "main"]
@@ -77,15 +77,39 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         print(f"vmehil {args.command}: error: {e}", file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError as e:
+        if not _stdout_closed():  # another pipe or socket: not the reader of our output
+            return _unexpected(args.command, e, debug)
+        # the reader of stdout went away (`| head`): end quietly, as a shell tool does; the
+        # interpreter's own flush at exit must not fail again
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
     except (KeyboardInterrupt, Terminated) as e:
         print(f"vmehil {args.command}: interrupted ({interrupt_name(e)})", file=sys.stderr)
         return interrupt_exit_status(e)
     except Exception as e:
-        if debug:
-            traceback.print_exc()
-        print(f"vmehil {args.command}: unexpected error: {type(e).__name__}: {e} "
-              "(run with --debug or VMEHIL_DEBUG=1 for the traceback)", file=sys.stderr)
-        return EXIT_UNEXPECTED
+        return _unexpected(args.command, e, debug)
+
+
+def _unexpected(command: str, e: BaseException, debug: bool) -> int:
+    if debug:
+        traceback.print_exception(e)
+    print(f"vmehil {command}: unexpected error: {type(e).__name__}: {e} "
+          "(run with --debug or VMEHIL_DEBUG=1 for the traceback)", file=sys.stderr)
+    return EXIT_UNEXPECTED
+
+
+def _stdout_closed() -> bool:
+    """Whether stdout is a pipe whose reader has gone (poll reports an error on its write end)."""
+    import select
+
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(ev & select.POLLERR for _, ev in poller.poll(0))
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 if __name__ == "__main__":  # pragma: no cover

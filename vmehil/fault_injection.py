@@ -95,7 +95,8 @@ class FaultContext:
         runner = getattr(self.can_link(what), "node", None)
         if runner is None:
             raise ValueError(f"{what} needs the plant node in this process; this run talks to an external "
-                             "`vmehil plant-node` (stop that process to see the loop's answer to a dead node)")
+                             "`vmehil plant-node` (stop that process to see the loop's answer to a dead node, or leave "
+                             "--interface out: on virtual the node runs in this process)")
         return runner.node
 
     def board_of_type(self, kind: str, what: str) -> Any:

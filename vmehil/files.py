@@ -179,10 +179,11 @@ def write_atomic_keeping_previous(path: str | Path, data: bytes | str, *, mode: 
     return _write(path, data, mode=mode, keep_previous=True)
 
 
-def to_json(obj: Any) -> str:
-    """Indented JSON text, never the non-standard ``NaN``/``Infinity``: non-finite floats are
-    ``null``, numpy scalars and arrays are numbers and lists, complex numbers ``{"re", "im"}``."""
-    return json.dumps(_jsonable(obj), indent=2, allow_nan=False) + "\n"
+def to_json(obj: Any, *, indent: int | None = 2) -> str:
+    """Indented JSON text (``indent=None``: one line), never the non-standard ``NaN``/``Infinity``:
+    non-finite floats are ``null``, numpy scalars and arrays are numbers and lists, complex
+    numbers ``{"re", "im"}``."""
+    return json.dumps(_jsonable(obj), indent=indent, allow_nan=False) + "\n"
 
 
 #: the mark vmehil leaves in the JSON objects it writes (``vmehil.outputs`` knows its own files by it)

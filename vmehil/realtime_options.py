@@ -20,3 +20,19 @@ def add_overrun_args(p: argparse.ArgumentParser) -> None:
 
 def overrun_options(args: argparse.Namespace) -> dict[str, Any]:
     return {"overrun": args.overrun, "max_lateness_periods": args.max_lateness}
+
+
+def add_pacing_args(p: argparse.ArgumentParser, *, default: str) -> None:
+    """``--realtime`` / ``--lockstep``: one spelling for the pacing of ticks in every command
+    (``default``: what the command does without either, said in the help)."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--realtime", dest="realtime", action="store_true", default=None,
+                   help=f"pace ticks by the wall clock at the servo rate ({default})")
+    g.add_argument("--lockstep", dest="realtime", action="store_false",
+                   help="tick as fast as the CPU allows, on simulated time")
+
+
+def realtime(args: argparse.Namespace, default: bool) -> bool:
+    """Whether the command paces by the wall clock: ``--realtime``/``--lockstep``, else ``default``."""
+    value = getattr(args, "realtime", None)
+    return default if value is None else bool(value)

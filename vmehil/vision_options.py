@@ -29,15 +29,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("visual servoing (BIT3 vision link)")
     g.add_argument("--vision", choices=("inprocess", "process"), default=None,
                    help="run the vision system in this process or as its own process (needs --realtime)")
-    g.add_argument("--vision-target", default=None, help="target x,y,z in metres (base frame)")
-    g.add_argument("--vision-rate-hz", type=bounded_float(0.1, 1000.0, what="a frame rate (Hz)"), default=30.0,
+    g.add_argument("--vision-target", default=None, metavar="X,Y,Z", help="target x,y,z in metres (base frame)")
+    g.add_argument("--vision-rate-hz", metavar="HZ",
+                   type=bounded_float(0.1, 1000.0, what="a frame rate (Hz)"), default=30.0,
                    help="camera frame rate (default 30)")
-    g.add_argument("--vision-latency-ms", type=bounded_float(0.0, 10_000.0, what="a latency (ms)"), default=30.0,
+    g.add_argument("--vision-latency-ms", metavar="MS",
+                   type=bounded_float(0.0, 10_000.0, what="a latency (ms)"), default=30.0,
                    help="image-processing latency (default 30)")
-    g.add_argument("--vision-tolerance-mm", type=positive_float, default=5.0,
+    g.add_argument("--vision-tolerance-mm", metavar="MM", type=positive_float, default=5.0,
                    help="the vision system ends the task within this distance (default 5 mm: the 12-bit "
                         "pots resolve about 1.7 mm at full reach)")
-    g.add_argument("--vision-timeout", type=duration_s, default=20.0, help="end the vservo task after this long (s)")
+    g.add_argument("--vision-timeout", metavar="S",
+                   type=duration_s, default=20.0, help="end the vservo task after this long (s)")
 
 
 def prepare(args: argparse.Namespace, rig: RigSpec) -> dict[str, Any] | None:

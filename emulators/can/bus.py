@@ -2,8 +2,10 @@
 
 Configuration follows python-can's own conventions: explicit ``interface``/``channel`` win;
 otherwise ``CAN_INTERFACE`` / ``CAN_CHANNEL`` (and ``CAN_CONFIG``) from the environment or
-python-can's config file (``~/can.conf``, ``~/.canrc``, ``./can.ini``, section ``[default]``)
-are used; with nothing configured the in-process ``virtual`` bus on channel ``vmehil``.
+python-can's config file (:func:`config_files`: on Linux ``~/can.conf``, ``/etc/can.conf``,
+``~/.can``, ``~/.canrc``; ``can.ini`` is read on Windows only; section ``[default]``) are used;
+with nothing configured the in-process ``virtual`` bus on channel ``vmehil``. An interface name
+python-can does not know is an error naming it and the known ones.
 
 All buses are opened for CAN FD (the SENS, SYNC, STATUS and TRUTH frames are FD frames).
 
@@ -42,22 +44,52 @@ class BusConfigError(ValueError):
     """The bus cannot be opened as configured (message says what to change)."""
 
 
+def config_files() -> list[str]:
+    """The configuration files python-can reads on this platform (``can.util.CONFIG_FILES``; on
+    Linux and macOS ``~/can.conf``, ``/etc/can.conf``, ``~/.can``, ``~/.canrc`` — ``can.ini`` only on
+    Windows), section ``[default]``."""
+    return list(can.util.CONFIG_FILES)
+
+
+def _configured_interface(interface: str | None) -> tuple[str | None, str]:
+    """The interface name python-can's configuration gives, and where it came from."""
+    if interface:
+        return interface, "--interface"
+    sources: list[tuple[str, Any]] = [
+        ("can.rc", lambda: dict(can.rc)),
+        ("CAN_INTERFACE / CAN_CONFIG", can.util.load_environment_config),
+        (f"python-can's config file ({', '.join(config_files())}, section [default])", can.util.load_file_config),
+    ]
+    for where, load in sources:
+        cfg = load()
+        name = cfg.get("interface") or cfg.get("bustype")
+        if name:
+            return str(name), where
+    return None, ""
+
+
+def unknown_interface_message(name: str, where: str) -> str:
+    """What to say about an interface name python-can does not know."""
+    others = sorted(set(can.VALID_INTERFACES) - set(INTERFACES))
+    return (f"unknown CAN interface {name!r} (from {where}): vmehil runs on {', '.join(INTERFACES)} "
+            f"(virtual: in this process, the default; socketcan: vcan0; udp_multicast: between processes); "
+            f"python-can also knows {', '.join(others)}")
+
+
 def resolve(interface: str | None = None, channel: str | None = None) -> tuple[str, str]:
     """Interface and channel after python-can's config resolution (arguments, environment,
-    config file), defaulting to ``virtual``/``vmehil``."""
-    given: dict[str, Any] = {}
-    cfg: Mapping[str, Any]  # python-can's BusConfig (a TypedDict) or our plain dict
-    if interface:
-        given["interface"] = interface
+    config file), defaulting to ``virtual``/``vmehil``.
+
+    Raises :class:`BusConfigError` naming an interface python-can does not know (and where it
+    was configured) with the known ones — never a silent fall-back to ``virtual``."""
+    name, where = _configured_interface(interface)
+    if name is not None and name not in can.VALID_INTERFACES:
+        raise BusConfigError(unknown_interface_message(name, where))
+    given: dict[str, Any] = {"interface": name or "virtual"}
     if channel:
         given["channel"] = channel
-    try:
-        cfg = can.util.load_config(config=given)
-    except can.CanInterfaceNotImplementedError:
-        cfg = dict(given)
-    except Exception:  # no interface configured anywhere
-        cfg = dict(given)
-    iface = str(cfg.get("interface") or "virtual")
+    cfg: Mapping[str, Any] = can.util.load_config(config=given)
+    iface = str(cfg["interface"])
     chan = cfg.get("channel") or DEFAULT_CHANNEL.get(iface)
     if chan is None:
         raise BusConfigError(f"interface {iface!r} needs a channel: pass --channel or set CAN_CHANNEL")
@@ -111,12 +143,14 @@ def open_bus(interface: str | None = None, channel: str | None = None, **kwargs:
     iface, chan = resolve(interface, channel)
     if iface == "udp_multicast" and not multicast_allowed():
         raise BusConfigError(
-            "udp_multicast would send multicast beyond this host: run inside a private network namespace "
-            "(unshare -n sh -c 'ip link set lo up; ip route add 224.0.0.0/4 dev lo; …') or set "
-            "VMEHIL_ALLOW_MULTICAST=1 on a network that is yours")
+            "udp_multicast would send multicast beyond this host: run node and controller inside one private "
+            "network namespace, e.g. unshare -rn sh -c 'ip link set lo up; ip route add 224.0.0.0/4 dev lo; "
+            "vmehil plant-node --interface udp_multicast & vmehil run --plant can --interface udp_multicast; "
+            "kill $!' (unshare -n as root), or set VMEHIL_ALLOW_MULTICAST=1 on a network that is yours; "
+            "for one process, leave --interface out (virtual)")
     if iface == "socketcan" and not socketcan_available():
-        raise BusConfigError("socketcan: this kernel has no usable AF_CAN sockets; use --interface virtual "
-                             "or udp_multicast")
+        raise BusConfigError("socketcan: this kernel has no usable AF_CAN sockets; leave --interface out "
+                             "(virtual, the node in this process) or use udp_multicast between processes")
     opts: dict[str, Any] = {"fd": True}
     if iface == "udp_multicast":
         opts["receive_own_messages"] = False
@@ -124,7 +158,8 @@ def open_bus(interface: str | None = None, channel: str | None = None, **kwargs:
     try:
         return can.Bus(interface=iface, channel=chan, **opts)
     except (OSError, can.CanError) as e:
-        hint = " (create it with: sudo ./vcan_setup.sh)" if iface == "socketcan" else ""
+        hint = (f" (create it with: sudo ip link add dev {chan} type vcan && sudo ip link set {chan} mtu 72 up;"
+                " or sudo ./vcan_setup.sh in a vmehil checkout)" if iface == "socketcan" else "")
         raise BusConfigError(f"cannot open {iface} channel {chan!r}: {e}{hint}") from e
 
 

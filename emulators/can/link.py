@@ -199,8 +199,7 @@ class CanPlantLink(PlantLink):
                         f"the plant node serves another controller (boot id {self._refused_by:#06x}) and refused "
                         f"our RESET for {self.connect_timeout_s:g} s: it accepts a new controller when that one "
                         "ends its run or has been silent for the node's controller timeout (0.5 s)")
-                raise PlantLostError(f"no plant node answered RESET within {self.connect_timeout_s:g} s: start "
-                                     "`vmehil plant-node` on the same interface and channel")
+                raise PlantLostError(f"no plant node answered RESET within {self.connect_timeout_s:g} s")
 
     # --- receiving ------------------------------------------------------------------------------
     def _pump(self, timeout: float, *, accept_new_boot: bool = False) -> bool:
@@ -273,8 +272,8 @@ class CanPlantLink(PlantLink):
                                      "start both sides with the same --rig")
             if bool(r["FreeRunning"]) != self.free_running:
                 mode = "free-running" if r["FreeRunning"] else "lockstep"
-                raise PlantLinkError(f"the plant node runs {mode}; start this side with the same mode "
-                                     "(--plant-mode) or restart the node")
+                raise PlantLinkError(f"the plant node runs {mode}: give this side --plant-mode {mode}, or restart "
+                                     f"the node {'without' if r['FreeRunning'] else 'with'} --free-running")
             self.peer_boot = int(r["BootId"])
             self.session = session
             self._reset_acked = True
@@ -296,7 +295,8 @@ class CanPlantLink(PlantLink):
         sens, truth = self._sens, self._truth
         self._sens, self._truth = {}, {}
         if r["StepError"]:
-            raise PlantLinkError(f"the plant node could not step tick {tick} (see its log)")
+            raise PlantLinkError(f"the plant node could not step tick {tick}: its stderr says why "
+                                 f"(`plant node: step {tick} failed: ...`)")
         seq = tick & 0xFF
         if len(sens) != self.n or any(sens.get(j, {}).get("Seq") != seq for j in range(self.n)):
             c.incomplete += 1

@@ -7,7 +7,9 @@ No tests here; the console tests import it as ``tests.support.console``.
 
 from __future__ import annotations
 
+import subprocess
 import time
+from pathlib import Path
 
 from servo.loop import ServoLoop
 from tests.support.fakes import tick
@@ -121,3 +123,15 @@ def tap_poll(console):
         return out
 
     return poll
+
+
+def wait_for_link(path: Path, proc: subprocess.Popen, timeout_s: float = 120.0) -> None:
+    """Wait until the console's pty link ``path`` exists (a vmehil subprocess creates it); fail
+    at once if ``proc`` exits first. The bound is against a hang only."""
+    deadline = time.monotonic() + timeout_s
+    while not path.is_symlink():
+        if proc.poll() is not None:
+            raise AssertionError(f"vmehil exited early: {proc.stderr.read() if proc.stderr else ''}")
+        if time.monotonic() > deadline:
+            raise AssertionError("the console pty did not appear")
+        time.sleep(0.05)

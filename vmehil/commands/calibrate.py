@@ -1,7 +1,7 @@
 """``vmehil calibrate``: calibration procedures that write the rig's calibration file.
 
     vmehil calibrate adc|dac|encoder|amplifier|pot|all [--rig NAME|PATH] [--seed N]
-                     [--joint N ...] [--auto] [--out CAL.toml] [--json PATH] [--report DIR]
+                     [--joint N ...] [--auto] [--calibration CAL.toml] [--json PATH] [--report DIR]
                      [--write-on-fail] [--points 9] [--verify-per-segment 1] [--quiet]
 
 Progress is a bar on stderr (:mod:`vmehil.progress`) when it is a terminal and ``--quiet`` is
@@ -35,16 +35,18 @@ def register(sub: argparse._SubParsersAction) -> None:
                     + ", ".join(spec.name for spec in specs if spec.in_all) + ").\n" + lines,
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("procedure", choices=[*(spec.name for spec in specs), ALL], help="what to calibrate")
-    p.add_argument("--rig", default=None, help="rig preset name or TOML path (default jpl-arm)")
-    p.add_argument("--seed", type=seed, default=0, help="seed of the emulated rig's noise (default 0)")
+    p.add_argument("--rig", metavar="NAME|PATH", default=None, help="rig preset name or TOML path (default jpl-arm)")
+    p.add_argument("--seed", metavar="N", type=seed, default=0, help="seed of the emulated rig's noise (default 0)")
     p.add_argument("--joint", type=joint_number, action="append", default=None,
                    help="joint number (1-based) to calibrate; repeat for several (default: all)")
     p.add_argument("--auto", action="store_true",
                    help="use the rig's reference fixture instead of prompting the operator for angles")
-    p.add_argument("--out", default=None,
-                   help="calibration file (default $VMEHIL_CALIBRATION_DIR or ./calibration, /<rig>.toml)")
-    p.add_argument("--json", default=None, help="write the machine-readable results here")
-    p.add_argument("--report", default=None, help="write results.txt, results.json and plots into this folder")
+    p.add_argument("--calibration", "--out", dest="out", default=None, metavar="PATH",
+                   help="calibration file to read and write, as run's and console's --calibration "
+                        "(default $VMEHIL_CALIBRATION_DIR or ./calibration, /<rig>.toml)")
+    p.add_argument("--json", metavar="PATH", default=None, help="write the machine-readable results here")
+    p.add_argument("--report", metavar="DIR", default=None,
+                   help="write results.txt, results.json and plots into this folder")
     p.add_argument("--write-on-fail", action="store_true", help="write the file even if a check failed")
     p.add_argument("--points", type=bounded_int(3, 64, what="a number of pot calibration points"), default=9,
                    help="pot: calibration points (default 9, the paper's)")

@@ -1,7 +1,10 @@
 """``vmehil console``: run the servo loop on a rig and serve the operator console on PORT.
 
-    vmehil console --port PORT [--rig NAME|PATH] [--seed N] [--motion FILE] [--commands FILE]
-                   [--gains kp=..,..] [--lockstep] [--duration S]
+    vmehil console [--console PORT] [--rig NAME|PATH] [--seed N] [--motion FILE|none]
+                   [--console-commands FILE] [--console-prompt/--console-echo auto|on|off]
+                   [--gains kp=..,..] [--realtime|--lockstep] [--duration S] [--json PATH]
+
+(shipped spellings kept as aliases: ``--port``, ``--commands``, ``--baud``; PORT defaults to pty)
 
 Design: the console attaches to a loop in the same process. ``vmehil console`` is that process —
 it builds the rig and the loop the way ``vmehil run`` does, holds the joints where they are (or
@@ -21,29 +24,31 @@ import warnings
 from pathlib import Path
 
 from servo.interrupts import Terminated, interrupt_name
-from vmehil.cli_types import bounded_int, duration_s
-from vmehil.realtime_options import add_overrun_args, overrun_options
+from vmehil.cli_types import duration_s
+from vmehil.files import write_json
+from vmehil.realtime_options import add_overrun_args, add_pacing_args, overrun_options, realtime
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     from vmehil.commands.run import add_rig_args
+    from vmehil.console.extension import add_console_arguments
 
     p = sub.add_parser("console", help="run the servo loop and serve the operator console on a serial line")
-    p.add_argument("--port", required=True,
-                   help="pty (linked at /tmp/vmehil-console), pty:/path/link, a serial device, a pyserial URL "
-                        "(loop://, socket://127.0.0.1:N) or listen://127.0.0.1:N")
+    add_console_arguments(p, standalone=True)
     add_rig_args(p)
-    p.add_argument("--motion", default=None, help="motion file to play at start (default: hold the joints)")
-    p.add_argument("--commands", default=None, help="compound command file (checked at load)")
-    p.add_argument("--gains", default=None, help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=..")
-    p.add_argument("--baud", type=bounded_int(50, 4_000_000, what="a baud rate"), default=115200,
-                   help="baud rate for a serial device (default 115200)")
-    p.add_argument("--lockstep", action="store_true", help="do not pace ticks by the wall clock")
+    p.add_argument("--motion", default=None, metavar="PATH|none",
+                   help="motion file to play at start (default, and none: hold the joints)")
+    p.add_argument("--gains", default=None, metavar="kp=..,kpi=..,kv=..,kvi=..",
+                   help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=..")
+    add_pacing_args(p, default="the default")
     add_overrun_args(p)
-    p.add_argument("--duration", type=duration_s, default=None, help="end after this many seconds of loop time")
-    p.add_argument("--calibration", default=None,
+    p.add_argument("--duration", metavar="S", type=duration_s, default=None,
+                   help="end after this many seconds of loop time")
+    p.add_argument("--calibration", metavar="PATH", default=None,
                    help="calibration file for the drivers, and where the console's calibrate writes "
                         "(default: calibration/<rig>.toml or $VMEHIL_CALIBRATION_DIR/<rig>.toml)")
+    p.add_argument("--json", default=None, metavar="PATH",
+                   help="write the session's summary here at exit (ticks, commands, how it stopped)")
     p.set_defaults(func=run_console)
 
 
@@ -52,13 +57,14 @@ def run_console(args: argparse.Namespace) -> int:
     from servo.gain_guard import check_values
     from vmehil.commands import console_port_needs_serial, refuse_without
 
-    if console_port_needs_serial(args.port) and refuse_without("vmehil console --port " + args.port, "console"):
+    if console_port_needs_serial(args.console) and refuse_without("vmehil console --console " + args.console,
+                                                                 "console"):
         return 2
-    from servo.motion import Motion, WaitMove, load_motion
+    from servo.motion import NO_MOTION, hold_motion, load_motion
     from servo.rig import load_rig
     from servo.runner import LockstepRunner, RealtimeRunner
     from vmehil.calibration.store import CalibrationMissingWarning, default_store_path
-    from vmehil.console.extension import start_console
+    from vmehil.console.extension import start_console, terminal_settings
     from vmehil.session import build_loop
     from vmehil.system import build_emulated_rig
 
@@ -79,15 +85,19 @@ def run_console(args: argparse.Namespace) -> int:
     if not caught:
         print(f"calibration: {calibration}", file=sys.stderr)
     n = system.rig.n_joints
-    motion = load_motion(args.motion, n) if args.motion else Motion((WaitMove(0.0),), "hold", "<console>")
+    motion = (load_motion(args.motion, n) if args.motion and args.motion != NO_MOTION
+              else hold_motion("<console>"))
     loop = build_loop(system, motion=motion, gains=gains, n_ticks=0)
     loop.start()
-    runner = LockstepRunner(system, loop) if args.lockstep else RealtimeRunner(system, loop, **overrun_options(args))
+    paced = realtime(args, default=True)
+    runner = RealtimeRunner(system, loop, **overrun_options(args)) if paced else LockstepRunner(system, loop)
     done = threading.Event()
     # calibrate jobs run here between runner chunks (not inside a tick hook), so a wall-clock
     # runner restarts its deadlines after a calibration instead of catching up on them
-    console = start_console(args.port, loop, runner=runner, commands=args.commands, baudrate=args.baud,
-                            shutdown=done.set, system=system, calibration=calibration, jobs_on_tick=False)
+    prompt, echo = terminal_settings(args, args.console)
+    console = start_console(args.console, loop, runner=runner, commands=args.console_commands,
+                            baudrate=args.console_baud, shutdown=done.set, system=system, calibration=calibration,
+                            jobs_on_tick=False, prompt=prompt, echo=echo)
     # SIGTERM ends the session between runner chunks like the console's own `quit`
     previous = signal.signal(signal.SIGTERM, lambda *_: done.set()) if threading.current_thread() is \
         threading.main_thread() else None
@@ -120,4 +130,18 @@ def run_console(args: argparse.Namespace) -> int:
             signal.signal(signal.SIGTERM, previous)
     print(f"vmehil console: {loop.tick_count} ticks ({loop.tick_count * loop.period_s:.3f} s), "
           f"{console.stats.handled} commands, stopped: {fault.cause if fault else '-'}")
+    if args.json:
+        write_json(args.json, summary(loop, console, system.rig.name, paced=paced, fault=fault))
     return 0
+
+
+def summary(loop, console, rig: str, *, paced: bool, fault) -> dict:
+    """The ``--json`` summary of a console session: what ran, what was asked, how it stopped."""
+    s = console.stats
+    return {
+        "rig": rig, "mode": "realtime" if paced else "lockstep", "ticks": loop.tick_count,
+        "loop_s": loop.tick_count * loop.period_s, "commands": s.handled, "lines": s.lines, "busy": s.busy,
+        "long": s.long, "binary": s.binary, "dropped_out": s.dropped_out,
+        "stopped": None if fault is None else {"cause": fault.cause, "detail": fault.detail, "tick": fault.tick},
+        "stop_incomplete": bool(getattr(loop, "stop_incomplete", False)),
+    }

@@ -4,7 +4,8 @@ Examples::
 
     vmehil crate list                          # boards of the default rig's crate
     vmehil crate read A24 0x200000 --width 16
-    vmehil crate write A16 0x0000 0x0001 --width 16 --then-read A16 0x0002
+    vmehil crate write A16 0x0000 0x0001 --width 16
+    vmehil crate list --json                   # options before or after the action
     vmehil crate demo                          # build, probe every board, print the map
     echo "write A24 0x200000 0xBEEF; read A24 0x200000; counters" | vmehil crate shell
 """
@@ -27,28 +28,42 @@ from hal.vme.types import AddressSpace, Width
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("crate", help="list, probe, read and write an emulated VME crate")
-    p.add_argument("--rig", default=None, help="rig preset name or crate/rig TOML path (default jpl-arm)")
-    p.add_argument("--json", action="store_true", help="print machine-readable JSON")
-    p.add_argument("--bus", default="emulated",
-                   help="emulated (default) or vme_user[:DIR] — a real crate through Linux's /dev/bus/vme "
-                        "(list, read, write, shell; docs/vme-user.md)")
+    _add_common(p, defaults=True)
+    # the same options after the action (`crate list --json` as well as `crate --json list`);
+    # given there, they win
+    common = argparse.ArgumentParser(add_help=False)
+    _add_common(common, defaults=False)
     csub = p.add_subparsers(dest="crate_cmd", metavar="ACTION")
     csub.required = True
-    csub.add_parser("list", help="list the boards and their windows")
-    csub.add_parser("demo", help="build the crate, probe every board, print the map and counters")
-    csub.add_parser("types", help="list the board types a crate file can use")
-    csub.add_parser("counters", help="probe every board, then print the access counters")
-    r = csub.add_parser("read", help="read one value: read A24 0x200000 --width 16")
+    csub.add_parser("list", parents=[common], help="list the boards and their windows")
+    csub.add_parser("demo", parents=[common], help="build the crate, probe every board, print the map and counters")
+    csub.add_parser("types", parents=[common], help="list the board types a crate file can use")
+    csub.add_parser("counters", parents=[common], help="probe every board, then print the access counters")
+    r = csub.add_parser("read", parents=[common], help="read one value: read A24 0x200000 --width 16")
     r.add_argument("space")
     r.add_argument("address", type=_int)
     r.add_argument("--width", default="16", help="8, 16 or 32 (or D8/D16/D32)")
-    w = csub.add_parser("write", help="write one value: write A24 0x200000 0xBEEF --width 16")
+    w = csub.add_parser("write", parents=[common], help="write one value: write A24 0x200000 0xBEEF --width 16")
     w.add_argument("space")
     w.add_argument("address", type=_int)
     w.add_argument("value", type=_int)
     w.add_argument("--width", default="16")
-    csub.add_parser("shell", help="read commands (read/write/list/counters/time) from stdin")
+    csub.add_parser("shell", parents=[common], help="read commands (read/write/list/counters/time) from stdin")
     p.set_defaults(func=run)
+
+
+def _add_common(p: argparse.ArgumentParser, *, defaults: bool) -> None:
+    """``--rig``, ``--json``, ``--bus``: on ``crate`` with their defaults, and after the action
+    with none (argparse.SUPPRESS), so that an action's parser only sets what was given there."""
+    def default(value: Any) -> Any:
+        return value if defaults else argparse.SUPPRESS
+
+    p.add_argument("--rig", metavar="NAME|PATH", default=default(None),
+                   help="rig preset name or crate/rig TOML path (default jpl-arm)")
+    p.add_argument("--json", action="store_true", default=default(False), help="print machine-readable JSON")
+    p.add_argument("--bus", default=default("emulated"),
+                   help="emulated (default) or vme_user[:DIR]: a real crate through Linux's /dev/bus/vme "
+                        "(list, read, write, shell; docs/vme-user.md)")
 
 
 def _int(text: str) -> int:

@@ -21,6 +21,7 @@ import argparse
 import sys
 
 from vmehil.cli_types import bounded_float, duration_s
+from vmehil.commands.errors import CliError
 from vmehil.files import write_json
 
 DEFAULT_COMMAND_TIMEOUT_S = 0.2
@@ -35,7 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_bus_arguments(p)
     p.add_argument("--free-running", action="store_true",
                    help="step on the wall clock at the servo rate instead of on the controller's SYNC")
-    p.add_argument("--duration", type=duration_s, default=None, help="serve this many seconds (default: until Ctrl-C)")
+    p.add_argument("--duration", metavar="S", type=duration_s, default=None,
+                   help="serve this many seconds (default: until Ctrl-C)")
     p.add_argument("--command-timeout", type=bounded_float(0.0, 3600.0, what="seconds (0 = off)"),
                    default=DEFAULT_COMMAND_TIMEOUT_S, metavar="S",
                    help="latch every enabled amplifier off when no CONTROL/SYNC came for S seconds of wall-clock "
@@ -52,6 +54,11 @@ def run(args: argparse.Namespace) -> int:
     from vmehil.system import NON_PLANT_JOINT_KEYS
 
     spec = node_spec(args.rig, foreign_keys=NON_PLANT_JOINT_KEYS)  # fails early on a bad rig file
+    if resolve(args.interface, args.channel)[0] == "virtual":
+        raise CliError("a plant node on python-can's virtual interface (the default) can serve no controller: "
+                       "virtual does not cross processes. Give --interface udp_multicast (between processes, "
+                       "docs/can.md) or --interface socketcan --channel vcan0; for one process, "
+                       "`vmehil run --plant can` alone starts its node itself")
     bus = open_bus(args.interface, args.channel)
     ep = Endpoint(bus, PLANT_IDS, log_path=args.can_log)
     node = PlantNode(ep, lambda seed: Plant.from_config(spec.table, seed=seed), spec.n_joints, seed=args.seed,

@@ -1,6 +1,6 @@
 """``vmehil run``: the main job — the servo loop moving emulated joints through the full stack.
 
-    vmehil run [--rig NAME|PATH] [--motion PATH] [--duration S] [--realtime] [--seed N]
+    vmehil run [--rig NAME|PATH] [--motion PATH|none] [--duration S] [--realtime|--lockstep] [--seed N]
                [--no-integrator-switch-off] [--gains kp=..,kpi=..,kv=..,kvi=..]
                [--json PATH] [--report DIR] [--quiet] [--fault NAME[@T][:k=v,...]]... [--faults FILE]
 
@@ -22,7 +22,7 @@ from vmehil.console import extension as console_extension
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
 from vmehil.files import write_json
 from vmehil.mavlink import extension as mavlink_extension
-from vmehil.realtime_options import add_overrun_args, overrun_options
+from vmehil.realtime_options import add_overrun_args, add_pacing_args, overrun_options, realtime
 
 # Modules that extend `vmehil run` (live tuning over MAVLink, the operator console, ...). Each
 # defines ``add_arguments(parser)`` and ``attach(args, system, loop, runner)``, which returns
@@ -42,23 +42,26 @@ RUN_EXTENSIONS: tuple[ModuleType, ...] = (
 
 
 def add_rig_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--rig", default=None, help="rig preset name or TOML path (default jpl-arm)")
-    p.add_argument("--seed", type=seed, default=0, help="seed of every noise source (default 0)")
+    p.add_argument("--rig", metavar="NAME|PATH", default=None, help="rig preset name or TOML path (default jpl-arm)")
+    p.add_argument("--seed", metavar="N", type=seed, default=0, help="seed of every noise source (default 0)")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run the servo loop on a rig (the main job)")
     add_rig_args(p)
-    p.add_argument("--motion", default=None, help="motion file (TOML); default: a coordinated demo move + 10 s hold")
-    p.add_argument("--duration", type=duration_s, default=None, help="seconds to run (default: the motion, +1 s)")
-    p.add_argument("--realtime", action="store_true", help="pace ticks by the wall clock at the servo rate")
+    p.add_argument("--motion", default=None, metavar="PATH|none",
+                   help="motion file (TOML); none: hold the joints where they are (give --duration); "
+                        "default: a coordinated demo move + 10 s hold")
+    p.add_argument("--duration", metavar="S", type=duration_s, default=None,
+                   help="seconds to run (default: the motion, +1 s)")
+    add_pacing_args(p, default="the default with --console; otherwise --lockstep is")
     add_overrun_args(p)
     p.add_argument("--no-integrator-switch-off", action="store_true", help="keep the integrators fed at rest")
-    p.add_argument("--gains", default=None,
+    p.add_argument("--gains", default=None, metavar="kp=..,kpi=..,kv=..,kvi=..",
                    help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=.. (checked by servo.gain_guard)")
-    p.add_argument("--json", default=None, help="write the machine-readable summary here")
-    p.add_argument("--report", default=None, help="write plots and summary.md into this folder")
-    p.add_argument("--calibration", default=None,
+    p.add_argument("--json", metavar="PATH", default=None, help="write the machine-readable summary here")
+    p.add_argument("--report", metavar="DIR", default=None, help="write plots and summary.md into this folder")
+    p.add_argument("--calibration", metavar="PATH", default=None,
                    help="calibration file for the drivers (default: calibration/<rig>.toml or "
                         "$VMEHIL_CALIBRATION_DIR/<rig>.toml; missing → nominal values with a warning)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
@@ -74,6 +77,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     console = getattr(args, "console", None)
+    # a person at the console needs the loop at the wall clock's pace (a lockstep run would be over
+    # before they typed); --lockstep still wins
+    args.realtime = realtime(args, default=bool(console))
     for option, extra, used in (("--report", "plots", bool(args.report)),
                                 ("--mavlink", "mavlink", bool(getattr(args, "mavlink", None))),
                                 ("--console", "console", bool(console and console_port_needs_serial(console)))):
@@ -100,7 +106,7 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     if getattr(args, "bus", "emulated") != "emulated":
         from vmehil.commands.run_real import run_on_real_bus
         return run_on_real_bus(args, rig, gains, exit_status=run_exit_status)
-    from servo.motion import default_demo_motion, load_motion
+    from servo.motion import NO_MOTION, default_demo_motion, hold_motion, load_motion
     from servo.runner import LockstepRunner, RealtimeRunner
     from vmehil.progress import TickProgress
     from vmehil.run_report import summarize, table, write_report
@@ -113,7 +119,12 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
         if prep is not None:
             defaults.update(prep(args, rig) or {})
     n = rig.n_joints
-    motion = load_motion(args.motion, n) if args.motion else defaults.get("motion") or default_demo_motion(n)
+    if args.motion == NO_MOTION:
+        if args.duration is None and "duration" not in defaults:
+            raise ValueError(f"--motion {NO_MOTION} holds the joints: give --duration S (how long to run)")
+        motion = hold_motion()
+    else:
+        motion = load_motion(args.motion, n) if args.motion else defaults.get("motion") or default_demo_motion(n)
     if args.duration is not None:
         duration = args.duration
     elif "duration" in defaults:

@@ -45,7 +45,7 @@ if TYPE_CHECKING:  # the analysis needs the 'tune' extra: imported when a tune c
 
 def _common() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(add_help=False)
-    p.add_argument("--rig", default=None, help="rig preset name or TOML path (default jpl-arm)")
+    p.add_argument("--rig", metavar="NAME|PATH", default=None, help="rig preset name or TOML path (default jpl-arm)")
     p.add_argument("--joint", type=joint_number, default=1, help="joint number, 1-based (default 1)")
     p.add_argument("--gains", default=None, metavar="kp=..,kpi=..,kv=..,kvi=..",
                    help="override some or all of the joint's gains (this joint only)")
@@ -55,7 +55,8 @@ def _common() -> argparse.ArgumentParser:
 
 
 def _sim_args(p: argparse.ArgumentParser, hold: float, band: float) -> None:
-    p.add_argument("--seed", type=seed, default=0, help="seed of every noise source of the emulated rig (default 0)")
+    p.add_argument("--seed", metavar="N", type=seed, default=0,
+                   help="seed of every noise source of the emulated rig (default 0)")
     p.add_argument("--motion", choices=("joint", "demo"), default="joint",
                    help="joint: a quintic move of this joint only (default); demo: the demo move of every joint")
     p.add_argument("--move-deg", type=nonzero_float, default=None,

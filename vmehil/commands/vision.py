@@ -14,7 +14,6 @@ Example::
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 
@@ -22,31 +21,41 @@ from emulators.vision import VisionParams, run_vision_process
 from hal.bit3.arm import ArmModel
 from hal.bit3.protocol import Timeouts
 from vmehil.cli_types import bounded_float, bounded_int, duration_s, positive_float
+from vmehil.files import to_json, write_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("vision", help="run the emulated vision system on a shared-memory BIT3 link")
-    p.add_argument("--shm", required=True, help="name of the shared-memory segment the robot side created")
-    p.add_argument("--target", type=_xyz, default=(0.8, 0.2, 0.5), help="target x,y,z in metres (base frame)")
-    p.add_argument("--rate-hz", type=bounded_float(0.1, 1000.0, what="a frame rate (Hz)"), default=30.0,
+    p.add_argument("--shm", required=True, metavar="NAME",
+                   help="name of the shared-memory segment the robot side created")
+    p.add_argument("--target", metavar="X,Y,Z",
+                   type=_xyz, default=(0.8, 0.2, 0.5), help="target x,y,z in metres (base frame)")
+    p.add_argument("--rate-hz", metavar="HZ", type=bounded_float(0.1, 1000.0, what="a frame rate (Hz)"), default=30.0,
                    help="camera frame rate (Hz)")
-    p.add_argument("--latency-ms", type=bounded_float(0.0, 10_000.0, what="a latency (ms)"), default=30.0,
+    p.add_argument("--latency-ms", metavar="MS", type=bounded_float(0.0, 10_000.0, what="a latency (ms)"), default=30.0,
                    help="frame-to-command latency (ms)")
-    p.add_argument("--gain", type=bounded_float(0.0, 1.0, what="a fraction", lo_open=True), default=0.5,
+    p.add_argument("--gain", metavar="F", type=bounded_float(0.0, 1.0, what="a fraction", lo_open=True), default=0.5,
                    help="fraction of the error commanded per frame")
-    p.add_argument("--max-step-mm", type=positive_float, default=10.0,
+    p.add_argument("--max-step-mm", metavar="MM", type=positive_float, default=10.0,
                    help="saturation of one command (mm)")
-    p.add_argument("--tolerance-mm", type=positive_float, default=2.0, help="target reached within this (mm)")
-    p.add_argument("--hold-frames", type=bounded_int(0, 10_000, what="a frame count"), default=3,
+    p.add_argument("--tolerance-mm", metavar="MM",
+                   type=positive_float, default=2.0, help="target reached within this (mm)")
+    p.add_argument("--hold-frames", metavar="N", type=bounded_int(0, 10_000, what="a frame count"), default=3,
                    help="frames within tolerance before ending (0: never)")
-    p.add_argument("--fov-deg", type=bounded_float(0.0, 180.0, what="a half angle (deg)", lo_open=True), default=180.0,
+    p.add_argument("--fov-deg", metavar="DEG",
+                   type=bounded_float(0.0, 180.0, what="a half angle (deg)", lo_open=True), default=180.0,
                    help="half angle of the field of view (deg)")
-    p.add_argument("--arm", type=_xyz, default=None, help="arm lengths d1,a2,a3 in metres (default 0.30,0.60,0.55)")
-    p.add_argument("--offset", type=lambda s: int(s, 0), default=0, help="protocol base offset in the memory")
-    p.add_argument("--peer-timeout-ms", type=bounded_float(1.0, 3_600_000.0, what="a timeout (ms)"), default=250.0,
+    p.add_argument("--arm", metavar="D1,A2,A3",
+                   type=_xyz, default=None, help="arm lengths d1,a2,a3 in metres (default 0.30,0.60,0.55)")
+    p.add_argument("--offset", metavar="N",
+                   type=lambda s: int(s, 0), default=0, help="protocol base offset in the memory")
+    p.add_argument("--peer-timeout-ms", metavar="MS",
+                   type=bounded_float(1.0, 3_600_000.0, what="a timeout (ms)"), default=250.0,
                    help="robot silent this long: end the task")
-    p.add_argument("--duration", type=duration_s, default=None, help="exit after this many seconds")
+    p.add_argument("--duration", metavar="S", type=duration_s, default=None, help="exit after this many seconds")
     p.add_argument("--exit-after-task", action="store_true", help="exit when the first task has ended")
+    p.add_argument("--json", default=None, metavar="PATH",
+                   help="also write the summary here (it is always printed as one JSON line on stdout)")
     p.add_argument("-v", "--verbose", action="store_true", help="log to stderr")
     p.set_defaults(func=run)
 
@@ -72,5 +81,7 @@ def run(args: argparse.Namespace) -> int:
         timeouts=Timeouts(peer_timeout_s=args.peer_timeout_ms * 1e-3), offset=args.offset,
         duration_s=args.duration, exit_after_task=args.exit_after_task,
     )
-    print(json.dumps(summary))
+    print(to_json(summary, indent=None), end="")  # one line of standard JSON (NaN → null), as --json writes
+    if args.json:
+        write_json(args.json, summary)
     return 0

@@ -1,4 +1,5 @@
-"""``vmehil run --console PORT [--console-commands FILE]``: serve the operator console beside a run.
+"""``vmehil run --console PORT [--console-commands FILE] [--console-prompt/--console-echo auto|on|off]``:
+serve the operator console beside a run.
 
 Registered in :data:`vmehil.commands.run.RUN_EXTENSIONS`. ``attach`` opens the port, loads the
 compound command file (errors name file:line:column and end the run before it starts), hooks the
@@ -14,26 +15,63 @@ from pathlib import Path
 from typing import Any
 
 from servo.control.linear import delay_periods
+from vmehil.cli_types import bounded_int
 from vmehil.console.calibrate import calibrator_for
 from vmehil.console.compound import CompoundLibrary, load_compound_file
 from vmehil.console.server import Console, PtyTransport, open_transport
 
+#: ``--console-prompt`` / ``--console-echo`` values; auto = on for a pty or serial device (a
+#: person at a terminal), off for network and pyserial URLs (programs)
+TERMINAL_CHOICES = ("auto", "on", "off")
+PROMPT = "> "
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("operator console (docs/console.md)")
-    g.add_argument("--console", metavar="PORT", default=None,
-                   help="serve the console on PORT: pty (a new pty linked at /tmp/vmehil-console), pty:/path/link, "
-                        "a serial device, a pyserial URL (loop://, socket://127.0.0.1:N) or listen://127.0.0.1:N")
-    g.add_argument("--console-commands", metavar="FILE", default=None,
+    add_console_arguments(g)  # type: ignore[arg-type]
+
+
+def add_console_arguments(g: argparse.ArgumentParser, *, standalone: bool = False) -> None:
+    """The console's options, one spelling for ``vmehil run`` and ``vmehil console``; the
+    standalone command keeps its shipped spellings (``--port``, ``--commands``, ``--baud``) as
+    aliases, and its port defaults to ``pty``."""
+    alias = (lambda name: (name,)) if standalone else (lambda name: ())
+    g.add_argument("--console", *alias("--port"), dest="console", metavar="PORT", default="pty" if standalone else None,
+                   help="serve the console on PORT: pty (a new pty linked at /tmp/vmehil-console"
+                        + ("; the default" if standalone else "") + "), pty:/path/link, a serial device, "
+                        "a pyserial URL (loop://, socket://127.0.0.1:N) or listen://127.0.0.1:N")
+    g.add_argument("--console-commands", *alias("--commands"), dest="console_commands", metavar="FILE", default=None,
                    help="compound command file loaded (and checked) at start")
-    g.add_argument("--console-baud", metavar="BAUD", type=int, default=115200,
+    g.add_argument("--console-baud", *alias("--baud"), dest="console_baud", metavar="BAUD",
+                   type=bounded_int(50, 4_000_000, what="a baud rate"), default=115200,
                    help="baud rate for a serial device (default 115200)")
+    g.add_argument("--console-prompt", choices=TERMINAL_CHOICES, default="auto",
+                   help=f"show the prompt {PROMPT.strip()!r} (auto: on a pty or serial device, off for network ports)")
+    g.add_argument("--console-echo", choices=TERMINAL_CHOICES, default="auto",
+                   help="echo what is typed, with up/down history (auto: on a pty or serial device, off for network "
+                        "ports; off when the terminal program echoes, e.g. picocom --echo)")
+
+
+def is_terminal_port(port: str) -> bool:
+    """Whether a person at a terminal program is the likely client: a pty or a serial device."""
+    return "://" not in port
+
+
+def terminal_settings(args: argparse.Namespace, port: str) -> tuple[str | None, bool]:
+    """(prompt, echo) from ``--console-prompt`` / ``--console-echo`` for ``port``; both off for a
+    namespace without them (a program that builds its own, as before these options)."""
+    def on(value: str) -> bool:
+        return is_terminal_port(port) if value == "auto" else value == "on"
+
+    return (PROMPT if on(getattr(args, "console_prompt", "off")) else None,
+            on(getattr(args, "console_echo", "off")))
 
 
 def start_console(port: str, loop: Any, *, runner: Any = None, commands: str | None = None,
                   baudrate: int = 115200, shutdown: Callable[[], None] | None = None,
                   announce: Callable[[str], None] | None = None, system: Any = None,
-                  calibration: str | Path | None = None, jobs_on_tick: bool = True) -> Console:
+                  calibration: str | Path | None = None, jobs_on_tick: bool = True, prompt: str | None = None,
+                  echo: bool = False) -> Console:
     """Open ``port``, load ``commands`` (compound file), hook into ``runner.after_tick`` and start.
 
     ``system``: the emulated rig the loop drives (default ``runner.plant``) — it makes ``calibrate``
@@ -50,7 +88,7 @@ def start_console(port: str, loop: Any, *, runner: Any = None, commands: str | N
         system = getattr(runner, "plant", None)
     calibrate = calibrator_for(system, calibration) if system is not None else None
     console = Console(loop, transport, delay=delay, library=library, shutdown=shutdown, calibrate=calibrate,
-                      jobs_on_tick=jobs_on_tick)
+                      jobs_on_tick=jobs_on_tick, prompt=prompt, echo=echo)
     if runner is not None:
         runner.after_tick.append(console.on_tick)
     console.start()
@@ -59,8 +97,11 @@ def start_console(port: str, loop: Any, *, runner: Any = None, commands: str | N
             sys.stderr.write(text + "\n")
             sys.stderr.flush()
     if isinstance(transport, PtyTransport):
+        path = transport.link or transport.slave_path
+        # the console echoes (or the terminal program must): the hint matches the setting
+        how = f"picocom -q {'' if echo else '--echo '}{path} (quit: Ctrl-A Ctrl-X)"
         announce(f"console: pty {transport.slave_path}" + (f", linked at {transport.link}" if transport.link else "")
-                 + f" — open it with: picocom {transport.link or transport.slave_path}")
+                 + f"; open it with: {how}")
     else:
         announce(f"console: {transport.description}")
     if library:
@@ -78,5 +119,6 @@ def attach(args: argparse.Namespace, system: Any, loop: Any, runner: Any) -> Con
 
     calibration = getattr(args, "calibration", None) or (default_store_path(system.rig) if system is not None
                                                          else None)
+    prompt, echo = terminal_settings(args, port)
     return start_console(port, loop, runner=runner, commands=args.console_commands, baudrate=args.console_baud,
-                         system=system, calibration=calibration)
+                         system=system, calibration=calibration, prompt=prompt, echo=echo)

@@ -7,7 +7,7 @@ Requests (one per line, ``\\r``, ``\\n`` or ``\\r\\n`` terminated, at most :data
 
 Numbers become ``int`` or ``float``, a bracketed or comma-joined list becomes a vector (a tuple
 of floats), anything else a string. ``#`` starts a comment line. Backspace/DEL edit the line being
-typed, Ctrl-C / Ctrl-U discard it.
+typed, Ctrl-C / Ctrl-U discard it; ANSI escape sequences (arrow keys) are taken out.
 
 Replies: every line starts with a prefix, and each reply ends with exactly one ``OK`` or ``ERR``
 line (the end marker)::
@@ -257,34 +257,90 @@ def parse_reply_line(line: str) -> tuple[str, list[str], dict[str, str]]:
 # ---- bytes → lines --------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class LineEvent:
-    """What the assembler produced: ``kind`` ``"line"`` (``text``), ``"long"`` or ``"binary"``."""
+    """What the assembler produced: ``kind`` ``"line"`` (``text``), ``"long"``, ``"binary"`` or
+    ``"key"`` (``text``: the cursor key's name; only with ``LineAssembler(keys=True)``)."""
 
     kind: str
     text: str = ""
 
 
+#: the keys an ANSI terminal sends as escape sequences: CSI (ESC [ … final) or SS3 (ESC O x)
+_KEYS = {"A": "up", "B": "down", "C": "right", "D": "left", "H": "home", "F": "end"}
+_CSI_TILDE_KEYS = {"1": "home", "2": "insert", "3": "delete", "4": "end", "5": "page_up", "6": "page_down",
+                   "7": "home", "8": "end"}
+_MAX_ESCAPE = 32  # bytes of one escape sequence's parameters before it is given up
+
+
 class LineAssembler:
     """Turns a byte stream into request lines, robust against garbage.
 
-    * ``\\r`` and ``\\n`` end a line (``\\r\\n`` gives one line and one ignored blank line);
+    * ``\r`` and ``\n`` end a line (``\r\n`` gives one line and one ignored blank line);
     * backspace (0x08) and DEL (0x7f) delete the previous byte, Ctrl-C (0x03) and Ctrl-U (0x15)
       discard the line typed so far;
+    * ANSI escape sequences (arrow and function keys: ``ESC [ … final``, ``ESC O x``, ``ESC x``)
+      are taken out of the line; with ``keys=True`` the cursor keys come out as ``key`` events
+      (``text`` ``up``, ``down``, ``left``, ``right``, ``home``, ``end``, ``delete``, …);
     * a line longer than ``max_line`` bytes is discarded up to its terminator and reported once
       as ``long``; a line holding other control bytes or invalid UTF-8 is reported as ``binary``.
 
     Memory is bounded by ``max_line`` whatever arrives.
     """
 
-    def __init__(self, max_line: int = MAX_LINE) -> None:
+    def __init__(self, max_line: int = MAX_LINE, *, keys: bool = False) -> None:
         self.max_line = max_line
+        self.keys = keys
         self._buf = bytearray()
         self._overflow = False
         self._binary = False
+        self._esc = ""  # "" outside a sequence; "\x1b" after ESC; "[" or "O" inside CSI / SS3
+        self._esc_params = ""
+
+    @property
+    def pending(self) -> str:
+        """The line typed so far (what an echoing terminal shows)."""
+        return "" if self._overflow else self._buf.decode("utf-8", errors="replace")
+
+    def replace(self, text: str) -> None:
+        """Replace the line typed so far (history recall)."""
+        data = text.encode("utf-8")[: self.max_line]
+        self._buf[:] = data
+        self._overflow = False
+        self._binary = any(b < 0x20 and b != 0x09 for b in data)
+
+    def _escape(self, b: int, out: list[LineEvent]) -> bool:
+        """Consume ``b`` as part of an escape sequence; False when ``b`` is not one (process it)."""
+        c = chr(b)
+        if self._esc == "\x1b":
+            self._esc = c if c in "[O" else ""  # ESC x (Alt-x): both bytes swallowed
+            self._esc_params = ""
+            return True
+        if self._esc == "O":
+            self._esc = ""
+            self._key(_KEYS.get(c), out)
+            return True
+        # CSI: parameter and intermediate bytes 0x20-0x3F, then a final byte 0x40-0x7E
+        if 0x20 <= b <= 0x3F and len(self._esc_params) < _MAX_ESCAPE:
+            self._esc_params += c
+            return True
+        self._esc = ""
+        if 0x40 <= b <= 0x7E:
+            name = _CSI_TILDE_KEYS.get(self._esc_params.split(";")[0]) if c == "~" else _KEYS.get(c)
+            self._key(name, out)
+            return True
+        return False  # a broken sequence: this byte is input again
+
+    def _key(self, name: str | None, out: list[LineEvent]) -> None:
+        if self.keys and name is not None:
+            out.append(LineEvent("key", name))
 
     def feed(self, data: bytes) -> list[LineEvent]:
         out: list[LineEvent] = []
         for b in data:
-            if b in (0x0A, 0x0D):
+            if self._esc and self._escape(b, out):
+                continue
+            if b == 0x1B:
+                self._esc = "\x1b"
+            elif b in (0x0A, 0x0D):
                 out.extend(self._finish())
             elif b in (0x08, 0x7F):
                 if self._buf and not self._overflow:

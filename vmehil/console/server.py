@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any, Protocol
 from urllib.parse import urlsplit
 
+from vmehil.ascii_text import to_ascii
 from vmehil.console.commands import ATOMS, Atom, Outcome, Session, bind, bind_request
 from vmehil.console.compound import CompoundLibrary, Executor, prepare
 from vmehil.console.protocol import (
@@ -57,6 +58,7 @@ from vmehil.console.protocol import (
     one_line,
     parse_line,
 )
+from vmehil.console.terminal import TerminalView
 
 DEFAULT_PTY_LINK = "/tmp/vmehil-console"
 READ_TIMEOUT_S = 0.1
@@ -184,6 +186,8 @@ class PtyTransport:
         self.master = master
         self.link = link
         self.connected = False
+        #: called (reader thread) when a client opens the slave side: the console greets it
+        self.on_connect: Callable[[], None] | None = None
         self._closed = False
         if link:
             try:
@@ -199,7 +203,8 @@ class PtyTransport:
             return b""
         try:
             r, _, _ = select.select([self.master], [], [], READ_TIMEOUT_S)
-            if not r:
+            if not r:  # no EIO: a client has the slave side open (it has not typed yet)
+                self._connect()
                 return b""
             data = os.read(self.master, n)
         except BlockingIOError:
@@ -213,8 +218,14 @@ class PtyTransport:
                 time.sleep(READ_TIMEOUT_S)
                 return b""
             raise
-        self.connected = True
+        self._connect()
         return data
+
+    def _connect(self) -> None:
+        if not self.connected:
+            self.connected = True
+            if self.on_connect is not None:
+                self.on_connect()
 
     def write(self, data: bytes) -> None:
         if self._closed or not self.connected:
@@ -415,7 +426,8 @@ class Console:
     def __init__(self, loop: Any, transport: Transport | None, *, delay: float = 0.0,
                  library: CompoundLibrary | None = None, shutdown: Callable[[], None] | None = None,
                  calibrate: Callable[..., Outcome] | None = None, queue_size: int = 32, per_tick: int = 4,
-                 outbox_size: int = 1000, max_line: int = MAX_LINE, jobs_on_tick: bool = True) -> None:
+                 outbox_size: int = 1000, max_line: int = MAX_LINE, jobs_on_tick: bool = True,
+                 prompt: str | None = None, echo: bool = False, ascii_only: bool = True) -> None:
         self.loop = loop
         self.transport = transport
         self.session = Session(loop, delay, library if library is not None else CompoundLibrary(), None,
@@ -433,7 +445,13 @@ class Console:
         self.taps: list[Callable[[str], None]] = []
         self._queue: queue.Queue[_Item] = queue.Queue(maxsize=queue_size)
         self._outbox: queue.Queue[bytes] = queue.Queue(maxsize=outbox_size)
-        self._assembler = LineAssembler(max_line)
+        #: replies in 7-bit ASCII (vmehil.ascii_text): a serial terminal shows UTF-8 as mojibake
+        self.ascii_only = ascii_only
+        #: prompt, echo and history for a person at a terminal (None: bytes pass as they are)
+        self.terminal: TerminalView | None = None
+        if transport is not None and (prompt or echo):
+            self.terminal = TerminalView(transport.write, prompt=prompt, echo=echo)
+        self._assembler = LineAssembler(max_line, keys=self.terminal is not None)
         self._max_line = max_line
         self._scheduled = False
         self._stop_pending = threading.Event()
@@ -454,8 +472,23 @@ class Console:
             t = threading.Thread(target=fn, name=name, daemon=True)
             t.start()
             self._threads.append(t)
-        self._emit(kv("EVT", "hello", "vmehil console", joints=self.loop.n, names=",".join(self.loop.names)))
+        if hasattr(self.transport, "on_connect"):  # a pty: greet each terminal program when it opens it
+            self.transport.on_connect = self._connected
+        else:
+            self._hello()
         return self
+
+    def _connected(self) -> None:
+        """A terminal program opened the pty (the reader thread): forget what an earlier one had
+        half typed, and greet it."""
+        self._assembler.replace("")
+        if self.terminal is not None:
+            self.terminal.reset()
+        self._hello()
+
+    def _hello(self) -> None:
+        self._emit(kv("EVT", "hello", "vmehil console", joints=self.loop.n, names=",".join(self.loop.names),
+                      help="help lists the commands"))
 
     def close(self) -> None:
         self._closing.set()
@@ -480,13 +513,17 @@ class Console:
 
     def feed(self, data: bytes) -> None:
         """Process received bytes (the reader thread calls this; tests may too)."""
-        for ev in self._assembler.feed(data):
+        events = (self.terminal.feed(data, self._assembler) if self.terminal is not None
+                  else self._assembler.feed(data))
+        for ev in events:
             if ev.kind == "long":
                 self.stats.long += 1
                 self._enqueue_reply([f"ERR {LONG} line longer than {self._max_line} bytes discarded"])
             elif ev.kind == "binary":
                 self.stats.binary += 1
                 self._enqueue_reply([f"ERR {BINARY} line with non-text bytes discarded"])
+            elif ev.kind != "line":
+                continue  # a cursor key (the terminal view used it)
             elif self._lines is None or _is_stop(ev.text):
                 self.handle_line(ev.text)
             else:
@@ -656,8 +693,9 @@ class Console:
     def _send(self, lines: list[str]) -> None:
         for tap in self.taps:
             for ln in lines:
-                tap(ln)
-        data = "".join(one_line(ln) + "\r\n" for ln in lines).encode("utf-8")
+                tap(to_ascii(ln) if self.ascii_only else ln)
+        text = "".join(one_line(ln) + "\r\n" for ln in lines)
+        data = to_ascii(text).encode("ascii", errors="replace") if self.ascii_only else text.encode("utf-8")
         try:
             self._outbox.put_nowait(data)
         except queue.Full:
@@ -673,11 +711,12 @@ class Console:
                 continue
             if not data:
                 continue
+            write = self.terminal.output if self.terminal is not None else self.transport.write
             try:
-                self.transport.write(data)
+                write(data)
                 if self._dropped_since:
                     n, self._dropped_since = self._dropped_since, 0
-                    self.transport.write(f"EVT overflow dropped={n}\r\n".encode())
+                    write(f"EVT overflow dropped={n}\r\n".encode())
             except Exception:
                 continue
 

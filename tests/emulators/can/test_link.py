@@ -342,7 +342,8 @@ def test_a_mode_mismatch_is_refused_with_advice():
         bus = open_bus("virtual", p.channel)
         link = CanPlantLink(Endpoint(bus, CONTROLLER_IDS), [f"j{i}" for i in range(N)], free_running=True,
                             sensors_type=ToySensors)
-        with pytest.raises(PlantLinkError, match="same mode"):
+        with pytest.raises(PlantLinkError,
+                           match="give this side --plant-mode lockstep, or restart the node with --free-running"):
             link.connect()
         link.close()
 

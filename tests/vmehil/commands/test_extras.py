@@ -55,7 +55,7 @@ def test_the_default_run_needs_no_extra(tmp_path) -> None:
      "vmehil run --mavlink needs the 'mavlink' extra: pip install 'vmehil[mavlink]'"),
     (["run", "--console", "loop://"], "vmehil run --console needs the 'console' extra: pip install 'vmehil[console]'"),
     (["console", "--port", "loop://"],
-     "vmehil console --port loop:// needs the 'console' extra: pip install 'vmehil[console]'"),
+     "vmehil console --console loop:// needs the 'console' extra: pip install 'vmehil[console]'"),
 ], ids=lambda v: " ".join(v) if isinstance(v, list) else None)
 def test_a_command_that_needs_a_missing_extra_says_which_in_one_line(tmp_path, argv, line) -> None:
     r = vmehil_without(EVERY_EXTRA, *argv, cwd=tmp_path)

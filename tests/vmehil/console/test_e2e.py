@@ -20,7 +20,7 @@ import serial
 
 from servo.motion import default_demo_motion
 from servo.runner import LockstepRunner
-from tests.support.console import Driver, LineReader
+from tests.support.console import Driver, LineReader, wait_for_link
 from vmehil.console.extension import attach
 from vmehil.console.protocol import parse_reply_line
 from vmehil.session import build_loop
@@ -83,16 +83,6 @@ def test_console_beside_a_lockstep_run_moves_a_joint(tmp_path):
 
 def _socat() -> str | None:
     return shutil.which("socat")
-
-
-def _wait_for(path: Path, proc: subprocess.Popen, timeout_s: float = 60.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not path.is_symlink():
-        if proc.poll() is not None:
-            raise AssertionError(f"vmehil exited early: {proc.stderr.read() if proc.stderr else ''}")
-        if time.monotonic() > deadline:
-            raise AssertionError("the console pty did not appear")
-        time.sleep(0.05)
 
 
 class _Terminal:
@@ -165,11 +155,12 @@ def test_vmehil_run_console_through_a_terminal_program(tmp_path):
     cmd_file = tmp_path / "ops.cmd"
     cmd_file.write_text(COMMANDS)
     # a loaded test machine must not decide the outcome: the overrun policy warns instead of stopping
+    # a script's client: no prompt, no echo (a person at a terminal gets both by default)
     proc = _vmehil("run", "--realtime", "--overrun", "warn", "--duration", "120", "--quiet", "--console", f"pty:{link}",
-                   "--console-commands", str(cmd_file))
+                   "--console-commands", str(cmd_file), "--console-prompt", "off", "--console-echo", "off")
     term = None
     try:
-        _wait_for(link, proc)
+        wait_for_link(link, proc)
         term = _Terminal(link)
         r = term.ask("status")
         assert r[-1].startswith("OK status joints=") and len(_joints(r)) >= 1
@@ -194,10 +185,12 @@ def test_vmehil_run_console_through_a_terminal_program(tmp_path):
 
 def test_vmehil_console_serves_and_shuts_down(tmp_path):
     link = tmp_path / "console"
-    proc = _vmehil("console", "--overrun", "warn", "--port", f"pty:{link}")
+    # the shipped spelling --port (an alias of --console)
+    proc = _vmehil("console", "--overrun", "warn", "--port", f"pty:{link}", "--console-prompt", "off",
+                   "--console-echo", "off")
     term = None
     try:
-        _wait_for(link, proc)
+        wait_for_link(link, proc)
         term = _Terminal(link)
         assert term.ask("status")[-1].startswith("OK status")
         assert term.ask("move_joint 1 1")[-1].startswith("OK move_joint")
