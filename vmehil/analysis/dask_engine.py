@@ -90,6 +90,19 @@ def _run_task(fn: Callable[[Any], Any], item: Any, stop_name: str, identity: dic
         return fn(item)
 
 
+def _ignore_sigint() -> bool:
+    """On a LocalCluster worker: leave Ctrl-C to the client (a terminal sends SIGINT to the whole
+    process group), which stops the tasks through the sweep's stop event, as the local pool's
+    workers do. False where the worker's event loop is not its main thread (nothing changed)."""
+    import signal
+
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:
+        return False
+    return True
+
+
 def check_workers(client: Any) -> dict[str, dict[str, str]]:
     """Every worker's :func:`code_identity`; :class:`EngineError` naming the workers that differ
     from this client (or cannot import vmehil)."""
@@ -146,6 +159,7 @@ class DaskEngine:
                                             scheduler_port=0, protocol="tcp://", dashboard_address=None,
                                             silence_logs=logging.ERROR)
                 self.client = Client(self.cluster)
+                self.client.run(_ignore_sigint)
         except (OSError, TimeoutError) as e:
             self.close()
             target = self.scheduler or "a LocalCluster on 127.0.0.1"

@@ -455,6 +455,14 @@ def run_sweep(args: argparse.Namespace) -> int:
     engine_name = "dask" if args.scheduler else (args.engine or "local")
     if args.scheduler and args.engine == "local":
         raise ValueError("--scheduler sends the points to a Dask cluster: it needs --engine dask (or no --engine)")
+    if engine_name == "dask":
+        from vmehil.commands import refuse_without
+
+        if refuse_without("vmehil tune sweep --engine dask", "dask"):
+            return 2
+    if args.scheduler and args.jobs is not None:
+        print(f"note: --jobs {args.jobs} is ignored with --scheduler: the cluster's workers are what it has",
+              file=sys.stderr)
     links = None if args.margins_only else _link_factory(args)
     jobs = args.jobs
     if links is not None and not links.shareable:
@@ -517,6 +525,7 @@ def run_sweep(args: argparse.Namespace) -> int:
         write_json(json_path, {**meta, "completed": len(rows), "finished": done,
                                "interrupted": interrupted, "rows": rows})
 
+    write(done_rows, False)
     engine = None
     if engine_name == "dask":
         from vmehil.analysis.dask_engine import DaskEngine
@@ -529,7 +538,6 @@ def run_sweep(args: argparse.Namespace) -> int:
         where = engine.describe()
     else:
         where = f"{jobs or 'all'} worker(s)"
-    write(done_rows, False)
     todo = len(tasks) - len(done_rows)
     what = f"{len(points)} gain sets" + (f" × {n_samples} samples" if spreads else "") + \
         (" × switch-off on/off" if len(modes) > 1 else "")
@@ -550,6 +558,9 @@ def run_sweep(args: argparse.Namespace) -> int:
         print(f"vmehil tune sweep: interrupted; {len(e.rows)} of {len(tasks)} points kept in {csv_path} and "
               f"{json_path} (continue with --resume {out_dir})", file=sys.stderr)
         return 130
+    finally:
+        if engine is not None:  # run_parallel closed it; again (a no-op) if it never started
+            engine.close()
     write(rows, True)
     files = [csv_path, json_path]
     if spreads:
