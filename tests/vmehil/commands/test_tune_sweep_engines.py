@@ -93,3 +93,39 @@ def test_tolerance_study_from_the_command_line_reports_fractions_and_histograms(
 def test_sweep_option_errors_are_clear(extra: list[str], words: str, tmp_path: Path, capsys) -> None:
     assert main(["tune", "sweep", *extra, "--out", str(tmp_path / "o"), "--quiet"]) == 2
     assert words in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_ctrl_c_on_the_dask_engine_keeps_the_finished_rows_and_leaves_no_process(tmp_path: Path) -> None:
+    """SIGINT to the whole process group (as a terminal's Ctrl-C) during a LocalCluster sweep:
+    the running points stop through the sweep's Dask Event, the finished rows are kept, exit 130,
+    and every worker process the command started is gone."""
+    psutil = pytest.importorskip("psutil")
+    pytest.importorskip("distributed")
+    out = tmp_path / "out"
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen([sys.executable, "-m", "vmehil", "tune", "sweep", "--engine", "dask", "--jobs", "2",
+                             "--grid", "kp=80:140:8", "--move-deg", "2", "--hold", "3", "--out", str(out), "--quiet"],
+                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    csv_path = out / "sweep.csv"
+    children = []
+    try:
+        wait_for(lambda: proc.poll() is not None or (csv_path.exists() and len(csv_path.read_text().splitlines()) >= 2),
+                 "one point written")
+        assert proc.poll() is None, proc.communicate()
+        children = psutil.Process(proc.pid).children(recursive=True)
+        assert len(children) >= 2  # the LocalCluster's worker processes
+        os.killpg(proc.pid, signal.SIGINT)
+        _stdout, stderr = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr, stderr
+    _gone, alive = psutil.wait_procs(children, timeout=60)
+    assert not alive
+    d = json.loads((out / "sweep.json").read_text())
+    assert d["interrupted"] and 1 <= d["completed"] < 8
+    assert all(r["status"] == "ok" for r in d["rows"])
