@@ -512,7 +512,9 @@ def run_sweep(args: argparse.Namespace) -> int:
     meta: dict[str, Any] = {
         "command": "tune sweep", "rig": jp.rig, "joint": jp.joint, "joint_name": jp.name,
         "base_gains": base.as_dict(), "grid": grid_text, "gains_file": args.gains_file,
-        "simulation": None if args.margins_only else {**_settings_meta(settings), "switch_off": args.switch_off},
+        "simulation": None if args.margins_only else {
+            **_settings_meta(settings),  # switch_off: false as before; true (--switch-off on) or "both"
+            "switch_off": {"off": False, "on": True}.get(args.switch_off, args.switch_off)},
         "points_total": len(tasks), "heatmap_axes": [x, y], "engine": engine_name, "identity": identity,
     }
     if spreads:
