@@ -6,6 +6,10 @@ Examples::
     vmehil tune bode --gains kp=200,kv=60 --json bode.json --report out/bode
     vmehil tune limit-cycle --report out/lc           # predicted and simulated, ± switch-off
     vmehil tune sweep --grid kp=80:140:4,kv=30:70:5 --out out/sweep --jobs 2
+    vmehil tune sweep --engine dask --jobs 2 --out out/sweep  # a Dask LocalCluster (docs/sweeps.md)
+    vmehil tune sweep --resume out/sweep                      # only the points an interruption left
+    vmehil tune sweep --vary coulomb=±20% --vary tach_brush_drop=±30% --samples 40 \
+        --switch-off both --threshold lc_amp_deg=0.5 --report out/tolerance
     vmehil tune step --step-deg 2 --report out/step
     vmehil tune step --plant can --interface virtual  # the plant as a CAN node (docs/can.md)
 
@@ -22,8 +26,9 @@ Gains (``--gains`` over the rig's) are judged by :mod:`servo.gain_guard`, the se
 Exit status: 0 on success, 1 when the gain set is refused by the guard or gives an unstable
 sampled loop (``bode``, and ``limit-cycle``/``step`` refuse it), or a simulation was stopped by the
 watchdog (``limit-cycle``, ``step``), 2 for bad arguments (negative/NaN/subnormal/over-limit/unknown
-gains, malformed ``--gains`` text, bad rig file), 130 when a sweep is interrupted (its files then
-hold every completed point).
+gains, malformed ``--gains`` text, bad rig file, a ``--vary`` spread, a Dask cluster that cannot be
+reached or runs other code, ``--resume`` of another sweep), 130 when a sweep is interrupted (its
+files then hold every completed point).
 """
 
 from __future__ import annotations
