@@ -61,6 +61,12 @@ def _mode(row: dict[str, Any]) -> str:
     return "switch_off" if row.get("switch_off") else "integrators_on"
 
 
+def _values(rows: list[dict[str, Any]], key: str) -> list[float]:
+    """``key`` of the rows that have it, leaving out runs the watchdog stopped (their figures are
+    of a run cut short)."""
+    return [float(r[key]) for r in rows if not r.get("fault") and r.get(key) is not None and math.isfinite(r[key])]
+
+
 def summarize(rows: list[dict[str, Any]], thresholds: dict[str, float]) -> dict[str, Any]:
     """Per switch-off mode (``integrators_on``, ``switch_off``): ``samples``, ``faults``, and per
     metric ``n``, ``missing``, ``min``, ``max``, ``mean``, ``p5``…``p95``; per threshold ``over``
@@ -73,7 +79,7 @@ def summarize(rows: list[dict[str, Any]], thresholds: dict[str, float]) -> dict[
         faults = sum(1 for r in mine if r.get("fault"))
         block: dict[str, Any] = {"samples": len(mine), "faults": faults, "metrics": {}, "thresholds": {}}
         for key in METRICS:
-            vals = np.array([float(r[key]) for r in mine if r.get(key) is not None and math.isfinite(r[key])])
+            vals = np.array(_values(mine, key))
             m: dict[str, Any] = {"n": int(vals.size), "missing": len(mine) - int(vals.size)}
             if vals.size:
                 m.update({"min": float(vals.min()), "max": float(vals.max()), "mean": float(vals.mean()),
@@ -115,11 +121,12 @@ def histogram_figure(rows: list[dict[str, Any]], thresholds: dict[str, float], t
     fig, axes = plt.subplots(2, 3, figsize=(11, 6.2))
     for ax, (key, (name, unit)) in zip(axes.flat, METRICS.items(), strict=True):
         drawn = False
+        every = _values(rows, key)
+        edges = np.histogram_bin_edges(every, bins=20) if every else None  # one set of bins for both modes
         for mode, colour, label in (("integrators_on", "C0", "integrators on"), ("switch_off", "C1", "switch-off")):
-            vals = [float(r[key]) for r in rows if _mode(r) == mode and r.get(key) is not None
-                    and math.isfinite(r[key])]
+            vals = _values([r for r in rows if _mode(r) == mode], key)
             if vals:
-                ax.hist(vals, bins=20, alpha=0.6, color=colour, label=f"{label} (n={len(vals)})")
+                ax.hist(vals, bins=edges, alpha=0.6, color=colour, label=f"{label} (n={len(vals)})")
                 drawn = True
         if key in thresholds:
             ax.axvline(thresholds[key], color="k", linestyle="--", linewidth=1, label=f"threshold {thresholds[key]:g}")
