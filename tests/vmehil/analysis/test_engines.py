@@ -62,9 +62,11 @@ def test_cli_cluster_worker_killed_mid_point_gives_every_row_once(tmp_path: Path
     the sweep ends with the three rows of the local pool, each once."""
     marker = tmp_path / "marked"
     with cli_cluster(tmp_path / "cluster") as cluster:
-        engine = DaskEngine(cluster.address)
-        wait_for(lambda: _n_workers(engine) == 2, "two workers joined")
-        engine.open()
+        from distributed import Client
+
+        with Client(cluster.address, timeout=60) as c:  # both workers joined (Dask's own wait)
+            c.wait_for_workers(2, timeout=180)
+        engine = DaskEngine(cluster.address).open()
         assert len(engine.workers) == 2 and all(a.startswith("tcp://127.0.0.1:") for a in engine.workers)
         pids = {w.pid: w for w in cluster.workers}
         got: list[int] = []
@@ -86,13 +88,6 @@ def test_cli_cluster_worker_killed_mid_point_gives_every_row_once(tmp_path: Path
     assert killed, "the marked worker was not killed"
     assert sorted(got) == [0, 1, 2]  # every point once
     assert _same(rows) == local_rows
-
-
-def _n_workers(engine: DaskEngine) -> int:
-    from distributed import Client
-
-    with Client(engine.scheduler, timeout=30) as c:
-        return len(c.scheduler_info()["workers"])
 
 
 class _Cluster:
