@@ -20,7 +20,7 @@ MARKER = ".vmehil-output"  #: the file that marks a directory as vmehil's (repor
 
 #: the attributes of a parsed command line that name output files and output directories
 FILE_OPTIONS = {"json": "--json", "json_path": "--json", "can_log": "--can-log"}
-DIR_OPTIONS = {"report": "--report", "out": "--out"}
+DIR_OPTIONS = {"report": "--report", "out": "--out", "resume": "--resume"}
 
 
 class OutputPathError(ValueError):

@@ -78,12 +78,12 @@ def _lines_above_bar() -> Iterator[None]:
 
 @contextlib.contextmanager
 def progress_bar(desc: str, total: int | None, *, quiet: bool = False, leave: bool = True, unit: str = "it",
-                 stream: TextIO | None = None) -> Iterator[tqdm]:
+                 stream: TextIO | None = None, initial: int = 0) -> Iterator[tqdm]:
     """A bar on ``stream`` (default stderr), disabled (every call a no-op) unless :func:`shows`;
-    closed on exit, left on screen with ``leave``."""
+    closed on exit, left on screen with ``leave``; ``initial``: already done (a resumed sweep)."""
     stream = sys.stderr if stream is None else stream
     bar = _Bar(total=total, desc=desc, unit=unit, leave=leave, file=stream, dynamic_ncols=True,
-               disable=not shows(stream, quiet=quiet))
+               disable=not shows(stream, quiet=quiet), initial=initial)
     try:
         if bar.disable:
             yield bar

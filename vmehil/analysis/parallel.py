@@ -1,7 +1,15 @@
-"""Worker processes for the tools' full-stack runs: :func:`run_parallel` (the sweep's points,
-``limit-cycle``'s and ``step``'s two runs). Forked workers ignore SIGINT and poll a shared stop
-event instead (:func:`stop_requested`), so that Ctrl-C in the parent ends every run through its
-own safe stop."""
+"""Where the tools' full-stack runs execute: :func:`run_parallel` (the sweep's points,
+``limit-cycle``'s and ``step``'s two runs) over an :class:`Engine`.
+
+Two engines share one loop (submission, completion order, de-duplication, SIGINT):
+
+* :class:`LocalEngine` — a process pool on this machine (the default). Forked workers ignore
+  SIGINT and poll a shared stop event instead (:func:`stop_requested`), so that Ctrl-C in the
+  parent ends every run through its own safe stop.
+* :class:`vmehil.analysis.dask_engine.DaskEngine` — Dask's ``distributed``: a LocalCluster on
+  127.0.0.1 or a cluster's scheduler (``vmehil tune sweep --engine dask``, docs/sweeps.md). Its
+  tasks poll a Dask ``Event`` through the same :func:`stop_requested`.
+"""
 
 from __future__ import annotations
 
@@ -9,11 +17,13 @@ import multiprocessing
 import os
 import signal
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
-from typing import Any
+from contextlib import contextmanager
+from typing import Any, Protocol
 
 _STOP: Any = None  # a multiprocessing.Event in workers (set by the pool initializer)
+_TASK = threading.local()  # .stop: the stop poll of the task running in this thread (an engine's wrapper)
 
 
 def _worker_init(stop_event: Any) -> None:
@@ -31,69 +41,134 @@ class ParallelInterrupted(Exception):
         self.done = done
 
 
+class EngineError(RuntimeError):
+    """An engine could not start or refused its workers (e.g. a mixed-version cluster)."""
+
+
 def stop_requested() -> Callable[[], bool] | None:
-    """In a :func:`run_parallel` worker: a ``stop()`` poll for a runner (True once the parent was
+    """In a :func:`run_parallel` task: a ``stop()`` poll for a runner (True once the parent was
     interrupted); None elsewhere."""
+    task_stop = getattr(_TASK, "stop", None)
+    if task_stop is not None:
+        return task_stop
     stop_event = _STOP
     return None if stop_event is None else stop_event.is_set
 
 
+@contextmanager
+def task_stop(poll: Callable[[], bool]) -> Iterator[None]:
+    """While a task runs in this thread, :func:`stop_requested` returns ``poll`` (an engine's
+    task wrapper sets it: Dask runs tasks in worker threads, not in pool processes)."""
+    previous = getattr(_TASK, "stop", None)
+    _TASK.stop = poll
+    try:
+        yield
+    finally:
+        _TASK.stop = previous
+
+
+class Engine(Protocol):
+    """Where :func:`run_parallel` runs its tasks. ``start`` submits every item; ``completed``
+    waits up to ``timeout`` s and returns the ``(position, result)`` pairs finished since the last
+    call (an engine may return a position twice, e.g. a retried task: :func:`run_parallel` keeps
+    the first); ``interrupt`` tells running tasks to stop (:func:`stop_requested`) and cancels the
+    rest; ``close`` releases what the engine started."""
+
+    name: str
+
+    def start(self, fn: Callable[[Any], Any], items: list[Any]) -> None: ...
+    def pending(self) -> int: ...
+    def completed(self, timeout: float) -> list[tuple[int, Any]]: ...
+    def interrupt(self) -> None: ...
+    def close(self) -> None: ...
+
+
+class LocalEngine:
+    """A process pool of ``jobs`` workers on this machine (default ``os.cpu_count()``, at most one
+    per item), forked, so a worker starts with the parent's imports; or a caller's ``executor``
+    (any :class:`concurrent.futures.Executor`: the caller owns and shuts it down; it is not sent
+    the stop event, so an interruption only cancels what has not started)."""
+
+    name = "local"
+
+    def __init__(self, jobs: int | None = None, executor: Executor | None = None) -> None:
+        self.jobs = jobs
+        self._executor = executor
+        self._own = executor is None
+        self._stop_event: Any = None
+        self._futures: dict[Future, int] = {}
+        self._pending: set[Future] = set()
+
+    def start(self, fn: Callable[[Any], Any], items: list[Any]) -> None:
+        if self._executor is None:
+            n = max(1, min(self.jobs or os.cpu_count() or 1, len(items) or 1))
+            ctx = multiprocessing.get_context("spawn" if os.name == "nt" else "fork")
+            self._stop_event = ctx.Event()
+            self._executor = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_worker_init,
+                                                 initargs=(self._stop_event,))
+        self._futures = {self._executor.submit(fn, item): i for i, item in enumerate(items)}
+        self._pending = set(self._futures)
+
+    def pending(self) -> int:
+        return len(self._pending)
+
+    def completed(self, timeout: float) -> list[tuple[int, Any]]:
+        done, self._pending = wait(self._pending, timeout=timeout, return_when=FIRST_COMPLETED)
+        return [(self._futures[f], f.result()) for f in sorted(done, key=lambda f: self._futures[f])]
+
+    def interrupt(self) -> None:
+        if self._stop_event is not None:
+            self._stop_event.set()
+        for f in self._futures:
+            f.cancel()
+
+    def close(self) -> None:
+        if self._own and self._executor is not None:
+            self._executor.shutdown(wait=True, cancel_futures=True)
+
+
 def run_parallel(fn: Callable[[Any], Any], items: list[Any], *, executor: Executor | None = None,
-                 jobs: int | None = None, on_result: Callable[[int, Any], None] | None = None,
+                 jobs: int | None = None, engine: Engine | None = None,
+                 on_result: Callable[[int, Any], None] | None = None,
                  finished: Callable[[Any], bool] = lambda result: True) -> list[Any]:
-    """``fn(item)`` for every item in worker processes; the results in item order.
+    """``fn(item)`` for every item on ``engine``; the results in item order.
 
     ``fn`` is a top-level (picklable) function; a long one polls :func:`stop_requested` (every
     tick: a runner's ``stop``) and returns early once it is set, leaving its rig safe-stopped as any
-    run does. ``executor``: any :class:`concurrent.futures.Executor` (the caller owns and shuts it
-    down; it is not sent the stop event, so an interruption only cancels what has not started).
-    Default: a process pool of ``jobs`` workers (default ``os.cpu_count()``, at most one per item),
-    forked, so a worker starts with the parent's imports. ``on_result(position, result)`` is called
-    in the calling thread as each completes, in completion order; a result ``finished`` says is not
-    (it was cut short by an interruption) is neither passed on nor kept. SIGINT in the calling
-    thread sets the workers' stop event, cancels what has not started and raises
-    :class:`ParallelInterrupted` with the finished results.
+    run does. ``engine``: default a :class:`LocalEngine` of ``jobs`` workers (or over ``executor``);
+    :func:`run_parallel` closes it. ``on_result(position, result)`` is called in the calling thread
+    as each completes, in completion order, once per position (an engine that reports a position
+    again, e.g. after a retry, is not counted twice); a result ``finished`` says is not (it was cut
+    short by an interruption) is neither passed on nor kept. SIGINT in the calling thread tells the
+    tasks to stop, cancels what has not started and raises :class:`ParallelInterrupted` with the
+    finished results.
     """
+    if engine is None:
+        engine = LocalEngine(jobs=jobs, executor=executor)
     done: dict[int, Any] = {}
-    own = executor is None
-    stop_event = None
-    if executor is None:
-        n = max(1, min(jobs or os.cpu_count() or 1, len(items) or 1))
-        ctx = multiprocessing.get_context("spawn" if os.name == "nt" else "fork")
-        stop_event = ctx.Event()
-        executor = ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=_worker_init,
-                                       initargs=(stop_event,))
-    futures: dict[Future, int] = {}
     # SIGINT sets a flag that the loop below checks between completions, instead of raising
     # KeyboardInterrupt wherever the main thread happens to be (inside a file write, the progress
-    # bar or the executor's internals), where it could be lost.
+    # bar or the engine's internals), where it could be lost.
     sigint = threading.Event()
     previous = None
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGINT, lambda signum, frame: sigint.set())
     try:
-        futures = {executor.submit(fn, item): i for i, item in enumerate(items)}
-        pending = set(futures)
-        while pending and not sigint.is_set():
-            completed, pending = wait(pending, timeout=0.1, return_when=FIRST_COMPLETED)
-            for fut in sorted(completed, key=lambda f: futures[f]):
-                result = fut.result()
-                if not finished(result):
+        engine.start(fn, items)
+        while engine.pending() and not sigint.is_set():
+            for position, result in engine.completed(timeout=0.1):
+                if position in done or not finished(result):
                     continue
-                done[futures[fut]] = result
+                done[position] = result
                 if on_result is not None:
-                    on_result(futures[fut], result)
+                    on_result(position, result)
         if sigint.is_set():
             raise KeyboardInterrupt
     except KeyboardInterrupt:
-        if stop_event is not None:
-            stop_event.set()
-        for f in futures:
-            f.cancel()
+        engine.interrupt()
         raise ParallelInterrupted(done) from None
     finally:
         if previous is not None:
             signal.signal(signal.SIGINT, previous)
-        if own:
-            executor.shutdown(wait=True, cancel_futures=True)
+        engine.close()
     return [done.get(i) for i in range(len(items))]  # None: cut short (a caller's executor only)

@@ -9,30 +9,37 @@ Each point (:func:`evaluate_point`, a plain top-level function so it pickles to 
 verdict of :mod:`servo.gain_guard` (columns ``stable`` and ``unstable_reason``: an unstable point
 is classified, not refused — only values no gain may have, e.g. negative, refuse the sweep);
 sampled and continuous margins; unless the guard refuses the point or the sampled linear loop is
-unstable, one full-stack run with the integrators kept on (switch-off disabled, so the limit cycle
-the gains produce shows):
+unstable, one full-stack run with the integrators kept on (switch-off disabled unless the task asks
+for it, so the limit cycle the gains produce shows):
 limit-cycle amplitude and frequency (as ``vmehil run``), tracking error of the standard move and
 settling time after it (:mod:`vmehil.analysis.simulate`).
 
-Execution (:func:`evaluate_points`): any :class:`concurrent.futures.Executor` — by default a
-:class:`~concurrent.futures.ProcessPoolExecutor` with ``jobs`` workers. That argument is the seam
-for a distributed engine: e.g. a Dask ``distributed.Client(...).get_executor()`` is a
-``concurrent.futures.Executor`` and can be passed as is (Dask is not a dependency). Results are
-handed to ``on_result`` as they complete; the CLI rewrites CSV and JSON atomically after each one,
-so an interrupted sweep (SIGINT) leaves files with every completed row. On interruption the
-workers are told to stop (a shared event polled every tick), pending points are cancelled and
-:class:`SweepInterrupted` carries the finished rows.
+Execution (:func:`evaluate_points`): an engine of :mod:`vmehil.analysis.parallel` — by default
+the local process pool of ``jobs`` workers, or Dask (:class:`vmehil.analysis.dask_engine.DaskEngine`,
+``--engine dask``). A task carries everything a worker needs as content: the rig file's TEXT
+(:attr:`SweepTask.rig_text`, written to a private temporary file on the worker, so no worker
+reads the client's disk), the gains, the simulation settings with their seed, and for a tolerance
+study the drawn plant values (:mod:`vmehil.analysis.tolerance`). So every engine gives the same
+rows. Results are handed to ``on_result`` as they complete; the CLI rewrites CSV and JSON
+atomically after each one, so an interrupted sweep (SIGINT) leaves files with every completed
+row, and ``--resume`` computes only the missing points. On interruption the running tasks are
+told to stop (polled every tick), pending points are cancelled and :class:`SweepInterrupted`
+carries the finished rows.
 """
 
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import itertools
 import math
+import tempfile
 import time
-from collections.abc import Callable, Iterable
+import tomllib
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Executor
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,7 +50,7 @@ from hal.config import ConfigError, load_toml
 from servo.control.errors import GainError, GainSyntaxError
 from servo.control.gains import GAIN_NAMES, Gains, gain_items
 from servo.gain_guard import check_values
-from vmehil.analysis.parallel import ParallelInterrupted, run_parallel, stop_requested
+from vmehil.analysis.parallel import Engine, ParallelInterrupted, run_parallel, stop_requested
 from vmehil.analysis.simulate import SimSettings
 
 DEFAULT_GRID = "kp=80:140:3,kvi=600:1400:3"  #: 9 points: about 40 s on 2 busy cores
@@ -54,7 +61,7 @@ COLUMNS = ("index", *GAIN_NAMES, "status", "stable", "unstable_reason", "sampled
            "crossover_hz", "bandwidth_hz", "continuous_phase_margin_deg", "lc_amplitude_deg", "lc_frequency_hz",
            "lc_amplitude_pot_deg", "rms_tracking_error_deg", "max_tracking_error_deg", "max_tracking_error_true_deg",
            "settling_time_s",
-           "final_error_deg", "fault", "wall_s")
+           "final_error_deg", "fault", "wall_s", "switch_off", "sample")
 
 
 class SweepError(ValueError):
@@ -176,7 +183,11 @@ class SweepTask:
     """One point to evaluate: the joint (rig file path, 1-based number), full gain set, settings,
     and where the plant runs (``link_factory``, see :func:`vmehil.analysis.simulate.simulate`; it is
     pickled to the worker, so a CAN factory there opens its own bus — and its own node on
-    ``virtual``)."""
+    ``virtual``). ``rig_text``: the rig file's content (then ``rig_path`` only names it; the worker
+    writes the text to a private temporary file); ``switch_off``: the integrator switch-off of the
+    simulated run; ``plant``: a tolerance sample's drawn plant values (SI, by
+    :data:`vmehil.analysis.tolerance.PARAMETERS` name), applied to the emulated plant only;
+    ``sample``: its number."""
 
     index: int
     rig_path: str
@@ -185,19 +196,74 @@ class SweepTask:
     sim: SimSettings = field(default_factory=SimSettings)
     simulate: bool = True
     link_factory: Callable[[str, int], Any] | None = None  #: picklable; None = in-process plant
+    rig_text: str | None = None
+    switch_off: bool = False
+    plant: dict[str, float] = field(default_factory=dict)
+    sample: int | None = None
+
+
+def rig_text(path: str | Path) -> str:
+    """The content of a rig file (a preset name or a path), as a task carries it."""
+    from emulators.presets import resolve_rig
+
+    return resolve_rig(path).read_text(encoding="utf-8")
+
+
+def text_sha256(text: str) -> str:
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+@contextmanager
+def task_rig_file(task: SweepTask) -> Iterator[str]:
+    """The path of the task's rig on this worker: ``rig_path`` itself without ``rig_text``, else a
+    private temporary file holding the text (with the drawn plant values applied), removed after."""
+    if task.rig_text is None:
+        if task.plant:
+            raise ValueError("a sweep task with plant values carries its rig as rig_text")
+        yield task.rig_path
+        return
+    text = task.rig_text
+    if task.plant:
+        import tomli_w
+
+        from vmehil.analysis.tolerance import apply_plant_values
+
+        text = tomli_w.dumps(apply_plant_values(tomllib.loads(text), task.joint, task.plant))
+    with tempfile.TemporaryDirectory(prefix="vmehil-task-") as d:
+        path = Path(d) / (Path(task.rig_path).stem + ".toml")
+        path.write_text(text, encoding="utf-8")
+        yield str(path)
+
+
+def task_columns(task: SweepTask) -> tuple[str, ...]:
+    """The row's columns: :data:`COLUMNS`, then one per varied plant parameter."""
+    from vmehil.analysis.tolerance import PARAMETERS
+
+    return (*COLUMNS, *(PARAMETERS[k].column for k in task.plant))
 
 
 def evaluate_point(task: SweepTask) -> dict[str, Any]:
     """Margins and (unless unstable) a full-stack run for one gain set; a flat, JSON/CSV-ready row."""
+    t0 = time.perf_counter()
+    with task_rig_file(task) as path:
+        row = _evaluate(task, path)
+    row["wall_s"] = time.perf_counter() - t0
+    return row
+
+
+def _evaluate(task: SweepTask, rig_path: str) -> dict[str, Any]:
     from vmehil.analysis.rigparams import load_joint
     from vmehil.analysis.simulate import simulate
+    from vmehil.analysis.tolerance import PARAMETERS
     from vmehil.analysis.tuning import margins_summary
 
-    t0 = time.perf_counter()
-    row: dict[str, Any] = {"index": task.index, **{k: float(task.gains[k]) for k in GAIN_NAMES}}
-    jp = load_joint(task.rig_path, task.joint, gains=task.gains)
-    # the servo's own verdict, for the loop simulated here: integrators on, switch-off disabled
-    verdict = jp.verdict(switch_off=False)
+    columns = task_columns(task)
+    row: dict[str, Any] = {"index": task.index, **{k: float(task.gains[k]) for k in GAIN_NAMES},
+                           "switch_off": task.switch_off, "sample": task.sample,
+                           **{PARAMETERS[k].column: float(v) for k, v in task.plant.items()}}
+    jp = load_joint(rig_path, task.joint, gains=task.gains)
+    # the servo's own verdict, for the loop simulated here (integrators on; switch-off as the task says)
+    verdict = jp.verdict(switch_off=task.switch_off)
     m = margins_summary(jp.cfg)
     s, c = m["sampled"], m["continuous"]
     row.update({"stable": verdict.ok, "unstable_reason": None if verdict.ok else verdict.reason,
@@ -217,11 +283,11 @@ def evaluate_point(task: SweepTask) -> dict[str, Any]:
         row["status"] = "margins only"
     else:
         stop = stop_requested()
-        r = simulate(jp, switch_off=False, settings=task.sim, traces=False, stop=stop,
+        r = simulate(jp, switch_off=task.switch_off, settings=task.sim, traces=False, stop=stop,
                      link_factory=task.link_factory)
         if stop is not None and stop():
             row["status"] = "interrupted"
-            return {k: row.get(k) for k in COLUMNS}
+            return {k: row.get(k) for k in columns}
         row.update({"lc_amplitude_deg": r["amplitude_deg"], "lc_frequency_hz": r["frequency_hz"],
                     "lc_amplitude_pot_deg": r["amplitude_pot_deg"],
                     "rms_tracking_error_deg": r["rms_tracking_error_servo_deg"],
@@ -233,48 +299,60 @@ def evaluate_point(task: SweepTask) -> dict[str, Any]:
             row["status"] = "fault"
         else:
             row["status"] = "ok"
-    row["wall_s"] = time.perf_counter() - t0
-    return {k: row.get(k) for k in COLUMNS}
+    return {k: row.get(k) for k in columns}
 
 
 # --------------------------------------------------------------------------- running
 
 
 def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None, jobs: int | None = None,
-              on_result: Callable[[dict[str, Any], list[dict[str, Any]]], None] | None = None) -> list[dict[str, Any]]:
+                    engine: Engine | None = None, done: Iterable[dict[str, Any]] = (),
+                    on_result: Callable[[dict[str, Any], list[dict[str, Any]]], None] | None = None
+                    ) -> list[dict[str, Any]]:
     """Evaluate ``tasks`` in parallel (:func:`run_parallel`); returns the rows sorted by index.
 
-    ``executor``: any :class:`concurrent.futures.Executor` (the caller owns and shuts it down; it is
-    not sent the stop event, so an interruption only cancels what has not started). Default: a
-    process pool of ``jobs`` workers (default ``os.cpu_count()``). ``on_result(row, rows_so_far)``
-    is called in the calling thread as each point completes. A ``KeyboardInterrupt`` (SIGINT)
-    stops the workers, cancels the rest and raises :class:`SweepInterrupted` with the finished rows.
+    ``engine``: where (:mod:`vmehil.analysis.parallel`; default a process pool of ``jobs`` workers,
+    or over ``executor``, any :class:`concurrent.futures.Executor` the caller owns). ``done``: rows
+    already computed (``--resume``): the tasks of their indices are not run again and they are part
+    of the rows handed on. ``on_result(row, rows_so_far)`` is called in the calling thread as each
+    point completes, once per index. A ``KeyboardInterrupt`` (SIGINT) stops the workers, cancels
+    the rest and raises :class:`SweepInterrupted` with the finished rows.
     """
-    rows: list[dict[str, Any]] = []
+    by_index: dict[int, dict[str, Any]] = {r["index"]: r for r in done}
+    todo = [t for t in tasks if t.index not in by_index]
+
+    def rows() -> list[dict[str, Any]]:
+        return [by_index[i] for i in sorted(by_index)]
 
     def got(_position: int, row: dict[str, Any]) -> None:
-        rows.append(row)
-        rows.sort(key=lambda r: r["index"])
+        if row["index"] in by_index:  # a point is counted once, whatever the engine reports
+            return
+        by_index[row["index"]] = row
         if on_result is not None:
-            on_result(row, list(rows))
+            on_result(row, rows())
 
     try:
-        run_parallel(evaluate_point, tasks, executor=executor, jobs=jobs, on_result=got,
-                     finished=lambda row: row["status"] != "interrupted")
+        run_parallel(evaluate_point, todo, executor=executor, jobs=jobs, engine=engine, on_result=got,
+                     finished=lambda row: row is not None and row["status"] != "interrupted")
     except ParallelInterrupted:
-        raise SweepInterrupted(sorted(rows, key=lambda r: r["index"])) from None
-    return sorted(rows, key=lambda r: r["index"])
+        raise SweepInterrupted(rows()) from None
+    return rows()
 
 
 # ------------------------------------------------------------------------------ files
 
 
-def rows_csv(rows: list[dict[str, Any]]) -> str:
+def rows_csv(rows: list[dict[str, Any]], columns: Iterable[str] = COLUMNS) -> str:
+    """CSV of ``rows``: ``columns``, then any other key the rows have (a tolerance study's plant
+    values), in order of appearance."""
+    cols = list(columns)
+    for r in rows:
+        cols += [k for k in r if k not in cols]
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(COLUMNS), lineterminator="\n")
+    w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
     w.writeheader()
     for r in rows:
-        w.writerow({k: ("" if r.get(k) is None else _csv_value(r[k])) for k in COLUMNS})
+        w.writerow({k: ("" if r.get(k) is None else _csv_value(r[k])) for k in cols})
     return buf.getvalue()
 
 

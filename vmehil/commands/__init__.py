@@ -19,6 +19,7 @@ EXTRA_MODULES: dict[str, tuple[str, ...]] = {
     "plots": ("matplotlib",),
     "mavlink": ("pymavlink",),
     "console": ("serial",),
+    "dask": ("dask", "distributed"),
 }
 
 

@@ -6,6 +6,10 @@ Examples::
     vmehil tune bode --gains kp=200,kv=60 --json bode.json --report out/bode
     vmehil tune limit-cycle --report out/lc           # predicted and simulated, ± switch-off
     vmehil tune sweep --grid kp=80:140:4,kv=30:70:5 --out out/sweep --jobs 2
+    vmehil tune sweep --engine dask --jobs 2 --out out/sweep  # a Dask LocalCluster (docs/sweeps.md)
+    vmehil tune sweep --resume out/sweep                      # only the points an interruption left
+    vmehil tune sweep --vary coulomb=±20% --vary tach_brush_drop=±30% --samples 40 \
+        --switch-off both --threshold lc_amp_deg=0.5 --report out/tolerance
     vmehil tune step --step-deg 2 --report out/step
     vmehil tune step --plant can --interface virtual  # the plant as a CAN node (docs/can.md)
 
@@ -22,8 +26,9 @@ Gains (``--gains`` over the rig's) are judged by :mod:`servo.gain_guard`, the se
 Exit status: 0 on success, 1 when the gain set is refused by the guard or gives an unstable
 sampled loop (``bode``, and ``limit-cycle``/``step`` refuse it), or a simulation was stopped by the
 watchdog (``limit-cycle``, ``step``), 2 for bad arguments (negative/NaN/subnormal/over-limit/unknown
-gains, malformed ``--gains`` text, bad rig file), 130 when a sweep is interrupted (its files then
-hold every completed point).
+gains, malformed ``--gains`` text, bad rig file, a ``--vary`` spread, a Dask cluster that cannot be
+reached or runs other code, ``--resume`` of another sweep), 130 when a sweep is interrupted (its
+files then hold every completed point).
 """
 
 from __future__ import annotations
@@ -98,7 +103,27 @@ def register(sub: argparse._SubParsersAction) -> None:
     sw.add_argument("--gains-file", default=None, metavar="PATH",
                     help="a list of gain sets instead of a grid: CSV (header kp,kpi,kv,kvi) or TOML [[gains]]")
     sw.add_argument("--jobs", type=bounded_int(1, 256, what="a number of worker processes"), default=None,
-                    help="worker processes (default: os.cpu_count())")
+                    help="worker processes of the local pool or of the Dask LocalCluster (default: os.cpu_count())")
+    sw.add_argument("--engine", choices=("local", "dask"), default=None,
+                    help="local: a process pool (default); dask: Dask distributed, a LocalCluster on 127.0.0.1 "
+                         "or the cluster of --scheduler (docs/sweeps.md)")
+    sw.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                    help="a running Dask scheduler to send the points to (implies --engine dask)")
+    sw.add_argument("--resume", default=None, metavar="DIR",
+                    help="continue the interrupted sweep whose sweep.json is in DIR (same options): only the "
+                         "missing points are computed")
+    sw.add_argument("--vary", action="append", default=None, metavar="PARAM=SPREAD",
+                    help="tolerance study: vary a plant parameter (repeatable), e.g. coulomb=±20%%, "
+                         "tach_brush_drop=normal:30%%, inertia=uniform:0.5 (absolute, SI); parameters: "
+                         "coulomb, viscous, ripple, tach_brush_drop, inertia, gear_ratio, adc_noise")
+    sw.add_argument("--samples", type=bounded_int(1, 100_000, what="a number of samples"), default=None,
+                    help="tolerance study: samples per gain set (default 20 with --vary), drawn from --seed")
+    sw.add_argument("--threshold", action="append", default=None, metavar="METRIC=VALUE",
+                    help="tolerance study: report the fraction of samples over VALUE, e.g. lc_amp_deg=0.5 "
+                         "(repeatable)")
+    sw.add_argument("--switch-off", choices=("off", "on", "both"), default="off",
+                    help="integrator switch-off in the simulated runs: off (default), on, or both (every point "
+                         "twice)")
     sw.add_argument("--x", default=None, help="heat-map x gain (default: the first gain that varies)")
     sw.add_argument("--y", default=None, help="heat-map y gain (default: the second gain that varies)")
     sw.add_argument("--out", default=None, metavar="DIR",
@@ -385,8 +410,11 @@ def _strip_model_traces(result: dict) -> dict:
 
 @needs_extra("tune")
 def run_sweep(args: argparse.Namespace) -> int:
+    import tomllib
+
     from servo.control.gains import GAIN_NAMES
     from vmehil.analysis import report
+    from vmehil.analysis.parallel import EngineError
     from vmehil.analysis.sweep import (
         DEFAULT_GRID,
         SweepInterrupted,
@@ -395,17 +423,33 @@ def run_sweep(args: argparse.Namespace) -> int:
         grid_points,
         load_gains_file,
         parse_grid,
+        rig_text,
         rows_csv,
+        text_sha256,
     )
+    from vmehil.analysis.tolerance import draw_samples, nominal_values, parse_varies
+    from vmehil.analysis.tolerance_report import parse_thresholds
     from vmehil.progress import progress_bar
 
     jp = _load(args)
     base = jp.cfg.gains
     if args.gains_file and args.grid:
         raise ValueError("give either --grid/--set or --gains-file, not both")
+    spreads = parse_varies(args.vary or [])
+    thresholds = parse_thresholds(args.threshold or [])
+    if args.samples is not None and not spreads:
+        raise ValueError("--samples needs --vary: the samples of a tolerance study differ by the varied plant values")
+    if thresholds and not spreads:
+        raise ValueError("--threshold reports over the samples of a tolerance study: give --vary too")
+    if spreads and args.margins_only:
+        raise ValueError("--vary with --margins-only: a tolerance study simulates every sample; drop one of them")
     if args.gains_file:
         points = load_gains_file(args.gains_file, base)
         axes_names = [k for k in GAIN_NAMES if len({p[k] for p in points}) > 1]
+        grid_text = None
+    elif spreads and not args.grid:  # a tolerance study of the rig's gains (or --gains)
+        points = [base.as_dict()]
+        axes_names = []
         grid_text = None
     else:
         grid_text = ",".join(args.grid) if args.grid else DEFAULT_GRID
@@ -414,10 +458,24 @@ def run_sweep(args: argparse.Namespace) -> int:
         axes_names = [k for k in axes if len(axes[k]) > 1]
     if args.jobs is not None and args.jobs < 1:
         raise ValueError(f"--jobs {args.jobs} must be at least 1")
+    engine_name = "dask" if args.scheduler else (args.engine or "local")
+    if args.scheduler and args.engine == "local":
+        raise ValueError("--scheduler sends the points to a Dask cluster: it needs --engine dask (or no --engine)")
+    if engine_name == "dask":
+        from vmehil.commands import refuse_without
+
+        if refuse_without("vmehil tune sweep --engine dask", "dask"):
+            return 2
+    if args.scheduler and args.jobs is not None:
+        print(f"note: --jobs {args.jobs} is ignored with --scheduler: the cluster's workers are what it has",
+              file=sys.stderr)
     links = None if args.margins_only else _link_factory(args)
     jobs = args.jobs
     if links is not None and not links.shareable:
         iface, chan = links.options.resolved()
+        if engine_name == "dask":
+            raise ValueError(f"--engine dask with --plant can on {iface} {chan}: the one external plant node serves "
+                             "one run at a time; use the local engine with --jobs 1, or --interface virtual")
         if jobs is not None and jobs > 1:
             raise ValueError(f"--jobs {jobs} with --plant can on {iface} {chan}: the one external plant node serves "
                              "one run at a time; use --jobs 1, or --interface virtual (each worker then runs its "
@@ -432,47 +490,92 @@ def run_sweep(args: argparse.Namespace) -> int:
     if settings.hold_s < 8.0 and not args.margins_only:
         print(f"note: a {settings.hold_s:g} s hold is too short for a reliable limit-cycle figure (use ≥ 8 s)",
               file=sys.stderr)
-    tasks = [SweepTask(i, jp.rig_path, jp.joint, g, settings, simulate=not args.margins_only,
-                       link_factory=_tagged(links, f"p{i}"))
-             for i, g in enumerate(points)]
-    out_dir = Path(args.out or args.report or "sweep-out")
+    # The rig travels as content (its text) with every task, so no worker reads this machine's disk.
+    text = rig_text(jp.rig_path)
+    n_samples = (args.samples or 20) if spreads else 1
+    draws: list[dict[str, float]] = [{}]
+    if spreads:
+        draws = draw_samples(spreads, nominal_values(tomllib.loads(text), jp.joint, str(jp.rig_path)),
+                             n_samples, args.seed)
+    modes = {"off": [False], "on": [True], "both": [False, True]}[args.switch_off]
+    tasks: list[SweepTask] = []
+    for g in points:
+        for so in modes:
+            for k, plant in enumerate(draws):
+                i = len(tasks)
+                tasks.append(SweepTask(i, jp.rig_path, jp.joint, g, settings, simulate=not args.margins_only,
+                                       link_factory=_tagged(links, f"p{i}"), rig_text=text, switch_off=so,
+                                       plant=plant, sample=k if spreads else None))
+    out_dir = Path(args.resume or args.out or args.report or "sweep-out")
     csv_path, json_path = out_dir / "sweep.csv", Path(args.json_path) if args.json_path else out_dir / "sweep.json"
+    # What makes two runs the same sweep (checked by --resume): the points, the rig's content, the
+    # simulation and its seed, the study.
+    identity = {"rig_sha256": text_sha256(text), "joint": jp.joint,
+                "points_sha256": text_sha256(repr(points)), "points": len(tasks),
+                "simulation": None if args.margins_only else _settings_meta(settings),
+                "switch_off": args.switch_off, "vary": [s.text() for s in spreads],
+                "samples": n_samples if spreads else None}
     meta: dict[str, Any] = {
         "command": "tune sweep", "rig": jp.rig, "joint": jp.joint, "joint_name": jp.name,
         "base_gains": base.as_dict(), "grid": grid_text, "gains_file": args.gains_file,
         "simulation": None if args.margins_only else {
-            "motion": settings.motion, "move_deg": settings.move_deg, "speed": settings.speed,
-            "hold_s": settings.hold_s, "seed": settings.seed, "switch_off": False,
-            "settle_band_deg": settings.settle_band_deg},
-        "points_total": len(tasks), "heatmap_axes": [x, y],
+            **_settings_meta(settings),  # switch_off: false as before; true (--switch-off on) or "both"
+            "switch_off": {"off": False, "on": True}.get(args.switch_off, args.switch_off)},
+        "points_total": len(tasks), "heatmap_axes": [x, y], "engine": engine_name, "identity": identity,
     }
+    if spreads:
+        meta["tolerance"] = {"vary": [s.text() for s in spreads], "samples": n_samples, "seed": args.seed,
+                             "thresholds": thresholds}
+    done_rows = _resumed_rows(json_path, identity) if args.resume else []
 
     def write(rows: list[dict[str, Any]], done: bool, interrupted: bool = False) -> None:
         write_atomic(csv_path, rows_csv(rows))
         write_json(json_path, {**meta, "completed": len(rows), "finished": done,
                                "interrupted": interrupted, "rows": rows})
 
-    write([], False)
-    print(f"vmehil tune sweep — {jp.rig} joint {jp.joint} ({jp.name}): {len(tasks)} gain sets, "
-          f"{jobs or 'all'} worker(s); writing {csv_path} and {json_path}")
+    write(done_rows, False)
+    engine = None
+    if engine_name == "dask":
+        from vmehil.analysis.dask_engine import DaskEngine
+
+        try:
+            engine = DaskEngine(args.scheduler, jobs).open()
+        except EngineError as e:
+            print(f"vmehil tune sweep: {e}", file=sys.stderr)
+            return 2
+        where = engine.describe()
+    else:
+        where = f"{jobs or 'all'} worker(s)"
+    todo = len(tasks) - len(done_rows)
+    what = f"{len(points)} gain sets" + (f" × {n_samples} samples" if spreads else "") + \
+        (" × switch-off on/off" if len(modes) > 1 else "")
+    print(f"vmehil tune sweep — {jp.rig} joint {jp.joint} ({jp.name}): {what} = {len(tasks)} points"
+          + (f" ({len(done_rows)} done before, {todo} to go)" if args.resume else "")
+          + f", {where}; writing {csv_path} and {json_path}")
     try:
-        with progress_bar("sweep", len(tasks), quiet=args.quiet, unit="point") as bar:
+        with progress_bar("sweep", len(tasks), quiet=args.quiet, unit="point", initial=len(done_rows)) as bar:
 
             def on_result(row: dict[str, Any], rows: list[dict[str, Any]]) -> None:
                 write(rows, False)
                 bar.set_postfix_str(f"last: {_point_text(row)}", refresh=False)
                 bar.update(1)
 
-            rows = evaluate_points(tasks, jobs=jobs, on_result=on_result)
+            rows = evaluate_points(tasks, jobs=jobs, engine=engine, done=done_rows, on_result=on_result)
     except SweepInterrupted as e:
         write(e.rows, False, interrupted=True)
         print(f"vmehil tune sweep: interrupted; {len(e.rows)} of {len(tasks)} points kept in {csv_path} and "
-              f"{json_path}", file=sys.stderr)
+              f"{json_path} (continue with --resume {out_dir})", file=sys.stderr)
         return 130
+    finally:
+        if engine is not None:  # run_parallel closed it; again (a no-op) if it never started
+            engine.close()
     write(rows, True)
-    print(_sweep_table(rows))
     files = [csv_path, json_path]
-    if args.report:
+    if spreads:
+        files += _tolerance_outputs(args, jp, rows, spreads, thresholds, meta, write)
+    else:
+        print(_sweep_table(rows))
+    if args.report and not spreads:
         d = Path(args.report)
         fig = report.sweep_heatmaps(rows, x, y, f"Gain sweep, {jp.rig} joint {jp.joint} ({jp.name})")
         imgs = []
@@ -484,6 +587,58 @@ def run_sweep(args: argparse.Namespace) -> int:
     for f in files:
         print(f"wrote {f}")
     return 0
+
+
+def _settings_meta(settings) -> dict[str, Any]:
+    return {"motion": settings.motion, "move_deg": settings.move_deg, "speed": settings.speed,
+            "hold_s": settings.hold_s, "seed": settings.seed, "settle_band_deg": settings.settle_band_deg}
+
+
+def _resumed_rows(json_path: Path, identity: dict[str, Any]) -> list[dict[str, Any]]:
+    """The rows of the interrupted sweep in ``json_path``, after checking it is this sweep."""
+    import json
+
+    if not json_path.exists():
+        raise FileNotFoundError(f"--resume: {json_path} does not exist; resume names the folder of an earlier "
+                                "sweep (its --out)")
+    try:
+        stored = json.loads(json_path.read_text(encoding="utf-8"))
+    except ValueError as e:
+        raise ValueError(f"--resume: {json_path} is not a sweep's JSON ({e})") from None
+    theirs = stored.get("identity") if isinstance(stored, dict) else None
+    if not isinstance(theirs, dict):
+        raise ValueError(f"--resume: {json_path} holds no sweep identity (written by an older vmehil?); "
+                         "run the sweep again without --resume")
+    differ = [k for k in identity if theirs.get(k) != identity[k]]
+    if differ:
+        detail = "; ".join(f"{k}: stored {theirs.get(k)!r}, now {identity[k]!r}" for k in differ)
+        raise ValueError(f"--resume: {json_path} is another sweep ({detail}); give the same rig, grid, "
+                         "simulation options, seed and study as the interrupted run")
+    return [r for r in stored.get("rows", []) if r.get("status") != "interrupted"]
+
+
+def _tolerance_outputs(args: argparse.Namespace, jp: JointParams, rows: list[dict[str, Any]], spreads,
+                       thresholds: dict[str, float], meta: dict[str, Any], write) -> list[Path]:
+    """A tolerance study's summary (percentiles, fractions over thresholds) into the JSON, printed,
+    and with --report its histograms and summary.md."""
+    from vmehil.analysis import report
+    from vmehil.analysis.tolerance_report import histogram_figure, summarize, summary_text
+
+    summary = summarize(rows, thresholds)
+    meta["tolerance"]["summary"] = summary
+    write(rows, True)
+    title = (f"Tolerance study, {jp.rig} joint {jp.joint} ({jp.name}): "
+             + ", ".join(s.text() for s in spreads) + f"; {meta['tolerance']['samples']} samples")
+    text = summary_text(summary)
+    print(title)
+    print(text)
+    files: list[Path] = []
+    if args.report:
+        d = Path(args.report)
+        files += report.save_figure_both(histogram_figure(rows, thresholds, title), d, "tolerance_histograms")
+        md = report.markdown(title, _command_line(args), text, ["tolerance_histograms.png"])
+        files.append(write_atomic(d / "summary.md", md))
+    return files
 
 
 def _point_text(r: dict[str, Any]) -> str:

@@ -75,3 +75,11 @@ def test_the_calibrate_help_lists_the_procedure_whose_extra_is_missing(tmp_path)
     r = vmehil_without(["scipy"], "calibrate", "--help", cwd=tmp_path)
     assert r.returncode == 0
     assert "friction" in r.stdout  # listed; running it without the extra says what to install
+
+
+def test_the_dask_engine_without_dask_says_which_extra(tmp_path) -> None:
+    r = vmehil_without(["dask", "distributed"], "tune", "sweep", "--engine", "dask", "--quiet", cwd=tmp_path)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    assert r.stderr.splitlines()[-1] == ("vmehil tune sweep --engine dask needs the 'dask' extra: "
+                                         "pip install 'vmehil[dask]'")
+    assert not list(tmp_path.iterdir())  # refused before writing anything
