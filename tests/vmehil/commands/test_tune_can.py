@@ -22,6 +22,9 @@ from vmehil.cli import main
 
 SHORT = SimSettings(seed=4, move_deg=2.0, hold_s=0.5, allow_short=True)
 FAST = ["--move-deg", "2", "--hold", "1"]
+# The link's wall-clock answer and heartbeat bound (1 s by default) finds a dead node; these tests
+# check equality, so the bound is far above any pause a loaded machine gives the node's thread.
+PATIENT = ["--can-timeout", "60"]
 
 
 def _node_threads() -> list[threading.Thread]:
@@ -33,7 +36,8 @@ def test_simulate_over_virtual_can_equals_the_in_process_run_and_stops_its_node(
     before = len(_node_threads())
     ref = simulate(jp, switch_off=False, settings=SHORT)
     got = simulate(jp, switch_off=False, settings=SHORT,
-                   link_factory=CanLinkFactory(CanPlantOptions("virtual", "tune-sim", can_log=str(tmp_path / "b.log"))))
+                   link_factory=CanLinkFactory(CanPlantOptions("virtual", "tune-sim", can_log=str(tmp_path / "b.log"),
+                                                               can_timeout_s=60.0)))
     assert ref["fault"] is None and max(ref["theta_deg"]) - min(ref["theta_deg"]) > 1.0  # it moved
     assert got == ref  # every figure and every trace sample, bit for bit
     assert len(_node_threads()) == before  # the run's own plant node was stopped with its link
@@ -47,7 +51,7 @@ def test_one_external_node_serves_successive_runs_each_reset_with_its_seed() -> 
     node = PlantNode(Endpoint(open_bus("virtual", "tune-shared"), PLANT_IDS),
                      lambda s: Plant.from_config(spec.table, seed=s), spec.n_joints)
     thread, stop = node.start_thread()
-    factory = CanLinkFactory(CanPlantOptions("virtual", "tune-shared", own_node=False))
+    factory = CanLinkFactory(CanPlantOptions("virtual", "tune-shared", own_node=False, can_timeout_s=60.0))
     try:
         runs = [(seed, simulate(jp, settings=SimSettings(seed=seed, move_deg=2.0, hold_s=0.5, allow_short=True),
                                 link_factory=factory)) for seed in (1, 2, 1)]
@@ -66,7 +70,7 @@ def test_tune_step_json_over_can_equals_in_process_and_logs_each_run(tmp_path: P
     a, b = tmp_path / "a.json", tmp_path / "b.json"
     assert main(["tune", "step", *FAST, "--seed", "2", "--json", str(a)]) == 0
     assert main(["tune", "step", *FAST, "--seed", "2", "--json", str(b), "--plant", "can", "--interface", "virtual",
-                 "--can-log", str(tmp_path / "bus.log")]) == 0
+                 *PATIENT, "--can-log", str(tmp_path / "bus.log")]) == 0
     assert json.loads(a.read_text()) == json.loads(b.read_text())
     for tag in ("step", "move"):
         frames = list(replay(tmp_path / f"bus-{tag}.log"))
@@ -82,7 +86,8 @@ def test_tune_limit_cycle_json_over_can_equals_in_process(tmp_path: Path, monkey
     monkeypatch.setattr(tune, "_sim_settings", lambda args, allow_short=False: real(args, True))  # 1 s hold: fast
     a, b = tmp_path / "a.json", tmp_path / "b.json"
     assert main(["tune", "limit-cycle", *FAST, "--json", str(a)]) in (0, 1)
-    assert main(["tune", "limit-cycle", *FAST, "--json", str(b), "--plant", "can", "--interface", "virtual"]) in (0, 1)
+    assert main(["tune", "limit-cycle", *FAST, "--json", str(b), "--plant", "can", "--interface", "virtual",
+                 *PATIENT]) in (0, 1)
     da, db = json.loads(a.read_text()), json.loads(b.read_text())
     assert da["simulated"] is not None and da["switch_off"]["simulated"] is not None
     assert da == db
@@ -91,7 +96,7 @@ def test_tune_limit_cycle_json_over_can_equals_in_process(tmp_path: Path, monkey
 def test_tune_sweep_in_two_workers_over_virtual_can_equals_in_process(tmp_path: Path) -> None:
     common = ["tune", "sweep", *FAST, "--grid", "kp=80:120:2", "--jobs", "2", "--quiet"]
     assert main([*common, "--out", str(tmp_path / "a")]) == 0
-    assert main([*common, "--out", str(tmp_path / "b"), "--plant", "can", "--interface", "virtual",
+    assert main([*common, "--out", str(tmp_path / "b"), "--plant", "can", "--interface", "virtual", *PATIENT,
                  "--can-log", str(tmp_path / "bus.log")]) == 0
     assert all(any(True for _ in replay(tmp_path / f"bus-p{i}.log")) for i in (0, 1))  # each point on the bus
     rows = []
