@@ -30,7 +30,8 @@ def no_can_config(monkeypatch, tmp_path):
 def test_run_plant_can_on_the_default_interface_starts_the_node_in_process_and_equals_in_process(
         tmp_path, no_can_config, capsys):
     over_can, in_process = tmp_path / "can.json", tmp_path / "inproc.json"
-    assert main(["run", "--plant", "can", "--duration", "0.3", "--json", str(over_can)]) == 0
+    # --can-timeout: an equality check, so no 1 s wall-clock bound a loaded machine could trip
+    assert main(["run", "--plant", "can", "--duration", "0.3", "--can-timeout", "60", "--json", str(over_can)]) == 0
     err = capsys.readouterr().err
     assert "plant node: in this process on virtual" in err
     assert main(["run", "--duration", "0.3", "--quiet", "--json", str(in_process)]) == 0

@@ -130,12 +130,13 @@ def test_can_options_validate_and_tag_logs() -> None:
 @pytest.mark.skipif(not private_multicast_namespace(), reason="udp_multicast only inside a private namespace")
 def test_tune_step_against_a_plant_node_process_equals_in_process(tmp_path: Path) -> None:
     node = subprocess.Popen([sys.executable, "-m", "vmehil", "plant-node", "--interface", "udp_multicast",
-                             "--duration", "120"], stderr=subprocess.PIPE, text=True)
+                             "--duration", "300", "--command-timeout", "0"], stderr=subprocess.PIPE, text=True)
     try:
         assert "plant node" in node.stderr.readline()
         a, b = tmp_path / "a.json", tmp_path / "b.json"
         assert main(["tune", "step", *FAST, "--json", str(a)]) == 0
-        assert main(["tune", "step", *FAST, "--json", str(b), "--plant", "can", "--interface", "udp_multicast"]) == 0
+        assert main(["tune", "step", *FAST, "--json", str(b), "--plant", "can", "--interface", "udp_multicast",
+                     *PATIENT]) == 0
     finally:
         node.terminate()
         node.wait(10)
