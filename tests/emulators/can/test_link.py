@@ -74,6 +74,9 @@ class Pair:
         bus = open_bus(transport, self.channel, **self.kw)
         ep = LossyEndpoint(bus, CONTROLLER_IDS, drop=drop, log_path=log_path)
         link_kw.setdefault("connect_timeout_s", 20.0)
+        # tests that do not test a timeout get bounds no loaded machine's pause reaches
+        link_kw.setdefault("answer_timeout_s", 10.0)
+        link_kw.setdefault("heartbeat_timeout_s", 10.0)
         self.link = CanPlantLink(ep, [f"j{i}" for i in range(N)], seed=seed, free_running=free_running,
                                  sensors_type=ToySensors, **link_kw)
 
@@ -218,7 +221,7 @@ def test_a_vanished_node_is_reported_as_lost(transport):
 
 @pytest.mark.parametrize("transport", CAN_TRANSPORTS)
 def test_a_restarted_node_is_detected(transport):
-    with pair(transport, answer_timeout_s=1.0) as p:
+    with pair(transport, answer_timeout_s=5.0) as p:
         run_ticks(p.link, 10)
         p.stop_node()
         p.start_node()  # a new boot id; it steps our next SYNC without a RESET
