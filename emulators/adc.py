@@ -149,8 +149,10 @@ class AdcBoard(RegisterBoard):
                 return int(stuck.get("code", 0)) & CODE_MAX
             v = self.input_volts(channel)
             sigma = self._noise_rms(channel)
-        else:  # _noise_rms without a fault: the same sum, in the same order
-            v = self.input_volts(channel)
+        else:  # input_volts and _noise_rms without a fault, inline: the same sums, in the same order
+            net = self.wiring.get(channel)
+            crate = self.crate
+            v = 0.0 if net is None or crate is None else crate.signals.analog.get(net, 0.0)
             var = self.noise_rms_v**2
             for fn in self._noise_sources:
                 var += float(fn()) ** 2

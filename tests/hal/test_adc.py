@@ -3,6 +3,7 @@ calibration — the driver (hal.adc_dac.adc) against the emulator (emulators.adc
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -81,6 +82,22 @@ def test_adc_volts_code_volts_round_trip_within_one_lsb(rng: AdcRange, gain: int
 @given(rng=st.sampled_from(list(AdcRange)), gain=st.sampled_from(ADC_GAINS), code=st.integers(0, CODE_MAX))
 def test_adc_code_volts_code_is_identity(rng: AdcRange, gain: int, code: int) -> None:
     assert adc_volts_to_code(adc_code_to_volts(code, rng, gain), rng, gain) == code
+
+
+@settings(max_examples=300, deadline=None)
+@given(rng=st.sampled_from(list(AdcRange)), gain=st.sampled_from(ADC_GAINS),
+       volts=st.floats(-30.0, 30.0, allow_nan=False))
+def test_adc_volts_to_code_table_gives_the_codes_of_the_span_and_lsb_formula(rng: AdcRange, gain: int,
+                                                                              volts: float) -> None:
+    # adc_volts_to_code reads (v0, lsb) from a table built once; the code must be the formula's
+    v0, _ = adc_span(rng, gain)
+    expected = min(max(math.floor((volts - v0) / adc_lsb(rng, gain) + 0.5), 0), CODE_MAX)
+    assert adc_volts_to_code(volts, rng, gain) == expected
+
+
+def test_adc_volts_to_code_refuses_a_gain_outside_the_table() -> None:
+    with pytest.raises(ValueError, match="gain"):
+        adc_volts_to_code(1.0, AdcRange.BIPOLAR_10V, 3)
 
 
 def test_adc_scaling_and_clipping_rules() -> None:
