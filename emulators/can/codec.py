@@ -280,12 +280,18 @@ class CanCodec:
     def sensors_from_raw(self, raw: dict[str, np.ndarray], sensors_type: Callable[..., Any],
                          truth: dict[str, np.ndarray] | None = None):
         """Raw signal arrays → a sensors object built with ``sensors_type(**fields)``."""
-        events = [
-            QuadratureEvents(counts=int(c), illegal=int(il), index_offsets=index_offsets(int(k), int(f), int(la)),
-                             phase=int(ph))
-            for c, il, k, f, la, ph in zip(raw["EncoderCounts"], raw["EncoderIllegal"], raw["IndexCount"],
-                                           raw["IndexFirst"], raw["IndexLast"], raw["EncoderPhase"], strict=True)
-        ]
+        events = []
+        cache = _EVENTS
+        for fields in zip(*(np.asarray(raw[k]).tolist() for k in _EVENT_SIGNALS), strict=True):
+            key = tuple(int(x) for x in fields)  # counts, illegal, index count, first, last, phase
+            ev = cache.get(key)
+            if ev is None:  # QuadratureEvents is frozen: equal events can be one object
+                if len(cache) > 4096:
+                    cache.clear()
+                c, il, k, f, la, ph = key
+                ev = cache[key] = QuadratureEvents(counts=c, illegal=il, index_offsets=index_offsets(k, f, la),
+                                                   phase=ph)
+            events.append(ev)
         return sensors_type(
             pot_v=self._p("SENS", "PotVoltage", raw["PotVoltage"]),
             tach_v=self._p("SENS", "TachVoltage", raw["TachVoltage"]),
@@ -368,6 +374,12 @@ class CanCodec:
             setattr(c, e.reason, getattr(c, e.reason) + 1)
             c.by_reason[e.reason] = c.by_reason.get(e.reason, 0) + 1
             return None
+
+
+#: the raw signals of one joint's QuadratureEvents, in the order of the cache key below
+_EVENT_SIGNALS = ("EncoderCounts", "EncoderIllegal", "IndexCount", "IndexFirst", "IndexLast", "EncoderPhase")
+#: decoded events per raw signal values: the in-process exchange decodes every joint every tick
+_EVENTS: dict[tuple[int, ...], QuadratureEvents] = {}
 
 
 def index_offsets(count: int, first: int, last: int) -> tuple[int, ...]:
