@@ -93,10 +93,5 @@ class SimClock:
         work at the same simulated instant, in the same order, without the queue."""
         q = self._queue
         return at_ns <= self._target and (not q or q[0][0] > at_ns)
-
-    def run_inline_to(self, at_ns: int) -> None:
-        """Move the time to ``at_ns`` from an event callback after :meth:`free_until` said yes."""
-        self._now = at_ns
-
     def pending(self) -> int:
         return len(self._queue)
