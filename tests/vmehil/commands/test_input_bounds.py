@@ -55,6 +55,10 @@ def test_a_report_directory_that_is_not_ours_is_not_written_into(tmp_path, capsy
     (d / "holiday.png").write_bytes(b"x")
     assert cli.main(["run", "--duration", "0.5", "--quiet", "--report", str(d)]) == EXIT_USAGE
     assert sorted(p.name for p in d.iterdir()) == ["holiday.png"]
+
+
+@pytest.mark.slow  # two runs that write every figure of the report (≈ 15 s each on the 2-core machine)
+def test_a_report_directory_the_run_made_is_marked_ours_and_rewritten(tmp_path) -> None:
     fresh = tmp_path / "rep"
     assert cli.main(["run", "--duration", "0.5", "--quiet", "--report", str(fresh)]) == 0
     assert (fresh / MARKER).exists()

@@ -63,6 +63,7 @@ def test_limit_cycle_with_no_arguments_predicted_and_simulated_agree_and_switch_
     assert "full-stack simulation: ±" in out and "simulated / predicted" in out
 
 
+@pytest.mark.slow
 def test_step_with_short_hold_writes_json_and_overlays_the_linear_prediction(tmp_path: Path, capsys) -> None:
     path = tmp_path / "step.json"
     rep = tmp_path / "rep"
@@ -149,6 +150,7 @@ def test_grid_and_gains_file_errors_are_clear(tmp_path: Path) -> None:
         load_gains_file(f, load_joint(None, 1).cfg.gains)
 
 
+@pytest.mark.slow
 def test_sweep_interrupted_by_sigint_keeps_the_finished_rows(tmp_path: Path) -> None:
     """A real process sent SIGINT mid-sweep exits 130 with every completed point in both files."""
     out = tmp_path / "out"
@@ -218,6 +220,7 @@ def _children(pid: int) -> list[int]:
     return [int(c) for c in text.split()]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs /proc to see the worker processes")
 def test_limit_cycle_side_by_side_interrupted_by_sigint_stops_every_worker(tmp_path: Path) -> None:
     """SIGINT while both runs go on in workers: every worker stops its run (safe stop) and exits,

@@ -160,6 +160,7 @@ def _vmehil(*args: str) -> subprocess.Popen:
                             text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
 
 
+@pytest.mark.slow
 def test_vmehil_run_console_through_a_terminal_program(tmp_path):
     link = tmp_path / "console"
     cmd_file = tmp_path / "ops.cmd"

@@ -129,6 +129,7 @@ def test_mavproxy_signed_set_accepted_unsigned_refused(served):
     assert any("J1_KV 50 -> 45" in t and ", signed)" in t for _, _, t in loop.log)
 
 
+@pytest.mark.slow
 def test_mavproxy_sets_a_gain_before_tick_zero_and_arms_the_run(tmp_path):
     """The lockstep flow (``--mavlink-wait``): set while waiting, ``arm throttle`` starts the run."""
     loop, _, runner = fake_loop(1)
