@@ -426,7 +426,7 @@ class DbcExchangeCodec:
             out = self.can.sensors_from_raw(self.can.sensors_raw(s), type(s), s.truth)
         return out
 
-    def _sensors_fused(self, s):
+    def _sensors_fused(self, s: Any) -> Any:
         """:meth:`CanCodec.sensors_raw` then :meth:`CanCodec.sensors_from_raw` in plain Python
         numbers for a few joints: the same quantization (:meth:`SignalSpec.quantize_list`, as
         ``_quantize_small``), the same ``raw·scale + offset`` per value (two IEEE roundings, as the
@@ -434,6 +434,8 @@ class DbcExchangeCodec:
         from the same cache. ``None`` (nothing counted) where the general path must decide: more
         joints than the small path takes, a non-finite value, a shape it does not handle."""
         analog = [np.asarray(v, dtype=float) for v in (s.pot_v, s.tach_v, s.imon_v)]
+        if analog[0].ndim != 1:
+            return None
         n = len(analog[0])
         if n > _SMALL or any(a.shape != (n,) for a in analog):
             return None

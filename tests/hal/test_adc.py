@@ -271,7 +271,8 @@ def test_scan_samples_each_channel_at_its_own_conversion_start() -> None:
     assert b1 == adc_volts_to_code(5.0, AdcRange.BIPOLAR_10V)
 
 
-@pytest.mark.parametrize("steps_us", [[400.0], [7.0] * 60, [15.0] * 30, [22.0, 1.0, 90.0, 300.0], [44.999, 0.001, 400.0]])
+@pytest.mark.parametrize("steps_us", [[400.0], [7.0] * 60, [15.0] * 30, [22.0, 1.0, 90.0, 300.0],
+                                      [44.999, 0.001, 400.0]])
 def test_a_scan_samples_each_channel_at_its_own_start_however_the_time_is_advanced(steps_us: list[float]) -> None:
     # conversions whose end is the clock's next event run without the event queue
     # (SimClock.free_until); net changes queued at, between and at the very instant of
