@@ -185,6 +185,7 @@ def test_sweep_interrupted_by_sigint_keeps_the_finished_rows(tmp_path: Path) -> 
     assert math.isfinite(float(rows[0]["lc_amplitude_deg"]))
 
 
+@pytest.mark.slow  # over 5 s: make test runs it, make test-fast leaves it out
 def test_heat_maps_draw_unstable_points_as_their_own_class_not_as_values() -> None:
     from vmehil.analysis.report import HEATMAP_METRICS, sweep_heatmaps
 
@@ -201,6 +202,7 @@ def test_heat_maps_draw_unstable_points_as_their_own_class_not_as_values() -> No
                          (0, 0): "unstable", (1, 0): "unstable"}
 
 
+@pytest.mark.slow  # over 5 s: make test runs it, make test-fast leaves it out
 def test_step_runs_side_by_side_give_the_figures_of_runs_one_after_the_other(tmp_path: Path) -> None:
     """`--jobs 2` runs the step and the move in two worker processes; each is the same seeded run
     as in this process (`--jobs 1`), so the JSON is identical."""
