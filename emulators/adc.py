@@ -149,8 +149,10 @@ class AdcBoard(RegisterBoard):
                 return int(stuck.get("code", 0)) & CODE_MAX
             v = self.input_volts(channel)
             sigma = self._noise_rms(channel)
-        else:  # _noise_rms without a fault: the same sum, in the same order
-            v = self.input_volts(channel)
+        else:  # input_volts and _noise_rms without a fault, inline: the same sums, in the same order
+            net = self.wiring.get(channel)
+            crate = self.crate
+            v = 0.0 if net is None or crate is None else crate.signals.analog.get(net, 0.0)
             var = self.noise_rms_v**2
             for fn in self._noise_sources:
                 var += float(fn()) ** 2
@@ -230,17 +232,32 @@ class AdcBoard(RegisterBoard):
         _Conversion(self, channels, scan, self._gen).begin()
 
     def _converted(self, conv: _Conversion) -> None:
-        """End of one conversion of ``conv`` (scheduled by :meth:`_Conversion.begin`)."""
+        """End of one conversion of ``conv`` (scheduled by :meth:`_Conversion.begin`).
+
+        The next conversion of a scan starts at this instant. When its end would be the clock's
+        next event anyway (:meth:`SimClock.free_until`: nothing else is queued before it and the
+        clock is advancing past it), it is done here — sampled now, the time moved to its end,
+        its word stored — instead of through the event queue: the same samples at the same
+        instants in the same order (a 16-channel scan was 16 queue round trips per tick)."""
         if conv.gen != self._gen:
             return  # reset while converting
-        self.conversions += 1
-        i = conv.i
-        ch = conv.channels[i]
-        self.regs[_BUF[ch] if conv.scan else "DATA"] = conv.word
-        if i + 1 < len(conv.channels):
+        regs, n = self.regs, len(conv.channels)
+        clock = self.crate.clock if self.crate is not None else None
+        while True:
+            self.conversions += 1
+            i = conv.i
+            ch = conv.channels[i]
+            regs[_BUF[ch] if conv.scan else "DATA"] = conv.word
+            if i + 1 >= n:
+                break
             conv.i = i + 1
-            conv.begin()
-            return
+            assert clock is not None
+            end = clock.now_ns + self.conversion_time_ns
+            if not clock.free_until(end):
+                conv.begin()
+                return
+            conv.sample()
+            clock._now = end  # as the crate moves the time of a cycle that ends before any event
         self._busy = False
         self.regs["CSR"] |= _BIT["DONE"]
         csr = self.regs["CSR"]
@@ -278,6 +295,14 @@ class _Conversion:
 
     def begin(self) -> None:
         """Sample-and-hold of conversion ``i`` now; its word appears at the conversion's end."""
+        self.sample()
+        b = self.board
+        assert b.crate is not None
+        clock = b.crate.clock
+        clock.schedule(clock.now_ns + b.conversion_time_ns, self.end)
+
+    def sample(self) -> None:
+        """Sample-and-hold of conversion ``i`` now: its word (stored at the conversion's end)."""
         b = self.board
         ch = self.channels[self.i]
         regs = b.regs
@@ -288,9 +313,6 @@ class _Conversion:
             gain = gain_from_code(regs["CHAN"] >> 4)
         code = b.sample(ch, gain, rng)  # S/H at conversion start
         self.word = (ch << 12) | code
-        assert b.crate is not None
-        clock = b.crate.clock
-        clock.schedule(clock.now_ns + b.conversion_time_ns, self.end)
 
 
 _BUF = tuple(f"BUF{ch}" for ch in range(ADC_CHANNELS))

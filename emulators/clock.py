@@ -31,6 +31,9 @@ class SimClock:
         #: time of the earliest queued event (a huge value when none): a bus cycle that ends
         #: before it only moves ``_now`` (see :meth:`advance_to`)
         self.next_due_ns = _NEVER
+        #: while :meth:`advance_to` runs events, the time it advances to (else -1): an event
+        #: callback may move the time itself up to there (:meth:`free_until`)
+        self._target = -1
 
     @property
     def now_ns(self) -> int:
@@ -69,6 +72,7 @@ class SimClock:
                 self._now = t_ns
             return
         q = self._queue
+        outer, self._target = self._target, t_ns
         try:
             while q and q[0][0] <= t_ns:
                 at, _, cb = heapq.heappop(q)
@@ -76,9 +80,18 @@ class SimClock:
                     self._now = at
                 cb()
         finally:
+            self._target = outer
             self.next_due_ns = q[0][0] if q else _NEVER
         if t_ns > self._now:
             self._now = t_ns
 
+    def free_until(self, at_ns: int) -> bool:
+        """Called from an event callback: True when an event scheduled now at ``at_ns`` would be
+        the next to run in this :meth:`advance_to` — it ends by the time being advanced to and no
+        queued event is due at or before it (an equal time queued earlier runs first). The
+        callback may then set the time to ``at_ns`` and do that event's work itself: the same
+        work at the same simulated instant, in the same order, without the queue."""
+        q = self._queue
+        return at_ns <= self._target and (not q or q[0][0] > at_ns)
     def pending(self) -> int:
         return len(self._queue)

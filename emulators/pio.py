@@ -33,6 +33,7 @@ from hal.pio.pio_regs import ALL_LINES, LINES_PER_PORT, PIO_REGS, PORTS, PWM_CLO
 _NS_PER_TICK = 1_000_000_000 // PWM_CLOCK_HZ
 _DDR = tuple(f"DDR_{p}" for p in PORTS)
 _DATA = tuple(f"DATA_{p}" for p in PORTS)
+_ICS = tuple(f"ICS_{p}" for p in PORTS)
 
 
 class PioBoard(RegisterBoard):
@@ -60,6 +61,9 @@ class PioBoard(RegisterBoard):
         self._wired = tuple((port, bit, net) for (port, bit), net in sorted(self.nets.items()))
         self._port_nets = tuple(tuple((bit, net) for p, bit, net in self._wired if p == port)
                                 for port in range(len(PORTS)))
+        # the ports each net is wired to, in port order (_on_net runs at every change of a net)
+        self._net_ports = {net: tuple(sorted({p for (p, _), n in self.nets.items() if n == net}))
+                           for net in set(self.nets.values())}
         self._prev_inputs = [0, 0, 0]
         for i, p in enumerate(PORTS):
             setattr(self, f"read_DATA_{p}", partial(self._read_data, i))
@@ -146,17 +150,16 @@ class PioBoard(RegisterBoard):
 
     # --- input change detection and interrupt --------------------------------------------
     def _on_net(self, net: str, value: Any) -> None:
-        for port in sorted({p for (p, _), n in self.nets.items() if n == net}):
+        for port in self._net_ports.get(net, ()):
             self._resample(port, flag=True)
 
     def _resample(self, port: int, *, flag: bool) -> None:
-        p = PORTS[port]
-        inputs = ~self.regs[f"DDR_{p}"] & 0xFF
+        inputs = ~self.regs[_DDR[port]] & 0xFF
         now = self.pins(port) & inputs
         changed = (now ^ self._prev_inputs[port]) & inputs
         self._prev_inputs[port] = now
         if flag and changed:
-            self.regs[f"ICS_{p}"] |= changed
+            self.regs[_ICS[port]] |= changed
             self._update_irq()
 
     def _resample_all(self, *, flag: bool) -> None:

@@ -178,10 +178,13 @@ def _couple_hbridge_noise(crate: Crate, spec: RigSpec) -> None:
     nets = [j.net("pwm") for j in spec.joints if "pwm" in j.wiring]
     if not nets:
         return
-    signals = crate.signals
+    analog = crate.signals.analog  # read directly: called at every ADC conversion (20-50 per tick)
 
     def noise() -> float:
-        return level if any(signals.get_analog(n) > 0.0 for n in nets) else 0.0
+        for n in nets:
+            if analog.get(n, 0.0) > 0.0:
+                return level
+        return 0.0
 
     for b in crate.boards.values():
         add = getattr(b, "add_noise_source", None)

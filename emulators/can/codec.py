@@ -102,6 +102,14 @@ class SignalSpec:
         divide, round half to even (``round`` on a float is exact, as ``np.round``) — and the
         same clipping, so the result is bit-identical; ``None`` when a value (or its scaled
         value) is not finite: the array path then handles it."""
+        got = self.quantize_list(values)
+        if got is None:
+            return None
+        return np.array(got[0], dtype=np.int64), got[1]
+
+    def quantize_list(self, values: list[float]) -> tuple[list[int], int] | None:
+        """:meth:`_quantize_small` as a list of Python ints (the in-process exchange's fused path,
+        :meth:`DbcExchangeCodec.sensors`); ``None`` for a non-finite value."""
         offset, scale, lo, hi = self.offset, self.scale, self.raw_min, self.raw_max
         raw: list[int] = []
         clipped = 0
@@ -115,7 +123,7 @@ class SignalSpec:
             elif q > hi:
                 q, clipped = int(hi), clipped + 1
             raw.append(q)
-        return np.array(raw, dtype=np.int64), clipped
+        return raw, clipped
 
     def physical(self, raw: Any) -> np.ndarray:
         """Raw → physical: ``raw * scale + offset`` (float64)."""
@@ -280,12 +288,18 @@ class CanCodec:
     def sensors_from_raw(self, raw: dict[str, np.ndarray], sensors_type: Callable[..., Any],
                          truth: dict[str, np.ndarray] | None = None):
         """Raw signal arrays → a sensors object built with ``sensors_type(**fields)``."""
-        events = [
-            QuadratureEvents(counts=int(c), illegal=int(il), index_offsets=index_offsets(int(k), int(f), int(la)),
-                             phase=int(ph))
-            for c, il, k, f, la, ph in zip(raw["EncoderCounts"], raw["EncoderIllegal"], raw["IndexCount"],
-                                           raw["IndexFirst"], raw["IndexLast"], raw["EncoderPhase"], strict=True)
-        ]
+        events = []
+        cache = _EVENTS
+        for fields in zip(*(np.asarray(raw[k]).tolist() for k in _EVENT_SIGNALS), strict=True):
+            key = tuple(int(x) for x in fields)  # counts, illegal, index count, first, last, phase
+            ev = cache.get(key)
+            if ev is None:  # QuadratureEvents is frozen: equal events can be one object
+                if len(cache) > 4096:
+                    cache.clear()
+                c, il, k, f, la, ph = key
+                ev = cache[key] = QuadratureEvents(counts=c, illegal=il, index_offsets=index_offsets(k, f, la),
+                                                   phase=ph)
+            events.append(ev)
         return sensors_type(
             pot_v=self._p("SENS", "PotVoltage", raw["PotVoltage"]),
             tach_v=self._p("SENS", "TachVoltage", raw["TachVoltage"]),
@@ -370,6 +384,12 @@ class CanCodec:
             return None
 
 
+#: the raw signals of one joint's QuadratureEvents, in the order of the cache key below
+_EVENT_SIGNALS = ("EncoderCounts", "EncoderIllegal", "IndexCount", "IndexFirst", "IndexLast", "EncoderPhase")
+#: decoded events per raw signal values: the in-process exchange decodes every joint every tick
+_EVENTS: dict[tuple[int, ...], QuadratureEvents] = {}
+
+
 def index_offsets(count: int, first: int, last: int) -> tuple[int, ...]:
     """Index pulse offsets from (count, first, last): exact for up to two pulses; more are spaced
     evenly from first to last (exact for the once-per-revolution index of a steadily turning
@@ -390,12 +410,80 @@ class DbcExchangeCodec:
 
     def __init__(self, codec: CanCodec | None = None) -> None:
         self.can = codec or shared_codec()
+        sens = self.can.specs["SENS"]
+        self._analog = tuple(sens[k] for k in ("PotVoltage", "TachVoltage", "CurrentMonitor"))
+        self._counts = tuple(sens[k] for k in ("EncoderCounts", "EncoderIllegal", "IndexCount", "IndexFirst",
+                                               "IndexLast"))
+        #: the fused sensors path needs integer (scaled) signals; a float signal takes the general one
+        self._fused = not any(spec.is_float for spec in (*self._analog, *self._counts))
 
     def command(self, cmd):
         return self.can.command_from_raw(self.can.command_raw(cmd), type(cmd))
 
     def sensors(self, s):
-        return self.can.sensors_from_raw(self.can.sensors_raw(s), type(s), s.truth)
+        out = self._sensors_fused(s) if self._fused else None
+        if out is None:
+            out = self.can.sensors_from_raw(self.can.sensors_raw(s), type(s), s.truth)
+        return out
+
+    def _sensors_fused(self, s: Any) -> Any:
+        """:meth:`CanCodec.sensors_raw` then :meth:`CanCodec.sensors_from_raw` in plain Python
+        numbers for a few joints: the same quantization (:meth:`SignalSpec.quantize_list`, as
+        ``_quantize_small``), the same ``raw·scale + offset`` per value (two IEEE roundings, as the
+        array expression), the same clip count, one array per field at the end; the events come
+        from the same cache. ``None`` (nothing counted) where the general path must decide: more
+        joints than the small path takes, a non-finite value, a shape it does not handle."""
+        analog = [np.asarray(v, dtype=float) for v in (s.pot_v, s.tach_v, s.imon_v)]
+        if analog[0].ndim != 1:
+            return None
+        n = len(analog[0])
+        if n > _SMALL or any(a.shape != (n,) for a in analog):
+            return None
+        enc: Sequence[QuadratureEvents] = s.encoder
+        if len(enc) != n:
+            return None
+        fields = ([float(e.counts) for e in enc], [float(e.illegal) for e in enc],
+                  [float(len(e.index_offsets)) for e in enc],
+                  [float(e.index_offsets[0] if e.index_offsets else 0) for e in enc],
+                  [float(e.index_offsets[-1] if e.index_offsets else 0) for e in enc])
+        clipped = 0
+        physical = []
+        for spec, a in zip(self._analog, analog, strict=True):
+            got = spec.quantize_list(a.tolist())
+            if got is None:
+                return None
+            clipped += got[1]
+            scale, offset = spec.scale, spec.offset
+            physical.append(np.array([float(q) * scale + offset for q in got[0]], dtype=float))
+        raws = []
+        for spec, values in zip(self._counts, fields, strict=True):
+            got = spec.quantize_list(values)
+            if got is None:
+                return None
+            clipped += got[1]
+            raws.append(got[0])
+        self.can.counters.clipped += clipped
+        events = []
+        cache = _EVENTS
+        for c, il, k, f, la, e in zip(*raws, enc, strict=True):
+            key = (c, il, k, f, la, int(e.phase) % 4)
+            ev = cache.get(key)
+            if ev is None:  # as sensors_from_raw
+                if len(cache) > 4096:
+                    cache.clear()
+                ev = cache[key] = QuadratureEvents(counts=c, illegal=il, index_offsets=index_offsets(k, f, la),
+                                                   phase=key[5])
+            events.append(ev)
+        switching = np.asarray(s.switching, dtype=bool)
+        if switching.shape != (n,):
+            switching = np.zeros(n, dtype=bool)
+        truth = s.truth
+        return type(s)(
+            pot_v=physical[0], tach_v=physical[1], imon_v=physical[2],
+            amp_fault=np.asarray(s.amp_fault, dtype=bool).astype(np.int64) != 0,
+            encoder=events, switching=switching.astype(np.int64) != 0,
+            truth=dict(truth) if truth is not None else {},
+        )
 
 
 @functools.cache

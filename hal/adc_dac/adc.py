@@ -16,6 +16,7 @@ Example::
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -323,14 +324,12 @@ class AdcDriver:
         return [check_gain(gain)] * ADC_CHANNELS
 
     def _configure_scan(self, last: int, gains: list[int]) -> None:
-        g0 = sum(gain_code(gains[i]) << (2 * i) for i in range(8))
-        g1 = sum(gain_code(gains[8 + i]) << (2 * i) for i in range(8))
-        cfg = (last, g0, g1)
+        cfg = (last, *_scan_gain_words(tuple(gains)))
         if cfg == self._scan_cfg:
             return  # registers already hold it: save three bus cycles per tick
         self.win.write("SCAN_LAST", last)
-        self.win.write("SCAN_GAIN0", g0)
-        self.win.write("SCAN_GAIN1", g1)
+        self.win.write("SCAN_GAIN0", cfg[1])
+        self.win.write("SCAN_GAIN1", cfg[2])
         self._scan_cfg = cfg
 
     # --- waiting ----------------------------------------------------------------------------
@@ -359,3 +358,12 @@ class AdcDriver:
     def _check_channel(channel: int) -> None:
         if not 0 <= channel < ADC_CHANNELS:
             raise ValueError(f"ADC channel {channel} is not 0..{ADC_CHANNELS - 1}")
+
+
+@functools.lru_cache(maxsize=64)
+def _scan_gain_words(gains: tuple[int, ...]) -> tuple[int, int]:
+    """SCAN_GAIN0 and SCAN_GAIN1 for 16 per-channel gains (computed once per gain list: a scan
+    every tick would otherwise encode 16 gains each time)."""
+    g0 = sum(gain_code(gains[i]) << (2 * i) for i in range(8))
+    g1 = sum(gain_code(gains[8 + i]) << (2 * i) for i in range(8))
+    return g0, g1

@@ -3,6 +3,8 @@ calibration — the driver (hal.adc_dac.adc) against the emulator (emulators.adc
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -81,6 +83,22 @@ def test_adc_volts_code_volts_round_trip_within_one_lsb(rng: AdcRange, gain: int
 @given(rng=st.sampled_from(list(AdcRange)), gain=st.sampled_from(ADC_GAINS), code=st.integers(0, CODE_MAX))
 def test_adc_code_volts_code_is_identity(rng: AdcRange, gain: int, code: int) -> None:
     assert adc_volts_to_code(adc_code_to_volts(code, rng, gain), rng, gain) == code
+
+
+@settings(max_examples=300, deadline=None)
+@given(rng=st.sampled_from(list(AdcRange)), gain=st.sampled_from(ADC_GAINS),
+       volts=st.floats(-30.0, 30.0, allow_nan=False))
+def test_adc_volts_to_code_table_gives_the_codes_of_the_span_and_lsb_formula(rng: AdcRange, gain: int,
+                                                                              volts: float) -> None:
+    # adc_volts_to_code reads (v0, lsb) from a table built once; the code must be the formula's
+    v0, _ = adc_span(rng, gain)
+    expected = min(max(math.floor((volts - v0) / adc_lsb(rng, gain) + 0.5), 0), CODE_MAX)
+    assert adc_volts_to_code(volts, rng, gain) == expected
+
+
+def test_adc_volts_to_code_refuses_a_gain_outside_the_table() -> None:
+    with pytest.raises(ValueError, match="gain"):
+        adc_volts_to_code(1.0, AdcRange.BIPOLAR_10V, 3)
 
 
 def test_adc_scaling_and_clipping_rules() -> None:
@@ -251,6 +269,52 @@ def test_scan_samples_each_channel_at_its_own_conversion_start() -> None:
     b1 = rd(c, "BUF1") & 0xFFF
     assert b0 == adc_volts_to_code(1.0, AdcRange.BIPOLAR_10V)
     assert b1 == adc_volts_to_code(5.0, AdcRange.BIPOLAR_10V)
+
+
+@pytest.mark.parametrize("steps_us", [[400.0], [7.0] * 60, [15.0] * 30, [22.0, 1.0, 90.0, 300.0],
+                                      [44.999, 0.001, 400.0]])
+def test_a_scan_samples_each_channel_at_its_own_start_however_the_time_is_advanced(steps_us: list[float]) -> None:
+    # conversions whose end is the clock's next event run without the event queue
+    # (SimClock.free_until); net changes queued at, between and at the very instant of
+    # conversion starts must be seen by exactly the conversions that start at or after them,
+    # whatever steps the time is advanced in
+    c, board, _ = make()
+    wr(c, "SCAN_LAST", 15)
+
+    def set_all(v: float) -> Callable[[], None]:
+        def apply() -> None:
+            for ch in range(16):
+                c.signals.set_analog(f"in{ch}", v)
+        return apply
+
+    c.write(BASE + 3, BIT["SCAN"], space="A16", width=Width.D8)
+    t0 = c.clock.now_ns  # conversion k starts at t0 + k·15 µs (0 V on every input now)
+    # (conversion index, ns after its start, volts): at a start (queued before the end event
+    # that starts it: seen by it), mid-conversion (seen by the next), a nanosecond before a start
+    changes = ((3, 0, 1.0), (4, 0, 2.0), (4, 7_000, 7.5), (9, 0, 3.0), (12, 14_999, 4.0))
+    for k, dt_ns, v in changes:
+        c.clock.schedule(t0 + k * 15_000 + dt_ns, set_all(v))
+    expected = []
+    for k in range(16):
+        seen = [v for kk, d, v in changes if t0 + kk * 15_000 + d <= t0 + k * 15_000]
+        expected.append(adc_volts_to_code(seen[-1] if seen else 0.0, AdcRange.BIPOLAR_10V))
+    for step in steps_us:
+        c.delay(step * 1e-6)
+    codes = [rd(c, f"BUF{k}") & 0xFFF for k in range(16)]
+    assert codes == expected
+    assert board.conversions == 16 and not rd(c, "CSR") & BIT["BUSY"]
+
+
+def test_a_scan_is_busy_until_its_last_conversion_ends() -> None:
+    c, board, _ = make()
+    wr(c, "SCAN_LAST", 15)
+    c.write(BASE + 3, BIT["SCAN"], space="A16", width=Width.D8)
+    t0 = c.clock.now_ns
+    c.clock.advance_to(t0 + 16 * 15_000 - 1)  # the CSR read through its hook: no bus cycle, no time
+    assert c.clock.now_ns == t0 + 16 * 15_000 - 1
+    assert board.read_CSR() & BIT["BUSY"] and board.conversions == 15
+    c.clock.advance_to(t0 + 16 * 15_000)
+    assert not board.read_CSR() & BIT["BUSY"] and board.read_CSR() & BIT["DONE"] and board.conversions == 16
 
 
 def test_polled_read_times_out_with_a_typed_error() -> None:

@@ -481,6 +481,17 @@ ProtocolMachine.TestCase.settings = settings(
     max_examples=150, stateful_step_count=60, deadline=None, suppress_health_check=[HealthCheck.too_slow]
 )
 TestProtocolStateMachine = ProtocolMachine.TestCase
+TestProtocolStateMachine.pytestmark = [pytest.mark.slow]  # ≈ 25 s on the 2-core machine: make test runs it
+
+
+class QuickProtocolMachine(ProtocolMachine):
+    """The same model, fewer examples: the fast subset (make test-fast) keeps a stateful run."""
+
+
+QuickProtocolMachine.TestCase.settings = settings(
+    max_examples=40, stateful_step_count=60, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
+TestQuickProtocolStateMachine = QuickProtocolMachine.TestCase
 
 
 def test_the_stateful_model_can_reach_servoing_and_deliver_commands() -> None:

@@ -188,6 +188,7 @@ def _next_frame(bus, codec: CanCodec, ids, deadline: float, what: str):
             return f
 
 
+@pytest.mark.slow  # over 5 s: make test runs it, make test-fast leaves it out
 @pytest.mark.skipif(not private_multicast_namespace(), reason="udp_multicast only inside a private namespace")
 def test_a_sigkilled_controller_leaves_the_node_with_every_amplifier_latched_off(tmp_path):
     """SIGKILL runs no safe stop. In lockstep the plant's simulated time stops with the controller,

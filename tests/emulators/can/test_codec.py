@@ -115,6 +115,37 @@ def test_the_frames_carry_exactly_what_the_in_process_codec_gives(rows):
     assert [f.raw["ThetaJoint"] for f in truth] == list(s.truth["theta_joint"])
 
 
+@functools.cache
+def _two_codecs() -> tuple[CanCodec, CanCodec]:
+    return CanCodec(), CanCodec()  # each parses the DBC (≈ 1 s): once per session
+
+
+any_volts = st.one_of(st.floats(-40, 40), st.sampled_from([float("nan"), float("inf"), -float("inf"), 16.7, -16.7]))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(any_volts, any_volts, any_volts, st.booleans(), events, st.booleans()), min_size=1,
+                max_size=16))
+def test_the_fused_in_process_sensors_path_gives_the_general_paths_values_and_clip_count(rows):
+    n = len(rows)
+    s = ToySensors(pot_v=np.array([r[0] for r in rows]), tach_v=np.array([r[1] for r in rows]),
+                   imon_v=np.array([r[2] for r in rows]), amp_fault=np.array([r[3] for r in rows]),
+                   encoder=[r[4] for r in rows], switching=np.array([r[5] for r in rows]),
+                   truth={"theta_joint": np.arange(n) * 0.1})
+    fused_codec, general_codec = _two_codecs()
+    clipped0 = fused_codec.counters.clipped, general_codec.counters.clipped
+    fused = DbcExchangeCodec(fused_codec).sensors(s)
+    general = general_codec.sensors_from_raw(general_codec.sensors_raw(s), ToySensors, s.truth)
+    for f in ("pot_v", "tach_v", "imon_v", "amp_fault", "switching"):
+        a, b = getattr(fused, f), getattr(general, f)
+        assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), f
+    assert fused.encoder == general.encoder
+    assert fused.truth == general.truth
+    assert fused_codec.counters.clipped - clipped0[0] == general_codec.counters.clipped - clipped0[1]
+    finite = all(np.isfinite(r[k]) for r in rows for k in range(3))
+    assert (DbcExchangeCodec(CODEC)._sensors_fused(s) is not None) == finite  # the fused path ran
+
+
 @given(st.integers(0, 40), st.integers(-1000, 1000), st.integers(1, 4000))
 def test_index_offsets_are_exact_for_evenly_spaced_pulses(count, first, spacing):
     true = tuple(first + k * spacing for k in range(count))

@@ -37,6 +37,7 @@ def vmehil_without(modules: list[str], *argv: str, cwd) -> subprocess.CompletedP
                           text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(REPO)})
 
 
+@pytest.mark.slow  # over 5 s: make test runs it, make test-fast leaves it out
 def test_the_default_run_needs_no_extra(tmp_path) -> None:
     r = vmehil_without(EVERY_EXTRA, "run", "--duration", "0.2", "--quiet", cwd=tmp_path)
     assert r.returncode == 0, r.stderr

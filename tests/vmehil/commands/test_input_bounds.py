@@ -55,12 +55,17 @@ def test_a_report_directory_that_is_not_ours_is_not_written_into(tmp_path, capsy
     (d / "holiday.png").write_bytes(b"x")
     assert cli.main(["run", "--duration", "0.5", "--quiet", "--report", str(d)]) == EXIT_USAGE
     assert sorted(p.name for p in d.iterdir()) == ["holiday.png"]
+
+
+@pytest.mark.slow  # two runs that write every figure of the report (≈ 15 s each on the 2-core machine)
+def test_a_report_directory_the_run_made_is_marked_ours_and_rewritten(tmp_path) -> None:
     fresh = tmp_path / "rep"
     assert cli.main(["run", "--duration", "0.5", "--quiet", "--report", str(fresh)]) == 0
     assert (fresh / MARKER).exists()
     assert cli.main(["run", "--duration", "0.5", "--quiet", "--report", str(fresh)]) == 0  # ours: rewritten
 
 
+@pytest.mark.slow  # over 5 s: make test runs it, make test-fast leaves it out
 def test_make_runs_json_inside_the_report_directory_it_creates_is_accepted(tmp_path, monkeypatch) -> None:
     """`make run` on a fresh clone: `--report reports/run --json reports/run/run.json`, no
     reports/ yet. The JSON's folder is the report directory the run creates."""

@@ -63,6 +63,7 @@ def test_limit_cycle_with_no_arguments_predicted_and_simulated_agree_and_switch_
     assert "full-stack simulation: ±" in out and "simulated / predicted" in out
 
 
+@pytest.mark.slow
 def test_step_with_short_hold_writes_json_and_overlays_the_linear_prediction(tmp_path: Path, capsys) -> None:
     path = tmp_path / "step.json"
     rep = tmp_path / "rep"
@@ -152,6 +153,7 @@ def test_grid_and_gains_file_errors_are_clear(tmp_path: Path) -> None:
         load_gains_file(f, load_joint(None, 1).cfg.gains)
 
 
+@pytest.mark.slow
 def test_sweep_interrupted_by_sigint_keeps_the_finished_rows(tmp_path: Path) -> None:
     """A real process sent SIGINT mid-sweep exits 130 with every completed point in both files."""
     out = tmp_path / "out"
@@ -186,6 +188,7 @@ def test_sweep_interrupted_by_sigint_keeps_the_finished_rows(tmp_path: Path) -> 
     assert math.isfinite(float(rows[0]["lc_amplitude_deg"]))
 
 
+@pytest.mark.slow  # over 5 s: make test runs it, make test-fast leaves it out
 def test_heat_maps_draw_unstable_points_as_their_own_class_not_as_values() -> None:
     from vmehil.analysis.report import HEATMAP_METRICS, sweep_heatmaps
 
@@ -202,6 +205,7 @@ def test_heat_maps_draw_unstable_points_as_their_own_class_not_as_values() -> No
                          (0, 0): "unstable", (1, 0): "unstable"}
 
 
+@pytest.mark.slow  # over 5 s: make test runs it, make test-fast leaves it out
 def test_step_runs_side_by_side_give_the_figures_of_runs_one_after_the_other(tmp_path: Path) -> None:
     """`--jobs 2` runs the step and the move in two worker processes; each is the same seeded run
     as in this process (`--jobs 1`), so the JSON is identical."""
@@ -221,6 +225,7 @@ def _children(pid: int) -> list[int]:
     return [int(c) for c in text.split()]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs /proc to see the worker processes")
 def test_limit_cycle_side_by_side_interrupted_by_sigint_stops_every_worker(tmp_path: Path) -> None:
     """SIGINT while both runs go on in workers: every worker stops its run (safe stop) and exits,

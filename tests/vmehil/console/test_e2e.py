@@ -39,6 +39,7 @@ def _joints(reply: list[str]) -> dict[str, dict[str, str]]:
     return out
 
 
+@pytest.mark.slow  # over 5 s: make test runs it, make test-fast leaves it out
 def test_console_beside_a_lockstep_run_moves_a_joint(tmp_path):
     system = build_emulated_rig(None, seed=0)
     loop = build_loop(system, motion=default_demo_motion(system.rig.n_joints), n_ticks=3000)
@@ -150,6 +151,7 @@ def _vmehil(*args: str) -> subprocess.Popen:
                             text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
 
 
+@pytest.mark.slow
 def test_vmehil_run_console_through_a_terminal_program(tmp_path):
     link = tmp_path / "console"
     cmd_file = tmp_path / "ops.cmd"
@@ -183,6 +185,7 @@ def test_vmehil_run_console_through_a_terminal_program(tmp_path):
     assert not link.is_symlink()  # closed and removed when the run ended
 
 
+@pytest.mark.slow  # over 5 s: make test runs it, make test-fast leaves it out
 def test_vmehil_console_serves_and_shuts_down(tmp_path):
     link = tmp_path / "console"
     # the shipped spelling --port (an alias of --console)
