@@ -22,6 +22,7 @@ from servo.boundary import PlantBoundaryError
 from servo.io import JointIO
 from servo.nominal import nominal_scaling, rig_nominal
 from servo.rig import SERVO_JOINT_KEYS, WATCHDOG_NET, RigSpec, load_rig, loopback_net, reference_net
+from servo.units import rig_units
 from vmehil.calibration.store import load_store_or_nominal
 
 #: The ``[[joint]]`` keys that are not the plant's: the servo side's and ``[joint.calibration]``
@@ -170,20 +171,32 @@ def build_emulated_rig(rig: str | Path | RigSpec | None = None, *, seed: int = 0
 
 
 def _couple_hbridge_noise(crate: Crate, spec: RigSpec) -> None:
-    """H-bridge switching noise couples into every ADC conversion while a bridge is driving
-    (the JPL paper's grounding lesson). The level is set per rig: ``[rig] hbridge_noise_v``."""
+    """H-bridge switching noise couples into the ADC conversions while a bridge is driving
+    (the JPL paper's grounding lesson). The level is set per rig: ``[rig] hbridge_noise_v``.
+    It reaches every board of the crate, or, on a rig of units (``[[rig.unit]]``), only the
+    boards of the unit that drives the bridge: each unit's electronics are its own, so a unit
+    controller with only its own boards sees what the single controller's crate sees
+    (docs/melmalec.md)."""
     level = spec.table.table("rig", {}).get_float("hbridge_noise_v", 0.0, min=0.0)
     if level <= 0.0:
         return
-    nets = [j.net("pwm") for j in spec.joints if "pwm" in j.wiring]
-    if not nets:
+    bridges = [j for j in spec.joints if "pwm" in j.wiring]
+    if not bridges:
         return
+    units = rig_units(spec)
+    reach: dict[str, list[str]] = {}  # board → the PWM nets of the bridges whose noise reaches it
+    for j in bridges:
+        boards = next((u.boards for u in units if j.index in u.indices), tuple(crate.boards))
+        for b in boards:
+            reach.setdefault(b, []).append(j.net("pwm"))
     signals = crate.signals
 
-    def noise() -> float:
-        return level if any(signals.get_analog(n) > 0.0 for n in nets) else 0.0
+    def noise_of(nets: list[str]):
+        def noise() -> float:
+            return level if any(signals.get_analog(n) > 0.0 for n in nets) else 0.0
+        return noise
 
-    for b in crate.boards.values():
-        add = getattr(b, "add_noise_source", None)
+    for name, nets in reach.items():
+        add = getattr(crate.boards.get(name), "add_noise_source", None)
         if add is not None:
-            add(noise)
+            add(noise_of(nets))
