@@ -124,6 +124,15 @@ class EmulatedRig:
         self.harness.publish()
 
     def exchange(self, tick: int) -> None:
+        late_ns = self.crate.clock.now_ns - (tick * self.period_ns + round(self.rig.computation_delay_s * 1e9))
+        if late_ns > 0:
+            # The tick's bus cycles ran past the instant its command takes effect (tick 0 of a
+            # big crate: the start-up reads precede it). The command then takes effect late, once
+            # the outputs written have settled -- not never: let the boards' settling run first.
+            # A controller that is on time (every unit controller) never gets here, so a late
+            # single controller's plant sees what the units' plant sees (docs/melmalec.md).
+            self.late_exchanges += 1
+            self.crate.advance_to(self.crate.clock.now_ns + self._settle_ns())
         try:
             self.harness.step(self.rig.period_s, self.rig.computation_delay_s)
         except PlantLinkError as e:
@@ -131,6 +140,13 @@ class EmulatedRig:
 
     def truth(self) -> dict[str, np.ndarray] | None:
         return self.harness.last.truth if self.harness.last is not None else None
+
+    #: exchanges made after their instant (see :meth:`exchange`), for the reports
+    late_exchanges: int = 0
+
+    def _settle_ns(self) -> int:
+        """The longest output settling time of the crate's boards (a DAC's), ns."""
+        return max((int(getattr(b, "settling_time_ns", 0)) for b in self.crate.boards.values()), default=0)
 
     def close(self) -> None:
         self.link.close()
