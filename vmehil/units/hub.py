@@ -121,7 +121,9 @@ class PlantHub:
                 self._rounds.pop(r, None)
             assert answer is not None
             self._last_answer = answer
-            if self.stop is not None and unit not in self._told:
+            # a stop is news from its own exchange on: a unit still reading an earlier answer
+            # (another already handed in the stopping exchange) is told at its next one
+            if self.stop is not None and r >= self.stop.exchange and unit not in self._told:
                 s = self.stop
                 err: PlantLinkError = (UnitLostError if s.what.startswith("lost") else UnitStopError)(
                     f"unit {s.unit} {s.what} at exchange {s.exchange}: every unit stops")
