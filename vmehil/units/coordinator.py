@@ -121,6 +121,7 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
     settings = servo_settings(spec)
     limits = JointLimits.make(spec.n_joints, settings.max_velocity_rad_s)
     starts: dict[str, np.ndarray] = {}
+    go = threading.Barrier(len(units))
     started = threading.Condition()
 
     def global_start() -> np.ndarray:
@@ -152,6 +153,9 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
             if after_tick is not None:
                 runner.after_tick.append(lambda lp: after_tick(unit.name, system, lp))
             with loop.armed():
+                # every unit starts its runner together: a real-time runner's deadlines count
+                # from its start, and lockstep couples the units from the first exchange on
+                go.wait(timeout=timeout_s * 4)
                 ur.completed = runner.run(n_ticks)
             why = None if ur.completed == n_ticks else f"its run ended after {ur.completed} ticks"
             if runner.ended_by is not None:
