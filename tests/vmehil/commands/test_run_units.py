@@ -9,7 +9,8 @@ from vmehil.cli import main
 
 def run_json(tmp_path, *argv: str) -> tuple[int, dict]:
     out = tmp_path / f"{len(list(tmp_path.iterdir()))}.json"
-    status = main(["run", "--rig", "melmalec-16", "--quiet", "--duration", "1", "--seed", "6", "--json", str(out), *argv])
+    status = main(["run", "--rig", "melmalec-16", "--quiet", "--duration", "1", "--seed", "6",
+                   "--json", str(out), *argv])
     return status, json.loads(out.read_text())
 
 
