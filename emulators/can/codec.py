@@ -42,6 +42,12 @@ from emulators.can.dbc import (
     ID_STATUS,
     ID_SYNC,
     ID_TRUTH,
+    ID_UNIT_ANSWER,
+    ID_UNIT_HEARTBEAT,
+    ID_UNIT_POS,
+    ID_UNIT_START,
+    ID_UNIT_STOP,
+    ID_UNIT_SYNC,
     MAX_JOINTS,
 )
 from emulators.signals import QuadratureEvents
@@ -57,6 +63,11 @@ CMD_SIGNALS = ("AmpCommand", "PwmDuty", *CMD_BITS)
 
 
 _SMALL = 64  #: arrays up to this length are quantized in plain Python (SignalSpec._quantize_small)
+
+
+#: the unit bus's own frames (docs/melmalec.md) by identifier
+_UNIT_KINDS = {ID_UNIT_STOP: "UNIT_STOP", ID_UNIT_START: "UNIT_START", ID_UNIT_SYNC: "UNIT_SYNC",
+               ID_UNIT_POS: "UNIT_POS", ID_UNIT_ANSWER: "UNIT_ANSWER", ID_UNIT_HEARTBEAT: "UNIT_HEARTBEAT"}
 
 
 class FrameError(ValueError):
@@ -196,7 +207,7 @@ class CanCodec:
     def _kind_of(fid: int) -> tuple[str | None, int | None]:
         fixed = {ID_SYNC: "SYNC", ID_CONTROL: "CONTROL", ID_STATUS: "PLANT_STATUS",
                  ID_HEARTBEAT_CONTROLLER: "HEARTBEAT_CONTROLLER", ID_HEARTBEAT_PLANT: "HEARTBEAT_PLANT",
-                 ID_SESSION: "PLANT_SESSION"}
+                 ID_SESSION: "PLANT_SESSION", **_UNIT_KINDS}
         if fid in fixed:
             return fixed[fid], None
         for base, kind in ((ID_CMD, "CMD"), (ID_SENS, "SENS"), (ID_TRUTH, "TRUTH")):
