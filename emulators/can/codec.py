@@ -313,13 +313,17 @@ class CanCodec:
         return can.Message(arbitration_id=msg.frame_id, data=data, is_extended_id=False, is_fd=msg.is_fd,
                            bitrate_switch=msg.is_fd)
 
-    def command_frames(self, raw: dict[str, np.ndarray], seq: int, boot_id: int = 0) -> list[can.Message]:
+    def command_frames(self, raw: dict[str, np.ndarray], seq: int, boot_id: int = 0,
+                       joints: Sequence[int] | None = None) -> list[can.Message]:
         """CMD frames of every joint (the ``Watchdog`` line goes in SYNC: :meth:`sync_frame`),
-        marked with the low byte of the sender's boot id (the node takes its session owner's only)."""
+        marked with the low byte of the sender's boot id (the node takes its session owner's only).
+        ``joints``: the frames' joint numbers for the entries of ``raw`` (default 0, 1, ...: a
+        unit controller sends its joints' frames under their numbers in the whole rig)."""
         n = len(raw["AmpCommand"])
+        ids = range(n) if joints is None else joints
         tail = {"Seq": seq & 0xFF, "BootIdLow": boot_id & 0xFF}
-        return [self._frame(self.message("CMD", j), {k: int(raw[k][j]) for k in CMD_SIGNALS} | tail)
-                for j in range(n)]
+        return [self._frame(self.message("CMD", j), {k: int(raw[k][i]) for k in CMD_SIGNALS} | tail)
+                for i, j in enumerate(ids)]
 
     def sync_frame(self, raw: dict[str, np.ndarray], tick: int, period_s: float, delay_s: float,
                    boot_id: int = 0) -> can.Message:
