@@ -126,6 +126,7 @@ def test_a_unit_started_after_the_run_began_is_refused() -> None:
     bus.close()
     assert isinstance(late_results["leg1"], UnitRefused) and "already started" in str(late_results["leg1"])
     assert any("after the start" in note for note in late["out"].refused)
+    assert all(r.completed == 100 and r.loop.fault is None for r in results.values())  # the run went on
 
 
 @pytest.mark.skipif(socketcan_available(), reason="SocketCAN exists here: the refusal path is not what runs")
