@@ -312,7 +312,13 @@ def _serve(spec: RigSpec, units: list[UnitSpec], bus: UnitBus, codec: CanCodec, 
                 if note not in out.refused:
                     out.refused.append(note)
         if not synced:
-            break  # every unit has left (or is lost): nothing to step
+            # every unit has left or is lost: one last step with every amplifier off, so the
+            # plant ends as the units' safe stops left their boards (a unit that stops ends its
+            # run at once and does not send its safe outputs in another exchange)
+            final = link.exchange(PlantCommand.idle(n), spec.period_s, spec.computation_delay_s)
+            enabled = final.truth.get("amp_enabled")
+            out.amps_on.append(int(np.count_nonzero(enabled)) if enabled is not None else -1)
+            break
         if stop_requested():
             stop_now(r, ALL_UNITS, "COORDINATOR_STOPPED", "the coordinator was asked to stop")
         raw = {k: np.array(v, copy=True) for k, v in idle.items()}
