@@ -37,7 +37,15 @@ import numpy as np
 
 from emulators.can.bus import Endpoint, open_bus, resolve
 from emulators.can.codec import TRUTH_SIGNALS, CanCodec, Frame, shared_codec
-from emulators.can.dbc import UNIT_STOP_CAUSES
+from emulators.can.dbc import (
+    ID_SENS,
+    ID_TRUTH,
+    ID_UNIT_ANSWER,
+    ID_UNIT_POS,
+    ID_UNIT_START,
+    ID_UNIT_STOP,
+    UNIT_STOP_CAUSES,
+)
 from emulators.plant import PlantCommand, PlantSensors
 from emulators.plant_link import PlantLink, PlantLostError, StaleDataError
 from servo.rig import RigSpec
@@ -84,6 +92,8 @@ class UnitBus:
     def __init__(self, endpoint: Endpoint, codec: CanCodec | None = None) -> None:
         self.endpoint = endpoint
         self.codec = codec or shared_codec()
+        #: identifiers worth decoding (None: all); a unit skips the other units' frames unread
+        self.accept: set[int] | None = None
 
     def send(self, kind: str, **values: Any) -> None:
         self.endpoint.send(self.codec.frame(kind, **values))
@@ -99,6 +109,10 @@ class UnitBus:
             m = self.endpoint.recv(max(0.0, deadline - time.monotonic()))
             if m is None:
                 return None
+            if self.accept is not None and m.arbitration_id not in self.accept:
+                if time.monotonic() >= deadline:
+                    return None
+                continue
             f = self.codec.try_decode(m)
             if f is not None:
                 return f
@@ -128,6 +142,9 @@ class UnitCanLink(PlantLink):
         self._told = False
         self._last: PlantSensors | None = None
         self.stop_event: HubEvent | None = None
+        # decode only what concerns this unit: its joints' answers, the coordinator's frames
+        bus.accept = ({ID_SENS + j for j in self.joints} | {ID_TRUTH + j for j in self.joints}
+                      | {ID_UNIT_ANSWER, ID_UNIT_STOP, ID_UNIT_POS, ID_UNIT_START})
 
     def _note(self, f: Frame) -> None:
         if f.kind == "UNIT_POS":
@@ -227,9 +244,12 @@ def coordinate(spec: RigSpec, bus: UnitBus, link: PlantLink, *, seed: int, n_tic
     if not units:
         raise UnitRefused(f"rig {spec.name} ({spec.path}) declares no [[rig.unit]] tables")
     codec = bus.codec
+    # udp_multicast loops a node's own frames back: skip ours unread
+    bus.endpoint.own_ids |= ({ID_SENS + j for j in range(spec.n_joints)} | {ID_TRUTH + j for j in range(spec.n_joints)}
+                             | {ID_UNIT_ANSWER, ID_UNIT_STOP, ID_UNIT_START})
     digest = file_digest(spec.path)
     out = CoordinatorOutcome()
-    ready: set[int] = set()
+    ready: dict[int, int] = {}  # unit number → its boot id
     deadline = time.monotonic() + start_timeout_s
     while len(ready) < len(units):
         left = deadline - time.monotonic()
@@ -247,21 +267,21 @@ def coordinate(spec: RigSpec, bus: UnitBus, link: PlantLink, *, seed: int, n_tic
             if note not in out.refused:
                 out.refused.append(note)
             continue
-        ready.add(u)
+        ready[u] = int(f.raw["BootId"])
     g = gains or {}
     bus.send("UNIT_START", Seed=seed, NTicks=n_ticks, RigDigest=digest, MotionDigest=file_digest(motion_path),
              NUnits=len(units), SwitchOff=0 if switch_off is None else 2 if switch_off else 1,
              GainsSet=int(bool(g)), BootId=boot_id,
              **{k.capitalize(): float(g.get(k, np.nan)) for k in ("kp", "kpi", "kv", "kvi")})
     _serve(spec, units, bus, codec, link, out, n_ticks=n_ticks, boot_id=boot_id, timeout_s=timeout_s,
-           stop_requested=stop_requested)
+           stop_requested=stop_requested, started=ready)
     bus.send("UNIT_STOP", Cause=STOP["COORDINATOR_END"], Unit=ALL_UNITS, Exchange=out.exchanges, BootId=boot_id)
     return out
 
 
 def _serve(spec: RigSpec, units: list[UnitSpec], bus: UnitBus, codec: CanCodec, link: PlantLink,
            out: CoordinatorOutcome, *, n_ticks: int, boot_id: int, timeout_s: float,
-           stop_requested: Callable[[], bool]) -> None:
+           stop_requested: Callable[[], bool], started: dict[int, int]) -> None:
     n = spec.n_joints
     owner = {j: u for u, unit in enumerate(units) for j in unit.indices}
     wd_name = watchdog_unit(spec, units)
@@ -305,7 +325,8 @@ def _serve(spec: RigSpec, units: list[UnitSpec], bus: UnitBus, codec: CanCodec, 
                 synced[u] = int(f.raw["Watchdog"])
                 if int(f.raw["Stopped"]):
                     stop_now(r, u, "UNIT_STOPPED", "stopped")
-            elif f.kind == "UNIT_HEARTBEAT" and int(f.raw["Unit"]) < len(units):
+            elif (f.kind == "UNIT_HEARTBEAT" and int(f.raw["Unit"]) < len(units)
+                  and started.get(int(f.raw["Unit"])) != int(f.raw["BootId"])):  # not a started unit's last beat
                 u = int(f.raw["Unit"])
                 bus.send("UNIT_STOP", Cause=STOP["REFUSED_LATE"], Unit=u, Exchange=r, BootId=boot_id)
                 note = f"unit {units[u].name} refused: it reported at exchange {r}, after the start"
