@@ -188,3 +188,29 @@ def test_a_rig_without_units_is_refused_for_parallel_runs() -> None:
 
     with pytest.raises(UnitsRefused, match="no \\[\\[rig.unit\\]\\] tables"):
         run_units("jpl-arm", n_ticks=10)
+
+
+def test_ctrl_c_to_the_coordinator_safe_stops_every_unit_before_it_goes_on() -> None:
+    """SIGINT reaches the main thread (here: interrupt_main from a unit at tick 60): run_units
+    stops every unit at its next tick boundary (its boards: enables low, 0 V) and re-raises."""
+    import _thread
+
+    probe = BoardProbe()
+    seen: dict = {}
+
+    def hook(name, system, loop):
+        seen[name] = (system, loop)
+        if name == "leg1" and loop.tick_count == 60:
+            _thread.interrupt_main()
+
+    with pytest.raises(KeyboardInterrupt):
+        run_units("melmalec-16", seed=1, n_ticks=1500, after_tick=chain(probe, hook))
+    assert sorted(seen) == sorted(("leg1", "leg2", "leg3", "leg4", "arm"))
+    for name, (system, loop) in seen.items():
+        assert loop.fault is not None and loop.fault.cause in ("interrupted", "unit_stop"), name
+        assert loop.final_stop is not None and loop.final_stop["verified"], name
+        probe(name, system, loop)  # the boards as the unit left them
+        assert probe.off[name][loop.tick_count - 1] is True, name
+        assert loop.tick_count < 1000  # stopped promptly, not run to the end
+    for system, _ in seen.values():
+        system.close()

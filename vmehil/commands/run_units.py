@@ -13,7 +13,7 @@ import argparse
 import sys
 from typing import Any
 
-from servo.interrupts import Terminated
+from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
 from vmehil.files import write_json
 
@@ -54,10 +54,10 @@ def run_parallel(args: argparse.Namespace, rig: Any, gains: dict[str, float], mo
                         switch_off=False if args.no_integrator_switch_off else None, link=link,
                         realtime=args.realtime, realtime_options=overrun_options(args),
                         timeout_s=args.unit_timeout)
-    except (KeyboardInterrupt, Terminated):
-        # the unit threads are daemons: each one's armed() block stops its boards as it ends
-        print("run: interrupted", file=sys.stderr)
-        return 130
+    except (KeyboardInterrupt, Terminated) as e:
+        # run_units has stopped every unit (each one's armed() block: enables low, 0 V) first
+        print(f"run: interrupted ({interrupt_name(e)}); every unit safe-stopped", file=sys.stderr)
+        return interrupt_exit_status(e)
     status = 0
     units: dict[str, Any] = {}
     lines = [f"{rig.name} · units parallel · {n_ticks} ticks · plant steps {run.hub.exchanges}"]

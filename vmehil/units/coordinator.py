@@ -122,6 +122,7 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
     limits = JointLimits.make(spec.n_joints, settings.max_velocity_rad_s)
     starts: dict[str, np.ndarray] = {}
     go = threading.Barrier(len(units))
+    abort = threading.Event()  #: set on SIGINT/SIGTERM: every unit stops at its next tick
     started = threading.Condition()
 
     def global_start() -> np.ndarray:
@@ -152,11 +153,16 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
                                   else LockstepRunner(system, loop))
             if after_tick is not None:
                 runner.after_tick.append(lambda lp: after_tick(unit.name, system, lp))
+            def interrupted() -> bool:
+                if abort.is_set():
+                    loop.safe_stop("interrupted", "the coordinator was interrupted (SIGINT/SIGTERM)")
+                return abort.is_set()
+
             with loop.armed():
                 # every unit starts its runner together: a real-time runner's deadlines count
                 # from its start, and lockstep couples the units from the first exchange on
                 go.wait(timeout=timeout_s * 4)
-                ur.completed = runner.run(n_ticks)
+                ur.completed = runner.run(n_ticks, stop=interrupted)
             why = None if ur.completed == n_ticks else f"its run ended after {ur.completed} ticks"
             if runner.ended_by is not None:
                 why = f"{type(runner.ended_by).__name__}: {runner.ended_by}"
@@ -172,6 +178,15 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
                for ur in run.units]
     for t in threads:
         t.start()
-    for t in threads:
-        t.join()
+    try:
+        for t in threads:
+            while t.is_alive():  # joined in slices: Ctrl-C and SIGTERM are handled while waiting
+                t.join(0.2)
+    except BaseException:
+        # Ctrl-C or SIGTERM reaches this (the main) thread: every unit safe-stops at its next
+        # tick boundary (its armed() block), then the signal goes on
+        abort.set()
+        for t in threads:
+            t.join(timeout=timeout_s * 4)
+        raise
     return run

@@ -273,9 +273,12 @@ def coordinate(spec: RigSpec, bus: UnitBus, link: PlantLink, *, seed: int, n_tic
              NUnits=len(units), SwitchOff=0 if switch_off is None else 2 if switch_off else 1,
              GainsSet=int(bool(g)), BootId=boot_id,
              **{k.capitalize(): float(g.get(k, np.nan)) for k in ("kp", "kpi", "kv", "kvi")})
-    _serve(spec, units, bus, codec, link, out, n_ticks=n_ticks, boot_id=boot_id, timeout_s=timeout_s,
-           stop_requested=stop_requested, started=ready)
-    bus.send("UNIT_STOP", Cause=STOP["COORDINATOR_END"], Unit=ALL_UNITS, Exchange=out.exchanges, BootId=boot_id)
+    try:
+        _serve(spec, units, bus, codec, link, out, n_ticks=n_ticks, boot_id=boot_id, timeout_s=timeout_s,
+               stop_requested=stop_requested, started=ready)
+    finally:  # however the coordinator ends (its end, Ctrl-C, SIGTERM, an error): every unit stops now
+        bus.send("UNIT_STOP", Cause=STOP["COORDINATOR_END"], Unit=ALL_UNITS, Exchange=out.exchanges,
+                 BootId=boot_id)
     return out
 
 
