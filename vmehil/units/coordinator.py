@@ -61,6 +61,8 @@ class UnitRun:
     runner: LockstepRunner | None = None
     completed: int = 0
     error: BaseException | None = None
+    seed: int = 0
+    ended: str | None = None  #: why the run ended early (None: it ran to the end)
 
 
 @dataclass

@@ -11,12 +11,10 @@ from __future__ import annotations
 
 import os
 import random
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from servo.loop import ServoLoop
 from servo.motion import default_demo_motion, load_motion
 from servo.rig import RigSpec
 from servo.runner import LockstepRunner, RealtimeRunner
@@ -24,8 +22,8 @@ from servo.trajectory.base import JointLimits
 from servo.trajectory.sequencer import PlanContext
 from servo.units import UnitSegments, rig_units, unit_named, unit_rig
 from vmehil.session import build_loop, servo_settings
-from vmehil.system import EmulatedRig, build_emulated_rig
-from vmehil.units.coordinator import plant_link_for
+from vmehil.system import build_emulated_rig
+from vmehil.units.coordinator import UnitRun, plant_link_for
 from vmehil.units.remote import (
     START_TIMEOUT_S,
     CoordinatorOutcome,
@@ -46,23 +44,9 @@ def boot_id() -> int:
     return (os.getpid() ^ random.SystemRandom().getrandbits(16)) & 0xFFFF or 1
 
 
-@dataclass
-class UnitOutcome:
-    """How a unit process's run went."""
-
-    unit: str
-    system: EmulatedRig | None = None
-    loop: ServoLoop | None = None
-    runner: LockstepRunner | None = None
-    completed: int = 0
-    seed: int = 0
-    ended: str | None = None  #: why the run ended early (None: it ran to the end)
-    extra: dict[str, Any] = field(default_factory=dict)
-
-
 def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, start_timeout_s: float = START_TIMEOUT_S,
              motion_path: str | None = None, realtime: bool = False,
-             realtime_options: dict[str, Any] | None = None) -> UnitOutcome:
+             realtime_options: dict[str, Any] | None = None) -> UnitRun:
     units = rig_units(spec)
     unit = unit_named(units, unit_name, str(spec.path))
     number = unit_number(spec, unit_name)
@@ -72,7 +56,7 @@ def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, s
         raise UnitRefused("the coordinator's motion differs from this unit's (give every unit and the coordinator "
                           "the same --motion file, or none)")
     seed, n_ticks = int(start.raw["Seed"]), int(start.raw["NTicks"])
-    out = UnitOutcome(unit_name, seed=seed)
+    out = UnitRun(unit, seed=seed)
     link = UnitCanLink(bus, unit, number, boot, timeout_s)
     try:
         system = out.system = build_emulated_rig(unit_rig(spec, unit), seed=seed, link=link)  # power-up: exchange 0
