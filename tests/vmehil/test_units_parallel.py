@@ -190,27 +190,56 @@ def test_a_rig_without_units_is_refused_for_parallel_runs() -> None:
         run_units("jpl-arm", n_ticks=10)
 
 
-def test_ctrl_c_to_the_coordinator_safe_stops_every_unit_before_it_goes_on() -> None:
-    """SIGINT reaches the main thread (here: interrupt_main from a unit at tick 60): run_units
-    stops every unit at its next tick boundary (its boards: enables low, 0 V) and re-raises."""
-    import _thread
+def test_an_abort_stops_every_unit_at_its_next_tick() -> None:
+    """What Ctrl-C / SIGTERM to the coordinator does (it sets the abort event): every unit
+    safe-stops at its next tick boundary; its boards read off."""
+    import threading
 
     probe = BoardProbe()
+    abort = threading.Event()
+
+    def hook(name, system, loop):
+        if name == "leg1" and loop.tick_count == 60:
+            abort.set()
+
+    run = run_units("melmalec-16", seed=1, n_ticks=1500, after_tick=chain(probe, hook), abort=abort)
+    try:
+        for u in run.units:
+            name, loop = u.unit.name, u.loop
+            assert loop.fault is not None and loop.fault.cause in ("interrupted", "unit_stop"), name
+            assert loop.final_stop["verified"], name
+            probe(name, u.system, loop)  # the boards as the unit left them
+            assert probe.off[name][loop.tick_count - 1] is True, name
+            assert loop.tick_count <= 62  # stopped within a tick or two of the abort, not at the end
+    finally:
+        run.close()
+
+
+def test_ctrl_c_to_the_coordinator_leaves_every_unit_safe_stopped_and_goes_on() -> None:
+    """A real KeyboardInterrupt in the main thread (interrupt_main, with Python's own SIGINT
+    handler): run_units sets the abort, joins every unit and re-raises; every unit's boards
+    read off."""
+    import _thread
+    import signal
+
     seen: dict = {}
+    probe = BoardProbe()
 
     def hook(name, system, loop):
         seen[name] = (system, loop)
         if name == "leg1" and loop.tick_count == 60:
             _thread.interrupt_main()
 
-    with pytest.raises(KeyboardInterrupt):
-        run_units("melmalec-16", seed=1, n_ticks=1500, after_tick=chain(probe, hook))
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_units("melmalec-16", seed=1, n_ticks=1500, after_tick=hook)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert sorted(seen) == sorted(("leg1", "leg2", "leg3", "leg4", "arm"))
     for name, (system, loop) in seen.items():
-        assert loop.fault is not None and loop.fault.cause in ("interrupted", "unit_stop"), name
         assert loop.final_stop is not None and loop.final_stop["verified"], name
-        probe(name, system, loop)  # the boards as the unit left them
+        probe(name, system, loop)
         assert probe.off[name][loop.tick_count - 1] is True, name
-        assert loop.tick_count < 1000  # stopped promptly, not run to the end
     for system, _ in seen.values():
         system.close()

@@ -108,9 +108,11 @@ def plant_link_for(spec: RigSpec, seed: int) -> PlantLink:
 def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion: Motion | None = None,
               gains: dict[str, float] | None = None, switch_off: bool | None = None,
               link: PlantLink | None = None, realtime: bool = False, realtime_options: dict[str, Any] | None = None,
-              timeout_s: float = UNIT_TIMEOUT_S, after_tick: UnitHook | None = None) -> ParallelRun:
+              timeout_s: float = UNIT_TIMEOUT_S, after_tick: UnitHook | None = None,
+              abort: threading.Event | None = None) -> ParallelRun:
     """Run the rig's units in parallel (one thread each) against one plant, in lockstep; returns
-    when every unit's runner has ended (each one safe-stopped)."""
+    when every unit's runner has ended (each one safe-stopped). ``abort``: set it to stop every
+    unit at its next tick (Ctrl-C and SIGTERM set it, then go on)."""
     spec = rig if isinstance(rig, RigSpec) else load_rig(resolve_rig(rig))
     units = rig_units(spec)
     if not units:
@@ -124,7 +126,7 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
     limits = JointLimits.make(spec.n_joints, settings.max_velocity_rad_s)
     starts: dict[str, np.ndarray] = {}
     go = threading.Barrier(len(units))
-    abort = threading.Event()  #: set on SIGINT/SIGTERM: every unit stops at its next tick
+    stop_all = abort if abort is not None else threading.Event()
     started = threading.Condition()
 
     def global_start() -> np.ndarray:
@@ -156,9 +158,9 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
             if after_tick is not None:
                 runner.after_tick.append(lambda lp: after_tick(unit.name, system, lp))
             def interrupted() -> bool:
-                if abort.is_set():
+                if stop_all.is_set():
                     loop.safe_stop("interrupted", "the coordinator was interrupted (SIGINT/SIGTERM)")
-                return abort.is_set()
+                return stop_all.is_set()
 
             with loop.armed():
                 # every unit starts its runner together: a real-time runner's deadlines count
@@ -187,7 +189,7 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
     except BaseException:
         # Ctrl-C or SIGTERM reaches this (the main) thread: every unit safe-stops at its next
         # tick boundary (its armed() block), then the signal goes on
-        abort.set()
+        stop_all.set()
         for t in threads:
             t.join(timeout=timeout_s * 4)
         raise
