@@ -162,7 +162,12 @@ def parse_pin(cfg: ConfigTable, key: str) -> Pin:
 
 def load_rig(path: str | Path) -> RigSpec:
     """Parse a rig file (a preset path from :func:`emulators.presets.resolve_rig` or any path)."""
-    table = load_toml(path)
+    return rig_from_table(load_toml(path), path)
+
+
+def rig_from_table(table: ConfigTable, path: str | Path) -> RigSpec:
+    """Parse a rig file's table already read (``path``: where it came from; errors name it).
+    A unit controller parses its unit's part of the rig file this way (:mod:`servo.units`)."""
     rig = table.table("rig", {})
     period_hz = rig.get_float("servo_rate_hz", 125.0, min=1.0, max=10_000.0)
     delay = rig.get_float("computation_delay_s", 0.001, min=0.0)

@@ -20,7 +20,7 @@ from collections.abc import Callable  # noqa: E402
 from hal.config import ConfigError  # noqa: E402
 from hal.vme.errors import VmeError  # noqa: E402
 from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name, stop_signals_raise  # noqa: E402
-from vmehil.commands import calibrate, console, crate, plant_node, reproduce, run, tune, vision  # noqa: E402
+from vmehil.commands import calibrate, console, crate, plant_node, reproduce, run, tune, units, vision  # noqa: E402
 from vmehil.commands.errors import CliError  # noqa: E402
 from vmehil.exit_status import EXIT_BROKEN_PIPE, EXIT_UNEXPECTED, EXIT_USAGE  # noqa: E402
 from vmehil.outputs import check_outputs, mark_output_dirs  # noqa: E402
@@ -35,6 +35,7 @@ COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
     tune.register,
     vision.register,
     plant_node.register,
+    units.register,
     console.register,
     calibrate.register,
     reproduce.register,

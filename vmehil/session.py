@@ -182,13 +182,17 @@ def watchdog_config(system: EmulatedRig, settings: ServoSettings, *, enabled: bo
 
 
 def build_loop(system: EmulatedRig, *, motion: Motion | None = None, gains: dict[str, float] | None = None,
-               switch_off: bool | None = None, n_ticks: int = 0, watchdog: bool = True) -> ServoLoop:
+               switch_off: bool | None = None, n_ticks: int = 0, watchdog: bool = True,
+               sequencer: Sequencer | None = None) -> ServoLoop:
     """A ready-to-start :class:`ServoLoop` for ``system`` (all settings from the rig file, with
     optional gain overrides applied to every joint and the switch-off forced on or off).
 
     Gain overrides go through :func:`servo.gain_guard.check_gain_change` first, as a live change
     would (the rig's period and computation delay, the switch-off as configured): a set the guard
-    refuses raises :class:`~servo.gain_guard.GainRejected` and no loop is built."""
+    refuses raises :class:`~servo.gain_guard.GainRejected` and no loop is built.
+
+    ``sequencer``: the motion already planned (a unit controller's segments of the global plan,
+    :class:`servo.units.UnitSegments`); the joints are then not read here."""
     settings = servo_settings(system.rig)
     rig = system.rig
     n = rig.n_joints
@@ -203,10 +207,10 @@ def build_loop(system: EmulatedRig, *, motion: Motion | None = None, gains: dict
             raise ValueError(f"gain overrides {gains}: the rig's controller has no pid object to take them")
         check_gain_change(controller.law, None, clean, rig.period_s,
                           delay_periods(rig.computation_delay_s, rig.period_s))
-    motion = motion or default_demo_motion(n)
-    start = system.io.read().theta
     limits = JointLimits.make(n, settings.max_velocity_rad_s)
-    sequencer = Sequencer(list(motion.moves), start, PlanContext(limits))
+    if sequencer is None:
+        motion = motion or default_demo_motion(n)
+        sequencer = Sequencer(list(motion.moves), system.io.read().theta, PlanContext(limits))
     wd = watchdog_config(system, settings, enabled=watchdog)
     recorder = Recorder(n_ticks, n) if n_ticks else None
     return ServoLoop(system.io, controller, sequencer, wd, recorder=recorder, names=[j.name for j in system.rig.joints],

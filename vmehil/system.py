@@ -6,6 +6,7 @@ imports ``emulators``; the loop and the drivers do not.
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,7 @@ from servo.boundary import PlantBoundaryError
 from servo.io import JointIO
 from servo.nominal import nominal_scaling, rig_nominal
 from servo.rig import SERVO_JOINT_KEYS, WATCHDOG_NET, RigSpec, load_rig, loopback_net, reference_net
+from servo.units import rig_units
 from vmehil.calibration.store import load_store_or_nominal
 
 #: The ``[[joint]]`` keys that are not the plant's: the servo side's and ``[joint.calibration]``
@@ -123,6 +125,15 @@ class EmulatedRig:
         self.harness.publish()
 
     def exchange(self, tick: int) -> None:
+        late_ns = self.crate.clock.now_ns - (tick * self.period_ns + round(self.rig.computation_delay_s * 1e9))
+        if late_ns > 0:
+            # The tick's bus cycles ran past the instant its command takes effect (tick 0 of a
+            # big crate: the start-up reads precede it). The command then takes effect late, once
+            # the outputs written have settled -- not never: let the boards' settling run first.
+            # A controller that is on time (every unit controller) never gets here, so a late
+            # single controller's plant sees what the units' plant sees (docs/melmalec.md).
+            self.late_exchanges += 1
+            self.crate.advance_to(self.crate.clock.now_ns + self._settle_ns())
         try:
             self.harness.step(self.rig.period_s, self.rig.computation_delay_s)
         except PlantLinkError as e:
@@ -130,6 +141,13 @@ class EmulatedRig:
 
     def truth(self) -> dict[str, np.ndarray] | None:
         return self.harness.last.truth if self.harness.last is not None else None
+
+    #: exchanges made after their instant (see :meth:`exchange`), for the reports
+    late_exchanges: int = 0
+
+    def _settle_ns(self) -> int:
+        """The longest output settling time of the crate's boards (a DAC's), ns."""
+        return max((int(getattr(b, "settling_time_ns", 0)) for b in self.crate.boards.values()), default=0)
 
     def close(self) -> None:
         self.link.close()
@@ -170,23 +188,35 @@ def build_emulated_rig(rig: str | Path | RigSpec | None = None, *, seed: int = 0
 
 
 def _couple_hbridge_noise(crate: Crate, spec: RigSpec) -> None:
-    """H-bridge switching noise couples into every ADC conversion while a bridge is driving
-    (the JPL paper's grounding lesson). The level is set per rig: ``[rig] hbridge_noise_v``."""
+    """H-bridge switching noise couples into the ADC conversions while a bridge is driving
+    (the JPL paper's grounding lesson). The level is set per rig: ``[rig] hbridge_noise_v``.
+    It reaches every board of the crate, or, on a rig of units (``[[rig.unit]]``), only the
+    boards of the unit that drives the bridge: each unit's electronics are its own, so a unit
+    controller with only its own boards sees what the single controller's crate sees
+    (docs/melmalec.md)."""
     level = spec.table.table("rig", {}).get_float("hbridge_noise_v", 0.0, min=0.0)
     if level <= 0.0:
         return
-    nets = [j.net("pwm") for j in spec.joints if "pwm" in j.wiring]
-    if not nets:
+    bridges = [j for j in spec.joints if "pwm" in j.wiring]
+    if not bridges:
         return
+    units = rig_units(spec)
+    reach: dict[str, list[str]] = {}  # board → the PWM nets of the bridges whose noise reaches it
+    for j in bridges:
+        boards = next((u.boards for u in units if j.index in u.indices), tuple(crate.boards))
+        for b in boards:
+            reach.setdefault(b, []).append(j.net("pwm"))
     analog = crate.signals.analog  # read directly: called at every ADC conversion (20-50 per tick)
 
-    def noise() -> float:
-        for n in nets:
-            if analog.get(n, 0.0) > 0.0:
-                return level
-        return 0.0
+    def noise_of(nets: list[str]) -> Callable[[], float]:
+        def noise() -> float:
+            for n in nets:
+                if analog.get(n, 0.0) > 0.0:
+                    return level
+            return 0.0
+        return noise
 
-    for b in crate.boards.values():
-        add = getattr(b, "add_noise_source", None)
+    for name, nets in reach.items():
+        add = getattr(crate.boards.get(name), "add_noise_source", None)
         if add is not None:
-            add(noise)
+            add(noise_of(nets))

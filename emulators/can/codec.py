@@ -42,6 +42,12 @@ from emulators.can.dbc import (
     ID_STATUS,
     ID_SYNC,
     ID_TRUTH,
+    ID_UNIT_ANSWER,
+    ID_UNIT_HEARTBEAT,
+    ID_UNIT_POS,
+    ID_UNIT_START,
+    ID_UNIT_STOP,
+    ID_UNIT_SYNC,
     MAX_JOINTS,
 )
 from emulators.signals import QuadratureEvents
@@ -57,6 +63,11 @@ CMD_SIGNALS = ("AmpCommand", "PwmDuty", *CMD_BITS)
 
 
 _SMALL = 64  #: arrays up to this length are quantized in plain Python (SignalSpec._quantize_small)
+
+
+#: the unit bus's own frames (docs/melmalec.md) by identifier
+_UNIT_KINDS = {ID_UNIT_STOP: "UNIT_STOP", ID_UNIT_START: "UNIT_START", ID_UNIT_SYNC: "UNIT_SYNC",
+               ID_UNIT_POS: "UNIT_POS", ID_UNIT_ANSWER: "UNIT_ANSWER", ID_UNIT_HEARTBEAT: "UNIT_HEARTBEAT"}
 
 
 class FrameError(ValueError):
@@ -204,7 +215,7 @@ class CanCodec:
     def _kind_of(fid: int) -> tuple[str | None, int | None]:
         fixed = {ID_SYNC: "SYNC", ID_CONTROL: "CONTROL", ID_STATUS: "PLANT_STATUS",
                  ID_HEARTBEAT_CONTROLLER: "HEARTBEAT_CONTROLLER", ID_HEARTBEAT_PLANT: "HEARTBEAT_PLANT",
-                 ID_SESSION: "PLANT_SESSION"}
+                 ID_SESSION: "PLANT_SESSION", **_UNIT_KINDS}
         if fid in fixed:
             return fixed[fid], None
         for base, kind in ((ID_CMD, "CMD"), (ID_SENS, "SENS"), (ID_TRUTH, "TRUTH")):
@@ -316,13 +327,17 @@ class CanCodec:
         return can.Message(arbitration_id=msg.frame_id, data=data, is_extended_id=False, is_fd=msg.is_fd,
                            bitrate_switch=msg.is_fd)
 
-    def command_frames(self, raw: dict[str, np.ndarray], seq: int, boot_id: int = 0) -> list[can.Message]:
+    def command_frames(self, raw: dict[str, np.ndarray], seq: int, boot_id: int = 0,
+                       joints: Sequence[int] | None = None) -> list[can.Message]:
         """CMD frames of every joint (the ``Watchdog`` line goes in SYNC: :meth:`sync_frame`),
-        marked with the low byte of the sender's boot id (the node takes its session owner's only)."""
+        marked with the low byte of the sender's boot id (the node takes its session owner's only).
+        ``joints``: the frames' joint numbers for the entries of ``raw`` (default 0, 1, ...: a
+        unit controller sends its joints' frames under their numbers in the whole rig)."""
         n = len(raw["AmpCommand"])
+        ids = range(n) if joints is None else joints
         tail = {"Seq": seq & 0xFF, "BootIdLow": boot_id & 0xFF}
-        return [self._frame(self.message("CMD", j), {k: int(raw[k][j]) for k in CMD_SIGNALS} | tail)
-                for j in range(n)]
+        return [self._frame(self.message("CMD", j), {k: int(raw[k][i]) for k in CMD_SIGNALS} | tail)
+                for i, j in enumerate(ids)]
 
     def sync_frame(self, raw: dict[str, np.ndarray], tick: int, period_s: float, delay_s: float,
                    boot_id: int = 0) -> can.Message:

@@ -45,6 +45,16 @@ ID_TRUTH = 0x300
 ID_HEARTBEAT_CONTROLLER = 0x701
 ID_HEARTBEAT_PLANT = 0x702
 ID_SESSION = 0x703
+# Unit controllers and their coordinator (docs/melmalec.md): a bus of their own (the unit bus),
+# where the coordinator answers the units with SENS/TRUTH frames of their joints and the units
+# send it CMD frames of theirs, as a controller and the plant node do on the plant bus.
+ID_UNIT_STOP = 0x070
+ID_UNIT_START = 0x071
+ID_UNIT_SYNC = 0x090
+ID_UNIT_POS = 0x091
+ID_UNIT_ANSWER = 0x290
+ID_UNIT_HEARTBEAT = 0x710
+UNIT_IDS = (ID_UNIT_STOP, ID_UNIT_START, ID_UNIT_SYNC, ID_UNIT_POS, ID_UNIT_ANSWER, ID_UNIT_HEARTBEAT)
 
 VOLT_LSB = 2e-6  # V per bit of every analog voltage on the wire (24-bit signed: ±16.78 V)
 DUTY_LSB = 1e-6  # PWM duty per bit (20-bit unsigned)
@@ -74,6 +84,11 @@ def _bit(name: str, start: int, comment: str, receiver: str) -> Signal:
 
 
 NODE_STATES = {0: "BOOT", 1: "READY", 2: "RUNNING", 3: "STOPPED", 4: "FAULT"}
+#: UNIT_STOP.Cause and UNIT_ANSWER.Stop: why every unit stops
+UNIT_STOP_CAUSES = {0: "NONE", 1: "UNIT_STOPPED", 2: "UNIT_LOST", 3: "COORDINATOR_END", 4: "REFUSED_RIG",
+                    5: "REFUSED_LATE", 6: "COORDINATOR_STOPPED", 7: "ANSWER_INCOMPLETE"}
+COORDINATOR = "COORDINATOR"
+UNIT = "UNIT"
 #: HEARTBEAT_PLANT.OffCause: the bits of emulators.plant.amplifier.WATCHDOG_EXPIRED / _COMMAND_TIMEOUT
 OFF_CAUSES = {0: "NONE", 1: "WATCHDOG", 2: "COMMAND_TIMEOUT", 3: "WATCHDOG_AND_COMMAND_TIMEOUT"}
 #: CONTROL.Command
@@ -162,6 +177,7 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
         _sig("RefusedBoot", 40, 16, minimum=0, maximum=65535, receiver=C,
              comment="boot id of the last controller refused"),
     ], senders=[P], comment="Sent with every HEARTBEAT_PLANT and at once on a session change or a refused RESET."))
+    msgs += _unit_messages()
     for j in range(max_joints):
         msgs.append(Message(ID_CMD + j, f"CMD_J{j:02d}", 8, [
             _volts("AmpCommand", 0, "transconductance amplifier input", P),
@@ -205,10 +221,70 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
     # a DBC string always loads as a CAN database (load_string's return type also admits CDD)
     db = cast(Database, cantools.database.load_string(_FD_HEADER, database_format="dbc"))
     db.messages.extend(msgs)
-    db.nodes.extend([Node(CONTROLLER), Node(PLANT)])
+    db.nodes.extend([Node(CONTROLLER), Node(PLANT), Node(COORDINATOR), Node(UNIT)])
     db.version = "vmehil-1"
     db.refresh()
     return db
+
+
+def _unit_messages() -> list[Message]:
+    """The unit bus's own frames (CMD/SENS/TRUTH of the joints are the plant bus's, reused)."""
+    K, U = COORDINATOR, UNIT
+    boot = _sig("BootId", 48, 16, minimum=0, maximum=65535, comment="sender's boot id")
+    return [
+        Message(ID_UNIT_STOP, "UNIT_STOP", 8, [
+            _sig("Cause", 0, 8, minimum=0, maximum=255, choices=dict(UNIT_STOP_CAUSES), receiver=U),
+            _sig("Unit", 8, 8, minimum=0, maximum=255, receiver=U,
+                 comment="the unit it concerns (255: every unit)"),
+            _sig("Exchange", 16, 32, minimum=0, maximum=2**32 - 1, receiver=U, comment="the exchange it is sent at"),
+            boot,
+        ], senders=[K], comment="Stop: every unit (or the one named, refused) safe-stops at once."),
+        Message(ID_UNIT_START, "UNIT_START", 64, [
+            _sig("Seed", 0, 32, minimum=0, maximum=2**32 - 1, receiver=U, comment="seed of every noise source"),
+            _sig("NTicks", 32, 32, minimum=0, maximum=2**32 - 1, receiver=U, comment="ticks to run"),
+            _sig("RigDigest", 64, 32, minimum=0, maximum=2**32 - 1, receiver=U,
+                 comment="CRC-32 of the rig file: a unit with another refuses to start"),
+            _sig("MotionDigest", 96, 32, minimum=0, maximum=2**32 - 1, receiver=U,
+                 comment="CRC-32 of the motion file (0: the default demo)"),
+            _sig("NUnits", 128, 8, minimum=0, maximum=255, receiver=U),
+            _sig("SwitchOff", 136, 2, minimum=0, maximum=3, receiver=U,
+                 comment="integrator switch-off: 0 as the rig file, 1 off, 2 on"),
+            _sig("GainsSet", 138, 1, minimum=0, maximum=1, receiver=U, comment="Kp..Kvi override the rig's"),
+            _sig("BootId", 144, 16, minimum=0, maximum=65535, receiver=U, comment="coordinator boot id"),
+            *[_sig(name, 192 + 64 * i, 64, is_float=True, receiver=U, comment="gain override (float64, exact)")
+              for i, name in enumerate(("Kp", "Kpi", "Kv", "Kvi"))],
+        ], senders=[K], is_fd=True, comment="Start: every unit builds its boards and runs NTicks in lockstep."),
+        Message(ID_UNIT_SYNC, "UNIT_SYNC", 8, [
+            _sig("Exchange", 0, 32, minimum=0, maximum=2**32 - 1, receiver=K,
+                 comment="the unit's exchange number (0 = power-up); its CMD frames precede it"),
+            _sig("Unit", 32, 8, minimum=0, maximum=255, receiver=K),
+            _bit("Stopped", 40, "the unit's loop has stopped (its commands are the safe outputs)", K),
+            _bit("Watchdog", 41, "the enable-watchdog line, from the unit that drives it", K),
+            _bit("Left", 42, "the unit's run has ended: the plant no longer waits for it", K),
+            boot,
+        ], senders=[U], comment="Unit status with each exchange: the plant steps once every unit's is in."),
+        Message(ID_UNIT_POS, "UNIT_POS", 48, [
+            _sig("Unit", 0, 8, minimum=0, maximum=255, receiver=U),
+            *[_sig(f"Theta{i}", 64 + 64 * i, 64, is_float=True, unit="rad", receiver=U,
+                   comment="measured start of the unit's joint i (float64, exact; NaN: none)") for i in range(4)],
+        ], senders=[U], is_fd=True, comment="A unit's measured start: every unit plans the global motion from all."),
+        Message(ID_UNIT_ANSWER, "UNIT_ANSWER", 8, [
+            _sig("Exchange", 0, 32, minimum=0, maximum=2**32 - 1, receiver=U,
+                 comment="the exchange answered (its SENS/TRUTH frames precede it)"),
+            _sig("Stop", 32, 8, minimum=0, maximum=255, choices=dict(UNIT_STOP_CAUSES), receiver=U,
+                 comment="every unit stops in this exchange: why (0: run on)"),
+            _sig("StopUnit", 40, 8, minimum=0, maximum=255, receiver=U, comment="the unit that stopped or was lost"),
+            boot,
+        ], senders=[K], comment="Ends the coordinator's answer to one exchange."),
+        Message(ID_UNIT_HEARTBEAT, "UNIT_HEARTBEAT", 16, [
+            _sig("State", 0, 8, minimum=0, maximum=255, choices=dict(NODE_STATES), receiver=K),
+            _sig("Unit", 8, 8, minimum=0, maximum=255, receiver=K),
+            _sig("Counter", 16, 8, minimum=0, maximum=255, receiver=K),
+            _sig("Exchange", 24, 32, minimum=0, maximum=2**32 - 1, receiver=K),
+            _sig("RigDigest", 56, 32, minimum=0, maximum=2**32 - 1, receiver=K),
+            _sig("BootId", 88, 16, minimum=0, maximum=65535, receiver=K),
+        ], senders=[U], is_fd=True, comment="A unit's state: every 100 ms while it waits to start."),
+    ]
 
 
 _FD_HEADER = """VERSION "vmehil-1"

@@ -25,7 +25,7 @@ def test_each_unit_has_its_own_adc_dac_and_decoder_on_distinct_a16_pages() -> No
     for u, unit in enumerate(UNITS):
         joints = [j for j in rig.joints if j.name.startswith(unit)]
         assert len(joints) == 3
-        for kind in ("amp_command", "pot", "tach", "imon", "encoder"):
+        for kind in ("amp_command", "pot", "tach", "imon", "encoder", "amp_enable", "amp_fault", "amp_reset"):
             assert {j.wiring[kind].board for j in joints} == {f"{kind_board(kind)}{u}"}
     # no pin is used twice
     pins = Counter((p.board, p.channel) for j in rig.joints for p in j.wiring.values())
@@ -37,7 +37,7 @@ def test_each_unit_has_its_own_adc_dac_and_decoder_on_distinct_a16_pages() -> No
 
 
 def kind_board(kind: str) -> str:
-    return {"amp_command": "dac", "pot": "adc", "tach": "adc", "imon": "adc", "encoder": "quad"}[kind]
+    return {"amp_command": "dac", "pot": "adc", "tach": "adc", "imon": "adc", "encoder": "quad"}.get(kind, "pio")
 
 
 def test_melmalec_demo_moves_all_sixteen_joints_without_faults() -> None:
@@ -56,4 +56,13 @@ def test_melmalec_demo_moves_all_sixteen_joints_without_faults() -> None:
     assert np.all(moved > 3.0)  # every joint, the crawler included, really moved
     summary = summarize(loop, rig=system.rig.name, seed=2, realtime=False, overruns=0)
     assert summary["faults"] == [] and len(summary["joints"]) == 16
+    system.close()
+
+
+def test_the_crawlers_hbridge_noise_reaches_only_the_arm_units_adc() -> None:
+    """Each unit's electronics are its own (docs/melmalec.md): the bridge's switching noise is
+    coupled into adc4 (the arm's, which also reads the crawler's current) and no other ADC."""
+    system = build_emulated_rig("melmalec-16", seed=0)
+    coupled = {name: len(b._noise_sources) for name, b in system.crate.boards.items() if name.startswith("adc")}
+    assert coupled == {"adc0": 0, "adc1": 0, "adc2": 0, "adc3": 0, "adc4": 1}
     system.close()

@@ -17,7 +17,7 @@ from types import ModuleType
 from servo.interrupts import Terminated, interrupt_exit_status
 from vmehil import can_options, fault_options, vision_options
 from vmehil.cli_types import duration_s, seed
-from vmehil.commands import console_port_needs_serial, refuse_without
+from vmehil.commands import console_port_needs_serial, refuse_without, run_units
 from vmehil.console import extension as console_extension
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
 from vmehil.files import write_json
@@ -72,6 +72,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="on a real bus, run the loop after the dry pass (without it: the checks only)")
     for ext in RUN_EXTENSIONS:
         ext.add_arguments(p)
+    run_units.add_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -103,6 +104,18 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
+    parallel = getattr(args, "units", "single") == "parallel"
+    if parallel:
+        refused = run_units.refused_options(args) + ([] if args.bus == "emulated" else ["--bus"])
+        if refused:
+            print(f"vmehil run --units parallel: {', '.join(refused)} not supported with parallel units "
+                  "(docs/melmalec.md)", file=sys.stderr)
+            return 2
+        from servo.units import rig_units
+        if not rig_units(rig):
+            print(f"vmehil run --units parallel: rig {rig.name} ({rig.path}) declares no [[rig.unit]] tables",
+                  file=sys.stderr)
+            return 2
     if getattr(args, "bus", "emulated") != "emulated":
         from vmehil.commands.run_real import run_on_real_bus
         return run_on_real_bus(args, rig, gains, exit_status=run_exit_status)
@@ -136,6 +149,8 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     if not duration > 0:
         raise ValueError("--duration must be > 0")
     n_ticks = round(duration * rig.servo_rate_hz)
+    if parallel:
+        return run_units.run_parallel(args, rig, gains, motion, n_ticks, _make_link(args, rig))
     system = _build_calibrated(args, rig, build_emulated_rig)
     loop = build_loop(system, motion=motion, gains=gains, n_ticks=n_ticks,
                       switch_off=False if args.no_integrator_switch_off else None)

@@ -1,0 +1,245 @@
+"""MELMALEC's five unit controllers in parallel (threads, one plant in lockstep): the key check
+is bit-identity with the single controller of all sixteen joints for the same seed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from servo.runner import LockstepRunner
+from vmehil.session import build_loop
+from vmehil.system import build_emulated_rig
+from vmehil.units.coordinator import run_units
+
+N_TICKS = 250
+
+
+def single_run(seed: int, n_ticks: int) -> dict[str, np.ndarray]:
+    system = build_emulated_rig("melmalec-16", seed=seed)
+    loop = build_loop(system, n_ticks=n_ticks)
+    with loop.armed():
+        LockstepRunner(system, loop).run(n_ticks)
+    assert loop.fault is None
+    system.close()
+    return loop.recorder.trimmed()
+
+
+def test_parallel_units_in_lockstep_equal_the_single_controller_bit_for_bit() -> None:
+    ref = single_run(3, N_TICKS)
+    run = run_units("melmalec-16", seed=3, n_ticks=N_TICKS)
+    try:
+        assert all(u.error is None and u.completed == N_TICKS for u in run.units)
+        assert all(u.loop.fault is None for u in run.units)
+        got = run.recorded()
+        for key in ref:
+            if key == "compute_s":
+                continue
+            assert np.array_equal(ref[key], got[key], equal_nan=True), key
+        moved = np.degrees(np.abs(got["theta_true"][-1] - got["theta_true"][0]))
+        assert np.all(moved > 1.0)  # every joint really moved: the check compares motion, not rest
+        assert run.hub.exchanges == N_TICKS + 1  # power-up + one per tick, each with every unit in
+    finally:
+        run.close()
+
+
+def test_parallel_units_with_the_plant_node_over_can_equal_the_single_controller() -> None:
+    """The plant of all 16 joints as the CAN plant node (python-can `virtual`, a node thread),
+    stepped by the hub once every unit's commands are in: still bit-identical."""
+    from vmehil.can_options import CanPlantOptions
+
+    n = 120
+    ref = single_run(4, n)
+    link = CanPlantOptions(interface="virtual", channel="melmalec-units", own_node=True).open_link("melmalec-16", 4)
+    run = run_units("melmalec-16", seed=4, n_ticks=n, link=link)
+    try:
+        assert all(u.error is None and u.completed == n and u.loop.fault is None for u in run.units)
+        got = run.recorded()
+        for key in ref:
+            if key != "compute_s":
+                assert np.array_equal(ref[key], got[key], equal_nan=True), key
+    finally:
+        run.close()
+
+
+# --- faults: every unit stops; the checks read the boards' outputs and the plant's amplifiers --
+class BoardProbe:
+    """After every tick of every unit: are all the unit's amplifier enables low (PIO lines), its
+    DAC outputs at 0 V once settled (the board's output at now + its settling time, a few µs)
+    and its PWM duty 0, on its own boards?"""
+
+    def __init__(self) -> None:
+        self.off: dict[str, dict[int, bool]] = {}
+
+    def __call__(self, name: str, system, loop) -> None:
+        s = system.crate.signals
+        off = True
+        for j in system.rig.joints:
+            if "amp_enable" in j.wiring and s.get_digital(j.net("amp_enable")):
+                off = False
+            if "pwm" in j.wiring and s.get_analog(j.net("pwm")) != 0.0:
+                off = False
+            if "amp_command" in j.wiring:
+                pin = j.wiring["amp_command"]
+                dac = system.crate.boards[pin.board]
+                if dac.output_volts(pin.index, dac.now_ns + dac.settling_time_ns) != 0.0:
+                    off = False
+        self.off.setdefault(name, {})[loop.tick_count - 1] = off
+
+    def first_off(self, name: str) -> int:
+        """The first tick from which the unit's boards stayed off to the end."""
+        seen = self.off[name]
+        return min(k for k, off in seen.items() if off and all(seen[i] for i in seen if i >= k))
+
+
+def chain(*hooks):
+    def run_all(name, system, loop):
+        for h in hooks:
+            h(name, system, loop)
+    return run_all
+
+
+def test_a_fault_in_one_unit_stops_every_unit_in_the_same_tick() -> None:
+    """leg2's loop safe-stops in tick 100: every other unit safe-stops in tick 100 too (its own
+    boards: enables low, 0 V), the plant has leg2's amplifiers off from exchange 101 (tick 100)
+    and every amplifier off from the next."""
+    probe = BoardProbe()
+
+    def inject(name, system, loop):
+        if name == "leg2" and loop.tick_count == 100:
+            loop.submit(lambda lp: lp.safe_stop("injected", "test: a fault in unit leg2"))
+
+    run = run_units("melmalec-16", seed=1, n_ticks=140, after_tick=chain(inject, probe))
+    try:
+        for u in run.units:
+            assert probe.off[u.unit.name][99] is False  # moving, amplifiers on, before the fault
+            assert probe.first_off(u.unit.name) == 100, u.unit.name
+            # a stop at the boundary (after tick 100's exchange) is recorded with the loop's
+            # counter already at 101, as any plant-boundary stop is (servo.runner)
+            assert u.loop.fault.tick == (100 if u.unit.name == "leg2" else 101)
+            assert u.loop.fault.cause == ("injected" if u.unit.name == "leg2" else "unit_stop")
+        on = run.hub.amps_on  # index = exchange: 0 power-up, k + 1 after tick k
+        assert on[100] == 16 and on[101] == 13 and all(x == 0 for x in on[102:])
+        assert run.hub.stop.unit == "leg2" and run.hub.stop.exchange == 101
+    finally:
+        run.close()
+
+
+def test_a_unit_that_dies_with_an_exception_stops_every_unit_within_one_tick() -> None:
+    probe = BoardProbe()
+
+    def die(name, system, loop):
+        if name == "leg4" and loop.tick_count == 81:
+            raise RuntimeError("test: unit leg4 dies")
+
+    run = run_units("melmalec-16", seed=1, n_ticks=120, after_tick=chain(probe, die))
+    try:
+        leg4 = next(u for u in run.units if u.unit.name == "leg4")
+        assert leg4.loop.fault.cause == "exception" and leg4.completed == 80
+        probe("leg4", leg4.system, leg4.loop)  # its runner ended: read its boards as they were left
+        assert probe.off["leg4"][leg4.loop.tick_count - 1] is True
+        for u in run.units:
+            assert probe.off[u.unit.name][79] is False
+            if u is not leg4:  # the others stop in the tick the dead unit's stop reached the plant
+                assert probe.first_off(u.unit.name) == 81, u.unit.name
+                assert u.loop.fault.cause == "unit_stop"
+        assert all(x == 0 for x in run.hub.amps_on[83:])  # the plant: all off within 2 exchanges
+    finally:
+        run.close()
+
+
+def test_a_silent_unit_is_declared_lost_its_amplifiers_cut_and_every_unit_stops() -> None:
+    """leg3 hangs after tick 50 (it waits until the hub has declared it lost — no sleep). The
+    others wait timeout_s for its tick-51 commands, the plant steps with leg3's amplifiers off,
+    and every other unit safe-stops in tick 51; leg3, when it comes back, refuses to go on."""
+    probe = BoardProbe()
+    holder: dict = {}
+
+    def hang(name, system, loop):
+        if name == "leg3" and loop.tick_count == 51:
+            assert holder["hub"].lost.wait(timeout=60.0)
+
+    import vmehil.units.coordinator as coordinator
+
+    original = coordinator.PlantHub
+
+    def capture(*a, **kw):
+        holder["hub"] = original(*a, **kw)
+        return holder["hub"]
+
+    coordinator.PlantHub = capture  # type: ignore[misc]
+    try:
+        run = run_units("melmalec-16", seed=1, n_ticks=90, timeout_s=1.0, after_tick=chain(probe, hang))
+    finally:
+        coordinator.PlantHub = original  # type: ignore[misc]
+    try:
+        for u in run.units:
+            assert probe.off[u.unit.name][50] is False
+            assert probe.first_off(u.unit.name) == 51, u.unit.name
+            assert u.loop.fault.cause == "unit_lost"
+        on = run.hub.amps_on
+        assert on[51] == 16 and on[52] == 13 and all(x == 0 for x in on[53:])
+        assert run.hub.stop.unit == "leg3" and run.hub.stop.what.startswith("lost")
+    finally:
+        run.close()
+
+
+def test_a_rig_without_units_is_refused_for_parallel_runs() -> None:
+    from vmehil.units.coordinator import UnitsRefused
+
+    with pytest.raises(UnitsRefused, match="no \\[\\[rig.unit\\]\\] tables"):
+        run_units("jpl-arm", n_ticks=10)
+
+
+def test_an_abort_stops_every_unit_at_its_next_tick() -> None:
+    """What Ctrl-C / SIGTERM to the coordinator does (it sets the abort event): every unit
+    safe-stops at its next tick boundary; its boards read off."""
+    import threading
+
+    probe = BoardProbe()
+    abort = threading.Event()
+
+    def hook(name, system, loop):
+        if name == "leg1" and loop.tick_count == 60:
+            abort.set()
+
+    run = run_units("melmalec-16", seed=1, n_ticks=1500, after_tick=chain(probe, hook), abort=abort)
+    try:
+        for u in run.units:
+            name, loop = u.unit.name, u.loop
+            assert loop.fault is not None and loop.fault.cause in ("interrupted", "unit_stop"), name
+            assert loop.final_stop["verified"], name
+            probe(name, u.system, loop)  # the boards as the unit left them
+            assert probe.off[name][loop.tick_count - 1] is True, name
+            assert loop.tick_count <= 62  # stopped within a tick or two of the abort, not at the end
+    finally:
+        run.close()
+
+
+def test_ctrl_c_to_the_coordinator_leaves_every_unit_safe_stopped_and_goes_on() -> None:
+    """A real KeyboardInterrupt in the main thread (interrupt_main, with Python's own SIGINT
+    handler): run_units sets the abort, joins every unit and re-raises; every unit's boards
+    read off."""
+    import _thread
+    import signal
+
+    seen: dict = {}
+    probe = BoardProbe()
+
+    def hook(name, system, loop):
+        seen[name] = (system, loop)
+        if name == "leg1" and loop.tick_count == 60:
+            _thread.interrupt_main()
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_units("melmalec-16", seed=1, n_ticks=1500, after_tick=hook)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert sorted(seen) == sorted(("leg1", "leg2", "leg3", "leg4", "arm"))
+    for name, (system, loop) in seen.items():
+        assert loop.final_stop is not None and loop.final_stop["verified"], name
+        probe(name, system, loop)
+        assert probe.off[name][loop.tick_count - 1] is True, name
+    for system, _ in seen.values():
+        system.close()

@@ -1,0 +1,143 @@
+"""`vmehil unit` ×5 and `vmehil coordinate` as separate processes over udp_multicast (only inside
+a private network namespace: `make test`, or the unshare line of RULES.md)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from emulators.can.bus import private_multicast_namespace
+from emulators.presets import resolve_rig
+from servo.rig import load_rig
+from servo.units import rig_units
+
+pytestmark = pytest.mark.skipif(not private_multicast_namespace(),
+                                reason="udp_multicast only inside a private namespace")
+
+UNITS = ("leg1", "leg2", "leg3", "leg4", "arm")
+
+
+def vmehil(*args: str) -> list[str]:
+    return [sys.executable, "-m", "vmehil", *args]
+
+
+def start_units(tmp_path, *extra: str) -> dict[str, subprocess.Popen]:
+    return {name: subprocess.Popen(vmehil("unit", "--rig", "melmalec-16", "--unit", name,
+                                          "--interface", "udp_multicast", "--start-timeout", "120",
+                                          "--json", str(tmp_path / f"{name}.json"),
+                                          "--record", str(tmp_path / f"{name}.npz"), *extra),
+                                   stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            for name in UNITS}
+
+
+def wait_all(procs: dict[str, subprocess.Popen], timeout: float = 300.0) -> dict[str, int]:
+    codes = {}
+    for name, p in procs.items():
+        try:
+            p.wait(timeout=timeout)
+        finally:
+            if p.poll() is None:
+                p.kill()
+        codes[name] = p.returncode
+    return codes
+
+
+def wait_for_exchange(at_least: int) -> None:
+    """Listen on the unit bus until the coordinator has answered exchange ``at_least``."""
+    from vmehil.units.remote import unit_bus
+
+    bus = unit_bus("udp_multicast", None)
+    try:
+        while True:
+            f = bus.recv(120.0)
+            assert f is not None, "the run did not reach that exchange"
+            if f.kind == "UNIT_ANSWER" and int(f.raw["Exchange"]) >= at_least:
+                return
+    finally:
+        bus.close()
+
+
+@pytest.mark.slow
+def test_unit_processes_in_lockstep_equal_the_single_controller_bit_for_bit(tmp_path) -> None:
+    from tests.vmehil.test_units_parallel import single_run
+
+    units = start_units(tmp_path)
+    coord = subprocess.run(vmehil("coordinate", "--rig", "melmalec-16", "--seed", "3", "--duration", "1",
+                                  "--interface", "udp_multicast", "--start-timeout", "120",
+                                  "--json", str(tmp_path / "coordinator.json")),
+                           capture_output=True, text=True, timeout=600)
+    assert coord.returncode == 0, coord.stderr
+    assert set(wait_all(units).values()) == {0}
+    summary = json.loads((tmp_path / "coordinator.json").read_text())
+    assert summary["stop"] is None and summary["plant_steps"] == 126
+    spec = load_rig(resolve_rig("melmalec-16"))
+    ref = single_run(3, 125)
+    for key in ("theta_true", "omega_true", "theta", "omega", "torque", "current_cmd", "current", "theta_d"):
+        got = np.full_like(ref[key], np.nan)
+        for u in rig_units(spec):
+            got[:, list(u.indices)] = np.load(tmp_path / f"{u.name}.npz")[key]
+        assert np.array_equal(ref[key], got, equal_nan=True), key
+
+
+@pytest.mark.slow
+def test_a_killed_unit_process_stops_every_unit_and_its_amplifiers(tmp_path) -> None:
+    """SIGKILL leg3 mid-move: the coordinator declares it lost at the exchange it missed (after
+    --unit-timeout), the plant steps with leg3's amplifiers off, every other unit safe-stops in
+    that tick (read back from its boards) and the plant ends with every amplifier off."""
+    units = start_units(tmp_path, "--unit-timeout", "10")
+    coord = subprocess.Popen(vmehil("coordinate", "--rig", "melmalec-16", "--seed", "1", "--duration", "60",
+                                    "--interface", "udp_multicast", "--start-timeout", "120", "--unit-timeout", "1",
+                                    "--json", str(tmp_path / "coordinator.json")),
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for_exchange(150)
+        os.kill(units["leg3"].pid, signal.SIGKILL)
+        coord.wait(timeout=300)
+        codes = wait_all(units)
+    finally:
+        for p in (coord, *units.values()):
+            if p.poll() is None:
+                p.kill()
+    assert codes["leg3"] == -signal.SIGKILL
+    summary = json.loads((tmp_path / "coordinator.json").read_text())
+    stop = summary["stop"]
+    assert stop["unit"] == "leg3" and stop["what"].startswith("lost")
+    lost_at = stop["exchange"]
+    on = summary["amps_on"]  # per plant step: 0 power-up, k + 1 after tick k; the last: all idle
+    assert on[lost_at - 1] == 16 and on[lost_at] == 13 and on[-1] == 0
+    for name in UNITS:
+        if name == "leg3":
+            continue
+        assert codes[name] == 1
+        s = json.loads((tmp_path / f"{name}.json").read_text())
+        fault = s["faults"][0]
+        assert fault["cause"] == "unit_lost"
+        assert fault["tick"] == lost_at  # stopped in the tick whose exchange leg3 missed
+        assert s["final_stop"]["verified"] is True  # enables low, DACs 0 V, read back from its boards
+
+
+@pytest.mark.slow
+def test_the_coordinators_death_safe_stops_every_unit(tmp_path) -> None:
+    units = start_units(tmp_path, "--unit-timeout", "1")
+    coord = subprocess.Popen(vmehil("coordinate", "--rig", "melmalec-16", "--seed", "1", "--duration", "60",
+                                    "--interface", "udp_multicast", "--start-timeout", "120"),
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        wait_for_exchange(150)
+        os.kill(coord.pid, signal.SIGKILL)
+        codes = wait_all(units)
+    finally:
+        for p in (coord, *units.values()):
+            if p.poll() is None:
+                p.kill()
+    for name in UNITS:
+        assert codes[name] == 1, units[name].stderr.read() if units[name].stderr else name
+        s = json.loads((tmp_path / f"{name}.json").read_text())
+        assert s["faults"][0]["cause"] == "coordinator_lost"
+        assert s["final_stop"]["verified"] is True

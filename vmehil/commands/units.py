@@ -1,0 +1,143 @@
+"""``vmehil unit`` and ``vmehil coordinate``: the rig's unit controllers as separate processes.
+
+    vmehil coordinate --rig melmalec-16 [--seed N] [--duration S] [--motion PATH] [--gains ..]
+                      [--interface udp_multicast] [--channel GROUP] [--unit-timeout S] [--json PATH]
+    vmehil unit --rig melmalec-16 --unit leg1 [--motion PATH] [--interface udp_multicast]
+                [--channel GROUP] [--unit-timeout S] [--realtime] [--json PATH] [--record PATH.npz]
+
+One ``vmehil unit`` per ``[[rig.unit]]`` of the rig file (on this host or on others on a real
+bus) and one ``vmehil coordinate``; they meet on the unit bus (default channel: ``vmehil-units``
+on ``virtual``, ``239.74.163.3`` on ``udp_multicast``, ``vcan1`` on ``socketcan``), see
+docs/melmalec.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from vmehil.cli_types import bounded_float, duration_s
+from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
+from vmehil.files import write_json
+
+EXIT_REFUSED = 2
+
+
+def _bus_args(p: argparse.ArgumentParser) -> None:
+    from vmehil.units.hub import UNIT_TIMEOUT_S
+    from vmehil.units.remote import START_TIMEOUT_S
+
+    p.add_argument("--interface", default=None, help="python-can interface of the unit bus (virtual, socketcan, "
+                                                     "udp_multicast)")
+    p.add_argument("--channel", default=None,
+                   help="the unit bus's channel (default vmehil-units / vcan1 / 239.74.163.3: never the plant bus's)")
+    p.add_argument("--can-log", default=None, metavar="PATH", help="record the unit bus from this side")
+    p.add_argument("--unit-timeout", type=bounded_float(0.001, 3600.0, what="a timeout (s)"), default=UNIT_TIMEOUT_S,
+                   help=f"wall seconds without an answer (unit) or a unit's commands (coordinator) before a safe "
+                        f"stop ({UNIT_TIMEOUT_S:g})")
+    p.add_argument("--start-timeout", type=bounded_float(0.001, 3600.0, what="a timeout (s)"), default=START_TIMEOUT_S,
+                   help=f"wall seconds to wait for the run to start ({START_TIMEOUT_S:g})")
+    p.add_argument("--motion", default=None, help="motion file (the same on every unit and the coordinator)")
+    p.add_argument("--json", default=None, help="write the summary here")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from vmehil.commands.run import add_rig_args
+
+    p = sub.add_parser("unit", help="run one unit controller of the rig (its own boards) on the unit bus")
+    add_rig_args(p)
+    p.add_argument("--unit", required=True, help="the unit's name ([[rig.unit]] name)")
+    p.add_argument("--realtime", action="store_true", help="pace the unit's ticks by the wall clock")
+    p.add_argument("--record", default=None, metavar="PATH.npz", help="write the unit's recorded arrays here")
+    _bus_args(p)
+    p.set_defaults(func=run_unit_command)
+
+    c = sub.add_parser("coordinate", help="coordinate the rig's unit controllers and serve them the plant")
+    add_rig_args(c)
+    c.add_argument("--duration", type=duration_s, default=8.0, help="seconds to run (default 8)")
+    c.add_argument("--gains", default=None, help="every joint's gains kp=..,kpi=..,kv=..,kvi=.. (to every unit)")
+    c.add_argument("--no-integrator-switch-off", action="store_true", help="keep the integrators fed at rest")
+    _bus_args(c)
+    c.set_defaults(func=run_coordinator_command)
+
+
+def _load(args: argparse.Namespace):
+    from emulators.presets import resolve_rig
+    from servo.rig import load_rig
+
+    return load_rig(resolve_rig(args.rig))
+
+
+def run_unit_command(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from servo.runner import RealtimeRunner
+    from vmehil.run_report import summarize
+    from vmehil.units.processes import run_unit
+    from vmehil.units.remote import UnitRefused, unit_bus
+
+    spec = _load(args)
+    bus = unit_bus(args.interface, args.channel, args.can_log)
+    try:
+        out = run_unit(spec, args.unit, bus, timeout_s=args.unit_timeout, start_timeout_s=args.start_timeout,
+                       motion_path=args.motion, realtime=args.realtime,
+                       realtime_options={"overrun": "warn", "max_lateness_periods": 5.0})
+    except UnitRefused as e:
+        print(f"vmehil unit {args.unit}: refused: {e}", file=sys.stderr)
+        return EXIT_REFUSED
+    finally:
+        bus.close()
+    loop, runner = out.loop, out.runner
+    assert loop is not None and runner is not None
+    timing = runner.timing.summary(spec.period_s) if isinstance(runner, RealtimeRunner) else None
+    summary = summarize(loop, rig=spec.name, seed=out.seed, realtime=args.realtime, overruns=runner.overruns,
+                        timing=timing)
+    summary.update(unit=args.unit, completed=out.completed, ended=out.ended)
+    fault = loop.fault
+    print(f"unit {args.unit}: {out.completed} ticks; " + ("ran to the end" if fault is None else
+          f"stopped: {fault.cause} at tick {fault.tick}: {fault.detail}") +
+          f"; final stop {'verified' if not loop.stop_incomplete else 'INCOMPLETE'}", file=sys.stderr)
+    if args.json:
+        write_json(args.json, summary)
+    if args.record:
+        rec = loop.recorder.trimmed() if loop.recorder is not None else {}
+        np.savez(args.record, **rec)  # type: ignore[arg-type]  # (numpy stubs: **kwds vs allow_pickle)
+    if out.system is not None:
+        out.system.close()
+    if loop.stop_incomplete:
+        return EXIT_STOP_INCOMPLETE
+    return EXIT_FAULT if fault is not None else 0
+
+
+def run_coordinator_command(args: argparse.Namespace) -> int:
+    from servo.control.gains import parse_gains
+    from servo.gain_guard import check_values
+    from vmehil.units.processes import run_coordinator
+    from vmehil.units.remote import UnitRefused, unit_bus
+
+    spec = _load(args)
+    gains = check_values(parse_gains(args.gains, what="--gains"))
+    n_ticks = round(args.duration * spec.servo_rate_hz)
+    bus = unit_bus(args.interface, args.channel, args.can_log)
+    try:
+        out = run_coordinator(spec, bus, seed=args.seed, n_ticks=n_ticks, timeout_s=args.unit_timeout,
+                              start_timeout_s=args.start_timeout, motion_path=args.motion, gains=gains,
+                              switch_off=False if args.no_integrator_switch_off else None)
+    except UnitRefused as e:
+        print(f"vmehil coordinate: {e}", file=sys.stderr)
+        return EXIT_REFUSED
+    finally:
+        bus.close()
+    stop = out.stop
+    print(f"coordinate: {out.exchanges} plant steps; " +
+          ("every unit ran to the end" if stop is None else f"stop: unit {stop.unit} at exchange {stop.exchange}: "
+                                                            f"{stop.what}"), file=sys.stderr)
+    for note in out.refused:
+        print(f"coordinate: {note}", file=sys.stderr)
+    if args.json:
+        write_json(args.json, {
+            "rig": spec.name, "seed": args.seed, "ticks": n_ticks, "plant_steps": out.exchanges,
+            "stop": None if stop is None else {"unit": stop.unit, "exchange": stop.exchange, "what": stop.what},
+            "events": [{"exchange": e.exchange, "unit": e.unit, "what": e.what} for e in out.events],
+            "amps_on": out.amps_on, "refused": out.refused})
+    return 0 if stop is None else EXIT_FAULT

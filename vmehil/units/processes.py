@@ -1,0 +1,109 @@
+"""One unit controller, or the coordinator, as its own process on the unit bus (docs/melmalec.md).
+
+:func:`run_unit` is what ``vmehil unit --rig melmalec-16 --unit leg1`` runs: announce itself,
+wait for the coordinator's start, build its own boards, plan the global motion from every
+unit's start, run its loop in lockstep inside :meth:`ServoLoop.armed` (every exit path ends with
+its amplifiers disabled and its DACs at 0 V, read back), and leave. :func:`run_coordinator` is
+``vmehil coordinate``: the plant of every joint (in this process) served to the units.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+from typing import Any
+
+import numpy as np
+
+from servo.motion import default_demo_motion, load_motion
+from servo.rig import RigSpec
+from servo.runner import LockstepRunner, RealtimeRunner
+from servo.trajectory.base import JointLimits
+from servo.trajectory.sequencer import PlanContext
+from servo.units import UnitSegments, rig_units, unit_named, unit_rig
+from vmehil.session import build_loop, servo_settings
+from vmehil.system import build_emulated_rig
+from vmehil.units.coordinator import UnitRun, plant_link_for
+from vmehil.units.remote import (
+    START_TIMEOUT_S,
+    CoordinatorOutcome,
+    UnitBus,
+    UnitCanLink,
+    UnitRefused,
+    coordinate,
+    file_digest,
+    start_gains,
+    start_switch_off,
+    unit_number,
+    wait_for_start,
+)
+
+
+def boot_id() -> int:
+    """A boot identifier: this process's, different at every start (as the plant node's)."""
+    return (os.getpid() ^ random.SystemRandom().getrandbits(16)) & 0xFFFF or 1
+
+
+def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, start_timeout_s: float = START_TIMEOUT_S,
+             motion_path: str | None = None, realtime: bool = False,
+             realtime_options: dict[str, Any] | None = None) -> UnitRun:
+    units = rig_units(spec)
+    unit = unit_named(units, unit_name, str(spec.path))
+    number = unit_number(spec, unit_name)
+    boot = boot_id()
+    start = wait_for_start(bus, number=number, digest=file_digest(spec.path), boot_id=boot, timeout_s=start_timeout_s)
+    if int(start.raw["MotionDigest"]) != file_digest(motion_path):
+        raise UnitRefused("the coordinator's motion differs from this unit's (give every unit and the coordinator "
+                          "the same --motion file, or none)")
+    seed, n_ticks = int(start.raw["Seed"]), int(start.raw["NTicks"])
+    out = UnitRun(unit, seed=seed)
+    link = UnitCanLink(bus, unit, number, boot, timeout_s)
+    try:
+        system = out.system = build_emulated_rig(unit_rig(spec, unit), seed=seed, link=link)  # power-up: exchange 0
+        theta = np.asarray(system.io.read().theta, float)  # the unit's only read before its loop
+        pad = [float(x) for x in theta] + [float("nan")] * (4 - len(theta))
+        bus.send("UNIT_POS", Unit=number, **{f"Theta{i}": pad[i] for i in range(4)})
+        link.positions[number] = pad
+        while len(link.positions) < len(units):
+            f = bus.recv(timeout_s)
+            if f is None:
+                raise UnitRefused(f"the other units' start positions did not come within {timeout_s:g} s")
+            if f.kind == "UNIT_POS":
+                link.positions[int(f.raw["Unit"])] = [float(f.raw[f"Theta{i}"]) for i in range(4)]
+        start_all = np.full(spec.n_joints, np.nan)
+        for i, u in enumerate(units):
+            start_all[list(u.indices)] = link.positions[i][:len(u.indices)]
+        motion = load_motion(motion_path, spec.n_joints) if motion_path else default_demo_motion(spec.n_joints)
+        limits = JointLimits.make(spec.n_joints, servo_settings(spec).max_velocity_rad_s)
+        segments = UnitSegments(list(motion.moves), start_all, PlanContext(limits), unit.indices)
+        loop = out.loop = build_loop(system, sequencer=segments, gains=start_gains(start) or None,
+                                     switch_off=start_switch_off(start), n_ticks=n_ticks)
+        link.stopped = lambda: None if loop.fault is None else f"{loop.fault.cause}: {loop.fault.detail}"
+        runner = out.runner = (RealtimeRunner(system, loop, **(realtime_options or {})) if realtime
+                               else LockstepRunner(system, loop))
+        with loop.armed():
+            # a stopped unit's run ends: the others stop in the same exchange (module remote)
+            out.completed = runner.run(n_ticks, stop=lambda: loop.fault is not None)
+        if runner.ended_by is not None:
+            out.ended = f"{type(runner.ended_by).__name__}: {runner.ended_by}"
+        elif loop.fault is not None:
+            out.ended = f"{loop.fault.cause}: {loop.fault.detail}"
+    except BaseException as e:
+        out.ended = f"{type(e).__name__}: {e}"
+        if out.system is not None:  # before or outside armed(): the boards safe all the same
+            out.system.io.safe_stop()
+        raise
+    finally:
+        link.leave(out.ended)
+    return out
+
+
+def run_coordinator(spec: RigSpec, bus: UnitBus, *, seed: int, n_ticks: int, timeout_s: float,
+                    start_timeout_s: float = START_TIMEOUT_S, motion_path: str | None = None,
+                    gains: dict[str, float] | None = None, switch_off: bool | None = None) -> CoordinatorOutcome:
+    link = plant_link_for(spec, seed)
+    try:
+        return coordinate(spec, bus, link, seed=seed, n_ticks=n_ticks, boot_id=boot_id(), motion_path=motion_path,
+                          gains=gains, switch_off=switch_off, timeout_s=timeout_s, start_timeout_s=start_timeout_s)
+    finally:
+        link.close()
