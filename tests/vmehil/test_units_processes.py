@@ -92,7 +92,7 @@ def test_a_killed_unit_process_stops_every_unit_and_its_amplifiers(tmp_path) -> 
     that tick (read back from its boards) and the plant ends with every amplifier off."""
     units = start_units(tmp_path, "--unit-timeout", "10")
     coord = subprocess.Popen(vmehil("coordinate", "--rig", "melmalec-16", "--seed", "1", "--duration", "60",
-                                    "--interface", "udp_multicast", "--start-timeout", "120", "--unit-timeout", "1",
+                                    "--interface", "udp_multicast", "--start-timeout", "120", "--unit-timeout", "5",
                                     "--json", str(tmp_path / "coordinator.json")),
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
@@ -124,7 +124,8 @@ def test_a_killed_unit_process_stops_every_unit_and_its_amplifiers(tmp_path) -> 
 
 @pytest.mark.slow
 def test_the_coordinators_death_safe_stops_every_unit(tmp_path) -> None:
-    units = start_units(tmp_path, "--unit-timeout", "1")
+    # 5 s: six processes share two cores here; only the kill may make the coordinator silent that long
+    units = start_units(tmp_path, "--unit-timeout", "5")
     coord = subprocess.Popen(vmehil("coordinate", "--rig", "melmalec-16", "--seed", "1", "--duration", "60",
                                     "--interface", "udp_multicast", "--start-timeout", "120"),
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
