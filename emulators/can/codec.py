@@ -21,7 +21,7 @@ period (first and last; more are spaced evenly between them), ground truth float
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -299,18 +299,8 @@ class CanCodec:
     def sensors_from_raw(self, raw: dict[str, np.ndarray], sensors_type: Callable[..., Any],
                          truth: dict[str, np.ndarray] | None = None):
         """Raw signal arrays → a sensors object built with ``sensors_type(**fields)``."""
-        events = []
-        cache = _EVENTS
-        for fields in zip(*(np.asarray(raw[k]).tolist() for k in _EVENT_SIGNALS), strict=True):
-            key = tuple(int(x) for x in fields)  # counts, illegal, index count, first, last, phase
-            ev = cache.get(key)
-            if ev is None:  # QuadratureEvents is frozen: equal events can be one object
-                if len(cache) > 4096:
-                    cache.clear()
-                c, il, k, f, la, ph = key
-                ev = cache[key] = QuadratureEvents(counts=c, illegal=il, index_offsets=index_offsets(k, f, la),
-                                                   phase=ph)
-            events.append(ev)
+        events = [_events(*(int(x) for x in fields))
+                  for fields in zip(*(np.asarray(raw[k]).tolist() for k in _EVENT_SIGNALS), strict=True)]
         return sensors_type(
             pot_v=self._p("SENS", "PotVoltage", raw["PotVoltage"]),
             tach_v=self._p("SENS", "TachVoltage", raw["TachVoltage"]),
@@ -326,6 +316,17 @@ class CanCodec:
         data = msg.encode(values, scaling=False, padding=False, strict=False)
         return can.Message(arbitration_id=msg.frame_id, data=data, is_extended_id=False, is_fd=msg.is_fd,
                            bitrate_switch=msg.is_fd)
+
+    def sensors_from_frames(self, sens: Mapping[int, Mapping[str, Any]], truth: Mapping[int, Mapping[str, Any]],
+                            joints: Sequence[int], sensors_type: Callable[..., Any]):
+        """The decoded SENS (and TRUTH) frames of ``joints`` (raw values by joint number; every
+        joint's SENS present) → a sensors object in ``joints`` order; truth only when every
+        joint's TRUTH frame came."""
+        raw = {k: np.array([sens[j][k] for j in joints]) for k in sens[joints[0]] if k != "Seq"}
+        truth_d = None
+        if all(j in truth for j in joints):
+            truth_d = {key: np.array([truth[j][sig] for j in joints]) for sig, key in TRUTH_SIGNALS.items()}
+        return self.sensors_from_raw(raw, sensors_type, truth_d)
 
     def command_frames(self, raw: dict[str, np.ndarray], seq: int, boot_id: int = 0,
                        joints: Sequence[int] | None = None) -> list[can.Message]:
@@ -405,6 +406,19 @@ _EVENT_SIGNALS = ("EncoderCounts", "EncoderIllegal", "IndexCount", "IndexFirst",
 _EVENTS: dict[tuple[int, ...], QuadratureEvents] = {}
 
 
+def _events(counts: int, illegal: int, index_count: int, first: int, last: int, phase: int) -> QuadratureEvents:
+    """The decoded :class:`QuadratureEvents` of one joint's raw signals, one object per distinct
+    value (it is frozen, so equal events can be shared; the cache is bounded)."""
+    key = (counts, illegal, index_count, first, last, phase)
+    ev = _EVENTS.get(key)
+    if ev is None:
+        if len(_EVENTS) > 4096:
+            _EVENTS.clear()
+        ev = _EVENTS[key] = QuadratureEvents(counts=counts, illegal=illegal,
+                                             index_offsets=index_offsets(index_count, first, last), phase=phase)
+    return ev
+
+
 def index_offsets(count: int, first: int, last: int) -> tuple[int, ...]:
     """Index pulse offsets from (count, first, last): exact for up to two pulses; more are spaced
     evenly from first to last (exact for the once-per-revolution index of a steadily turning
@@ -478,17 +492,7 @@ class DbcExchangeCodec:
             clipped += got[1]
             raws.append(got[0])
         self.can.counters.clipped += clipped
-        events = []
-        cache = _EVENTS
-        for c, il, k, f, la, e in zip(*raws, enc, strict=True):
-            key = (c, il, k, f, la, int(e.phase) % 4)
-            ev = cache.get(key)
-            if ev is None:  # as sensors_from_raw
-                if len(cache) > 4096:
-                    cache.clear()
-                ev = cache[key] = QuadratureEvents(counts=c, illegal=il, index_offsets=index_offsets(k, f, la),
-                                                   phase=key[5])
-            events.append(ev)
+        events = [_events(c, il, k, f, la, int(e.phase) % 4) for c, il, k, f, la, e in zip(*raws, enc, strict=True)]
         switching = np.asarray(s.switching, dtype=bool)
         if switching.shape != (n,):
             switching = np.zeros(n, dtype=bool)

@@ -301,13 +301,7 @@ class CanPlantLink(PlantLink):
         if len(sens) != self.n or any(sens.get(j, {}).get("Seq") != seq for j in range(self.n)):
             c.incomplete += 1
             return
-        raw = {k: np.array([sens[j][k] for j in range(self.n)]) for k in sens[0] if k != "Seq"}
-        truth_d = None
-        if len(truth) == self.n:
-            from emulators.can.codec import TRUTH_SIGNALS
-
-            truth_d = {key: np.array([truth[j][sig] for j in range(self.n)]) for sig, key in TRUTH_SIGNALS.items()}
-        self._fresh.append((tick, self.codec.sensors_from_raw(raw, self.sensors_type, truth_d)))
+        self._fresh.append((tick, self.codec.sensors_from_frames(sens, truth, range(self.n), self.sensors_type)))
 
     # --- the exchange ---------------------------------------------------------------------------
     def exchange(self, cmd, period_s: float, delay_s: float):

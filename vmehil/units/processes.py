@@ -9,12 +9,11 @@ its amplifiers disabled and its DACs at 0 V, read back), and leave. :func:`run_c
 
 from __future__ import annotations
 
-import os
-import random
 from typing import Any
 
 import numpy as np
 
+from emulators.can.node import new_boot_id
 from servo.motion import default_demo_motion, load_motion
 from servo.rig import RigSpec
 from servo.runner import LockstepRunner, RealtimeRunner
@@ -40,8 +39,9 @@ from vmehil.units.remote import (
 
 
 def boot_id() -> int:
-    """A boot identifier: this process's, different at every start (as the plant node's)."""
-    return (os.getpid() ^ random.SystemRandom().getrandbits(16)) & 0xFFFF or 1
+    """A boot identifier: this process's, different at every start — the plant node's
+    :func:`~emulators.can.node.new_boot_id`, never 0."""
+    return new_boot_id() or 1
 
 
 def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, start_timeout_s: float = START_TIMEOUT_S,

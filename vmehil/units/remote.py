@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from emulators.can.bus import Endpoint, open_bus, resolve
-from emulators.can.codec import TRUTH_SIGNALS, CanCodec, Frame, shared_codec
+from emulators.can.codec import CMD_SIGNALS, CanCodec, Frame, shared_codec
 from emulators.can.dbc import (
     ID_SENS,
     ID_TRUTH,
@@ -188,11 +188,7 @@ class UnitCanLink(PlantLink):
         if set(sens) != mine:
             missing = ", ".join(self.unit.joints[self.joints.index(j)] for j in sorted(mine - set(sens)))
             raise AnswerIncompleteError(f"unit {self.unit.name}: the answer to exchange {r} lacks {missing}")
-        sensors = codec.sensors_from_raw(
-            {k: np.array([sens[j][k] for j in self.joints]) for k in sens[self.joints[0]] if k != "Seq"},
-            PlantSensors,
-            truth={key: np.array([float(truth[j][sig]) for j in self.joints]) for sig, key in TRUTH_SIGNALS.items()}
-            if set(truth) == mine else None)
+        sensors = codec.sensors_from_frames(sens, truth, self.joints, PlantSensors)
         self._last = sensors
         stop = int(answer.raw["Stop"])
         if stop and not self._told:
@@ -354,7 +350,7 @@ def _serve(spec: RigSpec, units: list[UnitSpec], bus: UnitBus, codec: CanCodec, 
             if c is None:
                 stop_now(r, u, "ANSWER_INCOMPLETE", f"joint {spec.joints[j].name}'s command frame missing")
                 continue
-            for k in ("AmpCommand", "PwmDuty", "AmpEnable", "FaultReset", "PwmDirection", "Brake"):
+            for k in CMD_SIGNALS:
                 raw[k][j] = c[k]
         raw["Watchdog"] = np.asarray(synced.get(wd_unit, 0) if wd_unit is not None else 0, dtype=np.int64)
         cmd = codec.command_from_raw(raw, PlantCommand)
