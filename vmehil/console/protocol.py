@@ -274,7 +274,7 @@ _MAX_ESCAPE = 32  # bytes of one escape sequence's parameters before it is given
 class LineAssembler:
     """Turns a byte stream into request lines, robust against garbage.
 
-    * ``\r`` and ``\n`` end a line (``\r\n`` gives one line and one ignored blank line);
+    * ``\\r`` and ``\\n`` end a line (``\\r\\n`` gives one line and one ignored blank line);
     * backspace (0x08) and DEL (0x7f) delete the previous byte, Ctrl-C (0x03) and Ctrl-U (0x15)
       discard the line typed so far;
     * ANSI escape sequences (arrow and function keys: ``ESC [ … final``, ``ESC O x``, ``ESC x``)
