@@ -86,7 +86,7 @@ def _bit(name: str, start: int, comment: str, receiver: str) -> Signal:
 NODE_STATES = {0: "BOOT", 1: "READY", 2: "RUNNING", 3: "STOPPED", 4: "FAULT"}
 #: UNIT_STOP.Cause and UNIT_ANSWER.Stop: why every unit stops
 UNIT_STOP_CAUSES = {0: "NONE", 1: "UNIT_STOPPED", 2: "UNIT_LOST", 3: "COORDINATOR_END", 4: "REFUSED_RIG",
-                    5: "REFUSED_LATE", 6: "COORDINATOR_STOPPED", 7: "ANSWER_INCOMPLETE"}
+                    5: "REFUSED_LATE", 6: "COORDINATOR_STOPPED", 7: "ANSWER_INCOMPLETE", 8: "PLANT_LOST"}
 COORDINATOR = "COORDINATOR"
 UNIT = "UNIT"
 #: HEARTBEAT_PLANT.OffCause: the bits of emulators.plant.amplifier.WATCHDOG_EXPIRED / _COMMAND_TIMEOUT

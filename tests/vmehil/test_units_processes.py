@@ -142,3 +142,41 @@ def test_the_coordinators_death_safe_stops_every_unit(tmp_path) -> None:
         s = json.loads((tmp_path / f"{name}.json").read_text())
         assert s["faults"][0]["cause"] == "coordinator_lost"
         assert s["final_stop"]["verified"] is True
+
+
+@pytest.mark.slow
+def test_unit_processes_with_the_coordinator_on_the_plant_node_equal_the_single_controller(tmp_path) -> None:
+    """`vmehil coordinate --plant can`: the plant is `vmehil plant-node` (a seventh process on
+    the plant bus, 239.74.163.2), the units on the unit bus (239.74.163.3): bit-identical."""
+    from tests.vmehil.test_units_parallel import single_run
+
+    node = subprocess.Popen(vmehil("plant-node", "--rig", "melmalec-16", "--interface", "udp_multicast",
+                                   "--command-timeout", "0", "--json", str(tmp_path / "node.json")),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    assert node.stderr is not None
+    assert node.stderr.readline().startswith("plant node: rig melmalec-16")  # serving: the coordinator may connect
+    units = start_units(tmp_path)
+    try:
+        coord = subprocess.run(vmehil("coordinate", "--rig", "melmalec-16", "--seed", "7", "--duration", "0.8",
+                                      "--interface", "udp_multicast", "--plant", "can", "--start-timeout", "120",
+                                      "--can-timeout", "20", "--json", str(tmp_path / "coordinator.json")),
+                               capture_output=True, text=True, timeout=600)
+        assert coord.returncode == 0, coord.stderr
+        assert "the plant node on udp_multicast 239.74.163.2" in coord.stderr
+        assert set(wait_all(units).values()) == {0}
+    finally:
+        node.send_signal(signal.SIGTERM)
+        node.wait(timeout=60)
+        for p in units.values():
+            if p.poll() is None:
+                p.kill()
+    summary = json.loads((tmp_path / "coordinator.json").read_text())
+    assert summary["stop"] is None and summary["plant_steps"] == 101 and summary["plant"] == "can"
+    assert json.loads((tmp_path / "node.json").read_text())["steps"] == 102  # and the last, all off
+    spec = load_rig(resolve_rig("melmalec-16"))
+    ref = single_run(7, 100)
+    for key in ("theta_true", "omega_true", "theta", "omega", "torque", "current_cmd", "current", "theta_d"):
+        got = np.full_like(ref[key], np.nan)
+        for u in rig_units(spec):
+            got[:, list(u.indices)] = np.load(tmp_path / f"{u.name}.npz")[key]
+        assert np.array_equal(ref[key], got, equal_nan=True), key

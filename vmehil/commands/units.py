@@ -41,6 +41,46 @@ def _bus_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", default=None, help="write the summary here")
 
 
+def _plant_args(p: argparse.ArgumentParser) -> None:
+    """Where the coordinator's plant runs: ``--plant inprocess|can`` as ``vmehil run`` spells it;
+    the plant bus is its own (``--plant-interface``, ``--plant-channel``: never the unit bus)."""
+    from vmehil.can_options import PLANT_MODES
+
+    g = p.add_argument_group("the plant (docs/melmalec.md)")
+    g.add_argument("--plant", choices=("inprocess", "can"), default="inprocess",
+                   help="step the plant of every joint in this process (default) or talk to `vmehil plant-node` "
+                        "on the plant bus")
+    g.add_argument("--plant-interface", default=None, metavar="NAME",
+                   help="--plant can: the plant bus's python-can interface (default: the unit bus's)")
+    g.add_argument("--plant-channel", default=None, metavar="NAME",
+                   help="--plant can: the plant bus's channel (default: the interface's plant channel, vmehil / "
+                        "vcan0 / 239.74.163.2 — the plant node's default)")
+    g.add_argument("--plant-mode", choices=PLANT_MODES, default="lockstep",
+                   help="lockstep (default): the plant steps once every unit's commands for the tick are in; "
+                        "free-running: the units and the plant step on the wall clock (docs/melmalec.md)")
+    g.add_argument("--can-timeout", type=bounded_float(0.001, 3600.0, what="a timeout (s)"), default=1.0,
+                   metavar="S", help="--plant can: answer / heartbeat timeout of the plant node in seconds (1.0)")
+
+
+def plant_options(args: argparse.Namespace):
+    """The plant bus's :class:`~vmehil.can_options.CanPlantOptions` for ``--plant can`` (None:
+    in-process). Refuses the unit bus's own channel: both buses carry CMD/SENS frames."""
+    from vmehil.can_options import CanPlantOptions
+    from vmehil.units.remote import unit_channel
+
+    if args.plant != "can":
+        return None
+    iface = args.plant_interface or args.interface
+    opts = CanPlantOptions(interface=iface, channel=args.plant_channel, plant_mode=args.plant_mode,
+                           can_timeout_s=args.can_timeout)
+    p_iface, p_chan = opts.resolved()
+    u_iface, u_chan = unit_channel(args.interface, args.channel)
+    if (p_iface, p_chan) == (u_iface, u_chan):
+        raise ValueError(f"--plant can: the plant bus ({p_iface} {p_chan}) is the unit bus: give the plant node "
+                         f"and the units channels of their own (--plant-channel, --channel)")
+    return opts
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     from vmehil.commands.run import add_rig_args
 
@@ -58,6 +98,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--gains", default=None, help="every joint's gains kp=..,kpi=..,kv=..,kvi=.. (to every unit)")
     c.add_argument("--no-integrator-switch-off", action="store_true", help="keep the integrators fed at rest")
     _bus_args(c)
+    _plant_args(c)
     c.set_defaults(func=run_coordinator_command)
 
 
@@ -118,11 +159,22 @@ def run_coordinator_command(args: argparse.Namespace) -> int:
     spec = _load(args)
     gains = check_values(parse_gains(args.gains, what="--gains"))
     n_ticks = round(args.duration * spec.servo_rate_hz)
-    bus = unit_bus(args.interface, args.channel, args.can_log)
+    plant = plant_options(args)
+    # the plant node first: no node (or another rig, or mode) is an error before any unit waits
+    link = plant.open_link(spec, args.seed) if plant is not None else None
+    try:
+        bus = unit_bus(args.interface, args.channel, args.can_log)
+    except BaseException:
+        if link is not None:
+            link.close()
+        raise
+    if link is not None:
+        iface, chan = plant.resolved()  # type: ignore[union-attr]
+        print(f"coordinate: the plant node on {iface} {chan}", file=sys.stderr)
     try:
         out = run_coordinator(spec, bus, seed=args.seed, n_ticks=n_ticks, timeout_s=args.unit_timeout,
                               start_timeout_s=args.start_timeout, motion_path=args.motion, gains=gains,
-                              switch_off=False if args.no_integrator_switch_off else None)
+                              switch_off=False if args.no_integrator_switch_off else None, plant_link=link)
     except UnitRefused as e:
         print(f"vmehil coordinate: {e}", file=sys.stderr)
         return EXIT_REFUSED
@@ -136,7 +188,8 @@ def run_coordinator_command(args: argparse.Namespace) -> int:
         print(f"coordinate: {note}", file=sys.stderr)
     if args.json:
         write_json(args.json, {
-            "rig": spec.name, "seed": args.seed, "ticks": n_ticks, "plant_steps": out.exchanges,
+            "rig": spec.name, "seed": args.seed, "ticks": n_ticks, "plant": args.plant, "plant_mode": args.plant_mode,
+            "plant_steps": out.exchanges,
             "stop": None if stop is None else {"unit": stop.unit, "exchange": stop.exchange, "what": stop.what},
             "events": [{"exchange": e.exchange, "unit": e.unit, "what": e.what} for e in out.events],
             "amps_on": out.amps_on, "refused": out.refused})

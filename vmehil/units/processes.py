@@ -4,7 +4,8 @@
 wait for the coordinator's start, build its own boards, plan the global motion from every
 unit's start, run its loop in lockstep inside :meth:`ServoLoop.armed` (every exit path ends with
 its amplifiers disabled and its DACs at 0 V, read back), and leave. :func:`run_coordinator` is
-``vmehil coordinate``: the plant of every joint (in this process) served to the units.
+``vmehil coordinate``: the plant of every joint (in this process, or the CAN plant node on the
+plant bus with ``--plant can``) served to the units.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from emulators.can.node import new_boot_id
+from emulators.plant_link import PlantLink
 from servo.motion import default_demo_motion, load_motion
 from servo.rig import RigSpec
 from servo.runner import LockstepRunner, RealtimeRunner
@@ -22,7 +24,7 @@ from servo.trajectory.sequencer import PlanContext
 from servo.units import UnitSegments, rig_units, unit_named, unit_rig
 from vmehil.session import build_loop, servo_settings
 from vmehil.system import build_emulated_rig
-from vmehil.units.coordinator import UnitRun, plant_link_for
+from vmehil.units.coordinator import UnitHook, UnitRun, plant_link_for
 from vmehil.units.remote import (
     START_TIMEOUT_S,
     CoordinatorOutcome,
@@ -46,7 +48,9 @@ def boot_id() -> int:
 
 def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, start_timeout_s: float = START_TIMEOUT_S,
              motion_path: str | None = None, realtime: bool = False,
-             realtime_options: dict[str, Any] | None = None) -> UnitRun:
+             realtime_options: dict[str, Any] | None = None, after_tick: UnitHook | None = None) -> UnitRun:
+    """``vmehil unit``: join the coordinator's run and play this unit's part (module docstring).
+    ``after_tick``: a hook after each of the unit's ticks (tests: probes, a hang)."""
     units = rig_units(spec)
     unit = unit_named(units, unit_name, str(spec.path))
     number = unit_number(spec, unit_name)
@@ -81,6 +85,8 @@ def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, s
         link.stopped = lambda: None if loop.fault is None else f"{loop.fault.cause}: {loop.fault.detail}"
         runner = out.runner = (RealtimeRunner(system, loop, **(realtime_options or {})) if realtime
                                else LockstepRunner(system, loop))
+        if after_tick is not None:
+            runner.after_tick.append(lambda lp: after_tick(unit_name, system, lp))
         with loop.armed():
             # a stopped unit's run ends: the others stop in the same exchange (module remote)
             out.completed = runner.run(n_ticks, stop=lambda: loop.fault is not None)
@@ -100,8 +106,12 @@ def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, s
 
 def run_coordinator(spec: RigSpec, bus: UnitBus, *, seed: int, n_ticks: int, timeout_s: float,
                     start_timeout_s: float = START_TIMEOUT_S, motion_path: str | None = None,
-                    gains: dict[str, float] | None = None, switch_off: bool | None = None) -> CoordinatorOutcome:
-    link = plant_link_for(spec, seed)
+                    gains: dict[str, float] | None = None, switch_off: bool | None = None,
+                    plant_link: PlantLink | None = None) -> CoordinatorOutcome:
+    """``vmehil coordinate``: serve the plant to the units. ``plant_link``: the plant of every
+    joint elsewhere (``--plant can``: a connected link to the CAN plant node, reset with
+    ``seed``; closed here), else the plant in this process."""
+    link = plant_link if plant_link is not None else plant_link_for(spec, seed)
     try:
         return coordinate(spec, bus, link, seed=seed, n_ticks=n_ticks, boot_id=boot_id(), motion_path=motion_path,
                           gains=gains, switch_off=switch_off, timeout_s=timeout_s, start_timeout_s=start_timeout_s)

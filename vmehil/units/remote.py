@@ -47,7 +47,7 @@ from emulators.can.dbc import (
     UNIT_STOP_CAUSES,
 )
 from emulators.plant import PlantCommand, PlantSensors
-from emulators.plant_link import PlantLink, PlantLostError, StaleDataError
+from emulators.plant_link import PlantLink, PlantLinkError, PlantLostError, StaleDataError
 from servo.rig import RigSpec
 from servo.units import UnitSpec, rig_units, watchdog_unit
 from vmehil.units.hub import HubEvent, UnitLostError, UnitStopError
@@ -69,6 +69,12 @@ class CoordinatorLostError(PlantLostError):
     cause = "coordinator_lost"
 
 
+class PlantNodeLostError(PlantLostError):
+    """The coordinator's plant (the CAN plant node, ``--plant can``) failed: every unit stops."""
+
+    cause = "plant_lost"
+
+
 class AnswerIncompleteError(StaleDataError):
     """A frame of the exchange was lost or late: every unit stops in that exchange."""
 
@@ -80,9 +86,14 @@ def file_digest(path: str | Path | None) -> int:
     return 0 if path is None else zlib.crc32(Path(path).read_bytes())
 
 
-def unit_bus(interface: str | None, channel: str | None, log_path: str | None = None) -> UnitBus:
+def unit_channel(interface: str | None, channel: str | None) -> tuple[str, str]:
+    """The unit bus's interface and channel (its own default channel per interface)."""
     iface = resolve(interface, None)[0] if channel is None else resolve(interface, channel)[0]
-    chan = channel or UNIT_CHANNELS.get(iface) or resolve(iface, None)[1]
+    return iface, channel or UNIT_CHANNELS.get(iface) or resolve(iface, None)[1]
+
+
+def unit_bus(interface: str | None, channel: str | None, log_path: str | None = None) -> UnitBus:
+    iface, chan = unit_channel(interface, channel)
     return UnitBus(Endpoint(open_bus(iface, chan), set(), log_path=log_path))
 
 
@@ -185,20 +196,30 @@ class UnitCanLink(PlantLink):
                     raise CoordinatorLostError(f"unit {self.unit.name}: the coordinator ended the run at exchange {r}")
             else:
                 self._note(f)
+        stop = int(answer.raw["Stop"])
         if set(sens) != mine:
+            if stop:  # a stop without the plant's values (the plant node was lost): the stop first
+                self._stop(answer, r)
             missing = ", ".join(self.unit.joints[self.joints.index(j)] for j in sorted(mine - set(sens)))
             raise AnswerIncompleteError(f"unit {self.unit.name}: the answer to exchange {r} lacks {missing}")
         sensors = codec.sensors_from_frames(sens, truth, self.joints, PlantSensors)
         self._last = sensors
-        stop = int(answer.raw["Stop"])
-        if stop and not self._told:
-            self._told = True
-            who = int(answer.raw["StopUnit"])
-            what = UNIT_STOP_CAUSES.get(stop, "UNKNOWN")
-            self.stop_event = HubEvent(r, str(who), what)
-            err = UnitLostError if what == "UNIT_LOST" else UnitStopError
-            raise err(f"unit number {who}: {what.lower()} at exchange {r}: every unit stops")
+        if stop:
+            self._stop(answer, r)
         return sensors
+
+    def _stop(self, answer: Frame, r: int) -> None:
+        """Raise the coordinator's stop carried by ``answer`` (once: a unit is told one stop)."""
+        if self._told:
+            return
+        self._told = True
+        stop, who = int(answer.raw["Stop"]), int(answer.raw["StopUnit"])
+        what = UNIT_STOP_CAUSES.get(stop, "UNKNOWN")
+        self.stop_event = HubEvent(r, str(who), what)
+        if what == "PLANT_LOST":
+            raise PlantNodeLostError(f"the coordinator lost the plant node at exchange {r}: every unit stops")
+        err = UnitLostError if what == "UNIT_LOST" else UnitStopError
+        raise err(f"unit number {who}: {what.lower()} at exchange {r}: every unit stops")
 
     @property
     def codec(self) -> CanCodec:
@@ -335,9 +356,7 @@ def _serve(spec: RigSpec, units: list[UnitSpec], bus: UnitBus, codec: CanCodec, 
             # every unit has left or is lost: one last step with every amplifier off, so the
             # plant ends as the units' safe stops left their boards (a unit that stops ends its
             # run at once and does not send its safe outputs in another exchange)
-            final = link.exchange(PlantCommand.idle(n), spec.period_s, spec.computation_delay_s)
-            enabled = final.truth.get("amp_enabled")
-            out.amps_on.append(int(np.count_nonzero(enabled)) if enabled is not None else -1)
+            out.amps_on.append(_final_step(spec, link))
             break
         if stop_requested():
             stop_now(r, ALL_UNITS, "COORDINATOR_STOPPED", "the coordinator was asked to stop")
@@ -354,15 +373,36 @@ def _serve(spec: RigSpec, units: list[UnitSpec], bus: UnitBus, codec: CanCodec, 
                 raw[k][j] = c[k]
         raw["Watchdog"] = np.asarray(synced.get(wd_unit, 0) if wd_unit is not None else 0, dtype=np.int64)
         cmd = codec.command_from_raw(raw, PlantCommand)
-        sensors = link.exchange(cmd, spec.period_s, 0.0 if r == 0 else spec.computation_delay_s)
-        enabled = sensors.truth.get("amp_enabled")
-        out.amps_on.append(int(np.count_nonzero(enabled)) if enabled is not None else -1)
-        bus.send_all(codec.sensor_frames(codec.sensors_raw(sensors), r, truth=sensors.truth))
+        try:
+            sensors: PlantSensors | None = link.exchange(cmd, spec.period_s,
+                                                         0.0 if r == 0 else spec.computation_delay_s)
+        except PlantLinkError as e:  # the plant node is gone (or stale): every unit stops in this exchange
+            sensors = None
+            stop_now(r, ALL_UNITS, "PLANT_LOST", f"the plant failed: {type(e).__name__}: {e}")
+        if sensors is not None:
+            enabled = sensors.truth.get("amp_enabled")
+            out.amps_on.append(int(np.count_nonzero(enabled)) if enabled is not None else -1)
+            bus.send_all(codec.sensor_frames(codec.sensors_raw(sensors), r, truth=sensors.truth))
+        else:
+            out.amps_on.append(-1)  # unknown: the plant did not answer
         s_cause = STOP[stop[2]] if stop is not None and r >= stop[0] else 0
         bus.send("UNIT_ANSWER", Exchange=r, Stop=s_cause, StopUnit=stop[1] if stop is not None else 0,
                  BootId=boot_id)
         out.exchanges += 1
         r += 1
+
+
+def _final_step(spec: RigSpec, link: PlantLink) -> int:
+    """One last plant step with every amplifier off; how many amplifiers are on after it (-1:
+    the plant did not answer — a lost plant node, whose command timeout latches them off)."""
+    if getattr(link, "failed", None) is not None:
+        return -1
+    try:
+        final = link.exchange(PlantCommand.idle(spec.n_joints), spec.period_s, spec.computation_delay_s)
+    except PlantLinkError:
+        return -1
+    enabled = final.truth.get("amp_enabled")
+    return int(np.count_nonzero(enabled)) if enabled is not None else -1
 
 
 def unit_number(spec: RigSpec, name: str) -> int:
