@@ -101,12 +101,14 @@ class TimingStats:
             "lateness_p50_ms": float(np.percentile(late, 50) * 1e3),
             "lateness_p99_ms": float(np.percentile(late, 99) * 1e3),
             "lateness_max_ms": float(max(late.max(), self.lateness_s.peak) * 1e3),
-            **_split_summary("controller", self.controller_s, period_s),
-            **_split_summary("harness", self.harness_s, period_s),
+            **series_summary("controller", self.controller_s, period_s),
+            **series_summary("harness", self.harness_s, period_s),
         }
 
 
-def _split_summary(name: str, series: TickSeries, period_s: float) -> dict[str, float]:
+def series_summary(name: str, series: TickSeries, period_s: float) -> dict[str, float]:
+    """``<name>_p50_ms``, ``_p99_ms``, ``_max_ms`` and ``_p99_fraction_of_period`` of one series
+    ({} when it is empty)."""
     if not len(series):
         return {}
     v = series.values()

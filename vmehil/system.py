@@ -116,6 +116,9 @@ class EmulatedRig:
     def answer_lag_ticks(self) -> int:
         """Ticks the plant's answers may lag the commands beyond lockstep timing: a free-running
         plant node steps on its own clock and answers 1-2 periods late (0: lockstep, in-process)."""
+        lag = getattr(self.link, "answer_lag_ticks", None)  # a link that knows its own (unit bus)
+        if lag is not None:
+            return int(lag)
         return 2 if getattr(self.link, "free_running", False) else 0
 
     def advance_to(self, t_ns: int) -> None:

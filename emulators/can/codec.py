@@ -48,6 +48,7 @@ from emulators.can.dbc import (
     ID_UNIT_START,
     ID_UNIT_STOP,
     ID_UNIT_SYNC,
+    ID_UNIT_TIMING,
     MAX_JOINTS,
 )
 from emulators.signals import QuadratureEvents
@@ -67,7 +68,8 @@ _SMALL = 64  #: arrays up to this length are quantized in plain Python (SignalSp
 
 #: the unit bus's own frames (docs/melmalec.md) by identifier
 _UNIT_KINDS = {ID_UNIT_STOP: "UNIT_STOP", ID_UNIT_START: "UNIT_START", ID_UNIT_SYNC: "UNIT_SYNC",
-               ID_UNIT_POS: "UNIT_POS", ID_UNIT_ANSWER: "UNIT_ANSWER", ID_UNIT_HEARTBEAT: "UNIT_HEARTBEAT"}
+               ID_UNIT_POS: "UNIT_POS", ID_UNIT_TIMING: "UNIT_TIMING", ID_UNIT_ANSWER: "UNIT_ANSWER",
+               ID_UNIT_HEARTBEAT: "UNIT_HEARTBEAT"}
 
 
 class FrameError(ValueError):

@@ -52,9 +52,13 @@ ID_UNIT_STOP = 0x070
 ID_UNIT_START = 0x071
 ID_UNIT_SYNC = 0x090
 ID_UNIT_POS = 0x091
+ID_UNIT_TIMING = 0x092
 ID_UNIT_ANSWER = 0x290
 ID_UNIT_HEARTBEAT = 0x710
-UNIT_IDS = (ID_UNIT_STOP, ID_UNIT_START, ID_UNIT_SYNC, ID_UNIT_POS, ID_UNIT_ANSWER, ID_UNIT_HEARTBEAT)
+UNIT_IDS = (ID_UNIT_STOP, ID_UNIT_START, ID_UNIT_SYNC, ID_UNIT_POS, ID_UNIT_TIMING, ID_UNIT_ANSWER, ID_UNIT_HEARTBEAT)
+#: UNIT_TIMING's per-tick figures (seconds, 1 µs LSB): what a unit's real-time runner measured
+UNIT_TIMING_FIGURES = ("ComputeP50", "ComputeP99", "ComputeMax", "LatenessP50", "LatenessP99", "LatenessMax",
+                       "ControllerP50", "ControllerP99")
 
 VOLT_LSB = 2e-6  # V per bit of every analog voltage on the wire (24-bit signed: ±16.78 V)
 DUTY_LSB = 1e-6  # PWM duty per bit (20-bit unsigned)
@@ -250,10 +254,15 @@ def _unit_messages() -> list[Message]:
             _sig("SwitchOff", 136, 2, minimum=0, maximum=3, receiver=U,
                  comment="integrator switch-off: 0 as the rig file, 1 off, 2 on"),
             _sig("GainsSet", 138, 1, minimum=0, maximum=1, receiver=U, comment="Kp..Kvi override the rig's"),
+            _sig("FreeRunning", 139, 1, minimum=0, maximum=1, receiver=U,
+                 comment="1: every unit and the plant step on their own wall clock (0: lockstep)"),
             _sig("BootId", 144, 16, minimum=0, maximum=65535, receiver=U, comment="coordinator boot id"),
+            _sig("StaleTicks", 160, 8, minimum=0, maximum=255, receiver=U,
+                 comment="free-running: exchanges without a fresh answer before a unit safe-stops"),
             *[_sig(name, 192 + 64 * i, 64, is_float=True, receiver=U, comment="gain override (float64, exact)")
               for i, name in enumerate(("Kp", "Kpi", "Kv", "Kvi"))],
-        ], senders=[K], is_fd=True, comment="Start: every unit builds its boards and runs NTicks in lockstep."),
+        ], senders=[K], is_fd=True,
+            comment="Start: every unit builds its boards and runs NTicks (lockstep or free-running)."),
         Message(ID_UNIT_SYNC, "UNIT_SYNC", 8, [
             _sig("Exchange", 0, 32, minimum=0, maximum=2**32 - 1, receiver=K,
                  comment="the unit's exchange number (0 = power-up); its CMD frames precede it"),
@@ -268,6 +277,17 @@ def _unit_messages() -> list[Message]:
             *[_sig(f"Theta{i}", 64 + 64 * i, 64, is_float=True, unit="rad", receiver=U,
                    comment="measured start of the unit's joint i (float64, exact; NaN: none)") for i in range(4)],
         ], senders=[U], is_fd=True, comment="A unit's measured start: every unit plans the global motion from all."),
+        Message(ID_UNIT_TIMING, "UNIT_TIMING", 48, [
+            _sig("Unit", 0, 8, minimum=0, maximum=255, receiver=K),
+            _bit("Realtime", 8, "the unit ran on the wall clock (0: no figures but Ticks)", K),
+            _sig("Ticks", 16, 32, minimum=0, maximum=2**32 - 1, receiver=K, comment="ticks the unit ran"),
+            _sig("Overruns", 48, 32, minimum=0, maximum=2**32 - 1, receiver=K,
+                 comment="ticks that ended after the next tick's deadline"),
+            *[_sig(name, 80 + 32 * i, 32, scale=1e-6, minimum=0, maximum=(2**32 - 1) * 1e-6, unit="s", receiver=K,
+                   comment="per tick (p50/p99/max): compute = the whole tick, lateness = its start after the "
+                           "deadline, controller = drivers + law")
+              for i, name in enumerate(UNIT_TIMING_FIGURES)],
+        ], senders=[U], is_fd=True, comment="A unit's real-time figures, sent once as it leaves the run."),
         Message(ID_UNIT_ANSWER, "UNIT_ANSWER", 8, [
             _sig("Exchange", 0, 32, minimum=0, maximum=2**32 - 1, receiver=U,
                  comment="the exchange answered (its SENS/TRUTH frames precede it)"),

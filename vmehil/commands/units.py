@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from vmehil.cli_types import bounded_float, duration_s
+from vmehil.cli_types import bounded_float, bounded_int, duration_s
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
 from vmehil.files import write_json
 
@@ -45,6 +45,7 @@ def _plant_args(p: argparse.ArgumentParser) -> None:
     """Where the coordinator's plant runs: ``--plant inprocess|can`` as ``vmehil run`` spells it;
     the plant bus is its own (``--plant-interface``, ``--plant-channel``: never the unit bus)."""
     from vmehil.can_options import PLANT_MODES
+    from vmehil.units.remote import FREE_STALE_TICKS
 
     g = p.add_argument_group("the plant (docs/melmalec.md)")
     g.add_argument("--plant", choices=("inprocess", "can"), default="inprocess",
@@ -60,6 +61,10 @@ def _plant_args(p: argparse.ArgumentParser) -> None:
                         "free-running: the units and the plant step on the wall clock (docs/melmalec.md)")
     g.add_argument("--can-timeout", type=bounded_float(0.001, 3600.0, what="a timeout (s)"), default=1.0,
                    metavar="S", help="--plant can: answer / heartbeat timeout of the plant node in seconds (1.0)")
+    g.add_argument("--stale-ticks", type=bounded_int(1, 255, what="a number of periods"), default=None, metavar="N",
+                   help=f"free-running: periods without a unit's commands before it is lost (coordinator) and "
+                        f"exchanges without a fresh answer before a unit stops ({FREE_STALE_TICKS}); with --plant "
+                        f"can also the plant link's (as `vmehil run`'s)")
 
 
 def plant_options(args: argparse.Namespace):
@@ -72,7 +77,7 @@ def plant_options(args: argparse.Namespace):
         return None
     iface = args.plant_interface or args.interface
     opts = CanPlantOptions(interface=iface, channel=args.plant_channel, plant_mode=args.plant_mode,
-                           can_timeout_s=args.can_timeout)
+                           can_timeout_s=args.can_timeout, stale_ticks=args.stale_ticks)
     p_iface, p_chan = opts.resolved()
     u_iface, u_chan = unit_channel(args.interface, args.channel)
     if (p_iface, p_chan) == (u_iface, u_chan):
@@ -130,14 +135,20 @@ def run_unit_command(args: argparse.Namespace) -> int:
         bus.close()
     loop, runner = out.loop, out.runner
     assert loop is not None and runner is not None
+    realtime = isinstance(runner, RealtimeRunner)  # --realtime, or a free-running run
     timing = runner.timing.summary(spec.period_s) if isinstance(runner, RealtimeRunner) else None
-    summary = summarize(loop, rig=spec.name, seed=out.seed, realtime=args.realtime, overruns=runner.overruns,
+    summary = summarize(loop, rig=spec.name, seed=out.seed, realtime=realtime, overruns=runner.overruns,
                         timing=timing)
-    summary.update(unit=args.unit, completed=out.completed, ended=out.ended)
+    summary.update(unit=args.unit, completed=out.completed, ended=out.ended,
+                   plant_mode="free-running" if out.free_running else "lockstep")
+    if out.free_running:
+        summary["answers"] = {"stale_exchanges": out.stale, "incomplete": out.incomplete}
     fault = loop.fault
     print(f"unit {args.unit}: {out.completed} ticks; " + ("ran to the end" if fault is None else
           f"stopped: {fault.cause} at tick {fault.tick}: {fault.detail}") +
           f"; final stop {'verified' if not loop.stop_incomplete else 'INCOMPLETE'}", file=sys.stderr)
+    if timing:
+        print(f"unit {args.unit}: {timing_line(timing)}", file=sys.stderr)
     if args.json:
         write_json(args.json, summary)
     if args.record:
@@ -150,11 +161,19 @@ def run_unit_command(args: argparse.Namespace) -> int:
     return EXIT_FAULT if fault is not None else 0
 
 
+def timing_line(t: dict) -> str:
+    """One line of real-time figures (a runner's timing summary, or a unit's UNIT_TIMING)."""
+    return (f"compute p50 {t['compute_p50_ms']:.2f} ms p99 {t['compute_p99_ms']:.2f} ms max "
+            f"{t['compute_max_ms']:.2f} ms; lateness p50 {t['lateness_p50_ms']:.2f} ms p99 "
+            f"{t['lateness_p99_ms']:.2f} ms max {t['lateness_max_ms']:.2f} ms; "
+            f"overruns {t['overruns']} of {t.get('ticks', '?')} ticks")
+
+
 def run_coordinator_command(args: argparse.Namespace) -> int:
     from servo.control.gains import parse_gains
     from servo.gain_guard import check_values
     from vmehil.units.processes import run_coordinator
-    from vmehil.units.remote import UnitRefused, unit_bus
+    from vmehil.units.remote import FREE_STALE_TICKS, UnitRefused, unit_bus
 
     spec = _load(args)
     gains = check_values(parse_gains(args.gains, what="--gains"))
@@ -174,7 +193,9 @@ def run_coordinator_command(args: argparse.Namespace) -> int:
     try:
         out = run_coordinator(spec, bus, seed=args.seed, n_ticks=n_ticks, timeout_s=args.unit_timeout,
                               start_timeout_s=args.start_timeout, motion_path=args.motion, gains=gains,
-                              switch_off=False if args.no_integrator_switch_off else None, plant_link=link)
+                              switch_off=False if args.no_integrator_switch_off else None, plant_link=link,
+                              free_running=args.plant_mode == "free-running",
+                              stale_ticks=args.stale_ticks or FREE_STALE_TICKS)
     except UnitRefused as e:
         print(f"vmehil coordinate: {e}", file=sys.stderr)
         return EXIT_REFUSED
@@ -186,11 +207,18 @@ def run_coordinator_command(args: argparse.Namespace) -> int:
                                                             f"{stop.what}"), file=sys.stderr)
     for note in out.refused:
         print(f"coordinate: {note}", file=sys.stderr)
+    figures = out.timing.figures(spec.period_s)
+    if "compute_p50_ms" in figures:
+        print(f"coordinate: steps: {timing_line(figures)}", file=sys.stderr)
+    for name, fig in out.unit_timing.items():
+        if fig.get("realtime"):
+            print(f"coordinate: unit {name}: {timing_line(fig)}", file=sys.stderr)
     if args.json:
         write_json(args.json, {
             "rig": spec.name, "seed": args.seed, "ticks": n_ticks, "plant": args.plant, "plant_mode": args.plant_mode,
             "plant_steps": out.exchanges,
             "stop": None if stop is None else {"unit": stop.unit, "exchange": stop.exchange, "what": stop.what},
             "events": [{"exchange": e.exchange, "unit": e.unit, "what": e.what} for e in out.events],
-            "amps_on": out.amps_on, "refused": out.refused})
+            "amps_on": out.amps_on, "refused": out.refused, "missing_cmd": out.missing_cmd,
+            "timing": figures, "units": out.unit_timing})
     return 0 if stop is None else EXIT_FAULT

@@ -63,6 +63,9 @@ class UnitRun:
     error: BaseException | None = None
     seed: int = 0
     ended: str | None = None  #: why the run ended early (None: it ran to the end)
+    free_running: bool = False  #: on the unit bus: the unit ran on its own wall clock
+    stale: int = 0  #: free-running: exchanges that found no fresh answer (held values)
+    incomplete: int = 0  #: free-running: answers dropped for a missing SENS frame
 
 
 @dataclass

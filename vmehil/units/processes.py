@@ -10,12 +10,13 @@ plant bus with ``--plant can``) served to the units.
 
 from __future__ import annotations
 
+import gc
 from typing import Any
 
 import numpy as np
 
 from emulators.can.node import new_boot_id
-from emulators.plant_link import PlantLink
+from emulators.plant_link import PlantLink, PlantLinkError
 from servo.motion import default_demo_motion, load_motion
 from servo.rig import RigSpec
 from servo.runner import LockstepRunner, RealtimeRunner
@@ -26,6 +27,7 @@ from vmehil.session import build_loop, servo_settings
 from vmehil.system import build_emulated_rig
 from vmehil.units.coordinator import UnitHook, UnitRun, plant_link_for
 from vmehil.units.remote import (
+    FREE_STALE_TICKS,
     START_TIMEOUT_S,
     CoordinatorOutcome,
     UnitBus,
@@ -62,6 +64,9 @@ def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, s
     seed, n_ticks = int(start.raw["Seed"]), int(start.raw["NTicks"])
     out = UnitRun(unit, seed=seed)
     link = UnitCanLink(bus, unit, number, boot, timeout_s)
+    link.free_running = bool(int(start.raw["FreeRunning"]))
+    link.stale_ticks = max(1, int(start.raw["StaleTicks"]))
+    realtime = realtime or link.free_running  # free-running: every unit on its own wall clock
     try:
         system = out.system = build_emulated_rig(unit_rig(spec, unit), seed=seed, link=link)  # power-up: exchange 0
         theta = np.asarray(system.io.read().theta, float)  # the unit's only read before its loop
@@ -88,8 +93,17 @@ def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, s
         if after_tick is not None:
             runner.after_tick.append(lambda lp: after_tick(unit_name, system, lp))
         with loop.armed():
+            if link.free_running:  # the unit's clock starts at the coordinator's first step
+                segments.sample(0.0)  # plan the first move now, not in the first tick (tens of ms)
+                gc.collect()  # the runner's start-up collection, done before the clock starts:
+                gc.freeze()   # what exists now is out of the collector's way (the runner unfreezes)
+                try:
+                    link.await_first_answer()
+                except PlantLinkError as e:
+                    loop.safe_stop(e.cause, str(e))
             # a stopped unit's run ends: the others stop in the same exchange (module remote)
             out.completed = runner.run(n_ticks, stop=lambda: loop.fault is not None)
+        out.free_running, out.stale, out.incomplete = link.free_running, link.stale, link.incomplete
         if runner.ended_by is not None:
             out.ended = f"{type(runner.ended_by).__name__}: {runner.ended_by}"
         elif loop.fault is not None:
@@ -100,20 +114,25 @@ def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, s
             out.system.io.safe_stop()
         raise
     finally:
-        link.leave(out.ended)
+        runner_ = out.runner
+        timing = (runner_.timing.summary(spec.period_s) if isinstance(runner_, RealtimeRunner) and
+                  runner_.timing.compute_s.total else None)
+        link.leave(out.ended, ticks=out.completed, timing=timing)
     return out
 
 
 def run_coordinator(spec: RigSpec, bus: UnitBus, *, seed: int, n_ticks: int, timeout_s: float,
                     start_timeout_s: float = START_TIMEOUT_S, motion_path: str | None = None,
                     gains: dict[str, float] | None = None, switch_off: bool | None = None,
-                    plant_link: PlantLink | None = None) -> CoordinatorOutcome:
+                    plant_link: PlantLink | None = None, free_running: bool = False,
+                    stale_ticks: int = FREE_STALE_TICKS) -> CoordinatorOutcome:
     """``vmehil coordinate``: serve the plant to the units. ``plant_link``: the plant of every
     joint elsewhere (``--plant can``: a connected link to the CAN plant node, reset with
     ``seed``; closed here), else the plant in this process."""
     link = plant_link if plant_link is not None else plant_link_for(spec, seed)
     try:
         return coordinate(spec, bus, link, seed=seed, n_ticks=n_ticks, boot_id=boot_id(), motion_path=motion_path,
-                          gains=gains, switch_off=switch_off, timeout_s=timeout_s, start_timeout_s=start_timeout_s)
+                          gains=gains, switch_off=switch_off, timeout_s=timeout_s, start_timeout_s=start_timeout_s,
+                          free_running=free_running, stale_ticks=stale_ticks)
     finally:
         link.close()

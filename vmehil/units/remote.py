@@ -38,17 +38,26 @@ import numpy as np
 from emulators.can.bus import Endpoint, open_bus, resolve
 from emulators.can.codec import CMD_SIGNALS, CanCodec, Frame, shared_codec
 from emulators.can.dbc import (
+    ID_CMD,
     ID_SENS,
     ID_TRUTH,
     ID_UNIT_ANSWER,
+    ID_UNIT_HEARTBEAT,
     ID_UNIT_POS,
     ID_UNIT_START,
     ID_UNIT_STOP,
+    ID_UNIT_SYNC,
+    ID_UNIT_TIMING,
     UNIT_STOP_CAUSES,
+    UNIT_TIMING_FIGURES,
 )
+from emulators.can.link import merge_events
+from emulators.can.node import STATE_RUNNING
 from emulators.plant import PlantCommand, PlantSensors
 from emulators.plant_link import PlantLink, PlantLinkError, PlantLostError, StaleDataError
+from emulators.signals import QuadratureEvents
 from servo.rig import RigSpec
+from servo.runner import TickSeries, TimingStats, series_summary
 from servo.units import UnitSpec, rig_units, watchdog_unit
 from vmehil.units.hub import HubEvent, UnitLostError, UnitStopError
 
@@ -57,6 +66,20 @@ UNIT_CHANNELS = {"virtual": "vmehil-units", "udp_multicast": "239.74.163.3", "so
 ALL_UNITS = 255
 STOP = {name: code for code, name in UNIT_STOP_CAUSES.items()}
 START_TIMEOUT_S = 30.0
+#: free-running: periods of wall time without news before a unit is lost (coordinator) / stops (unit)
+FREE_STALE_TICKS = 5
+#: UNIT_TIMING's signals and the keys of the runner's timing summary they carry (ms there, µs raw)
+UNIT_TIMING_KEYS = {name: f"{name[:-3].lower()}_{name[-3:].lower()}_ms" for name in UNIT_TIMING_FIGURES}
+
+
+def ms_to_us(ms: float) -> int:
+    """A timing summary's milliseconds as UNIT_TIMING's raw microseconds."""
+    return round(ms * 1e3)
+
+
+def us_to_ms(us: int) -> float:
+    """UNIT_TIMING's raw microseconds as the report's milliseconds."""
+    return us / 1e3
 
 
 class UnitRefused(RuntimeError):
@@ -114,24 +137,33 @@ class UnitBus:
             self.endpoint.send(m)
 
     def recv(self, timeout: float) -> Frame | None:
-        """The next decodable frame, or ``None`` once ``timeout`` s have passed."""
+        """The next decodable frame, or ``None`` once ``timeout`` s have passed and nothing is
+        waiting: frames skipped unread (not accepted, undecodable) never end the wait early, so
+        ``recv(0.0)`` drains the queue up to the next frame worth reading (free-running)."""
         deadline = time.monotonic() + max(0.0, timeout)
         while True:
             m = self.endpoint.recv(max(0.0, deadline - time.monotonic()))
             if m is None:
                 return None
             if self.accept is not None and m.arbitration_id not in self.accept:
-                if time.monotonic() >= deadline:
-                    return None
                 continue
             f = self.codec.try_decode(m)
             if f is not None:
                 return f
-            if time.monotonic() >= deadline:
-                return None
 
     def close(self) -> None:
         self.endpoint.close()
+
+
+def latch_newest(fresh: list[PlantSensors]) -> PlantSensors:
+    """Several answers as one (free-running): the newest analog values, the encoder events and
+    switching of all of them (no count is lost when two answers arrive in one tick)."""
+    newest = fresh[-1]
+    if len(fresh) > 1:
+        n = len(newest.encoder)
+        newest.encoder = [merge_events([s.encoder[j] for s in fresh]) for j in range(n)]
+        newest.switching = np.logical_or.reduce([np.asarray(s.switching, bool) for s in fresh])
+    return newest
 
 
 # --- the unit's side -------------------------------------------------------------------------------
@@ -153,6 +185,18 @@ class UnitCanLink(PlantLink):
         self._told = False
         self._last: PlantSensors | None = None
         self.stop_event: HubEvent | None = None
+        #: free-running (UNIT_START.FreeRunning): answers are taken as they come, never waited for
+        self.free_running = False
+        #: free-running: periods of wall time without a fresh answer before a safe stop
+        self.stale_ticks = FREE_STALE_TICKS
+        self.stale = 0  #: free-running exchanges that found no fresh answer
+        self.incomplete = 0  #: free-running answers missing one of the unit's SENS frames (dropped)
+        self._fresh_at: float | None = None  # when the last fresh answer came (free-running)
+        self._heard: float | None = None
+        self._fresh: list[PlantSensors] = []
+        self._sens: dict[int, dict[str, Any]] = {}
+        self._truth: dict[int, dict[str, Any]] = {}
+        self._free_stop: tuple[Frame, int] | None = None
         # decode only what concerns this unit: its joints' answers, the coordinator's frames
         bus.accept = ({ID_SENS + j for j in self.joints} | {ID_TRUTH + j for j in self.joints}
                       | {ID_UNIT_ANSWER, ID_UNIT_STOP, ID_UNIT_POS, ID_UNIT_START})
@@ -172,6 +216,8 @@ class UnitCanLink(PlantLink):
         self.bus.send_all(codec.command_frames(raw, r, self.boot_id, joints=self.joints))
         self.bus.send("UNIT_SYNC", Exchange=r, Unit=self.number, Stopped=int(stopped is not None),
                       Watchdog=int(raw["Watchdog"]), BootId=self.boot_id)
+        if self.free_running and r > 0:  # the power-up exchange (0) is lockstep in both modes
+            return self._exchange_free(r, period_s)
         sens: dict[int, dict[str, Any]] = {}
         truth: dict[int, dict[str, Any]] = {}
         mine = set(self.joints)
@@ -221,6 +267,92 @@ class UnitCanLink(PlantLink):
         err = UnitLostError if what == "UNIT_LOST" else UnitStopError
         raise err(f"unit number {who}: {what.lower()} at exchange {r}: every unit stops")
 
+    # --- free-running (docs/melmalec.md, "Free-running") -----------------------------------------
+    @property
+    def answer_lag_ticks(self) -> int:
+        """Ticks the answers may lag the commands (the servo loop's current cross-check allows
+        for them): lockstep 0; free-running ``stale_ticks`` — an answer older than that stops
+        the unit anyway (two hops, unit → coordinator's step → unit, each on its own clock)."""
+        return self.stale_ticks if self.free_running else 0
+
+    def await_first_answer(self) -> None:
+        """Free-running: say RUNNING (UNIT_HEARTBEAT State 2, every 100 ms) until the coordinator,
+        which starts its clock once every unit has, publishes its first step (≤ ``timeout_s``)."""
+        end = time.monotonic() + self.timeout_s
+        counter = 0
+        while not self._fresh:
+            now = time.monotonic()
+            if now >= end:
+                self.dead = True
+                raise CoordinatorLostError(f"unit {self.unit.name}: the coordinator did not start stepping within "
+                                           f"{self.timeout_s:g} s")
+            self.bus.send("UNIT_HEARTBEAT", State=STATE_RUNNING, Unit=self.number, Counter=counter & 0xFF,
+                          Exchange=self.exchanges, BootId=self.boot_id)
+            counter += 1
+            beat_end = min(end, now + 0.1)
+            while not self._fresh and (f := self.bus.recv(beat_end - time.monotonic())) is not None:
+                self._take(f)
+        self._fresh_at = time.monotonic()
+
+    def _exchange_free(self, r: int, period_s: float) -> PlantSensors:
+        """Take every complete answer that came since the last exchange, without waiting."""
+        while (f := self.bus.recv(0.0)) is not None:
+            self._take(f)
+        if self._free_stop is not None:
+            self._stop(*self._free_stop)
+        fresh, self._fresh = self._fresh, []
+        now = time.monotonic()
+        if fresh:
+            self._fresh_at = now
+            self._last = latch_newest(fresh)
+            return self._last
+        self.stale += 1
+        if self._fresh_at is None:  # never started (await_first_answer not called): start the clock now
+            self._fresh_at = now
+        quiet = now - self._fresh_at
+        if quiet > self.stale_ticks * period_s:
+            self.dead = True
+            if now - (self._heard or self._fresh_at) > self.timeout_s:
+                raise CoordinatorLostError(f"unit {self.unit.name}: nothing from the coordinator for "
+                                           f"{quiet:.3f} s at exchange {r}")
+            raise StaleDataError(f"unit {self.unit.name}: no fresh answer from the coordinator for "
+                                 f"{quiet * 1e3:.0f} ms "
+                                 f"(limit {self.stale_ticks} periods, {self.stale_ticks * period_s * 1e3:.0f} ms) "
+                                 f"at exchange {r}")
+        return self._held_still()
+
+    def _take(self, f: Frame) -> None:
+        """One frame of the free-running answer stream: an answer is complete at its UNIT_ANSWER
+        when every joint of the unit has its SENS frame with that step's sequence number."""
+        self._heard = time.monotonic()
+        if f.kind == "SENS" and f.joint is not None:
+            self._sens[int(f.joint)] = f.raw
+        elif f.kind == "TRUTH" and f.joint is not None:
+            self._truth[int(f.joint)] = f.raw
+        elif f.kind == "UNIT_ANSWER":
+            step = int(f.raw["Exchange"])
+            if int(f.raw["Stop"]) and self._free_stop is None:
+                self._free_stop = (f, step)
+            seq = step & 0xFF
+            if all(int(self._sens.get(j, {}).get("Seq", -1)) == seq for j in self.joints):
+                self._fresh.append(self.codec.sensors_from_frames(self._sens, self._truth, self.joints, PlantSensors))
+            else:
+                self.incomplete += 1
+            self._sens, self._truth = {}, {}
+        elif f.kind == "UNIT_STOP" and int(f.raw["Unit"]) in (self.number, ALL_UNITS):
+            if UNIT_STOP_CAUSES.get(int(f.raw["Cause"])) == "COORDINATOR_END":
+                self.dead = True
+                raise CoordinatorLostError(f"unit {self.unit.name}: the coordinator ended the run")
+        else:
+            self._note(f)
+
+    def _held_still(self) -> PlantSensors:
+        """The last answer again with no encoder motion (nothing new was observed)."""
+        h = self._held()
+        return PlantSensors(pot_v=h.pot_v, tach_v=h.tach_v, imon_v=h.imon_v, amp_fault=h.amp_fault,
+                            encoder=[QuadratureEvents(phase=e.phase) for e in h.encoder],
+                            switching=np.zeros(len(self.joints), dtype=bool), truth=h.truth)
+
     @property
     def codec(self) -> CanCodec:
         return self.bus.codec
@@ -230,9 +362,14 @@ class UnitCanLink(PlantLink):
             raise CoordinatorLostError(f"unit {self.unit.name}: no answer from the coordinator yet")
         return self._last
 
-    def leave(self, why: str | None) -> None:
-        """Tell the coordinator this unit's run has ended (its outputs are safe)."""
+    def leave(self, why: str | None, *, ticks: int = 0, timing: dict[str, Any] | None = None) -> None:
+        """Tell the coordinator this unit's run has ended (its outputs are safe), with its
+        real-time figures (``timing``: :meth:`servo.runner.TimingStats.summary`) in UNIT_TIMING."""
         try:
+            t = timing or {}
+            self.bus.send("UNIT_TIMING", Unit=self.number, Realtime=int(timing is not None), Ticks=ticks,
+                          Overruns=int(t.get("overruns", 0)),
+                          **{name: ms_to_us(float(t.get(key, 0.0))) for name, key in UNIT_TIMING_KEYS.items()})
             self.bus.send("UNIT_SYNC", Exchange=self.exchanges, Unit=self.number, Left=1,
                           Stopped=int(why is not None), BootId=self.boot_id)
         except Exception:  # the bus is gone: the coordinator's timeout covers it
@@ -240,6 +377,25 @@ class UnitCanLink(PlantLink):
 
 
 # --- the coordinator's side ----------------------------------------------------------------------
+@dataclass
+class CoordinatorTiming(TimingStats):
+    """:class:`servo.runner.TimingStats` of the coordinator's steps (compute, lateness,
+    overruns: free-running), and per step the plant's step, the answer's frames, the wait for
+    every unit's commands (lockstep)."""
+
+    plant_s: TickSeries = field(default_factory=TickSeries)
+    answer_s: TickSeries = field(default_factory=TickSeries)
+    wait_s: TickSeries = field(default_factory=TickSeries)
+
+    def figures(self, period_s: float) -> dict[str, float | int]:
+        out: dict[str, float | int] = {"steps": self.plant_s.total}
+        if self.compute_s.total:
+            out.update(self.summary(period_s))
+        for name, series in (("plant", self.plant_s), ("answer", self.answer_s), ("wait", self.wait_s)):
+            out.update(series_summary(name, series, period_s))
+        return out
+
+
 @dataclass
 class CoordinatorOutcome:
     """What the coordinator saw: plant steps, the first stop, every event, amplifiers on per step."""
@@ -249,21 +405,29 @@ class CoordinatorOutcome:
     events: list[HubEvent] = field(default_factory=list)
     amps_on: list[int] = field(default_factory=list)
     refused: list[str] = field(default_factory=list)
+    #: the coordinator's own figures: per step the plant's step and the answer's frames; the
+    #: round's wait for every unit (lockstep), wake-up lateness, compute and overruns (free-running)
+    timing: CoordinatorTiming = field(default_factory=lambda: CoordinatorTiming())
+    #: free-running: a unit's SYNC without its joint's CMD frame of that exchange (previous held)
+    missing_cmd: int = 0
+    #: per unit: the figures it reported when it left (UNIT_TIMING)
+    unit_timing: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 def coordinate(spec: RigSpec, bus: UnitBus, link: PlantLink, *, seed: int, n_ticks: int, boot_id: int,
                motion_path: str | None = None, gains: dict[str, float] | None = None,
                switch_off: bool | None = None, timeout_s: float = 2.0, start_timeout_s: float = START_TIMEOUT_S,
-               stop_requested: Callable[[], bool] = lambda: False) -> CoordinatorOutcome:
-    """Wait for every unit of the rig, start them, and serve the plant in lockstep until every
-    unit has left (module docstring). Raises :class:`UnitRefused` when the units do not come."""
+               stop_requested: Callable[[], bool] = lambda: False, free_running: bool = False,
+               stale_ticks: int = FREE_STALE_TICKS) -> CoordinatorOutcome:
+    """Wait for every unit of the rig, start them, and serve the plant until every unit has left
+    (module docstring): in lockstep, or ``free_running`` on the wall clock (a unit silent for
+    more than ``stale_ticks`` steps is lost; a unit without a fresh answer for ``stale_ticks``
+    exchanges stops). Raises :class:`UnitRefused` when the units do not come."""
     units = rig_units(spec)
     if not units:
         raise UnitRefused(f"rig {spec.name} ({spec.path}) declares no [[rig.unit]] tables")
-    codec = bus.codec
-    # udp_multicast loops a node's own frames back: skip ours unread
-    bus.endpoint.own_ids |= ({ID_SENS + j for j in range(spec.n_joints)} | {ID_TRUTH + j for j in range(spec.n_joints)}
-                             | {ID_UNIT_ANSWER, ID_UNIT_STOP, ID_UNIT_START})
+    # decode only the units' frames (udp_multicast loops our own back: skipped unread)
+    bus.accept = {ID_CMD + j for j in range(spec.n_joints)} | {ID_UNIT_SYNC, ID_UNIT_HEARTBEAT, ID_UNIT_TIMING}
     digest = file_digest(spec.path)
     out = CoordinatorOutcome()
     ready: dict[int, int] = {}  # unit number → its boot id
@@ -288,108 +452,288 @@ def coordinate(spec: RigSpec, bus: UnitBus, link: PlantLink, *, seed: int, n_tic
     g = gains or {}
     bus.send("UNIT_START", Seed=seed, NTicks=n_ticks, RigDigest=digest, MotionDigest=file_digest(motion_path),
              NUnits=len(units), SwitchOff=0 if switch_off is None else 2 if switch_off else 1,
-             GainsSet=int(bool(g)), BootId=boot_id,
+             GainsSet=int(bool(g)), BootId=boot_id, FreeRunning=int(free_running), StaleTicks=stale_ticks,
              **{k.capitalize(): float(g.get(k, np.nan)) for k in ("kp", "kpi", "kv", "kvi")})
     try:
-        _serve(spec, units, bus, codec, link, out, n_ticks=n_ticks, boot_id=boot_id, timeout_s=timeout_s,
-               stop_requested=stop_requested, started=ready)
+        server = _Server(spec, units, bus, link, out, n_ticks=n_ticks, boot_id=boot_id, timeout_s=timeout_s,
+                         stale_ticks=stale_ticks, stop_requested=stop_requested, started=ready)
+        _serve(server, free_running)
     finally:  # however the coordinator ends (its end, Ctrl-C, SIGTERM, an error): every unit stops now
         bus.send("UNIT_STOP", Cause=STOP["COORDINATOR_END"], Unit=ALL_UNITS, Exchange=out.exchanges,
                  BootId=boot_id)
     return out
 
 
-def _serve(spec: RigSpec, units: list[UnitSpec], bus: UnitBus, codec: CanCodec, link: PlantLink,
-           out: CoordinatorOutcome, *, n_ticks: int, boot_id: int, timeout_s: float,
-           stop_requested: Callable[[], bool], started: dict[int, int]) -> None:
-    n = spec.n_joints
-    owner = {j: u for u, unit in enumerate(units) for j in unit.indices}
-    wd_name = watchdog_unit(spec, units)
-    wd_unit = next((i for i, u in enumerate(units) if u.name == wd_name), None)
-    idle = codec.command_raw(PlantCommand.idle(n))
-    running = set(range(len(units)))
-    stop: tuple[int, int, str] | None = None  # (exchange, unit number, cause)
+class _Server:
+    """The coordinator's side of the run: the plant served to the units, in lockstep or
+    free-running (module docstring; docs/melmalec.md)."""
 
-    def stop_now(r: int, u: int, cause: str, what: str) -> None:
-        nonlocal stop
-        name = units[u].name if u < len(units) else "coordinator"
-        out.events.append(HubEvent(r, name, what))
-        if stop is None:
-            stop = (r, u, cause)
-            out.stop = HubEvent(r, name, what)
+    def __init__(self, spec: RigSpec, units: list[UnitSpec], bus: UnitBus, link: PlantLink, out: CoordinatorOutcome,
+                 *, n_ticks: int, boot_id: int, timeout_s: float, stale_ticks: int,
+                 stop_requested: Callable[[], bool], started: dict[int, int]) -> None:
+        self.spec, self.units, self.bus, self.link, self.out = spec, units, bus, link, out
+        self.codec = bus.codec
+        self.n = spec.n_joints
+        self.n_ticks, self.boot_id, self.timeout_s, self.stale_ticks = n_ticks, boot_id, timeout_s, stale_ticks
+        self.stop_requested, self.started = stop_requested, started
+        self.owner = {j: u for u, unit in enumerate(units) for j in unit.indices}
+        wd_name = watchdog_unit(spec, units)
+        self.wd_unit = next((i for i, u in enumerate(units) if u.name == wd_name), None)
+        self.idle = self.codec.command_raw(PlantCommand.idle(self.n))
+        self.running = set(range(len(units)))
+        self.stop: tuple[int, int, str] | None = None  # (exchange, unit number, cause)
 
-    r = 0
-    while running:
+    def stop_now(self, r: int, u: int, cause: str, what: str) -> None:
+        name = self.units[u].name if u < len(self.units) else "coordinator"
+        self.out.events.append(HubEvent(r, name, what))
+        if self.stop is None:
+            self.stop = (r, u, cause)
+            self.out.stop = HubEvent(r, name, what)
+
+    def late_unit(self, f: Frame, r: int) -> None:
+        """A heartbeat of a unit that was not started with the run: refused."""
+        u = int(f.raw["Unit"])
+        if u >= len(self.units) or self.started.get(u) == int(f.raw["BootId"]):
+            return  # not a unit of the rig, or a started unit's last beat
+        self.bus.send("UNIT_STOP", Cause=STOP["REFUSED_LATE"], Unit=u, Exchange=r, BootId=self.boot_id)
+        note = f"unit {self.units[u].name} refused: it reported at exchange {r}, after the start"
+        if note not in self.out.refused:
+            self.out.refused.append(note)
+
+    def unit_figures(self, f: Frame) -> None:
+        """A unit's UNIT_TIMING (sent as it leaves): its ticks, overruns and per-tick figures (ms)."""
+        u = int(f.raw["Unit"])
+        if u >= len(self.units):
+            return
+        fig: dict[str, Any] = {"ticks": int(f.raw["Ticks"]), "realtime": bool(int(f.raw["Realtime"]))}
+        if fig["realtime"]:
+            fig["overruns"] = int(f.raw["Overruns"])
+            fig.update({key: us_to_ms(int(f.raw[name])) for name, key in UNIT_TIMING_KEYS.items()})
+        self.out.unit_timing[self.units[u].name] = fig
+
+    def collect_figures(self, wait_s: float = 0.5) -> None:
+        """The UNIT_TIMING of units that left (or were lost) after the coordinator stopped
+        listening: read for up to ``wait_s`` more, until every unit's has come."""
+        end = time.monotonic() + wait_s
+        while len(self.out.unit_timing) < len(self.units):
+            f = self.bus.recv(end - time.monotonic())
+            if f is None:
+                return
+            if f.kind == "UNIT_TIMING":
+                self.unit_figures(f)
+
+    def left(self, f: Frame, r: int) -> None:
+        u = int(f.raw["Unit"])
+        self.running.discard(u)
+        self.out.events.append(HubEvent(r, self.units[u].name, "left"))
+        if int(f.raw["Stopped"]) or int(f.raw["Exchange"]) < self.n_ticks + 1:
+            self.stop_now(r, u, "UNIT_STOPPED", "left before the run's end")
+
+    def step(self, r: int, raw: dict[str, Any], delay_s: float) -> None:
+        """Step the plant with ``raw`` and answer exchange (free-running: step) ``r``."""
+        out, codec, clock = self.out, self.codec, time.perf_counter
+        if self.stop_requested():
+            self.stop_now(r, ALL_UNITS, "COORDINATOR_STOPPED", "the coordinator was asked to stop")
+        cmd = codec.command_from_raw(raw, PlantCommand)
+        t0 = clock()
+        try:
+            sensors: PlantSensors | None = self.link.exchange(cmd, self.spec.period_s, delay_s)
+        except PlantLinkError as e:  # the plant node is gone (or stale): every unit stops in this exchange
+            sensors = None
+            self.stop_now(r, ALL_UNITS, "PLANT_LOST", f"the plant failed: {type(e).__name__}: {e}")
+        t1 = clock()
+        if sensors is not None:
+            enabled = sensors.truth.get("amp_enabled")
+            out.amps_on.append(int(np.count_nonzero(enabled)) if enabled is not None else -1)
+            self.bus.send_all(codec.sensor_frames(codec.sensors_raw(sensors), r, truth=sensors.truth))
+        else:
+            out.amps_on.append(-1)  # unknown: the plant did not answer
+        stop = self.stop
+        s_cause = STOP[stop[2]] if stop is not None and r >= stop[0] else 0
+        self.bus.send("UNIT_ANSWER", Exchange=r, Stop=s_cause, StopUnit=stop[1] if stop is not None else 0,
+                      BootId=self.boot_id)
+        out.timing.plant_s.append(t1 - t0)
+        out.timing.answer_s.append(clock() - t1)
+        out.exchanges += 1
+
+    def merged(self, cmds: dict[int, dict[str, Any]], units: set[int], r: int, *, missing_stops: bool) -> dict:
+        """The plant's command: ``cmds`` for the joints of ``units``, every other joint idle (a
+        lost or departed unit's amplifiers: off). A joint of ``units`` without a command: a stop
+        (lockstep) or idle (free-running: its unit's previous commands were ``cmds``' already)."""
+        raw = {k: np.array(v, copy=True) for k, v in self.idle.items()}
+        for j in range(self.n):
+            u = self.owner[j]
+            if u not in units:
+                continue
+            c = cmds.get(j)
+            if c is None:
+                if missing_stops:
+                    self.stop_now(r, u, "ANSWER_INCOMPLETE",
+                                  f"joint {self.spec.joints[j].name}'s command frame missing")
+                continue
+            for k in CMD_SIGNALS:
+                raw[k][j] = c[k]
+        return raw
+
+    # --- lockstep ------------------------------------------------------------------------------------
+    def lockstep_round(self, r: int) -> bool:
+        """Exchange ``r`` in lockstep: once every running unit's commands are in (or it is
+        declared lost), step the plant and answer. False: no unit is left (nothing stepped)."""
         cmds: dict[int, dict[str, Any]] = {}
         synced: dict[int, int] = {}  # unit → watchdog level
-        deadline = time.monotonic() + timeout_s
-        while not running <= set(synced):
-            f = bus.recv(deadline - time.monotonic())
+        t0 = time.monotonic()
+        deadline = t0 + self.timeout_s
+        while not self.running <= set(synced):
+            f = self.bus.recv(deadline - time.monotonic())
             if f is None:
-                for u in sorted(running - set(synced)):
-                    running.discard(u)
-                    stop_now(r, u, "UNIT_LOST", f"lost: no commands for exchange {r} within {timeout_s:g} s")
+                for u in sorted(self.running - set(synced)):
+                    self.running.discard(u)
+                    self.stop_now(r, u, "UNIT_LOST", f"lost: no commands for exchange {r} within {self.timeout_s:g} s")
                 break
-            if f.kind == "CMD" and f.joint is not None and f.joint < n and int(f.raw["Seq"]) == r & 0xFF:
+            if f.kind == "CMD" and f.joint is not None and f.joint < self.n and int(f.raw["Seq"]) == r & 0xFF:
                 cmds[int(f.joint)] = f.raw
-            elif f.kind == "UNIT_SYNC" and int(f.raw["Unit"]) in running:
+            elif f.kind == "UNIT_SYNC" and int(f.raw["Unit"]) in self.running:
                 u = int(f.raw["Unit"])
                 if int(f.raw["Left"]):
-                    running.discard(u)
-                    out.events.append(HubEvent(r, units[u].name, "left"))
-                    if int(f.raw["Stopped"]) or int(f.raw["Exchange"]) < n_ticks + 1:
-                        stop_now(r, u, "UNIT_STOPPED", "left before the run's end")
+                    self.left(f, r)
                     continue
                 if int(f.raw["Exchange"]) != r:
                     continue  # an old exchange's (it was declared lost meanwhile)
                 synced[u] = int(f.raw["Watchdog"])
                 if int(f.raw["Stopped"]):
-                    stop_now(r, u, "UNIT_STOPPED", "stopped")
-            elif (f.kind == "UNIT_HEARTBEAT" and int(f.raw["Unit"]) < len(units)
-                  and started.get(int(f.raw["Unit"])) != int(f.raw["BootId"])):  # not a started unit's last beat
-                u = int(f.raw["Unit"])
-                bus.send("UNIT_STOP", Cause=STOP["REFUSED_LATE"], Unit=u, Exchange=r, BootId=boot_id)
-                note = f"unit {units[u].name} refused: it reported at exchange {r}, after the start"
-                if note not in out.refused:
-                    out.refused.append(note)
+                    self.stop_now(r, u, "UNIT_STOPPED", "stopped")
+            elif f.kind == "UNIT_HEARTBEAT":
+                self.late_unit(f, r)
+            elif f.kind == "UNIT_TIMING":
+                self.unit_figures(f)
+        self.out.timing.wait_s.append(time.monotonic() - t0)
         if not synced:
-            # every unit has left or is lost: one last step with every amplifier off, so the
-            # plant ends as the units' safe stops left their boards (a unit that stops ends its
-            # run at once and does not send its safe outputs in another exchange)
-            out.amps_on.append(_final_step(spec, link))
+            return False
+        raw = self.merged(cmds, set(synced), r, missing_stops=True)
+        raw["Watchdog"] = np.asarray(synced.get(self.wd_unit, 0) if self.wd_unit is not None else 0, dtype=np.int64)
+        self.step(r, raw, 0.0 if r == 0 else self.spec.computation_delay_s)
+        return True
+
+    # --- free-running --------------------------------------------------------------------------------
+    def free_run(self, first: int) -> None:
+        """Step the plant every period on the wall clock with each unit's newest complete
+        commands, from step ``first`` on, until every unit has left or is lost.
+
+        The clock starts once every unit has said RUNNING (planned; ≤ ``timeout_s``, else it is
+        lost); each unit starts its own clock at the first step's answer. A unit's CMD frames
+        count once its UNIT_SYNC arrives (their ``Seq`` = its exchange); a unit whose last
+        UNIT_SYNC is more than ``stale_ticks`` periods old (wall clock) is declared lost: its
+        joints are idle (amplifiers off) from that step on and every unit is told to stop in
+        that step's answer. The watchdog line gets one edge per step in which at least one
+        arrived (as the free-running plant node feeds it). Nothing here waits past the next
+        step's deadline."""
+        spec, bus, out = self.spec, self.bus, self.out
+        period = spec.period_s
+        limit_s = self.stale_ticks * period
+        clock = time.perf_counter
+        pending: dict[int, dict[str, Any]] = {}  # CMD frames not yet confirmed by their unit's SYNC
+        cmds: dict[int, dict[str, Any]] = {}  # every joint's newest confirmed command
+        seen: dict[int, float] = {}  # unit → when its last SYNC arrived
+        wd_level: int | None = None
+        wd_edge = False
+        wd_fed = 0
+        step = first
+        ready: set[int] = set()
+
+        def take(f: Frame) -> None:
+            nonlocal wd_level, wd_edge
+            if f.kind == "CMD" and f.joint is not None and f.joint < self.n:
+                pending[int(f.joint)] = f.raw
+            elif f.kind == "UNIT_SYNC" and int(f.raw["Unit"]) in self.running:
+                u = int(f.raw["Unit"])
+                if int(f.raw["Left"]):
+                    self.left(f, step)
+                    return
+                seq = int(f.raw["Exchange"]) & 0xFF
+                for j in self.units[u].indices:
+                    c = pending.pop(j, None)
+                    if c is not None and int(c["Seq"]) == seq:
+                        cmds[j] = c
+                    else:
+                        out.missing_cmd += 1  # the joint keeps its previous command
+                seen[u] = clock()
+                if u == self.wd_unit:
+                    level = int(f.raw["Watchdog"])
+                    wd_edge = wd_edge or (wd_level is not None and level != wd_level)
+                    wd_level = level
+                if int(f.raw["Stopped"]):
+                    self.stop_now(step, u, "UNIT_STOPPED", "stopped")
+            elif f.kind == "UNIT_HEARTBEAT":
+                u = int(f.raw["Unit"])
+                if int(f.raw["State"]) == STATE_RUNNING and self.started.get(u) == int(f.raw["BootId"]):
+                    ready.add(u)
+                else:
+                    self.late_unit(f, step)
+            elif f.kind == "UNIT_TIMING":
+                self.unit_figures(f)
+
+        t_end = time.monotonic() + self.timeout_s
+        while not self.running <= ready:
+            f = bus.recv(t_end - time.monotonic())
+            if f is None:
+                for u in sorted(self.running - ready):
+                    self.running.discard(u)
+                    self.stop_now(step, u, "UNIT_LOST", f"lost: not RUNNING within {self.timeout_s:g} s")
+                break
+            take(f)
+        timing = out.timing
+        t0 = clock()
+        # a unit's first SYNC may take up to timeout_s (its clock starts at the first answer, after
+        # its runner's start-up); from then on, stale_ticks periods
+        first_by = t0 + self.timeout_s - limit_s
+        seen = {u: first_by for u in self.running}
+        i = 0
+        while self.running:
+            deadline = t0 + i * period
+            while True:  # the units' frames until the step's deadline (all that is there, when late)
+                left = deadline - clock()
+                f = bus.recv(left) if left > 0 else bus.recv(0.0)
+                if f is None:
+                    break
+                take(f)
+            woke = clock()
+            for u in sorted(self.running):
+                if woke - seen[u] > limit_s:
+                    self.running.discard(u)
+                    quiet = woke - seen[u] if seen[u] > first_by else woke - t0
+                    self.stop_now(step, u, "UNIT_LOST", f"lost: no commands for {quiet * 1e3:.0f} ms "
+                                                        f"(limit {self.stale_ticks} periods)")
+            if not self.running:
+                break
+            raw = self.merged(cmds, self.running, step, missing_stops=False)
+            if wd_edge:
+                wd_fed ^= 1
+                wd_edge = False
+            raw["Watchdog"] = np.asarray(wd_fed if self.wd_unit in self.running else 0, dtype=np.int64)
+            self.step(step, raw, spec.computation_delay_s)
+            done = clock()
+            timing.compute_s.append(done - woke)
+            timing.lateness_s.append(max(0.0, woke - deadline))
+            if done > deadline + period:
+                timing.overruns += 1
+            step += 1
+            i += 1
+
+
+def _serve(server: _Server, free_running: bool) -> None:
+    r = 0
+    while server.running:
+        if not server.lockstep_round(r):
             break
-        if stop_requested():
-            stop_now(r, ALL_UNITS, "COORDINATOR_STOPPED", "the coordinator was asked to stop")
-        raw = {k: np.array(v, copy=True) for k, v in idle.items()}
-        for j in range(n):
-            u = owner[j]
-            if u not in synced:
-                continue  # a lost or departed unit's amplifiers: off
-            c = cmds.get(j)
-            if c is None:
-                stop_now(r, u, "ANSWER_INCOMPLETE", f"joint {spec.joints[j].name}'s command frame missing")
-                continue
-            for k in CMD_SIGNALS:
-                raw[k][j] = c[k]
-        raw["Watchdog"] = np.asarray(synced.get(wd_unit, 0) if wd_unit is not None else 0, dtype=np.int64)
-        cmd = codec.command_from_raw(raw, PlantCommand)
-        try:
-            sensors: PlantSensors | None = link.exchange(cmd, spec.period_s,
-                                                         0.0 if r == 0 else spec.computation_delay_s)
-        except PlantLinkError as e:  # the plant node is gone (or stale): every unit stops in this exchange
-            sensors = None
-            stop_now(r, ALL_UNITS, "PLANT_LOST", f"the plant failed: {type(e).__name__}: {e}")
-        if sensors is not None:
-            enabled = sensors.truth.get("amp_enabled")
-            out.amps_on.append(int(np.count_nonzero(enabled)) if enabled is not None else -1)
-            bus.send_all(codec.sensor_frames(codec.sensors_raw(sensors), r, truth=sensors.truth))
-        else:
-            out.amps_on.append(-1)  # unknown: the plant did not answer
-        s_cause = STOP[stop[2]] if stop is not None and r >= stop[0] else 0
-        bus.send("UNIT_ANSWER", Exchange=r, Stop=s_cause, StopUnit=stop[1] if stop is not None else 0,
-                 BootId=boot_id)
-        out.exchanges += 1
         r += 1
+        if free_running:  # after the power-up exchange (lockstep): the wall clock
+            server.free_run(r)
+            break
+    # every unit has left or is lost: one last step with every amplifier off, so the plant ends
+    # as the units' safe stops left their boards (a unit that stops ends its run at once and
+    # does not send its safe outputs in another exchange)
+    server.out.amps_on.append(_final_step(server.spec, server.link))
+    server.collect_figures()
 
 
 def _final_step(spec: RigSpec, link: PlantLink) -> int:
