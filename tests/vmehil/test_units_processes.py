@@ -172,6 +172,8 @@ def test_unit_processes_with_the_coordinator_on_the_plant_node_equal_the_single_
                 p.kill()
     summary = json.loads((tmp_path / "coordinator.json").read_text())
     assert summary["stop"] is None and summary["plant_steps"] == 101 and summary["plant"] == "can"
+    assert summary["timing"]["steps"] == 101 and summary["timing"]["plant_p50_ms"] > 0.0  # the node's round trip
+    assert {name: fig["ticks"] for name, fig in summary["units"].items()} == dict.fromkeys(UNITS, 100)
     assert json.loads((tmp_path / "node.json").read_text())["steps"] == 102  # and the last, all off
     spec = load_rig(resolve_rig("melmalec-16"))
     ref = single_run(7, 100)
@@ -180,3 +182,42 @@ def test_unit_processes_with_the_coordinator_on_the_plant_node_equal_the_single_
         for u in rig_units(spec):
             got[:, list(u.indices)] = np.load(tmp_path / f"{u.name}.npz")[key]
         assert np.array_equal(ref[key], got, equal_nan=True), key
+
+
+@pytest.mark.slow
+def test_a_killed_free_running_unit_process_is_lost_and_every_amplifier_ends_off(tmp_path) -> None:
+    """Free-running (`--plant-mode free-running`), SIGKILL leg3 once the coordinator steps on
+    the wall clock: the coordinator declares it lost within --stale-ticks periods (generous
+    here: 255 periods, about 2 s, for a loaded machine), every other unit safe-stops (read
+    back from its boards) and the plant ends with every amplifier off. No figure of speed."""
+    units = start_units(tmp_path, "--unit-timeout", "10")
+    coord = subprocess.Popen(vmehil("coordinate", "--rig", "melmalec-16", "--seed", "1", "--duration", "60",
+                                    "--interface", "udp_multicast", "--start-timeout", "120", "--unit-timeout", "10",
+                                    "--plant-mode", "free-running", "--stale-ticks", "255",
+                                    "--json", str(tmp_path / "coordinator.json")),
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for_exchange(2)  # step 0 is the lockstep power-up; from 1 on the wall clock
+        os.kill(units["leg3"].pid, signal.SIGKILL)
+        coord.wait(timeout=300)
+        codes = wait_all(units)
+    finally:
+        for p in (coord, *units.values()):
+            if p.poll() is None:
+                p.kill()
+    assert codes["leg3"] == -signal.SIGKILL
+    summary = json.loads((tmp_path / "coordinator.json").read_text())
+    assert summary["plant_mode"] == "free-running"
+    assert any(e["unit"] == "leg3" and e["what"].startswith("lost") for e in summary["events"]), summary["events"]
+    assert summary["amps_on"][-1] == 0
+    assert summary["stop"] is not None
+    for name in UNITS:
+        if name == "leg3":
+            continue
+        assert codes[name] == 1
+        s = json.loads((tmp_path / f"{name}.json").read_text())
+        assert s["faults"][0]["cause"]  # a stated cause: the lost unit's stop, or a stale answer first
+        assert s["final_stop"]["verified"] is True  # enables low, DACs 0 V, read back from its boards
+        assert s["plant_mode"] == "free-running" and s["timing"]["ticks"] >= 1
+        if any(e["unit"] == name and e["what"] == "left" for e in summary["events"]):
+            assert summary["units"][name]["realtime"] is True  # its figures came before it left
