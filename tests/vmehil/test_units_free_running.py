@@ -14,8 +14,8 @@ import threading
 from emulators.presets import resolve_rig
 from servo.rig import load_rig
 from tests.vmehil.test_units_parallel import BoardProbe
-from tests.vmehil.test_units_remote import UNITS
-from vmehil.units.processes import run_coordinator, run_unit
+from tests.vmehil.test_units_remote import UNITS, start_units
+from vmehil.units.processes import run_coordinator
 from vmehil.units.remote import unit_bus
 
 _channels = itertools.count()
@@ -24,21 +24,8 @@ _channels = itertools.count()
 def run_free(n_ticks: int, *, after_tick=None, stale_ticks: int = 5, timeout_s: float = 10.0):
     spec = load_rig(resolve_rig("melmalec-16"))
     channel = f"units-free-{next(_channels)}"
-    results: dict = {}
-
-    def unit(name: str) -> None:
-        bus = unit_bus("virtual", channel)
-        try:
-            results[name] = run_unit(spec, name, bus, timeout_s=timeout_s, start_timeout_s=30.0,
-                                     realtime_options={"overrun": "warn"}, after_tick=after_tick)
-        except BaseException as e:  # the test reads it
-            results[name] = e
-        finally:
-            bus.close()
-
-    threads = [threading.Thread(target=unit, args=(n,), daemon=True) for n in UNITS]
-    for t in threads:
-        t.start()
+    results, threads = start_units(spec, channel, timeout_s=timeout_s, start_timeout_s=30.0,
+                                   realtime_options={"overrun": "warn"}, after_tick=after_tick)
     bus = unit_bus("virtual", channel)
     try:
         out = run_coordinator(spec, bus, seed=1, n_ticks=n_ticks, timeout_s=timeout_s, start_timeout_s=30.0,

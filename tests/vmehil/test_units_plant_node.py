@@ -13,31 +13,12 @@ import numpy as np
 from emulators.presets import resolve_rig
 from servo.rig import load_rig
 from tests.vmehil.test_units_parallel import BoardProbe, single_run
-from tests.vmehil.test_units_remote import UNITS, merged
+from tests.vmehil.test_units_remote import UNITS, merged, start_units
 from vmehil.can_options import CanPlantOptions
-from vmehil.units.processes import run_coordinator, run_unit
+from vmehil.units.processes import run_coordinator
 from vmehil.units.remote import unit_bus
 
 _channels = itertools.count()
-
-
-def start_units(spec, channel: str, *, timeout_s: float = 5.0, after_tick=None) -> tuple[dict, list[threading.Thread]]:
-    results: dict = {}
-
-    def unit(name: str) -> None:
-        bus = unit_bus("virtual", channel)
-        try:
-            results[name] = run_unit(spec, name, bus, timeout_s=timeout_s, start_timeout_s=20.0,
-                                     after_tick=after_tick)
-        except BaseException as e:  # the test reads it
-            results[name] = e
-        finally:
-            bus.close()
-
-    threads = [threading.Thread(target=unit, args=(n,), daemon=True) for n in UNITS]
-    for t in threads:
-        t.start()
-    return results, threads
 
 
 def plant_node_link(seed: int, channel: str, **kw):

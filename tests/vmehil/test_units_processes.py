@@ -48,6 +48,20 @@ def wait_all(procs: dict[str, subprocess.Popen], timeout: float = 300.0) -> dict
     return codes
 
 
+def assert_recorded_equal_single(tmp_path, seed: int, n_ticks: int) -> None:
+    """Every unit's recorded arrays (--record), merged in joint order, equal the single
+    controller's for the same seed, bit for bit."""
+    from tests.vmehil.test_units_parallel import single_run
+
+    spec = load_rig(resolve_rig("melmalec-16"))
+    ref = single_run(seed, n_ticks)
+    for key in ("theta_true", "omega_true", "theta", "omega", "torque", "current_cmd", "current", "theta_d"):
+        got = np.full_like(ref[key], np.nan)
+        for u in rig_units(spec):
+            got[:, list(u.indices)] = np.load(tmp_path / f"{u.name}.npz")[key]
+        assert np.array_equal(ref[key], got, equal_nan=True), key
+
+
 def wait_for_exchange(at_least: int) -> None:
     """Listen on the unit bus until the coordinator has answered exchange ``at_least``."""
     from vmehil.units.remote import unit_bus
@@ -65,8 +79,6 @@ def wait_for_exchange(at_least: int) -> None:
 
 @pytest.mark.slow
 def test_unit_processes_in_lockstep_equal_the_single_controller_bit_for_bit(tmp_path) -> None:
-    from tests.vmehil.test_units_parallel import single_run
-
     units = start_units(tmp_path)
     coord = subprocess.run(vmehil("coordinate", "--rig", "melmalec-16", "--seed", "3", "--duration", "1",
                                   "--interface", "udp_multicast", "--start-timeout", "120",
@@ -76,13 +88,7 @@ def test_unit_processes_in_lockstep_equal_the_single_controller_bit_for_bit(tmp_
     assert set(wait_all(units).values()) == {0}
     summary = json.loads((tmp_path / "coordinator.json").read_text())
     assert summary["stop"] is None and summary["plant_steps"] == 126
-    spec = load_rig(resolve_rig("melmalec-16"))
-    ref = single_run(3, 125)
-    for key in ("theta_true", "omega_true", "theta", "omega", "torque", "current_cmd", "current", "theta_d"):
-        got = np.full_like(ref[key], np.nan)
-        for u in rig_units(spec):
-            got[:, list(u.indices)] = np.load(tmp_path / f"{u.name}.npz")[key]
-        assert np.array_equal(ref[key], got, equal_nan=True), key
+    assert_recorded_equal_single(tmp_path, 3, 125)
 
 
 @pytest.mark.slow
@@ -148,8 +154,6 @@ def test_the_coordinators_death_safe_stops_every_unit(tmp_path) -> None:
 def test_unit_processes_with_the_coordinator_on_the_plant_node_equal_the_single_controller(tmp_path) -> None:
     """`vmehil coordinate --plant can`: the plant is `vmehil plant-node` (a seventh process on
     the plant bus, 239.74.163.2), the units on the unit bus (239.74.163.3): bit-identical."""
-    from tests.vmehil.test_units_parallel import single_run
-
     node = subprocess.Popen(vmehil("plant-node", "--rig", "melmalec-16", "--interface", "udp_multicast",
                                    "--command-timeout", "0", "--json", str(tmp_path / "node.json")),
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -175,13 +179,7 @@ def test_unit_processes_with_the_coordinator_on_the_plant_node_equal_the_single_
     assert summary["timing"]["steps"] == 101 and summary["timing"]["plant_p50_ms"] > 0.0  # the node's round trip
     assert {name: fig["ticks"] for name, fig in summary["units"].items()} == dict.fromkeys(UNITS, 100)
     assert json.loads((tmp_path / "node.json").read_text())["steps"] == 102  # and the last, all off
-    spec = load_rig(resolve_rig("melmalec-16"))
-    ref = single_run(7, 100)
-    for key in ("theta_true", "omega_true", "theta", "omega", "torque", "current_cmd", "current", "theta_d"):
-        got = np.full_like(ref[key], np.nan)
-        for u in rig_units(spec):
-            got[:, list(u.indices)] = np.load(tmp_path / f"{u.name}.npz")[key]
-        assert np.array_equal(ref[key], got, equal_nan=True), key
+    assert_recorded_equal_single(tmp_path, 7, 100)
 
 
 @pytest.mark.slow

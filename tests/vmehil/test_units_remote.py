@@ -23,13 +23,15 @@ _channels = itertools.count()
 
 
 def start_units(spec, channel: str, names=UNITS, **kw) -> tuple[dict, list[threading.Thread]]:
+    """A thread per unit on the `virtual` unit bus ``channel``; ``kw``: run_unit's options
+    (timeout_s 5, start_timeout_s 20 unless given). The results: a UnitRun or the exception."""
     results: dict = {}
+    opts = {"timeout_s": 5.0, "start_timeout_s": 20.0, **kw}
 
     def unit(name: str) -> None:
         bus = unit_bus("virtual", channel)
         try:
-            results[name] = run_unit(spec, name, bus, timeout_s=kw.get("timeout_s", 5.0),
-                                     start_timeout_s=kw.get("start_timeout_s", 20.0))
+            results[name] = run_unit(spec, name, bus, **opts)
         except BaseException as e:  # the test reads it
             results[name] = e
         finally:

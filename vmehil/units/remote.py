@@ -63,6 +63,8 @@ from vmehil.units.hub import HubEvent, UnitLostError, UnitStopError
 
 #: the unit bus's default channel per interface (never the plant bus's: both use SENS/CMD frames)
 UNIT_CHANNELS = {"virtual": "vmehil-units", "udp_multicast": "239.74.163.3", "socketcan": "vcan1"}
+#: the unit bus's UDP port on udp_multicast (python-can's default, the plant bus's, is 43113)
+UNIT_PORT = 43114
 ALL_UNITS = 255
 STOP = {name: code for code, name in UNIT_STOP_CAUSES.items()}
 START_TIMEOUT_S = 30.0
@@ -117,7 +119,11 @@ def unit_channel(interface: str | None, channel: str | None) -> tuple[str, str]:
 
 def unit_bus(interface: str | None, channel: str | None, log_path: str | None = None) -> UnitBus:
     iface, chan = unit_channel(interface, channel)
-    return UnitBus(Endpoint(open_bus(iface, chan), set(), log_path=log_path))
+    # udp_multicast: a port of its own too. Linux delivers a group's datagrams to every socket
+    # bound to the port that joined any group (IP_MULTICAST_ALL), so on python-can's port the
+    # plant bus's frames would reach the units and the unit bus's the plant node
+    extra: dict[str, Any] = {"port": UNIT_PORT} if iface == "udp_multicast" else {}
+    return UnitBus(Endpoint(open_bus(iface, chan, **extra), set(), log_path=log_path))
 
 
 class UnitBus:
@@ -482,6 +488,7 @@ class _Server:
         self.idle = self.codec.command_raw(PlantCommand.idle(self.n))
         self.running = set(range(len(units)))
         self.stop: tuple[int, int, str] | None = None  # (exchange, unit number, cause)
+        self.backlog: list[PlantSensors] = []  # a free-running node's answers not yet passed on
 
     def stop_now(self, r: int, u: int, cause: str, what: str) -> None:
         name = self.units[u].name if u < len(self.units) else "coordinator"
@@ -529,6 +536,18 @@ class _Server:
         if int(f.raw["Stopped"]) or int(f.raw["Exchange"]) < self.n_ticks + 1:
             self.stop_now(r, u, "UNIT_STOPPED", "left before the run's end")
 
+    def keep_plant(self) -> None:
+        """While the units get ready: take a free-running plant node's answers (the motion of
+        every step it makes meanwhile: its encoder counts, passed on with the first step's
+        answer), with every amplifier off. An in-process or lockstep plant does not step."""
+        if not getattr(self.link, "free_running", False) or self.stop is not None:
+            return
+        try:
+            self.backlog.append(self.link.exchange(PlantCommand.idle(self.n), self.spec.period_s,
+                                                   self.spec.computation_delay_s))
+        except PlantLinkError as e:
+            self.stop_now(0, ALL_UNITS, "PLANT_LOST", f"the plant failed: {type(e).__name__}: {e}")
+
     def step(self, r: int, raw: dict[str, Any], delay_s: float) -> None:
         """Step the plant with ``raw`` and answer exchange (free-running: step) ``r``."""
         out, codec, clock = self.out, self.codec, time.perf_counter
@@ -542,6 +561,9 @@ class _Server:
             sensors = None
             self.stop_now(r, ALL_UNITS, "PLANT_LOST", f"the plant failed: {type(e).__name__}: {e}")
         t1 = clock()
+        if sensors is not None and self.backlog:  # the node's steps while the units got ready
+            sensors = latch_newest([*self.backlog, sensors])
+            self.backlog.clear()
         if sensors is not None:
             enabled = sensors.truth.get("amp_enabled")
             out.amps_on.append(int(np.count_nonzero(enabled)) if enabled is not None else -1)
@@ -673,14 +695,20 @@ class _Server:
                 self.unit_figures(f)
 
         t_end = time.monotonic() + self.timeout_s
+        keep_at = clock() + period
         while not self.running <= ready:
-            f = bus.recv(t_end - time.monotonic())
-            if f is None:
+            now = time.monotonic()
+            if now >= t_end:
                 for u in sorted(self.running - ready):
                     self.running.discard(u)
                     self.stop_now(step, u, "UNIT_LOST", f"lost: not RUNNING within {self.timeout_s:g} s")
                 break
-            take(f)
+            f = bus.recv(min(t_end - now, max(0.0, keep_at - clock())))
+            if clock() >= keep_at:  # a free-running plant node steps meanwhile: keep its answers
+                self.keep_plant()
+                keep_at += period
+            if f is not None:
+                take(f)
         timing = out.timing
         t0 = clock()
         # a unit's first SYNC may take up to timeout_s (its clock starts at the first answer, after
