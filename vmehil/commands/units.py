@@ -117,6 +117,7 @@ def _load(args: argparse.Namespace):
 def run_unit_command(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from emulators.plant_link import PlantLinkError
     from servo.runner import RealtimeRunner
     from vmehil.run_report import summarize
     from vmehil.units.processes import run_unit
@@ -131,6 +132,9 @@ def run_unit_command(args: argparse.Namespace) -> int:
     except UnitRefused as e:
         print(f"vmehil unit {args.unit}: refused: {e}", file=sys.stderr)
         return EXIT_REFUSED
+    except PlantLinkError as e:  # before its loop (the power-up exchange): its boards safe-stopped
+        print(f"vmehil unit {args.unit}: stopped before its loop ran: {e.cause}: {e}", file=sys.stderr)
+        return EXIT_FAULT
     finally:
         bus.close()
     loop, runner = out.loop, out.runner
