@@ -106,10 +106,10 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     parallel = getattr(args, "units", "single") == "parallel"
     if parallel:
-        refused = run_units.refused_options(args) + ([] if args.bus == "emulated" else ["--bus"])
+        refused = run_units.refused_options(args)
         if refused:
-            print(f"vmehil run --units parallel: {', '.join(refused)} not supported with parallel units "
-                  "(docs/melmalec.md)", file=sys.stderr)
+            print("vmehil run --units parallel: not with parallel units (docs/melmalec.md, \"Options with --units "
+                  "parallel\"):\n  " + "\n  ".join(refused), file=sys.stderr)
             return 2
         from servo.units import rig_units
         if not rig_units(rig):
@@ -150,7 +150,11 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
         raise ValueError("--duration must be > 0")
     n_ticks = round(duration * rig.servo_rate_hz)
     if parallel:
-        return run_units.run_parallel(args, rig, gains, motion, n_ticks, _make_link(args, rig))
+        from vmehil.calibration.store import load_store_or_nominal
+
+        # one file, the single run's loader and checks; each unit applies its own entries
+        store = _calibrated(args, rig, lambda cal: load_store_or_nominal(cal, rig))
+        return run_units.run_parallel(args, rig, gains, motion, n_ticks, _make_link(args, rig), calibration=store)
     system = _build_calibrated(args, rig, build_emulated_rig)
     loop = build_loop(system, motion=motion, gains=gains, n_ticks=n_ticks,
                       switch_off=False if args.no_integrator_switch_off else None)
@@ -204,6 +208,12 @@ def run_exit_status(loop, ended_by: BaseException | None) -> int:
 
 def _build_calibrated(args: argparse.Namespace, rig, build):
     """Build the rig with the drivers' calibration file; a missing file is a one-line warning."""
+    return _calibrated(args, rig, lambda cal: build(rig, seed=args.seed, link=_make_link(args, rig), calibration=cal))
+
+
+def _calibrated(args: argparse.Namespace, rig, use):
+    """``use(path)`` with the drivers' calibration file (``--calibration``, which must exist, or
+    the rig's default file); a missing default file is a one-line warning (nominal values)."""
     import warnings
 
     from vmehil.calibration.store import CalibrationMissingWarning, default_store_path
@@ -213,7 +223,7 @@ def _build_calibrated(args: argparse.Namespace, rig, build):
     cal = args.calibration or default_store_path(rig)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CalibrationMissingWarning)
-        system = build(rig, seed=args.seed, link=_make_link(args, rig), calibration=cal)
+        result = use(cal)
     for w in caught:
         if issubclass(w.category, CalibrationMissingWarning):
             print(f"warning: {w.message}", file=sys.stderr)
@@ -221,7 +231,7 @@ def _build_calibrated(args: argparse.Namespace, rig, build):
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     if not caught:
         print(f"calibration: {cal}", file=sys.stderr)
-    return system
+    return result
 
 
 def _make_link(args: argparse.Namespace, rig):
