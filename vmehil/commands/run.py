@@ -154,7 +154,8 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
 
         # one file, the single run's loader and checks; each unit applies its own entries
         store = _calibrated(args, rig, lambda cal: load_store_or_nominal(cal, rig))
-        return run_units.run_parallel(args, rig, gains, motion, n_ticks, _make_link(args, rig), calibration=store)
+        return run_units.run_parallel(args, rig, gains, motion, n_ticks, lambda: _make_link(args, rig),
+                                      calibration=store)
     system = _build_calibrated(args, rig, build_emulated_rig)
     loop = build_loop(system, motion=motion, gains=gains, n_ticks=n_ticks,
                       switch_off=False if args.no_integrator_switch_off else None)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from typing import Any
 
 from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name
@@ -53,9 +54,11 @@ def refused_options(args: argparse.Namespace) -> list[str]:
 
 
 def run_parallel(args: argparse.Namespace, rig: Any, gains: dict[str, float], motion: Any, n_ticks: int,
-                 link: Any, calibration: Any = None) -> int:
+                 make_link: Callable[[], Any], calibration: Any = None) -> int:
     """Run the units; the same summary, table, JSON and report as the single run (from the units'
-    loops merged in joint order, :class:`vmehil.units.options.MergedUnits`) plus each unit's."""
+    loops merged in joint order, :class:`vmehil.units.options.MergedUnits`) plus each unit's.
+    ``make_link()``: the plant link ``--plant can`` asks for, else None (called once the faults
+    are routed: a refused fault opens no link)."""
     from typing import cast
 
     from servo.loop import ServoLoop
@@ -68,6 +71,7 @@ def run_parallel(args: argparse.Namespace, rig: Any, gains: dict[str, float], mo
 
     faults = list(getattr(args, "_fault_scenario", None) or [])
     routed = route_faults(faults, rig, rig_units(rig)) if faults else {}
+    link = make_link()
     if link is None:
         link = plant_link_for(rig, args.seed)  # made here: a plant fault goes to this plant
     before_run, _ = fault_hook(routed, link, args.seed)
@@ -81,6 +85,9 @@ def run_parallel(args: argparse.Namespace, rig: Any, gains: dict[str, float], mo
         # run_units has stopped every unit (each one's armed() block: enables low, 0 V) first
         print(f"run: interrupted ({interrupt_name(e)}); every unit safe-stopped", file=sys.stderr)
         return interrupt_exit_status(e)
+    finally:
+        if run is None:  # run_units never returned: the plant link (a CAN node thread) is ours to close
+            link.close()
     status = 0
     units: dict[str, Any] = {}
     for u in run.units:
