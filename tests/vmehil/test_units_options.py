@@ -240,7 +240,8 @@ def test_a_hung_unit_has_its_amplifiers_latched_off_by_the_plant_nodes_command_t
         assert seen["exchanges"] == 52  # power-up + ticks 0..50: the node latched before exchange 52
         latched = seen["latched"]
         assert not seen["plant_enabled"].any() and not latched.enabled.any()  # read from the plant
-        assert (latched.cause[leg2] == WATCHDOG_COMMAND_TIMEOUT).all() and (latched.cause == WATCHDOG_COMMAND_TIMEOUT).all()
+        assert (latched.cause[leg2] == WATCHDOG_COMMAND_TIMEOUT).all()  # the hung unit's, and every other's
+        assert (latched.cause == WATCHDOG_COMMAND_TIMEOUT).all()
         # latched: still off after the commands came again (the others' enables never rose again)
         assert not node.amplifiers().enabled.any() and not node.plant.amplifier_enabled().any()
         for u in run.units:

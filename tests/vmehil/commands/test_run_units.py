@@ -31,7 +31,8 @@ def test_run_units_parallel_reports_every_unit_with_the_single_runs_figures(tmp_
     assert par["joints"] == single["joints"] and par["motion_end_s"] == single["motion_end_s"]
     assert par["ticks"] == single["ticks"] == par["ticks_planned"] == 62
     out = capsys.readouterr().out
-    assert "units (parallel; plant steps 63):" in out and "  arm    4 joints  ticks 62  ran to the end  stop verified" in out
+    assert "units (parallel; plant steps 63):" in out
+    assert "  arm    4 joints  ticks 62  ran to the end  stop verified" in out
     assert par["units_mode"] == "parallel" and par["plant_steps"] == 63 and par["stop"] is None
     assert list(par["units"]) == ["leg1", "leg2", "leg3", "leg4", "arm"]
     joints = {j["name"]: j for u in par["units"].values() for j in u["joints"]}
@@ -61,7 +62,8 @@ def test_run_units_parallel_writes_the_single_runs_report(tmp_path, monkeypatch)
     assert len(plots) == 16 and plots == sorted(Path(p).name for p in drawn if Path(p).parent.name == "parallel")
     for name in plots:  # every joint's plot draws the same curves (by hand: the PNGs are byte-identical)
         a, b = drawn[str(tmp_path / "single" / name)], drawn[str(tmp_path / "parallel" / name)]
-        assert len(a) == len(b) > 5 and all(np.array_equal(x, y, equal_nan=True) for x, y in zip(a, b)), name
+        assert len(a) == len(b) > 5, name
+        assert all(np.array_equal(x, y, equal_nan=True) for x, y in zip(a, b, strict=True)), name
     md = (tmp_path / "parallel" / "summary.md").read_text()
     assert "units (parallel; plant steps 63):" in md and "  leg2   3 joints  ticks 62  ran to the end" in md
 
