@@ -111,7 +111,7 @@ def run_parallel(args: argparse.Namespace, rig: Any, gains: dict[str, float], mo
     merged = cast(ServoLoop, MergedUnits(run)) if any(u.loop is not None for u in run.units) else None
     if merged is not None:  # the single run's summary, of every joint (the units' loops merged)
         summary = summarize(merged, rig=rig.name, seed=args.seed, realtime=args.realtime,
-                            overruns=sum(int(x.get("overruns", 0)) for x in units.values()))
+                            overruns=max((int(x.get("overruns", 0)) for x in units.values()), default=0))
     else:
         summary = {"rig": rig.name, "seed": args.seed, "joints": []}
     if faults:
