@@ -15,7 +15,7 @@ from servo.motion import hold_motion
 from servo.rig import load_rig
 from servo.runner import LockstepRunner
 from servo.units import rig_units
-from tests.vmehil.test_units_parallel import BoardProbe, chain
+from tests.vmehil.test_units_parallel import BoardProbe, chain, hub_captured
 from vmehil.calibration.store import CalibrationStore, JointCal, load_store, utc_now
 from vmehil.cli import main
 from vmehil.fault_injection import parse_fault_spec
@@ -223,17 +223,8 @@ def test_a_hung_unit_has_its_amplifiers_latched_off_by_the_plant_nodes_command_t
             seen["silence_s"] = node.last_silence_s
             assert holder["hub"].lost.wait(timeout=60.0)
 
-    original = coordinator.PlantHub
-
-    def capture(*a, **kw):
-        holder["hub"] = original(*a, **kw)
-        return holder["hub"]
-
-    coordinator.PlantHub = capture  # type: ignore[misc]
-    try:
+    with hub_captured(holder):
         run = run_units(RIG, seed=1, n_ticks=90, link=link, timeout_s=3.0, after_tick=chain(probe, hang))
-    finally:
-        coordinator.PlantHub = original  # type: ignore[misc]
     try:
         assert seen["before"].enabled.all() and not seen["before"].tripped.any()
         assert node.counters.command_timeouts >= 1 and seen["silence_s"] >= 0.2
