@@ -164,6 +164,12 @@ def test_a_unit_that_dies_with_an_exception_stops_every_unit_within_one_tick() -
                 assert probe.first_off(u.unit.name) == 81, u.unit.name
                 assert u.loop.fault.cause == "unit_stop"
         assert all(x == 0 for x in run.hub.amps_on[83:])  # the plant: all off within 2 exchanges
+        # the merged record (the report's) runs to the longest unit's end; leg4's columns end early
+        got, rows = run.recorded(), max(u.loop.recorder.count for u in run.units)
+        leg4_rows = leg4.loop.recorder.count
+        assert rows > leg4_rows and got["theta"].shape[0] == rows
+        cols = list(leg4.unit.indices)
+        assert np.isnan(got["theta"][leg4_rows:, cols]).all() and np.isfinite(got["theta"][:leg4_rows, cols]).all()
     finally:
         run.close()
 

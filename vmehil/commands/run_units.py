@@ -108,7 +108,7 @@ def run_parallel(args: argparse.Namespace, rig: Any, gains: dict[str, float], mo
     hub_stop = run.hub.stop
     stop: dict[str, Any] | None = (None if hub_stop is None else
                                    {"unit": hub_stop.unit, "exchange": hub_stop.exchange, "what": hub_stop.what})
-    merged = cast(ServoLoop, MergedUnits(run)) if any(u.loop is not None for u in run.units) else None
+    merged = cast(ServoLoop, MergedUnits(run)) if all(u.loop is not None for u in run.units) else None
     if merged is not None:  # the single run's summary, of every joint (the units' loops merged)
         summary = summarize(merged, rig=rig.name, seed=args.seed, realtime=args.realtime,
                             overruns=max((int(x.get("overruns", 0)) for x in units.values()), default=0))
