@@ -209,10 +209,11 @@ class QuadratureDriver:
         self.low_speed_counts = max(1, int(low_speed_counts))
         self.stop_ticks = max(1, int(stop_ticks))
         self._latch_mask = sum(1 << ch for ch in self.channels)
-        self._gcmd = QUAD_REGS["GCMD"]
-        self._gcmd_latch = self._gcmd.pack(latch=self._latch_mask)
-        #: per channel its registers, resolved once (the per-tick reads name no strings)
-        self._regs = {ch: {name: QUAD_REGS[reg_name(ch, name)] for name in ("CMD", "STATUS", "OL_HI", "OL_LO")}
+        self._gcmd = "GCMD"
+        self._gcmd_latch = QUAD_REGS["GCMD"].pack(latch=self._latch_mask)
+        #: per channel its register names, built once (no f-strings per tick); by name, so the
+        #: window's resolved cycle per name serves them (a Register object takes its general path)
+        self._regs = {ch: {name: QUAD_REGS[reg_name(ch, name)].name for name in ("CMD", "STATUS", "OL_HI", "OL_LO")}
                       for ch in self.channels}
         self._track: dict[int, _Track] = {}
         for ch in self.channels:
