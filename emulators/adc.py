@@ -252,7 +252,7 @@ class AdcBoard(RegisterBoard):
                 break
             conv.i = i + 1
             assert clock is not None
-            end = clock.now_ns + self.conversion_time_ns
+            end = clock._now + self.conversion_time_ns  # clock.now_ns
             if not clock.free_until(end):
                 conv.begin()
                 return

@@ -425,20 +425,32 @@ class QuadratureDriver:
         Call once per servo tick. Every channel is processed before an error is raised; the
         error carries all readings in ``err.readings``.
         """
-        self.win.write(self._gcmd, self._gcmd_latch)
+        read, write = self.win.read, self.win.write
+        write(self._gcmd, self._gcmd_latch)
         out: dict[int, ChannelReading] = {}
         first_error: QuadratureError | None = None
+        raise_illegal = self.errors == "raise"
         for ch in self.channels:
             t = self._t(ch)
             try:
-                raw, st = self._read_tracked(ch, latch=False)
+                # _read_tracked(ch, latch=False) and _read_ol inline: the same cycles in the same order
+                regs = self._regs[ch]
+                status = read(regs["STATUS"])
+                hi = read(regs["OL_HI"]) & 0xFF
+                raw = hi << 16 | read(regs["OL_LO"])
+                wrap = status & (ST_OVERFLOW | ST_UNDERFLOW)
+                if wrap:
+                    write(regs["STATUS"], wrap)
+                self._unwrap(ch, t, raw, status)
+                st = ChannelStatus.decode(status)
                 v = self._velocity_step(ch, t, dt)
-                self._raise_flags(ch, st)
+                if st.illegal and raise_illegal:
+                    self._raise_flags(ch, st)
             except QuadratureError as e:
                 first_error = first_error or e
                 st = ChannelStatus.decode(self.win.read(reg_name(ch, "STATUS")))
                 raw, v = t.raw, t.velocity
-            cpr = self.counts_per_rev(ch)
+            cpr = self.counts_per_rev_x4[ch] * t.mode / 4.0  # counts_per_rev(ch)
             out[ch] = ChannelReading(ch, raw, t.counts, (t.counts - t.zero) * TWO_PI / cpr, v, v * TWO_PI / cpr, st)
         if first_error is not None:
             first_error.readings = out
