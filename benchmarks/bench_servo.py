@@ -29,12 +29,15 @@ and melmalec-16 ≥ 25× real time (the baseline is real time, 1×; the plant al
 same run is printed with it); real time melmalec-16: zero overruns, controller p99 < 25 % of the
 period; the full stack per joint ≥ 30× the python-control user's rate per joint.
 
-Run: ``python -m benchmarks bench_servo [--seconds 10]`` or ``python benchmarks/bench_servo.py``.
+Run: ``python -m benchmarks bench_servo [--seconds 10]`` or ``python benchmarks/bench_servo.py
+[--rt-priority P]`` (or ``VMEHIL_RT_PRIORITY=P``): the real-time runs under ``SCHED_FIFO`` priority P
+with ``mlockall`` where permitted (:mod:`servo.rt`; what was refused is printed in (b)).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 
@@ -132,6 +135,8 @@ def bench_python_control(periods: int) -> float | None:
 
 
 def main(quick: bool = False, seconds: float | None = None, rt_priority: int | None = None) -> list[str]:
+    if rt_priority is None and os.environ.get("VMEHIL_RT_PRIORITY"):  # `python -m benchmarks` has no flag for it
+        rt_priority = int(os.environ["VMEHIL_RT_PRIORITY"])
     if seconds is None:
         seconds = 10.0 if quick else 60.0
     ticks = 250 if quick else LOCKSTEP_TICKS
