@@ -142,21 +142,14 @@ class AdcBoard(RegisterBoard):
         return block[i]  # type: ignore[no-any-return]
 
     def sample(self, channel: int, gain: int, rng: AdcRange) -> int:
-        """Sample-and-hold plus conversion of ``channel`` now: the 12-bit code."""
-        if self.faulted:
-            stuck = self.fault("stuck_channel")
-            if stuck is not None and int(stuck.get("channel", -1)) == channel:
-                return int(stuck.get("code", 0)) & CODE_MAX
-            v = self.input_volts(channel)
-            sigma = self._noise_rms(channel)
-        else:  # input_volts and _noise_rms without a fault, inline: the same sums, in the same order
-            net = self.wiring.get(channel)
-            crate = self.crate
-            v = 0.0 if net is None or crate is None else crate.signals.analog.get(net, 0.0)
-            var = self.noise_rms_v**2
-            for fn in self._noise_sources:
-                var += float(fn()) ** 2
-            sigma = math.sqrt(var)
+        """Sample-and-hold plus conversion of ``channel`` now: the 12-bit code. The reference
+        path, faults included; without a fault armed a conversion runs the same steps inline
+        (:meth:`_Conversion.sample`)."""
+        stuck = self.fault("stuck_channel")
+        if stuck is not None and int(stuck.get("channel", -1)) == channel:
+            return int(stuck.get("code", 0)) & CODE_MAX
+        v = self.input_volts(channel)
+        sigma = self._noise_rms(channel)
         if sigma > 0:
             v += sigma * self._normal()
         v = v * (1.0 + self.gain_error[channel]) + self.offset_v[channel]
