@@ -241,6 +241,8 @@ class RealtimeRunner(LockstepRunner):
         self.gc_slack_s = 0.003  #: collect young objects only when the next deadline is this far
         #: real-time settings for the run (:func:`servo.rt.apply_realtime`; all off by default):
         #: applied when :meth:`run` starts, restored when it ends
+        if rt_priority is not None and not 1 <= int(rt_priority) <= 99:
+            raise ValueError(f"real-time priority {rt_priority!r}: expected 1..99 (SCHED_FIFO)")
         self.rt_priority, self.lock_memory, self.cpus = rt_priority, lock_memory, cpus
         #: what the last run applied and was refused (None: nothing was asked)
         self.rt_settings: RealtimeSettings | None = None
@@ -254,9 +256,9 @@ class RealtimeRunner(LockstepRunner):
         gc.freeze()
         gc.disable()
         rt = None
-        if self.rt_priority is not None or self.lock_memory or self.cpus is not None:
-            rt = self.rt_settings = apply_realtime(self.rt_priority, self.lock_memory, self.cpus)
         try:
+            if self.rt_priority is not None or self.lock_memory or self.cpus is not None:
+                rt = self.rt_settings = apply_realtime(self.rt_priority, self.lock_memory, self.cpus)
             return super().run(n_ticks, progress, stop)
         finally:
             if rt is not None:

@@ -102,3 +102,11 @@ def test_the_runner_records_thread_cpu_per_tick_and_restores_what_it_applied() -
         assert runner.rt_settings is not None and runner.rt_settings.applied == [f"CPUs {cpus}"]
         assert os.sched_getaffinity(0) == before
     system.close()
+
+
+def test_a_runner_refuses_a_bad_priority_before_any_run() -> None:
+    system = build_emulated_rig(None, seed=0)
+    loop = build_loop(system, n_ticks=2)
+    with pytest.raises(ValueError, match="1..99"):
+        RealtimeRunner(system, loop, rt_priority=100)
+    system.close()
