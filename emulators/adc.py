@@ -134,12 +134,15 @@ class AdcBoard(RegisterBoard):
         give (numpy's Generator fills arrays from the same stream), without a numpy call and
         a numpy scalar per sample. The stream is this board's own."""
         i = self._normal_next
-        block = self._normals
-        if i >= len(block):
-            block = self._normals = self._rng.standard_normal(_NORMAL_BLOCK).tolist()
-            i = 0
+        if i >= len(self._normals):
+            i = self._refill_normals()
         self._normal_next = i + 1
-        return block[i]  # type: ignore[no-any-return]
+        return self._normals[i]
+
+    def _refill_normals(self) -> int:
+        """Draw the next block of normals; returns the index of the next one (0)."""
+        self._normals = self._rng.standard_normal(_NORMAL_BLOCK).tolist()
+        return 0
 
     def sample(self, channel: int, gain: int, rng: AdcRange) -> int:
         """Sample-and-hold plus conversion of ``channel`` now: the 12-bit code. The reference
@@ -320,14 +323,12 @@ class _Conversion:
             for fn in b._noise_sources:
                 var += float(fn()) ** 2
             sigma = math.sqrt(var)
-            if sigma > 0:  # b._normal()
+            if sigma > 0:  # b._normal() inline
                 i = b._normal_next
-                block = b._normals
-                if i >= len(block):
-                    block = b._normals = b._rng.standard_normal(_NORMAL_BLOCK).tolist()
-                    i = 0
+                if i >= len(b._normals):
+                    i = b._refill_normals()
                 b._normal_next = i + 1
-                v += sigma * block[i]
+                v += sigma * b._normals[i]
             v = v * (1.0 + b.gain_error[ch]) + b.offset_v[ch]
             if v != v:
                 raise ValueError("ADC input is NaN")  # as adc_volts_to_code
