@@ -42,7 +42,7 @@ import sys
 import time
 
 from benchmarks.goals import Goal, record
-from servo.rt import machine_probe
+from servo.rt import apply_realtime, machine_probe
 from servo.runner import LockstepRunner, RealtimeRunner
 from vmehil.session import build_loop
 from vmehil.system import build_emulated_rig
@@ -180,13 +180,19 @@ def main(quick: bool = False, seconds: float | None = None, rt_priority: int | N
             f"{'lateness p50/p99/max':>22s}"]
     print("\n".join(head), flush=True)
     lines += head
-    # the machine's own jitter, same run, same pacing: a fixed ~1 ms of pure Python per tick
-    m = machine_probe(seconds)
+    # the machine's own jitter, same run, same pacing and real-time settings: a fixed ~1 ms of
+    # pure Python per tick
+    rt = apply_realtime(rt_priority, lock_memory=True) if rt_priority is not None else None
+    try:
+        m = machine_probe(seconds)
+    finally:
+        if rt is not None:
+            rt.restore()
     line = (f"{'machine':<12s} {'-':>6s} {m['ticks']:6d} {m['ticks_over_period']:8d} "
             f"{m['wall_p50_ms']:6.2f}/{m['wall_p99_ms']:5.2f}/{m['wall_max_ms']:6.2f}    "
             f"(a fixed pure-Python workload; p99/p50 {m['p99_over_p50']:.2f}; thread CPU p50/p99/max "
             f"{m['cpu_p50_ms']:.2f}/{m['cpu_p99_ms']:.2f}/{m['cpu_max_ms']:.2f}; {m['ticks_switched']} ticks "
-            f"preempted; steal {m['steal_s']:.2f} s)")
+            f"preempted; steal {m['steal_s']:.2f} s; real-time settings: {rt.describe() if rt else 'off'})")
     print(line, flush=True)
     lines.append(line)
     spikes = []
