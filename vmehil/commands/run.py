@@ -22,7 +22,13 @@ from vmehil.console import extension as console_extension
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
 from vmehil.files import write_json
 from vmehil.mavlink import extension as mavlink_extension
-from vmehil.realtime_options import add_overrun_args, add_pacing_args, overrun_options, realtime
+from vmehil.realtime_options import (
+    add_overrun_args,
+    add_pacing_args,
+    overrun_options,
+    realtime,
+    realtime_settings_summary,
+)
 
 # Modules that extend `vmehil run` (live tuning over MAVLink, the operator console, ...). Each
 # defines ``add_arguments(parser)`` and ``attach(args, system, loop, runner)``, which returns
@@ -184,6 +190,10 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
         add = getattr(a, "add_to_summary", None)
         if add is not None:
             add(summary)
+    rt_settings = realtime_settings_summary(runner)
+    if rt_settings is not None:
+        summary["realtime_settings"] = rt_settings
+        print(f"real-time settings: {rt_settings['described']}", file=sys.stderr)
     print(table(summary))
     if timing:
         print(f"timing: compute p50 {timing['compute_p50_ms']:.3f} ms, p99 {timing['compute_p99_ms']:.3f} ms; "
