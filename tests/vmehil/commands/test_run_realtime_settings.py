@@ -39,7 +39,8 @@ def test_a_lockstep_run_asks_for_no_realtime_settings(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("value", ["0", "100", "x"])
-def test_an_out_of_range_priority_is_refused_before_anything_runs(value: str, capsys: pytest.CaptureFixture[str]) -> None:
+def test_an_out_of_range_priority_is_refused_before_anything_runs(
+        value: str, capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as e:
         main(["run", "--realtime", "--rt-priority", value])
     assert e.value.code == 2
