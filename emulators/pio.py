@@ -144,9 +144,14 @@ class PioBoard(RegisterBoard):
         if self.crate is None:
             return
         signals, regs = self.crate.signals, self.regs
-        for port, bit, net in self._wired:
+        if self.faulted:  # a stuck line may override an output's level
+            for port, bit, net in self._wired:
+                if regs[_DDR[port]] >> bit & 1:
+                    signals.set_digital(net, self.pin_level(port, bit))
+            return
+        for port, bit, net in self._wired:  # no fault: an output's pin is its latch (pin_level)
             if regs[_DDR[port]] >> bit & 1:
-                signals.set_digital(net, self.pin_level(port, bit))
+                signals.set_digital(net, bool(regs[_DATA[port]] >> bit & 1))
 
     # --- input change detection and interrupt --------------------------------------------
     def _on_net(self, net: str, value: Any) -> None:

@@ -195,16 +195,18 @@ class QuadratureBoard(RegisterBoard):
     def apply_events(self, c: int, ev: QuadratureEvents) -> None:
         """Apply one interval's decoded events to channel ``c`` (faults included)."""
         ch = self.ch[c]
-        counts, illegal, offsets = int(ev.counts), int(ev.illegal), tuple(int(o) for o in ev.index_offsets)
+        counts, illegal = int(ev.counts), int(ev.illegal)
+        offsets = tuple(int(o) for o in ev.index_offsets) if ev.index_offsets else ()
         ch.stats["intervals"] += 1
-        miss = self.fault("missed_counts")
+        faulted = self.faulted  # no fault armed: fault() would answer None for both
+        miss = self.fault("missed_counts") if faulted else None
         if miss is not None and int(miss.get("channel", 0)) == c and ch.missed_left > 0 and counts:
             drop = min(ch.missed_left, abs(counts))
             ch.missed_left -= drop
             sign = 1 if counts > 0 else -1
             counts -= sign * drop
             offsets = tuple(o - sign * min(drop, abs(o)) if o * sign > 0 else o for o in offsets)
-        glitch = self.fault("glitch")
+        glitch = self.fault("glitch") if faulted else None
         extra = 0
         if glitch is not None and int(glitch.get("channel", 0)) == c and ch.glitch_left != 0:
             extra = int(glitch.get("counts", 0))

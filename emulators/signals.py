@@ -62,6 +62,12 @@ class Signals:
             for cb in listeners:
                 cb(net, volts)
 
+    def listened(self) -> dict[str, list[Listener]]:
+        """The nets' listeners (read-only use: a net without any may be absent). A writer of
+        many nets per tick sets ``analog`` directly where a net has no listener, as
+        :meth:`set_analog` does, and calls :meth:`set_analog` where it has."""
+        return self._listeners
+
     def get_analog(self, net: str, default: float = 0.0) -> float:
         return self.analog.get(net, default)
 

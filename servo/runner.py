@@ -39,6 +39,7 @@ import numpy as np
 from servo.boundary import PlantBoundary, PlantBoundaryError
 from servo.interrupts import Terminated, interrupt_name
 from servo.loop import ServoLoop
+from servo.rt import RealtimeSettings, apply_realtime, involuntary_switches, wait_until
 
 Progress = Callable[[int, int], None]
 
@@ -87,6 +88,13 @@ class TimingStats:
     #: controller runs) and in the harness exchange (clock, publish, in-process plant step)
     controller_s: TickSeries = field(default_factory=TickSeries)
     harness_s: TickSeries = field(default_factory=TickSeries)
+    #: per tick, the thread CPU time of the compute: below ``compute_s`` when the thread was
+    #: switched out; equal to it when the time went in this thread (our work, or a virtual CPU
+    #: the hypervisor paused: compare :func:`servo.rt.machine_probe`)
+    compute_cpu_s: TickSeries = field(default_factory=TickSeries)
+    #: ticks whose compute saw at least one involuntary context switch, and overruns among them
+    preempted: int = 0
+    overruns_preempted: int = 0
 
     def summary(self, period_s: float) -> dict[str, float | int]:
         c = self.compute_s.values() if len(self.compute_s) else np.zeros(1)
@@ -101,6 +109,9 @@ class TimingStats:
             "lateness_p50_ms": float(np.percentile(late, 50) * 1e3),
             "lateness_p99_ms": float(np.percentile(late, 99) * 1e3),
             "lateness_max_ms": float(max(late.max(), self.lateness_s.peak) * 1e3),
+            "ticks_preempted": self.preempted,
+            "overruns_preempted": self.overruns_preempted,
+            **series_summary("compute_cpu", self.compute_cpu_s, period_s),
             **series_summary("controller", self.controller_s, period_s),
             **series_summary("harness", self.harness_s, period_s),
         }
@@ -213,7 +224,9 @@ class RealtimeRunner(LockstepRunner):
     def __init__(self, plant: PlantBoundary, loop: ServoLoop, *, spin_s: float = 0.0005,
                  clock: Callable[[], float] = time.perf_counter,
                  sleep: Callable[[float], None] = time.sleep,
-                 overrun: str = "stop", max_lateness_periods: float = 5.0) -> None:
+                 overrun: str = "stop", max_lateness_periods: float = 5.0,
+                 rt_priority: int | None = None, lock_memory: bool = False,
+                 cpus: list[int] | None = None) -> None:
         super().__init__(plant, loop)
         if overrun not in OVERRUN_POLICIES:
             raise ValueError(f"overrun policy {overrun!r}: expected one of {', '.join(OVERRUN_POLICIES)}")
@@ -228,6 +241,13 @@ class RealtimeRunner(LockstepRunner):
         self.sleep = sleep
         self.timing = TimingStats()
         self.gc_slack_s = 0.003  #: collect young objects only when the next deadline is this far
+        #: real-time settings for the run (:func:`servo.rt.apply_realtime`; all off by default):
+        #: applied when :meth:`run` starts, restored when it ends
+        if rt_priority is not None and not 1 <= int(rt_priority) <= 99:
+            raise ValueError(f"real-time priority {rt_priority!r}: expected 1..99 (SCHED_FIFO)")
+        self.rt_priority, self.lock_memory, self.cpus = rt_priority, lock_memory, cpus
+        #: what the last run applied and was refused (None: nothing was asked)
+        self.rt_settings: RealtimeSettings | None = None
 
     def run(self, n_ticks: int, progress: Progress | None = None, stop: Callable[[], bool] | None = None) -> int:
         # Python's cyclic garbage collector can pause a tick for ~10 ms. During the run it is
@@ -237,9 +257,14 @@ class RealtimeRunner(LockstepRunner):
         gc.collect()
         gc.freeze()
         gc.disable()
+        rt = None
         try:
+            if self.rt_priority is not None or self.lock_memory or self.cpus is not None:
+                rt = self.rt_settings = apply_realtime(self.rt_priority, self.lock_memory, self.cpus)
             return super().run(n_ticks, progress, stop)
         finally:
+            if rt is not None:
+                rt.restore()
             self.overruns = self.timing.overruns
             gc.unfreeze()
             if gc_was_enabled:
@@ -262,22 +287,24 @@ class RealtimeRunner(LockstepRunner):
                     self.stop_now("overrun", f"the loop fell {behind:.1f} periods behind its deadline "
                                   f"(limit {self.max_lateness_periods:g}; --overrun warn runs on)")
                     return i
+            switches, cpu0 = involuntary_switches(), time.thread_time()
             self.tick()
+            cpu = time.thread_time() - cpu0
+            preempted = involuntary_switches() != switches
             self._completed = i + 1
             done = self.clock()
             self.timing.compute_s.append(done - woke)
+            self.timing.compute_cpu_s.append(cpu)
+            self.timing.preempted += preempted
             self.timing.lateness_s.append(max(0.0, woke - deadline))
             self.timing.controller_s.append(self.last_split[0])
             self.timing.harness_s.append(self.last_split[1])
             if done > deadline + self.period_s:
                 self.timing.overruns += 1
+                self.timing.overruns_preempted += preempted
             if progress is not None:
                 progress(i + 1, n_ticks)
         return n_ticks
 
     def _wait_until(self, deadline: float) -> None:
-        remaining = deadline - self.clock()
-        if remaining > self.spin_s:
-            self.sleep(remaining - self.spin_s)
-        while self.clock() < deadline:
-            pass
+        wait_until(deadline, self.clock, self.sleep, self.spin_s)

@@ -6,7 +6,7 @@ import argparse
 from typing import Any
 
 from servo.runner import OVERRUN_POLICIES
-from vmehil.cli_types import bounded_float
+from vmehil.cli_types import bounded_float, bounded_int
 
 
 def add_overrun_args(p: argparse.ArgumentParser) -> None:
@@ -16,10 +16,28 @@ def add_overrun_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-lateness", type=bounded_float(0.0, 1000.0, what="a lateness in periods", lo_open=True),
                    default=5.0, metavar="PERIODS",
                    help="real time: how far behind its deadline the loop may fall, in servo periods (default 5)")
+    p.add_argument("--rt-priority", type=bounded_int(1, 99, what="a SCHED_FIFO priority"), default=None,
+                   metavar="P",
+                   help="real time: run the loop's thread under SCHED_FIFO at priority P (1..99) so ordinary "
+                        "processes do not preempt a tick; needs CAP_SYS_NICE or RLIMIT_RTPRIO, and a refusal "
+                        "is reported, not fatal (docs/servo-loop.md)")
+    p.add_argument("--lock-memory", action="store_true",
+                   help="real time: mlockall the process's memory (no page faults inside a tick); a refusal "
+                        "is reported, not fatal")
 
 
 def overrun_options(args: argparse.Namespace) -> dict[str, Any]:
-    return {"overrun": args.overrun, "max_lateness_periods": args.max_lateness}
+    return {"overrun": args.overrun, "max_lateness_periods": args.max_lateness,
+            "rt_priority": getattr(args, "rt_priority", None), "lock_memory": getattr(args, "lock_memory", False)}
+
+
+def realtime_settings_summary(runner: object) -> dict[str, Any] | None:
+    """What a paced run's real-time settings were (``applied`` and ``refused`` with the reason),
+    for the run's JSON and its stderr line; ``None`` when none were asked for."""
+    rt = getattr(runner, "rt_settings", None)
+    if rt is None:
+        return None
+    return {"applied": list(rt.applied), "refused": dict(rt.refused), "described": rt.describe()}
 
 
 def add_pacing_args(p: argparse.ArgumentParser, *, default: str) -> None:

@@ -110,7 +110,36 @@ def table(summary: dict[str, Any]) -> str:
     tail = [*vis] + [f"fault: {f['cause']} at {f['time_s']:.3f} s ({f['joint']}): {f['detail']}"
                      for f in summary["faults"]]
     note = [f"LC: limit cycle over the hold from {SETTLE_S:g} s after the last move; \"—\": none ({CYCLE_RULE})."]
-    return "\n".join([head, "", *lines, *note, *tail])
+    return "\n".join([head, "", *lines, *note, *tail, *units_section(summary)])
+
+
+def units_section(summary: dict[str, Any]) -> list[str]:
+    """A run of parallel units (``vmehil run --units parallel``): one line per unit (its joints,
+    ticks, how it stopped; compute, lateness and overruns when real time) and the first stop the
+    coordinator saw. Empty for a run of one controller."""
+    units = summary.get("units")
+    if not units:
+        return []
+    lines = ["", f"units (parallel; plant steps {summary.get('plant_steps', '?')}):"]
+    for name, u in units.items():
+        if "error" in u:
+            lines.append(f"  {name:6s} did not run: {u['error']}")
+            continue
+        fault = u["faults"][0] if u.get("faults") else None
+        stop = u.get("final_stop") or {}
+        how = "ran to the end" if fault is None else f"stopped: {fault['cause']} at tick {fault['tick']}"
+        line = (f"  {name:6s} {len(u['joints'])} joints  ticks {u['ticks']}  {how}  "
+                f"stop {'verified' if stop.get('verified') else 'NOT verified'}")
+        t = u.get("timing")
+        if t:
+            line += (f"  compute p50 {t['compute_p50_ms']:.2f} ms p99 {t['compute_p99_ms']:.2f} ms  "
+                     f"lateness p99 {t['lateness_p99_ms']:.2f} ms max {t['lateness_max_ms']:.2f} ms  "
+                     f"overruns {t['overruns']}")
+        lines.append(line)
+    stop = summary.get("stop")
+    if isinstance(stop, dict) and "exchange" in stop:
+        lines.append(f"stop: unit {stop['unit']} at exchange {stop['exchange']}: {stop['what']}")
+    return lines
 
 
 def _cycle_amp(lc: dict[str, Any]) -> float | None:

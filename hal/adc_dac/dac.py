@@ -34,7 +34,8 @@ from hal.vme.bus import SpaceLike, VmeBus
 from hal.vme.window import BoardWindow
 
 _CSR = DAC_REGMAP["CSR"]
-_DATA_REGS = tuple(DAC_REGMAP[f"DATA{i}"] for i in range(DAC_CHANNELS))  #: DATAn by channel
+#: DATAn by channel, by name (BoardWindow keeps the resolved cycle per register name)
+_DATA_REGS = tuple(DAC_REGMAP[f"DATA{i}"].name for i in range(DAC_CHANNELS))
 
 
 class DacRangeError(AdcDacError, ValueError):

@@ -209,10 +209,11 @@ class QuadratureDriver:
         self.low_speed_counts = max(1, int(low_speed_counts))
         self.stop_ticks = max(1, int(stop_ticks))
         self._latch_mask = sum(1 << ch for ch in self.channels)
-        self._gcmd = QUAD_REGS["GCMD"]
-        self._gcmd_latch = self._gcmd.pack(latch=self._latch_mask)
-        #: per channel its registers, resolved once (the per-tick reads name no strings)
-        self._regs = {ch: {name: QUAD_REGS[reg_name(ch, name)] for name in ("CMD", "STATUS", "OL_HI", "OL_LO")}
+        self._gcmd = "GCMD"
+        self._gcmd_latch = QUAD_REGS["GCMD"].pack(latch=self._latch_mask)
+        #: per channel its register names, built once (no f-strings per tick); by name, so the
+        #: window's resolved cycle per name serves them (a Register object takes its general path)
+        self._regs = {ch: {name: QUAD_REGS[reg_name(ch, name)].name for name in ("CMD", "STATUS", "OL_HI", "OL_LO")}
                       for ch in self.channels}
         self._track: dict[int, _Track] = {}
         for ch in self.channels:
@@ -424,20 +425,32 @@ class QuadratureDriver:
         Call once per servo tick. Every channel is processed before an error is raised; the
         error carries all readings in ``err.readings``.
         """
-        self.win.write(self._gcmd, self._gcmd_latch)
+        read, write = self.win.read, self.win.write
+        write(self._gcmd, self._gcmd_latch)
         out: dict[int, ChannelReading] = {}
         first_error: QuadratureError | None = None
+        raise_illegal = self.errors == "raise"
         for ch in self.channels:
             t = self._t(ch)
             try:
-                raw, st = self._read_tracked(ch, latch=False)
+                # _read_tracked(ch, latch=False) and _read_ol inline: the same cycles in the same order
+                regs = self._regs[ch]
+                status = read(regs["STATUS"])
+                hi = read(regs["OL_HI"]) & 0xFF
+                raw = hi << 16 | read(regs["OL_LO"])
+                wrap = status & (ST_OVERFLOW | ST_UNDERFLOW)
+                if wrap:
+                    write(regs["STATUS"], wrap)
+                self._unwrap(ch, t, raw, status)
+                st = ChannelStatus.decode(status)
                 v = self._velocity_step(ch, t, dt)
-                self._raise_flags(ch, st)
+                if st.illegal and raise_illegal:
+                    self._raise_flags(ch, st)
             except QuadratureError as e:
                 first_error = first_error or e
                 st = ChannelStatus.decode(self.win.read(reg_name(ch, "STATUS")))
                 raw, v = t.raw, t.velocity
-            cpr = self.counts_per_rev(ch)
+            cpr = self.counts_per_rev_x4[ch] * t.mode / 4.0  # counts_per_rev(ch)
             out[ch] = ChannelReading(ch, raw, t.counts, (t.counts - t.zero) * TWO_PI / cpr, v, v * TWO_PI / cpr, st)
         if first_error is not None:
             first_error.readings = out

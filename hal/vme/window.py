@@ -21,9 +21,10 @@ class BoardWindow:
         self.regmap = regmap
         self.am: AddressModifier = resolve_am(space if space is not None else regmap.space)
         # The bus cycle of each register, resolved once (VmeBus.reader/writer): a driver reads
-        # the same registers every tick. Keyed by register name, natural width only.
-        self._readers: dict[str, Callable[[], int]] = {}
-        self._writers: dict[str, Callable[[int], None]] = {}
+        # the same registers every tick. Keyed by register name (natural width), or by
+        # (offset, width) for read_offset/write_offset.
+        self._readers: dict[str | tuple[int, Width], Callable[[], int]] = {}
+        self._writers: dict[str | tuple[int, Width], Callable[[int], None]] = {}
 
     def _reg(self, reg: str | Register) -> Register:
         return reg if isinstance(reg, Register) else self.regmap[reg]
@@ -78,7 +79,17 @@ class BoardWindow:
         return value
 
     def read_offset(self, offset: int, width: Width) -> int:
-        return self.bus.read(self.base + offset, space=self.am, width=width)
+        f = self._readers.get((offset, width)) if type(width) is Width else None
+        if f is None:
+            f = self.bus.reader(self.base + offset, space=self.am, width=width)
+            if type(width) is Width:
+                self._readers[(offset, width)] = f
+        return f()
 
     def write_offset(self, offset: int, value: int, width: Width) -> None:
-        self.bus.write(self.base + offset, value, space=self.am, width=width)
+        f = self._writers.get((offset, width)) if type(width) is Width else None
+        if f is None:
+            f = self.bus.writer(self.base + offset, space=self.am, width=width)
+            if type(width) is Width:
+                self._writers[(offset, width)] = f
+        f(value)

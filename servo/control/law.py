@@ -165,6 +165,8 @@ class PidLaw:
         self._pending_gains: Gains[np.ndarray] | None = None
         self._pending_switch_off: SwitchOffConfig | None = None
         self._tick = -1
+        self._kp_off_key: tuple[Gains[np.ndarray], SwitchOffConfig] | None = None
+        self._kp_off = np.zeros(n)
         # per-tick scratch (set by begin/evaluate)
         self._e = np.zeros(n)
         self._edot = np.zeros(n)
@@ -216,8 +218,16 @@ class PidLaw:
 
     # ---- derived quantities ----------------------------------------------------------------------
     def kp_off(self) -> np.ndarray:
-        """Kp used while the integrators are switched off (boosted), per joint, 1/s²."""
-        return switched_off_kp(self.gains.kp, self.gains.kvi, self.switch_off.kp_boost)
+        """Kp used while the integrators are switched off (boosted), per joint, 1/s².
+
+        Kept per (gains, switch-off configuration) object: both are replaced, never edited, when
+        they change (:meth:`set_gains`, :meth:`set_switch_off`; the gains' arrays are read-only),
+        so the per-tick path does not redo the same three numpy calls twice a tick."""
+        key = (self.gains, self.switch_off)
+        if self._kp_off_key is None or key[0] is not self._kp_off_key[0] or key[1] is not self._kp_off_key[1]:
+            self._kp_off = switched_off_kp(self.gains.kp, self.gains.kvi, self.switch_off.kp_boost)
+            self._kp_off_key = key
+        return self._kp_off.copy()
 
     def kp_eff(self) -> np.ndarray:
         """The position gain in force for each joint now (boosted where switched off)."""
@@ -257,7 +267,10 @@ class PidLaw:
         tick; its events are recorded in joint order)."""
         st, so, T = self.state, self.switch_off, self.period
         abs_e = np.abs(e)
-        crossed = so.zero_crossing & np.isfinite(st.e_prev) & (e * np.nan_to_num(st.e_prev) < 0)
+        # where e_prev is not finite ``crossed`` is False whatever it is replaced by: np.where is the
+        # cheaper np.nan_to_num here (same result)
+        finite = np.isfinite(st.e_prev)
+        crossed = so.zero_crossing & finite & (e * np.where(finite, st.e_prev, 0.0) < 0)
         enabled = np.asarray(so.enabled, bool)
         integ = st.integrating.copy()  # each joint's state before this tick
         done = np.asarray(done, bool)

@@ -199,3 +199,35 @@ def test_small_array_quantization_is_bit_identical_to_the_array_path() -> None:
                 assert np.array_equal(got[0], want[0]) and got[1] == want[1], (spec.name, v)
                 checked += 1
     assert checked > 500
+
+
+# --- the ADC's inline conversion ---------------------------------------------------------------
+@pytest.mark.parametrize("csr_range", [0, 1])
+def test_inline_conversions_give_the_codes_of_the_reference_path(csr_range: int) -> None:
+    """Scans converted inline (no fault armed) and through ``AdcBoard.sample`` (an inert fault
+    armed: a stuck channel that is not scanned) give the same codes, noise, gain codes, offsets,
+    gain errors, clipping at both rails and a noise source included, conversion after conversion."""
+    def scan_codes(arm_inert_fault: bool) -> list[list[int]]:
+        crate = Crate("c")
+        board = AdcBoard("adc0", wiring={c: f"n{c}" for c in range(8)}, noise_rms_v=0.003, seed=4,
+                         offset_v=[0.001 * c for c in range(16)], gain_error=[0.0005 * (c - 4) for c in range(16)])
+        adc = crate.install(board, base=0x1000, space="A16")
+        assert isinstance(adc, AdcBoard)
+        adc.add_noise_source(lambda: 0.002 if crate.signals.get_analog("n1") > 0 else 0.0)
+        if arm_inert_fault:
+            adc.inject("stuck_channel", channel=15, code=0)
+        base, csr = 0x1000, ADC_REGMAP["CSR"]
+        wr = lambda reg, v: crate.write(base + ADC_REGMAP[reg].offset, v, space="A16")  # noqa: E731
+        wr("SCAN_GAIN0", 0b11_10_01_00_11_10_01_00)  # gains 1, 2, 4, 8, 1, 2, 4, 8
+        wr("SCAN_LAST", 7)
+        rng = np.random.default_rng(9)
+        out = []
+        for _ in range(40):
+            for c in range(8):
+                crate.signals.set_analog(f"n{c}", float(rng.uniform(-12.0, 12.0)))
+            wr("CSR", csr.pack(SCAN=1, RANGE=csr_range))
+            crate.clock.advance(200_000)
+            out.append([crate.read(base + ADC_REGMAP[f"BUF{c}"].offset, space="A16") for c in range(8)])
+        return out
+
+    assert scan_codes(False) == scan_codes(True)

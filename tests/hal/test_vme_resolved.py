@@ -94,3 +94,26 @@ def test_hashes_agree_with_equality() -> None:
     same = AddressModifier(0x3D, AddressSpace.A24, True)
     assert same == decode_am(0x3D) and hash(same) == hash(decode_am(0x3D))
     assert {decode_am(0x3D): 1}[same] == 1
+
+
+def test_a_window_resolves_each_offset_and_width_once_and_still_checks_the_value() -> None:
+    bus = _Bus()
+    win = BoardWindow(bus, 0x2000, _MAP)
+    resolved: list[tuple[int, Width]] = []
+    reader, writer = bus.reader, bus.writer
+
+    def counting(resolve):  # type: ignore[no-untyped-def]
+        def f(address: int, **kw):  # type: ignore[no-untyped-def]
+            resolved.append((address, kw["width"]))
+            return resolve(address, **kw)
+        return f
+
+    bus.reader, bus.writer = counting(reader), counting(writer)  # type: ignore[method-assign]
+    for v in (0x12, 0x34):
+        win.write_offset(0x1, v, Width.D8)
+        assert win.read_offset(0x1, Width.D8) == v
+    win.write_offset(0x0, 0x5678, Width.D16)
+    assert resolved == [(0x2001, Width.D8), (0x2001, Width.D8), (0x2000, Width.D16)]
+    assert bus.log[-1] == ("w", 0x2D, 0x2000, Width.D16) and len(bus.log) == 5  # every cycle made
+    with pytest.raises(ValueError, match="does not fit D8"):
+        win.write_offset(0x1, 0x100, Width.D8)

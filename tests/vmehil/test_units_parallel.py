@@ -3,6 +3,9 @@ is bit-identity with the single controller of all sixteen joints for the same se
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+
 import numpy as np
 import pytest
 
@@ -91,6 +94,24 @@ class BoardProbe:
         return min(k for k, off in seen.items() if off and all(seen[i] for i in seen if i >= k))
 
 
+@contextmanager
+def hub_captured(holder: dict) -> Iterator[dict]:
+    """While in the block, the PlantHub run_units makes is also put in ``holder["hub"]``."""
+    import vmehil.units.coordinator as coordinator
+
+    original = coordinator.PlantHub
+
+    def capture(*a, **kw):
+        holder["hub"] = original(*a, **kw)
+        return holder["hub"]
+
+    coordinator.PlantHub = capture  # type: ignore[misc]
+    try:
+        yield holder
+    finally:
+        coordinator.PlantHub = original  # type: ignore[misc]
+
+
 def chain(*hooks):
     def run_all(name, system, loop):
         for h in hooks:
@@ -143,6 +164,12 @@ def test_a_unit_that_dies_with_an_exception_stops_every_unit_within_one_tick() -
                 assert probe.first_off(u.unit.name) == 81, u.unit.name
                 assert u.loop.fault.cause == "unit_stop"
         assert all(x == 0 for x in run.hub.amps_on[83:])  # the plant: all off within 2 exchanges
+        # the merged record (the report's) runs to the longest unit's end; leg4's columns end early
+        got, rows = run.recorded(), max(u.loop.recorder.count for u in run.units)
+        leg4_rows = leg4.loop.recorder.count
+        assert rows > leg4_rows and got["theta"].shape[0] == rows
+        cols = list(leg4.unit.indices)
+        assert np.isnan(got["theta"][leg4_rows:, cols]).all() and np.isfinite(got["theta"][:leg4_rows, cols]).all()
     finally:
         run.close()
 
@@ -158,20 +185,9 @@ def test_a_silent_unit_is_declared_lost_its_amplifiers_cut_and_every_unit_stops(
         if name == "leg3" and loop.tick_count == 51:
             assert holder["hub"].lost.wait(timeout=60.0)
 
-    import vmehil.units.coordinator as coordinator
-
-    original = coordinator.PlantHub
-
-    def capture(*a, **kw):
-        holder["hub"] = original(*a, **kw)
-        return holder["hub"]
-
-    coordinator.PlantHub = capture  # type: ignore[misc]
-    try:
+    with hub_captured(holder):
         # 3 s: far above any pause a loaded machine gives a healthy unit; leg3 waits for the verdict
         run = run_units("melmalec-16", seed=1, n_ticks=90, timeout_s=3.0, after_tick=chain(probe, hang))
-    finally:
-        coordinator.PlantHub = original  # type: ignore[misc]
     try:
         for u in run.units:
             assert probe.off[u.unit.name][50] is False

@@ -22,7 +22,13 @@ from vmehil.console import extension as console_extension
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
 from vmehil.files import write_json
 from vmehil.mavlink import extension as mavlink_extension
-from vmehil.realtime_options import add_overrun_args, add_pacing_args, overrun_options, realtime
+from vmehil.realtime_options import (
+    add_overrun_args,
+    add_pacing_args,
+    overrun_options,
+    realtime,
+    realtime_settings_summary,
+)
 
 # Modules that extend `vmehil run` (live tuning over MAVLink, the operator console, ...). Each
 # defines ``add_arguments(parser)`` and ``attach(args, system, loop, runner)``, which returns
@@ -106,10 +112,10 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     parallel = getattr(args, "units", "single") == "parallel"
     if parallel:
-        refused = run_units.refused_options(args) + ([] if args.bus == "emulated" else ["--bus"])
+        refused = run_units.refused_options(args)
         if refused:
-            print(f"vmehil run --units parallel: {', '.join(refused)} not supported with parallel units "
-                  "(docs/melmalec.md)", file=sys.stderr)
+            print("vmehil run --units parallel: not with parallel units (docs/melmalec.md, \"Options with --units "
+                  "parallel\"):\n  " + "\n  ".join(refused), file=sys.stderr)
             return 2
         from servo.units import rig_units
         if not rig_units(rig):
@@ -150,7 +156,12 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
         raise ValueError("--duration must be > 0")
     n_ticks = round(duration * rig.servo_rate_hz)
     if parallel:
-        return run_units.run_parallel(args, rig, gains, motion, n_ticks, _make_link(args, rig))
+        from vmehil.calibration.store import load_store_or_nominal
+
+        # one file, the single run's loader and checks; each unit applies its own entries
+        store = _calibrated(args, rig, lambda cal: load_store_or_nominal(cal, rig))
+        return run_units.run_parallel(args, rig, gains, motion, n_ticks, lambda: _make_link(args, rig),
+                                      calibration=store)
     system = _build_calibrated(args, rig, build_emulated_rig)
     loop = build_loop(system, motion=motion, gains=gains, n_ticks=n_ticks,
                       switch_off=False if args.no_integrator_switch_off else None)
@@ -179,6 +190,10 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
         add = getattr(a, "add_to_summary", None)
         if add is not None:
             add(summary)
+    rt_settings = realtime_settings_summary(runner)
+    if rt_settings is not None:
+        summary["realtime_settings"] = rt_settings
+        print(f"real-time settings: {rt_settings['described']}", file=sys.stderr)
     print(table(summary))
     if timing:
         print(f"timing: compute p50 {timing['compute_p50_ms']:.3f} ms, p99 {timing['compute_p99_ms']:.3f} ms; "
@@ -204,6 +219,12 @@ def run_exit_status(loop, ended_by: BaseException | None) -> int:
 
 def _build_calibrated(args: argparse.Namespace, rig, build):
     """Build the rig with the drivers' calibration file; a missing file is a one-line warning."""
+    return _calibrated(args, rig, lambda cal: build(rig, seed=args.seed, link=_make_link(args, rig), calibration=cal))
+
+
+def _calibrated(args: argparse.Namespace, rig, use):
+    """``use(path)`` with the drivers' calibration file (``--calibration``, which must exist, or
+    the rig's default file); a missing default file is a one-line warning (nominal values)."""
     import warnings
 
     from vmehil.calibration.store import CalibrationMissingWarning, default_store_path
@@ -213,7 +234,7 @@ def _build_calibrated(args: argparse.Namespace, rig, build):
     cal = args.calibration or default_store_path(rig)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CalibrationMissingWarning)
-        system = build(rig, seed=args.seed, link=_make_link(args, rig), calibration=cal)
+        result = use(cal)
     for w in caught:
         if issubclass(w.category, CalibrationMissingWarning):
             print(f"warning: {w.message}", file=sys.stderr)
@@ -221,7 +242,7 @@ def _build_calibrated(args: argparse.Namespace, rig, build):
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     if not caught:
         print(f"calibration: {cal}", file=sys.stderr)
-    return system
+    return result
 
 
 def _make_link(args: argparse.Namespace, rig):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from typing import Any
 
 from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name
@@ -19,10 +20,16 @@ from vmehil.files import write_json
 
 UNIT_MODES = ("single", "parallel")
 
-#: options of `vmehil run` a parallel run does not take (yet): what each needs is one loop
-_NOT_WITH_UNITS = (("report", "--report"), ("mavlink", "--mavlink"), ("console", "--console"),
-                   ("vision", "--vision"), ("fault", "--fault"), ("faults", "--faults"),
-                   ("calibration", "--calibration"))
+#: options of `vmehil run` a parallel run does not take: why, and what to do instead
+#: (docs/melmalec.md, "Options with --units parallel")
+_NOT_WITH_UNITS: tuple[tuple[str, str, str], ...] = (
+    ("mavlink", "--mavlink", "live tuning talks to one servo loop and there are five; tune with --units single "
+                             "--mavlink, then give the gains to every unit with --gains"),
+    ("console", "--console", "the operator console drives one servo loop (its motions, calibration, stops); "
+                             "use it with --units single"),
+    ("vision", "--vision", "the visual servo commands one loop's joints over one BIT3 window; run it with "
+                           "--units single"),
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -38,34 +45,55 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def refused_options(args: argparse.Namespace) -> list[str]:
-    """The options given that a parallel run does not take."""
-    return [flag for attr, flag in _NOT_WITH_UNITS if getattr(args, attr, None)]
+    """Why each option given cannot go with a parallel run (one line each, with what to do)."""
+    out = [f"{flag}: {why}" for attr, flag, why in _NOT_WITH_UNITS if getattr(args, attr, None)]
+    if getattr(args, "bus", "emulated") != "emulated":
+        out.append("--bus: the unit controllers run on emulated boards of their own; a real crate runs one "
+                   "controller of every joint (--units single --bus ...)")
+    return out
 
 
 def run_parallel(args: argparse.Namespace, rig: Any, gains: dict[str, float], motion: Any, n_ticks: int,
-                 link: Any) -> int:
-    from vmehil.realtime_options import overrun_options
-    from vmehil.run_report import summarize
-    from vmehil.units.coordinator import run_units
+                 make_link: Callable[[], Any], calibration: Any = None) -> int:
+    """Run the units; the same summary, table, JSON and report as the single run (from the units'
+    loops merged in joint order, :class:`vmehil.units.options.MergedUnits`) plus each unit's.
+    ``make_link()``: the plant link ``--plant can`` asks for, else None (called once the faults
+    are routed: a refused fault opens no link)."""
+    from typing import cast
 
+    from servo.loop import ServoLoop
+    from servo.units import rig_units
+    from vmehil.fault_injection import stop_report
+    from vmehil.realtime_options import overrun_options
+    from vmehil.run_report import summarize, table, units_section, write_report
+    from vmehil.units.coordinator import plant_link_for, run_units
+    from vmehil.units.options import MergedUnits, fault_hook, route_faults
+
+    faults = list(getattr(args, "_fault_scenario", None) or [])
+    routed = route_faults(faults, rig, rig_units(rig)) if faults else {}
+    link = make_link()
+    if link is None:
+        link = plant_link_for(rig, args.seed)  # made here: a plant fault goes to this plant
+    before_run, _ = fault_hook(routed, link, args.seed)
     run = None
     try:
         run = run_units(rig, seed=args.seed, n_ticks=n_ticks, motion=motion, gains=gains,
                         switch_off=False if args.no_integrator_switch_off else None, link=link,
                         realtime=args.realtime, realtime_options=overrun_options(args),
-                        timeout_s=args.unit_timeout)
+                        timeout_s=args.unit_timeout, calibration=calibration, before_run=before_run)
     except (KeyboardInterrupt, Terminated) as e:
         # run_units has stopped every unit (each one's armed() block: enables low, 0 V) first
         print(f"run: interrupted ({interrupt_name(e)}); every unit safe-stopped", file=sys.stderr)
         return interrupt_exit_status(e)
+    finally:
+        if run is None:  # run_units never returned: the plant link (a CAN node thread) is ours to close
+            link.close()
     status = 0
     units: dict[str, Any] = {}
-    lines = [f"{rig.name} · units parallel · {n_ticks} ticks · plant steps {run.hub.exchanges}"]
     for u in run.units:
         loop, runner = u.loop, u.runner
         if loop is None or runner is None:
             units[u.unit.name] = {"error": f"{type(u.error).__name__}: {u.error}"}
-            lines.append(f"  {u.unit.name:6s} did not run: {u.error}")
             status = max(status, EXIT_FAULT)
             continue
         timing = runner.timing.summary(rig.period_s) if hasattr(runner, "timing") else None
@@ -73,28 +101,38 @@ def run_parallel(args: argparse.Namespace, rig: Any, gains: dict[str, float], mo
                       timing=timing)
         s["unit"] = u.unit.name
         units[u.unit.name] = s
-        fault = loop.fault
-        line = (f"  {u.unit.name:6s} {len(u.unit.joints)} joints  ticks {u.completed}  "
-                f"fault {'-' if fault is None else f'{fault.cause} at tick {fault.tick}'}")
-        if timing:
-            line += (f"  compute p50 {timing['compute_p50_ms']:.2f} ms p99 {timing['compute_p99_ms']:.2f} ms  "
-                     f"lateness p99 {timing['lateness_p99_ms']:.2f} ms max {timing['lateness_max_ms']:.2f} ms  "
-                     f"overruns {timing['overruns']}")
-        lines.append(line)
         if loop.stop_incomplete:
             status = EXIT_STOP_INCOMPLETE
-        elif fault is not None:
+        elif loop.fault is not None:
             status = max(status, EXIT_FAULT) if status != EXIT_STOP_INCOMPLETE else status
-    stop = run.hub.stop
-    if stop is not None:
-        lines.append(f"stop: unit {stop.unit} at exchange {stop.exchange}: {stop.what}")
-    print("\n".join(lines))
+    hub_stop = run.hub.stop
+    stop: dict[str, Any] | None = (None if hub_stop is None else
+                                   {"unit": hub_stop.unit, "exchange": hub_stop.exchange, "what": hub_stop.what})
+    merged = cast(ServoLoop, MergedUnits(run)) if all(u.loop is not None for u in run.units) else None
+    if merged is not None:  # the single run's summary, of every joint (the units' loops merged)
+        summary = summarize(merged, rig=rig.name, seed=args.seed, realtime=args.realtime,
+                            overruns=max((int(x.get("overruns", 0)) for x in units.values()), default=0))
+    else:
+        summary = {"rig": rig.name, "seed": args.seed, "joints": []}
+    if faults:
+        first = min((f.tick for f in faults if f.tick is not None), default=None)
+        joint = next((f.params["joint"] for f in faults if f.params.get("joint")), None)
+        summary["injected_faults"] = [{**f.as_dict(), "unit": next(n for n, fs in routed.items() if f in fs)}
+                                      for f in faults]
+        if merged is not None:  # how the run ended, as the single run says it, with the units' stop
+            stop = {**stop_report(merged, first, joint), **(stop or {})}
+        for f in faults:
+            inj = f.injection
+            print(f"fault: {f.kind.name} at {f.at_s:g} s (tick {f.tick}) → {inj.where if inj else '?'}")
+    summary.update({"units_mode": "parallel", "ticks_planned": n_ticks, "plant_steps": run.hub.exchanges,
+                    "stop": stop,
+                    "hub_events": [{"exchange": e.exchange, "unit": e.unit, "what": e.what} for e in run.hub.events],
+                    "units": units})
+    print(table(summary) if merged is not None else "\n".join(units_section(summary)))
     if args.json:
-        write_json(args.json, {
-            "rig": rig.name, "seed": args.seed, "units_mode": "parallel", "ticks": n_ticks,
-            "plant_steps": run.hub.exchanges,
-            "stop": None if stop is None else {"unit": stop.unit, "exchange": stop.exchange, "what": stop.what},
-            "hub_events": [{"exchange": e.exchange, "unit": e.unit, "what": e.what} for e in run.hub.events],
-            "units": units})
+        write_json(args.json, summary)
+    if args.report and merged is not None:
+        files = write_report(merged, summary, args.report)
+        print(f"report: {len(files)} files in {args.report}")
     run.close()
     return status

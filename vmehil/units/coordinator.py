@@ -78,9 +78,12 @@ class ParallelRun:
 
     def recorded(self) -> dict[str, np.ndarray]:
         """Every unit's recorder merged into the rig's joint order (as one controller records)."""
-        first = self.units[0].loop
-        assert first is not None and first.recorder is not None
-        ref = first.recorder.trimmed()
+        recs = []
+        for u in self.units:
+            assert u.loop is not None and u.loop.recorder is not None
+            recs.append(u.loop.recorder.trimmed())
+        # a unit that stopped a tick before the others recorded fewer ticks: NaN after its last
+        ref = max(recs, key=lambda r: r["t"].shape[0])
         out: dict[str, np.ndarray] = {}
         n = self.rig.n_joints
         for key, arr in ref.items():
@@ -88,12 +91,10 @@ class ParallelRun:
                 out[key] = arr.copy()
                 continue
             out[key] = np.full((arr.shape[0], n), np.nan)
-        for u in self.units:
-            assert u.loop is not None and u.loop.recorder is not None
-            rec = u.loop.recorder.trimmed()
+        for u, rec in zip(self.units, recs, strict=True):
             for key, arr in rec.items():
                 if arr.ndim == 2:
-                    out[key][:, list(u.unit.indices)] = arr
+                    out[key][: arr.shape[0], list(u.unit.indices)] = arr
         return out
 
     def close(self) -> None:
@@ -112,10 +113,14 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
               gains: dict[str, float] | None = None, switch_off: bool | None = None,
               link: PlantLink | None = None, realtime: bool = False, realtime_options: dict[str, Any] | None = None,
               timeout_s: float = UNIT_TIMEOUT_S, after_tick: UnitHook | None = None,
-              abort: threading.Event | None = None) -> ParallelRun:
+              abort: threading.Event | None = None, calibration: Any = None,
+              before_run: Callable[[UnitRun], None] | None = None) -> ParallelRun:
     """Run the rig's units in parallel (one thread each) against one plant, in lockstep; returns
     when every unit's runner has ended (each one safe-stopped). ``abort``: set it to stop every
-    unit at its next tick (Ctrl-C and SIGTERM set it, then go on)."""
+    unit at its next tick (Ctrl-C and SIGTERM set it, then go on). ``calibration``: a store of
+    the whole rig (each unit's drivers apply their own boards' and joints' entries).
+    ``before_run``: called in each unit's thread once its loop is armed, before its first tick
+    (``vmehil run --units parallel`` attaches the unit's fault schedule there)."""
     spec = rig if isinstance(rig, RigSpec) else load_rig(resolve_rig(rig))
     units = rig_units(spec)
     if not units:
@@ -147,7 +152,8 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
         ulink = UnitLink(hub, unit.name)
         why: str | None = "it never started"
         try:
-            system = ur.system = build_emulated_rig(unit_rig(spec, unit), seed=seed, link=ulink)
+            system = ur.system = build_emulated_rig(unit_rig(spec, unit), seed=seed, link=ulink,
+                                                    calibration=calibration)
             start = system.io.read().theta  # the unit's only read before the loop (as build_loop's)
             with started:
                 starts[unit.name] = np.asarray(start, float).copy()
@@ -166,6 +172,8 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
                 return stop_all.is_set()
 
             with loop.armed():
+                if before_run is not None:
+                    before_run(ur)
                 # every unit starts its runner together: a real-time runner's deadlines count
                 # from its start, and lockstep couples the units from the first exchange on
                 go.wait(timeout=timeout_s * 4)

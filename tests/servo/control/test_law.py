@@ -267,3 +267,20 @@ def test_set_gains_rejects_bad_values_and_changes_nothing(kwargs, pattern):
         law.set_gains(**kwargs)
     law.update(np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2))
     assert law.gains.as_dict() == {"kp": [KP, KP], "kpi": [KPI, KPI], "kv": [KV, KV], "kvi": [KVI, KVI]}
+
+
+def test_the_switched_off_kp_follows_new_gains_and_a_new_switch_off_config_at_the_next_tick():
+    """The boosted Kp is kept between ticks; staged gains or a new switch-off configuration
+    change it from the tick they take effect (and the copy handed out cannot change it)."""
+    law, plant = _settled_law(inner_band=1e-3, outer_band=0.02, kp_boost=3.0)
+    law.update(plant.theta, plant.omega, 0.1, 0.0, motion_done=True, tick=1000)
+    assert not law.integrating[0] and law.kp_eff()[0] == pytest.approx(3.0 * KP)
+    law.kp_off()[0] = -1.0  # a caller's copy
+    assert law.kp_off()[0] == pytest.approx(3.0 * KP)
+    law.set_gains(kp=150.0)
+    assert law.kp_eff()[0] == pytest.approx(3.0 * KP)  # staged: not yet
+    law.update(plant.theta, plant.omega, 0.1, 0.0, motion_done=True)
+    assert law.kp_eff()[0] == pytest.approx(3.0 * 150.0)
+    law.set_switch_off(SwitchOffConfig.make(1, inner_band=1e-3, outer_band=0.02, kp_boost=None))
+    law.update(plant.theta, plant.omega, 0.1, 0.0, motion_done=True)
+    assert law.kp_off()[0] == pytest.approx(150.0 + KVI)
