@@ -62,6 +62,21 @@ def assert_recorded_equal_single(tmp_path, seed: int, n_ticks: int) -> None:
         assert np.array_equal(ref[key], got, equal_nan=True), key
 
 
+def kill_leg3_at(exchange: int, coord: subprocess.Popen, units: dict[str, subprocess.Popen]) -> dict[str, int]:
+    """SIGKILL leg3 once the coordinator has answered ``exchange``; every process's exit code."""
+    try:
+        wait_for_exchange(exchange)
+        os.kill(units["leg3"].pid, signal.SIGKILL)
+        coord.wait(timeout=300)
+        codes = wait_all(units)
+    finally:
+        for p in (coord, *units.values()):
+            if p.poll() is None:
+                p.kill()
+    assert codes["leg3"] == -signal.SIGKILL
+    return codes
+
+
 def wait_for_exchange(at_least: int) -> None:
     """Listen on the unit bus until the coordinator has answered exchange ``at_least``."""
     from vmehil.units.remote import unit_bus
@@ -101,16 +116,7 @@ def test_a_killed_unit_process_stops_every_unit_and_its_amplifiers(tmp_path) -> 
                                     "--interface", "udp_multicast", "--start-timeout", "120", "--unit-timeout", "5",
                                     "--json", str(tmp_path / "coordinator.json")),
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    try:
-        wait_for_exchange(150)
-        os.kill(units["leg3"].pid, signal.SIGKILL)
-        coord.wait(timeout=300)
-        codes = wait_all(units)
-    finally:
-        for p in (coord, *units.values()):
-            if p.poll() is None:
-                p.kill()
-    assert codes["leg3"] == -signal.SIGKILL
+    codes = kill_leg3_at(150, coord, units)
     summary = json.loads((tmp_path / "coordinator.json").read_text())
     stop = summary["stop"]
     assert stop["unit"] == "leg3" and stop["what"].startswith("lost")
@@ -194,16 +200,7 @@ def test_a_killed_free_running_unit_process_is_lost_and_every_amplifier_ends_off
                                     "--plant-mode", "free-running", "--stale-ticks", "255",
                                     "--json", str(tmp_path / "coordinator.json")),
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    try:
-        wait_for_exchange(2)  # step 0 is the lockstep power-up; from 1 on the wall clock
-        os.kill(units["leg3"].pid, signal.SIGKILL)
-        coord.wait(timeout=300)
-        codes = wait_all(units)
-    finally:
-        for p in (coord, *units.values()):
-            if p.poll() is None:
-                p.kill()
-    assert codes["leg3"] == -signal.SIGKILL
+    codes = kill_leg3_at(2, coord, units)  # step 0 is the lockstep power-up; from 1 on the wall clock
     summary = json.loads((tmp_path / "coordinator.json").read_text())
     assert summary["plant_mode"] == "free-running"
     assert any(e["unit"] == "leg3" and e["what"].startswith("lost") for e in summary["events"]), summary["events"]
