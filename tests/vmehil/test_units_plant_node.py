@@ -84,3 +84,14 @@ def test_a_dead_plant_node_safe_stops_every_unit() -> None:
         probe(name, r.system, r.loop)  # the boards as the run left them
         assert probe.off[name][r.loop.tick_count - 1] is True, name
         assert probe.off[name][30] is False  # they were on (moving) before
+
+
+def test_coordinate_refuses_the_unit_bus_as_the_plant_bus(capsys) -> None:
+    """Both buses carry CMD/SENS frames: one channel for both is refused before anything opens."""
+    from vmehil.cli import main
+
+    code = main(["coordinate", "--rig", "melmalec-16", "--plant", "can", "--interface", "virtual",
+                 "--channel", "one-bus", "--plant-channel", "one-bus"])
+    assert code == 2
+    assert "the plant bus (virtual one-bus) is the unit bus" in capsys.readouterr().err
+
