@@ -146,8 +146,9 @@ def run_parallel(fn: Callable[[Any], Any], items: list[Any], *, executor: Execut
     finished results. ``meanwhile()``: work of the calling process done while the engine runs the
     items (``tune limit-cycle``'s prediction beside its two runs); a SIGINT during it is acted on
     when it returns. ``on_idle()`` is called in the calling thread after every wait for results
-    (at least every 0.1 s while tasks run), e.g. to write batched results. Any exception (from ``meanwhile``, ``on_result`` or the engine) tells the
-    running tasks to stop before it propagates, so none runs on unattended.
+    (at least every 0.1 s while tasks run), e.g. to write batched results. Any exception (from
+    ``meanwhile``, ``on_result`` or the engine) tells the running tasks to stop before it
+    propagates, so none runs on unattended.
     """
     if engine is None:
         engine = LocalEngine(jobs=jobs, executor=executor)
