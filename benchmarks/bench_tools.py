@@ -14,14 +14,18 @@ the default rig jpl-arm, seed 0, ``--quiet``, outputs in a temporary folder), as
   interpreter's import time (``-X importtime``) of ``vmehil run --help``.
 
 The goals are absolute (seconds on 2 cores), so they have no baseline; the ``--jobs 1`` lines
-show what running side by side brings. On a loaded machine every figure is longer: say so.
+show what running side by side brings. Each line also gives the command's CPU seconds (user +
+system, its worker processes included: ``getrusage(RUSAGE_CHILDREN)``), which other jobs on a
+shared machine change much less than the wall time. On a loaded machine every figure is longer: say so.
 Run: ``python -m benchmarks bench_tools`` (``--quick``: the small sweep grid).
 """
 
 from __future__ import annotations
 
+import math
 import os
 import re
+import resource
 import subprocess
 import sys
 import tempfile
@@ -45,16 +49,28 @@ def _env() -> dict[str, str]:
     return env
 
 
+_cpu: dict[str, float] = {}  #: CPU seconds (user + system, the command and its workers) of the last timed()
+
+
 def timed(args: list[str], *, cwd: Path,
           python_flags: tuple[str, ...] = ()) -> tuple[float, subprocess.CompletedProcess]:
-    """Wall seconds of ``python [flags] -m vmehil ARGS`` (it must exit 0)."""
+    """Wall seconds of ``python [flags] -m vmehil ARGS`` (it must exit 0); its CPU seconds in
+    :func:`last_cpu_s` (less sensitive than the wall time to other jobs on a shared machine)."""
     cmd = [sys.executable, *python_flags, "-m", "vmehil", *args]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, cwd=cwd, env=_env(), capture_output=True, text=True, check=False)
     wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    _cpu["last"] = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} exited {proc.returncode}:\n{proc.stderr[-2000:]}")
     return wall, proc
+
+
+def last_cpu_s() -> float:
+    """CPU seconds of the last :func:`timed` command (its waited-for workers included)."""
+    return _cpu.get("last", math.nan)
 
 
 def import_seconds(stderr: str) -> float:
@@ -84,15 +100,17 @@ def main(quick: bool = False) -> list[str]:
                     FIRST_TICK_GOAL_S, "s", "at_most"))
         # --- limit cycle ----------------------------------------------------------------------
         lc_s, _ = timed(["tune", "limit-cycle", "--quiet"], cwd=d)
+        lc_cpu = last_cpu_s()
         lc1_s, _ = timed(["tune", "limit-cycle", "--quiet", "--jobs", "1"], cwd=d)
-        say(f"  tune limit-cycle: {lc_s:.2f} s (runs side by side); --jobs 1: {lc1_s:.2f} s")
+        say(f"  tune limit-cycle: {lc_s:.2f} s, CPU {lc_cpu:.2f} s (runs side by side, prediction beside them); "
+            f"--jobs 1: {lc1_s:.2f} s, CPU {last_cpu_s():.2f} s")
         record(Goal("tune limit-cycle", lc_s, LIMIT_CYCLE_GOAL_S, "s", "at_most"))
         # --- sweep ----------------------------------------------------------------------------
         grid = QUICK_GRID if quick else SWEEP_GRID
         points = 4 if quick else 400
         sw_s, _ = timed(["tune", "sweep", "--grid", grid, "--out", str(d / "sweep"), "--quiet"], cwd=d)
         say(f"  tune sweep --grid {grid} ({points} points, {cores} workers): {sw_s:.2f} s "
-            f"({sw_s / points:.2f} s per point)")
+            f"({sw_s / points:.2f} s per point), CPU {last_cpu_s():.1f} s")
         if quick:
             sw1_s, _ = timed(["tune", "sweep", "--grid", grid, "--jobs", "1", "--out", str(d / "sweep1"),
                               "--quiet"], cwd=d)
@@ -103,7 +121,7 @@ def main(quick: bool = False) -> list[str]:
             record(Goal("tune sweep, 400 points", sw_s, SWEEP_GOAL_S, "s", "at_most"))
         # --- calibration ----------------------------------------------------------------------
         cal_s, _ = timed(["calibrate", "all", "--auto", "--out", str(d / "cal.toml"), "--quiet"], cwd=d)
-        say(f"  calibrate all --auto: {cal_s:.2f} s")
+        say(f"  calibrate all --auto: {cal_s:.2f} s, CPU {last_cpu_s():.2f} s")
         record(Goal("calibrate all --auto", cal_s, CALIBRATE_GOAL_S, "s", "at_most"))
     return lines
 

@@ -130,7 +130,9 @@ class LocalEngine:
 def run_parallel(fn: Callable[[Any], Any], items: list[Any], *, executor: Executor | None = None,
                  jobs: int | None = None, engine: Engine | None = None,
                  on_result: Callable[[int, Any], None] | None = None,
-                 finished: Callable[[Any], bool] = lambda result: True) -> list[Any]:
+                 finished: Callable[[Any], bool] = lambda result: True,
+                 meanwhile: Callable[[], None] | None = None,
+                 on_idle: Callable[[], None] | None = None) -> list[Any]:
     """``fn(item)`` for every item on ``engine``; the results in item order.
 
     ``fn`` is a top-level (picklable) function; a long one polls :func:`stop_requested` (every
@@ -141,7 +143,12 @@ def run_parallel(fn: Callable[[Any], Any], items: list[Any], *, executor: Execut
     again, e.g. after a retry, is not counted twice); a result ``finished`` says is not (it was cut
     short by an interruption) is neither passed on nor kept. SIGINT in the calling thread tells the
     tasks to stop, cancels what has not started and raises :class:`ParallelInterrupted` with the
-    finished results.
+    finished results. ``meanwhile()``: work of the calling process done while the engine runs the
+    items (``tune limit-cycle``'s prediction beside its two runs); a SIGINT during it is acted on
+    when it returns. ``on_idle()`` is called in the calling thread after every wait for results
+    (at least every 0.1 s while tasks run), e.g. to write batched results. Any exception (from
+    ``meanwhile``, ``on_result`` or the engine) tells the running tasks to stop before it
+    propagates, so none runs on unattended.
     """
     if engine is None:
         engine = LocalEngine(jobs=jobs, executor=executor)
@@ -155,6 +162,8 @@ def run_parallel(fn: Callable[[Any], Any], items: list[Any], *, executor: Execut
         previous = signal.signal(signal.SIGINT, lambda signum, frame: sigint.set())
     try:
         engine.start(fn, items)
+        if meanwhile is not None:
+            meanwhile()
         while engine.pending() and not sigint.is_set():
             for position, result in engine.completed(timeout=0.1):
                 if position in done or not finished(result):
@@ -162,11 +171,16 @@ def run_parallel(fn: Callable[[Any], Any], items: list[Any], *, executor: Execut
                 done[position] = result
                 if on_result is not None:
                     on_result(position, result)
+            if on_idle is not None:
+                on_idle()
         if sigint.is_set():
             raise KeyboardInterrupt
     except KeyboardInterrupt:
         engine.interrupt()
         raise ParallelInterrupted(done) from None
+    except BaseException:
+        engine.interrupt()
+        raise
     finally:
         if previous is not None:
             signal.signal(signal.SIGINT, previous)

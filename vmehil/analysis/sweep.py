@@ -21,7 +21,9 @@ the local process pool of ``jobs`` workers, or Dask (:class:`vmehil.analysis.das
 reads the client's disk), the gains, the simulation settings with their seed, and for a tolerance
 study the drawn plant values (:mod:`vmehil.analysis.tolerance`). So every engine gives the same
 rows. Results are handed to ``on_result`` as they complete; the CLI rewrites CSV and JSON
-atomically after each one, so an interrupted sweep (SIGINT) leaves files with every completed
+atomically at most once a second (:class:`BatchedWrites`: a 400-point sweep rewrote them 400
+times, O(n²) work in the parent that competes with the workers), and at the end or on
+interruption with every row, so an interrupted sweep (SIGINT) leaves files with every completed
 row, and ``--resume`` computes only the missing points. On interruption the running tasks are
 told to stop (polled every tick), pending points are cancelled and :class:`SweepInterrupted`
 carries the finished rows.
@@ -307,15 +309,16 @@ def _evaluate(task: SweepTask, rig_path: str) -> dict[str, Any]:
 
 def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None, jobs: int | None = None,
                     engine: Engine | None = None, done: Iterable[dict[str, Any]] = (),
-                    on_result: Callable[[dict[str, Any], list[dict[str, Any]]], None] | None = None
-                    ) -> list[dict[str, Any]]:
+                    on_result: Callable[[dict[str, Any], list[dict[str, Any]]], None] | None = None,
+                    on_idle: Callable[[], None] | None = None) -> list[dict[str, Any]]:
     """Evaluate ``tasks`` in parallel (:func:`run_parallel`); returns the rows sorted by index.
 
     ``engine``: where (:mod:`vmehil.analysis.parallel`; default a process pool of ``jobs`` workers,
     or over ``executor``, any :class:`concurrent.futures.Executor` the caller owns). ``done``: rows
     already computed (``--resume``): the tasks of their indices are not run again and they are part
     of the rows handed on. ``on_result(row, rows_so_far)`` is called in the calling thread as each
-    point completes, once per index. A ``KeyboardInterrupt`` (SIGINT) stops the workers, cancels
+    point completes, once per index; ``on_idle()`` at least every 0.1 s while points run
+    (:func:`run_parallel`). A ``KeyboardInterrupt`` (SIGINT) stops the workers, cancels
     the rest and raises :class:`SweepInterrupted` with the finished rows.
     """
     by_index: dict[int, dict[str, Any]] = {r["index"]: r for r in done}
@@ -333,13 +336,46 @@ def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None,
 
     try:
         run_parallel(evaluate_point, todo, executor=executor, jobs=jobs, engine=engine, on_result=got,
-                     finished=lambda row: row is not None and row["status"] != "interrupted")
+                     finished=lambda row: row is not None and row["status"] != "interrupted", on_idle=on_idle)
     except ParallelInterrupted:
         raise SweepInterrupted(rows()) from None
     return rows()
 
 
 # ------------------------------------------------------------------------------ files
+
+
+class BatchedWrites:
+    """Results written at most every ``every_s`` seconds: :meth:`result` after each point (writes
+    when the last write is that old), :meth:`idle` while points run (writes rows still waiting
+    once it is), :meth:`flush` at the end (writes what waits). ``write(rows)`` gets every row so
+    far. A completed point is on disk within ``every_s`` (+ the engine's 0.1 s poll) of its end."""
+
+    def __init__(self, write: Callable[[list[dict[str, Any]]], None], every_s: float = 1.0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self._write = write
+        self.every_s = every_s
+        self._clock = clock
+        self._last = clock()
+        self._rows: list[dict[str, Any]] | None = None  #: rows not yet written
+        self.writes = 0
+
+    def result(self, rows: list[dict[str, Any]]) -> None:
+        self._rows = rows
+        self.idle()
+
+    def idle(self) -> None:
+        if self._rows is not None and self._clock() - self._last >= self.every_s:
+            self.flush()
+
+    def flush(self) -> None:
+        if self._rows is None:
+            return
+        rows, self._rows = self._rows, None
+        self._write(rows)
+        self.writes += 1
+        self._last = self._clock()
+
 
 
 def rows_csv(rows: list[dict[str, Any]], columns: Iterable[str] = COLUMNS) -> str:

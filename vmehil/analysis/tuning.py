@@ -109,7 +109,16 @@ def limit_cycle_analysis(jp: JointParams, simulate: Simulate | None = None, with
                          model_checks: bool = True) -> dict[str, Any]:
     """Predicted (describing function) and, when ``simulate`` is given, simulated limit cycles,
     with and without integrator switch-off. ``simulate(jp, switch_off=bool)`` returns a dict (see
-    the module docstring)."""
+    the module docstring). The same as :func:`limit_cycle_prediction` then
+    :func:`add_simulations` (``tune limit-cycle`` computes the prediction while its runs go on)."""
+    out = limit_cycle_prediction(jp, with_traces=with_traces, model_checks=model_checks)
+    if simulate is not None:
+        add_simulations(out, jp, simulate)
+    return out
+
+
+def limit_cycle_prediction(jp: JointParams, with_traces: bool = True, model_checks: bool = True) -> dict[str, Any]:
+    """The predicted side of :func:`limit_cycle_analysis` (``simulated`` keys None)."""
     off = jp.switch_off_cfg()
     out: dict[str, Any] = {"command": "tune limit-cycle", **jp.describe(),
                            "nonlinearities": [n.describe() for n in jp.nonlinearities()]}
@@ -128,12 +137,17 @@ def limit_cycle_analysis(jp: JointParams, simulate: Simulate | None = None, with
                 m.pop("theta_deg")
     out["model_check"] = mc
     out["switch_off"]["model_check"] = mc_off
-    if simulate is not None:
-        out["simulated"] = simulate(jp, switch_off=False)
-        sim_off = simulate(jp, switch_off=True)
-        out["switch_off"]["simulated"] = sim_off
-        out["switch_off"]["static_error_deg"] = sim_off.get("static_error_deg")
-        out["comparison"] = compare(out["predicted"], out["simulated"])
+    return out
+
+
+def add_simulations(out: dict[str, Any], jp: JointParams, simulate: Simulate) -> dict[str, Any]:
+    """Fill a :func:`limit_cycle_prediction` with the simulated runs (integrators on, then
+    switched off) and the simulated/predicted comparison; returns ``out``."""
+    out["simulated"] = simulate(jp, switch_off=False)
+    sim_off = simulate(jp, switch_off=True)
+    out["switch_off"]["simulated"] = sim_off
+    out["switch_off"]["static_error_deg"] = sim_off.get("static_error_deg")
+    out["comparison"] = compare(out["predicted"], out["simulated"])
     return out
 
 

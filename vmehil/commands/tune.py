@@ -37,6 +37,7 @@ import argparse
 import math
 import shlex
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -147,11 +148,13 @@ def _jobs_arg(p: argparse.ArgumentParser, what: str) -> None:
                         "1: one after the other in this process, with a bar per run")
 
 
-def _simulate_runs(args: argparse.Namespace, jobs: list, labels: list[str], links) -> list[dict[str, Any]]:
+def _simulate_runs(args: argparse.Namespace, jobs: list, labels: list[str], links,
+                   meanwhile: Callable[[], None] | None = None) -> list[dict[str, Any]]:
     """The full-stack runs ``jobs`` (:class:`~vmehil.analysis.simulate.SimJob`), side by side in
     worker processes (one per core, ``--jobs``), each a complete safe-stopping run, or one after
     the other here (``--jobs 1``, or a CAN plant that serves one run at a time). Results in order;
-    Ctrl-C stops every run (amplifiers safe) and raises KeyboardInterrupt (exit status 130)."""
+    Ctrl-C stops every run (amplifiers safe) and raises KeyboardInterrupt (exit status 130).
+    ``meanwhile()``: this process's own work, done while the workers run (with ``--jobs 1``: first)."""
     import os
 
     from vmehil.analysis.parallel import ParallelInterrupted, run_parallel
@@ -162,6 +165,8 @@ def _simulate_runs(args: argparse.Namespace, jobs: list, labels: list[str], link
     if links is not None and not links.shareable:
         n = 1
     if n <= 1:
+        if meanwhile is not None:
+            meanwhile()
         out = []
         for job, label in zip(jobs, labels, strict=True):
             with TickProgress(f"simulating ({label})", quiet=args.quiet) as progress:
@@ -171,7 +176,7 @@ def _simulate_runs(args: argparse.Namespace, jobs: list, labels: list[str], link
     with progress_bar(f"simulating ({', '.join(labels)})", len(jobs), quiet=args.quiet, unit="run") as bar:
         try:
             return run_parallel(run_job, jobs, jobs=n, on_result=lambda _i, _r: bar.update(1),
-                                finished=lambda r: r is not None)
+                                finished=lambda r: r is not None, meanwhile=meanwhile)
         except ParallelInterrupted:
             raise KeyboardInterrupt from None
 
@@ -288,29 +293,32 @@ def _guard(jp: JointParams, switch_off: bool | None = None):
 def run_limit_cycle(args: argparse.Namespace) -> int:
     from vmehil.analysis import report
     from vmehil.analysis.simulate import SimJob, strip_traces
-    from vmehil.analysis.tuning import limit_cycle_analysis
+    from vmehil.analysis.tuning import add_simulations, limit_cycle_prediction
 
     jp = _load(args)
     bad = _unstable_message(jp, switch_off=True)  # it simulates the switched-off loop as well
     if bad:
         print(f"vmehil tune limit-cycle: {bad}", file=sys.stderr)
         return 1
-    sim = None
-    if not args.predict_only:
+    predicted: list[dict[str, Any]] = []
+
+    def predict() -> None:
+        predicted.append(limit_cycle_prediction(jp, with_traces=bool(args.report)))
+
+    if args.predict_only:
+        predict()
+        result = predicted[0]
+    else:
+        # The two full-stack runs start first, in worker processes (--jobs); this process computes
+        # the describing-function prediction while they run (same figures as one after the other).
         settings = _sim_settings(args)
         links = _link_factory(args)
-        runs: dict[bool, dict[str, Any]] = {}
-
-        def sim(jp_: JointParams, switch_off: bool) -> dict[str, Any]:
-            if not runs:  # both runs at the first call, side by side (--jobs)
-                modes = (False, True)
-                labels = ["integrators on", "switch-off"]
-                jobs = [SimJob(jp_, mode, settings, _tagged(links, label.replace(" ", "-")))
-                        for mode, label in zip(modes, labels, strict=True)]
-                runs.update(zip(modes, _simulate_runs(args, jobs, labels, links), strict=True))
-            return runs[switch_off]
-
-    result = limit_cycle_analysis(jp, simulate=sim, with_traces=bool(args.report))
+        modes = (False, True)
+        labels = ["integrators on", "switch-off"]
+        jobs = [SimJob(jp, mode, settings, _tagged(links, label.replace(" ", "-")))
+                for mode, label in zip(modes, labels, strict=True)]
+        runs = dict(zip(modes, _simulate_runs(args, jobs, labels, links, meanwhile=predict), strict=True))
+        result = add_simulations(predicted[0], jp, lambda _jp, switch_off: runs[switch_off])
     text = report.limit_cycle_text(result)
     print("vmehil tune limit-cycle — describing-function prediction of the sampled loop"
           + ("" if args.predict_only else " and the full-stack simulation"))
@@ -417,6 +425,7 @@ def run_sweep(args: argparse.Namespace) -> int:
     from vmehil.analysis.parallel import EngineError
     from vmehil.analysis.sweep import (
         DEFAULT_GRID,
+        BatchedWrites,
         SweepInterrupted,
         SweepTask,
         evaluate_points,
@@ -552,20 +561,27 @@ def run_sweep(args: argparse.Namespace) -> int:
     print(f"vmehil tune sweep — {jp.rig} joint {jp.joint} ({jp.name}): {what} = {len(tasks)} points"
           + (f" ({len(done_rows)} done before, {todo} to go)" if args.resume else "")
           + f", {where}; writing {csv_path} and {json_path}")
+    # sweep.csv/.json at most once a second (every completed row is on disk within ~1 s), and
+    # with every row at the end, on interruption and on an error
+    batch = BatchedWrites(lambda rows: write(rows, False))
     try:
         with progress_bar("sweep", len(tasks), quiet=args.quiet, unit="point", initial=len(done_rows)) as bar:
 
             def on_result(row: dict[str, Any], rows: list[dict[str, Any]]) -> None:
-                write(rows, False)
+                batch.result(rows)
                 bar.set_postfix_str(f"last: {_point_text(row)}", refresh=False)
                 bar.update(1)
 
-            rows = evaluate_points(tasks, jobs=jobs, engine=engine, done=done_rows, on_result=on_result)
+            rows = evaluate_points(tasks, jobs=jobs, engine=engine, done=done_rows, on_result=on_result,
+                                   on_idle=batch.idle)
     except SweepInterrupted as e:
         write(e.rows, False, interrupted=True)
         print(f"vmehil tune sweep: interrupted; {len(e.rows)} of {len(tasks)} points kept in {csv_path} and "
               f"{json_path} (continue with --resume {out_dir})", file=sys.stderr)
         return 130
+    except BaseException:
+        batch.flush()  # the rows computed before the error are kept
+        raise
     finally:
         if engine is not None:  # run_parallel closed it; again (a no-op) if it never started
             engine.close()
