@@ -96,7 +96,7 @@ def test_a_killed_unit_process_stops_every_unit_and_its_amplifiers(tmp_path) -> 
                                     "--json", str(tmp_path / "coordinator.json")),
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
-        wait_for_exchange(150)
+        wait_for_exchange(50)
         os.kill(units["leg3"].pid, signal.SIGKILL)
         coord.wait(timeout=300)
         codes = wait_all(units)
@@ -130,7 +130,7 @@ def test_the_coordinators_death_safe_stops_every_unit(tmp_path) -> None:
                                     "--interface", "udp_multicast", "--start-timeout", "120"),
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        wait_for_exchange(150)
+        wait_for_exchange(50)
         os.kill(coord.pid, signal.SIGKILL)
         codes = wait_all(units)
     finally:
