@@ -116,7 +116,7 @@ def test_a_killed_unit_process_stops_every_unit_and_its_amplifiers(tmp_path) -> 
                                     "--interface", "udp_multicast", "--start-timeout", "120", "--unit-timeout", "5",
                                     "--json", str(tmp_path / "coordinator.json")),
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    codes = kill_leg3_at(150, coord, units)
+    codes = kill_leg3_at(50, coord, units)  # every amplifier is on by exchange 50
     summary = json.loads((tmp_path / "coordinator.json").read_text())
     stop = summary["stop"]
     assert stop["unit"] == "leg3" and stop["what"].startswith("lost")
@@ -142,7 +142,7 @@ def test_the_coordinators_death_safe_stops_every_unit(tmp_path) -> None:
                                     "--interface", "udp_multicast", "--start-timeout", "120"),
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        wait_for_exchange(150)
+        wait_for_exchange(50)
         os.kill(coord.pid, signal.SIGKILL)
         codes = wait_all(units)
     finally:
