@@ -80,7 +80,7 @@ test: $(STAMP) tools
 	wait $$types_pid; types=$$?; echo "mypy:"; cat $(MYPY_LOG); rm -f $(MYPY_LOG); \
 	[ $$tests -ne 0 ] && exit $$tests; exit $$types
 
-# The same without the tests marked slow (over 10 s each, or end-to-end runs over 5 s): the
+# The same without the tests marked slow (over 1.5 s each on the 2-core machine at rest): the
 # documented fast subset for the edit-test cycle (goal: under 3 min on 2 cores); CI runs `test`.
 test-fast: PYTEST_ARGS = -m "not slow"
 test-fast: test

@@ -106,6 +106,7 @@ def test_the_watchdog_line_reaches_the_node_a_hung_controller_trips_as_in_proces
     assert np.array_equal(a["current_a"], b["current_a"]) and not a["current_a"].any()
 
 
+@pytest.mark.slow
 def test_a_missing_answer_stops_the_loop_safely_in_that_tick():
     spec = _spec()
     # link tick 0 is the priming exchange; runner tick k exchanges link tick k + 1
@@ -124,6 +125,7 @@ def test_a_missing_answer_stops_the_loop_safely_in_that_tick():
     assert not loop.enabled
 
 
+@pytest.mark.slow
 def test_a_vanished_node_stops_the_loop_safely():
     spec = _spec()
     # bounds far above any scheduling gap of a loaded machine: only the stopped node can trip them

@@ -90,6 +90,7 @@ def test_paper_check_limit_cycle_and_switch_off_cure() -> None:
     assert err_true <= bound + 1.5  # plus the uncalibrated pot's bow (≈1°)
 
 
+@pytest.mark.slow
 def test_cli_run_writes_json_with_the_public_keys(tmp_path: Path, capsys) -> None:
     out = tmp_path / "run.json"
     rep = tmp_path / "rep"

@@ -192,6 +192,7 @@ def test_options_that_need_one_loop_are_refused_with_why_and_what_to_do(capsys) 
 
 
 # --- a dead unit and the plant node's amplifier-side command timeout --------------------------------
+@pytest.mark.slow
 def test_a_hung_unit_has_its_amplifiers_latched_off_by_the_plant_nodes_command_timeout() -> None:
     """The plant of every joint as the CAN plant node (virtual bus, a node thread with the command
     timeout `vmehil plant-node` has, 0.2 s). leg2 (not leg1, whose PIO carries the enable-watchdog

@@ -27,6 +27,7 @@ def single_run(seed: int, n_ticks: int) -> dict[str, np.ndarray]:
     return loop.recorder.trimmed()
 
 
+@pytest.mark.slow
 def test_parallel_units_in_lockstep_equal_the_single_controller_bit_for_bit() -> None:
     ref = single_run(3, N_TICKS)
     run = run_units("melmalec-16", seed=3, n_ticks=N_TICKS)
@@ -45,6 +46,7 @@ def test_parallel_units_in_lockstep_equal_the_single_controller_bit_for_bit() ->
         run.close()
 
 
+@pytest.mark.slow
 def test_parallel_units_with_the_plant_node_over_can_equal_the_single_controller() -> None:
     """The plant of all 16 joints as the CAN plant node (python-can `virtual`, a node thread),
     stepped by the hub once every unit's commands are in: still bit-identical."""
@@ -174,6 +176,7 @@ def test_a_unit_that_dies_with_an_exception_stops_every_unit_within_one_tick() -
         run.close()
 
 
+@pytest.mark.slow
 def test_a_silent_unit_is_declared_lost_its_amplifiers_cut_and_every_unit_stops() -> None:
     """leg3 hangs after tick 50 (it waits until the hub has declared it lost — no sleep). The
     others wait timeout_s for its tick-51 commands, the plant steps with leg3's amplifiers off,

@@ -9,6 +9,7 @@ import itertools
 import threading
 
 import numpy as np
+import pytest
 
 from emulators.presets import resolve_rig
 from servo.rig import load_rig
@@ -26,6 +27,7 @@ def plant_node_link(seed: int, channel: str, **kw):
     return CanPlantOptions(interface="virtual", channel=channel, own_node=True, **kw).open_link("melmalec-16", seed)
 
 
+@pytest.mark.slow
 def test_units_with_the_coordinator_on_the_plant_node_equal_the_single_controller_bit_for_bit() -> None:
     spec = load_rig(resolve_rig("melmalec-16"))
     n = 100
@@ -48,6 +50,7 @@ def test_units_with_the_coordinator_on_the_plant_node_equal_the_single_controlle
         assert np.array_equal(ref[key], merged(spec, results, key, n), equal_nan=True), key
 
 
+@pytest.mark.slow
 def test_a_dead_plant_node_safe_stops_every_unit() -> None:
     """The plant node stops answering after exchange 40 (its thread ends: no answer, no
     heartbeat). The coordinator's link gives up after --can-timeout and tells every unit in that

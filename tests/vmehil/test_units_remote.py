@@ -51,6 +51,7 @@ def merged(spec, results: dict, key: str, rows: int) -> np.ndarray:
     return out
 
 
+@pytest.mark.slow
 def test_units_on_the_unit_bus_equal_the_single_controller_bit_for_bit() -> None:
     from tests.vmehil.test_units_parallel import single_run
 
@@ -72,6 +73,7 @@ def test_units_on_the_unit_bus_equal_the_single_controller_bit_for_bit() -> None
         assert np.array_equal(ref[key], merged(spec, results, key, n), equal_nan=True), key
 
 
+@pytest.mark.slow
 def test_a_unit_with_another_rig_file_is_refused_and_the_run_does_not_start(tmp_path) -> None:
     spec = load_rig(resolve_rig("melmalec-16"))
     other = tmp_path / "melmalec-16.toml"
@@ -94,6 +96,7 @@ def test_a_unit_with_another_rig_file_is_refused_and_the_run_does_not_start(tmp_
     assert all(isinstance(r, UnitRefused) for r in results.values())
 
 
+@pytest.mark.slow
 def test_a_unit_started_after_the_run_began_is_refused() -> None:
     spec = load_rig(resolve_rig("melmalec-16"))
     channel = f"units-late-{next(_channels)}"

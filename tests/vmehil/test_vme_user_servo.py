@@ -31,6 +31,7 @@ def _run(system: EmulatedRig, bus) -> tuple[np.ndarray, np.ndarray]:
     return rec["theta"], rec["theta_d"] - rec["theta"]
 
 
+@pytest.mark.slow
 def test_servo_run_through_vme_user_matches_the_in_process_run(tmp_path: Path) -> None:
     why = fuse_unavailable()
     if why:

@@ -126,6 +126,7 @@ any_volts = st.one_of(st.floats(-40, 40), st.sampled_from([float("nan"), float("
 @settings(max_examples=200, deadline=None)
 @given(st.lists(st.tuples(any_volts, any_volts, any_volts, st.booleans(), events, st.booleans()), min_size=1,
                 max_size=16))
+@pytest.mark.slow
 def test_the_fused_in_process_sensors_path_gives_the_general_paths_values_and_clip_count(rows):
     n = len(rows)
     s = ToySensors(pot_v=np.array([r[0] for r in rows]), tach_v=np.array([r[1] for r in rows]),
@@ -203,6 +204,7 @@ def test_fuzzed_frames_never_crash_the_decoder_the_node_or_the_link(msgs):
                 pass  # a well-formed status frame saying something bad is a typed error, not a crash
 
 
+@pytest.mark.slow
 def test_a_recorded_log_decodes_with_the_cantools_command_line_and_replays(tmp_path):
     log = tmp_path / "bus.log"
     n = 2

@@ -173,6 +173,7 @@ def test_a_second_controller_run_resets_the_node_and_matches_again(transport):
 
 # The timeouts below are how a missing answer or a silent node is found; each is far above any
 # scheduling gap of a loaded 2-core machine, so only the dropped frame or stopped node trips it.
+@pytest.mark.slow
 @pytest.mark.parametrize("transport", CAN_TRANSPORTS)
 def test_a_missing_answer_is_stale_data_at_that_tick(transport):
     # drop the SYNC of tick 40: the node never answers it
@@ -188,6 +189,7 @@ def test_a_missing_answer_is_stale_data_at_that_tick(transport):
         assert all(ev.counts == 0 for ev in s.encoder)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("transport", CAN_TRANSPORTS)
 def test_stale_ticks_allows_held_values_before_the_safe_stop(transport):
     drop = drop_sync_at({20, 21, 22})
@@ -209,6 +211,7 @@ def drop_sync_at(ticks: set[int]):
     return drop
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("transport", CAN_TRANSPORTS)
 def test_a_vanished_node_is_reported_as_lost(transport):
     with pair(transport, answer_timeout_s=3.0, heartbeat_timeout_s=2.0) as p:

@@ -78,6 +78,7 @@ def test_the_calibrate_help_lists_the_procedure_whose_extra_is_missing(tmp_path)
     assert "friction" in r.stdout  # listed; running it without the extra says what to install
 
 
+@pytest.mark.slow
 def test_the_dask_engine_without_dask_says_which_extra(tmp_path) -> None:
     r = vmehil_without(["dask", "distributed"], "tune", "sweep", "--engine", "dask", "--quiet", cwd=tmp_path)
     assert r.returncode == 2, (r.stdout, r.stderr)

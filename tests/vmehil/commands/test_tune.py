@@ -33,6 +33,7 @@ def test_bode_json_has_the_documented_keys_and_null_for_infinite_margin(tmp_path
     assert list(tmp_path.iterdir()) == [path]  # no temp files left behind
 
 
+@pytest.mark.slow
 def test_bode_report_writes_png_svg_and_markdown(tmp_path: Path, capsys) -> None:
     rep = tmp_path / "rep"
     assert main(["tune", "bode", "--report", str(rep)]) == 0
@@ -121,6 +122,7 @@ def test_joint_beyond_the_rig_is_a_clear_error(capsys) -> None:
     assert "has 7 joints" in err and "Traceback" not in err
 
 
+@pytest.mark.slow
 def test_limit_cycle_predict_only_json_and_report(tmp_path: Path, capsys) -> None:
     path = tmp_path / "lc.json"
     rep = tmp_path / "lc"

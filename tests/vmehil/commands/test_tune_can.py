@@ -44,6 +44,7 @@ def test_simulate_over_virtual_can_equals_the_in_process_run_and_stops_its_node(
     assert sum(f.arbitration_id == 0x200 for f in replay(tmp_path / "b.log")) >= len(ref["t_s"])  # via the bus
 
 
+@pytest.mark.slow
 def test_one_external_node_serves_successive_runs_each_reset_with_its_seed() -> None:
     """The socketcan/udp_multicast case: no node per run, the link's RESET rebuilds the plant."""
     jp = load_joint(None, 1)
@@ -66,6 +67,7 @@ def test_one_external_node_serves_successive_runs_each_reset_with_its_seed() -> 
     assert runs[0][1] != runs[1][1]  # the seed reaches the remote plant (its noise differs)
 
 
+@pytest.mark.slow
 def test_tune_step_json_over_can_equals_in_process_and_logs_each_run(tmp_path: Path) -> None:
     a, b = tmp_path / "a.json", tmp_path / "b.json"
     assert main(["tune", "step", *FAST, "--seed", "2", "--json", str(a)]) == 0
@@ -93,6 +95,7 @@ def test_tune_limit_cycle_json_over_can_equals_in_process(tmp_path: Path, monkey
     assert da == db
 
 
+@pytest.mark.slow
 def test_tune_sweep_in_two_workers_over_virtual_can_equals_in_process(tmp_path: Path) -> None:
     common = ["tune", "sweep", *FAST, "--grid", "kp=80:120:2", "--jobs", "2", "--quiet"]
     assert main([*common, "--out", str(tmp_path / "a")]) == 0

@@ -99,6 +99,7 @@ def test_too_short_a_hold_for_a_limit_cycle_is_a_clear_error(capsys) -> None:
     assert "at least 8 s" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_sweep_grid_writes_csv_json_and_heat_map(tmp_path: Path, capsys) -> None:
     out = tmp_path / "out"
     rep = tmp_path / "rep"

@@ -212,6 +212,7 @@ def test_log_lists_changes(console_driver):
     err(drv.ask("log 0"), "VALUE")
 
 
+@pytest.mark.slow
 def test_compound_commands_load_run_and_cancel(console_driver, tmp_path):
     drv = console_driver
     f = tmp_path / "c.cmd"

@@ -125,6 +125,7 @@ def _vmehil(*args: str) -> subprocess.Popen:
                             text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
 
 
+@pytest.mark.slow
 def test_run_console_on_a_pty_prompts_echoes_swallows_arrows_answers_in_ascii_and_moves_at_once(tmp_path):
     link, out = tmp_path / "console", tmp_path / "run.json"
     # what a new user types: a console, no demo motion (so move_joint is accepted at once)
@@ -164,6 +165,7 @@ def test_run_console_on_a_pty_prompts_echoes_swallows_arrows_answers_in_ascii_an
     assert "picocom -q " in err and "--echo" not in err  # the hint matches the console's own echo
 
 
+@pytest.mark.slow
 def test_console_on_a_pty_the_test_opened_serves_the_serial_device_and_writes_its_json(tmp_path):
     master, slave = os.openpty()
     tty.setraw(slave)

@@ -89,6 +89,7 @@ def served(tmp_path):
         ep.close()
 
 
+@pytest.mark.slow
 def test_mavproxy_fetches_shows_and_sets_gains_unsigned(served):
     loop, ep, mp, until = served()
     until(lambda: "online system 1" in mp.text() or "Detected vehicle 1:1" in mp.text(), "the vehicle")
@@ -110,6 +111,7 @@ def test_mavproxy_fetches_shows_and_sets_gains_unsigned(served):
     assert any("refused J1_KP = 90000" in t for t in notes)
 
 
+@pytest.mark.slow
 def test_mavproxy_signed_set_accepted_unsigned_refused(served):
     key = key_from_passphrase("vmehil-test-passphrase")  # MAVProxy takes one word
     # unsigned reads allowed, so that MAVProxy learns the parameters before it has the key
