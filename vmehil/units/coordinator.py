@@ -188,20 +188,28 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
                 ur.system.io.safe_stop()
         finally:
             hub.leave(unit.name, why)
+            ended[ur.unit.name].set()
 
+    # Each unit says it has ended (safe-stopped, left the hub) through an Event of its own. The
+    # main thread waits on those, not on Thread.join: a join that Ctrl-C interrupts can leave
+    # the thread marked as stopped while it still runs (CPython before 3.13), and the join after
+    # the interrupt then returns at once, before the unit's safe stop.
+    ended = {ur.unit.name: threading.Event() for ur in run.units}
     threads = [threading.Thread(target=unit_main, args=(ur,), name=f"unit-{ur.unit.name}", daemon=True)
                for ur in run.units]
     for t in threads:
         t.start()
     try:
-        for t in threads:
-            while t.is_alive():  # joined in slices: Ctrl-C and SIGTERM are handled while waiting
-                t.join(0.2)
+        for e in ended.values():
+            while not e.wait(0.2):  # in slices: Ctrl-C and SIGTERM are handled while waiting
+                pass
     except BaseException:
         # Ctrl-C or SIGTERM reaches this (the main) thread: every unit safe-stops at its next
         # tick boundary (its armed() block), then the signal goes on
         stop_all.set()
-        for t in threads:
-            t.join(timeout=timeout_s * 4)
+        for e in ended.values():
+            e.wait(timeout=timeout_s * 4)
         raise
+    for t in threads:
+        t.join(timeout=timeout_s)  # each has set its Event: only its thread's own ending is left
     return run
