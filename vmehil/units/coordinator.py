@@ -187,8 +187,10 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
             if ur.system is not None:  # no loop yet, or armed() already stopped it: the boards safe
                 ur.system.io.safe_stop()
         finally:
-            hub.leave(unit.name, why)
-            ended[ur.unit.name].set()
+            try:
+                hub.leave(unit.name, why)
+            finally:
+                ended[ur.unit.name].set()
 
     # Each unit says it has ended (safe-stopped, left the hub) through an Event of its own. The
     # main thread waits on those, not on Thread.join: a join that Ctrl-C interrupts can leave
