@@ -585,24 +585,32 @@ def run_sweep(args: argparse.Namespace) -> int:
     finally:
         if engine is not None:  # run_parallel closed it; again (a no-op) if it never started
             engine.close()
-    write(rows, True)
-    files = [csv_path, json_path]
-    if spreads:
-        files += _tolerance_outputs(args, jp, rows, spreads, thresholds, meta, write)
-    else:
-        print(_sweep_table(rows))
-    if args.report and not spreads:
-        d = Path(args.report)
-        fig = report.sweep_heatmaps(rows, x, y, f"Gain sweep, {jp.rig} joint {jp.joint} ({jp.name})")
-        imgs = []
-        if fig is not None:
-            files += report.save_figure_both(fig, d, f"heatmap_{x}_{y}")
-            imgs.append(f"heatmap_{x}_{y}.png")
-        md = report.markdown(f"Gain sweep — {jp.rig} joint {jp.joint}", _command_line(args), _sweep_table(rows), imgs)
-        files.append(write_atomic(d / "summary.md", md))
-    for f in files:
-        print(f"wrote {f}")
-    return 0
+    # Ctrl-C after the last point (the engine's SIGINT handling has ended): every row is
+    # computed; the files are written atomically, so they hold the last complete version
+    try:
+        write(rows, True)
+        files = [csv_path, json_path]
+        if spreads:
+            files += _tolerance_outputs(args, jp, rows, spreads, thresholds, meta, write)
+        else:
+            print(_sweep_table(rows))
+        if args.report and not spreads:
+            d = Path(args.report)
+            fig = report.sweep_heatmaps(rows, x, y, f"Gain sweep, {jp.rig} joint {jp.joint} ({jp.name})")
+            imgs = []
+            if fig is not None:
+                files += report.save_figure_both(fig, d, f"heatmap_{x}_{y}")
+                imgs.append(f"heatmap_{x}_{y}.png")
+            md = report.markdown(f"Gain sweep — {jp.rig} joint {jp.joint}", _command_line(args),
+                                 _sweep_table(rows), imgs)
+            files.append(write_atomic(d / "summary.md", md))
+        for f in files:
+            print(f"wrote {f}")
+        return 0
+    except KeyboardInterrupt:
+        print(f"vmehil tune sweep: interrupted after its last point; the rows are in {csv_path} and "
+              f"{json_path} (--resume {out_dir} finishes the files)", file=sys.stderr)
+        return 130
 
 
 def _settings_meta(settings) -> dict[str, Any]:

@@ -23,7 +23,9 @@ FAST = ["--move-deg", "2", "--hold", "1"]  # ~1.4 s simulated per point
 @pytest.mark.slow
 def test_resume_after_sigint_computes_only_the_missing_points(tmp_path: Path, capsys) -> None:
     out = tmp_path / "out"
-    args = ["tune", "sweep", "--grid", "kp=80:140:6", "--jobs", "1", *FAST, "--quiet"]
+    # 16 points: the files are written at most once a second, so the second row may be on disk
+    # only a second or more after it was computed; the SIGINT must still find points to cut
+    args = ["tune", "sweep", "--grid", "kp=80:140:16", "--jobs", "1", *FAST, "--quiet"]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     proc = subprocess.Popen([sys.executable, "-m", "vmehil", *args, "--out", str(out)], cwd=tmp_path, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -42,22 +44,22 @@ def test_resume_after_sigint_computes_only_the_missing_points(tmp_path: Path, ca
     assert f"--resume {out}" in stderr
     before = json.loads((out / "sweep.json").read_text())
     k = before["completed"]
-    assert 2 <= k < 6 and before["interrupted"]
+    assert 2 <= k < 16 and before["interrupted"]
 
     # another sweep in that folder is refused, naming what differs
     assert main([*args, "--seed", "1", "--resume", str(out)]) == 2
     assert "another sweep" in capsys.readouterr().err
 
     assert main([*args, "--resume", str(out)]) == 0
-    assert f"({k} done before, {6 - k} to go)" in capsys.readouterr().out
+    assert f"({k} done before, {16 - k} to go)" in capsys.readouterr().out
     after = json.loads((out / "sweep.json").read_text())
-    assert after["finished"] and after["completed"] == 6
-    assert [r["index"] for r in after["rows"]] == list(range(6))  # every point once
+    assert after["finished"] and after["completed"] == 16
+    assert [r["index"] for r in after["rows"]] == list(range(16))  # every point once
     kept = {r["index"]: r for r in before["rows"]}
     for r in after["rows"]:
         if r["index"] in kept:
             assert r == kept[r["index"]]  # not computed again (same wall time, to the last bit)
-    assert len(list(csv.DictReader(csv_path.open()))) == 6
+    assert len(list(csv.DictReader(csv_path.open()))) == 16
 
 
 @pytest.mark.slow
