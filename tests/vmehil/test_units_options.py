@@ -206,7 +206,9 @@ def test_a_hung_unit_has_its_amplifiers_latched_off_by_the_plant_nodes_command_t
 
     link = CanPlantOptions(interface="virtual", channel="units-cmd-timeout", own_node=True).open_link(RIG, 1)
     node = link.node.node
-    node.command_timeout_s = 0.2  # as `vmehil plant-node` (default 0.2 s); the node thread reads it live
+    # The timeout is armed only when leg2 hangs: armed from the start, a wall-clock pause of the
+    # lockstep threads on a loaded machine (0.3 s seen in CI) tripped it before the hang.
+    node.command_timeout_s = None  # off (as `vmehil plant-node --command-timeout 0`)
     leg2 = list(rig_units(RIG)[1].indices)
     seen: dict = {}
     holder: dict = {}
@@ -215,6 +217,7 @@ def test_a_hung_unit_has_its_amplifiers_latched_off_by_the_plant_nodes_command_t
     def hang(name, system, loop):
         if name == "leg2" and loop.tick_count == 51:
             seen["before"] = node.amplifiers()  # amplifiers on, nothing latched, just before the silence
+            node.command_timeout_s = 0.2  # as `vmehil plant-node` (default 0.2 s); the node thread reads it live
             deadline = time.monotonic() + 60.0
             while not node.command_timed_out and time.monotonic() < deadline:  # wait for the condition
                 time.sleep(0.005)
