@@ -141,21 +141,13 @@ class Harness:
         # order; the values are Python floats already (tolist)
         analog, listened = s.analog, s.listened()
         for i, pot_net, tach_net, imon_net, fault_net, enc_net in self._wiring()[1]:
-            if pot_net:
-                if listened.get(pot_net):
-                    s.set_analog(pot_net, pot[i])
+            for net, volts in ((pot_net, pot[i]), (tach_net, tach[i]), (imon_net, imon[i])):
+                if not net:
+                    continue
+                if listened.get(net):
+                    s.set_analog(net, volts)
                 else:
-                    analog[pot_net] = pot[i]
-            if tach_net:
-                if listened.get(tach_net):
-                    s.set_analog(tach_net, tach[i])
-                else:
-                    analog[tach_net] = tach[i]
-            if imon_net:
-                if listened.get(imon_net):
-                    s.set_analog(imon_net, imon[i])
-                else:
-                    analog[imon_net] = imon[i]
+                    analog[net] = volts
             if fault_net:
                 s.set_digital(fault_net, fault[i])
             if enc_net:

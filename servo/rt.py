@@ -111,6 +111,12 @@ def _libc_call(name: str, *args: int) -> str | None:
     return None
 
 
+def check_rt_priority(priority: int) -> None:
+    """Refuse a ``SCHED_FIFO`` priority outside 1..99 (ValueError)."""
+    if not 1 <= int(priority) <= 99:
+        raise ValueError(f"real-time priority {priority!r}: expected 1..99 (SCHED_FIFO)")
+
+
 def apply_realtime(priority: int | None = None, lock_memory: bool = False,
                    cpus: Sequence[int] | None = None) -> RealtimeSettings:
     """Apply the real-time settings asked for to this process (its calling thread's policy):
@@ -123,8 +129,7 @@ def apply_realtime(priority: int | None = None, lock_memory: bool = False,
     Each refused setting is recorded with its reason (``refused``); the run goes on without it."""
     out = RealtimeSettings()
     if priority is not None:
-        if not 1 <= int(priority) <= 99:
-            raise ValueError(f"real-time priority {priority!r}: expected 1..99 (SCHED_FIFO)")
+        check_rt_priority(priority)
         if not hasattr(os, "sched_setscheduler"):
             out.refused["SCHED_FIFO"] = "not supported on this platform"
         else:

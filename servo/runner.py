@@ -39,7 +39,7 @@ import numpy as np
 from servo.boundary import PlantBoundary, PlantBoundaryError
 from servo.interrupts import Terminated, interrupt_name
 from servo.loop import ServoLoop
-from servo.rt import RealtimeSettings, apply_realtime, involuntary_switches, wait_until
+from servo.rt import RealtimeSettings, apply_realtime, check_rt_priority, involuntary_switches, wait_until
 
 Progress = Callable[[int, int], None]
 
@@ -243,8 +243,8 @@ class RealtimeRunner(LockstepRunner):
         self.gc_slack_s = 0.003  #: collect young objects only when the next deadline is this far
         #: real-time settings for the run (:func:`servo.rt.apply_realtime`; all off by default):
         #: applied when :meth:`run` starts, restored when it ends
-        if rt_priority is not None and not 1 <= int(rt_priority) <= 99:
-            raise ValueError(f"real-time priority {rt_priority!r}: expected 1..99 (SCHED_FIFO)")
+        if rt_priority is not None:
+            check_rt_priority(rt_priority)  # at construction, not when the run starts
         self.rt_priority, self.lock_memory, self.cpus = rt_priority, lock_memory, cpus
         #: what the last run applied and was refused (None: nothing was asked)
         self.rt_settings: RealtimeSettings | None = None
