@@ -55,6 +55,10 @@ class PlantLink(ABC):
     """Where the plant runs. ``exchange`` advances it exactly one servo period (lockstep)."""
 
     names: list[str]
+    #: the plant's step (its time in periods) whose values the last exchange returned, where it
+    #: is not one step per exchange (a free-running plant: answers skip or repeat steps); ``None``:
+    #: lockstep, exchange ``k`` returns step ``k``
+    answer_step: int | None = None
 
     @abstractmethod
     def exchange(self, cmd: PlantCommand, period_s: float, delay_s: float) -> PlantSensors: ...

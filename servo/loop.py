@@ -156,6 +156,9 @@ class ServoLoop:
         self.plan_context = plan_context
         #: the run's visual-servo link when it has one (set by ``vmehil run --vision``), for the report
         self.vision: VisionOutcome | None = None
+        #: when this tick's readings were taken (s; ``None``: one period per tick), for the
+        #: cross-checks: set where samples can skip or repeat periods (a free-running plant)
+        self.sample_clock: Callable[[], float | None] | None = None
 
     # --- live interface ------------------------------------------------------------------------
     def submit(self, command: LiveCommand,
@@ -353,7 +356,8 @@ class ServoLoop:
                 return True
         self._last_theta = m.theta.copy()
         self.cross_checks.config = wd  # the limits in force now (live changes replace them)
-        trip = self.cross_checks.check(m, sample.theta_d, sample.omega_d)
+        t_s = self.sample_clock() if self.sample_clock is not None else None
+        trip = self.cross_checks.check(m, sample.theta_d, sample.omega_d, t_s)
         if trip is not None:
             self.safe_stop(trip.cause, trip.detail, trip.joint)
             return True

@@ -13,9 +13,13 @@ then shows as a disagreement within a few ticks, long before the following error
   pot), both integrated over the same window of ``velocity_window_ticks``: the tach's mean may
   differ from the mean speed by at most its dead band (it reads ``ω − dead band·sign ω`` above
   it, zero below) plus ``velocity_tolerance_rad_s`` and ``velocity_tolerance_fraction`` of the
-  speed (commutator ripple). A fault that keeps the tach's reading inside that envelope — a
-  tach stuck at 0 V while the joint moves slower than its dead band — is undetectable by
-  construction, and harmless (the loop gets no velocity feedback there anyway).
+  speed (commutator ripple). Both integrals run over the time the samples were taken at: one
+  period per tick, or, where the loop is told each sample's time (a free-running plant, whose
+  answers may skip or repeat a period), that time over the last ``velocity_window_ticks`` new
+  samples (a repeated sample adds nothing; the window then spans more periods). A fault
+  that keeps the tach's reading inside that envelope — a tach stuck at 0 V while the joint
+  moves slower than its dead band — is undetectable by construction, and harmless (the loop
+  gets no velocity feedback there anyway).
 * **current** — the current monitor against the current the drivers commanded one tick
   earlier (the command of tick k takes effect 1 ms after t_k, and the monitor is sampled at
   t_k+1): beyond ``current_tolerance_a + current_tolerance_fraction·|i|`` for
@@ -183,8 +187,10 @@ class CrossChecks:
         self._ring_int = np.zeros((w + 1, n))
         self._slot = 0
         self._filled = 0
+        self._ring_t = np.zeros(w + 1)
         self._tach_int = np.zeros(n)
         self._last_tach = np.zeros(n)
+        self._last_t = 0.0
         self._cur_over = np.zeros(n, int)
         self._cur_history: deque[np.ndarray] = deque(maxlen=1 + max(0, int(self.config.command_lag_ticks)))
         self._stale_at = np.full(n, np.nan)
@@ -204,8 +210,13 @@ class CrossChecks:
         return wired & (off > tol)
 
     # --- per tick ---------------------------------------------------------------------------
-    def check(self, m: Any, theta_d: np.ndarray, omega_d: np.ndarray) -> Trip | None:
-        """Update every check with this tick's measurement and target; the first that fails."""
+    def check(self, m: Any, theta_d: np.ndarray, omega_d: np.ndarray,
+              sample_time_s: float | None = None) -> Trip | None:
+        """Update every check with this tick's measurement and target; the first that fails.
+
+        ``sample_time_s``: when the measurement was taken (s, the plant's time): given by a
+        free-running plant, whose answers may skip or repeat periods; ``None``: one period per
+        tick (lockstep, a real rig's sampled loop)."""
         generation = getattr(self.io, "calibration_generation", 0)
         if generation != self._generation:  # a new calibration: readings convert differently now
             self._generation = generation
@@ -216,7 +227,7 @@ class CrossChecks:
         stale = self._stale(m, np.asarray(theta_d, float), np.asarray(omega_d, float))
         if not self.config.cross_checks:
             return stale
-        return self._current(m) or self._velocity(m) or self._position(m) or stale
+        return self._current(m) or self._velocity(m, sample_time_s) or self._position(m) or stale
 
     def _position(self, m: Any) -> Trip | None:
         if not self.both.any():
@@ -233,25 +244,31 @@ class CrossChecks:
                     f"pot and encoder disagree by {np.degrees(off[i]):.2f}° (limit {np.degrees(tol[i]):.2f}°): "
                     f"since the reference the pot moved {_deg(d_pot[i])}, the encoder {_deg(d_enc[i])}")
 
-    def _velocity(self, m: Any) -> Trip | None:
+    def _velocity(self, m: Any, t_s: float | None = None) -> Trip | None:
         if not self.has_tach.any():
             return None
         tach = np.where(self.has_tach, m.omega_tach, 0.0)
         ref = np.where(self.has_enc, m.theta_enc, m.theta_pot)
         w = self.window
+        dt = self.period_s if t_s is None else t_s - self._last_t
+        if t_s is not None and self._filled and dt <= 0.0:
+            return None  # the same sample again (a free-running plant did not step): nothing new
         if self._filled == 0:
             self._tach_int[:] = 0.0
         else:  # trapezoid: the tach is integrated over exactly the interval the positions span
-            self._tach_int += 0.5 * self.period_s * (tach + self._last_tach)
+            self._tach_int += 0.5 * dt * (tach + self._last_tach)
         self._last_tach = tach
+        self._last_t = 0.0 if t_s is None else t_s
         self._slot = (self._slot + 1) % (w + 1)
         self._ring_ref[self._slot] = ref
         self._ring_int[self._slot] = self._tach_int
+        self._ring_t[self._slot] = self._last_t
         self._filled = min(self._filled + 1, w + 1)
         if self._filled <= w:
             return None
         old = (self._slot + 1) % (w + 1)
-        window_s = w * self.period_s
+        # timed: the window is the last w new samples, at least w periods of the plant's time
+        window_s = w * self.period_s if t_s is None else t_s - self._ring_t[old]
         v_ref = (ref - self._ring_ref[old]) / window_s
         v_tach = (self._tach_int - self._ring_int[old]) / window_s
         off = np.abs(v_tach - v_ref)

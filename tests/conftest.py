@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import textwrap
 from collections.abc import Callable, Iterator, Mapping
@@ -19,6 +20,14 @@ from emulators.ram import RamBoard
 settings.register_profile("deterministic", derandomize=True, deadline=None, print_blob=True)
 settings.register_profile("explore", deadline=None, print_blob=True)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "deterministic"))
+
+# The tests that send SIGINT to a `vmehil` process need it to act on SIGINT. A shell that starts
+# pytest in the background (`make test &`, `( … & )`) hands it SIGINT ignored, and an ignored
+# signal stays ignored across exec, so those processes would never see their Ctrl-C and run on
+# to a normal end. A handler (unlike SIG_IGN) is reset to the default at exec: the children then
+# start with SIGINT as a terminal's foreground job has it, wherever pytest was launched from.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture

@@ -213,8 +213,11 @@ def build_loop(system: EmulatedRig, *, motion: Motion | None = None, gains: dict
         sequencer = Sequencer(list(motion.moves), system.io.read().theta, PlanContext(limits))
     wd = watchdog_config(system, settings, enabled=watchdog)
     recorder = Recorder(n_ticks, n) if n_ticks else None
-    return ServoLoop(system.io, controller, sequencer, wd, recorder=recorder, names=[j.name for j in system.rig.joints],
+    loop = ServoLoop(system.io, controller, sequencer, wd, recorder=recorder, names=[j.name for j in system.rig.joints],
                      plan_context=PlanContext(limits))
+    if getattr(system.link, "free_running", False):  # its answers may skip or repeat plant steps
+        loop.sample_clock = system.sample_time_s
+    return loop
 
 
 def plan_context_of(loop: ServoLoop) -> PlanContext:

@@ -121,6 +121,13 @@ class EmulatedRig:
             return int(lag)
         return 2 if getattr(self.link, "free_running", False) else 0
 
+    def sample_time_s(self) -> float | None:
+        """The plant's time (s) of the values the sensors hold now: the step a free-running plant
+        answered with, in periods (``None``: lockstep, one period per tick). The servo loop's
+        cross-checks integrate over it (:attr:`servo.loop.ServoLoop.sample_clock`)."""
+        step = self.link.answer_step
+        return None if step is None else step * self.rig.period_s
+
     def advance_to(self, t_ns: int) -> None:
         self.crate.advance_to(t_ns)
 

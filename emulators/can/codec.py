@@ -349,11 +349,14 @@ class CanCodec:
                           Watchdog=int(raw["Watchdog"]), BootId=boot_id & 0xFFFF)
 
     def sensor_frames(self, raw: dict[str, np.ndarray], seq: int,
-                      truth: dict[str, np.ndarray] | None = None) -> list[can.Message]:
-        """SENS frames of every joint, then TRUTH frames when ``truth`` has the keys."""
+                      truth: dict[str, np.ndarray] | None = None,
+                      totals: Sequence[int] | np.ndarray | None = None) -> list[can.Message]:
+        """SENS frames of every joint, then TRUTH frames when ``truth`` has the keys.
+        ``totals``: each joint's running count (:class:`EncoderTotals`), else none is kept."""
         n = len(raw["PotVoltage"])
-        out = [self._frame(self.message("SENS", j), {k: int(v[j]) for k, v in raw.items()} | {"Seq": seq & 0xFF})
-               for j in range(n)]
+        out = [self._frame(self.message("SENS", j), {k: int(v[j]) for k, v in raw.items()} | {
+            "Seq": seq & 0xFF, "EncoderTotal": 0 if totals is None else int(totals[j]) & _TOTAL_MASK,
+            "HasTotal": int(totals is not None)}) for j in range(n)]
         if truth is not None and all(key in truth for key in TRUTH_SIGNALS.values()):
             cols = {sig: np.asarray(truth[key], dtype=float) for sig, key in TRUTH_SIGNALS.items()}
             out += [self._frame(self.message("TRUTH", j), {sig: float(c[j]) for sig, c in cols.items()})
@@ -430,6 +433,67 @@ def index_offsets(count: int, first: int, last: int) -> tuple[int, ...]:
     if count == 1:
         return (first,)
     return tuple(first + round(k * (last - first) / (count - 1)) for k in range(count))
+
+
+_TOTAL_MASK = 2**32 - 1
+
+
+class EncoderTotals:
+    """Each joint's net x4 count since the session's start, sent with every answer
+    (``SENS.EncoderTotal``, mod 2³²), so that counts survive lost answers.
+
+    A SENS frame's ``EncoderCounts`` are the period's own counts: an answer that never arrives
+    (a free-running receiver reads the newest answers as they come; a datagram dropped by a
+    receiver's full socket buffer or a lost frame on a real bus) would take its counts with it,
+    and the incremental position would drift from the absolute pot for good. The sender keeps
+    the running total (:meth:`add`, the counts before the frame's clipping); the receiver
+    (:meth:`recover`) takes the total's advance since the previous answer it got as the counts:
+    equal to the frame's counts when nothing was lost (lockstep always), else the lost answers'
+    counts are in. Their index pulses and illegal transitions are not (:attr:`recovered` counts
+    the answers that needed it)."""
+
+    def __init__(self) -> None:
+        self.total: np.ndarray | None = None  #: sender: per joint (int64, wrapped)
+        self._last: dict[int, int] = {}  # receiver: joint → the last total heard
+        self.recovered = 0  #: receiver: answers whose counts came from the total
+
+    def add(self, encoder: Sequence[QuadratureEvents]) -> np.ndarray:
+        """Sender: add an answer's counts; the totals to send with it."""
+        counts = np.fromiter((e.counts for e in encoder), dtype=np.int64, count=len(encoder))
+        self.total = counts & _TOTAL_MASK if self.total is None else (self.total + counts) & _TOTAL_MASK
+        return self.total
+
+    def reset(self) -> None:
+        """A new session: the sender starts from 0, the receiver forgets the last totals."""
+        self.total = None
+        self._last.clear()
+
+    def recover(self, sens: Mapping[int, Mapping[str, Any]], joints: Sequence[int],
+                encoder: list[QuadratureEvents]) -> list[QuadratureEvents]:
+        """Receiver: ``encoder`` (in ``joints`` order, decoded from ``sens``) with each joint's
+        counts from its total's advance since the last answer (where both carried one)."""
+        out = encoder
+        lost = False
+        for i, j in enumerate(joints):
+            r = sens[j]
+            if not int(r.get("HasTotal", 0)):
+                self._last.pop(j, None)
+                continue
+            total = int(r["EncoderTotal"])
+            prev = self._last.get(j)
+            self._last[j] = total
+            if prev is None:
+                continue
+            advance = ((total - prev + 2**31) & _TOTAL_MASK) - 2**31
+            ev = encoder[i]
+            if advance != ev.counts:
+                if out is encoder:
+                    out = list(encoder)
+                out[i] = QuadratureEvents(counts=advance, illegal=ev.illegal, index_offsets=ev.index_offsets,
+                                          phase=ev.phase)
+                lost = True
+        self.recovered += lost
+        return out
 
 
 class DbcExchangeCodec:

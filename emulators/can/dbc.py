@@ -194,7 +194,7 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
             _sig("BootIdLow", 56, 8, minimum=0, maximum=255,
                  comment="low byte of the sender's controller boot id: the node takes only its session owner's"),
         ], senders=[C], comment=f"Joint {j}: commands held over the coming servo period."))
-        msgs.append(Message(ID_SENS + j, f"SENS_J{j:02d}", 24, [
+        msgs.append(Message(ID_SENS + j, f"SENS_J{j:02d}", 32, [
             _volts("PotVoltage", 0, "joint potentiometer wiper at the sampling instant", C),
             _volts("TachVoltage", 24, "tachometer at the sampling instant (0 without one)", C),
             _volts("CurrentMonitor", 48, "amplifier current monitor at the sampling instant", C),
@@ -212,6 +212,10 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
             _sig("IndexLast", 144, 24, signed=True, minimum=-(2**23), maximum=2**23 - 1, unit="counts",
                  receiver=C, comment="count offset of the last index pulse"),
             _sig("Seq", 168, 8, minimum=0, maximum=255, receiver=C, comment="Tick mod 256 answered"),
+            _sig("EncoderTotal", 176, 32, minimum=0, maximum=2**32 - 1, unit="counts", receiver=C,
+                 comment="net x4 counts since the session's start, mod 2^32 (HasTotal): a receiver that "
+                         "missed answers recovers their counts from it"),
+            _bit("HasTotal", 208, "EncoderTotal is kept by the sender", C),
         ], senders=[P], is_fd=True, comment=f"Joint {j}: sensors at the end of the period."))
         msgs.append(Message(ID_TRUTH + j, f"TRUTH_J{j:02d}", 32, [
             _sig("ThetaJoint", 0, 64, is_float=True, unit="rad", receiver=C),
@@ -288,14 +292,17 @@ def _unit_messages() -> list[Message]:
                            "deadline, controller = drivers + law")
               for i, name in enumerate(UNIT_TIMING_FIGURES)],
         ], senders=[U], is_fd=True, comment="A unit's real-time figures, sent once as it leaves the run."),
-        Message(ID_UNIT_ANSWER, "UNIT_ANSWER", 8, [
+        Message(ID_UNIT_ANSWER, "UNIT_ANSWER", 12, [
             _sig("Exchange", 0, 32, minimum=0, maximum=2**32 - 1, receiver=U,
                  comment="the exchange answered (its SENS/TRUTH frames precede it)"),
             _sig("Stop", 32, 8, minimum=0, maximum=255, choices=dict(UNIT_STOP_CAUSES), receiver=U,
                  comment="every unit stops in this exchange: why (0: run on)"),
             _sig("StopUnit", 40, 8, minimum=0, maximum=255, receiver=U, comment="the unit that stopped or was lost"),
             boot,
-        ], senders=[K], comment="Ends the coordinator's answer to one exchange."),
+            _sig("PlantStep", 64, 32, minimum=0, maximum=2**32 - 1, receiver=U,
+                 comment="the plant's step whose values the answer carries (its time: PlantStep periods): "
+                         "free-running, a step may be missed or answered twice"),
+        ], senders=[K], is_fd=True, comment="Ends the coordinator's answer to one exchange."),
         Message(ID_UNIT_HEARTBEAT, "UNIT_HEARTBEAT", 16, [
             _sig("State", 0, 8, minimum=0, maximum=255, choices=dict(NODE_STATES), receiver=K),
             _sig("Unit", 8, 8, minimum=0, maximum=255, receiver=K),

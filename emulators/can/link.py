@@ -48,7 +48,7 @@ import can
 import numpy as np
 
 from emulators.can.bus import Endpoint
-from emulators.can.codec import CanCodec, Frame
+from emulators.can.codec import CanCodec, EncoderTotals, Frame
 from emulators.can.dbc import (
     CONTROL_END,
     CONTROL_RESET,
@@ -164,6 +164,8 @@ class CanPlantLink(PlantLink):
         self._sens: dict[int, dict[str, Any]] = {}
         self._truth: dict[int, dict[str, Any]] = {}
         self._fresh: list[tuple[int, Any]] = []  # complete answers not yet consumed: (tick, sensors)
+        #: the node's running encoder totals: the counts of answers that never arrived are not lost
+        self.totals = EncoderTotals()
         self._reset_acked = False
         self.session: int | None = None  #: the node's number of our session (from its acknowledgement)
         self._refused_by: int | None = None  # while connecting: the owner of the session that refused us
@@ -281,6 +283,7 @@ class CanPlantLink(PlantLink):
             self._truth.clear()
             self.counters.other_session += len(self._fresh)
             self._fresh.clear()  # answers of the node's previous session
+            self.totals.reset()
             return
         self._check_boot(int(r["BootId"]), accept_new_boot)
         if not self._reset_acked or int(r["Session"]) != self.session:  # not an answer to us
@@ -301,7 +304,9 @@ class CanPlantLink(PlantLink):
         if len(sens) != self.n or any(sens.get(j, {}).get("Seq") != seq for j in range(self.n)):
             c.incomplete += 1
             return
-        self._fresh.append((tick, self.codec.sensors_from_frames(sens, truth, range(self.n), self.sensors_type)))
+        s = self.codec.sensors_from_frames(sens, truth, range(self.n), self.sensors_type)
+        s.encoder = self.totals.recover(sens, range(self.n), s.encoder)
+        self._fresh.append((tick, s))
 
     # --- the exchange ---------------------------------------------------------------------------
     def exchange(self, cmd, period_s: float, delay_s: float):
@@ -380,6 +385,8 @@ class CanPlantLink(PlantLink):
         """Every complete answer not yet consumed as one: the newest analog values, encoder
         events and switching of all of them (None when there is none)."""
         fresh = [s for _, s in self._fresh]
+        if fresh and self.free_running:
+            self.answer_step = self._fresh[-1][0]
         self._fresh.clear()
         if not fresh:
             return None

@@ -54,7 +54,7 @@ import can
 import numpy as np
 
 from emulators.can.bus import Endpoint
-from emulators.can.codec import CanCodec
+from emulators.can.codec import CanCodec, EncoderTotals
 from emulators.can.dbc import (
     CONTROL_END,
     CONTROL_RESET,
@@ -268,6 +268,7 @@ class PlantNode(FaultInjectable):
         self.cmd_seq = np.full(self.n, -1)
         self.last_tick: int | None = None
         self.counters.steps = 0
+        self.totals = EncoderTotals()  # every answer's running counts: a receiver that misses one loses none
         self._watchdog_rx = 0  # the enable-watchdog line in the last SYNC
         self._watchdog_edge = False  # an edge arrived since the last step
         self._watchdog_fed = 0  # the line as the plant sees it
@@ -529,7 +530,8 @@ class PlantNode(FaultInjectable):
             self._status(tick, step_error=True)
             return
         c.steps += 1
-        for msg in self.codec.sensor_frames(self.codec.sensors_raw(sensors), tick, sensors.truth):
+        for msg in self.codec.sensor_frames(self.codec.sensors_raw(sensors), tick, sensors.truth,
+                                            totals=self.totals.add(sensors.encoder)):
             self._send(msg)
         self._status(tick)
         if self._note_trips():  # the watchdog line stopped (free-running), or an enable into a dead pump

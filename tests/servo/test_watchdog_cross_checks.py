@@ -179,3 +179,36 @@ def test_the_current_check_allows_for_a_free_running_plants_late_answers_and_onl
     assert trip is not None and trip.cause == "current_mismatch"
     assert _current_trip(2, 2) is None  # free-running: the lag is allowed for
     assert _current_trip(2, 4) is not None  # but not more than it
+
+
+def _free_running_feed(checks: CrossChecks, steps: list[int], speed_rad_s: float, *, timed: bool):
+    """A joint moving at ``speed`` (tach reading it exactly), sampled by a loop whose tick ``k``
+    holds the plant's step ``steps[k]`` (a free-running plant: steps skipped and repeated);
+    ``timed``: the loop is told each sample's plant time. The first trip, if any."""
+    for step in steps:
+        theta = np.array([speed_rad_s * step * T])
+        m = SimpleNamespace(theta_pot=theta, theta_enc=theta, omega_tach=np.array([speed_rad_s]),
+                            current=np.full(1, np.nan))
+        trip = checks.check(m, theta, np.array([speed_rad_s]), step * T if timed else None)
+        if trip is not None:
+            return trip
+    return None
+
+
+def test_the_velocity_check_integrates_over_the_plant_time_of_free_running_samples() -> None:
+    """A loop on a free-running plant gets some steps twice and misses others (a late tick reads
+    two steps at once): told each sample's plant time, the tach/encoder comparison holds for a
+    healthy joint at speed; counted as one period per tick, the same samples trip it."""
+    rng = np.random.default_rng(4)
+    steps = np.cumsum(rng.choice([0, 1, 1, 1, 2, 3], size=120)).tolist()  # 0: a repeat, 2-3: steps missed
+    assert _free_running_feed(_checks(), steps, 0.5, timed=True) is None
+    trip = _free_running_feed(_checks(), steps, 0.5, timed=False)
+    assert trip is not None and trip.cause == "velocity_mismatch"
+    # and told the time, a stuck tach is still caught (0 V at 0.5 rad/s, well above the dead band)
+    checks = _checks()
+    for step in steps:
+        theta = np.array([0.5 * step * T])
+        m = SimpleNamespace(theta_pot=theta, theta_enc=theta, omega_tach=np.zeros(1), current=np.full(1, np.nan))
+        if (trip := checks.check(m, theta, np.array([0.5]), step * T)) is not None:
+            break
+    assert trip is not None and trip.cause == "velocity_mismatch"

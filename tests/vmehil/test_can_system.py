@@ -327,3 +327,59 @@ def test_free_running_the_loop_starts_on_the_reset_plant_not_on_answers_queued_b
     theta = loop.recorder.trimmed()["theta"]
     assert np.ptp(theta[:, 1]) > 0.01  # the demo move moved
     assert np.abs(np.diff(theta, axis=0)).max() < 0.02  # continuous: no jump to or from an old state
+
+
+@pytest.mark.parametrize("totals", [True, False], ids=["totals", "no-totals"])
+def test_free_running_answers_lost_on_the_way_lose_no_encoder_count(monkeypatch, totals):
+    """A free-running node steps 0-2 times per servo tick and a fifth of its answers never reach
+    the link (a receiver's full socket buffer, a lost frame): the encoder's counts of the lost
+    answers come back through SENS.EncoderTotal, so the encoder agrees with the pot and the run
+    goes on. Without the totals (the frames' own counts only) the same run stops on the
+    encoder/pot cross-check: the counts of the lost answers are gone for good."""
+    from emulators.can.codec import EncoderTotals
+    from servo.motion import default_demo_motion
+
+    if not totals:  # the node keeps no totals: every SENS frame says HasTotal = 0
+        monkeypatch.setattr(EncoderTotals, "add", lambda self, encoder: None)
+    spec = _spec()
+    driven = _DrivenFreeRunningNode(spec, f"system-{next(_chan)}")
+    rng = np.random.default_rng(7)
+    lost = 0
+
+    def step_maybe_lost() -> None:
+        nonlocal lost
+        if driven.free_tick > 2 and rng.random() < 0.2:  # this step's answer never arrives
+            send = driven.node._send
+            driven.node._send = lambda msg: None
+            try:
+                driven.step()
+            finally:
+                driven.node._send = send
+            lost += 1
+        else:
+            driven.step()
+
+    link = CanPlantLink(driven.link_endpoint, [j.name for j in spec.joints], seed=3, free_running=True,
+                        stale_ticks=50)
+    try:
+        system = system_mod.build_emulated_rig(spec, seed=3, link=link)
+        loop = session.build_loop(system, motion=default_demo_motion(spec.n_joints), n_ticks=TICKS)
+        loop.start()
+        runner = runner_mod.LockstepRunner(system, loop)
+        for _ in range(TICKS):
+            for _ in range(int(rng.choice([0, 1, 1, 2]))):  # the node's steps in this servo period
+                step_maybe_lost()
+            runner.tick()
+            if loop.fault is not None:
+                break
+    finally:
+        link.close()
+        driven.close()
+    assert lost > 10
+    if totals:
+        assert loop.fault is None, loop.fault
+        assert link.totals.recovered > 0
+        theta = loop.recorder.trimmed()["theta"]
+        assert np.ptp(theta[:, 1]) > 0.01  # the demo move moved
+    else:
+        assert loop.fault is not None and loop.fault.cause == "position_mismatch", loop.fault

@@ -14,6 +14,7 @@ docs/melmalec.md.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 
 from vmehil.cli_types import bounded_float, bounded_int, duration_s
@@ -224,5 +225,7 @@ def run_coordinator_command(args: argparse.Namespace) -> int:
             "stop": None if stop is None else {"unit": stop.unit, "exchange": stop.exchange, "what": stop.what},
             "events": [{"exchange": e.exchange, "unit": e.unit, "what": e.what} for e in out.events],
             "amps_on": out.amps_on, "refused": out.refused, "missing_cmd": out.missing_cmd,
-            "timing": figures, "units": out.unit_timing})
+            "timing": figures, "units": out.unit_timing,
+            # --plant can: the link's counts (answers, stale, incomplete…), as the plant node's own
+            "plant_link": dataclasses.asdict(link.counters) if link is not None else None})
     return 0 if stop is None else EXIT_FAULT

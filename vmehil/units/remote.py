@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from emulators.can.bus import Endpoint, open_bus, resolve
-from emulators.can.codec import CMD_SIGNALS, CanCodec, Frame, shared_codec
+from emulators.can.codec import CMD_SIGNALS, CanCodec, EncoderTotals, Frame, shared_codec
 from emulators.can.dbc import (
     ID_CMD,
     ID_SENS,
@@ -199,7 +199,9 @@ class UnitCanLink(PlantLink):
         self.incomplete = 0  #: free-running answers missing one of the unit's SENS frames (dropped)
         self._fresh_at: float | None = None  # when the last fresh answer came (free-running)
         self._heard: float | None = None
-        self._fresh: list[PlantSensors] = []
+        self._fresh: list[tuple[int, PlantSensors]] = []  # (plant step, its values), free-running
+        #: the coordinator's running encoder totals: an answer missed (incomplete, dropped) loses no count
+        self.totals = EncoderTotals()
         self._sens: dict[int, dict[str, Any]] = {}
         self._truth: dict[int, dict[str, Any]] = {}
         self._free_stop: tuple[Frame, int] | None = None
@@ -255,7 +257,10 @@ class UnitCanLink(PlantLink):
             missing = ", ".join(self.unit.joints[self.joints.index(j)] for j in sorted(mine - set(sens)))
             raise AnswerIncompleteError(f"unit {self.unit.name}: the answer to exchange {r} lacks {missing}")
         sensors = codec.sensors_from_frames(sens, truth, self.joints, PlantSensors)
+        sensors.encoder = self.totals.recover(sens, self.joints, sensors.encoder)
         self._last = sensors
+        if self.free_running:
+            self.answer_step = int(answer.raw["PlantStep"])
         if stop:
             self._stop(answer, r)
         return sensors
@@ -310,7 +315,8 @@ class UnitCanLink(PlantLink):
         now = time.monotonic()
         if fresh:
             self._fresh_at = now
-            self._last = latch_newest(fresh)
+            self.answer_step = fresh[-1][0]
+            self._last = latch_newest([s for _, s in fresh])
             return self._last
         self.stale += 1
         if self._fresh_at is None:  # never started (await_first_answer not called): start the clock now
@@ -341,7 +347,9 @@ class UnitCanLink(PlantLink):
                 self._free_stop = (f, step)
             seq = step & 0xFF
             if all(int(self._sens.get(j, {}).get("Seq", -1)) == seq for j in self.joints):
-                self._fresh.append(self.codec.sensors_from_frames(self._sens, self._truth, self.joints, PlantSensors))
+                s = self.codec.sensors_from_frames(self._sens, self._truth, self.joints, PlantSensors)
+                s.encoder = self.totals.recover(self._sens, self.joints, s.encoder)
+                self._fresh.append((int(f.raw["PlantStep"]), s))
             else:
                 self.incomplete += 1
             self._sens, self._truth = {}, {}
@@ -489,6 +497,7 @@ class _Server:
         self.running = set(range(len(units)))
         self.stop: tuple[int, int, str] | None = None  # (exchange, unit number, cause)
         self.backlog: list[PlantSensors] = []  # a free-running node's answers not yet passed on
+        self.totals = EncoderTotals()  # the running counts sent with every answer (UnitCanLink.totals)
 
     def stop_now(self, r: int, u: int, cause: str, what: str) -> None:
         name = self.units[u].name if u < len(self.units) else "coordinator"
@@ -567,13 +576,15 @@ class _Server:
         if sensors is not None:
             enabled = sensors.truth.get("amp_enabled")
             out.amps_on.append(int(np.count_nonzero(enabled)) if enabled is not None else -1)
-            self.bus.send_all(codec.sensor_frames(codec.sensors_raw(sensors), r, truth=sensors.truth))
+            self.bus.send_all(codec.sensor_frames(codec.sensors_raw(sensors), r, truth=sensors.truth,
+                                                  totals=self.totals.add(sensors.encoder)))
         else:
             out.amps_on.append(-1)  # unknown: the plant did not answer
         stop = self.stop
         s_cause = STOP[stop[2]] if stop is not None and r >= stop[0] else 0
+        plant_step = self.link.answer_step  # a free-running plant node's own step, else this exchange's
         self.bus.send("UNIT_ANSWER", Exchange=r, Stop=s_cause, StopUnit=stop[1] if stop is not None else 0,
-                      BootId=self.boot_id)
+                      BootId=self.boot_id, PlantStep=r if plant_step is None else plant_step)
         out.timing.plant_s.append(t1 - t0)
         out.timing.answer_s.append(clock() - t1)
         out.exchanges += 1
