@@ -110,9 +110,11 @@ def test_the_watchdog_line_reaches_the_node_a_hung_controller_trips_as_in_proces
 def test_a_missing_answer_stops_the_loop_safely_in_that_tick():
     spec = _spec()
     # link tick 0 is the priming exchange; runner tick k exchanges link tick k + 1
-    # the dropped answer is found by the timeout; 2 s, not less, so that a loaded machine's
-    # scheduling gaps before tick 51 are never taken for a missing answer
+    # the dropped answer is found by the timeout: 2 s, not less, while answers come, so that a
+    # loaded machine's scheduling gaps before tick 51 are never taken for a missing answer; once
+    # the SYNC of tick 51 is dropped its answer cannot come, and the wait is only waited out
     link, node, thread, stop = can_link(spec, drop={51}, answer_timeout_s=2.0)
+    link.ep.drop = _shorten_the_wait_when(link, link.ep.drop)
     try:
         _, loop = run(spec, link, n=80)
     finally:
@@ -123,6 +125,17 @@ def test_a_missing_answer_stops_the_loop_safely_in_that_tick():
     assert loop.fault is not None and loop.fault.cause == "stale_sensor"
     assert loop.fault.tick == 51  # the tick after runner tick 50, whose answer never came
     assert not loop.enabled
+
+
+def _shorten_the_wait_when(link, drop):
+    """``drop`` that also shortens the link's answer timeout (a public attribute) once a frame is
+    dropped: that tick's answer never comes, so the wait for it is waited out, not raced."""
+    def dropping(m) -> bool:
+        if not drop(m):
+            return False
+        link.answer_timeout_s = 0.25
+        return True
+    return dropping
 
 
 @pytest.mark.slow
@@ -140,6 +153,9 @@ def test_a_vanished_node_stops_the_loop_safely():
         r.run(20)
         stop.set()
         thread.join(10)
+        # the node is gone: the answer wait outlasts the silence limit by 1 s, as with the bounds
+        # above (3 s / 2 s), for frames it sent before it stopped that are read at the wait's start
+        link.answer_timeout_s, link.heartbeat_timeout_s = 1.2, 0.2
         t0 = time.monotonic()
         r.run(40)
         assert time.monotonic() - t0 < 30  # after the failure the link no longer waits per tick

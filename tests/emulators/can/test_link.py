@@ -171,15 +171,19 @@ def test_a_second_controller_run_resets_the_node_and_matches_again(transport):
         assert_same(run_ticks(p.link, 60), ref)
 
 
-# The timeouts below are how a missing answer or a silent node is found; each is far above any
-# scheduling gap of a loaded 2-core machine, so only the dropped frame or stopped node trips it.
+# The timeouts below are how a missing answer or a silent node is found. The ticks that are
+# answered run under Pair's 10 s bounds, far above any scheduling gap of a loaded 2-core machine;
+# only once the frame is dropped or the node stopped for good (no answer can come any more) are
+# the link's timeouts shortened (its public attributes) to what the test then waits out.
+WAITED_OUT_S = 0.25  # an answer that can no longer come: the wait is waited out, not raced
 @pytest.mark.slow
 @pytest.mark.parametrize("transport", CAN_TRANSPORTS)
 def test_a_missing_answer_is_stale_data_at_that_tick(transport):
     # drop the SYNC of tick 40: the node never answers it
     drop = drop_sync_at({40})
-    with pair(transport, drop=drop, answer_timeout_s=2.0) as p:
+    with pair(transport, drop=drop) as p:
         run_ticks(p.link, 40)
+        p.link.answer_timeout_s = WAITED_OUT_S  # the SYNC of tick 40 is dropped: its answer never comes
         with pytest.raises(StaleDataError) as e:
             p.link.exchange(command(40), PERIOD, DELAY)
         assert "tick 40" in str(e.value) and not isinstance(e.value, PlantLostError)
@@ -193,8 +197,9 @@ def test_a_missing_answer_is_stale_data_at_that_tick(transport):
 @pytest.mark.parametrize("transport", CAN_TRANSPORTS)
 def test_stale_ticks_allows_held_values_before_the_safe_stop(transport):
     drop = drop_sync_at({20, 21, 22})
-    with pair(transport, drop=drop, answer_timeout_s=1.5, stale_ticks=3) as p:
+    with pair(transport, drop=drop, stale_ticks=3) as p:
         got = run_ticks(p.link, 20)
+        p.link.answer_timeout_s = WAITED_OUT_S  # the SYNCs of ticks 20-22 are dropped: no answer comes
         held = run_ticks(p.link, 2, start=20)
         for s in held:
             assert np.array_equal(s.pot_v, got[-1].pot_v) and all(ev.counts == 0 for ev in s.encoder)
@@ -214,9 +219,12 @@ def drop_sync_at(ticks: set[int]):
 @pytest.mark.slow
 @pytest.mark.parametrize("transport", CAN_TRANSPORTS)
 def test_a_vanished_node_is_reported_as_lost(transport):
-    with pair(transport, answer_timeout_s=3.0, heartbeat_timeout_s=2.0) as p:
+    with pair(transport) as p:
         run_ticks(p.link, 10)
         p.stop_node()
+        # the node is gone: the answer wait outlasts the silence limit by 1 s, as before (3 s / 2 s),
+        # for the frames it sent before it stopped that are read at the start of the wait
+        p.link.answer_timeout_s, p.link.heartbeat_timeout_s = 1.2, 0.2
         with pytest.raises(PlantLostError) as e:
             p.link.exchange(command(10), PERIOD, DELAY)
         assert e.value.cause == "plant_lost"
