@@ -182,7 +182,7 @@ def test_calibrate_pot_log_records_and_remarks_each_land_on_a_line_of_their_own(
 
     monkeypatch.setattr(EmulatedFixture, "joint_angle", logged_reading)
     try:
-        argv = ["calibrate", "pot", "--auto", "--joint", "1", "--points", "5", "--out", str(tmp_path / "c.toml")]
+        argv = ["calibrate", "pot", "--auto", "--joint", "1", "--points", "3", "--out", str(tmp_path / "c.toml")]
         assert main(argv) == 0
     finally:
         root.removeHandler(handler)
