@@ -57,23 +57,37 @@ def test_a_report_directory_that_is_not_ours_is_not_written_into(tmp_path, capsy
     assert sorted(p.name for p in d.iterdir()) == ["holiday.png"]
 
 
-@pytest.mark.slow  # two runs that write every figure of the report (≈ 15 s each on the 2-core machine)
-def test_a_report_directory_the_run_made_is_marked_ours_and_rewritten(tmp_path) -> None:
-    fresh = tmp_path / "rep"
-    assert cli.main(["run", "--duration", "0.5", "--quiet", "--report", str(fresh)]) == 0
-    assert (fresh / MARKER).exists()
-    assert cli.main(["run", "--duration", "0.5", "--quiet", "--report", str(fresh)]) == 0  # ours: rewritten
+MAKE_RUN = ["run", "--duration", "0.2", "--quiet", "--report", "reports/run", "--json", "reports/run/run.json"]
 
 
-@pytest.mark.slow  # over 5 s: make test runs it, make test-fast leaves it out
-def test_make_runs_json_inside_the_report_directory_it_creates_is_accepted(tmp_path, monkeypatch) -> None:
-    """`make run` on a fresh clone: `--report reports/run --json reports/run/run.json`, no
-    reports/ yet. The JSON's folder is the report directory the run creates."""
-    monkeypatch.chdir(tmp_path)
-    argv = ["run", "--duration", "0.2", "--quiet", "--report", "reports/run", "--json", "reports/run/run.json"]
-    assert cli.main(argv) == 0
-    assert json.loads((tmp_path / "reports/run/run.json").read_text())["written_by"] == "vmehil"
-    assert (tmp_path / "reports/run" / MARKER).exists()
+@pytest.fixture(scope="module")
+def made_by_make_run(tmp_path_factory):
+    """`make run` on a fresh clone, once for the tests below (a run that writes every figure of the
+    report takes seconds): `--report reports/run --json reports/run/run.json`, no reports/ yet."""
+    where = tmp_path_factory.mktemp("clone")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(where)
+        code = cli.main(MAKE_RUN)
+    return where, code
+
+
+@pytest.mark.slow  # a second run that writes every figure of the report (≈ 3 s on the 2-core machine)
+def test_a_report_directory_the_run_made_is_marked_ours_and_rewritten(made_by_make_run, monkeypatch) -> None:
+    where, code = made_by_make_run
+    assert code == 0 and (where / "reports/run" / MARKER).exists()
+    monkeypatch.chdir(where)
+    assert cli.main(MAKE_RUN) == 0  # ours: rewritten, not refused
+    assert (where / "reports/run" / MARKER).exists()
+    assert json.loads((where / "reports/run/run.json").read_text())["written_by"] == "vmehil"
+
+
+@pytest.mark.slow  # the shared run writes every figure of the report (≈ 3 s on the 2-core machine)
+def test_make_runs_json_inside_the_report_directory_it_creates_is_accepted(made_by_make_run) -> None:
+    """The JSON's folder is the report directory the run creates."""
+    where, code = made_by_make_run
+    assert code == 0
+    assert json.loads((where / "reports/run/run.json").read_text())["written_by"] == "vmehil"
+    assert (where / "reports/run" / MARKER).exists()
 
 
 def test_a_json_in_a_folder_nothing_creates_is_refused_and_nothing_is_made(tmp_path, capsys) -> None:
