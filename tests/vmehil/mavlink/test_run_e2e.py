@@ -14,7 +14,7 @@ import pytest
 from vmehil.mavlink.client import Client
 from vmehil.mavlink.endpoint import free_udp_port
 
-ARGS = ["--duration", "6", "--quiet", "--no-integrator-switch-off", "--seed", "2"]
+ARGS = ["--duration", "2", "--quiet", "--no-integrator-switch-off", "--seed", "2"]
 
 
 def _run(tmp_path: Path, name: str, extra: list[str]) -> subprocess.Popen:
