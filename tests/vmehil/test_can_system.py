@@ -175,18 +175,24 @@ def test_vmehil_run_against_a_plant_node_process_equals_the_in_process_run(tmp_p
     node = subprocess.Popen([sys.executable, "-m", "vmehil", "plant-node", "--rig", RIG, "--interface",
                              "udp_multicast", "--duration", "300", "--command-timeout", "0"],
                             stderr=subprocess.PIPE, text=True)
+    in_process = None
     try:
         assert "plant node" in node.stderr.readline()
         common = ["--rig", RIG, "--seed", "3", "--duration", "1.0", "--quiet"]
-        subprocess.run([sys.executable, "-m", "vmehil", "run", *common, "--json", str(tmp_path / "a.json")],
-                       check=False, capture_output=True)
+        # the in-process run shares nothing with the node or the CAN run: it runs beside it
+        in_process = subprocess.Popen([sys.executable, "-m", "vmehil", "run", *common, "--json",
+                                       str(tmp_path / "a.json")], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         subprocess.run([sys.executable, "-m", "vmehil", "run", *common, "--json", str(tmp_path / "b.json"),
                         "--plant", "can", "--interface", "udp_multicast", "--can-timeout", "60",
                         "--can-log", str(tmp_path / "bus.log")],
                        check=False, capture_output=True)
+        in_process.wait(120)
     finally:
         node.terminate()
         node.wait(10)
+        if in_process is not None and in_process.poll() is None:
+            in_process.kill()
+            in_process.wait()
     a = json.loads((tmp_path / "a.json").read_text())
     b = json.loads((tmp_path / "b.json").read_text())
     assert a == b
