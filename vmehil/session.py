@@ -215,8 +215,8 @@ def build_loop(system: EmulatedRig, *, motion: Motion | None = None, gains: dict
     recorder = Recorder(n_ticks, n) if n_ticks else None
     loop = ServoLoop(system.io, controller, sequencer, wd, recorder=recorder, names=[j.name for j in system.rig.joints],
                      plan_context=PlanContext(limits))
-    if getattr(system.link, "free_running", False):  # its answers may skip or repeat plant steps
-        loop.sample_clock = system.sample_time_s
+    # an emulated rig's free-running plant: its answers may skip or repeat plant steps
+    loop.sample_clock = getattr(system, "sample_clock", None)
     return loop
 
 

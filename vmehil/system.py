@@ -121,6 +121,12 @@ class EmulatedRig:
             return int(lag)
         return 2 if getattr(self.link, "free_running", False) else 0
 
+    @property
+    def sample_clock(self) -> Callable[[], float | None] | None:
+        """:meth:`sample_time_s` where the plant free-runs (the loop's cross-checks then use the
+        answers' plant time); ``None`` in lockstep: one period per tick."""
+        return self.sample_time_s if getattr(self.link, "free_running", False) else None
+
     def sample_time_s(self) -> float | None:
         """The plant's time (s) of the values the sensors hold now: the step a free-running plant
         answered with, in periods (``None``: lockstep, one period per tick). The servo loop's
