@@ -62,8 +62,9 @@ lint: $(STAMP)
 NETNS := unshare -n sh -c 'ip link set lo up && ip route add 224.0.0.0/4 dev lo && exec "$$0" "$$@"'
 
 # mypy (the slowest of the three checks: ~25-40 s from a clean clone, no cache) runs beside pytest,
-# on the second core, and its report is printed after pytest's; ruff and the import walls (a second
-# each) run first. The recipe fails when either fails.
+# and its report is printed after pytest's; ruff and the import walls (a second each) run first.
+# pytest itself runs as two processes, one per core (tests/pair.py: the tests that use ports or
+# the CAN multicast groups in one, the rest in the other). The recipe fails when either fails.
 MYPY_LOG := $(VENV)/mypy-test.log
 
 test: $(STAMP) tools
@@ -72,10 +73,10 @@ test: $(STAMP) tools
 	@echo "$(PY) -m mypy  (beside pytest: its report follows pytest's)"; \
 	$(PY) -m mypy > $(MYPY_LOG) 2>&1 & types_pid=$$!; \
 	if unshare -n true 2>/dev/null && command -v ip >/dev/null; then \
-		echo "pytest in a private network namespace (loopback only)"; \
-		$(NETNS) $(PY) -m pytest -q $(PYTEST_ARGS); \
+		echo "pytest in a private network namespace (loopback only), as two processes (tests/pair.py)"; \
+		$(NETNS) $(PY) -m tests.pair -q $(PYTEST_ARGS); \
 	else \
-		$(PY) -m pytest -q $(PYTEST_ARGS); \
+		$(PY) -m tests.pair -q $(PYTEST_ARGS); \
 	fi; tests=$$?; \
 	wait $$types_pid; types=$$?; echo "mypy:"; cat $(MYPY_LOG); rm -f $(MYPY_LOG); \
 	[ $$tests -ne 0 ] && exit $$tests; exit $$types

@@ -667,6 +667,7 @@ class _Server:
         pending: dict[int, dict[str, Any]] = {}  # CMD frames not yet confirmed by their unit's SYNC
         cmds: dict[int, dict[str, Any]] = {}  # every joint's newest confirmed command
         seen: dict[int, float] = {}  # unit → when its last SYNC arrived
+        heard: set[int] = set()  # units whose SYNC has come
         wd_level: int | None = None
         wd_edge = False
         wd_fed = 0
@@ -690,6 +691,7 @@ class _Server:
                     else:
                         out.missing_cmd += 1  # the joint keeps its previous command
                 seen[u] = clock()
+                heard.add(u)
                 if u == self.wd_unit:
                     level = int(f.raw["Watchdog"])
                     wd_edge = wd_edge or (wd_level is not None and level != wd_level)
@@ -739,7 +741,8 @@ class _Server:
             for u in sorted(self.running):
                 if woke - seen[u] > limit_s:
                     self.running.discard(u)
-                    quiet = woke - seen[u] if seen[u] > first_by else woke - t0
+                    # (the first SYNC may come before first_by: the unit's clock started earlier)
+                    quiet = woke - seen[u] if u in heard else woke - t0
                     self.stop_now(step, u, "UNIT_LOST", f"lost: no commands for {quiet * 1e3:.0f} ms "
                                                         f"(limit {self.stale_ticks} periods)")
             if not self.running:
