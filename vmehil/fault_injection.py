@@ -157,6 +157,12 @@ def _on_plant(ctx: FaultContext, kind: FaultType, p: dict[str, Any]) -> Injectio
     return kind.injection(ctx.plant(kind.name), dict(p), f"plant {p['joint']}")
 
 
+def on_the_plant(kind: FaultType) -> bool:
+    """Whether ``kind`` strikes the plant (its sensors and amplifiers as the plant models them),
+    not a board of the crate: a unit controller, which has its boards only, cannot take it."""
+    return kind.resolve is _on_plant
+
+
 def _tach_rail(ctx: FaultContext, kind: FaultType, p: dict[str, Any]) -> Injection:
     volts = math.copysign(10.0, float(p["sign"]))  # the ADC's full scale: shorted to a supply rail
     return _on_plant(ctx, kind, {"joint": p["joint"], "volts": volts})

@@ -16,9 +16,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+from typing import Any
 
+from vmehil import fault_options
 from vmehil.cli_types import bounded_float, bounded_int, duration_s
-from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
+from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE, EXIT_USAGE
 from vmehil.files import write_json
 
 EXIT_REFUSED = 2
@@ -95,6 +97,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--unit", required=True, help="the unit's name ([[rig.unit]] name)")
     p.add_argument("--realtime", action="store_true", help="pace the unit's ticks by the wall clock")
     p.add_argument("--record", default=None, metavar="PATH.npz", help="write the unit's recorded arrays here")
+    p.add_argument("--calibration", metavar="PATH", default=None,
+                   help="the rig's calibration file for the drivers (default: calibration/<rig>.toml if it exists, "
+                        "as vmehil run); the unit applies its own boards' and joints' entries")
+    fault_options.add_arguments(p)
     _bus_args(p)
     p.set_defaults(func=run_unit_command)
 
@@ -120,16 +126,28 @@ def run_unit_command(args: argparse.Namespace) -> int:
 
     from emulators.plant_link import PlantLinkError
     from servo.runner import RealtimeRunner
+    from vmehil.calibration.store import load_store_or_nominal
+    from vmehil.commands.run import _calibrated
+    from vmehil.fault_injection import stop_report
     from vmehil.run_report import summarize
     from vmehil.units.processes import run_unit
     from vmehil.units.remote import UnitRefused, unit_bus
 
+    if fault_options.wants_list(args):
+        return fault_options.list_faults()
     spec = _load(args)
+    try:  # before joining the run: a fault this unit cannot take costs no run
+        before_run, faults = unit_faults(args, spec)
+    except ValueError as e:
+        print(f"vmehil unit {args.unit}: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    store = _calibrated(args, spec, lambda cal: load_store_or_nominal(cal, spec))
     bus = unit_bus(args.interface, args.channel, args.can_log)
     try:
         out = run_unit(spec, args.unit, bus, timeout_s=args.unit_timeout, start_timeout_s=args.start_timeout,
                        motion_path=args.motion, realtime=args.realtime,
-                       realtime_options={"overrun": "warn", "max_lateness_periods": 5.0})
+                       realtime_options={"overrun": "warn", "max_lateness_periods": 5.0},
+                       calibration=store, before_run=before_run)
     except UnitRefused as e:
         print(f"vmehil unit {args.unit}: refused: {e}", file=sys.stderr)
         return EXIT_REFUSED
@@ -148,6 +166,10 @@ def run_unit_command(args: argparse.Namespace) -> int:
                    plant_mode="free-running" if out.free_running else "lockstep")
     if out.free_running:
         summary["answers"] = {"stale_exchanges": out.stale, "incomplete": out.incomplete}
+    if faults:
+        summary["injected_faults"] = [f.as_dict() for f in faults]
+        summary["stop"] = stop_report(loop, min(f.tick or 0 for f in faults),
+                                      next((f.params["joint"] for f in faults if f.params.get("joint")), None))
     fault = loop.fault
     print(f"unit {args.unit}: {out.completed} ticks; " + ("ran to the end" if fault is None else
           f"stopped: {fault.cause} at tick {fault.tick}: {fault.detail}") +
@@ -164,6 +186,41 @@ def run_unit_command(args: argparse.Namespace) -> int:
     if loop.stop_incomplete:
         return EXIT_STOP_INCOMPLETE
     return EXIT_FAULT if fault is not None else 0
+
+
+def unit_faults(args: argparse.Namespace, spec) -> tuple[Any, list]:
+    """This unit's faults of ``--fault``/``--faults`` (checked against the rig, each routed to
+    the unit that owns its joint or board, as ``--units parallel`` does) and the hook that
+    attaches their schedule to its runner. Raises ValueError, saying which unit to give it to,
+    for a fault of another unit's joints or boards, and for a fault of the plant (the
+    coordinator's: this process has no plant)."""
+    from servo.units import rig_units
+    from vmehil.fault_injection import FaultSchedule, check_rig, on_the_plant
+    from vmehil.units.options import UnitFaultContext, route_faults
+
+    faults = fault_options.scenario(args)
+    if not faults:
+        return None, []
+    check_rig(faults, spec)
+    for f in faults:
+        if on_the_plant(f.kind):
+            raise ValueError(f"{f.source}: {f.kind.name} is a fault of the plant, which runs in the coordinator "
+                             "(or the plant node): a unit controller has its boards only")
+    routed = route_faults(faults, spec, rig_units(spec))
+    for name, theirs in routed.items():
+        if name != args.unit and theirs:
+            raise ValueError(f"{theirs[0].source}: not a fault of unit {args.unit}'s joints or boards: "
+                             f"give it to `vmehil unit --unit {name}`")
+    mine = routed.get(args.unit, [])
+
+    def before_run(run: Any) -> None:
+        FaultSchedule(mine, UnitFaultContext(run.system, run.loop, run.seed)).attach(run.runner)
+        for f in mine:
+            inj = f.injection
+            print(f"fault: {f.kind.name} at {f.at_s:g} s (tick {f.tick}) → {inj.where if inj else '?'}",
+                  file=sys.stderr)
+
+    return before_run, mine
 
 
 def timing_line(t: dict) -> str:

@@ -11,6 +11,7 @@ plant bus with ``--plant can``) served to the units.
 from __future__ import annotations
 
 import gc
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -50,9 +51,13 @@ def boot_id() -> int:
 
 def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, start_timeout_s: float = START_TIMEOUT_S,
              motion_path: str | None = None, realtime: bool = False,
-             realtime_options: dict[str, Any] | None = None, after_tick: UnitHook | None = None) -> UnitRun:
+             realtime_options: dict[str, Any] | None = None, after_tick: UnitHook | None = None,
+             calibration: Any = None, before_run: Callable[[UnitRun], None] | None = None) -> UnitRun:
     """``vmehil unit``: join the coordinator's run and play this unit's part (module docstring).
-    ``after_tick``: a hook after each of the unit's ticks (tests: probes, a hang)."""
+    ``after_tick``: a hook after each of the unit's ticks (tests: probes, a hang).
+    ``calibration``: the drivers' calibration store of the whole rig (this unit's drivers apply
+    their own boards' and joints' entries). ``before_run``: called once the unit's loop and
+    runner exist, before its first tick (its faults attach there)."""
     units = rig_units(spec)
     unit = unit_named(units, unit_name, str(spec.path))
     number = unit_number(spec, unit_name)
@@ -68,7 +73,8 @@ def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, s
     link.stale_ticks = max(1, int(start.raw["StaleTicks"]))
     realtime = realtime or link.free_running  # free-running: every unit on its own wall clock
     try:
-        system = out.system = build_emulated_rig(unit_rig(spec, unit), seed=seed, link=link)  # power-up: exchange 0
+        system = out.system = build_emulated_rig(unit_rig(spec, unit), seed=seed, link=link,  # power-up: exchange 0
+                                                 calibration=calibration)
         theta = np.asarray(system.io.read().theta, float)  # the unit's only read before its loop
         pad = [float(x) for x in theta] + [float("nan")] * (4 - len(theta))
         bus.send("UNIT_POS", Unit=number, **{f"Theta{i}": pad[i] for i in range(4)})
@@ -93,6 +99,8 @@ def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, s
         if after_tick is not None:
             runner.after_tick.append(lambda lp: after_tick(unit_name, system, lp))
         with loop.armed():
+            if before_run is not None:  # as the threads' units do: armed, before the first tick
+                before_run(out)
             if link.free_running:  # the unit's clock starts at the coordinator's first step
                 segments.sample(0.0)  # plan the first move now, not in the first tick (tens of ms)
                 gc.collect()  # the runner's start-up collection, done before the clock starts:
