@@ -258,11 +258,11 @@ class CrossChecks:
         else:  # trapezoid: the tach is integrated over exactly the interval the positions span
             self._tach_int += 0.5 * dt * (tach + self._last_tach)
         self._last_tach = tach
-        self._last_t = 0.0 if t_s is None else t_s
         self._slot = (self._slot + 1) % (w + 1)
         self._ring_ref[self._slot] = ref
         self._ring_int[self._slot] = self._tach_int
-        self._ring_t[self._slot] = self._last_t
+        if t_s is not None:  # (untimed, the window is w periods: no times to keep)
+            self._last_t = self._ring_t[self._slot] = t_s
         self._filled = min(self._filled + 1, w + 1)
         if self._filled <= w:
             return None

@@ -416,12 +416,28 @@ class FaultSchedule:
 
     @property
     def first_tick(self) -> int | None:
-        return min((f.tick for f in self.faults if f.tick is not None), default=None)
+        return first_tick(self.faults)
 
     @property
     def joint(self) -> str | None:
         """The joint the first joint fault names (where its true error is measured), if any."""
-        return next((f.params["joint"] for f in self.faults if f.params.get("joint")), None)
+        return first_joint(self.faults)
+
+
+def first_tick(faults: list[ScheduledFault]) -> int | None:
+    """The tick of the earliest scheduled fault (None: none scheduled yet)."""
+    return min((f.tick for f in faults if f.tick is not None), default=None)
+
+
+def first_joint(faults: list[ScheduledFault]) -> str | None:
+    """The joint the first joint fault names (where its true error is measured), if any."""
+    return next((f.params["joint"] for f in faults if f.params.get("joint")), None)
+
+
+def announcement(f: ScheduledFault) -> str:
+    """The line a run prints for a scheduled fault: what, when, and where it strikes."""
+    inj = f.injection
+    return f"fault: {f.kind.name} at {f.at_s:g} s (tick {f.tick}) → {inj.where if inj else '?'}"
 
 
 def stop_report(loop: Any, first_tick: int | None, joint: str | None = None) -> dict[str, Any]:

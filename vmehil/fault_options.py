@@ -17,6 +17,7 @@ from vmehil.fault_injection import (
     FaultContext,
     FaultSchedule,
     ScheduledFault,
+    announcement,
     catalogue_text,
     check_rig,
     load_scenario,
@@ -91,6 +92,5 @@ def attach(args: argparse.Namespace, system: Any, loop: Any, runner: Any) -> _At
     schedule = FaultSchedule(faults, FaultContext(system, loop, args.seed))
     schedule.attach(runner)
     for f in faults:
-        inj = f.injection
-        print(f"fault: {f.kind.name} at {f.at_s:g} s (tick {f.tick}) → {inj.where if inj else '?'}")
+        print(announcement(f))
     return _Attachment(schedule, loop)

@@ -7,20 +7,19 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import threading
 from pathlib import Path
 
 import pytest
 
 from emulators.presets import resolve_rig
 from servo.rig import load_rig
+from tests.vmehil.test_units_remote import UNITS, start_units
 from vmehil.cli import main
 from vmehil.commands.units import unit_faults
-from vmehil.units.processes import run_coordinator, run_unit
+from vmehil.units.processes import run_coordinator
 from vmehil.units.remote import unit_bus
 
 RIG = load_rig(resolve_rig("melmalec-16"))
-UNITS = ("leg1", "leg2", "leg3", "leg4", "arm")
 _channels = itertools.count()
 
 
@@ -45,21 +44,7 @@ def test_a_units_own_board_fault_stops_it_at_the_single_runs_tick_and_every_unit
                                                         faults=None), RIG)
     assert [f.kind.name for f in faults] == ["amp_fault_line"]
     channel = f"unit-faults-{next(_channels)}"
-    results: dict = {}
-
-    def unit(name: str) -> None:
-        bus = unit_bus("virtual", channel)
-        try:
-            results[name] = run_unit(RIG, name, bus, timeout_s=5.0, start_timeout_s=20.0,
-                                     before_run=before_run if name == "leg3" else None)
-        except BaseException as e:  # the test reads it
-            results[name] = e
-        finally:
-            bus.close()
-
-    threads = [threading.Thread(target=unit, args=(n,), daemon=True) for n in UNITS]
-    for t in threads:
-        t.start()
+    results, threads = start_units(RIG, channel, per_unit={"leg3": {"before_run": before_run}})
     bus = unit_bus("virtual", channel)
     try:
         out = run_coordinator(RIG, bus, seed=6, n_ticks=75, timeout_s=5.0, start_timeout_s=20.0)
@@ -89,7 +74,7 @@ def test_units_on_the_unit_bus_read_through_the_calibration_file_as_the_single_r
 
     from servo.runner import LockstepRunner
     from tests.vmehil.test_units_options import _calibration_file
-    from tests.vmehil.test_units_remote import merged, start_units
+    from tests.vmehil.test_units_remote import merged
     from vmehil.calibration.store import load_store
     from vmehil.session import build_loop
     from vmehil.system import build_emulated_rig

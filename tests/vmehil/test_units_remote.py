@@ -22,16 +22,18 @@ UNITS = ("leg1", "leg2", "leg3", "leg4", "arm")
 _channels = itertools.count()
 
 
-def start_units(spec, channel: str, names=UNITS, **kw) -> tuple[dict, list[threading.Thread]]:
+def start_units(spec, channel: str, names=UNITS, per_unit: dict | None = None,
+                **kw) -> tuple[dict, list[threading.Thread]]:
     """A thread per unit on the `virtual` unit bus ``channel``; ``kw``: run_unit's options
-    (timeout_s 5, start_timeout_s 20 unless given). The results: a UnitRun or the exception."""
+    (timeout_s 5, start_timeout_s 20 unless given), ``per_unit``: more for some units (name →
+    options). The results: a UnitRun or the exception."""
     results: dict = {}
     opts = {"timeout_s": 5.0, "start_timeout_s": 20.0, **kw}
 
     def unit(name: str) -> None:
         bus = unit_bus("virtual", channel)
         try:
-            results[name] = run_unit(spec, name, bus, **opts)
+            results[name] = run_unit(spec, name, bus, **opts, **(per_unit or {}).get(name, {}))
         except BaseException as e:  # the test reads it
             results[name] = e
         finally:

@@ -63,7 +63,7 @@ def run_parallel(args: argparse.Namespace, rig: Any, gains: dict[str, float], mo
 
     from servo.loop import ServoLoop
     from servo.units import rig_units
-    from vmehil.fault_injection import stop_report
+    from vmehil.fault_injection import announcement, first_joint, first_tick, stop_report
     from vmehil.realtime_options import overrun_options
     from vmehil.run_report import summarize, table, units_section, write_report
     from vmehil.units.coordinator import plant_link_for, run_units
@@ -115,15 +115,12 @@ def run_parallel(args: argparse.Namespace, rig: Any, gains: dict[str, float], mo
     else:
         summary = {"rig": rig.name, "seed": args.seed, "joints": []}
     if faults:
-        first = min((f.tick for f in faults if f.tick is not None), default=None)
-        joint = next((f.params["joint"] for f in faults if f.params.get("joint")), None)
         summary["injected_faults"] = [{**f.as_dict(), "unit": next(n for n, fs in routed.items() if f in fs)}
                                       for f in faults]
         if merged is not None:  # how the run ended, as the single run says it, with the units' stop
-            stop = {**stop_report(merged, first, joint), **(stop or {})}
+            stop = {**stop_report(merged, first_tick(faults), first_joint(faults)), **(stop or {})}
         for f in faults:
-            inj = f.injection
-            print(f"fault: {f.kind.name} at {f.at_s:g} s (tick {f.tick}) → {inj.where if inj else '?'}")
+            print(announcement(f))
     summary.update({"units_mode": "parallel", "ticks_planned": n_ticks, "plant_steps": run.hub.exchanges,
                     "stop": stop,
                     "hub_events": [{"exchange": e.exchange, "unit": e.unit, "what": e.what} for e in run.hub.events],

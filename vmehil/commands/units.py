@@ -128,7 +128,7 @@ def run_unit_command(args: argparse.Namespace) -> int:
     from servo.runner import RealtimeRunner
     from vmehil.calibration.store import load_store_or_nominal
     from vmehil.commands.run import _calibrated
-    from vmehil.fault_injection import stop_report
+    from vmehil.fault_injection import first_joint, first_tick, stop_report
     from vmehil.run_report import summarize
     from vmehil.units.processes import run_unit
     from vmehil.units.remote import UnitRefused, unit_bus
@@ -171,8 +171,7 @@ def run_unit_command(args: argparse.Namespace) -> int:
         summary["answers"] = {"stale_exchanges": out.stale, "incomplete": out.incomplete}
     if faults:
         summary["injected_faults"] = [f.as_dict() for f in faults]
-        summary["stop"] = stop_report(loop, min(f.tick or 0 for f in faults),
-                                      next((f.params["joint"] for f in faults if f.params.get("joint")), None))
+        summary["stop"] = stop_report(loop, first_tick(faults), first_joint(faults))
     fault = loop.fault
     print(f"unit {args.unit}: {out.completed} ticks; " + ("ran to the end" if fault is None else
           f"stopped: {fault.cause} at tick {fault.tick}: {fault.detail}") +
@@ -198,7 +197,7 @@ def unit_faults(args: argparse.Namespace, spec) -> tuple[Any, list]:
     for a fault of another unit's joints or boards, and for a fault of the plant (the
     coordinator's: this process has no plant)."""
     from servo.units import rig_units
-    from vmehil.fault_injection import FaultSchedule, check_rig, on_the_plant
+    from vmehil.fault_injection import FaultSchedule, announcement, check_rig, on_the_plant
     from vmehil.units.options import UnitFaultContext, route_faults
 
     faults = fault_options.scenario(args)
@@ -219,9 +218,7 @@ def unit_faults(args: argparse.Namespace, spec) -> tuple[Any, list]:
     def before_run(run: Any) -> None:
         FaultSchedule(mine, UnitFaultContext(run.system, run.loop, run.seed)).attach(run.runner)
         for f in mine:
-            inj = f.injection
-            print(f"fault: {f.kind.name} at {f.at_s:g} s (tick {f.tick}) → {inj.where if inj else '?'}",
-                  file=sys.stderr)
+            print(announcement(f), file=sys.stderr)
 
     return before_run, mine
 

@@ -667,7 +667,6 @@ class _Server:
         pending: dict[int, dict[str, Any]] = {}  # CMD frames not yet confirmed by their unit's SYNC
         cmds: dict[int, dict[str, Any]] = {}  # every joint's newest confirmed command
         seen: dict[int, float] = {}  # unit → when its last SYNC arrived
-        heard: set[int] = set()  # units whose SYNC has come
         wd_level: int | None = None
         wd_edge = False
         wd_fed = 0
@@ -691,7 +690,6 @@ class _Server:
                     else:
                         out.missing_cmd += 1  # the joint keeps its previous command
                 seen[u] = clock()
-                heard.add(u)
                 if u == self.wd_unit:
                     level = int(f.raw["Watchdog"])
                     wd_edge = wd_edge or (wd_level is not None and level != wd_level)
@@ -727,7 +725,7 @@ class _Server:
         # a unit's first SYNC may take up to timeout_s (its clock starts at the first answer, after
         # its runner's start-up); from then on, stale_ticks periods
         first_by = t0 + self.timeout_s - limit_s
-        seen = {u: first_by for u in self.running}
+        seen.clear()  # from the clock's start: a unit not yet heard counts as heard at first_by
         i = 0
         while self.running:
             deadline = t0 + i * period
@@ -739,10 +737,9 @@ class _Server:
                 take(f)
             woke = clock()
             for u in sorted(self.running):
-                if woke - seen[u] > limit_s:
+                if woke - seen.get(u, first_by) > limit_s:
                     self.running.discard(u)
-                    # (the first SYNC may come before first_by: the unit's clock started earlier)
-                    quiet = woke - seen[u] if u in heard else woke - t0
+                    quiet = woke - seen[u] if u in seen else woke - t0
                     self.stop_now(step, u, "UNIT_LOST", f"lost: no commands for {quiet * 1e3:.0f} ms "
                                                         f"(limit {self.stale_ticks} periods)")
             if not self.running:
