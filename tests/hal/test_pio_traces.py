@@ -14,7 +14,8 @@ import pytest
 from emulators.crate import Crate
 from emulators.pio import PioBoard
 from hal.pio import LineStuckError, PioBoardIdError, PioDriver, PwmRangeError
-from tests.support.bus_trace import RecordingBus
+from hal.vme.types import AddressModifier, Width
+from tests.support.bus_trace import Answer, RecordingBus
 
 BASE = 0x4000
 WIRING = {"amp1.enable": "PA0", "hb1.dir": "PA1", "amp1.fault": "PB0", "grip.closed": "PC7"}
@@ -31,33 +32,37 @@ class _WiredBus(RecordingBus):
     """A scripted bus that also remembers the last value written to each address (kept across
     :meth:`clear`), so a PIN_x answer can follow its DATA_x latch like a healthy wire."""
 
-    def __init__(self, answers: dict[tuple[str, int], object]) -> None:
-        super().__init__(answers=answers)  # type: ignore[arg-type]
+    def __init__(self, answers: dict[tuple[str, int], Answer]) -> None:
+        super().__init__(answers=answers)
         self.written: dict[int, int] = {}
 
-    def _write(self, am, address, width, value) -> None:  # type: ignore[no-untyped-def]
+    def _write(self, am: AddressModifier, address: int, width: Width, value: int) -> None:
         super()._write(am, address, width, value)
         self.written[address] = value
 
 
-def _scripted(answers: dict[int, object] | None = None, *, wires: bool = True) -> _WiredBus:
+def _scripted(answers: dict[int, Answer] | None = None, *, wires: bool = True) -> _WiredBus:
     """A scripted bus answering the board's registers with 0 (the power-up state) unless
     ``answers`` (address → answer) says otherwise; PIN_x follow DATA_x writes when ``wires``."""
     box: list[_WiredBus] = []
-    script: dict[int, object] = {a: 0 for a in (0x4002, 0x4003, 0x4004, 0x4006, 0x4007, 0x4008, 0x400E, 0x400F,
+    script: dict[int, Answer] = {a: 0 for a in (0x4002, 0x4003, 0x4004, 0x4006, 0x4007, 0x4008, 0x400E, 0x400F,
                                                  0x4010, 0x4012, 0x4013, 0x4014, 0x4016, 0x4018, 0x401A, 0x401C)}
     script[0x4000] = 0x5001
     if wires:  # PIN_A/B/C (0x0A..0x0C) follow DATA_A/B/C (0x06..0x08)
+        def follows(data: int) -> Answer:
+            return lambda _n: box[0].written.get(data, 0)
+
         for pin, data in ((0x400A, 0x4006), (0x400B, 0x4007), (0x400C, 0x4008)):
-            script[pin] = lambda _n, data=data: box[0].written.get(data, 0)
+            script[pin] = follows(data)
     script.update(answers or {})
     bus = _WiredBus({("A16", a): v for a, v in script.items()})
     box.append(bus)
     return bus
 
 
-def _driver(bus: _WiredBus, **kw: object) -> PioDriver:
-    d = PioDriver(bus, BASE, lines=WIRING, **kw)  # type: ignore[arg-type]
+def _driver(bus: _WiredBus, *, vector: int = 0x60, irq_level: int = 3,
+            pwm_direction_line: str | None = None) -> PioDriver:
+    d = PioDriver(bus, BASE, lines=WIRING, vector=vector, irq_level=irq_level, pwm_direction_line=pwm_direction_line)
     bus.clear()
     return d
 
