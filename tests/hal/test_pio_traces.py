@@ -249,6 +249,7 @@ def test_set_pwm_zeroes_the_duty_before_the_direction_line_moves() -> None:
     d.set_pwm(0.25)
     d.set_pwm(-0.25)
     d.set_pwm(-1.0)
+    d.set_pwm(0.0)
     assert bus.trace() == [
         "W A16 0x401A D16 0x01F4",
         "W A16 0x401C D16 0x0000", "W A16 0x4006 D8 0x02", "R A16 0x400A D8 0x02",  # forward: PA1 high
@@ -257,6 +258,8 @@ def test_set_pwm_zeroes_the_duty_before_the_direction_line_moves() -> None:
         "W A16 0x401C D16 0x0000", "W A16 0x4006 D8 0x00", "R A16 0x400A D8 0x00",  # reversal: PA1 low
         "W A16 0x401C D16 0x007D",
         "W A16 0x401C D16 0x01F4",  # −100 %: 500 ticks
+        "W A16 0x401C D16 0x0000", "W A16 0x4006 D8 0x02", "R A16 0x400A D8 0x02",  # zero counts as forward
+        "W A16 0x401C D16 0x0000",
     ]
 
 
