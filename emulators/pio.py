@@ -1,4 +1,9 @@
-"""Emulated parallel I/O board (see :mod:`hal.pio.pio_regs` for the register map).
+"""Emulated parallel I/O board, written from its spec, docs/boards/pio.md.
+
+A second reading of the doc, independent of the driver: the register map, the line names, the
+tick length and the interrupt-control layout below are this module's own, written from the
+doc's tables (nothing is imported from ``hal.pio``), so a wrong offset, bit or width in the
+driver's map shows up as a driver/board disagreement instead of being copied here.
 
 Wiring: each line (``"PA0"``..``"PC7"``) may be wired to a digital net; outputs drive their
 net with ``Signals.set_digital``; inputs read it with ``Signals.get_digital`` and the board
@@ -28,12 +33,60 @@ from functools import partial
 from typing import Any, ClassVar
 
 from emulators.board import RegisterBoard
-from hal.pio.pio_regs import ALL_LINES, LINES_PER_PORT, PIO_REGS, PORTS, PWM_CLOCK_HZ, parse_line
+from hal.vme.registers import Access, Field, Register, RegisterMap
+from hal.vme.types import AddressSpace, Width
 
-_NS_PER_TICK = 1_000_000_000 // PWM_CLOCK_HZ
-_DDR = tuple(f"DDR_{p}" for p in PORTS)
-_DATA = tuple(f"DATA_{p}" for p in PORTS)
-_ICS = tuple(f"ICS_{p}" for p in PORTS)
+_D8, _D16 = Width.D8, Width.D16
+_RO, _RW, _RW1C = Access.RO, Access.RW, Access.W1C
+
+#: docs/boards/pio.md, "Registers", row by row (offset, register, width, access, reset, bits)
+PIO_BOARD_MAP = RegisterMap("pio", 0x20, AddressSpace.A16, (
+    Register("ID", 0x00, _D16, _RO, reset=0x5001,
+             fields=(Field("type", 8, 8, "board type, 0x50"), Field("rev", 0, 8, "revision, 0x01"))),
+    Register("DDR_A", 0x02, _D8, _RW),
+    Register("DDR_B", 0x03, _D8, _RW),
+    Register("DDR_C", 0x04, _D8, _RW),
+    Register("DATA_A", 0x06, _D8, _RW),
+    Register("DATA_B", 0x07, _D8, _RW),
+    Register("DATA_C", 0x08, _D8, _RW),
+    Register("PIN_A", 0x0A, _D8, _RO),
+    Register("PIN_B", 0x0B, _D8, _RO),
+    Register("PIN_C", 0x0C, _D8, _RO),
+    Register("IER_A", 0x0E, _D8, _RW),
+    Register("IER_B", 0x0F, _D8, _RW),
+    Register("IER_C", 0x10, _D8, _RW),
+    Register("ICS_A", 0x12, _D8, _RW1C),
+    Register("ICS_B", 0x13, _D8, _RW1C),
+    Register("ICS_C", 0x14, _D8, _RW1C),
+    Register("INT_CTL", 0x16, _D16, _RW,
+             fields=(Field("vector", 8, 8, "status/ID answered on IACK"), Field("ien", 7, 1, "interrupt enable"),
+                     Field("level", 0, 3, "IRQ level 1..7 (0 = none)"))),
+    Register("PWM_CTL", 0x18, _D16, _RW, fields=(Field("enable", 0, 1, "the PWM output runs"),)),
+    Register("PWM_PERIOD", 0x1A, _D16, _RW),
+    Register("PWM_DUTY", 0x1C, _D16, _RW),
+    Register("PWM_COUNT", 0x1E, _D16, _RO),
+))
+
+_PORT_LETTERS = "ABC"
+#: every line name, "PA0".."PC7" → (port index, bit) (doc: line Pxn is bit n of port x)
+_LINES: dict[str, tuple[int, int]] = {f"P{letter}{bit}": (port, bit)
+                                      for port, letter in enumerate(_PORT_LETTERS) for bit in range(8)}
+_NS_PER_TICK = 100  #: the PWM timer's 10 MHz clock
+_INT_CTL_BITS = 0xFF87  #: vector [15:8], ien [7], level [2:0]; bits 6:3 read 0
+_IEN = 0x80
+_LEVEL = 0x07
+_DDR = ("DDR_A", "DDR_B", "DDR_C")
+_DATA = ("DATA_A", "DATA_B", "DATA_C")
+_IER = ("IER_A", "IER_B", "IER_C")
+_ICS = ("ICS_A", "ICS_B", "ICS_C")
+
+
+def _line(name: str) -> tuple[int, int]:
+    """(port index, bit) of a line name (case and surrounding space free); ``ValueError`` else."""
+    try:
+        return _LINES[name.strip().upper()]
+    except KeyError:
+        raise ValueError(f"{name!r} is not a PIO line; expected PA0..PA7, PB0..PB7 or PC0..PC7") from None
 
 
 class PioBoard(RegisterBoard):
@@ -46,7 +99,7 @@ class PioBoard(RegisterBoard):
     """
 
     TYPE = "pio"
-    REGMAP = PIO_REGS
+    REGMAP = PIO_BOARD_MAP
     irq_release = "rora"
     FAULTS: ClassVar[dict[str, str]] = {
         "line_stuck": "line=PXn, level=bool: the pin is held at level (board and net cannot move it)",
@@ -55,17 +108,17 @@ class PioBoard(RegisterBoard):
     def __init__(self, name: str, lines: dict[str, str] | None = None, pwm_net: str | None = None) -> None:
         self.nets: dict[tuple[int, int], str] = {}
         for pin, net in (lines or {}).items():
-            self.nets[parse_line(pin)] = str(net)
+            self.nets[_line(pin)] = str(net)
         self.pwm_net = pwm_net
         # the wired lines in (port, bit) order, and per port; the wiring is fixed at construction
         self._wired = tuple((port, bit, net) for (port, bit), net in sorted(self.nets.items()))
         self._port_nets = tuple(tuple((bit, net) for p, bit, net in self._wired if p == port)
-                                for port in range(len(PORTS)))
+                                for port in range(3))
         # the ports each net is wired to, in port order (_on_net runs at every change of a net)
         self._net_ports = {net: tuple(sorted({p for (p, _), n in self.nets.items() if n == net}))
                            for net in set(self.nets.values())}
         self._prev_inputs = [0, 0, 0]
-        for i, p in enumerate(PORTS):
+        for i, p in enumerate(_PORT_LETTERS):
             setattr(self, f"read_DATA_{p}", partial(self._read_data, i))
             setattr(self, f"write_DATA_{p}", partial(self._write_data, i))
             setattr(self, f"write_DDR_{p}", partial(self._write_ddr, i))
@@ -91,7 +144,7 @@ class PioBoard(RegisterBoard):
             self._publish_pwm()
 
     def describe(self) -> dict[str, Any]:
-        wired = {f"P{PORTS[p]}{b}": n for (p, b), n in sorted(self.nets.items())}
+        wired = {f"P{_PORT_LETTERS[p]}{b}": n for (p, b), n in sorted(self.nets.items())}
         return {"type": self.TYPE, "lines": wired, "pwm_net": self.pwm_net}
 
     # --- pin model -----------------------------------------------------------------------
@@ -99,7 +152,7 @@ class PioBoard(RegisterBoard):
         f = self.fault("line_stuck")
         if f is None:
             return None
-        return parse_line(str(f.get("line", "PA0"))), bool(f.get("level", False))
+        return _line(str(f.get("line", "PA0"))), bool(f.get("level", False))
 
     def pin_level(self, port: int, bit: int) -> bool:
         """The level on the wire of one line."""
@@ -117,7 +170,7 @@ class PioBoard(RegisterBoard):
     def pins(self, port: int) -> int:
         """The eight pin levels of ``port`` as a byte."""
         if self.faulted or self.crate is None:
-            return sum(int(self.pin_level(port, b)) << b for b in range(LINES_PER_PORT))
+            return sum(int(self.pin_level(port, b)) << b for b in range(8))
         # no stuck line: outputs show the latch, wired inputs their net, unwired inputs 0
         ddr = self.regs[_DDR[port]]
         value = self.regs[_DATA[port]] & ddr
@@ -168,25 +221,25 @@ class PioBoard(RegisterBoard):
             self._update_irq()
 
     def _resample_all(self, *, flag: bool) -> None:
-        for port in range(len(PORTS)):
+        for port in range(3):
             self._resample(port, flag=flag)
 
     def _write_ier(self, port: int, value: int) -> None:
-        self.regs[f"IER_{PORTS[port]}"] = value & 0xFF
+        self.regs[_IER[port]] = value & 0xFF
         self._update_irq()
 
     def _write_ics(self, port: int, value: int) -> None:
-        self.regs[f"ICS_{PORTS[port]}"] &= ~value & 0xFF
+        self.regs[_ICS[port]] &= ~value & 0xFF
         self._update_irq()
 
     def write_INT_CTL(self, value: int) -> None:
-        self.regs["INT_CTL"] = value & 0xFF87
+        self.regs["INT_CTL"] = value & _INT_CTL_BITS
         self._update_irq()
 
     def _update_irq(self) -> None:
         ctl = self.regs["INT_CTL"]
-        level, ien, vector = ctl & 7, ctl >> 7 & 1, ctl >> 8
-        active = any(self.regs[f"ICS_{p}"] & self.regs[f"IER_{p}"] for p in PORTS)
+        level, ien, vector = ctl & _LEVEL, ctl & _IEN, ctl >> 8
+        active = any(self.regs[s] & self.regs[e] for s, e in zip(_ICS, _IER, strict=True))
         if active and ien and level:
             if not self.irq_pending:
                 self.request_irq(level, vector)
@@ -231,7 +284,7 @@ class PioBoard(RegisterBoard):
             f = self.fault("line_stuck")
             if f is not None:
                 line = str(f.get("line", ""))
-                if line.upper() not in ALL_LINES:
+                if line.upper() not in _LINES:
                     self.clear_fault("line_stuck")
                     raise ValueError(f"line_stuck: {line!r} is not a PIO line (PA0..PC7)")
             if self.crate is not None:
@@ -255,7 +308,7 @@ def pio_from_config(name: str, cfg, ctx) -> PioBoard:
         tbl = cfg.table("lines")
         for pin in list(tbl.keys()):
             net = tbl.get_str(pin)
-            if pin.upper() not in ALL_LINES:
+            if pin.upper() not in _LINES:
                 raise tbl.error(pin, "a PIO line name PA0..PC7", pin)
             lines[pin.upper()] = net
     pwm_net = cfg.get_str("pwm_net") if "pwm_net" in cfg else None

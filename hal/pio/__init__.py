@@ -3,6 +3,7 @@
 from hal.pio.pio import (
     LineDirectionError,
     LineStuckError,
+    PioBoardIdError,
     PioDriver,
     PioError,
     PwmRangeError,
@@ -15,6 +16,7 @@ __all__ = [
     "PWM_CLOCK_HZ",
     "LineDirectionError",
     "LineStuckError",
+    "PioBoardIdError",
     "PioDriver",
     "PioError",
     "PwmRangeError",

@@ -22,8 +22,9 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable
 
-from hal.pio.pio_regs import LINES_PER_PORT, PIO_REGS, PORTS, PWM_CLOCK_HZ, parse_line
+from hal.pio.pio_regs import BOARD_TYPE, LINES_PER_PORT, PIO_REGS, PORTS, PWM_CLOCK_HZ, REVISION, parse_line
 from hal.vme.bus import SpaceLike, VmeBus
+from hal.vme.errors import BoardIdError
 from hal.vme.window import BoardWindow
 
 LineCallback = Callable[[str, bool], None]
@@ -58,6 +59,10 @@ class LineStuckError(PioError):
 
 class PwmRangeError(PioError, ValueError):
     """A PWM duty or period outside what the board can produce."""
+
+
+class PioBoardIdError(PioError, BoardIdError):
+    """The ID register does not read the parallel I/O board's ID (wrong base, space or board)."""
 
 
 class PioDriver:
@@ -109,6 +114,31 @@ class PioDriver:
         self._port_cbs: dict[int, list[PortCallback]] = {}
         self._handler_registered = False
         self._period_ticks = self.win.read("PWM_PERIOD")
+
+    # --- the board ---------------------------------------------------------------------------
+    def probe(self) -> int:
+        """Read the ID register; raise :class:`PioBoardIdError` unless it is a PIO board (0x5001)."""
+        self.win.check_id((BOARD_TYPE << 8) | REVISION, "parallel I/O board", error=PioBoardIdError)
+        return (BOARD_TYPE << 8) | REVISION
+
+    def reset(self) -> None:
+        """Put the board in its power-up state by writes (it has no reset register): PWM stopped
+        (control, duty, period 0), interrupt off and the vector released, every latch low and
+        then every line an input. The latches go low before the directions change, so an
+        output that was high is driven low rather than left floating at its last level."""
+        for reg in ("PWM_CTL", "PWM_DUTY", "PWM_PERIOD", "INT_CTL"):
+            self.win.write(reg, 0)
+        self._period_ticks = 0
+        self._release_interrupt()
+        for p in PORTS:
+            self.win.write(f"IER_{p}", 0)
+        for p in PORTS:
+            self.win.write(f"ICS_{p}", 0xFF)
+        for p in PORTS:
+            self.win.write(f"DATA_{p}", 0)
+        for p in PORTS:
+            self.win.write(f"DDR_{p}", 0)
+        self._ier, self._latch, self._ddr = [0, 0, 0], [0, 0, 0], [0, 0, 0]
 
     # --- names ---------------------------------------------------------------------------
     def resolve(self, name: str) -> tuple[int, int]:
@@ -254,6 +284,10 @@ class PioDriver:
         for i, p in enumerate(PORTS):
             self._ier[i] = 0
             self.win.write(f"IER_{p}", 0)
+        self._release_interrupt()
+
+    def _release_interrupt(self) -> None:
+        """Unregister the handler and forget the callbacks (no bus cycle)."""
         if self._handler_registered:
             self.bus.unregister_irq_handler(self.vector)
             self._handler_registered = False

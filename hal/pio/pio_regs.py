@@ -1,4 +1,7 @@
-"""Register map of the parallel I/O board (PIO), shared by :mod:`hal.pio.pio` and ``emulators.pio``.
+"""Register map of the parallel I/O board (PIO): the driver's reading of docs/boards/pio.md.
+
+The doc is the spec (tests/hal/test_pio.py checks this map against its register table); the
+emulator (``emulators.pio``) declares its own map from the same doc and imports nothing here.
 
 Inspired by the Motorola MC68230 PI/T as used on VME parallel-I/O cards of the era (Xycom
 XVME-240-style): byte-wide ports with a data direction register each, an output latch that

@@ -50,9 +50,10 @@ def test_linear_amp_drives_current_read_back_on_the_monitor(rig) -> None:
 def test_linear_amp_torque_goes_through_kt_and_the_ratio(rig) -> None:
     amp = _linear_j1(rig)
     p = rig.params[0]
-    tau = 5.0  # N·m at the joint
-    assert amp.current_for_torque(tau) == pytest.approx(tau / (p.gear.ratio * p.motor.kt_nm_per_a))
-    assert amp.set_torque(tau) == pytest.approx(amp.current_for_torque(tau) / p.linear_amp.gain_a_per_v)
+    assert (p.gear.ratio, p.motor.kt_nm_per_a, p.linear_amp.gain_a_per_v) == (100.0, 0.028, 3.0)  # jpl-arm j1
+    tau = 5.0  # N·m at the joint: 5 / (100 · 0.028 N·m/A) = 1.785714 A; / 3 A/V = 0.595238 V (by hand)
+    assert amp.current_for_torque(tau) == pytest.approx(1.7857142857)
+    assert amp.set_torque(tau) == pytest.approx(0.5952380952)
 
 
 def test_linear_amp_fault_line_raises_and_reset_pulses(rig) -> None:

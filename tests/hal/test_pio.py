@@ -17,7 +17,7 @@ from hal.pio import (
     UnknownLineError,
 )
 from hal.vme import BusError, BusErrorCause, Width
-from tests.support import REPO
+from tests.support.board_spec import doc_registers, map_differences
 from vmehil.commands.crate import probe_all
 
 BASE = 0x4000
@@ -42,14 +42,27 @@ def rig() -> tuple[Crate, PioBoard, PioDriver]:
     return c, b, d
 
 
+#: offset and width of each register, from docs/boards/pio.md (not from either map under test)
+_D8, _D16 = Width.D8, Width.D16
+REGS = {
+    "ID": (0x00, _D16), "DDR_A": (0x02, _D8), "DDR_B": (0x03, _D8), "DDR_C": (0x04, _D8),
+    "DATA_A": (0x06, _D8), "DATA_B": (0x07, _D8), "DATA_C": (0x08, _D8),
+    "PIN_A": (0x0A, _D8), "PIN_B": (0x0B, _D8), "PIN_C": (0x0C, _D8),
+    "IER_A": (0x0E, _D8), "IER_B": (0x0F, _D8), "IER_C": (0x10, _D8),
+    "ICS_A": (0x12, _D8), "ICS_B": (0x13, _D8), "ICS_C": (0x14, _D8),
+    "INT_CTL": (0x16, _D16), "PWM_CTL": (0x18, _D16), "PWM_PERIOD": (0x1A, _D16), "PWM_DUTY": (0x1C, _D16),
+    "PWM_COUNT": (0x1E, _D16),
+}
+
+
 def _r(c: Crate, reg: str) -> int:
-    r = PIO_REGS[reg]
-    return c.read(BASE + r.offset, space="A16", width=r.width)
+    offset, width = REGS[reg]
+    return c.read(BASE + offset, space="A16", width=width)
 
 
 def _w(c: Crate, reg: str, value: int) -> None:
-    r = PIO_REGS[reg]
-    c.write(BASE + r.offset, value, space="A16", width=r.width)
+    offset, width = REGS[reg]
+    c.write(BASE + offset, value, space="A16", width=width)
 
 
 # --- registers ---------------------------------------------------------------------------
@@ -66,7 +79,7 @@ def test_id_is_the_first_readable_register_and_the_crate_probe_reads_it(rig) -> 
 def test_port_registers_are_d8_and_pin_registers_read_only(rig) -> None:
     c, _, _ = rig
     with pytest.raises(BusError) as ei:
-        c.read(BASE + PIO_REGS["DDR_A"].offset, space="A16", width=Width.D16)
+        c.read(BASE + 0x02, space="A16", width=Width.D16)  # DDR_A
     assert ei.value.cause is BusErrorCause.UNSUPPORTED_WIDTH
     with pytest.raises(BusError) as ei:
         _w(c, "PIN_B", 0xFF)
@@ -353,6 +366,66 @@ def test_crate_file_builds_a_wired_pio_board() -> None:
         build_crate(bad)
 
 
-def test_docs_page_carries_the_current_register_table() -> None:
-    page = REPO / "docs" / "boards" / "pio.md"
-    assert PIO_REGS.markdown_table() in page.read_text()
+# --- the doc is the spec: both maps checked against its table ------------------------------
+def test_doc_register_table_states_every_register_of_the_board() -> None:
+    doc = doc_registers("pio")
+    assert {name: (r.offset, r.width) for name, r in doc.items()} == {
+        name: (offset, width.name) for name, (offset, width) in REGS.items()}
+    assert doc["ID"].reset == 0x5001 and doc["ICS_B"].access == "RW1C" and doc["PIN_C"].reset is None
+    assert doc["INT_CTL"].fields == {"vector": (8, 8), "ien": (7, 1), "level": (0, 3)}
+
+
+def test_driver_register_map_matches_the_doc() -> None:
+    assert map_differences(PIO_REGS, doc_registers("pio"), who="hal.pio") == []
+
+
+def test_emulator_register_map_matches_the_doc() -> None:
+    assert map_differences(PioBoard.REGMAP, doc_registers("pio"), who="emulators.pio") == []
+
+
+def test_bad_accesses_end_in_berr_as_the_doc_lists(rig) -> None:
+    c, _, _ = rig
+    cases = [  # (read or write, offset, width, cause) from the doc's "What a bad access does"
+        ("r", 0x05, Width.D8, BusErrorCause.NO_RESPONDER), ("r", 0x09, Width.D8, BusErrorCause.NO_RESPONDER),
+        ("r", 0x0D, Width.D8, BusErrorCause.NO_RESPONDER), ("r", 0x11, Width.D8, BusErrorCause.NO_RESPONDER),
+        ("r", 0x15, Width.D8, BusErrorCause.NO_RESPONDER),
+        ("r", 0x00, Width.D8, BusErrorCause.UNSUPPORTED_WIDTH), ("r", 0x01, Width.D8, BusErrorCause.UNSUPPORTED_WIDTH),
+        ("r", 0x06, Width.D16, BusErrorCause.UNSUPPORTED_WIDTH), ("r", 0x18, Width.D8, BusErrorCause.UNSUPPORTED_WIDTH),
+        ("w", 0x18, Width.D32, BusErrorCause.UNSUPPORTED_WIDTH),
+        ("w", 0x0A, Width.D8, BusErrorCause.ACCESS), ("w", 0x1E, Width.D16, BusErrorCause.ACCESS),
+    ]
+    for op, offset, width, cause in cases:
+        with pytest.raises(BusError) as ei:
+            if op == "r":
+                c.read(BASE + offset, space="A16", width=width)
+            else:
+                c.write(BASE + offset, 0, space="A16", width=width)
+        assert ei.value.cause is cause, (op, hex(offset), width)
+    assert _r(c, "PWM_PERIOD") == 0  # the refused write changed nothing
+
+
+def test_unused_control_bits_are_ignored_on_write_and_read_zero(rig) -> None:
+    c, b, _ = rig
+    _w(c, "INT_CTL", 0x6178)  # vector 0x61, bits 6:3 set, ien 0, level 0
+    assert _r(c, "INT_CTL") == 0x6100 and not b.irq_pending
+    _w(c, "PWM_CTL", 0xFFFE)  # every bit but enable
+    assert _r(c, "PWM_CTL") == 0
+
+
+def test_probe_reads_the_id_of_the_emulated_board(rig) -> None:
+    _, _, d = rig
+    assert d.probe() == 0x5001
+
+
+def test_reset_returns_the_board_to_its_power_up_state(rig) -> None:
+    c, b, d = rig
+    d.configure(outputs=["amp1.enable", "hb1.dir"], initial={"amp1.enable": True})
+    d.on_change("amp1.fault", lambda n, v: None)
+    d.set_pwm(0.5, period_s=50e-6)
+    d.pwm_enable(True)
+    d.reset()
+    for reg in REGS:
+        if reg not in ("ID", "PWM_COUNT") and not reg.startswith("PIN_"):
+            assert _r(c, reg) == 0, reg
+    assert c.signals.get_digital("amp1.en") is False and c.signals.get_analog("hb1.pwm") == 0.0
+    assert c.irq_handler(0x61) is None and not b.irq_pending
