@@ -30,7 +30,7 @@ but never read back. :func:`loop_poles` removes it by that change of coordinates
 rotation, so exact and perfectly conditioned — before the eigenvalues are taken; a genuine slow
 pole near z = 1 (a tiny Kpi) is never mistaken for it.
 
-Why this guard and not the one MAVLink had (``vmehil/mavlink/stability.py``, merged here): both
+Why this guard and not the one MAVLink had (the former ``vmehil.mavlink.stability``, merged here): both
 removed the structural eigenvalue (it by projecting onto ``[θ, ω, S]`` with a pseudo-inverse, the
 same poles to rounding) and tested 1 − ρ, but it decided the marginal Kpi = 0, KvI > 0 loop by
 the sign of a ±1e-16 rounding residue, accepted negative gains whenever the eigenvalues happened

@@ -149,6 +149,9 @@ class ServoLoop:
         self._last_theta: np.ndarray | None = None
         self.cross_checks = CrossChecks(io, watchdog)
         self.last: dict[str, Any] = {}
+        #: every fault of the run, oldest first (``fault`` is the current one; a resume clears
+        #: ``fault`` but not this list)
+        self.faults: list[Fault] = []
         #: live changes and notes, (time, source, message), the newest ``LOG_MAX`` of them
         self.log: deque[tuple[float, str, str]] = deque(maxlen=self.LOG_MAX)
         #: notes dropped from the front of ``log`` to keep it bounded (long runs)
@@ -288,6 +291,7 @@ class ServoLoop:
         if self.fault is None:
             self.fault = Fault(self.tick_count, self.tick_count * self.period_s, cause,
                                self.names[joint] if joint is not None else None, detail)
+            self.faults.append(self.fault)
         self.enabled = False
 
     # --- one tick ---------------------------------------------------------------------------------

@@ -9,7 +9,7 @@ or ``no stop`` (a fault the loop rides through, or one documented as undetectabl
 
     python -m vmehil.fault_matrix            # the table of docs/faults.md (measured figures)
 
-``tests/test_fault_matrix.py`` asserts every case's outcome.
+``tests/vmehil/test_fault_matrix.py`` asserts every case's outcome.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 The DBC file is the single source of truth at run time: the codec reads every scale, offset,
 length and range from it (:mod:`emulators.can.codec`). This module only *writes* it, so the
-layout is reviewable as Python; ``tests/test_can_dbc.py`` checks that the shipped file equals
+layout is reviewable as Python; ``tests/emulators/can/test_codec.py`` checks that the shipped file equals
 the generator's output. Regenerate with ``python -m emulators.can.dbc``.
 
 Frame identifiers (11-bit; lower = higher bus priority). ``j`` is the joint index 0..31.

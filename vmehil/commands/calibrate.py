@@ -66,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
     from vmehil.calibration.base import CalibrationContext
     from vmehil.calibration.pot import PotProcedure
     from vmehil.calibration.procedure_runner import procedure_results_table, resolve_procedure_names, run_procedures
+    from vmehil.calibration.procedures import PROCEDURES
     from vmehil.calibration.store import CalibrationStore, default_store_path, load_store
     from vmehil.emulated_calibration import EmulatedFixture, EmulatedPositioner
     from vmehil.progress import PhaseProgress
@@ -73,6 +74,11 @@ def run(args: argparse.Namespace) -> int:
 
     rig = load_rig(resolve_rig(args.rig))
     names = resolve_procedure_names(args.procedure)
+    asking = [n for n in names if PROCEDURES[n].asks_operator]
+    if asking and not args.auto and not sys.stdin.isatty():
+        # it would fail at its first prompt (EOFError) with the rig built and the loop running
+        raise CliError(f"{', '.join(asking)} asks the operator for joint angles and standard input is not a "
+                       "terminal: run it from a terminal, or with --auto (the rig's reference fixture)")
     out = Path(args.out) if args.out else default_store_path(rig)
     if out.exists():
         store = load_store(out, rig)  # a foreign or malformed file is refused here, before anything runs
