@@ -51,11 +51,21 @@ def build_parser() -> argparse.ArgumentParser:
                         help="show the traceback of an unexpected error (also VMEHIL_DEBUG=1); anywhere on the line")
     parser.add_argument("--force", action="store_true",
                         help="overwrite output files and directories vmehil did not write; anywhere on the line")
+    parser.add_argument("--version", action="version", version=f"vmehil {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for register in COMMANDS:
         register(sub)
     return parser
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("vmehil")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "(not installed)"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -65,6 +75,9 @@ def main(argv: list[str] | None = None) -> int:
     force = "--force" in argv  # overwrite output files that vmehil did not write (vmehil.outputs)
     argv = [a for a in argv if a not in ("--debug", "--force")]
     parser = build_parser()
+    if not argv:  # bare `vmehil`: the commands, not argparse's "the following arguments are required"
+        parser.print_help()
+        return EXIT_USAGE
     args = parser.parse_args(argv)
     try:
         check_outputs(args, force=force)

@@ -223,7 +223,8 @@ def test_log_lists_every_fault_of_the_run_and_counts_the_lines_it_shows(console_
     r = drv.ask("log 20")
     rows = data(r, "log")
     assert [d["message"] for d in rows if d["source"] == "watchdog"] == [
-        "fault following_error (j1): stop 0", "fault following_error (j2): stop 1", "fault following_error (j1): stop 2"]
+        "fault following_error (j1): stop 0", "fault following_error (j2): stop 1",
+        "fault following_error (j1): stop 2"]
     assert rows[-1]["message"] == "gains all joints: kp=110"
     assert ok(r, "log")["entries"] == str(len(rows))
     assert len(data(drv.ask("log 2"), "log")) == 2
