@@ -162,10 +162,12 @@ def test_local_doorbell_reaches_the_remote_side_with_its_code() -> None:
 
 
 def test_doorbell_to_a_dead_remote_is_a_link_error() -> None:
-    _, _, drv, remote = _rig()
+    crate, _, drv, remote = _rig()
     remote.power_off()
     with pytest.raises(LinkDownError):
         drv.ring_doorbell(1)
+    assert crate.read(CSR, space="A16", width=Width.D16) == 0x0004  # timeout latched
+    assert crate.read(CSR + 0x0C, space="A16", width=Width.D16) == 1  # and counted in ERRORS
 
 
 def test_remote_doorbell_raises_the_local_irq_with_the_programmed_vector() -> None:
