@@ -104,9 +104,10 @@ def attach(args: argparse.Namespace, system, loop, runner) -> _Attachment | None
     if not getattr(args, "vision", None):
         return None
     from emulators.vision import VisionParams, VisionSystem
+    from emulators.vision_protocol import VisionServer
     from hal.bit3 import Bit3Driver
-    from hal.bit3.arm import ArmModel
-    from hal.bit3.protocol import Timeouts, VisionServoClient, VisionServoServer, format_layout
+    from hal.bit3.protocol import Timeouts, VisionServoClient, format_layout
+    from hal.kinematics import ArmModel
     from servo.vservo import VisionLink
 
     rig = system.rig
@@ -128,7 +129,7 @@ def attach(args: argparse.Namespace, system, loop, runner) -> _Attachment | None
         remote = Bit3RemotePort(card.link)
         remote.power_on()
         format_layout(drv.memory())
-        server = VisionServoServer(remote.memory, ring=remote.ring)
+        server = VisionServer(remote.memory, ring=remote.ring)
         remote.on_doorbell(server.notify)
         vision = VisionSystem(server, target.tolist(), arm, params)
         timeouts = Timeouts()

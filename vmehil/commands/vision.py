@@ -18,8 +18,8 @@ import logging
 import math
 
 from emulators.vision import VisionParams, run_vision_process
-from hal.bit3.arm import ArmModel
-from hal.bit3.protocol import Timeouts
+from emulators.vision_protocol import VisionTimeouts
+from hal.kinematics import ArmModel
 from vmehil.cli_types import bounded_float, bounded_int, duration_s, positive_float
 from vmehil.files import to_json, write_json
 
@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     arm = ArmModel() if args.arm is None else ArmModel(*args.arm)
     summary = run_vision_process(
         args.shm, args.target, params=params, arm=arm,
-        timeouts=Timeouts(peer_timeout_s=args.peer_timeout_ms * 1e-3), offset=args.offset,
+        timeouts=VisionTimeouts(peer_timeout_s=args.peer_timeout_ms * 1e-3), offset=args.offset,
         duration_s=args.duration, exit_after_task=args.exit_after_task,
     )
     print(to_json(summary, indent=None), end="")  # one line of standard JSON (NaN → null), as --json writes
