@@ -367,8 +367,8 @@ class _Conversion:
         b = self.board
         ch = self.channels[self.i]
         regs = b.regs
-        bipolar = not regs["CSR"] & _RANGE  # b._range, read at each conversion's start
-        if self.scan:  # b._gain_of(ch, scan), read at each conversion's start
+        bipolar = not regs["CSR"] & _RANGE  # CSR.RANGE, read at each conversion's start
+        if self.scan:  # the channel's SCAN_GAIN field, or CHAN.GAIN: read at each conversion's start
             gcode = regs[_SCAN_GAIN[ch >= 8]] >> (2 * (ch % 8)) & 0x3
         else:
             gcode = regs["CHAN"] >> 4 & 0x3

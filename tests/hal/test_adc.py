@@ -48,7 +48,7 @@ from hal.vme import BusError, BusErrorCause, Width
 from tests.support.board_spec import doc_registers, doc_rows, map_differences
 
 BASE = 0x6000
-LSB = adc_lsb(AdcRange.BIPOLAR_10V, 1)  # 4.8828 mV
+LSB = 20.0 / 4096  # ±10 V at gain 1: 4.8828125 mV (docs/boards/adc.md)
 CSR = ADC_REGMAP["CSR"]
 BIT = {f.name: f.mask for f in CSR.fields}
 
@@ -231,6 +231,25 @@ def test_data_and_buffer_are_read_only_holes_are_bus_errors() -> None:
     with pytest.raises(BusError) as ei:
         c.read(BASE + 0x04, space="A16", width=Width.D32)  # CHAN+DATA as one D32
     assert ei.value.cause is BusErrorCause.UNSUPPORTED_WIDTH
+
+
+@pytest.mark.parametrize(("offset", "width", "write", "cause"), [
+    (0x12, Width.D16, False, BusErrorCause.NO_RESPONDER),  # 0x10-0x1F not decoded
+    (0x1E, Width.D16, True, BusErrorCause.NO_RESPONDER),
+    (0x04, Width.D8, True, BusErrorCause.UNSUPPORTED_WIDTH),  # D8 only on ID and CSR
+    (0x07, Width.D8, False, BusErrorCause.UNSUPPORTED_WIDTH),
+    (0x20, Width.D32, False, BusErrorCause.UNSUPPORTED_WIDTH),  # no D32 anywhere
+    (0x00, Width.D16, True, BusErrorCause.ACCESS),  # ID is read-only
+])
+def test_bad_accesses_end_in_the_docs_bus_errors(offset: int, width: Width, write: bool,
+                                                  cause: BusErrorCause) -> None:
+    c, _, _ = make()
+    with pytest.raises(BusError) as ei:
+        if write:
+            c.write(BASE + offset, 0, space="A16", width=width)
+        else:
+            c.read(BASE + offset, space="A16", width=width)
+    assert ei.value.cause is cause
 
 
 def test_configuration_registers_read_back_masked() -> None:
@@ -580,7 +599,7 @@ def test_scan_of_a_channel_list_with_per_channel_gains() -> None:
     c.signals.set_analog("in5", 6.0)
     got = adc.scan([5, 0], gain={0: 8})
     assert got[0] == pytest.approx(6.0, abs=LSB / 2)
-    assert got[1] == pytest.approx(0.3, abs=adc_lsb(AdcRange.BIPOLAR_10V, 8) / 2)
+    assert got[1] == pytest.approx(0.3, abs=LSB / 8 / 2)  # ±1.25 V at gain 8
     assert rd(c, "SCAN_LAST") == 5
     assert rd(c, "SCAN_GAIN0") & 0x3 == 3  # channel 0 at gain 8
     c.signals.set_analog("in12", 2.0)  # clips at gain 8 (±1.25 V), not at gain 4 (±2.5 V)

@@ -29,7 +29,6 @@ from hal.adc_dac import (
 from hal.adc_dac.conversions import (
     CODE_MAX,
     CODE_MID,
-    DAC_LSB_V,
     DAC_V_MAX,
     DAC_V_MIN,
     dac_code_to_volts,
@@ -40,6 +39,7 @@ from tests.support.board_spec import doc_registers, doc_rows, map_differences
 
 BASE = 0x7000
 ADC_BASE = 0x6000
+DAC_LSB_V = 20.0 / 4096  # 4.8828125 mV (docs/boards/dac.md), the tolerance of the end-to-end checks
 
 
 def make(**kw) -> tuple[Crate, DacBoard, DacDriver]:
@@ -162,6 +162,34 @@ def test_update_register_is_write_only_and_data_keeps_12_bits() -> None:
     wr(c, "DATA3", 0xFABC)
     assert rd(c, "DATA3") == 0xABC
     assert dac.read_holding_counts(3) == 0xABC
+
+
+@pytest.mark.parametrize(("offset", "width", "write", "cause"), [
+    (0x06, Width.D16, False, BusErrorCause.NO_RESPONDER),  # 0x06-0x0F not decoded
+    (0x0E, Width.D16, True, BusErrorCause.NO_RESPONDER),
+    (0x11, Width.D8, True, BusErrorCause.UNSUPPORTED_WIDTH),  # D8 only on ID, CSR and UPDATE
+    (0x20, Width.D8, False, BusErrorCause.UNSUPPORTED_WIDTH),
+    (0x10, Width.D32, True, BusErrorCause.UNSUPPORTED_WIDTH),  # no D32 anywhere
+    (0x00, Width.D16, True, BusErrorCause.ACCESS),  # ID is read-only
+])
+def test_bad_accesses_end_in_the_docs_bus_errors(offset: int, width: Width, write: bool,
+                                                  cause: BusErrorCause) -> None:
+    c, _, _ = make()
+    with pytest.raises(BusError) as ei:
+        if write:
+            c.write(BASE + offset, 0, space="A16", width=width)
+        else:
+            c.read(BASE + offset, space="A16", width=width)
+    assert ei.value.cause is cause
+
+
+def test_a_d8_strobe_of_update_bits_7_0_updates_and_of_bits_15_8_does_nothing() -> None:
+    c, _, dac = make()
+    dac.write_counts(2, 0xA00, update=False)
+    c.write(BASE + 0x04, 0xFF, space="A16", width=Width.D8)  # +0x04 holds bits 15:8: no channel
+    assert dac.read_back_counts(2) == 0x800
+    c.write(BASE + 0x05, 0x04, space="A16", width=Width.D8)  # bit 2: channel 2
+    assert dac.read_back_counts(2) == 0xA00
 
 
 def test_csr_strobes_read_zero() -> None:
