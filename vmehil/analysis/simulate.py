@@ -200,6 +200,7 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
     th_true, th_meas, th_d = rec["theta_true"][:, j], rec["theta"][:, j], rec["theta_d"][:, j]
     t_end = summary["motion_end_s"]
     lc = limit_cycle(t, th_true, t_end + SETTLE_S)
+    growth = window_thirds(t, th_true, t_end + SETTLE_S)
     err_true = th_d - th_true
     err_servo = th_d - th_meas
     last = t >= (t[-1] - STATIC_WINDOW_S) if t.size else np.zeros(0, bool)
@@ -225,6 +226,12 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
         "frequency_hz": None if fault else js["limit_cycle"]["frequency_hz"],
         "amplitude_pot_deg": None if fault else js["limit_cycle_pot"]["amplitude_deg"],
         "spectrum_peak_hz": None if fault or lc.frequency_hz is None else lc.spectrum_peak_hz,
+        # a cycle still growing (or dying) through the window: its amplitude is an average of a
+        # transient, not the cycle's (half peak-to-peak of the window's first and last thirds)
+        "amplitude_first_third_deg": None if fault or growth is None else _deg(growth[0]),
+        "amplitude_last_third_deg": None if fault or growth is None else _deg(growth[1]),
+        "settled": None if fault or growth is None or lc.frequency_hz is None else
+        bool(abs(growth[1] - growth[0]) <= SETTLED_FRACTION * max(growth)),
         "max_tracking_error_deg": js["max_tracking_error_deg"],
         "max_tracking_error_servo_deg": track_servo,
         "rms_tracking_error_servo_deg": track_rms,
@@ -246,6 +253,21 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
             "omega_d_deg_s": np.degrees(rec["omega_d"][:, j]).tolist(),
         })
     return out
+
+
+#: a cycle is settled when the amplitudes of the window's first and last thirds differ by at most
+#: this fraction of the larger (the jpl-arm demo's integrators-on cycle grew ±0.45° → ±0.71°)
+SETTLED_FRACTION = 0.15
+
+
+def window_thirds(t: np.ndarray, x: np.ndarray, t_start: float) -> tuple[float, float] | None:
+    """Half peak-to-peak of ``x`` over the first and the last third of the window from ``t_start``
+    (``None``: fewer than 12 samples in the window)."""
+    xw = x[(t >= t_start) & np.isfinite(x)]
+    if xw.size < 12:
+        return None
+    n = xw.size // 3
+    return 0.5 * float(np.ptp(xw[:n])), 0.5 * float(np.ptp(xw[-n:]))
 
 
 @dataclass(frozen=True)
