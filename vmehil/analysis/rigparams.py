@@ -40,6 +40,7 @@ joint 1) — exactly what the emulator then simulates — and is listed in :attr
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -156,7 +157,8 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
     Raises :class:`hal.config.ConfigError` (a ValueError) for a malformed rig file,
     :class:`servo.control.errors.GainError` for bad gains and ValueError for a bad joint number.
     """
-    from vmehil.session import build_controller_for, servo_settings
+    from servo.assembly import build_controller
+    from servo.settings import servo_settings
     from vmehil.system import NON_PLANT_JOINT_KEYS
 
     if isinstance(joint, bool) or not isinstance(joint, int) or joint < 1:
@@ -188,7 +190,7 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
 
     # ---- gains and switch-off, as the session resolves them
     settings = servo_settings(spec)
-    base = {k: settings.gains[k][j] for k in GAIN_NAMES}
+    base = settings.gains.joint(j).as_dict()
     servo_top = spec.table.data.get("servo", {})
     if "gains" in js.servo.data:
         gsrc = "rig [joint.servo]" + (" + [servo]" if "gains" in servo_top else "")
@@ -202,11 +204,13 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
     if overrides:
         gsrc += " + --gains overrides"
     g = Gains.from_mapping({**base, **overrides})
+    # the point's gains on this joint; judged (classified) by JointParams.verdict, not refused here
+    per_joint = {k: [*getattr(settings.gains, k)] for k in GAIN_NAMES}
     for k in GAIN_NAMES:
-        settings.gains[k][j] = getattr(g, k)
-    enabled = settings.switch_off.get("enabled", [None] * spec.n_joints)[j]
-    so_enabled = True if enabled is None else bool(enabled)
-    controller = build_controller_for(spec, settings)
+        per_joint[k][j] = getattr(g, k)
+    settings = dataclasses.replace(settings, gains=settings.gains.replace(**per_joint))
+    so_enabled = bool(settings.switch_off.enabled[j])
+    controller = build_controller(settings)
     law = controller.law
     if switch_off_kp is None:
         if law is not None:

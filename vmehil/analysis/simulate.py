@@ -123,12 +123,12 @@ class StepMove:
 
 
 def _planned_s(system, motion) -> float:
+    from servo.settings import servo_settings
     from servo.trajectory.base import JointLimits
     from servo.trajectory.sequencer import PlanContext
-    from vmehil.session import servo_settings
 
     st = servo_settings(system.rig)
-    ctx = PlanContext(JointLimits.make(system.rig.n_joints, st.max_velocity_rad_s))
+    ctx = PlanContext(JointLimits.make(system.rig.n_joints, list(st.max_velocity_rad_s)))
     start = np.zeros(system.rig.n_joints)
     total = 0.0
     for m in motion.moves:
