@@ -54,6 +54,7 @@ from servo.control.gains import GAIN_NAMES, Gains, parse_gains
 from servo.control.linear import delay_periods
 from servo.gain_guard import GainVerdict, check_values, judge
 from servo.rig import RigSpec, load_rig
+from servo.settings import ServoSettings, servo_settings
 from vmehil.analysis.describing import DeadZone, Nonlinearity, Quantizer, Relay, Saturation
 from vmehil.analysis.loop import LoopConfig, VelocitySource
 
@@ -81,6 +82,8 @@ class JointParams:
     switch_off_enabled: bool
     gain_overrides: dict[str, float] = field(default_factory=dict)  #: applied to this joint only
     notes: list[str] = field(default_factory=list)
+    spec: RigSpec | None = None  #: the parsed rig (a sweep task's, with its plant values)
+    servo: ServoSettings | None = None  #: the rig's servo settings, as parsed (without the overrides)
 
     def switch_off_cfg(self) -> LoopConfig:
         """The loop while the integrators are switched off: no integral action, Kp raised."""
@@ -146,8 +149,8 @@ def _joint_data(spec: RigSpec, index: int) -> dict[str, Any]:
     return data
 
 
-def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, float] | None = None,
-               switch_off_kp: float | None = None) -> JointParams:
+def load_joint(rig: str | Path | RigSpec | None, joint: int = 1, gains: str | dict[str, float] | None = None,
+               switch_off_kp: float | None = None, *, servo: ServoSettings | None = None) -> JointParams:
     """Read joint ``joint`` (1-based) of ``rig`` (preset name or path; None = jpl-arm).
 
     ``gains``: ``"kp=..,kv=.."`` text (:func:`servo.control.gains.parse_gains`) or a mapping of
@@ -158,13 +161,12 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
     :class:`servo.control.errors.GainError` for bad gains and ValueError for a bad joint number.
     """
     from servo.assembly import build_controller
-    from servo.settings import servo_settings
     from vmehil.system import NON_PLANT_JOINT_KEYS
 
     if isinstance(joint, bool) or not isinstance(joint, int) or joint < 1:
         raise ValueError(f"joint number {joint!r} must be 1 or more (joints are numbered from 1)")
-    path = resolve_rig(rig)
-    spec = load_rig(path)
+    spec = rig if isinstance(rig, RigSpec) else load_rig(resolve_rig(rig))
+    path = spec.path
     if joint > spec.n_joints:
         raise ValueError(f"rig {spec.name} has {spec.n_joints} joints; --joint must be 1..{spec.n_joints}, not {joint}")
     plant = plant_params_from_config(spec.table, foreign_keys=NON_PLANT_JOINT_KEYS).joints
@@ -189,7 +191,8 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
     T = spec.period_s
 
     # ---- gains and switch-off, as the session resolves them
-    settings = servo_settings(spec)
+    rig_settings = servo if servo is not None else servo_settings(spec)
+    settings = rig_settings
     base = settings.gains.joint(j).as_dict()
     servo_top = spec.table.data.get("servo", {})
     if "gains" in js.servo.data:
@@ -290,10 +293,11 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
                        viscous_nm_s_per_rad=viscous, inertia_kg_m2=inertia, position_quantum_rad=quantum,
                        position_source=position, torque_limit_nm=torque_limit, accel_limit_rad_s2=accel_limit,
                        switch_off_kp=float(switch_off_kp), switch_off_enabled=so_enabled,
-                       gain_overrides=overrides, notes=notes)
+                       gain_overrides=overrides, notes=notes, spec=spec, servo=rig_settings)
 
 
 def with_gains(jp: JointParams, gains: Gains[float]) -> JointParams:
     """The same joint re-read with another gain set (so the switch-off gain is again what the
     control law computes for it)."""
-    return load_joint(jp.rig_path, jp.joint, gains=gains.as_dict())
+    return load_joint(jp.spec if jp.spec is not None else jp.rig_path, jp.joint, gains=gains.as_dict(),
+                      servo=jp.servo)
