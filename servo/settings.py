@@ -109,7 +109,10 @@ class ServoSettings:
     :class:`~servo.control.gains.Gains` type); ``switch_off`` the integrator switch-off;
     ``torque_limit_nm``, ``max_velocity_rad_s`` (planning limit), ``following_error_rad``
     (watchdog) one value per joint; ``chain`` the normalizing chain from the nominal figures;
-    ``watchdog`` the cross-checks' limits; ``source`` names the rig file in errors."""
+    ``watchdog`` the cross-checks' limits; ``position_source`` (``"pot"``/``"encoder"``) and
+    ``velocity_source`` (``"tach"``/``"encoder"``) per joint; ``gains_given`` per joint, which
+    tables gave its gains (``"joint"``, ``"rig"``, ``"joint+rig"``, or ``""``: the paper's defaults);
+    ``source`` names the rig file in errors."""
 
     joint_names: tuple[str, ...]
     period_s: float
@@ -122,6 +125,9 @@ class ServoSettings:
     following_error_rad: tuple[float, ...]
     chain: NormalizingChain
     watchdog: WatchdogSettings
+    position_source: tuple[str, ...]
+    velocity_source: tuple[str, ...]
+    gains_given: tuple[str, ...]
     source: str
 
     @property
@@ -219,6 +225,10 @@ def servo_settings(rig: RigSpec) -> ServoSettings:
         computation_delay_s=rig.computation_delay_s, objects=names, gains=per_joint_gains,
         switch_off=switch_off, torque_limit_nm=tuple(tl), max_velocity_rad_s=tuple(vmax),
         following_error_rad=tuple(ferr), chain=nominal_chain(nominal), watchdog=_watchdog(rig, nominal),
+        position_source=tuple(j.servo.get_str("position", "pot", choices=("pot", "encoder")) for j in rig.joints),
+        velocity_source=tuple(j.servo.get_str("velocity", "tach", choices=("tach", "encoder")) for j in rig.joints),
+        gains_given=tuple("+".join(w for w, t in (("joint", j.servo), ("rig", top)) if "gains" in t)
+                          for j in rig.joints),
         source=str(rig.path))
     if "pid" in names:
         _guard_rig_gains(rig, top, settings)

@@ -5,7 +5,7 @@ the full-stack simulation describe the same joint:
 
 * servo rate and computation delay: :func:`servo.rig.load_rig` (``[rig] servo_rate_hz``,
   ``computation_delay_s``);
-* gains, switch-off settings and torque limit: :func:`vmehil.session.servo_settings` (``[servo]``
+* gains, switch-off settings and torque limit: :func:`servo.settings.servo_settings` (``[servo]``
   defaults + ``[joint.servo]`` overrides); the switch-off position gain is what the control law
   computes, :meth:`servo.control.law.PidLaw.kp_off` of the controller built from those settings;
 * plant: :func:`emulators.plant.plant_params_from_config` (the plant subtables of ``[[joint]]``).
@@ -194,10 +194,10 @@ def load_joint(rig: str | Path | RigSpec | None, joint: int = 1, gains: str | di
     rig_settings = servo if servo is not None else servo_settings(spec)
     settings = rig_settings
     base = settings.gains.joint(j).as_dict()
-    servo_top = spec.table.data.get("servo", {})
-    if "gains" in js.servo.data:
-        gsrc = "rig [joint.servo]" + (" + [servo]" if "gains" in servo_top else "")
-    elif "gains" in servo_top:
+    given = rig_settings.gains_given[j]
+    if given.startswith("joint"):
+        gsrc = "rig [joint.servo]" + (" + [servo]" if given == "joint+rig" else "")
+    elif given == "rig":
         gsrc = "rig [servo]"
     else:
         gsrc = "session defaults (the paper's)"
@@ -246,8 +246,8 @@ def load_joint(rig: str | Path | RigSpec | None, joint: int = 1, gains: str | di
     viscous = n_gear**2 * fr.viscous_nm_s_per_rad
 
     # get_str has checked the choices: narrow the str to the literal type LoopConfig takes
-    velocity = cast(VelocitySource, js.servo.get_str("velocity", "tach", choices=("tach", "encoder")))
-    position = js.servo.get_str("position", "pot", choices=("pot", "encoder"))
+    velocity = cast(VelocitySource, settings.velocity_source[j])
+    position = settings.position_source[j]
     if "velocity" not in js.servo.data:
         notes.append("[joint.servo] velocity not in the rig: the servo's default, the tachometer")
     deadband = None
