@@ -228,10 +228,11 @@ def check_gain_change(law: Any, joint: int | None, changes: Mapping[str, Any], p
 
 
 def check_gain_set(gains: Gains[np.ndarray], switch_off: Any, changes: Mapping[str, Any], period_s: float,
-                   delay: float = 0.0, *, joint: int | None = None, min_margin: float = 0.0) -> None:
+                   delay: float = 0.0, *, joint: int | None = None, min_margin: float = 0.0) -> dict[str, float]:
     """Raise :class:`GainRejected` unless ``changes`` (gain name → value) applied to the per-joint
     set ``gains`` (of joint ``joint``, or of every joint for None) pass: values first, then every
     changed joint's sampled loop with ``switch_off`` (a :class:`~servo.control.law.SwitchOffConfig`).
+    Returns ``changes`` as floats (:func:`check_values`).
     :func:`check_gain_change` (a live law) and an override of a rig's settings
     (:meth:`servo.settings.ServoSettings.overridden`) both ask this."""
     n = int(gains.n or 1)
@@ -244,3 +245,4 @@ def check_gain_set(gains: Gains[np.ndarray], switch_off: Any, changes: Mapping[s
         g = gains.joint(j).replace(**clean)
         kp_off = float(switched_off_kp(g.kp, g.kvi, float(so.kp_boost[j]))) if bool(so.enabled[j]) else None
         judge(g, period_s, delay, kp_off=kp_off, min_margin=min_margin).raise_if_refused(shown, j)
+    return clean

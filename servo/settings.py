@@ -145,16 +145,15 @@ class ServoSettings:
         ``--no-integrator-switch-off``) is applied, with the one check — the gain guard's values
         and the stability of every joint's sampled loop with the resulting switch-off. Raises
         :class:`~servo.gain_guard.GainRejected` (nothing is changed)."""
-        clean = check_values(gains or {})
         out = self
         if switch_off is not None:
             out = dataclasses.replace(out, switch_off=dataclasses.replace(
                 out.switch_off, enabled=np.full(self.n, bool(switch_off))))
-        if clean:
+        if gains:
             if "pid" not in self.objects:
-                raise ValueError(f"gain overrides {dict(gains or {})}: the rig's controller has no pid object to "
-                                 "take them")
-            check_gain_set(out.gains, out.switch_off, clean, self.period_s, self.delay_periods)
+                check_values(gains)  # a value no gain may have is refused as such first
+                raise ValueError(f"gain overrides {dict(gains)}: the rig's controller has no pid object to take them")
+            clean = check_gain_set(out.gains, out.switch_off, gains, self.period_s, self.delay_periods)
             out = dataclasses.replace(out, gains=out.gains.replace(**clean))
         return out
 
