@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 import grimp
+import pytest
 
 OURS = ("hal", "emulators", "servo", "vmehil")
 
@@ -111,6 +112,7 @@ sys.exit(int(code))
 """
 
 
+@pytest.mark.slow  # runs tests/servo once more (~20 s)
 def test_the_servo_tests_run_with_vmehil_absent():
     root = Path(__file__).resolve().parent.parent
     out = subprocess.run([sys.executable, "-c", _WITHOUT_VMEHIL], capture_output=True, text=True, timeout=600,
