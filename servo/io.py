@@ -435,10 +435,11 @@ class JointIO:
         """Command joint torques (N·m). Linear amps: DAC volts = τ/(N·Kt·gain), one strobe per
         DAC board. H-bridges: V = R·i + Ke·ω_motor as PWM duty. Returns the commanded current (A).
 
-        The conversions run over all joints as arrays; they give the same numbers, bit for bit,
-        as :func:`~hal.amplifiers.current_for_torque`, :func:`~hal.amplifiers.clamp_current`
-        and :func:`~hal.amplifiers.command_volts` joint by joint (the clamps are written as the
-        same comparisons, so a NaN clamps to the limit as ``min``/``max`` do)."""
+        The one torque-to-command conversion (the controller's output is torque; the drivers take
+        amperes and volts), with the calibrated scaling. It runs over all joints as arrays and gives
+        the same numbers, bit for bit, as i = τ/(N·Kt), :func:`~hal.amplifiers.clamp_current` and
+        :func:`~hal.amplifiers.command_volts` joint by joint (the clamps are written as the same
+        comparisons, so a NaN clamps to the limit as ``min``/``max`` do)."""
         self._scaling_arrays()
         tau = np.asarray(torque_nm, dtype=float)
         limit = self._limit_a

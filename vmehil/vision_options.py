@@ -65,8 +65,11 @@ def prepare(args: argparse.Namespace, rig: RigSpec) -> dict[str, Any] | None:
         # Out of the stretched-out (singular) start pose first (joints 1–3 only, relative to where
         # they start), then the vision task, then a hold.
         ready = np.radians(np.array([10.0, 30.0, -60.0] + [0.0] * (rig.n_joints - 3)))
-        vmax = np.radians(rig.table.table("servo", {}).get_float("max_velocity_deg_s", 30.0, min=1e-3))
-        t_ready = 1.875 * float(np.max(np.abs(ready))) / vmax
+        from servo.settings import servo_settings
+
+        # the planning limits the servo will plan the move with (a quintic's peak speed is 1.875·Δ/t)
+        vmax = np.asarray(servo_settings(rig).max_velocity_rad_s, float)
+        t_ready = 1.875 * float(np.max(np.abs(ready) / vmax))
         out["motion"] = Motion((QuinticMove(None, ready, 1.0), VservoMove(args.vision_timeout), WaitMove(3.0)),
                                "vservo", "<--vision>")
         out["duration"] = t_ready + args.vision_timeout + 3.0

@@ -89,7 +89,7 @@ class SimSettings:
 
 
 Progress = Callable[[int, int], None]
-LinkFactory = Callable[[str, int], Any]  #: ``(rig_path, seed) -> PlantLink`` (connected, plant reset)
+LinkFactory = Callable[[Any, int], Any]  #: ``(rig, seed) -> PlantLink`` (connected, plant reset; rig: path or RigSpec)
 
 
 def _motion(system, jp: JointParams, s: SimSettings, step_deg: float | None):
@@ -122,13 +122,13 @@ class StepMove:
         return Stay(np.asarray(start, float) + self.delta, 0.0)
 
 
-def _planned_s(system, motion) -> float:
+def _planned_s(system, motion, settings=None) -> float:
+    from servo.settings import servo_settings
     from servo.trajectory.base import JointLimits
     from servo.trajectory.sequencer import PlanContext
-    from vmehil.session import servo_settings
 
-    st = servo_settings(system.rig)
-    ctx = PlanContext(JointLimits.make(system.rig.n_joints, st.max_velocity_rad_s))
+    st = settings if settings is not None else servo_settings(system.rig)
+    ctx = PlanContext(JointLimits.make(system.rig.n_joints, list(st.max_velocity_rad_s)))
     start = np.zeros(system.rig.n_joints)
     total = 0.0
     for m in motion.moves:
@@ -166,9 +166,10 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
     from vmehil.system import build_emulated_rig
 
     s = settings or SimSettings()
-    link = None if link_factory is None else link_factory(jp.rig_path, s.seed)
+    rig = jp.spec if jp.spec is not None else jp.rig_path
+    link = None if link_factory is None else link_factory(rig, s.seed)
     try:
-        system = build_emulated_rig(jp.rig_path, seed=s.seed, link=link)
+        system = build_emulated_rig(rig, seed=s.seed, link=link)
     except BaseException:
         if link is not None:
             link.close()
@@ -176,9 +177,9 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
     try:
         j = jp.joint - 1
         motion = _motion(system, jp, s, step_deg)
-        duration = _planned_s(system, motion)
+        duration = _planned_s(system, motion, jp.servo)
         n_ticks = max(2, round(duration * system.rig.servo_rate_hz))
-        loop = build_loop(system, motion=motion, switch_off=switch_off, n_ticks=n_ticks)
+        loop = build_loop(system, motion=motion, switch_off=switch_off, n_ticks=n_ticks, settings=jp.servo)
         law = loop.law
         theta_start = float(loop.sequencer.current.end[j])  # the target before the first move
         law.set_gains(**jp.cfg.gains.as_dict(), joint=j)

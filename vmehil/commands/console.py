@@ -54,7 +54,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_console(args: argparse.Namespace) -> int:
     from servo.control.gains import parse_gains
-    from servo.gain_guard import check_values
     from vmehil.commands import console_port_needs_serial, refuse_without
 
     if console_port_needs_serial(args.console) and refuse_without("vmehil console --console " + args.console,
@@ -68,7 +67,7 @@ def run_console(args: argparse.Namespace) -> int:
     from vmehil.session import build_loop
     from vmehil.system import build_emulated_rig
 
-    gains = check_values(parse_gains(args.gains, what="--gains"))  # stability: in build_loop
+    gains = parse_gains(args.gains, what="--gains")  # values and stability: once, in build_loop
     if args.duration is not None and args.duration <= 0:
         raise ValueError("--duration must be > 0")
     from emulators.presets import resolve_rig

@@ -13,6 +13,7 @@ import argparse
 import sys
 from pathlib import Path
 from types import ModuleType
+from typing import TYPE_CHECKING
 
 from servo.interrupts import Terminated, interrupt_exit_status
 from vmehil import can_options, fault_options, vision_options
@@ -29,6 +30,9 @@ from vmehil.realtime_options import (
     realtime,
     realtime_settings_summary,
 )
+
+if TYPE_CHECKING:
+    from servo.settings import ServoSettings
 
 # Modules that extend `vmehil run` (live tuning over MAVLink, the operator console, ...). Each
 # defines ``add_arguments(parser)`` and ``attach(args, system, loop, runner)``, which returns
@@ -94,22 +98,23 @@ def run(args: argparse.Namespace) -> int:
             return 2
     from emulators.presets import resolve_rig
     from servo.control.gains import parse_gains
-    from servo.gain_guard import check_values
     from servo.rig import load_rig
+    from servo.settings import servo_settings
     if fault_options.wants_list(args):
         return fault_options.list_faults()
-    # values now (before a rig is built); stability in build_loop, on the rig's loop
-    gains = check_values(parse_gains(args.gains, what="--gains"))
+    gains = parse_gains(args.gains, what="--gains")
     rig = load_rig(resolve_rig(args.rig))
+    # the servo's settings, parsed once; the command line's override applied and guarded here, once
+    settings = servo_settings(rig).overridden(gains, False if args.no_integrator_switch_off else None)
     try:
-        return _run(args, rig, gains)
+        return _run(args, rig, gains, settings)
     finally:
         shm = getattr(args, "_vision_shm", None)  # created by an extension's prepare()
         if shm is not None:
             shm.close(unlink=True)
 
 
-def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
+def _run(args: argparse.Namespace, rig, gains: dict[str, float], settings: ServoSettings) -> int:
     parallel = getattr(args, "units", "single") == "parallel"
     if parallel:
         refused = run_units.refused_options(args)
@@ -124,7 +129,7 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
             return 2
     if getattr(args, "bus", "emulated") != "emulated":
         from vmehil.commands.run_real import run_on_real_bus
-        return run_on_real_bus(args, rig, gains, exit_status=run_exit_status)
+        return run_on_real_bus(args, rig, settings, exit_status=run_exit_status)
     from servo.motion import NO_MOTION, default_demo_motion, hold_motion, load_motion
     from servo.runner import LockstepRunner, RealtimeRunner
     from vmehil.progress import TickProgress
@@ -150,7 +155,7 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
         duration = defaults["duration"]
     else:
         probe_system = build_emulated_rig(rig, seed=args.seed)
-        duration = _planned_duration(build_loop(probe_system, motion=motion, n_ticks=1)) + 1.0
+        duration = _planned_duration(build_loop(probe_system, motion=motion, n_ticks=1, settings=settings)) + 1.0
         probe_system.close()
     if not duration > 0:
         raise ValueError("--duration must be > 0")
@@ -163,8 +168,7 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
         return run_units.run_parallel(args, rig, gains, motion, n_ticks, lambda: _make_link(args, rig),
                                       calibration=store)
     system = _build_calibrated(args, rig, build_emulated_rig)
-    loop = build_loop(system, motion=motion, gains=gains, n_ticks=n_ticks,
-                      switch_off=False if args.no_integrator_switch_off else None)
+    loop = build_loop(system, motion=motion, n_ticks=n_ticks, settings=settings)
     runner = RealtimeRunner(system, loop, **overrun_options(args)) if args.realtime else LockstepRunner(system, loop)
     progress = TickProgress("run", quiet=args.quiet)
     attached: list = []

@@ -12,20 +12,24 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from servo.settings import ServoSettings
 
 
-def run_on_real_bus(args: argparse.Namespace, rig, gains: dict[str, float], *,
+def run_on_real_bus(args: argparse.Namespace, rig, settings: ServoSettings, *,
                     exit_status: Callable[[Any, BaseException | None], int], **bus_options: Any) -> int:
-    """``exit_status``: ``vmehil.commands.run.run_exit_status`` (passed in: no import cycle);
-    ``bus_options`` go to :class:`hal.vme.vme_user.VmeUserBus` (tests inject a clock)."""
+    """``settings``: the rig's servo settings with the command line's override applied
+    (:meth:`servo.settings.ServoSettings.overridden`). ``exit_status``:
+    ``vmehil.commands.run.run_exit_status`` (passed in: no import cycle); ``bus_options`` go to
+    :class:`hal.vme.vme_user.VmeUserBus` (tests inject a clock)."""
     from servo.interrupts import Terminated
     from servo.motion import default_demo_motion, load_motion
     from servo.runner import RealtimeRunner
     from vmehil.real_bus import RealBusRefused, open_bus, prepare_real_rig
     from vmehil.run_report import summarize, table
     from vmehil.session import build_loop
-    from vmehil.system import EmulatedRig
 
     bus = open_bus(args.bus, **bus_options)
     try:
@@ -44,8 +48,7 @@ def run_on_real_bus(args: argparse.Namespace, rig, gains: dict[str, float], *,
         motion = load_motion(args.motion, n) if args.motion else default_demo_motion(n)
         duration = args.duration if args.duration is not None else 10.0
         n_ticks = round(duration * rig.servo_rate_hz)
-        loop = build_loop(cast(EmulatedRig, system), motion=motion, gains=gains, n_ticks=n_ticks,
-                          switch_off=False if args.no_integrator_switch_off else None)
+        loop = build_loop(system, motion=motion, n_ticks=n_ticks, settings=settings)
         runner = RealtimeRunner(system, loop)
         interrupted: BaseException | None = None
         try:

@@ -434,6 +434,7 @@ def run_sweep(args: argparse.Namespace) -> int:
         parse_grid,
         rig_text,
         rows_csv,
+        task_rig,
         text_sha256,
     )
     from vmehil.analysis.tolerance import draw_samples, nominal_values, parse_varies
@@ -499,7 +500,8 @@ def run_sweep(args: argparse.Namespace) -> int:
     if settings.hold_s < 8.0 and not args.margins_only:
         print(f"note: a {settings.hold_s:g} s hold is too short for a reliable limit-cycle figure (use ≥ 8 s)",
               file=sys.stderr)
-    # The rig travels as content (its text) with every task, so no worker reads this machine's disk.
+    # The rig travels parsed (its plant values drawn) with the servo's typed settings in every task:
+    # no worker reads this machine's disk, nothing is parsed again per point.
     text = rig_text(jp.rig_path)
     n_samples = (args.samples or 20) if spreads else 1
     draws: list[dict[str, float]] = [{}]
@@ -507,14 +509,15 @@ def run_sweep(args: argparse.Namespace) -> int:
         draws = draw_samples(spreads, nominal_values(tomllib.loads(text), jp.joint, str(jp.rig_path)),
                              n_samples, args.seed)
     modes = {"off": [False], "on": [True], "both": [False, True]}[args.switch_off]
+    rigs = [task_rig(text, jp.rig_path, jp.joint, plant) for plant in draws]
     tasks: list[SweepTask] = []
     for g in points:
         for so in modes:
             for k, plant in enumerate(draws):
                 i = len(tasks)
                 tasks.append(SweepTask(i, jp.rig_path, jp.joint, g, settings, simulate=not args.margins_only,
-                                       link_factory=_tagged(links, f"p{i}"), rig_text=text, switch_off=so,
-                                       plant=plant, sample=k if spreads else None))
+                                       link_factory=_tagged(links, f"p{i}"), rig=rigs[k], servo=jp.servo,
+                                       switch_off=so, plant=plant, sample=k if spreads else None))
     out_dir = Path(args.resume or args.out or args.report or "sweep-out")
     csv_path, json_path = out_dir / "sweep.csv", Path(args.json_path) if args.json_path else out_dir / "sweep.json"
     # What makes two runs the same sweep (checked by --resume): the points, the rig's content, the

@@ -21,10 +21,11 @@ from emulators.plant_link import PlantLink, PlantLinkError
 from servo.motion import default_demo_motion, load_motion
 from servo.rig import RigSpec
 from servo.runner import LockstepRunner, RealtimeRunner
+from servo.settings import servo_settings
 from servo.trajectory.base import JointLimits
 from servo.trajectory.sequencer import PlanContext
 from servo.units import UnitSegments, rig_units, unit_named, unit_rig
-from vmehil.session import build_loop, servo_settings
+from vmehil.session import build_loop
 from vmehil.system import build_emulated_rig
 from vmehil.units.coordinator import UnitHook, UnitRun, plant_link_for
 from vmehil.units.remote import (
@@ -89,7 +90,7 @@ def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, s
         for i, u in enumerate(units):
             start_all[list(u.indices)] = link.positions[i][:len(u.indices)]
         motion = load_motion(motion_path, spec.n_joints) if motion_path else default_demo_motion(spec.n_joints)
-        limits = JointLimits.make(spec.n_joints, servo_settings(spec).max_velocity_rad_s)
+        limits = JointLimits.make(spec.n_joints, list(servo_settings(spec).max_velocity_rad_s))
         segments = UnitSegments(list(motion.moves), start_all, PlanContext(limits), unit.indices)
         loop = out.loop = build_loop(system, sequencer=segments, gains=start_gains(start) or None,
                                      switch_off=start_switch_off(start), n_ticks=n_ticks)
