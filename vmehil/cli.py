@@ -23,12 +23,14 @@ from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name, 
 from vmehil.commands import calibrate, console, crate, plant_node, reproduce, run, tune, units, vision  # noqa: E402
 from vmehil.commands.errors import CliError  # noqa: E402
 from vmehil.exit_status import EXIT_BROKEN_PIPE, EXIT_UNEXPECTED, EXIT_USAGE  # noqa: E402
-from vmehil.outputs import check_outputs, mark_output_dirs  # noqa: E402
+from vmehil.outputs import OutputPaths, check_outputs, mark_output_dirs  # noqa: E402
 
 __all__ = ["COMMANDS", "CliError", "build_parser", "main"]
 
 # The subcommands, in the order of `vmehil --help`; each ``register(subparsers)`` adds its parser
-# and sets ``func`` on it.
+# and sets two defaults on it: ``options``, the one step that reads the parsed namespace into the
+# command's typed options (a frozen dataclass's ``from_args``), and ``func``, the command, which
+# receives those options: nothing below this module sees the namespace.
 COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
     crate.register,
     run.register,
@@ -80,12 +82,13 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     args = parser.parse_args(argv)
     try:
-        check_outputs(args, force=force)
+        outputs = OutputPaths.from_args(args)
+        check_outputs(outputs, force=force)
         try:
             with stop_signals_raise():
-                return int(args.func(args) or 0)
+                return int(args.func(args.options(args)) or 0)
         finally:
-            mark_output_dirs(args)
+            mark_output_dirs(outputs)
     except (CliError, ConfigError, VmeError, FileNotFoundError, ValueError) as e:
         if debug:
             traceback.print_exc()

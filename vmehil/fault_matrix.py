@@ -92,10 +92,12 @@ MATRIX: tuple[MatrixCase, ...] = (
 )
 
 
-def _vision_args() -> Any:
+def _vision_options() -> Any:
+    """``vmehil run --vision inprocess --seed SEED``'s options, as the command line makes them."""
     from vmehil.cli import build_parser
+    from vmehil.commands.run_options import RunOptions
 
-    return build_parser().parse_args(["run", "--vision", "inprocess", "--seed", str(SEED)])
+    return RunOptions.from_args(build_parser().parse_args(["run", "--vision", "inprocess", "--seed", str(SEED)]))
 
 
 def run_case(case: MatrixCase) -> dict[str, Any]:
@@ -124,7 +126,7 @@ def run_case(case: MatrixCase) -> dict[str, Any]:
         if case.vision:
             from vmehil import vision_options
 
-            attached = vision_options.attach(_vision_args(), system, loop, runner)
+            attached = vision_options.attach(_vision_options(), system, loop, runner)
         schedule = FaultSchedule([fault], FaultContext(system, loop, SEED))
         schedule.attach(runner)
         runner.run(RUN_TICKS)

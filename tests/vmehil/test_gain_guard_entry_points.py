@@ -49,7 +49,7 @@ def live_rig():
     runner = LockstepRunner(system, loop)
     port = free_udp_port()
     args = build_parser().parse_args(["run", "--mavlink", f"udpin:127.0.0.1:{port}", "--mavlink-rate", "0"])
-    endpoint = attach(args, system, loop, runner)
+    endpoint = attach(args.options(args), system, loop, runner)
     console = start_console("loop://", loop, runner=runner, announce=lambda _text: None)
     client = Client(port)
     client.hello()

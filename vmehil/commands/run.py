@@ -13,34 +13,32 @@ import argparse
 import sys
 from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from servo.interrupts import Terminated, interrupt_exit_status
 from vmehil import can_options, fault_options, vision_options
 from vmehil.cli_types import duration_s, seed
 from vmehil.commands import console_port_needs_serial, refuse_without, run_units
+from vmehil.commands.run_options import RunOptions
 from vmehil.console import extension as console_extension
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
 from vmehil.files import write_json
 from vmehil.mavlink import extension as mavlink_extension
-from vmehil.realtime_options import (
-    add_overrun_args,
-    add_pacing_args,
-    overrun_options,
-    realtime,
-    realtime_settings_summary,
-)
+from vmehil.realtime_options import add_overrun_args, add_pacing_args, realtime_settings_summary
 
 if TYPE_CHECKING:
     from servo.settings import ServoSettings
 
 # Modules that extend `vmehil run` (live tuning over MAVLink, the operator console, ...). Each
-# defines ``add_arguments(parser)`` and ``attach(args, system, loop, runner)``, which returns
-# ``None`` when its options are unused, or an object with ``close()`` called after the run.
-# An extension may also define ``prepare(args, rig) -> dict | None``, called before the rig is
-# built: it may adjust the rig table and return defaults ``{"motion": Motion, "duration": s}``;
-# and ``make_link(args, rig) -> PlantLink | None`` to run the plant elsewhere (the CAN plant
-# node): the first link returned replaces the in-process plant. An attached object with
+# defines ``add_arguments(parser)``, a frozen dataclass of its options (a field of RunOptions) and
+# ``attach(options, system, loop, runner, prepared)``, which returns ``None`` when its options are
+# unused, or an object with ``close()`` called after the run. ``options`` is the RunOptions; each
+# module declares what it reads of them as a protocol (``RunNeeds``). An extension may also define
+# ``prepare(options, rig)``, called before the rig is built: it may adjust the rig table and returns
+# None or a preparation with ``defaults`` (``{"motion": Motion, "duration": s}``) and ``close()``
+# (called when the run ends), handed back to its ``attach`` as ``prepared``; and
+# ``make_link(options, rig) -> PlantLink | None`` to run the plant elsewhere (the CAN plant node):
+# the first link returned replaces the in-process plant. An attached object with
 # ``add_to_summary(summary)`` adds its keys to the run's summary.
 RUN_EXTENSIONS: tuple[ModuleType, ...] = (
     mavlink_extension,
@@ -83,41 +81,37 @@ def register(sub: argparse._SubParsersAction) -> None:
     for ext in RUN_EXTENSIONS:
         ext.add_arguments(p)
     run_units.add_arguments(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, options=RunOptions.from_args)
 
 
-def run(args: argparse.Namespace) -> int:
-    console = getattr(args, "console", None)
-    # a person at the console needs the loop at the wall clock's pace (a lockstep run would be over
-    # before they typed); --lockstep still wins
-    args.realtime = realtime(args, default=bool(console))
-    for option, extra, used in (("--report", "plots", bool(args.report)),
-                                ("--mavlink", "mavlink", bool(getattr(args, "mavlink", None))),
+def run(opts: RunOptions) -> int:
+    console = opts.console.port
+    for option, extra, used in (("--report", "plots", bool(opts.report)),
+                                ("--mavlink", "mavlink", bool(opts.mavlink.url)),
                                 ("--console", "console", bool(console and console_port_needs_serial(console)))):
         if used and refuse_without(f"vmehil run {option}", extra):
             return 2
     from emulators.presets import resolve_rig
-    from servo.control.gains import parse_gains
     from servo.rig import load_rig
     from servo.settings import servo_settings
-    if fault_options.wants_list(args):
+    if opts.faults.wants_list:
         return fault_options.list_faults()
-    gains = parse_gains(args.gains, what="--gains")
-    rig = load_rig(resolve_rig(args.rig))
+    rig = load_rig(resolve_rig(opts.rig))
     # the servo's settings, parsed once; the command line's override applied and guarded here, once
-    settings = servo_settings(rig).overridden(gains, False if args.no_integrator_switch_off else None)
+    settings = servo_settings(rig).overridden(opts.gains, opts.integrator_switch_off)
+    prepared: dict[ModuleType, Any] = {}  # the extensions' preparations, filled by _run
     try:
-        return _run(args, rig, gains, settings)
+        return _run(opts, rig, opts.gains, settings, prepared)
     finally:
-        shm = getattr(args, "_vision_shm", None)  # created by an extension's prepare()
-        if shm is not None:
-            shm.close(unlink=True)
+        for prep in prepared.values():  # e.g. the shared memory of --vision process
+            prep.close()
 
 
-def _run(args: argparse.Namespace, rig, gains: dict[str, float], settings: ServoSettings) -> int:
-    parallel = getattr(args, "units", "single") == "parallel"
+def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings,
+         prepared: dict[ModuleType, Any]) -> int:
+    parallel = opts.units == "parallel"
     if parallel:
-        refused = run_units.refused_options(args)
+        refused = run_units.refused_options(opts)
         if refused:
             print("vmehil run --units parallel: not with parallel units (docs/melmalec.md, \"Options with --units "
                   "parallel\"):\n  " + "\n  ".join(refused), file=sys.stderr)
@@ -127,9 +121,9 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float], settings: Servo
             print(f"vmehil run --units parallel: rig {rig.name} ({rig.path}) declares no [[rig.unit]] tables",
                   file=sys.stderr)
             return 2
-    if getattr(args, "bus", "emulated") != "emulated":
+    if opts.bus != "emulated":
         from vmehil.commands.run_real import run_on_real_bus
-        return run_on_real_bus(args, rig, settings, exit_status=run_exit_status)
+        return run_on_real_bus(opts, rig, settings, exit_status=run_exit_status)
     from servo.motion import NO_MOTION, default_demo_motion, hold_motion, load_motion
     from servo.runner import LockstepRunner, RealtimeRunner
     from vmehil.progress import TickProgress
@@ -139,22 +133,24 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float], settings: Servo
 
     defaults: dict = {}
     for ext in RUN_EXTENSIONS:
-        prep = getattr(ext, "prepare", None)
+        prepare = getattr(ext, "prepare", None)
+        prep = prepare(opts, rig) if prepare is not None else None
         if prep is not None:
-            defaults.update(prep(args, rig) or {})
+            prepared[ext] = prep
+            defaults.update(prep.defaults)
     n = rig.n_joints
-    if args.motion == NO_MOTION:
-        if args.duration is None and "duration" not in defaults:
+    if opts.motion == NO_MOTION:
+        if opts.duration is None and "duration" not in defaults:
             raise ValueError(f"--motion {NO_MOTION} holds the joints: give --duration S (how long to run)")
         motion = hold_motion()
     else:
-        motion = load_motion(args.motion, n) if args.motion else defaults.get("motion") or default_demo_motion(n)
-    if args.duration is not None:
-        duration = args.duration
+        motion = load_motion(opts.motion, n) if opts.motion else defaults.get("motion") or default_demo_motion(n)
+    if opts.duration is not None:
+        duration = opts.duration
     elif "duration" in defaults:
         duration = defaults["duration"]
     else:
-        probe_system = build_emulated_rig(rig, seed=args.seed)
+        probe_system = build_emulated_rig(rig, seed=opts.seed)
         duration = _planned_duration(build_loop(probe_system, motion=motion, n_ticks=1, settings=settings)) + 1.0
         probe_system.close()
     if not duration > 0:
@@ -164,21 +160,24 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float], settings: Servo
         from vmehil.calibration.store import load_store_or_nominal
 
         # one file, the single run's loader and checks; each unit applies its own entries
-        store = _calibrated(args, rig, lambda cal: load_store_or_nominal(cal, rig))
-        return run_units.run_parallel(args, rig, gains, motion, n_ticks, lambda: _make_link(args, rig),
-                                      calibration=store)
-    system = _build_calibrated(args, rig, build_emulated_rig)
+        store = _calibrated(opts.calibration, rig, lambda cal: load_store_or_nominal(cal, rig))
+        faults = prepared.get(fault_options)
+        return run_units.run_parallel(opts, rig, gains, motion, n_ticks, lambda: _make_link(opts, rig),
+                                      calibration=store, faults=list(faults.faults) if faults is not None else [])
+    system = _build_calibrated(opts, rig, build_emulated_rig)
     loop = build_loop(system, motion=motion, n_ticks=n_ticks, settings=settings)
-    runner = RealtimeRunner(system, loop, **overrun_options(args)) if args.realtime else LockstepRunner(system, loop)
-    progress = TickProgress("run", quiet=args.quiet)
+    runner = (RealtimeRunner(system, loop, **opts.pacing.runner_options()) if opts.realtime
+              else LockstepRunner(system, loop))
+    progress = TickProgress("run", quiet=opts.quiet)
     attached: list = []
     interrupted: BaseException | None = None
     try:
         # armed(): whatever ends the block (its end, an exception, Ctrl-C, SIGTERM) ends with the
         # amplifiers disabled, 0 V on the DACs and PWM off, read back (loop.final_stop).
         with loop.armed():
-            attached = [a for a in (ext.attach(args, system, loop, runner) for ext in RUN_EXTENSIONS) if a is not None]
-            if not args.quiet:
+            attached = [a for a in (ext.attach(opts, system, loop, runner, prepared.get(ext))
+                                    for ext in RUN_EXTENSIONS) if a is not None]
+            if not opts.quiet:
                 print(f"run: {n_ticks} ticks ({duration:g} s) on {rig.name}, amplifiers enabled", file=sys.stderr)
             with progress:
                 runner.run(n_ticks, progress=progress if progress.enabled else None)
@@ -188,7 +187,7 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float], settings: Servo
         for a in attached:
             a.close()
     timing = runner.timing.summary(system.rig.period_s) if isinstance(runner, RealtimeRunner) else None
-    summary = summarize(loop, rig=system.rig.name, seed=args.seed, realtime=args.realtime,
+    summary = summarize(loop, rig=system.rig.name, seed=opts.seed, realtime=opts.realtime,
                         overruns=runner.overruns, timing=timing)
     for a in attached:
         add = getattr(a, "add_to_summary", None)
@@ -202,11 +201,11 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float], settings: Servo
     if timing:
         print(f"timing: compute p50 {timing['compute_p50_ms']:.3f} ms, p99 {timing['compute_p99_ms']:.3f} ms; "
               f"lateness p99 {timing['lateness_p99_ms']:.3f} ms, max {timing['lateness_max_ms']:.3f} ms")
-    if args.json:
-        write_json(args.json, summary)
-    if args.report:
-        files = write_report(loop, summary, args.report)
-        print(f"report: {len(files)} files in {args.report}")
+    if opts.json:
+        write_json(opts.json, summary)
+    if opts.report:
+        files = write_report(loop, summary, opts.report)
+        print(f"report: {len(files)} files in {opts.report}")
     system.close()
     return run_exit_status(loop, interrupted or runner.ended_by)
 
@@ -221,21 +220,22 @@ def run_exit_status(loop, ended_by: BaseException | None) -> int:
     return EXIT_FAULT if loop.fault is not None else 0
 
 
-def _build_calibrated(args: argparse.Namespace, rig, build):
+def _build_calibrated(opts: RunOptions, rig, build):
     """Build the rig with the drivers' calibration file; a missing file is a one-line warning."""
-    return _calibrated(args, rig, lambda cal: build(rig, seed=args.seed, link=_make_link(args, rig), calibration=cal))
+    return _calibrated(opts.calibration, rig,
+                       lambda cal: build(rig, seed=opts.seed, link=_make_link(opts, rig), calibration=cal))
 
 
-def _calibrated(args: argparse.Namespace, rig, use):
-    """``use(path)`` with the drivers' calibration file (``--calibration``, which must exist, or
-    the rig's default file); a missing default file is a one-line warning (nominal values)."""
+def _calibrated(calibration: str | None, rig, use):
+    """``use(path)`` with the drivers' calibration file (``calibration``: ``--calibration``, which must exist, or
+    None: the rig's default file); a missing default file is a one-line warning (nominal values)."""
     import warnings
 
     from vmehil.calibration.store import CalibrationMissingWarning, default_store_path
 
-    if args.calibration and not Path(args.calibration).exists():
-        raise FileNotFoundError(f"--calibration {args.calibration}: no such file")
-    cal = args.calibration or default_store_path(rig)
+    if calibration and not Path(calibration).exists():
+        raise FileNotFoundError(f"--calibration {calibration}: no such file")
+    cal = calibration or default_store_path(rig)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CalibrationMissingWarning)
         result = use(cal)
@@ -249,11 +249,11 @@ def _calibrated(args: argparse.Namespace, rig, use):
     return result
 
 
-def _make_link(args: argparse.Namespace, rig):
+def _make_link(opts: RunOptions, rig):
     """The plant link an extension asks for (``--plant can``), else ``None`` (in-process)."""
     for ext in RUN_EXTENSIONS:
         make = getattr(ext, "make_link", None)
-        link = make(args, rig) if make is not None else None
+        link = make(opts, rig) if make is not None else None
         if link is not None:
             return link
     return None

@@ -79,7 +79,7 @@ def test_run_with_the_flag_runs_the_loop_and_ends_safe(rig_on_fuse, capsys) -> N
     in the boards' time), the pacing the wall clock's."""
     system, bus = rig_on_fuse
     args = build_parser().parse_args(["run", "--bus", bus, "--enable-amplifiers", "--duration", "0.1"])
-    code = run_on_real_bus(args, system.rig, servo_settings(system.rig), exit_status=run_exit_status,
+    code = run_on_real_bus(args.options(args), system.rig, servo_settings(system.rig), exit_status=run_exit_status,
                            clock=system.crate.now,
                            sleep=system.crate.delay)
     err = capsys.readouterr().err
