@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
-from servo.interrupts import Terminated, interrupt_exit_status
+from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_exit_status
 from vmehil import can_options, fault_options, vision_options
 from vmehil.cli_types import duration_s, seed
 from vmehil.commands import console_port_needs_serial, refuse_without, run_units
@@ -128,7 +128,6 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     from servo.motion import NO_MOTION, default_demo_motion, hold_motion, load_motion
     from servo.runner import LockstepRunner, RealtimeRunner
     from vmehil.progress import TickProgress
-    from vmehil.run_report import summarize, table, write_report
     from vmehil.session import build_loop
     from vmehil.system import build_emulated_rig
 
@@ -169,20 +168,39 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     progress = TickProgress("run", quiet=args.quiet)
     attached: list = []
     interrupted: BaseException | None = None
+    # Once the run ends, signals are held (recorded, not raised) until its results are written:
+    # a second Ctrl-C must not lose the JSON or the report. armed() begins this section before its
+    # final stop's own ends (docs/safe-stop.md, "A second signal").
+    after = SignalsDeferred()
     try:
-        # armed(): whatever ends the block (its end, an exception, Ctrl-C, SIGTERM) ends with the
-        # amplifiers disabled, 0 V on the DACs and PWM off, read back (loop.final_stop).
-        with loop.armed():
-            attached = [a for a in (ext.attach(args, system, loop, runner) for ext in RUN_EXTENSIONS) if a is not None]
-            if not args.quiet:
-                print(f"run: {n_ticks} ticks ({duration:g} s) on {rig.name}, amplifiers enabled", file=sys.stderr)
-            with progress:
-                runner.run(n_ticks, progress=progress if progress.enabled else None)
-    except (KeyboardInterrupt, Terminated) as e:  # between ticks' reach (set-up): still reported
-        interrupted = e
+        try:
+            # armed(): whatever ends the block (its end, an exception, Ctrl-C, SIGTERM) ends with the
+            # amplifiers disabled, 0 V on the DACs and PWM off, read back (loop.final_stop).
+            with loop.armed(then=after):
+                attached = [a for a in (ext.attach(args, system, loop, runner) for ext in RUN_EXTENSIONS)
+                            if a is not None]
+                if not args.quiet:
+                    print(f"run: {n_ticks} ticks ({duration:g} s) on {rig.name}, amplifiers enabled", file=sys.stderr)
+                with progress:
+                    runner.run(n_ticks, progress=progress if progress.enabled else None)
+        except INTERRUPTS as e:  # between ticks' reach (set-up), or held by a stop: still reported
+            interrupted = e
+        finally:
+            after.begin()  # when armed() never got as far
+            for a in attached:
+                a.close()
+        for e in list(after.held):
+            loop.note_interruption(e, "after")
+        return _finish(args, system, loop, runner, rig, attached, interrupted or runner.ended_by or loop.interrupted_by)
     finally:
-        for a in attached:
-            a.close()
+        after.end()
+
+
+def _finish(args: argparse.Namespace, system, loop, runner, rig, attached: list, ended_by: BaseException | None) -> int:
+    """Summary, table, JSON and report of a run that has ended; its exit status."""
+    from servo.runner import RealtimeRunner
+    from vmehil.run_report import summarize, table, write_report
+
     timing = runner.timing.summary(system.rig.period_s) if isinstance(runner, RealtimeRunner) else None
     summary = summarize(loop, rig=system.rig.name, seed=args.seed, realtime=args.realtime,
                         overruns=runner.overruns, timing=timing)
@@ -204,7 +222,7 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
         files = write_report(loop, summary, args.report)
         print(f"report: {len(files)} files in {args.report}")
     system.close()
-    return run_exit_status(loop, interrupted or runner.ended_by)
+    return run_exit_status(loop, ended_by)
 
 
 def run_exit_status(loop, ended_by: BaseException | None) -> int:
@@ -212,7 +230,9 @@ def run_exit_status(loop, ended_by: BaseException | None) -> int:
     confirm, 130/143 ended by SIGINT/SIGTERM, 1 a fault stopped the run, 0 it ran to the end."""
     if loop.stop_incomplete:
         return EXIT_STOP_INCOMPLETE
-    if isinstance(ended_by, KeyboardInterrupt | Terminated):
+    if ended_by is None:
+        ended_by = getattr(loop, "interrupted_by", None)  # a signal held by a stop or while writing
+    if isinstance(ended_by, INTERRUPTS):
         return interrupt_exit_status(ended_by)
     return EXIT_FAULT if loop.fault is not None else 0
 
