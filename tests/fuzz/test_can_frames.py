@@ -287,4 +287,6 @@ def _codec_refused(link: CanPlantLink) -> int:
 
 
 def _statuses_sorted(link: CanPlantLink) -> int:
-    return link.counters.other_session + link.counters.incomplete + len(link._fresh)
+    # other_boot: a status of another boot id, dropped before it is sorted (one frame proves no restart)
+    c = link.counters
+    return c.other_session + c.other_boot + c.incomplete + len(link._fresh)
