@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any, ClassVar, Protocol
 
 import numpy as np
@@ -580,13 +581,23 @@ class JointIO:
                     return
             failures.append(f"{what}: interrupted {self.STOP_STEP_ATTEMPTS} times")
 
+        def dac_zero(drv: DacDriver) -> None:
+            drv.write_many({ch: 0.0 for ch in range(drv.CHANNELS)}, update=True)
+
+        def pwm_off(j: Any) -> None:
+            self._set_hbridge(j, 0.0)
+            self.pio[j.wiring["pwm"].board].pwm_enable(False)
+
+        def enable_low(j: Any) -> None:
+            self.pio[j.wiring["amp_enable"].board].set_line(j.net("amp_enable"), False)
+
         for name, drv in self.dac.items():
-            step(name, lambda drv=drv: drv.write_many({ch: 0.0 for ch in range(drv.CHANNELS)}, update=True))
+            step(name, partial(dac_zero, drv))
         for j in self.rig.joints:
             if "pwm" in j.wiring:
-                step(j.name, lambda j=j: (self._set_hbridge(j, 0.0), self.pio[j.wiring["pwm"].board].pwm_enable(False)))
+                step(j.name, partial(pwm_off, j))
             if "amp_enable" in j.wiring:
-                step(j.name, lambda j=j: self.pio[j.wiring["amp_enable"].board].set_line(j.net("amp_enable"), False))
+                step(j.name, partial(enable_low, j))
         step("watchdog line", self._stop_watchdog)
         self.last_dac_volts[:] = 0.0
         self.last_current_a[:] = 0.0

@@ -253,16 +253,17 @@ class CrossChecks:
         if flags is None or len(flags) != self.n or (not seen and not flags.any()):
             return None  # the healthy path: nothing flagged now or in the window
         window = max(1, int(self.config.encoder_illegal_window_ticks))
-        for i in np.flatnonzero(flags):
-            seen.setdefault(int(i), deque()).append(self._tick)
-        worst, most = None, 0
-        for i, ticks in list(seen.items()):
+        for flagged in np.flatnonzero(flags):
+            seen.setdefault(int(flagged), deque()).append(self._tick)
+        worst: int | None = None
+        most = 0
+        for joint, ticks in list(seen.items()):
             while ticks and ticks[0] <= self._tick - window:
                 ticks.popleft()
             if not ticks:
-                del seen[i]
+                del seen[joint]
             elif len(ticks) > most:
-                worst, most = i, len(ticks)
+                worst, most = joint, len(ticks)
         if worst is None or most < max(1, int(self.config.encoder_illegal_ticks)):
             return None
         return Trip("encoder_illegal", worst,

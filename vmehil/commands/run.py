@@ -189,8 +189,8 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
             after.begin()  # when armed() never got as far
             for a in attached:
                 a.close()
-        for e in list(after.held):
-            loop.note_interruption(e, "after")
+        for late in list(after.held):
+            loop.note_interruption(late, "after")
         return _finish(args, system, loop, runner, rig, attached, interrupted or runner.ended_by or loop.interrupted_by)
     finally:
         after.end()
