@@ -191,7 +191,12 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
                 a.close()
         for late in list(after.held):
             loop.note_interruption(late, "after")
-        return _finish(args, system, loop, runner, rig, attached, interrupted or runner.ended_by or loop.interrupted_by)
+        noted = len(after.held)
+        ended_by = interrupted or runner.ended_by or loop.interrupted_by
+        status = _finish(args, system, loop, runner, rig, attached, ended_by)
+        if len(after.held) > noted and status in (0, EXIT_FAULT):  # a signal while the results were written
+            status = interrupt_exit_status(after.held[noted])
+        return status
     finally:
         after.end()
 
