@@ -217,6 +217,8 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
                  comment="net x4 counts since the session's start, mod 2^32 (HasTotal): a receiver that "
                          "missed answers recovers their counts from it"),
             _bit("HasTotal", 208, "EncoderTotal is kept by the sender", C),
+            _sig("BootIdLow", 216, 8, minimum=0, maximum=255, receiver=C,
+                 comment="sender's boot id, low byte: a receiver takes its session's only"),
         ], senders=[P], is_fd=True, comment=f"Joint {j}: sensors at the end of the period."))
         msgs.append(Message(ID_TRUTH + j, f"TRUTH_J{j:02d}", 32, [
             _sig("ThetaJoint", 0, 64, is_float=True, unit="rad", receiver=C),

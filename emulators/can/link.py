@@ -23,7 +23,7 @@ into a safe stop in the same tick):
   one boot id other than the one that acknowledged our RESET, with nothing from that one between
   them → :class:`PlantRestartedError`. A single frame of another boot id proves nothing (a stray
   or corrupted frame, another session's node): it is dropped and counted
-  (``LinkCounters.other_boot``).
+  (``LinkCounters.other_boot``), as is a SENS frame whose ``BootIdLow`` is not our node's.
 * the node acknowledging another controller's RESET, or reporting another owner
   (``PLANT_SESSION``), after it acknowledged ours → :class:`SessionLostError` (a
   :class:`PlantRestartedError`: the plant is no longer ours).
@@ -252,6 +252,10 @@ class CanPlantLink(PlantLink):
         kind = f.kind
         if kind in ("PLANT_STATUS", "HEARTBEAT_PLANT") and not self._ours(int(f.raw["BootId"]), accept_new_boot):
             return  # another node's, or not a frame at all: it keeps nothing alive either
+        if kind == "SENS" and not accept_new_boot and self.peer_boot is not None \
+                and int(f.raw["BootIdLow"]) != self.peer_boot & 0xFF:
+            self.counters.other_boot += 1  # another node's values: never part of our answer
+            return
         if kind in ("SENS", "TRUTH", "PLANT_STATUS", "HEARTBEAT_PLANT"):
             self._last_peer = time.monotonic()
         if kind == "HEARTBEAT_PLANT":

@@ -8,6 +8,8 @@ interesting values — sent on a ``virtual`` unit bus before one proper round of
   the fuzzed frames; the plant is the in-process one of melmalec-16;
 * a unit's side (``UnitCanLink.exchange``): the coordinator's answer (SENS, UNIT_ANSWER) follows.
 
+SENS frames carry the low byte of their sender's boot id: only the session coordinator's count.
+
 Properties: no exception escapes the coordinator; the unit raises only a ``PlantLinkError`` (its
 reported safe stop), and only when a fuzzed frame carried the session's coordinator boot id. A
 frame with no session boot id stops nothing and is counted (``other_session``) when it is a
@@ -48,7 +50,8 @@ _chan = itertools.count()
 _PLANT = plant_link_for(SPEC, 0)  # one in-process plant for every example (its state moves on)
 
 _INTERESTING = {
-    "BootId": [COORD, FORGED, *UNIT_BOOTS.values()], "BootIdLow": [b & 0xFF for b in UNIT_BOOTS.values()],
+    "BootId": [COORD, FORGED, *UNIT_BOOTS.values()],
+    "BootIdLow": [COORD & 0xFF, *(b & 0xFF for b in UNIT_BOOTS.values())],
     "UnitBootId": [*UNIT_BOOTS.values(), FORGED], "Unit": [0, 1, 2, 4, 255], "Exchange": [0, 1, 2**32 - 1],
     "Seq": [0], "Left": [0, 1], "Stopped": [0, 1], "Stop": [0, 1, 2, 3, 8], "Cause": [1, 2, 3, 9, 10],
     "State": [1, 2],
@@ -135,11 +138,12 @@ def test_a_unit_stops_on_no_frame_of_another_session(ms):
             coordinator.endpoint.send(m)
         codec = coordinator.codec
         s = _answer(N)
-        coordinator.send_all(codec.sensor_frames(codec.sensors_raw(s), 0))
+        coordinator.send_all(codec.sensor_frames(codec.sensors_raw(s), 0, boot_id=COORD))
         coordinator.send("UNIT_ANSWER", Exchange=0, BootId=COORD)
         session = [f for f in _decoded(ms) if f.kind in ("UNIT_ANSWER", "UNIT_STOP") and int(f.raw["BootId"]) == COORD]
-        # SENS frames of its joints carry no boot id: they may make an answer incomplete, never a stop
-        sens_mine = [f for f in _decoded(ms) if f.kind == "SENS" and f.joint in unit.indices]
+        # SENS frames of its joints with the coordinator's low byte may make the answer incomplete
+        sens = [f for f in _decoded(ms) if f.kind == "SENS" and f.joint in unit.indices]
+        sens_mine = [f for f in sens if int(f.raw["BootIdLow"]) == COORD & 0xFF]
         try:
             got = link.exchange(PlantCommand.idle(len(unit.indices)), SPEC.period_s, SPEC.computation_delay_s)
         except PlantLinkError as e:
@@ -149,7 +153,9 @@ def test_a_unit_stops_on_no_frame_of_another_session(ms):
         if not session and not sens_mine:
             assert np.allclose(got.pot_v, 0.5, atol=1e-5) and link.stop_event is None
             others = [f for f in _decoded(ms) if f.kind in ("UNIT_ANSWER", "UNIT_STOP")
-                      or (f.kind == "UNIT_POS" and UNIT_BOOTS.get(int(f.raw["Unit"])) != int(f.raw["BootId"]))]
+                      or (f.kind == "UNIT_POS" and int(f.raw["Unit"]) in UNIT_BOOTS
+                          and UNIT_BOOTS[int(f.raw["Unit"])] != int(f.raw["BootId"]))]
+            others += [f for f in sens if f not in sens_mine]
             assert link.other_session == len(others)
     finally:
         bus.close()

@@ -20,8 +20,9 @@ naming its own boot id and, from then on, takes UNIT_ANSWER/UNIT_STOP only with 
 coordinator boot id and UNIT_POS only with the boot id its START gave that unit; the
 coordinator takes CMD/UNIT_SYNC/UNIT_TIMING only from the units it started. Frames of another
 session are dropped and counted (``other_session``). A refusal before the start names the
-refused unit's boot id (``UNIT_STOP.UnitBootId``). SENS/TRUTH carry none: they count only in an
-answer that a session UNIT_ANSWER completes. Two READY units with one name (two ``vmehil unit
+refused unit's boot id (``UNIT_STOP.UnitBootId``). SENS carries the coordinator's low byte
+(``BootIdLow``); TRUTH (ground truth for reports, never for the servo) carries none: it counts
+only in an answer that a session UNIT_ANSWER completes. Two READY units with one name (two ``vmehil unit
 --unit leg2``): the coordinator listens ``DUPLICATE_WINDOW_S`` past the last unit's first
 heartbeat, refuses both (``REFUSED_DUPLICATE``) and every other unit (``RUN_REFUSED``), and the
 run does not start.
@@ -205,7 +206,7 @@ class UnitCanLink(PlantLink):
         self.members = dict(members or {})
         #: frames of another session (another coordinator's, or a unit's the run did not start): dropped
         self.other_session = 0
-        self._early_pos: list[Frame] = []  # UNIT_POS of units whose UNIT_START was not heard yet
+        self._early_pos: dict[int, Frame] = {}  # UNIT_POS of units whose UNIT_START was not heard yet
         self.unit = unit
         self.number = number
         self.boot_id = boot_id
@@ -242,6 +243,8 @@ class UnitCanLink(PlantLink):
         this session's by its boot id; others' are dropped and counted (module docstring)."""
         if f.kind in ("UNIT_ANSWER", "UNIT_STOP"):
             ok = self.session_boot is None or int(f.raw["BootId"]) == self.session_boot
+        elif f.kind == "SENS":
+            ok = self.session_boot is None or int(f.raw["BootIdLow"]) == self.session_boot & 0xFF
         elif f.kind == "UNIT_POS":
             ok = not self.members or self.members.get(int(f.raw["Unit"])) == int(f.raw["BootId"])
         else:
@@ -263,10 +266,13 @@ class UnitCanLink(PlantLink):
         """A frame outside an answer: another unit's UNIT_START of this session (its boot id) or
         its UNIT_POS (kept for later when that unit's start has not been heard yet)."""
         if f.kind == "UNIT_START" and self.session_boot is not None and int(f.raw["BootId"]) == self.session_boot:
-            self.members[int(f.raw["Unit"])] = int(f.raw["UnitBootId"])
-            self._early_pos = [e for e in self._early_pos if not self.take_position(e)]
+            u = int(f.raw["Unit"])
+            self.members[u] = int(f.raw["UnitBootId"])
+            early = self._early_pos.pop(u, None)
+            if early is not None:
+                self.take_position(early)
         elif f.kind == "UNIT_POS" and not self.take_position(f):
-            self._early_pos.append(f)
+            self._early_pos[int(f.raw["Unit"])] = f  # the newest per unit number: bounded
 
     def exchange(self, cmd: PlantCommand, period_s: float, delay_s: float) -> PlantSensors:
         r = self.exchanges
@@ -292,7 +298,7 @@ class UnitCanLink(PlantLink):
                 self.dead = True
                 raise CoordinatorLostError(f"unit {self.unit.name}: no answer from the coordinator for exchange {r} "
                                            f"within {self.timeout_s:g} s")
-            if f.kind in ("UNIT_ANSWER", "UNIT_STOP") and not self.of_session(f):
+            if f.kind in ("UNIT_ANSWER", "UNIT_STOP", "SENS") and not self.of_session(f):
                 continue
             if f.kind == "SENS" and f.joint in mine and int(f.raw["Seq"]) == r & 0xFF:
                 sens[int(f.joint)] = f.raw
@@ -393,7 +399,7 @@ class UnitCanLink(PlantLink):
     def _take(self, f: Frame) -> None:
         """One frame of the free-running answer stream: an answer is complete at its UNIT_ANSWER
         when every joint of the unit has its SENS frame with that step's sequence number."""
-        if f.kind in ("UNIT_ANSWER", "UNIT_STOP") and not self.of_session(f):
+        if f.kind in ("UNIT_ANSWER", "UNIT_STOP", "SENS") and not self.of_session(f):
             return
         self._heard = time.monotonic()
         if f.kind == "SENS" and f.joint is not None:
@@ -683,7 +689,7 @@ class _Server:
             enabled = sensors.truth.get("amp_enabled")
             out.amps_on.append(int(np.count_nonzero(enabled)) if enabled is not None else -1)
             self.bus.send_all(codec.sensor_frames(codec.sensors_raw(sensors), r, truth=sensors.truth,
-                                                  totals=self.totals.add(sensors.encoder)))
+                                                  totals=self.totals.add(sensors.encoder), boot_id=self.boot_id))
         else:
             out.amps_on.append(-1)  # unknown: the plant did not answer
         stop = self.stop
