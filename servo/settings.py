@@ -85,7 +85,8 @@ WATCHDOG_JOINT_KEYS: dict[str, tuple[str, float]] = {
     "current_tolerance_fraction": ("current_tolerance_fraction", 1.0),
     "stale_travel_deg": ("stale_travel_rad", np.pi / 180.0),
 }
-WATCHDOG_RIG_INTS = ("velocity_window_ticks", "current_mismatch_ticks", "stale_ticks")
+WATCHDOG_RIG_INTS = ("velocity_window_ticks", "current_mismatch_ticks", "stale_ticks", "encoder_illegal_ticks",
+                     "encoder_illegal_window_ticks")
 WATCHDOG_RIG_FLOATS = ("position_tolerance_fraction", "velocity_tolerance_fraction")
 
 

@@ -13,13 +13,22 @@ for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402  (after the BLAS setting above)
+import signal  # noqa: E402
 import sys  # noqa: E402
 import traceback  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 
 from hal.config import ConfigError  # noqa: E402
 from hal.vme.errors import VmeError  # noqa: E402
-from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name, stop_signals_raise  # noqa: E402
+from servo.interrupts import (  # noqa: E402
+    DEFERRED_SIGNALS,
+    EXIT_SIGINT,
+    EXIT_SIGTERM,
+    Terminated,
+    interrupt_exit_status,
+    interrupt_name,
+    stop_signals_raise,
+)
 from vmehil.commands import calibrate, console, crate, plant_node, reproduce, run, tune, units, vision  # noqa: E402
 from vmehil.commands.errors import CliError  # noqa: E402
 from vmehil.exit_status import EXIT_BROKEN_PIPE, EXIT_UNEXPECTED, EXIT_USAGE  # noqa: E402
@@ -72,6 +81,7 @@ def _version() -> str:
 
 def main(argv: list[str] | None = None) -> int:
     # --debug is accepted anywhere on the line (before or after the subcommand)
+    process = argv is None  # the program itself, not a call from Python
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv or os.environ.get("VMEHIL_DEBUG", "") not in ("", "0")
     force = "--force" in argv  # overwrite output files that vmehil did not write (vmehil.outputs)
@@ -86,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         check_outputs(outputs, force=force)
         try:
             with stop_signals_raise():
-                return int(args.func(args.options(args)) or 0)
+                return _ending(int(args.func(args.options(args)) or 0), process)
         finally:
             mark_output_dirs(outputs)
     except (CliError, ConfigError, VmeError, FileNotFoundError, ValueError) as e:
@@ -103,10 +113,21 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(devnull, sys.stdout.fileno())
         return EXIT_BROKEN_PIPE
     except (KeyboardInterrupt, Terminated) as e:
+        status = _ending(interrupt_exit_status(e), process)
         print(f"vmehil {args.command}: interrupted ({interrupt_name(e)})", file=sys.stderr)
-        return interrupt_exit_status(e)
+        return status
     except Exception as e:
         return _unexpected(args.command, e, debug)
+
+
+def _ending(status: int, process: bool) -> int:
+    """A program ending by a signal (status 130/143, its stop done, its results written) ignores
+    further signals while it exits: a burst of them must not kill the interpreter's shutdown and
+    turn the exit status into a death by signal (docs/safe-stop.md, "A second signal")."""
+    if process and status in (EXIT_SIGINT, EXIT_SIGTERM):
+        for s in DEFERRED_SIGNALS:
+            signal.signal(s, signal.SIG_IGN)
+    return status
 
 
 def _unexpected(command: str, e: BaseException, debug: bool) -> int:

@@ -73,7 +73,9 @@ MATRIX: tuple[MatrixCase, ...] = (
     MatrixCase("encoder_glitch:joint=j1,counts=2000", "velocity_mismatch",
                "2000 extra counts (3.6°) in one period: the tach's reference speed jumps"),
     MatrixCase("encoder_glitch:joint=j1", NO_STOP,
-               "200 counts (0.36°) stay inside the encoder/pot tolerance: harmless, undetected"),
+               "200 counts (0.36°) stay inside the encoder/pot tolerance, one illegal sample: harmless"),
+    MatrixCase("encoder_glitch:joint=j1,counts=0,illegal=60000,intervals=150", "encoder_illegal",
+               "the decoder flags illegal transitions every period: counts are being lost"),
     MatrixCase("board_removed:board=adc0", "driver_error", "the next ADC scan ends in BERR"),
     MatrixCase("board_removed:board=dac0", "driver_error", "the next command write ends in BERR; the stop "
                "cannot confirm the DAC outputs (the enables are low)", readback="cannot be read back"),

@@ -61,7 +61,9 @@ def check_output_file(path: str | Path, flag: str, *, force: bool = False,
 
 def check_output_dir(path: str | Path, flag: str, *, force: bool = False) -> Path:
     """Check ``path`` before the command runs; nothing is created (a refused command leaves no
-    trace). :func:`mark_output_dirs` marks it as vmehil's once the command has written it."""
+    trace). Once every output is accepted, :func:`check_outputs` creates it and marks it as
+    vmehil's before the command writes anything: a command killed half-way leaves a directory
+    the next run (or ``tune sweep --resume``) accepts as its own."""
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise OutputPathError(f"{flag} {p}: exists and is not a directory; give a directory name")
@@ -95,13 +97,10 @@ class OutputPaths:
 
 
 def mark_output_dirs(outputs: OutputPaths) -> None:
-    """After a command: mark the output directories it wrote (checked as ours or new at start)."""
+    """After a command: mark the output directories it wrote again (made and marked at start by
+    :func:`check_outputs`; a command may have replaced their contents)."""
     for _flag, p in outputs.dirs:
-        if p.is_dir():
-            try:
-                (p / MARKER).touch()
-            except OSError:
-                pass
+        _mark(p)
 
 
 def _inside_any(p: Path, dirs: tuple[Path, ...]) -> bool:
@@ -116,6 +115,22 @@ def check_outputs(outputs: OutputPaths, *, force: bool = False) -> None:
         check_output_dir(p, flag, force=force)
     made_here = tuple(p for _flag, p in outputs.dirs if not p.exists())
     files = [check_output_file(p, flag, force=force, made_here=made_here) for flag, p in outputs.files]
-    for f in files:  # every check passed: nothing is created for a refused command
+    # every check passed (nothing is created for a refused command): the output directories are
+    # made and marked first, so that a command killed before its end (SIGKILL) leaves them ours
+    for _flag, p in outputs.dirs:
+        _mark(p, create=True)
+    for f in files:
         if not f.parent.is_dir():
             f.parent.mkdir(parents=True, exist_ok=True)
+
+
+def _mark(p: Path, *, create: bool = False) -> None:
+    """Put the marker in directory ``p`` (made first with ``create``); a failure here is left to
+    the command's own writes to report."""
+    try:
+        if create:
+            p.mkdir(parents=True, exist_ok=True)
+        if p.is_dir():
+            (p / MARKER).touch()
+    except OSError:
+        pass

@@ -15,7 +15,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
-from servo.interrupts import Terminated, interrupt_exit_status
+from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_exit_status
 from vmehil import can_options, fault_options, vision_options
 from vmehil.cli_types import duration_s, seed
 from vmehil.commands import console_port_needs_serial, refuse_without, run_units
@@ -127,7 +127,6 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
     from servo.motion import NO_MOTION, default_demo_motion, hold_motion, load_motion
     from servo.runner import LockstepRunner, RealtimeRunner
     from vmehil.progress import TickProgress
-    from vmehil.run_report import summarize, table, write_report
     from vmehil.session import build_loop
     from vmehil.system import build_emulated_rig
 
@@ -171,21 +170,44 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
     progress = TickProgress("run", quiet=opts.quiet)
     attached: list = []
     interrupted: BaseException | None = None
+    # Once the run ends, signals are held (recorded, not raised) until its results are written:
+    # a second Ctrl-C must not lose the JSON or the report. armed() begins this section before its
+    # final stop's own ends (docs/safe-stop.md, "A second signal").
+    after = SignalsDeferred()
     try:
-        # armed(): whatever ends the block (its end, an exception, Ctrl-C, SIGTERM) ends with the
-        # amplifiers disabled, 0 V on the DACs and PWM off, read back (loop.final_stop).
-        with loop.armed():
-            attached = [a for a in (ext.attach(opts, system, loop, runner, prepared.get(ext))
-                                    for ext in RUN_EXTENSIONS) if a is not None]
-            if not opts.quiet:
-                print(f"run: {n_ticks} ticks ({duration:g} s) on {rig.name}, amplifiers enabled", file=sys.stderr)
-            with progress:
-                runner.run(n_ticks, progress=progress if progress.enabled else None)
-    except (KeyboardInterrupt, Terminated) as e:  # between ticks' reach (set-up): still reported
-        interrupted = e
+        try:
+            # armed(): whatever ends the block (its end, an exception, Ctrl-C, SIGTERM) ends with the
+            # amplifiers disabled, 0 V on the DACs and PWM off, read back (loop.final_stop).
+            with loop.armed(then=after):
+                attached = [a for a in (ext.attach(opts, system, loop, runner, prepared.get(ext))
+                                        for ext in RUN_EXTENSIONS) if a is not None]
+                if not opts.quiet:
+                    print(f"run: {n_ticks} ticks ({duration:g} s) on {rig.name}, amplifiers enabled", file=sys.stderr)
+                with progress:
+                    runner.run(n_ticks, progress=progress if progress.enabled else None)
+        except INTERRUPTS as e:  # between ticks' reach (set-up), or held by a stop: still reported
+            interrupted = e
+        finally:
+            after.begin()  # when armed() never got as far
+            for a in attached:
+                a.close()
+        for late in list(after.held):
+            loop.note_interruption(late, "after")
+        noted = len(after.held)
+        ended_by = interrupted or runner.ended_by or loop.interrupted_by
+        status = _finish(opts, system, loop, runner, rig, attached, ended_by)
+        if len(after.held) > noted and status in (0, EXIT_FAULT):  # a signal while the results were written
+            status = interrupt_exit_status(after.held[noted])
+        return status
     finally:
-        for a in attached:
-            a.close()
+        after.end()
+
+
+def _finish(opts: RunOptions, system, loop, runner, rig, attached: list, ended_by: BaseException | None) -> int:
+    """Summary, table, JSON and report of a run that has ended; its exit status."""
+    from servo.runner import RealtimeRunner
+    from vmehil.run_report import summarize, table, write_report
+
     timing = runner.timing.summary(system.rig.period_s) if isinstance(runner, RealtimeRunner) else None
     summary = summarize(loop, rig=system.rig.name, seed=opts.seed, realtime=opts.realtime,
                         overruns=runner.overruns, timing=timing)
@@ -207,7 +229,7 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
         files = write_report(loop, summary, opts.report)
         print(f"report: {len(files)} files in {opts.report}")
     system.close()
-    return run_exit_status(loop, interrupted or runner.ended_by)
+    return run_exit_status(loop, ended_by)
 
 
 def run_exit_status(loop, ended_by: BaseException | None) -> int:
@@ -215,7 +237,9 @@ def run_exit_status(loop, ended_by: BaseException | None) -> int:
     confirm, 130/143 ended by SIGINT/SIGTERM, 1 a fault stopped the run, 0 it ran to the end."""
     if loop.stop_incomplete:
         return EXIT_STOP_INCOMPLETE
-    if isinstance(ended_by, KeyboardInterrupt | Terminated):
+    if ended_by is None:
+        ended_by = getattr(loop, "interrupted_by", None)  # a signal held by a stop or while writing
+    if isinstance(ended_by, INTERRUPTS):
         return interrupt_exit_status(ended_by)
     return EXIT_FAULT if loop.fault is not None else 0
 

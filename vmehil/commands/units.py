@@ -335,6 +335,9 @@ def run_coordinator_command(opts: CoordinatorOptions) -> int:
                                                             f"{stop.what}"), file=sys.stderr)
     for note in out.refused:
         print(f"coordinate: {note}", file=sys.stderr)
+    if out.other_session:
+        print(f"coordinate: {out.other_session} frames of another session dropped (boot ids the run did not "
+              "start with)", file=sys.stderr)
     figures = out.timing.figures(spec.period_s)
     if "compute_p50_ms" in figures:
         print(f"coordinate: steps: {timing_line(figures)}", file=sys.stderr)
@@ -348,6 +351,7 @@ def run_coordinator_command(opts: CoordinatorOptions) -> int:
             "stop": None if stop is None else {"unit": stop.unit, "exchange": stop.exchange, "what": stop.what},
             "events": [{"exchange": e.exchange, "unit": e.unit, "what": e.what} for e in out.events],
             "amps_on": out.amps_on, "refused": out.refused, "missing_cmd": out.missing_cmd,
+            "other_session": out.other_session,
             "timing": figures, "units": out.unit_timing,
             # --plant can: the link's counts (answers, stale, incomplete…), as the plant node's own
             "plant_link": dataclasses.asdict(link.counters) if link is not None else None})
