@@ -29,6 +29,7 @@ from servo.interrupts import (  # noqa: E402
     interrupt_name,
     stop_signals_raise,
 )
+from vmehil import cli_style  # noqa: E402
 from vmehil.commands import calibrate, console, crate, plant_node, reproduce, run, tune, units, vision  # noqa: E402
 from vmehil.commands.errors import CliError  # noqa: E402
 from vmehil.exit_status import EXIT_BROKEN_PIPE, EXIT_UNEXPECTED, EXIT_USAGE  # noqa: E402
@@ -54,7 +55,7 @@ COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = cli_style.VmehilArgumentParser(
         prog="vmehil",
         description="VME hardware-in-the-loop emulation, drivers and servo tools for robot joints.",
     )
@@ -67,6 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for register in COMMANDS:
         register(sub)
+    cli_style.apply(parser)
     return parser
 
 

@@ -72,6 +72,9 @@ class SimSettings:
     hold_s: float = 8.0
     settle_band_deg: float = 0.1
     allow_short: bool = False
+    #: the drivers' calibration (a :class:`~vmehil.calibration.store.CalibrationStore`, loaded once
+    #: by the command and shipped as data with each run); None: nominal values
+    calibration: Any = None
 
     def __post_init__(self) -> None:
         if self.motion not in MOTIONS:
@@ -169,7 +172,7 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
     rig = jp.spec if jp.spec is not None else jp.rig_path
     link = None if link_factory is None else link_factory(rig, s.seed)
     try:
-        system = build_emulated_rig(rig, seed=s.seed, link=link)
+        system = build_emulated_rig(rig, seed=s.seed, link=link, calibration=s.calibration)
     except BaseException:
         if link is not None:
             link.close()

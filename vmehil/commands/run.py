@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
@@ -19,6 +18,7 @@ from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_exit_status
 from vmehil import can_options, fault_options, vision_options
 from vmehil.cli_types import duration_s, seed
 from vmehil.commands import console_port_needs_serial, refuse_without, run_units
+from vmehil.commands.calibration_file import calibrated
 from vmehil.commands.run_options import RunOptions
 from vmehil.console import extension as console_extension
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
@@ -159,7 +159,7 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
         from vmehil.calibration.store import load_store_or_nominal
 
         # one file, the single run's loader and checks; each unit applies its own entries
-        store = _calibrated(opts.calibration, rig, lambda cal: load_store_or_nominal(cal, rig))
+        store = calibrated(opts.calibration, rig, lambda cal: load_store_or_nominal(cal, rig))
         faults = prepared.get(fault_options)
         return run_units.run_parallel(opts, rig, gains, motion, n_ticks, lambda: _make_link(opts, rig),
                                       calibration=store, faults=list(faults.faults) if faults is not None else [])
@@ -246,31 +246,8 @@ def run_exit_status(loop, ended_by: BaseException | None) -> int:
 
 def _build_calibrated(opts: RunOptions, rig, build):
     """Build the rig with the drivers' calibration file; a missing file is a one-line warning."""
-    return _calibrated(opts.calibration, rig,
+    return calibrated(opts.calibration, rig,
                        lambda cal: build(rig, seed=opts.seed, link=_make_link(opts, rig), calibration=cal))
-
-
-def _calibrated(calibration: str | None, rig, use):
-    """``use(path)`` with the drivers' calibration file (``calibration``: ``--calibration``, which must exist, or
-    None: the rig's default file); a missing default file is a one-line warning (nominal values)."""
-    import warnings
-
-    from vmehil.calibration.store import CalibrationMissingWarning, default_store_path
-
-    if calibration and not Path(calibration).exists():
-        raise FileNotFoundError(f"--calibration {calibration}: no such file")
-    cal = calibration or default_store_path(rig)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", CalibrationMissingWarning)
-        result = use(cal)
-    for w in caught:
-        if issubclass(w.category, CalibrationMissingWarning):
-            print(f"warning: {w.message}", file=sys.stderr)
-        else:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    if not caught:
-        print(f"calibration: {cal}", file=sys.stderr)
-    return result
 
 
 def _make_link(opts: RunOptions, rig):

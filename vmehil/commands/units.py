@@ -194,7 +194,7 @@ def run_unit_command(opts: UnitOptions) -> int:
     from emulators.plant_link import PlantLinkError
     from servo.runner import RealtimeRunner
     from vmehil.calibration.store import load_store_or_nominal
-    from vmehil.commands.run import _calibrated
+    from vmehil.commands.calibration_file import calibrated
     from vmehil.fault_injection import first_joint, first_tick, stop_report
     from vmehil.run_report import summarize
     from vmehil.units.processes import run_unit
@@ -208,7 +208,7 @@ def run_unit_command(opts: UnitOptions) -> int:
     except ValueError as e:
         print(f"vmehil unit {opts.unit}: {e}", file=sys.stderr)
         return EXIT_USAGE
-    store = _calibrated(opts.calibration, spec, lambda cal: load_store_or_nominal(cal, spec))
+    store = calibrated(opts.calibration, spec, lambda cal: load_store_or_nominal(cal, spec))
     bus = unit_bus(opts.bus.interface, opts.bus.channel, opts.bus.can_log)
     try:
         out = run_unit(spec, opts.unit, bus, timeout_s=opts.bus.unit_timeout_s,
