@@ -468,6 +468,14 @@ def stop_report(loop: Any, first_tick: int | None, joint: str | None = None) -> 
     if fault is not None:
         out["true_error_deg"] = float(err[k1, i])
     out["max_true_error_deg"] = float(np.nanmax(err[k0:k1 + 1, i]))
+    # how far the arm really went from where it was when the fault struck, to the stop (or the
+    # end): the largest true movement of any joint — what a fault costs, free of the pot's bow
+    # that the error against the target carries (≈ 1° uncalibrated)
+    moved = np.degrees(np.abs(rec["theta_true"][k0:k1 + 1] - rec["theta_true"][k0]))
+    if np.isfinite(moved).any():
+        worst = int(np.nanargmax(np.nanmax(moved, axis=0)))
+        out["movement_joint"] = loop.names[worst]
+        out["true_movement_deg"] = float(np.nanmax(moved[:, worst]))
     return out
 
 
