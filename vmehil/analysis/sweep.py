@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from hal.config import ConfigError, load_toml
+from hal.config import ConfigError, load_toml, read_limited
 from servo.control.errors import GainError, GainSyntaxError
 from servo.control.gains import GAIN_NAMES, Gains, gain_items
 from servo.gain_guard import check_values
@@ -81,8 +81,23 @@ class SweepInterrupted(Exception):
 # ------------------------------------------------------------------------- gain sets
 
 
-#: the most points one sweep runs (each is a full-stack simulation of seconds; 10⁵ is hours of work)
+#: the most points one sweep runs (each is a full-stack simulation of seconds; 10⁵ is hours of work):
+#: the grid's size, and the product gain sets × switch-off modes × tolerance samples
+#: (:func:`check_sweep_size`)
 MAX_GRID_POINTS = 100_000
+
+
+def check_sweep_size(gain_sets: int, modes: int = 1, samples: int = 1) -> int:
+    """The number of points of a sweep, refused (:class:`SweepError`, one line) beyond
+    :data:`MAX_GRID_POINTS` — checked on the product before any task is made, so that no factor
+    within its own limit makes the whole unbounded (10⁵ gain sets × 10⁵ samples was 10¹⁰ tasks)."""
+    total = gain_sets * modes * samples
+    if total > MAX_GRID_POINTS:
+        parts = [f"{gain_sets:,} gain sets"] + ([f"{modes} switch-off modes"] if modes > 1 else []) + \
+            ([f"{samples:,} samples"] if samples > 1 else [])
+        raise SweepError(f"the sweep has {' × '.join(parts)} = {total:,} points; at most {MAX_GRID_POINTS:,} "
+                         "are run in one sweep (each is a full-stack simulation): use fewer values or samples")
+    return total
 
 
 def _axis(name: str, text: str) -> list[float]:
@@ -154,7 +169,11 @@ def load_gains_file(path: str | Path, base: Gains[float]) -> list[dict[str, floa
             raise SweepError(f"{p}: expected [[gains]] tables with kp/kpi/kv/kvi ({e})") from None
         rows = [dict(t.data) for t in tables]
     else:
-        with p.open(newline="") as f:
+        try:
+            text = read_limited(p, what="a gains file").decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise SweepError(f"{p}: not a UTF-8 CSV file ({e})") from None
+        with io.StringIO(text, newline="") as f:
             reader = csv.DictReader(f)
             if not reader.fieldnames:
                 raise SweepError(f"{p}: empty CSV; the first line names the gains (kp,kpi,kv,kvi)")

@@ -41,6 +41,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from hal.config import read_limited
 from vmehil.cli_types import bounded_int, joint_number, nonzero_float, positive_float, seed
 from vmehil.commands import needs_extra
 from vmehil.files import write_atomic, write_json
@@ -428,6 +429,7 @@ def run_sweep(args: argparse.Namespace) -> int:
         BatchedWrites,
         SweepInterrupted,
         SweepTask,
+        check_sweep_size,
         evaluate_points,
         grid_points,
         load_gains_file,
@@ -502,11 +504,12 @@ def run_sweep(args: argparse.Namespace) -> int:
     # The rig travels as content (its text) with every task, so no worker reads this machine's disk.
     text = rig_text(jp.rig_path)
     n_samples = (args.samples or 20) if spreads else 1
+    modes = {"off": [False], "on": [True], "both": [False, True]}[args.switch_off]
+    check_sweep_size(len(points), len(modes), n_samples)  # before any sample is drawn or task made
     draws: list[dict[str, float]] = [{}]
     if spreads:
         draws = draw_samples(spreads, nominal_values(tomllib.loads(text), jp.joint, str(jp.rig_path)),
                              n_samples, args.seed)
-    modes = {"off": [False], "on": [True], "both": [False, True]}[args.switch_off]
     tasks: list[SweepTask] = []
     for g in points:
         for so in modes:
@@ -626,7 +629,8 @@ def _resumed_rows(json_path: Path, identity: dict[str, Any]) -> list[dict[str, A
         raise FileNotFoundError(f"--resume: {json_path} does not exist; resume names the folder of an earlier "
                                 "sweep (its --out)")
     try:
-        stored = json.loads(json_path.read_text(encoding="utf-8"))
+        # a sweep's JSON holds < 16 KiB a point; the bound keeps a wrong path (a device) from filling memory
+        stored = json.loads(read_limited(json_path, (1 << 20) + (16 << 10) * int(identity["points"]), "a sweep's JSON"))
     except ValueError as e:
         raise ValueError(f"--resume: {json_path} is not a sweep's JSON ({e})") from None
     theirs = stored.get("identity") if isinstance(stored, dict) else None

@@ -332,8 +332,12 @@ def start_motion(s: Session, moves: list[Any], what: str) -> Outcome:
     _require_idle(loop)
     start = hold_position(loop)
     ctx = _plan_context(loop)
-    duration = _dry_run(moves, start, ctx)
-    seq = Sequencer(list(moves), start, ctx)
+    seq = Sequencer(list(moves), start, ctx)  # plans every move ahead, once (servo.trajectory.sequencer)
+    planned = [float(t.duration) for t in seq.planned]
+    if seq.plan_error is None and len(planned) == len(moves) and all(map(math.isfinite, planned)):
+        duration = float(sum(planned))
+    else:  # a move that could not be planned ahead (its error), or an open one (vservo)
+        duration = _dry_run(moves, start, ctx)
     loop.set_motion(seq)
     loop.note(s.source, f"{what} ({duration:.3f} s)")
     return Outcome(ok=kv(duration_s=duration), until=lambda lp: lp.sequencer is not seq or seq.finished)

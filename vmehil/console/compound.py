@@ -50,6 +50,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Union
 
+from hal.config import ConfigError, read_limited
 from vmehil.console.commands import (
     ATOMS,
     FLOAT,
@@ -486,9 +487,10 @@ def load_compound_file(path: str | Path, *, n_joints: int | None = None, names: 
     """Read and parse a compound command file (UTF-8); motion files named by ``run`` are looked up
     relative to the working directory, then to the file's folder."""
     p = Path(path)
-    data = p.read_bytes()
-    if len(data) > MAX_FILE_BYTES:
-        raise CompoundError(str(p), 1, 1, f"file larger than {MAX_FILE_BYTES} bytes")
+    try:
+        data = read_limited(p, MAX_FILE_BYTES, "a compound command file")
+    except ConfigError:
+        raise CompoundError(str(p), 1, 1, f"file larger than {MAX_FILE_BYTES} bytes") from None
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as e:
