@@ -30,7 +30,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from vmehil.analysis.parallel import EngineError, task_stop
+from vmehil.analysis.parallel import EngineError, TaskFailed, task_stop
 
 RETRIES = 2  #: re-runs of a task that raised (a lost worker's tasks are re-scheduled by Dask anyway)
 STOP_POLL_S = 0.5  #: how often a running task asks the scheduler whether the sweep was interrupted
@@ -61,6 +61,28 @@ def code_identity() -> dict[str, str]:
     return {"version": ver, "source_sha256": h.hexdigest()}
 
 
+def _describe(e: BaseException) -> str:
+    """``Type: message`` of an exception, whatever its ``__str__`` does."""
+    try:
+        text = str(e)
+    except Exception:  # a broken __str__ of a worker's exception
+        text = "<message cannot be shown>"
+    return f"{type(e).__name__}: {text[:500]}" if text else type(e).__name__
+
+
+def call_with_plain_errors(fn: Callable[[Any], Any], item: Any) -> Any:
+    """``fn(item)`` on a worker; an exception it raises is sent to the client as an
+    :class:`EngineError` holding only its type and message as text — never the worker's exception
+    object, its cause or its context. An object that does not unpickle on the client as an
+    exception makes Dask's client handler (``clean_exception``) assert in its event loop: the
+    future never completes and the sweep waited forever (#30 item 12)."""
+    try:
+        return fn(item)
+    except Exception as e:
+        err = EngineError(f"the task raised {_describe(e)}")
+    raise err  # outside the handler: no __context__ to pickle
+
+
 def _identity_text(ident: dict[str, str]) -> str:
     return f"vmehil {ident['version']} (source {ident['source_sha256'][:12]})"
 
@@ -88,7 +110,7 @@ def _run_task(fn: Callable[[Any], Any], item: Any, stop_name: str, identity: dic
     if stop():
         return None
     with task_stop(stop):
-        return fn(item)
+        return call_with_plain_errors(fn, item)
 
 
 def _ignore_sigint() -> bool:
@@ -256,8 +278,13 @@ class DaskEngine:
         for f in self._completed.next_batch(block=False):
             if self._futures.pop(f.key, None) is None:  # reported already
                 continue
-            result = f.result()  # a task that failed after its retries raises here
-            out.append((self._position[f.key], result))
+            position = self._position[f.key]
+            try:
+                result = f.result()  # a task that failed after its retries raises here
+            except Exception as e:  # the batch's other results are still handed on (TaskFailed)
+                result = TaskFailed(EngineError(f"point {position} failed on its worker after {self.retries} "
+                                                f"retries ({_describe(e)})"))
+            out.append((position, result))
             f.release()
         return sorted(out, key=lambda pr: pr[0])
 

@@ -45,6 +45,18 @@ class EngineError(RuntimeError):
     """An engine could not start or refused its workers (e.g. a mixed-version cluster)."""
 
 
+class TaskFailed:
+    """What an engine's :meth:`Engine.completed` reports for a task that raised, in place of its
+    result, so that the other results of the same batch are not lost: :func:`run_parallel` hands
+    those on first, then raises ``error``."""
+
+    def __init__(self, error: BaseException) -> None:
+        self.error = error
+
+    def __repr__(self) -> str:
+        return f"TaskFailed({self.error!r})"
+
+
 def stop_requested() -> Callable[[], bool] | None:
     """In a :func:`run_parallel` task: a ``stop()`` poll for a runner (True once the parent was
     interrupted); None elsewhere."""
@@ -71,7 +83,8 @@ class Engine(Protocol):
     """Where :func:`run_parallel` runs its tasks. ``start`` submits every item; ``completed``
     waits up to ``timeout`` s and returns the ``(position, result)`` pairs finished since the last
     call (an engine may return a position twice, e.g. a retried task: :func:`run_parallel` keeps
-    the first); ``interrupt`` tells running tasks to stop (:func:`stop_requested`) and cancels the
+    the first; a task that raised is a :class:`TaskFailed`);
+    ``interrupt`` tells running tasks to stop (:func:`stop_requested`) and cancels the
     rest; ``close`` releases what the engine started."""
 
     name: str
@@ -114,7 +127,7 @@ class LocalEngine:
 
     def completed(self, timeout: float) -> list[tuple[int, Any]]:
         done, self._pending = wait(self._pending, timeout=timeout, return_when=FIRST_COMPLETED)
-        return [(self._futures[f], f.result()) for f in sorted(done, key=lambda f: self._futures[f])]
+        return [(self._futures[f], _outcome(f)) for f in sorted(done, key=lambda f: self._futures[f])]
 
     def interrupt(self) -> None:
         if self._stop_event is not None:
@@ -125,6 +138,12 @@ class LocalEngine:
     def close(self) -> None:
         if self._own and self._executor is not None:
             self._executor.shutdown(wait=True, cancel_futures=True)
+
+
+def _outcome(f: Future) -> Any:
+    """A finished future's result, or :class:`TaskFailed` with its exception."""
+    error = f.exception() if not f.cancelled() else None
+    return f.result() if error is None else TaskFailed(error)
 
 
 def run_parallel(fn: Callable[[Any], Any], items: list[Any], *, executor: Executor | None = None,
@@ -147,8 +166,9 @@ def run_parallel(fn: Callable[[Any], Any], items: list[Any], *, executor: Execut
     items (``tune limit-cycle``'s prediction beside its two runs); a SIGINT during it is acted on
     when it returns. ``on_idle()`` is called in the calling thread after every wait for results
     (at least every 0.1 s while tasks run), e.g. to write batched results. Any exception (from
-    ``meanwhile``, ``on_result`` or the engine) tells the running tasks to stop before it
-    propagates, so none runs on unattended.
+    ``meanwhile``, ``on_result``, a task or the engine) tells the running tasks to stop before it
+    propagates, so none runs on unattended; a task's exception or ``on_result``'s is raised after
+    every other result of the same batch was handed on (none finished is lost).
     """
     if engine is None:
         engine = LocalEngine(jobs=jobs, executor=executor)
@@ -165,14 +185,24 @@ def run_parallel(fn: Callable[[Any], Any], items: list[Any], *, executor: Execut
         if meanwhile is not None:
             meanwhile()
         while engine.pending() and not sigint.is_set():
+            errors: list[BaseException] = []
             for position, result in engine.completed(timeout=0.1):
+                if isinstance(result, TaskFailed):
+                    errors.append(result.error)
+                    continue
                 if position in done or not finished(result):
                     continue
+                try:
+                    if on_result is not None:
+                        on_result(position, result)
+                except Exception as e:  # refused: the rest of the batch is still handed on
+                    errors.append(e)
+                    continue
                 done[position] = result
-                if on_result is not None:
-                    on_result(position, result)
             if on_idle is not None:
                 on_idle()
+            if errors:
+                raise errors[0]
         if sigint.is_set():
             raise KeyboardInterrupt
     except KeyboardInterrupt:

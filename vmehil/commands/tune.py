@@ -582,6 +582,11 @@ def run_sweep(args: argparse.Namespace) -> int:
         print(f"vmehil tune sweep: interrupted; {len(e.rows)} of {len(tasks)} points kept in {csv_path} and "
               f"{json_path} (continue with --resume {out_dir})", file=sys.stderr)
         return 130
+    except EngineError as e:  # a refused result, a point that failed on a Dask worker: keep what finished
+        batch.flush()
+        print(f"vmehil tune sweep: {e}; the points that finished are kept in {csv_path} and {json_path} "
+              f"(--resume {out_dir} runs the rest)", file=sys.stderr)
+        return 1
     except BaseException:
         batch.flush()  # the rows computed before the error are kept
         raise
