@@ -10,6 +10,15 @@ simulation through its own safe stop. A worker that dies mid-task is Dask's busi
 scheduler hands its tasks to another worker; ``retries`` covers a task that raised (e.g. its
 worker was shutting down). The caller counts each position once.
 
+Connecting to a scheduler (:func:`check_address`, :func:`probe_scheduler`): the address is
+``tcp://HOST:PORT`` (or ``HOST:PORT``), or ``tls://`` with Dask's TLS settings in its config;
+Dask's own connect and handshake are tried first under one overall bound of
+:data:`CONNECT_TIMEOUT_S` — Dask bounds the TCP connect but not the handshake read after it, so a
+port that accepted and never answered hung the sweep (202 s), and one that answered garbage died
+in Dask's frame decoder (``MemoryError: Unable to allocate 3.07 EiB``); both are an
+:class:`~vmehil.analysis.parallel.EngineError` now, as is ``tls://`` without TLS settings (a
+``TypeError`` in Dask).
+
 A mixed cluster is refused: :func:`code_identity` (the installed vmehil version and a SHA-256 of
 the source of hal, emulators, servo and vmehil, so two development trees at the same version but
 different code are told apart too) is compared with every worker's on connection
@@ -59,6 +68,55 @@ def code_identity() -> dict[str, str]:
             h.update(f.read_bytes())
             h.update(b"\0")
     return {"version": ver, "source_sha256": h.hexdigest()}
+
+
+SCHEMES = ("tcp", "tls")  #: the scheduler addresses vmehil connects to
+
+
+def check_address(address: str) -> str:
+    """``address`` as Dask takes it (``HOST:PORT`` gets ``tcp://``); :class:`EngineError` for any
+    other protocol, and for ``tls://`` without Dask's TLS settings (its config's
+    ``distributed.comm.tls.*``: a CA file, the client's certificate and key)."""
+    scheme, sep, rest = address.partition("://")
+    if not sep:
+        scheme, rest = "tcp", address
+    if scheme not in SCHEMES or not rest:
+        raise EngineError(f"--scheduler {address!r}: give tcp://HOST:PORT (or tls://HOST:PORT with Dask's TLS "
+                          "settings); other Dask protocols are not used by vmehil")
+    if scheme == "tls":
+        from distributed.security import Security
+
+        if Security().get_connection_args("client").get("ssl_context") is None:
+            raise EngineError(f"--scheduler {address}: tls:// needs Dask's TLS settings (distributed.comm.tls.ca-file, "
+                              ".client.cert and .client.key in the Dask config, or the DASK_DISTRIBUTED__COMM__TLS__* "
+                              "variables); none are set")
+    return f"{scheme}://{rest}"
+
+
+def probe_scheduler(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> None:
+    """Dask's own connect and handshake to ``address`` (and close), bounded as a whole by
+    ``timeout_s``: :class:`EngineError` when nothing answers in time, the port is closed, or what
+    answers is no Dask scheduler (its bytes do not decode)."""
+    import asyncio
+
+    from distributed.comm import connect
+    from distributed.security import Security
+
+    args = Security().get_connection_args("client")
+
+    async def handshake() -> None:
+        comm = await asyncio.wait_for(connect(address, timeout=timeout_s, **args), timeout_s)
+        await comm.close()
+
+    try:
+        asyncio.run(handshake())
+    except TimeoutError:
+        raise EngineError(f"no Dask scheduler answered at {address} within {timeout_s:g} s (something accepted the "
+                          "connection but said nothing, or nothing accepted it)") from None
+    except OSError as e:
+        raise EngineError(f"could not reach the scheduler at {address}: {e}") from None
+    except (Exception, MemoryError) as e:  # Dask's decoder on bytes of another protocol
+        raise EngineError(f"what answers at {address} is not a Dask scheduler ({_describe(e)})") from None
 
 
 def _describe(e: BaseException) -> str:
@@ -201,8 +259,10 @@ class DaskEngine:
 
     name = "dask"
 
-    def __init__(self, scheduler: str | None = None, jobs: int | None = None, *, retries: int = RETRIES) -> None:
+    def __init__(self, scheduler: str | None = None, jobs: int | None = None, *, retries: int = RETRIES,
+                 connect_timeout_s: float = CONNECT_TIMEOUT_S) -> None:
         self.scheduler = scheduler
+        self.connect_timeout_s = connect_timeout_s
         self.jobs = jobs
         self.retries = retries
         self.client: Any = None
@@ -226,8 +286,10 @@ class DaskEngine:
                               "(make venv installs it)") from None
         try:
             if self.scheduler:
-                self.client = Client(self.scheduler, timeout=CONNECT_TIMEOUT_S)
-                self.client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
+                address = check_address(self.scheduler)
+                probe_scheduler(address, self.connect_timeout_s)
+                self.client = Client(address, timeout=self.connect_timeout_s)
+                self.client.wait_for_workers(1, timeout=self.connect_timeout_s)
                 warn_if_exposed(self.client, self.scheduler)
             else:
                 n = max(1, self.jobs or os.cpu_count() or 1)
