@@ -500,12 +500,13 @@ def load_compound_file(path: str | Path, *, n_joints: int | None = None, names: 
     return parse_compound(text, str(p), n_joints=n_joints, names=names, known=known, base_dir=p.parent)
 
 
-def prepare(name: str, bound: dict[str, Any], n_joints: int, names: list[str]) -> dict[str, Any]:
+def prepare(name: str, bound: dict[str, Any], n_joints: int, names: list[str], loop: Any = None) -> dict[str, Any]:
     """The off-loop phase of an atom sent on the console line; returns the arguments to run with.
     ``load`` reads and checks its compound file here (the atoms cannot import this language, which
-    is built on them); the others as :func:`vmehil.console.commands.prepare`."""
+    is built on them); the others as :func:`vmehil.console.commands.prepare` (``loop``: a motion
+    is planned off the loop too)."""
     if name != "load":
-        return prepare_atom(name, bound, n_joints, names)
+        return prepare_atom(name, bound, n_joints, names, loop)
     check_console_file(bound["file"], "compound command file")
     try:
         lib = load_compound_file(bound["file"], n_joints=n_joints, names=names)
