@@ -78,7 +78,7 @@ class Sequencer:
         for move in self.moves:
             try:
                 trajectory = move.build(position, self.ctx)
-            except Exception as e:
+            except Exception as e:  # raised again when the move starts (the loop's fault path, as before)
                 self.plan_error = e
                 return
             self.planned.append(trajectory)
