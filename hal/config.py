@@ -30,12 +30,34 @@ class ConfigError(ValueError):
         super().__init__(msg)
 
 
-def load_toml(path: str | Path) -> ConfigTable:
-    """Read a TOML file into a :class:`ConfigTable`; syntax errors name the file."""
+#: the largest configuration file read (rig, crate, calibration, fault scenario, gains list): a
+#: hand-written or generated one is a few kB; the bound keeps ``--faults /dev/zero`` from reading
+#: until memory runs out
+MAX_CONFIG_FILE_BYTES = 4 << 20
+
+
+def read_limited(path: str | Path, max_bytes: int = MAX_CONFIG_FILE_BYTES, what: str = "a file") -> bytes:
+    """The bytes of the input file ``path``, refused as a :class:`ConfigError` naming it when it
+    holds more than ``max_bytes`` (it is read at most one byte past the limit: a device or a pipe
+    that never ends is not read to the end) or is a directory. The one reader of every input file
+    (``FileNotFoundError`` and other ``OSError``s propagate for the caller to word)."""
     p = Path(path)
     try:
         with p.open("rb") as f:
-            data = tomllib.load(f)
+            data = f.read(max_bytes + 1)
+    except IsADirectoryError:
+        raise ConfigError(str(p), "", f"{what}, not a directory") from None
+    if len(data) > max_bytes:
+        raise ConfigError(str(p), "", f"{what} of at most {max_bytes:,} bytes (it holds more)")
+    return data
+
+
+def load_toml(path: str | Path, max_bytes: int = MAX_CONFIG_FILE_BYTES) -> ConfigTable:
+    """Read a TOML file (at most ``max_bytes``, :func:`read_limited`) into a :class:`ConfigTable`;
+    syntax errors name the file."""
+    p = Path(path)
+    try:
+        data = tomllib.loads(read_limited(p, max_bytes, "a TOML file").decode("utf-8"))
     except FileNotFoundError:
         raise ConfigError(str(p), "", "an existing TOML file (there is none)") from None
     except tomllib.TOMLDecodeError as e:

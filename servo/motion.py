@@ -16,6 +16,11 @@ Format (angles in degrees at this edge, or radians with the ``_rad`` keys)::
     via_deg = [[0, 10, 0, 0, 0, 0], [20, 0, 10, 0, 0, 0]]   # the last via is the target
     speed = 1.0
 
+Limits (docs/control.md): a file of at most :data:`MAX_MOTION_FILE_BYTES`, at most
+:data:`MAX_MOVES` moves, an LSPB move of at most :data:`servo.trajectory.lspb.MAX_VIA_POINTS`
+vias — so loading and planning a motion is bounded (a 74 MB file of 10⁶ moves took 107 s and
+1.5 GB to load).
+
 Move types are looked up in :data:`MOVE_TYPES`, a plain table of the built-in types (the
 visual-servo move ``"vservo"`` among them); a new type is a new entry there. A parser
 receives the move's :class:`hal.config.ConfigTable` (whose errors name the file and key, e.g.
@@ -34,9 +39,15 @@ import numpy as np
 from hal.config import ConfigError, ConfigTable, load_toml
 from hal.units import deg_to_rad
 from servo.trajectory import Lspb, MoveSpec, PlanContext, Quintic, Sequencer, Stay, Trajectory
+from servo.trajectory.lspb import MAX_VIA_POINTS
 from servo.vservo import parse_vservo
 
 MoveParser = Callable[[ConfigTable, int], MoveSpec]
+
+#: the largest motion file read (a hand-written one is a few kB; 1 MiB holds ~10 000 moves)
+MAX_MOTION_FILE_BYTES = 1 << 20
+#: the most moves in one motion
+MAX_MOVES = 10_000
 
 
 # ---- the built-in moves ------------------------------------------------------------------------------
@@ -115,6 +126,9 @@ def parse_lspb(cfg: ConfigTable, n: int) -> MoveSpec:
     raw = cfg.raw(key)
     if not isinstance(raw, list) or not raw:
         raise cfg.error(key, f"a non-empty list of points of {n} angles", raw)
+    if len(raw) > MAX_VIA_POINTS:
+        raise cfg.error(key, f"at most {MAX_VIA_POINTS} via points (split a longer path into several moves)",
+                        f"{len(raw)} points")
     vias = []
     for i, p in enumerate(raw):
         if (not isinstance(p, list) or len(p) != n
@@ -154,7 +168,10 @@ class Motion:
 def parse_motion(cfg: ConfigTable, n_joints: int) -> Motion:
     """Parse a motion table; :class:`hal.config.ConfigError` names the file and key on any problem."""
     moves: list[MoveSpec] = []
-    for mv in cfg.tables("move"):
+    tables = cfg.tables("move")
+    if len(tables) > MAX_MOVES:
+        raise cfg.error("move", f"at most {MAX_MOVES} moves", f"{len(tables)} moves")
+    for mv in tables:
         kind = mv.get_str("type", "quintic")
         if kind not in MOVE_TYPES:
             raise mv.error("type", "one of " + ", ".join(sorted(MOVE_TYPES)), kind)
@@ -167,8 +184,9 @@ def parse_motion(cfg: ConfigTable, n_joints: int) -> Motion:
 
 
 def load_motion(path: str | Path, n_joints: int) -> Motion:
-    """Read and parse a motion file for a rig with ``n_joints`` joints."""
-    return parse_motion(load_toml(path), n_joints)
+    """Read (at most :data:`MAX_MOTION_FILE_BYTES`) and parse a motion file for a rig with
+    ``n_joints`` joints."""
+    return parse_motion(load_toml(path, MAX_MOTION_FILE_BYTES), n_joints)
 
 
 #: the ``--motion`` value that means "no motion: hold the joints where they are"

@@ -1,14 +1,21 @@
 """Run a list of moves (quintic, LSPB, wait, …) one after the other.
 
 Each move is a :class:`MoveSpec`: something that, given the position where it starts and the
-planning context, builds a :class:`~servo.trajectory.base.Trajectory`. Moves are planned when they
-start (from the previous move's end target, so plans do not depend on measurement noise), and a
-move ends when its trajectory's ``duration`` has elapsed. After the last move the final target is
-held with ``done`` True.
+planning context, builds a :class:`~servo.trajectory.base.Trajectory`. Each move is planned from
+the previous move's end target (so plans do not depend on measurement noise), and a move ends when
+its trajectory's ``duration`` has elapsed. After the last move the final target is held with
+``done`` True.
+
+Moves are planned **ahead**, when the sequencer is made (before the loop runs the first of them),
+not in the tick that starts them: a plan takes time (an LSPB path of thousands of vias, tenths of a
+second) that a tick does not have. Planning ahead stops at a move whose end is not known until it
+has run (a ``vservo`` move: open duration) and at a move that cannot be planned now (its error is
+then raised when it starts, as before); the moves after such a one are planned when they start.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -60,6 +67,24 @@ class Sequencer:
         self._current: Trajectory = Stay(np.asarray(start, float), 0.0)
         self._last_t = -np.inf
         self.finished = not self.moves
+        #: the trajectories of moves 0, 1, … planned ahead (see the module docstring)
+        self.planned: list[Trajectory] = []
+        #: why planning ahead stopped before the last move (None: every move planned, or an open one)
+        self.plan_error: Exception | None = None
+        self._plan_ahead(np.asarray(start, float))
+
+    def _plan_ahead(self, start: np.ndarray) -> None:
+        position = start
+        for move in self.moves:
+            try:
+                trajectory = move.build(position, self.ctx)
+            except Exception as e:  # raised again when the move starts (the loop's fault path, as before)
+                self.plan_error = e
+                return
+            self.planned.append(trajectory)
+            if not math.isfinite(trajectory.duration):  # open (vservo): its end is not known yet
+                return
+            position = trajectory.end
 
     @property
     def current(self) -> Trajectory:
@@ -73,7 +98,8 @@ class Sequencer:
             self.finished = True
             return
         move = self.moves[self.index]
-        self._current = move.build(start, self.ctx)
+        planned = self.planned[self.index] if self.index < len(self.planned) else None
+        self._current = planned if planned is not None else move.build(start, self.ctx)
         self._t0 = t_start
         self.motion_id += 1
         self.records.append(MoveRecord(self.index, move.kind, t_start, float(self._current.duration)))

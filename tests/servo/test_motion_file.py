@@ -123,3 +123,30 @@ def test_a_new_move_type_is_an_entry_in_the_move_table(tmp_path, monkeypatch):
     monkeypatch.setitem(motion.MOVE_TYPES, "park", parse_park)
     m = load_motion(write(tmp_path, '[[move]]\ntype = "park"\nduration_s = 2\n'), 2)
     assert isinstance(m.moves[0], Park) and m.moves[0].dur == 2.0
+
+
+def test_an_lspb_move_of_more_than_10000_vias_is_refused_naming_the_key() -> None:
+    from hal.config import ConfigTable
+    from servo.motion import parse_motion
+
+    vias = [[float(k % 2)] for k in range(10_001)]
+    with pytest.raises(ConfigError, match=r"move\[0\]\.via_rad.*at most 10000 via points"):
+        parse_motion(ConfigTable({"move": [{"type": "lspb", "via_rad": vias}]}, "m.toml"), 1)
+    motion = parse_motion(ConfigTable({"move": [{"type": "lspb", "via_rad": vias[:10_000]}]}, "m.toml"), 1)
+    assert len(motion.moves[0].vias) == 10_000
+
+
+def test_a_motion_of_more_than_10000_moves_is_refused() -> None:
+    from hal.config import ConfigTable
+    from servo.motion import parse_motion
+
+    table = {"move": [{"type": "wait", "duration_s": 0.0} for _ in range(10_001)]}
+    with pytest.raises(ConfigError, match="at most 10000 moves"):
+        parse_motion(ConfigTable(table, "m.toml"), 1)
+
+
+def test_a_motion_file_over_1_mib_is_refused_before_it_is_parsed(tmp_path) -> None:
+    f = tmp_path / "big.toml"
+    f.write_text("# " + "x" * (1 << 20) + "\n[[move]]\ntype = \"wait\"\nduration_s = 1\n")
+    with pytest.raises(ConfigError, match="at most 1,048,576 bytes"):
+        load_motion(f, 1)

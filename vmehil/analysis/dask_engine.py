@@ -10,6 +10,15 @@ simulation through its own safe stop. A worker that dies mid-task is Dask's busi
 scheduler hands its tasks to another worker; ``retries`` covers a task that raised (e.g. its
 worker was shutting down). The caller counts each position once.
 
+Connecting to a scheduler (:func:`check_address`, :func:`probe_scheduler`): the address is
+``tcp://HOST:PORT`` (or ``HOST:PORT``), or ``tls://`` with Dask's TLS settings in its config;
+Dask's own connect and handshake are tried first under one overall bound of
+:data:`CONNECT_TIMEOUT_S` — Dask bounds the TCP connect but not the handshake read after it, so a
+port that accepted and never answered hung the sweep (202 s), and one that answered garbage died
+in Dask's frame decoder (``MemoryError: Unable to allocate 3.07 EiB``); both are an
+:class:`~vmehil.analysis.parallel.EngineError` now, as is ``tls://`` without TLS settings (a
+``TypeError`` in Dask).
+
 A mixed cluster is refused: :func:`code_identity` (the installed vmehil version and a SHA-256 of
 the source of hal, emulators, servo and vmehil, so two development trees at the same version but
 different code are told apart too) is compared with every worker's on connection
@@ -30,7 +39,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from vmehil.analysis.parallel import EngineError, task_stop
+from vmehil.analysis.parallel import EngineError, TaskFailed, task_stop
 
 RETRIES = 2  #: re-runs of a task that raised (a lost worker's tasks are re-scheduled by Dask anyway)
 STOP_POLL_S = 0.5  #: how often a running task asks the scheduler whether the sweep was interrupted
@@ -61,6 +70,77 @@ def code_identity() -> dict[str, str]:
     return {"version": ver, "source_sha256": h.hexdigest()}
 
 
+SCHEMES = ("tcp", "tls")  #: the scheduler addresses vmehil connects to
+
+
+def check_address(address: str) -> str:
+    """``address`` as Dask takes it (``HOST:PORT`` gets ``tcp://``); :class:`EngineError` for any
+    other protocol, and for ``tls://`` without Dask's TLS settings (its config's
+    ``distributed.comm.tls.*``: a CA file, the client's certificate and key)."""
+    scheme, sep, rest = address.partition("://")
+    if not sep:
+        scheme, rest = "tcp", address
+    if scheme not in SCHEMES or not rest:
+        raise EngineError(f"--scheduler {address!r}: give tcp://HOST:PORT (or tls://HOST:PORT with Dask's TLS "
+                          "settings); other Dask protocols are not used by vmehil")
+    if scheme == "tls":
+        from distributed.security import Security
+
+        if Security().get_connection_args("client").get("ssl_context") is None:
+            raise EngineError(f"--scheduler {address}: tls:// needs Dask's TLS settings (distributed.comm.tls.ca-file, "
+                              ".client.cert and .client.key in the Dask config, or the DASK_DISTRIBUTED__COMM__TLS__* "
+                              "variables); none are set")
+    return f"{scheme}://{rest}"
+
+
+def probe_scheduler(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> None:
+    """Dask's own connect and handshake to ``address`` (and close), bounded as a whole by
+    ``timeout_s``: :class:`EngineError` when nothing answers in time, the port is closed, or what
+    answers is no Dask scheduler (its bytes do not decode)."""
+    import asyncio
+
+    from distributed.comm import connect
+    from distributed.security import Security
+
+    args = Security().get_connection_args("client")
+
+    async def handshake() -> None:
+        comm = await asyncio.wait_for(connect(address, timeout=timeout_s, **args), timeout_s)
+        await comm.close()
+
+    try:
+        asyncio.run(handshake())
+    except TimeoutError:
+        raise EngineError(f"no Dask scheduler answered at {address} within {timeout_s:g} s (something accepted the "
+                          "connection but said nothing, or nothing accepted it)") from None
+    except OSError as e:
+        raise EngineError(f"could not reach the scheduler at {address}: {e}") from None
+    except (Exception, MemoryError) as e:  # Dask's decoder on bytes of another protocol
+        raise EngineError(f"what answers at {address} is not a Dask scheduler ({_describe(e)})") from None
+
+
+def _describe(e: BaseException) -> str:
+    """``Type: message`` of an exception, whatever its ``__str__`` does."""
+    try:
+        text = str(e)
+    except Exception:  # a broken __str__ of a worker's exception
+        text = "<message cannot be shown>"
+    return f"{type(e).__name__}: {text[:500]}" if text else type(e).__name__
+
+
+def call_with_plain_errors(fn: Callable[[Any], Any], item: Any) -> Any:
+    """``fn(item)`` on a worker; an exception it raises is sent to the client as an
+    :class:`EngineError` holding only its type and message as text — never the worker's exception
+    object, its cause or its context. An object that does not unpickle on the client as an
+    exception makes Dask's client handler (``clean_exception``) assert in its event loop: the
+    future never completes and the sweep waited forever (#30 item 12)."""
+    try:
+        return fn(item)
+    except Exception as e:
+        err = EngineError(f"the task raised {_describe(e)}")
+    raise err  # outside the handler: no __context__ to pickle
+
+
 def _identity_text(ident: dict[str, str]) -> str:
     return f"vmehil {ident['version']} (source {ident['source_sha256'][:12]})"
 
@@ -88,7 +168,7 @@ def _run_task(fn: Callable[[Any], Any], item: Any, stop_name: str, identity: dic
     if stop():
         return None
     with task_stop(stop):
-        return fn(item)
+        return call_with_plain_errors(fn, item)
 
 
 def _ignore_sigint() -> bool:
@@ -179,8 +259,10 @@ class DaskEngine:
 
     name = "dask"
 
-    def __init__(self, scheduler: str | None = None, jobs: int | None = None, *, retries: int = RETRIES) -> None:
+    def __init__(self, scheduler: str | None = None, jobs: int | None = None, *, retries: int = RETRIES,
+                 connect_timeout_s: float = CONNECT_TIMEOUT_S) -> None:
         self.scheduler = scheduler
+        self.connect_timeout_s = connect_timeout_s
         self.jobs = jobs
         self.retries = retries
         self.client: Any = None
@@ -204,8 +286,10 @@ class DaskEngine:
                               "(make venv installs it)") from None
         try:
             if self.scheduler:
-                self.client = Client(self.scheduler, timeout=CONNECT_TIMEOUT_S)
-                self.client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
+                address = check_address(self.scheduler)
+                probe_scheduler(address, self.connect_timeout_s)
+                self.client = Client(address, timeout=self.connect_timeout_s)
+                self.client.wait_for_workers(1, timeout=self.connect_timeout_s)
                 warn_if_exposed(self.client, self.scheduler)
             else:
                 n = max(1, self.jobs or os.cpu_count() or 1)
@@ -256,8 +340,13 @@ class DaskEngine:
         for f in self._completed.next_batch(block=False):
             if self._futures.pop(f.key, None) is None:  # reported already
                 continue
-            result = f.result()  # a task that failed after its retries raises here
-            out.append((self._position[f.key], result))
+            position = self._position[f.key]
+            try:
+                result = f.result()  # a task that failed after its retries raises here
+            except Exception as e:  # the batch's other results are still handed on (TaskFailed)
+                result = TaskFailed(EngineError(f"point {position} failed on its worker after {self.retries} "
+                                                f"retries ({_describe(e)})"))
+            out.append((position, result))
             f.release()
         return sorted(out, key=lambda pr: pr[0])
 

@@ -47,13 +47,13 @@ from typing import Any
 
 import numpy as np
 
-from hal.config import ConfigError, ConfigTable, load_toml
+from hal.config import ConfigError, ConfigTable, load_toml, read_limited
 from servo.control.errors import GainError, GainSyntaxError
 from servo.control.gains import GAIN_NAMES, Gains, gain_items
 from servo.gain_guard import check_values
 from servo.rig import RigSpec, rig_from_table
 from servo.settings import ServoSettings
-from vmehil.analysis.parallel import Engine, ParallelInterrupted, run_parallel, stop_requested
+from vmehil.analysis.parallel import Engine, EngineError, ParallelInterrupted, run_parallel, stop_requested
 from vmehil.analysis.simulate import SimSettings
 
 DEFAULT_GRID = "kp=80:140:3,kvi=600:1400:3"  #: 9 points: about 40 s on 2 busy cores
@@ -71,6 +71,11 @@ class SweepError(ValueError):
     """A malformed grid or gains file."""
 
 
+class SweepResultError(EngineError):
+    """A worker's result is not a row of this sweep (:func:`check_row`): refused, the sweep stops,
+    the rows that finished before it are kept."""
+
+
 class SweepInterrupted(Exception):
     """The sweep was interrupted; ``rows`` holds the points that finished."""
 
@@ -82,8 +87,23 @@ class SweepInterrupted(Exception):
 # ------------------------------------------------------------------------- gain sets
 
 
-#: the most points one sweep runs (each is a full-stack simulation of seconds; 10⁵ is hours of work)
+#: the most points one sweep runs (each is a full-stack simulation of seconds; 10⁵ is hours of work):
+#: the grid's size, and the product gain sets × switch-off modes × tolerance samples
+#: (:func:`check_sweep_size`)
 MAX_GRID_POINTS = 100_000
+
+
+def check_sweep_size(gain_sets: int, modes: int = 1, samples: int = 1) -> int:
+    """The number of points of a sweep, refused (:class:`SweepError`, one line) beyond
+    :data:`MAX_GRID_POINTS` — checked on the product before any task is made, so that no factor
+    within its own limit makes the whole unbounded (10⁵ gain sets × 10⁵ samples was 10¹⁰ tasks)."""
+    total = gain_sets * modes * samples
+    if total > MAX_GRID_POINTS:
+        parts = [f"{gain_sets:,} gain sets"] + ([f"{modes} switch-off modes"] if modes > 1 else []) + \
+            ([f"{samples:,} samples"] if samples > 1 else [])
+        raise SweepError(f"the sweep has {' × '.join(parts)} = {total:,} points; at most {MAX_GRID_POINTS:,} "
+                         "are run in one sweep (each is a full-stack simulation): use fewer values or samples")
+    return total
 
 
 def _axis(name: str, text: str) -> list[float]:
@@ -155,7 +175,11 @@ def load_gains_file(path: str | Path, base: Gains[float]) -> list[dict[str, floa
             raise SweepError(f"{p}: expected [[gains]] tables with kp/kpi/kv/kvi ({e})") from None
         rows = [dict(t.data) for t in tables]
     else:
-        with p.open(newline="") as f:
+        try:
+            text = read_limited(p, what="a gains file").decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise SweepError(f"{p}: not a UTF-8 CSV file ({e})") from None
+        with io.StringIO(text, newline="") as f:
             reader = csv.DictReader(f)
             if not reader.fieldnames:
                 raise SweepError(f"{p}: empty CSV; the first line names the gains (kp,kpi,kv,kvi)")
@@ -300,6 +324,68 @@ def _evaluate(task: SweepTask) -> dict[str, Any]:
     return {k: row.get(k) for k in columns}
 
 
+# ------------------------------------------------------------------------ its result
+
+_TEXT_COLUMNS = frozenset({"status", "unstable_reason", "fault"})
+_BOOL_COLUMNS = frozenset({"stable", "sampled_stable"})
+#: measured columns that cannot be negative (amplitudes, frequencies, errors as magnitudes, times)
+_NON_NEGATIVE = frozenset({"crossover_hz", "bandwidth_hz", "lc_amplitude_deg", "lc_frequency_hz",
+                           "lc_amplitude_pot_deg", "rms_tracking_error_deg", "max_tracking_error_deg",
+                           "max_tracking_error_true_deg", "settling_time_s", "wall_s"})
+MAX_TEXT_CHARS = 1000  #: the longest status, reason or fault text a row may carry
+
+
+def check_row(row: Any, task: SweepTask) -> dict[str, Any]:
+    """``row`` if it is the row :func:`evaluate_point` makes for ``task``, else
+    :class:`SweepResultError` saying why: a dict of exactly the task's columns; its ``index``,
+    gains, ``switch_off``, ``sample`` and plant values those of the task (so a row is never
+    counted for another point, and a worker cannot put values in the sweep that it was not asked
+    for); ``status`` a text; every measured value ``None`` or a finite number (the margins are
+    ``None`` where a margin does not exist, never NaN or ∞), the magnitudes ≥ 0. A worker runs the
+    same code (the identity check), but its process is not ours: a preload or a broken worker can
+    rewrite what it sends."""
+    def refuse(why: str) -> SweepResultError:
+        return SweepResultError(f"the result for point {task.index} was refused: {why}")
+
+    if not isinstance(row, dict):
+        raise refuse(f"not a row but a {type(row).__name__}")
+    columns = task_columns(task)
+    if set(row) != set(columns):
+        missing, extra = sorted(set(columns) - set(row)), sorted(map(str, set(row) - set(columns)))
+        raise refuse("columns " + "; ".join(x for x in (missing and f"missing {', '.join(missing)}",
+                                                        extra and f"unknown {', '.join(extra)}") if x))
+    from vmehil.analysis.tolerance import PARAMETERS
+
+    expected: dict[str, Any] = {"index": task.index, **{k: float(task.gains[k]) for k in GAIN_NAMES},
+                                "switch_off": task.switch_off, "sample": task.sample,
+                                **{PARAMETERS[k].column: float(v) for k, v in task.plant.items()}}
+    for k, want in expected.items():
+        got = row[k]
+        if type(got) is not type(want) or got != want:
+            raise refuse(f"{k} = {got!r}, but the point has {want!r}")
+    for k in columns:
+        if k in expected:
+            continue
+        v = row[k]
+        if k in _TEXT_COLUMNS:
+            if not (isinstance(v, str) or (v is None and k != "status")) or (v is not None and len(v) > MAX_TEXT_CHARS):
+                raise refuse(f"{k} = {_short(v)} is not a text")
+        elif k in _BOOL_COLUMNS:
+            if not (v is None or isinstance(v, bool)):
+                raise refuse(f"{k} = {_short(v)} is not true/false")
+        elif v is not None:
+            if not (isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)):
+                raise refuse(f"{k} = {_short(v)} is not a finite number")
+            if k in _NON_NEGATIVE and v < 0:
+                raise refuse(f"{k} = {v!r} is negative")
+    return row
+
+
+def _short(v: Any) -> str:
+    text = repr(v)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
 # --------------------------------------------------------------------------- running
 
 
@@ -315,7 +401,9 @@ def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None,
     of the rows handed on. ``on_result(row, rows_so_far)`` is called in the calling thread as each
     point completes, once per index; ``on_idle()`` at least every 0.1 s while points run
     (:func:`run_parallel`). A ``KeyboardInterrupt`` (SIGINT) stops the workers, cancels
-    the rest and raises :class:`SweepInterrupted` with the finished rows.
+    the rest and raises :class:`SweepInterrupted` with the finished rows. Every result is checked
+    (:func:`check_row`) against the task it was computed for: a refused one stops the sweep with
+    :class:`SweepResultError`, after every good row of the same batch was handed on.
     """
     by_index: dict[int, dict[str, Any]] = {r["index"]: r for r in done}
     todo = [t for t in tasks if t.index not in by_index]
@@ -323,7 +411,8 @@ def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None,
     def rows() -> list[dict[str, Any]]:
         return [by_index[i] for i in sorted(by_index)]
 
-    def got(_position: int, row: dict[str, Any]) -> None:
+    def got(position: int, row: Any) -> None:
+        row = check_row(row, todo[position])  # the row of that point, and sane values
         if row["index"] in by_index:  # a point is counted once, whatever the engine reports
             return
         by_index[row["index"]] = row
@@ -332,10 +421,16 @@ def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None,
 
     try:
         run_parallel(evaluate_point, todo, executor=executor, jobs=jobs, engine=engine, on_result=got,
-                     finished=lambda row: row is not None and row["status"] != "interrupted", on_idle=on_idle)
+                     finished=_finished, on_idle=on_idle)
     except ParallelInterrupted:
         raise SweepInterrupted(rows()) from None
     return rows()
+
+
+def _finished(row: Any) -> bool:
+    """Not cut short by an interruption (``None``: never started; an ``interrupted`` row). Anything
+    else is a result, checked by :func:`check_row`."""
+    return row is not None and not (isinstance(row, dict) and row.get("status") == "interrupted")
 
 
 # ------------------------------------------------------------------------------ files

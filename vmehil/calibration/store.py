@@ -54,6 +54,7 @@ import tomli_w
 from hal.adc_dac.adc_regs import ADC_BOARD_ID, ADC_CHANNELS
 from hal.adc_dac.calibration import Calibration, CalibrationError
 from hal.adc_dac.dac_regs import DAC_BOARD_ID, DAC_CHANNELS
+from hal.config import ConfigError, read_limited
 from servo.rig import RigSpec
 from vmehil.files import PREVIOUS_SUFFIX, write_atomic_keeping_previous
 
@@ -263,7 +264,10 @@ def load_store(path: str | Path, rig: RigSpec, *, bus: Any = None) -> Calibratio
         CalibrationFileError: anything else; the message says why and what to do.
     """
     p = Path(path)
-    raw = p.read_bytes()
+    try:
+        raw = read_limited(p, what="a calibration file")
+    except ConfigError as e:
+        raise CalibrationFileError(p, e.expected) from None
     try:
         data = tomllib.loads(raw.decode("utf-8"))
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as e:

@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from hal.config import read_limited
 from servo.control.gains import parse_gains
 from vmehil.can_options import CanPlantOptions
 from vmehil.cli_types import bounded_int, joint_number, nonzero_float, positive_float, seed
@@ -502,6 +503,7 @@ def run_sweep(opts: TuneOptions) -> int:
         BatchedWrites,
         SweepInterrupted,
         SweepTask,
+        check_sweep_size,
         evaluate_points,
         grid_points,
         load_gains_file,
@@ -578,11 +580,12 @@ def run_sweep(opts: TuneOptions) -> int:
     # no worker reads this machine's disk, nothing is parsed again per point.
     text = rig_text(jp.rig_path)
     n_samples = (opts.samples or 20) if spreads else 1
+    modes = {"off": [False], "on": [True], "both": [False, True]}[opts.switch_off]
+    check_sweep_size(len(points), len(modes), n_samples)  # before any sample is drawn or task made
     draws: list[dict[str, float]] = [{}]
     if spreads:
         draws = draw_samples(spreads, nominal_values(tomllib.loads(text), jp.joint, str(jp.rig_path)),
                              n_samples, opts.seed)
-    modes = {"off": [False], "on": [True], "both": [False, True]}[opts.switch_off]
     rigs = [task_rig(text, jp.rig_path, jp.joint, plant) for plant in draws]
     tasks: list[SweepTask] = []
     for g in points:
@@ -656,6 +659,11 @@ def run_sweep(opts: TuneOptions) -> int:
         print(f"vmehil tune sweep: interrupted; {len(e.rows)} of {len(tasks)} points kept in {csv_path} and "
               f"{json_path} (continue with --resume {out_dir})", file=sys.stderr)
         return 130
+    except EngineError as e:  # a refused result, a point that failed on a Dask worker: keep what finished
+        batch.flush()
+        print(f"vmehil tune sweep: {e}; the points that finished are kept in {csv_path} and {json_path} "
+              f"(--resume {out_dir} runs the rest)", file=sys.stderr)
+        return 1
     except BaseException:
         batch.flush()  # the rows computed before the error are kept
         raise
@@ -705,7 +713,8 @@ def _resumed_rows(json_path: Path, identity: dict[str, Any]) -> list[dict[str, A
         raise FileNotFoundError(f"--resume: {json_path} does not exist; resume names the folder of an earlier "
                                 "sweep (its --out)")
     try:
-        stored = json.loads(json_path.read_text(encoding="utf-8"))
+        # a sweep's JSON holds < 16 KiB a point; the bound keeps a wrong path (a device) from filling memory
+        stored = json.loads(read_limited(json_path, (1 << 20) + (16 << 10) * int(identity["points"]), "a sweep's JSON"))
     except ValueError as e:
         raise ValueError(f"--resume: {json_path} is not a sweep's JSON ({e})") from None
     theirs = stored.get("identity") if isinstance(stored, dict) else None

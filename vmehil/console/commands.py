@@ -323,8 +323,32 @@ def _dry_run(moves: list[Any], start: np.ndarray, ctx: Any) -> float:
     return float(seq.total_duration or 0.0)
 
 
-def start_motion(s: Session, moves: list[Any], what: str) -> Outcome:
-    """Start ``moves`` from the present target at this tick; complete when they have all ended."""
+def plan_off_loop(moves: list[Any], loop: Any) -> Any:
+    """In the preparer thread: a :class:`~servo.trajectory.Sequencer` of ``moves`` planned from
+    where the loop holds now — a guess, read beside the running loop; :func:`start_motion` takes it
+    only when the loop still holds exactly there with the same limits, else plans again. So a long
+    path (thousands of LSPB vias, tenths of a second) is planned off the loop's thread. ``None``
+    when the guess cannot be made."""
+    from servo.trajectory import Sequencer
+
+    try:
+        return Sequencer(list(moves), hold_position(loop), _plan_context(loop))
+    except Exception:  # a torn read of the running loop's state: plan in start_motion instead
+        return None
+
+
+def _same_limits(a: Any, b: Any) -> bool:
+    if a is b:
+        return True
+    if (a.a_max is None) != (b.a_max is None):
+        return False
+    return bool(np.array_equal(a.v_max, b.v_max) and (a.a_max is None or np.array_equal(a.a_max, b.a_max)))
+
+
+def start_motion(s: Session, moves: list[Any], what: str, planned: Any = None) -> Outcome:
+    """Start ``moves`` from the present target at this tick; complete when they have all ended.
+    ``planned``: the same moves planned off the loop (:func:`plan_off_loop`), used when it started
+    where the loop holds now."""
     from servo.trajectory import Sequencer
 
     loop = s.loop
@@ -332,8 +356,16 @@ def start_motion(s: Session, moves: list[Any], what: str) -> Outcome:
     _require_idle(loop)
     start = hold_position(loop)
     ctx = _plan_context(loop)
-    duration = _dry_run(moves, start, ctx)
-    seq = Sequencer(list(moves), start, ctx)
+    if (planned is not None and (planned.ctx is ctx or not (planned.ctx.extras or ctx.extras))
+            and np.array_equal(planned.current.start, start) and _same_limits(planned.ctx.limits, ctx.limits)):
+        seq = planned
+    else:
+        seq = Sequencer(list(moves), start, ctx)  # plans every move ahead, once (servo.trajectory.sequencer)
+    planned = [float(t.duration) for t in seq.planned]
+    if seq.plan_error is None and len(planned) == len(moves) and all(map(math.isfinite, planned)):
+        duration = float(sum(planned))
+    else:  # a move that could not be planned ahead (its error), or an open one (vservo)
+        duration = _dry_run(moves, start, ctx)
     loop.set_motion(seq)
     loop.note(s.source, f"{what} ({duration:.3f} s)")
     return Outcome(ok=kv(duration_s=duration), until=lambda lp: lp.sequencer is not seq or seq.finished)
@@ -595,7 +627,7 @@ def _run(s: Session, a: dict[str, Any]) -> Outcome:
     motion = a.get("motion")
     if motion is None:  # not prepared off the loop thread (direct API use)
         motion = _prepare_run(a, s.n)["motion"]
-    return start_motion(s, list(motion.moves), f"run {motion.name} ({a['file']})")
+    return start_motion(s, list(motion.moves), f"run {motion.name} ({a['file']})", a.get("planned"))
 
 
 @atom("calibrate", (), "calibrate PROCEDURE [--joint N ...] [--auto]: pot, adc, dac, encoder, amplifier, friction, "
@@ -688,11 +720,15 @@ ATOMS: dict[str, Atom] = {a.name: a for a in (
 )}
 
 
-def prepare(name: str, bound: dict[str, Any], n_joints: int, names: list[str]) -> dict[str, Any]:
+def prepare(name: str, bound: dict[str, Any], n_joints: int, names: list[str], loop: Any = None) -> dict[str, Any]:
     """The off-loop phase of an atom that reads a motion file (``run``); returns the arguments to
-    run with. ``load`` reads its file in :func:`vmehil.console.compound.prepare`, which wraps this."""
+    run with (with ``loop``, the motion planned off the loop too: :func:`plan_off_loop`). ``load``
+    reads its file in :func:`vmehil.console.compound.prepare`, which wraps this."""
     if name == "run":
-        return _prepare_run(bound, n_joints)
+        out = _prepare_run(bound, n_joints)
+        if loop is not None:
+            out["planned"] = plan_off_loop(list(out["motion"].moves), loop)
+        return out
     return bound
 
 

@@ -50,6 +50,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Union
 
+from hal.config import ConfigError, read_limited
 from vmehil.console.commands import (
     ATOMS,
     FLOAT,
@@ -486,9 +487,10 @@ def load_compound_file(path: str | Path, *, n_joints: int | None = None, names: 
     """Read and parse a compound command file (UTF-8); motion files named by ``run`` are looked up
     relative to the working directory, then to the file's folder."""
     p = Path(path)
-    data = p.read_bytes()
-    if len(data) > MAX_FILE_BYTES:
-        raise CompoundError(str(p), 1, 1, f"file larger than {MAX_FILE_BYTES} bytes")
+    try:
+        data = read_limited(p, MAX_FILE_BYTES, "a compound command file")
+    except ConfigError:
+        raise CompoundError(str(p), 1, 1, f"file larger than {MAX_FILE_BYTES} bytes") from None
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as e:
@@ -498,12 +500,13 @@ def load_compound_file(path: str | Path, *, n_joints: int | None = None, names: 
     return parse_compound(text, str(p), n_joints=n_joints, names=names, known=known, base_dir=p.parent)
 
 
-def prepare(name: str, bound: dict[str, Any], n_joints: int, names: list[str]) -> dict[str, Any]:
+def prepare(name: str, bound: dict[str, Any], n_joints: int, names: list[str], loop: Any = None) -> dict[str, Any]:
     """The off-loop phase of an atom sent on the console line; returns the arguments to run with.
     ``load`` reads and checks its compound file here (the atoms cannot import this language, which
-    is built on them); the others as :func:`vmehil.console.commands.prepare`."""
+    is built on them); the others as :func:`vmehil.console.commands.prepare` (``loop``: a motion
+    is planned off the loop too)."""
     if name != "load":
-        return prepare_atom(name, bound, n_joints, names)
+        return prepare_atom(name, bound, n_joints, names, loop)
     check_console_file(bound["file"], "compound command file")
     try:
         lib = load_compound_file(bound["file"], n_joints=n_joints, names=names)

@@ -569,7 +569,7 @@ class Console:
                 if atom.name == "stop":
                     self._urgent_stop()
                     return
-                bound = prepare(atom.name, bound, loop.n, list(loop.names))
+                bound = prepare(atom.name, bound, loop.n, list(loop.names), loop)
                 self._enqueue(_Item("atom", atom.name, atom, bound))
                 return
             defn = self.session.library.get(req.name) if self.session.library is not None else None

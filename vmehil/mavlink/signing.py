@@ -18,6 +18,7 @@ import types
 from pathlib import Path
 from typing import Any
 
+from hal.config import ConfigError, read_limited
 from vmehil.files import write_atomic
 
 KEY_LEN = 32
@@ -54,7 +55,11 @@ def load_key_file(path: str | Path) -> bytes:
     if st.st_mode & 0o077:
         raise KeyFileError(f"signing key file {p} is accessible by group or others (mode "
                            f"{stat.S_IMODE(st.st_mode):04o}); run: chmod 600 {p}")
-    lines = [ln.strip() for ln in p.read_text(encoding="ascii", errors="replace").splitlines()]
+    try:
+        text = read_limited(p, 4096, "a signing key file").decode("ascii", errors="replace")
+    except ConfigError as e:
+        raise KeyFileError(f"signing key file {p}: expected {e.expected}") from None
+    lines = [ln.strip() for ln in text.splitlines()]
     lines = [ln for ln in lines if ln and not ln.startswith("#")]
     if len(lines) != 1:
         raise KeyFileError(f"signing key file {p}: expected one line of {2 * KEY_LEN} hex digits")

@@ -72,6 +72,7 @@ from emulators.can.node import STATE_RUNNING
 from emulators.plant import PlantCommand, PlantSensors
 from emulators.plant_link import PlantLink, PlantLinkError, PlantLostError, StaleDataError
 from emulators.signals import QuadratureEvents
+from hal.config import read_limited
 from servo.rig import RigSpec
 from servo.runner import TickSeries, TimingStats, series_summary
 from servo.units import UnitSpec, rig_units, watchdog_unit
@@ -129,7 +130,7 @@ class AnswerIncompleteError(StaleDataError):
 
 def file_digest(path: str | Path | None) -> int:
     """CRC-32 of a file's bytes (0 for no file): a unit and its coordinator must read the same."""
-    return 0 if path is None else zlib.crc32(Path(path).read_bytes())
+    return 0 if path is None else zlib.crc32(read_limited(path))
 
 
 def unit_channel(interface: str | None, channel: str | None) -> tuple[str, str]:

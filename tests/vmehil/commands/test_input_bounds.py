@@ -96,3 +96,23 @@ def test_a_json_in_a_folder_nothing_creates_is_refused_and_nothing_is_made(tmp_p
                      "--json", str(out)]) == EXIT_USAGE
     assert "does not exist" in capsys.readouterr().err
     assert not (tmp_path / "missing").exists() and not (tmp_path / "rep").exists()
+
+
+def test_a_sweep_whose_grid_times_samples_exceeds_the_limit_is_refused_before_anything_runs(tmp_path, capsys) -> None:
+    """Each factor is within its own limit (10⁵ values, 10⁵ samples); their product is not (10¹⁰ tasks
+    grew to 3.8 GB): here 10³ × 10³."""
+    code = cli.main(["tune", "sweep", "--grid", "kp=80:140:1000", "--vary", "coulomb=10%", "--samples", "1000",
+                     "--out", str(tmp_path / "s")])
+    assert code == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "1,000 gain sets × 1,000 samples = 1,000,000 points" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "s").exists()
+
+
+def test_the_sweep_size_bound_counts_switch_off_modes_and_samples() -> None:
+    from vmehil.analysis.sweep import SweepError, check_sweep_size
+
+    assert check_sweep_size(50_000, 2, 1) == 100_000
+    assert check_sweep_size(1, 1, 100_000) == 100_000
+    with pytest.raises(SweepError, match="= 100,002 points"):
+        check_sweep_size(50_001, 2, 1)

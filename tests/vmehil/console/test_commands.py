@@ -261,3 +261,29 @@ def test_echo_shutdown_unknown_and_syntax(console_driver):
     err(drv.ask("pause 1"), "UNKNOWN")
     assert "column 6" in err(drv.ask('echo "open'), "SYNTAX")
     assert math.isfinite(drv.loop.tick_count)
+
+
+def test_a_motion_file_is_planned_off_the_loop_thread(console_driver, tmp_path, monkeypatch):
+    """An LSPB path of thousands of vias takes tenths of a second to plan: `run` plans it in the
+    preparer thread (from where the loop holds), never in the thread that ticks the loop (#30
+    item 9: 7 000 vias stalled the console's loop 28.9 s)."""
+    import threading
+
+    from servo.motion import LspbMove
+
+    drv = console_driver
+    built_in: list[str] = []
+    original = LspbMove.build
+
+    def build(self, start, ctx):
+        built_in.append(threading.current_thread().name)
+        return original(self, start, ctx)
+
+    monkeypatch.setattr(LspbMove, "build", build)
+    f = tmp_path / "path.toml"
+    f.write_text('[[move]]\ntype = "lspb"\nvia_deg = [[1, 2], [2, 1], [3, 3]]\n')
+    assert float(ok(drv.ask(f'run "{f}"'), "run")["duration_s"]) > 0.0
+    wait_idle(drv)
+    assert np.degrees(drv.loop.sequencer.current.end) == pytest.approx([3.0, 3.0])
+    ticking = threading.current_thread().name  # the test ticks the loop (tick())
+    assert built_in and ticking not in built_in, built_in
