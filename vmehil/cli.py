@@ -33,7 +33,7 @@ from vmehil import cli_style  # noqa: E402
 from vmehil.commands import calibrate, console, crate, plant_node, reproduce, run, tune, units, vision  # noqa: E402
 from vmehil.commands.errors import CliError  # noqa: E402
 from vmehil.exit_status import EXIT_BROKEN_PIPE, EXIT_UNEXPECTED, EXIT_USAGE  # noqa: E402
-from vmehil.outputs import OutputPaths, check_outputs, mark_output_dirs  # noqa: E402
+from vmehil.outputs import OutputPaths, check_outputs, mark_output_dirs, remove_unused  # noqa: E402
 
 __all__ = ["COMMANDS", "CliError", "build_parser", "main"]
 
@@ -93,9 +93,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return EXIT_USAGE
     args = parser.parse_args(argv)
+    made: list = []
     try:
         outputs = OutputPaths.from_args(args)
-        check_outputs(outputs, force=force)
+        made = check_outputs(outputs, force=force)
         try:
             with stop_signals_raise():
                 return _ending(int(args.func(args.options(args)) or 0), process)
@@ -105,6 +106,7 @@ def main(argv: list[str] | None = None) -> int:
         if debug:
             traceback.print_exc()
         print(f"vmehil {args.command}: error: {e}", file=sys.stderr)
+        remove_unused(made)  # refused: the output folders made for it go again
         return EXIT_USAGE
     except BrokenPipeError as e:
         if not _stdout_closed():  # another pipe or socket: not the reader of our output

@@ -108,9 +108,10 @@ def _inside_any(p: Path, dirs: tuple[Path, ...]) -> bool:
     return any(rp == d.resolve() or d.resolve() in rp.parents for d in dirs)
 
 
-def check_outputs(outputs: OutputPaths, *, force: bool = False) -> None:
+def check_outputs(outputs: OutputPaths, *, force: bool = False) -> list[Path]:
     """Check every output option of a command line before it runs. Once all are accepted, the
-    folder of an output file that lies in a new output directory is created."""
+    folder of an output file that lies in a new output directory is created. Returns the output
+    directories made here (:func:`remove_unused` takes them back after a refused command)."""
     for flag, p in outputs.dirs:
         check_output_dir(p, flag, force=force)
     made_here = tuple(p for _flag, p in outputs.dirs if not p.exists())
@@ -122,6 +123,19 @@ def check_outputs(outputs: OutputPaths, *, force: bool = False) -> None:
     for f in files:
         if not f.parent.is_dir():
             f.parent.mkdir(parents=True, exist_ok=True)
+    return [p for p in made_here if p.is_dir()]
+
+
+def remove_unused(made: list[Path]) -> None:
+    """Take back the output directories :func:`check_outputs` made for a command that was then
+    refused (bad input): each that holds nothing but the marker. A refused command leaves nothing."""
+    for p in made:
+        try:
+            if {q.name for q in p.iterdir()} <= {MARKER}:
+                (p / MARKER).unlink(missing_ok=True)
+                p.rmdir()
+        except OSError:
+            pass
 
 
 def _mark(p: Path, *, create: bool = False) -> None:

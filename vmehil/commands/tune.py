@@ -572,6 +572,9 @@ def run_sweep(opts: TuneOptions) -> int:
     for name, v in (("--x", x), ("--y", y)):
         if v not in GAIN_NAMES:
             raise ValueError(f"{name} {v!r} must be one of {', '.join(GAIN_NAMES)}")
+    n_samples = (opts.samples or 20) if spreads else 1
+    modes = {"off": [False], "on": [True], "both": [False, True]}[opts.switch_off]
+    check_sweep_size(len(points), len(modes), n_samples)  # before anything is loaded, drawn or made
     settings = _sim_settings(opts, jp, allow_short=True)
     if settings.hold_s < 8.0 and not opts.margins_only:
         print(f"note: a {settings.hold_s:g} s hold is too short for a reliable limit-cycle figure (use ≥ 8 s)",
@@ -579,9 +582,6 @@ def run_sweep(opts: TuneOptions) -> int:
     # The rig travels parsed (its plant values drawn) with the servo's typed settings in every task:
     # no worker reads this machine's disk, nothing is parsed again per point.
     text = rig_text(jp.rig_path)
-    n_samples = (opts.samples or 20) if spreads else 1
-    modes = {"off": [False], "on": [True], "both": [False, True]}[opts.switch_off]
-    check_sweep_size(len(points), len(modes), n_samples)  # before any sample is drawn or task made
     draws: list[dict[str, float]] = [{}]
     if spreads:
         draws = draw_samples(spreads, nominal_values(tomllib.loads(text), jp.joint, str(jp.rig_path)),
