@@ -162,14 +162,15 @@ class RealRig:
             close()
 
 
-def prepare_real_rig(rig: RigSpec, bus: VmeBus) -> tuple[RealRig, list[BoardCheck]]:
-    """Dry pass, drivers, start-up safe stop: raise :class:`RealBusRefused` on any doubt."""
+def prepare_real_rig(rig: RigSpec, bus: VmeBus, *, calibration: Any = None) -> tuple[RealRig, list[BoardCheck]]:
+    """Dry pass, drivers, start-up safe stop: raise :class:`RealBusRefused` on any doubt.
+    ``calibration``: the drivers' calibration store (None: nominal values)."""
     checks = dry_pass(bus, rig)
     bad = [c for c in checks if not c.ok]
     if bad:
         raise RealBusRefused("dry pass failed, nothing enabled: "
                              + "; ".join(f"{c.name} ({c.type} {c.space} 0x{c.base:X}): {c.detail}" for c in bad))
-    io = JointIO(bus, rig, nominal_scaling(rig_nominal(rig)))
+    io = JointIO(bus, rig, nominal_scaling(rig_nominal(rig)), calibration=calibration)
     failures = exercise_safe_stop(io)
     if failures:
         raise RealBusRefused("the start-up safe stop could not be confirmed: " + "; ".join(failures))

@@ -91,3 +91,43 @@ def test_run_with_the_flag_runs_the_loop_and_ends_safe(rig_on_fuse, capsys) -> N
             assert s.get_digital(j.net("amp_enable")) is False
         if "pwm" in j.wiring:
             assert s.get_analog(j.net("pwm")) == 0.0
+
+
+def test_a_real_bus_run_refuses_what_needs_the_emulated_rig_in_one_line_before_opening_the_bus(tmp_path,
+                                                                                                  capsys) -> None:
+    # `--bus vme_user --enable-amplifiers` silently ignored --fault, --mavlink, --console, --vision
+    missing = tmp_path / "no-such-bus"  # never opened: the refusal comes first
+    assert main(["run", "--bus", f"vme_user:{missing}", "--enable-amplifiers", "--fault", "pot_open:joint=j1",
+                 "--console", "pty:" + str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--fault/--faults" in err[0] and "--console" in err[0], err
+
+
+def test_a_real_bus_run_loads_and_checks_the_calibration_as_the_emulated_run_does(rig_on_fuse, tmp_path,
+                                                                                  capsys) -> None:
+    # a calibration whose amplifier gain is NaN: refused on the emulated path, used on the real one
+    from vmehil.calibration.store import CalibrationStore, JointCal
+
+    system, bus = rig_on_fuse
+    store = CalibrationStore.empty(system.rig)
+    store.joints["j1"] = {"amplifier": JointCal("amplifier", 1, "2026-12-03", {"gain_a_per_v": 3.0, "offset_a": 0.0})}
+    cal = store.save(tmp_path / "cal.toml")
+    cal.write_text(cal.read_text().replace("gain_a_per_v = 3.0", "gain_a_per_v = nan"))
+    assert main(["run", "--bus", bus, "--enable-amplifiers", "--calibration", str(cal)]) == 2
+    assert "gain_a_per_v = nan: expected a finite number" in capsys.readouterr().err
+    assert not any(system.crate.signals.get_digital(j.net("amp_enable"))
+                   for j in system.rig.joints if "amp_enable" in j.wiring)
+
+
+def test_a_real_bus_run_writes_the_same_json_and_report_as_the_emulated_run(rig_on_fuse, tmp_path, capsys) -> None:
+    system, bus = rig_on_fuse
+    out, rep = tmp_path / "run.json", tmp_path / "report"
+    args = build_parser().parse_args(["run", "--bus", bus, "--enable-amplifiers", "--duration", "0.1",
+                                      "--json", str(out), "--report", str(rep)])
+    code = run_on_real_bus(args.options(args), system.rig, servo_settings(system.rig), exit_status=run_exit_status,
+                           clock=system.crate.now, sleep=system.crate.delay)
+    assert code in (0, 1)  # the plant does not move here (no harness steps): a fault stop is allowed
+    summary = json.loads(out.read_text())
+    assert summary["rig"] == system.rig.name and summary["final_stop"]["verified"] is True
+    assert [j["name"] for j in summary["joints"]] == [j.name for j in system.rig.joints]
+    assert (rep / "summary.md").exists() and any(rep.glob("*.png"))
