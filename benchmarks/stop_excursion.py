@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from emulators.presets import resolve_rig
+from servo.rig import load_rig
 from servo.runner import LockstepRunner
 from vmehil.session import build_loop
 from vmehil.system import build_emulated_rig
@@ -79,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
             bare.write_text(_without_brakes(path.read_text()))
             got = {"with brakes": measure(path, args.stop_s, args.after_s),
                    "without brakes": measure(bare, args.stop_s, args.after_s)}
-        names = build_emulated_rig(path, seed=0).rig.joints
+        names = load_rig(path).joints
         print(f"{rig}: largest |true angle - angle at the stop| over {args.after_s:g} s after a safe stop at "
               f"{args.stop_s:g} s (deg); then over 1 s after a resume")
         print(f"  {'joint':<12}{'with':>10}{'without':>10}{'resume(with)':>14}{'resume(without)':>17}")
