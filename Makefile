@@ -45,6 +45,12 @@ constraints:
 
 run: $(STAMP)
 	$(VENV)/bin/vmehil run --report reports/run --json reports/run/run.json
+	@echo ""
+	@echo "Next:"
+	@echo "  $(VENV)/bin/vmehil calibrate all --auto    calibrate the ADCs, DACs, encoders, amplifiers and pots, then run again"
+	@echo "  $(VENV)/bin/vmehil reproduce               the JPL paper's figures against their bands (docs/jpl-figures.md)"
+	@echo "  $(VENV)/bin/vmehil tune bode               the loop's margins; tune limit-cycle, tune sweep (docs/tuning.md)"
+	@echo "  $(VENV)/bin/vmehil --help                  every command"
 
 # The README's "What it reproduces" table, re-run in a temporary directory and compared with the
 # paper's bands (exit 1 when a figure leaves its band): docs/jpl-figures.md.

@@ -1,4 +1,10 @@
-"""Register-level emulator of the 16-channel 12-bit ADC board (map: :mod:`hal.adc_dac.adc_regs`).
+"""Register-level emulator of the 16-channel 12-bit ADC board, written from ``docs/boards/adc.md``.
+
+A second reading of the board, independent of the driver (:mod:`hal.adc_dac`, which it does not
+import): its register map, bit masks, ID, gain-code table and quantizer are its own literal
+Python, written from the doc's register table, gain table and conversion formula. Tests check
+both this map and the driver's against the doc's table (tests/hal/test_adc.py), never against
+each other.
 
 Behaviour (as the real boards of the era: see ``docs/boards/adc.md``):
 
@@ -13,7 +19,10 @@ Behaviour (as the real boards of the era: see ``docs/boards/adc.md``):
   the host writes 1 to CSR.IRQ_PEND (or clears IRQ_EN, starts again, or resets).
 * Analog front end per sample: ``v = net + noise`` (Gaussian; rms = √(noise_rms_v² + burst² +
   Σ extra sources²)), then the channel's error ``v·(1 + gain_error) + offset_v``, then the PGA
-  and quantizer (:func:`hal.adc_dac.conversions.adc_volts_to_code`: round, clip at the rails).
+  and quantizer (the doc's formula ``code = floor((v − V₀)/LSB + ½)``, clipped at the rails
+  0 and 0xFFF: :meth:`AdcBoard.sample`).
+* A D8 write of the CSR's high byte (+0x02) writes the configuration only; the low byte's
+  strobes and write-1-to-clear flags see zeros (:meth:`AdcBoard._resolve_write`).
 
 Faults: ``stuck_channel(channel, code)``, ``noise_burst(rms_v, channels=None)``.
 """
@@ -28,14 +37,57 @@ from typing import Any, ClassVar
 from emulators.board import RegisterBoard
 from emulators.board_factory import BuildContext
 from emulators.rng import rng_for
-from hal.adc_dac.adc_regs import ADC_BOARD_ID, ADC_CHANNELS, ADC_REGMAP, CSR_CONFIG_MASK, CSR_W1C_MASK
-from hal.adc_dac.conversions import CODE_MAX, AdcRange, adc_lsb, adc_span, adc_volts_to_code, gain_from_code
 from hal.config import ConfigTable
-from hal.vme.types import Width
+from hal.vme.registers import Access, Field, Register, RegisterMap
+from hal.vme.types import AddressSpace, Width
 
-_CSR = ADC_REGMAP["CSR"]
+# --- the board, as docs/boards/adc.md states it ------------------------------------------------
+ADC_BOARD_ID = 0xAD16  #: the ID register ("Essentials" and the register table)
+ADC_CHANNELS = 16
+CODE_MAX = 0xFFF  #: 12-bit codes 0..0xFFF
+
+#: the doc's register table, row by row: (offset, name, access, reset, D8 too, fields as
+#: (name, msb, lsb) — the doc's ``[msb:lsb]``)
+_DATA_WORD = (("CHANNEL", 15, 12), ("CODE", 11, 0))
+_TABLE: tuple[tuple[int, str, Access, int, bool, tuple[tuple[str, int, int], ...]], ...] = (
+    (0x00, "ID", Access.RO, 0xAD16, True, ()),
+    (0x02, "CSR", Access.RW, 0x0000, True, (
+        ("RESET", 15, 15), ("RANGE", 12, 12), ("IRQ_LEVEL", 11, 9), ("IRQ_EN", 8, 8),
+        ("IRQ_PEND", 7, 7), ("OVERRUN", 5, 5), ("EARLY", 4, 4), ("DONE", 3, 3), ("BUSY", 2, 2),
+        ("SCAN", 1, 1), ("START", 0, 0))),
+    (0x04, "CHAN", Access.RW, 0x0000, False, (("GAIN", 5, 4), ("CHANNEL", 3, 0))),
+    (0x06, "DATA", Access.RO, 0x0000, False, _DATA_WORD),
+    (0x08, "VECTOR", Access.RW, 0x000F, False, (("VECTOR", 7, 0),)),
+    (0x0A, "SCAN_LAST", Access.RW, 0x000F, False, (("LAST", 3, 0),)),
+    (0x0C, "SCAN_GAIN0", Access.RW, 0x0000, False, tuple((f"CH{7 - k}", 15 - 2 * k, 14 - 2 * k) for k in range(8))),
+    (0x0E, "SCAN_GAIN1", Access.RW, 0x0000, False, tuple((f"CH{15 - k}", 15 - 2 * k, 14 - 2 * k) for k in range(8))),
+    *((0x20 + 2 * k, f"BUF{k}", Access.RO, 0x0000, False, _DATA_WORD) for k in range(16)),
+)
+
+REGMAP = RegisterMap(
+    "adc16",
+    0x40,  # the window: BUF15 at 0x3E is the last register
+    AddressSpace.A16,
+    tuple(
+        Register(name, offset, Width.D16, access, tuple(Field(f, lsb, msb - lsb + 1) for f, msb, lsb in fields),
+                 reset=reset, also=(Width.D8,) if d8 else ())
+        for offset, name, access, reset, d8, fields in _TABLE
+    ),
+    doc="emulated 16-channel 12-bit ADC (docs/boards/adc.md)",
+)
+
+_CSR = REGMAP["CSR"]
 _F = {f.name: f for f in _CSR.fields}
 _BIT = {name: f.mask for name, f in _F.items()}
+#: CSR bits a write of 1 clears (EARLY, OVERRUN, IRQ_PEND) and the configuration bits a write
+#: stores (IRQ_EN, IRQ_LEVEL, RANGE): the doc's "write" column of the CSR bit table
+_W1C = _BIT["EARLY"] | _BIT["OVERRUN"] | _BIT["IRQ_PEND"]
+_CONFIG = _BIT["IRQ_EN"] | _BIT["IRQ_LEVEL"] | _BIT["RANGE"]
+_CSR_OFFSET = _CSR.offset
+
+#: the doc's gain table: gain → gain code, and the full scale FS = 10 V / gain of each gain code
+_CODE_OF_GAIN = {1: 0, 2: 1, 4: 2, 8: 3}
+_FULL_SCALE_V = (10.0, 5.0, 2.5, 1.25)
 
 DEFAULT_CONVERSION_TIME_NS = 15_000
 _NORMAL_BLOCK = 256  #: noise normals drawn per numpy call
@@ -57,7 +109,7 @@ class AdcBoard(RegisterBoard):
     """
 
     TYPE = "adc"
-    REGMAP = ADC_REGMAP
+    REGMAP = REGMAP
     irq_release = "rora"
     FAULTS: ClassVar[dict[str, str]] = {
         "stuck_channel": "channel=N, code=C: channel N always converts to code C (0..0xFFF)",
@@ -144,10 +196,17 @@ class AdcBoard(RegisterBoard):
         self._normals = self._rng.standard_normal(_NORMAL_BLOCK).tolist()
         return 0
 
-    def sample(self, channel: int, gain: int, rng: AdcRange) -> int:
-        """Sample-and-hold plus conversion of ``channel`` now: the 12-bit code. The reference
-        path, faults included; without a fault armed a conversion runs the same steps inline
+    def sample(self, channel: int, gain: int, bipolar: bool = True) -> int:
+        """Sample-and-hold plus conversion of ``channel`` now at ``gain`` (1, 2, 4 or 8) in the
+        ±10 V/gain (``bipolar``) or 0..10 V/gain range: the 12-bit code. The reference path,
+        faults included; without a fault armed a conversion runs the same steps inline
         (:meth:`_Conversion.sample`)."""
+        gcode = _CODE_OF_GAIN.get(gain)
+        if gcode is None:
+            raise ValueError(f"{self.name}: gain {gain!r} is not one of 1, 2, 4, 8")
+        return self._sample_code(channel, gcode, bipolar)
+
+    def _sample_code(self, channel: int, gcode: int, bipolar: bool) -> int:
         stuck = self.fault("stuck_channel")
         if stuck is not None and int(stuck.get("channel", -1)) == channel:
             return int(stuck.get("code", 0)) & CODE_MAX
@@ -156,13 +215,9 @@ class AdcBoard(RegisterBoard):
         if sigma > 0:
             v += sigma * self._normal()
         v = v * (1.0 + self.gain_error[channel]) + self.offset_v[channel]
-        return adc_volts_to_code(v, rng, gain)
+        return quantize(v, bipolar, gcode)
 
     # --- registers ----------------------------------------------------------------------
-    @property
-    def _range(self) -> AdcRange:
-        return AdcRange.UNIPOLAR_10V if self.regs["CSR"] & _BIT["RANGE"] else AdcRange.BIPOLAR_10V
-
     def read_CSR(self) -> int:
         return self.regs["CSR"] | (_BIT["BUSY"] if self._busy else 0)
 
@@ -171,8 +226,8 @@ class AdcBoard(RegisterBoard):
             self.reset()
             return
         csr = self.regs["CSR"]
-        csr &= ~(value & CSR_W1C_MASK)
-        csr = (csr & ~CSR_CONFIG_MASK) | (value & CSR_CONFIG_MASK)
+        csr &= ~(value & _W1C)
+        csr = (csr & ~_CONFIG) | (value & _CONFIG)
         self.regs["CSR"] = csr
         if (value & _BIT["IRQ_PEND"]) or not (csr & _BIT["IRQ_EN"]):
             self._drop_irq()
@@ -197,6 +252,17 @@ class AdcBoard(RegisterBoard):
         self._note_read()
         return self.regs["DATA"]
 
+    def _resolve_write(self, offset: int, width: Width) -> Callable[[int], None]:
+        """A D8 write of the CSR's high byte (+0x02) is a configuration write: the action and
+        status byte sees zeros, so it neither starts a conversion nor clears a flag (the
+        generic byte merge would write the stored flags back as ones, clearing them)."""
+        if offset == _CSR_OFFSET and width is Width.D8:
+            return self._write_csr_high_byte
+        return super()._resolve_write(offset, width)
+
+    def _write_csr_high_byte(self, value: int) -> None:
+        self.write_CSR((value & 0xFF) << 8)
+
     def _resolve_read(self, offset: int, width: Width) -> Callable[[], int]:
         read = super()._resolve_read(offset, width)
         reg = self.REGMAP.containing(offset)
@@ -215,12 +281,6 @@ class AdcBoard(RegisterBoard):
             self.regs["CSR"] |= _BIT["EARLY"]
 
     # --- conversion sequencing ----------------------------------------------------------
-    def _gain_of(self, channel: int, scan: bool) -> int:
-        if not scan:
-            return gain_from_code(self.regs["CHAN"] >> 4)
-        reg = self.regs["SCAN_GAIN0" if channel < 8 else "SCAN_GAIN1"]
-        return gain_from_code(reg >> (2 * (channel % 8)))
-
     def _start(self, channels: list[int], *, scan: bool) -> None:
         self._busy = True
         self.regs["CSR"] &= ~_BIT["DONE"]
@@ -300,21 +360,20 @@ class _Conversion:
     def sample(self) -> None:
         """Sample-and-hold of conversion ``i`` now: its word (stored at the conversion's end).
 
-        Without a fault armed, :meth:`AdcBoard.sample`, its noise draw and
-        :func:`~hal.adc_dac.conversions.adc_volts_to_code` run inline here: the same reads, sums
+        Without a fault armed, :meth:`AdcBoard.sample`, its noise draw and :func:`quantize` run
+        inline here: the same reads, sums
         and roundings in the same order, one Python call per conversion instead of five (a tick
         converts 20-50 channels)."""
         b = self.board
         ch = self.channels[self.i]
         regs = b.regs
-        bipolar = not regs["CSR"] & _RANGE  # b._range, read at each conversion's start
-        if self.scan:  # b._gain_of(ch, scan), read at each conversion's start
+        bipolar = not regs["CSR"] & _RANGE  # CSR.RANGE, read at each conversion's start
+        if self.scan:  # the channel's SCAN_GAIN field, or CHAN.GAIN: read at each conversion's start
             gcode = regs[_SCAN_GAIN[ch >= 8]] >> (2 * (ch % 8)) & 0x3
         else:
             gcode = regs["CHAN"] >> 4 & 0x3
         if b.faulted:
-            rng = AdcRange.BIPOLAR_10V if bipolar else AdcRange.UNIPOLAR_10V
-            code = b.sample(ch, gain_from_code(gcode), rng)  # S/H at conversion start
+            code = b._sample_code(ch, gcode, bipolar)  # S/H at conversion start
         else:
             net = b.wiring.get(ch)
             crate = b.crate
@@ -331,7 +390,7 @@ class _Conversion:
                 v += sigma * b._normals[i]
             v = v * (1.0 + b.gain_error[ch]) + b.offset_v[ch]
             if v != v:
-                raise ValueError("ADC input is NaN")  # as adc_volts_to_code
+                raise ValueError("ADC input is NaN")  # as quantize
             v0, lsb = _V0_LSB[bipolar][gcode]
             code = math.floor((v - v0) / lsb + 0.5)
             code = 0 if code < 0 else CODE_MAX if code > CODE_MAX else code
@@ -341,10 +400,24 @@ class _Conversion:
 _BUF = tuple(f"BUF{ch}" for ch in range(ADC_CHANNELS))
 _SCAN_GAIN = ("SCAN_GAIN0", "SCAN_GAIN1")
 _RANGE = _BIT["RANGE"]
-#: (volts of code 0, volts per code) per [unipolar, bipolar] and gain code 0..3, from adc_span and
-#: adc_lsb (the same floats adc_volts_to_code uses)
-_V0_LSB = tuple(tuple((adc_span(r, gain_from_code(c))[0], adc_lsb(r, gain_from_code(c))) for c in range(4))
-                for r in (AdcRange.UNIPOLAR_10V, AdcRange.BIPOLAR_10V))
+#: (V₀ = volts of code 0, LSB = volts per code) per [unipolar, bipolar] and gain code 0..3, from
+#: the doc: 0..10 V/gain straight binary V₀ = 0, LSB = FS/4096; ±10 V/gain offset binary
+#: V₀ = −FS, LSB = 2·FS/4096 (FS = 10 V/gain: every one of these floats is exact)
+_V0_LSB: tuple[tuple[tuple[float, float], ...], ...] = (
+    tuple((0.0, fs / 4096) for fs in _FULL_SCALE_V),
+    tuple((-fs, 2 * fs / 4096) for fs in _FULL_SCALE_V),
+)
+
+
+def quantize(volts: float, bipolar: bool, gain_code: int) -> int:
+    """The PGA and quantizer of the doc: ``code = floor((volts − V₀)/LSB + ½)``, clipped to
+    0..0xFFF (the converter saturates at the rails, never wraps). A NaN input is a modelling
+    bug, not a voltage: ``ValueError``."""
+    if volts != volts:
+        raise ValueError("ADC input is NaN")
+    v0, lsb = _V0_LSB[bipolar][gain_code]
+    code = math.floor((volts - v0) / lsb + 0.5)
+    return 0 if code < 0 else CODE_MAX if code > CODE_MAX else code
 
 
 def _per_channel(name: str, key: str, values: Sequence[float] | None, default: float) -> tuple[float, ...]:

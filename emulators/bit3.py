@@ -7,7 +7,7 @@ Three pieces:
   cable, not visible through the window) followed by the dual-port memory. The buffer is a
   ``bytearray`` in one process or a ``multiprocessing.shared_memory`` segment across
   processes (:meth:`Bit3Link.create_shared` / :meth:`Bit3Link.attach_shared`).
-* :class:`Bit3Board` — the local card: the CSR block (:data:`hal.bit3.regs.BIT3_CSR`) in A16;
+* :class:`Bit3Board` — the local card: the CSR block (:data:`CSR_MAP`) in A16;
   when installed in a crate it also installs its window board (:class:`Bit3WindowBoard`) in
   A24 or A32.
 * :class:`Bit3RemotePort` — the remote (vision) computer's side: direct access to its own
@@ -36,11 +36,51 @@ from typing import Any
 
 from emulators.board import Board, BoardAccessError, RegisterBoard
 from emulators.board_factory import BuildContext
-from hal.bit3.memory import BufferMemory
-from hal.bit3.regs import BIT3_CSR, STICKY_ERROR_FIELDS
 from hal.config import ConfigTable
+from hal.shm import BufferMemory
 from hal.vme.errors import BusErrorCause
+from hal.vme.registers import Access, Field, Register, RegisterMap
 from hal.vme.types import AddressSpace, Width
+
+
+# --- the card's CSR block, as docs/boards/bit3.md states it -----------------------------------
+# Written from the doc's register table (not from the driver's map): fields as the doc's
+# [msb:lsb], offsets and reset values as the doc's literals. The masks the card's logic uses
+# below are taken from this declaration, which a test checks against the doc.
+def _bits(name: str, msb: int, lsb: int | None = None) -> Field:
+    low = msb if lsb is None else lsb
+    return Field(name, low, msb - low + 1)
+
+
+CARD_ID = 0x0413
+CSR_MAP = RegisterMap(
+    name="bit3",
+    size=0x10,
+    space=AddressSpace.A16,
+    doc="BIT3 VME-to-VME adaptor, local CSR block (emulator's declaration, from docs/boards/bit3.md)",
+    registers=(
+        Register("STATUS", 0x00, Width.D16, Access.W1C, reset=0x0000, fields=(
+            _bits("doorbell", 5), _bits("parity", 4), _bits("remote_berr", 3), _bits("timeout", 2),
+            _bits("remote_power", 1), _bits("link_up", 0))),
+        Register("COMMAND", 0x02, Width.D16, Access.RW, reset=0x0002, fields=(
+            _bits("window_enable", 1), _bits("reset", 0))),
+        Register("IRQ_CTRL", 0x04, Width.D16, Access.RW, reset=0x0000, fields=(
+            _bits("vector", 15, 8), _bits("enable", 3), _bits("level", 2, 0))),
+        Register("DOORBELL_OUT", 0x06, Width.D16, Access.WO),
+        Register("DOORBELL_IN", 0x08, Width.D16, Access.RO, reset=0x0000),
+        Register("DOORBELL_COUNT", 0x0A, Width.D16, Access.RO, reset=0x0000),
+        Register("ERRORS", 0x0C, Width.D16, Access.RO, reset=0x0000),
+        Register("ID", 0x0E, Width.D16, Access.RO, reset=CARD_ID),
+    ),
+)
+_ST = {f.name: f.mask for f in CSR_MAP["STATUS"].fields}
+_ST_LIVE = _ST["link_up"] | _ST["remote_power"]  # not stored: the cable and the remote power
+_ST_STICKY = _ST["timeout"] | _ST["remote_berr"] | _ST["parity"]
+_ST_W1C = _ST_STICKY | _ST["doorbell"]
+_CMD = {f.name: f.mask for f in CSR_MAP["COMMAND"].fields}
+_IRQ_LEVEL = CSR_MAP["IRQ_CTRL"].field("level")
+_IRQ_ENABLE = CSR_MAP["IRQ_CTRL"].field("enable")
+_IRQ_VECTOR = CSR_MAP["IRQ_CTRL"].field("vector")
 
 LINK_MAGIC = 0x42495433
 LINK_VERSION = 1
@@ -206,7 +246,7 @@ class Bit3Board(RegisterBoard):
     """
 
     TYPE = "bit3"
-    REGMAP = BIT3_CSR
+    REGMAP = CSR_MAP
     irq_release = "rora"
     FAULTS = {  # noqa: RUF012
         "link_down": "cable unplugged: window cycles time out (BERR LINK_DOWN, STATUS.timeout)",
@@ -262,29 +302,24 @@ class Bit3Board(RegisterBoard):
     def link_up(self) -> bool:
         return self.fault("link_down") is None and self.link.remote_power
 
-    def _status_bit(self, field: str) -> int:
-        return self.REGMAP["STATUS"].field(field).mask
-
     def read_STATUS(self) -> int:
-        value = self.regs["STATUS"] & ~(self._status_bit("link_up") | self._status_bit("remote_power"))
+        value = self.regs["STATUS"] & ~_ST_LIVE
         if self.link_up:
-            value |= self._status_bit("link_up")
+            value |= _ST["link_up"]
         if self.link.remote_power:
-            value |= self._status_bit("remote_power")
+            value |= _ST["remote_power"]
         return value
 
     def write_STATUS(self, value: int) -> None:
-        clearable = sum(self._status_bit(f) for f in (*STICKY_ERROR_FIELDS, "doorbell"))
-        self.regs["STATUS"] &= ~(value & clearable)
-        if value & self._status_bit("doorbell"):
+        self.regs["STATUS"] &= ~(value & _ST_W1C)
+        if value & _ST["doorbell"]:
             self.release_irq()
 
     def write_COMMAND(self, value: int) -> None:
-        reg = self.REGMAP["COMMAND"]
-        if reg.field("reset").get(value):
-            self.regs["STATUS"] &= ~sum(self._status_bit(f) for f in STICKY_ERROR_FIELDS)
+        if value & _CMD["reset"]:
+            self.regs["STATUS"] &= ~_ST_STICKY
             self.regs["ERRORS"] = 0
-        self.regs["COMMAND"] = value & ~reg.field("reset").mask
+        self.regs["COMMAND"] = value & ~_CMD["reset"]  # the reset bit reads 0
 
     def write_IRQ_CTRL(self, value: int) -> None:
         self.regs["IRQ_CTRL"] = value
@@ -293,12 +328,12 @@ class Bit3Board(RegisterBoard):
     # --- doorbells -----------------------------------------------------------------------
     def write_DOORBELL_OUT(self, value: int) -> None:
         if not self.link_up:
-            self._set_error("timeout")
+            self._set_error(_ST["timeout"])
             raise BoardAccessError(BusErrorCause.LINK_DOWN, f"{self.name}: doorbell not delivered: {self._why_down()}")
         self.link.ring_remote(value)
 
     def read_DOORBELL_IN(self) -> int:
-        self.regs["STATUS"] &= ~self._status_bit("doorbell")
+        self.regs["STATUS"] &= ~_ST["doorbell"]
         self.release_irq()
         return self.regs["DOORBELL_IN"]
 
@@ -313,14 +348,14 @@ class Bit3Board(RegisterBoard):
             return  # rung while the cable was out: lost, as on the real link
         self.regs["DOORBELL_IN"] = code & 0xFFFF
         self.regs["DOORBELL_COUNT"] = (self.regs["DOORBELL_COUNT"] + new) & 0xFFFF
-        self.regs["STATUS"] |= self._status_bit("doorbell")
+        self.regs["STATUS"] |= _ST["doorbell"]
         self._update_irq()
 
     def _update_irq(self) -> None:
-        ctrl = self.REGMAP["IRQ_CTRL"].unpack(self.regs["IRQ_CTRL"])
-        pending = self.regs["STATUS"] & self._status_bit("doorbell")
-        if pending and ctrl["enable"] and ctrl["level"]:
-            self.request_irq(ctrl["level"], ctrl["vector"])
+        ctrl = self.regs["IRQ_CTRL"]
+        level = _IRQ_LEVEL.get(ctrl)
+        if self.regs["STATUS"] & _ST["doorbell"] and _IRQ_ENABLE.get(ctrl) and level:
+            self.request_irq(level, _IRQ_VECTOR.get(ctrl))
         elif self.irq_pending:
             self.release_irq()
 
@@ -330,9 +365,12 @@ class Bit3Board(RegisterBoard):
             self._bells_seen = self.link.bells_to_local()[0]
 
     # --- remote window -------------------------------------------------------------------
-    def _set_error(self, field: str) -> None:
-        self.regs["STATUS"] |= self._status_bit(field)
+    def _count_error(self) -> None:
         self.regs["ERRORS"] = (self.regs["ERRORS"] + 1) & 0xFFFF
+
+    def _set_error(self, bit: int) -> None:
+        self.regs["STATUS"] |= bit
+        self._count_error()
 
     def _why_down(self) -> str:
         if self.fault("link_down") is not None:
@@ -340,18 +378,19 @@ class Bit3Board(RegisterBoard):
         return "remote crate power is off"
 
     def remote_cycle(self, offset: int, width: Width, value: int | None) -> int:
-        """One window cycle at byte ``offset`` of the remote memory (read if ``value`` is None)."""
-        if not self.REGMAP["COMMAND"].field("window_enable").get(self.regs["COMMAND"]):
+        """One window cycle at byte ``offset`` of the remote memory (read if ``value`` is None),
+        checked in the doc's order (docs/boards/bit3.md, "Window cycles")."""
+        if not self.regs["COMMAND"] & _CMD["window_enable"]:
             raise BoardAccessError(
                 BusErrorCause.NO_RESPONDER, f"{self.name}: window disabled (COMMAND.window_enable=0)"
             )
         if not self.link_up:
             if self.crate is not None and self.interface_timeout_ns:
                 self.crate.clock.advance(self.interface_timeout_ns)
-            self._set_error("timeout")
+            self._set_error(_ST["timeout"])
             raise BoardAccessError(BusErrorCause.LINK_DOWN, f"{self.name}: {self._why_down()}")
-        sticky = self.regs["STATUS"] & sum(self._status_bit(f) for f in STICKY_ERROR_FIELDS)
-        if sticky:
+        if self.regs["STATUS"] & _ST_STICKY:
+            self._count_error()
             raise BoardAccessError(
                 BusErrorCause.LINK_DOWN,
                 f"{self.name}: interface error latched (STATUS=0x{self.read_STATUS():04X}); reset the link",
@@ -363,11 +402,11 @@ class Bit3Board(RegisterBoard):
                 parity["count"] = left
             else:
                 self.clear_fault("parity")
-            self._set_error("parity")
+            self._set_error(_ST["parity"])
             raise BoardAccessError(BusErrorCause.REMOTE, f"{self.name}: parity error on the link cable")
         berr = self.fault("remote_berr")
         if berr is not None and berr.get("start", 0) <= offset < berr.get("end", 1 << 32):
-            self._set_error("remote_berr")
+            self._set_error(_ST["remote_berr"])
             raise BoardAccessError(BusErrorCause.REMOTE, f"{self.name}: remote bus error at remote +0x{offset:X}")
         mem = self.link.mem
         n = int(width)
@@ -400,7 +439,7 @@ class Bit3WindowBoard(Board):
 class Bit3RemotePort:
     """The remote (vision) computer's side of the link.
 
-    ``memory`` is a :class:`hal.bit3.memory.BufferMemory` over the dual-port memory (the
+    ``memory`` is a :class:`hal.shm.BufferMemory` over the dual-port memory (the
     remote computer accesses its own memory directly; it never fails). Doorbells from the
     local card are counted by :meth:`poll_doorbells` and, in one process, also delivered to
     callbacks registered with :meth:`on_doorbell`.

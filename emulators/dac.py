@@ -1,4 +1,9 @@
-"""Register-level emulator of the 8-channel 12-bit double-buffered DAC (map: :mod:`hal.adc_dac.dac_regs`).
+"""Register-level emulator of the 8-channel 12-bit double-buffered DAC, written from ``docs/boards/dac.md``.
+
+A second reading of the board, independent of the driver (:mod:`hal.adc_dac`, which it does not
+import): its register map, ID and code → volts conversion are its own literal Python, written
+from the doc's register table and coding. Tests check both this map and the driver's against the
+doc's table (tests/hal/test_dac.py), never against each other.
 
 Behaviour (see ``docs/boards/dac.md``):
 
@@ -27,12 +32,37 @@ from typing import Any, ClassVar
 from emulators.adc import wiring_from_config
 from emulators.board import RegisterBoard
 from emulators.board_factory import BuildContext
-from hal.adc_dac.conversions import CODE_MAX, dac_code_to_volts
-from hal.adc_dac.dac_regs import DAC_BOARD_ID, DAC_CHANNELS, DAC_POWER_UP_CODE, DAC_REGMAP
 from hal.config import ConfigTable
+from hal.vme.registers import Access, Field, Register, RegisterMap
+from hal.vme.types import AddressSpace, Width
 
+# --- the board, as docs/boards/dac.md states it ------------------------------------------------
+DAC_BOARD_ID = 0xDA08  #: the ID register
+DAC_CHANNELS = 8
+CODE_MAX = 0xFFF
+DAC_POWER_UP_CODE = 0x800  #: 0 V in offset binary: every DATAn and OUTn after power-up/reset
 DEFAULT_SETTLING_NS = 10_000
-_CSR = DAC_REGMAP["CSR"]
+
+_CODE = (Field("CODE", 0, 12),)  # [11:0] CODE; bits 15:12 ignored on write, read 0
+REGMAP = RegisterMap(
+    "dac8",
+    0x30,  # the window: OUT7 at 0x2E is the last register
+    AddressSpace.A16,
+    (
+        Register("ID", 0x00, Width.D16, Access.RO, reset=0xDA08, also=(Width.D8,)),
+        Register("CSR", 0x02, Width.D16, Access.RW,
+                 (Field("RESET", 15), Field("SETTLING", 1), Field("UPDATE_ALL", 0)), also=(Width.D8,)),
+        Register("UPDATE", 0x04, Width.D16, Access.WO, tuple(Field(f"CH{n}", n) for n in range(8)),
+                 also=(Width.D8,)),
+        *(Register(f"DATA{n}", 0x10 + 2 * n, Width.D16, Access.RW, _CODE, reset=0x800) for n in range(8)),
+        *(Register(f"OUT{n}", 0x20 + 2 * n, Width.D16, Access.RO, _CODE, reset=0x800) for n in range(8)),
+    ),
+    doc="emulated 8-channel 12-bit ±10 V double-buffered DAC (docs/boards/dac.md)",
+)
+
+#: volts per code: the ±10 V span over 4096 codes (4.8828125 mV, exact in binary)
+_LSB_V = 20.0 / 4096
+_CSR = REGMAP["CSR"]
 _UPDATE_ALL = _CSR.field("UPDATE_ALL").mask
 _SETTLING = _CSR.field("SETTLING").mask
 _RESET = _CSR.field("RESET").mask
@@ -53,7 +83,7 @@ class DacBoard(RegisterBoard):
     """
 
     TYPE = "dac"
-    REGMAP = DAC_REGMAP
+    REGMAP = REGMAP
     FAULTS: ClassVar[dict[str, str]] = {
         "dead_channel": "channel=N[, volts=V]: output N stuck at V (default 0 V) whatever is written",
     }
@@ -78,7 +108,7 @@ class DacBoard(RegisterBoard):
         if settling_time_ns < 0:
             raise ValueError(f"{name}: settling_time_ns must be >= 0")
         self.settling_time_ns = int(settling_time_ns)
-        self.tau_ns = self.settling_time_ns / math.log(2 * (CODE_MAX + 1))
+        self.tau_ns = self.settling_time_ns / math.log(8192)  # a 20 V step is ½ LSB (1/8192 of it) at settling
         self.rail_v = float(rail_v)
         # per channel: (strobe time ns, converter volts at the strobe, final volts)
         self._step: list[tuple[int, float, float]] = []
@@ -103,7 +133,7 @@ class DacBoard(RegisterBoard):
 
     # --- analog output ------------------------------------------------------------------
     def _analog(self, ch: int, code: int) -> float:
-        v = dac_code_to_volts(code) * (1.0 + self.gain_error[ch]) + self.offset_v[ch]
+        v = ideal_volts(code) * (1.0 + self.gain_error[ch]) + self.offset_v[ch]
         return min(max(v, -self.rail_v), self.rail_v)
 
     def _dead_volts(self, ch: int) -> float | None:
@@ -190,6 +220,12 @@ class DacBoard(RegisterBoard):
             "wired": len(self.wiring),
             "settling_us": self.settling_time_ns / 1000,
         }
+
+
+def ideal_volts(code: int) -> float:
+    """The ideal output of a 12-bit offset-binary ``code``: 0x800 is 0 V, one code 20 V/4096
+    (0x000 → −10 V, 0xFFF → +9.99512 V)."""
+    return (code - DAC_POWER_UP_CODE) * _LSB_V
 
 
 def _data_writer(ch: int):

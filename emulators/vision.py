@@ -6,9 +6,12 @@ A camera on the end effector sees a target at a fixed point of the workspace. Ev
 motion increment toward it over the vision-servo protocol. When the target has been within
 ``tolerance_m`` for ``hold_frames`` frames it ends the task (``TARGET_REACHED``).
 
+The protocol endpoint is the vision computer's own (:mod:`emulators.vision_protocol`, written
+from docs/bit3.md), not the robot side's ``hal.bit3.protocol``.
+
 Where the camera is comes from either
 * ``ee_pose()`` — a callable returning (position, rotation) (in one process the lead wires it
-  to the plant's true joint angles through :class:`hal.bit3.arm.ArmModel`), or
+  to the plant's true joint angles through :class:`hal.kinematics.ArmModel`), or
 * the robot's TELEMETRY record in the shared memory (joint angles → arm model), which is how
   the vision process (``vmehil vision``) sees the arm.
 
@@ -30,18 +33,18 @@ import numpy as np
 
 from emulators.bit3 import Bit3Link, Bit3RemotePort
 from emulators.faults import FaultInjectable
-from hal.bit3.arm import ArmModel
-from hal.bit3.memory import BufferMemory
-from hal.bit3.protocol import (
+from emulators.vision_protocol import (
     FLAG_CONVERGED,
     FLAG_TARGET_VISIBLE,
     EndReason,
-    Timeouts,
-    VisionServoServer,
+    VisionServer,
     VisionState,
+    VisionTimeouts,
     check_layout,
     format_layout,
 )
+from hal.kinematics import ArmModel
+from hal.shm import BufferMemory
 
 log = logging.getLogger(__name__)
 
@@ -114,7 +117,7 @@ class VisionSystem(FaultInjectable):
 
     def __init__(
         self,
-        server: VisionServoServer,
+        server: VisionServer,
         target: Sequence[float],
         arm: ArmModel | None = None,
         params: VisionParams | None = None,
@@ -222,7 +225,7 @@ def run_vision_process(
     *,
     params: VisionParams | None = None,
     arm: ArmModel | None = None,
-    timeouts: Timeouts | None = None,
+    timeouts: VisionTimeouts | None = None,
     offset: int = 0,
     poll_s: float = 0.002,
     duration_s: float | None = None,
@@ -231,7 +234,7 @@ def run_vision_process(
     """Run the vision system as its own process on a shared-memory BIT3 link.
 
     Attaches to the segment ``shm_name`` that the robot side created, formats the protocol
-    layout if the memory is blank (:func:`hal.bit3.protocol.format_layout`), powers the
+    layout if the memory is blank (:func:`emulators.vision_protocol.format_layout`), powers the
     "remote crate" on (the robot side sees ``STATUS.link_up``), and runs
     :class:`VisionSystem` on the wall clock until SIGTERM/SIGINT, ``duration_s``, or (with
     ``exit_after_task``) the end of the first task. On exit it writes IDLE (end reason
@@ -248,7 +251,7 @@ def run_vision_process(
     old = {s: signal.signal(s, _stop) for s in (signal.SIGTERM, signal.SIGINT)}
     t0 = time.monotonic()
     vision: VisionSystem | None = None
-    server: VisionServoServer | None = None
+    server: VisionServer | None = None
     mem = BufferMemory(link.mem, offset)
     try:
         # The dual-port memory is the vision crate's: it formats it at power-up unless the
@@ -257,7 +260,7 @@ def run_vision_process(
             format_layout(mem)
         check_layout(mem)
         port.power_on()
-        server = VisionServoServer(mem, timeouts, ring=port.ring)
+        server = VisionServer(mem, timeouts, ring=port.ring)
         vision = VisionSystem(server, target, arm, params)
         log.info("vision: attached to %s, target %s", shm_name, list(target))
         while not stop["flag"]:

@@ -23,7 +23,8 @@ class ConfigError(ValueError):
         self.source = source
         self.key = key
         self.expected = expected
-        msg = f"{source}: key '{key}': expected {expected}"
+        # key "": the file as a whole (missing, not TOML) — no key to name
+        msg = f"{source}: key '{key}': expected {expected}" if key else f"{source}: expected {expected}"
         if got is not _MISSING:
             msg += f", got {got!r}"
         super().__init__(msg)
@@ -36,11 +37,11 @@ def load_toml(path: str | Path) -> ConfigTable:
         with p.open("rb") as f:
             data = tomllib.load(f)
     except FileNotFoundError:
-        raise ConfigError(str(p), "<file>", "an existing TOML file") from None
+        raise ConfigError(str(p), "", "an existing TOML file (there is none)") from None
     except tomllib.TOMLDecodeError as e:
-        raise ConfigError(str(p), "<file>", f"valid TOML ({e})") from None
+        raise ConfigError(str(p), "", f"valid TOML ({e})") from None
     except UnicodeDecodeError as e:  # tomllib decodes the whole file first
-        raise ConfigError(str(p), "<file>", f"a UTF-8 text file ({e})") from None
+        raise ConfigError(str(p), "", f"a UTF-8 text file ({e})") from None
     return ConfigTable(data, str(p))
 
 

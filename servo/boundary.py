@@ -22,7 +22,7 @@ exchange for tick ``k`` has been made. The tick number travels with every call f
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -76,6 +76,19 @@ class PlantBoundary(Protocol):
         """The plant's true state for reports (``theta_joint``, ``omega_joint``…), or ``None``."""
         ...
 
+    @property
+    def answer_lag_ticks(self) -> int:
+        """Ticks the plant's answers may lag the commands beyond lockstep timing (0: lockstep, an
+        in-process plant or a real rig; a free-running plant node answers 1-2 periods late). The
+        watchdog's current check accepts any command of the last ``1 + answer_lag_ticks`` ticks."""
+        ...
+
+    @property
+    def sample_clock(self) -> Callable[[], float | None] | None:
+        """Where the plant free-runs: a function giving the plant time (s) of the values the
+        sensors hold now (the loop's cross-checks integrate over it); ``None``: one period per tick."""
+        ...
+
 
 class WallClockPlant:
     """A real rig's boundary: time passes by itself, the boards are the exchange, no truth."""
@@ -96,3 +109,11 @@ class WallClockPlant:
 
     def truth(self) -> Mapping[str, np.ndarray] | None:
         return None
+
+    @property
+    def answer_lag_ticks(self) -> int:
+        return 0  # the boards are read and written in the tick itself
+
+    @property
+    def sample_clock(self) -> Callable[[], float | None] | None:
+        return None  # the wall clock paces the ticks: one period per tick

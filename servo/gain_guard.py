@@ -30,7 +30,7 @@ but never read back. :func:`loop_poles` removes it by that change of coordinates
 rotation, so exact and perfectly conditioned — before the eigenvalues are taken; a genuine slow
 pole near z = 1 (a tiny Kpi) is never mistaken for it.
 
-Why this guard and not the one MAVLink had (``vmehil/mavlink/stability.py``, merged here): both
+Why this guard and not the one MAVLink had (the former ``vmehil.mavlink.stability``, merged here): both
 removed the structural eigenvalue (it by projecting onto ``[θ, ω, S]`` with a pseudo-inverse, the
 same poles to rounding) and tested 1 − ρ, but it decided the marginal Kpi = 0, KvI > 0 loop by
 the sign of a ±1e-16 rounding residue, accepted negative gains whenever the eigenvalues happened
@@ -61,7 +61,8 @@ from servo.control.gains import GAIN_NAMES, Gains, gain_value_problem
 from servo.control.law import switched_off_kp
 from servo.control.linear import sampled_loop_matrix
 
-__all__ = ["GAIN_MAX", "MIN_MARGIN_FLOOR", "GainRejected", "GainVerdict", "check_gain_change", "check_values",
+__all__ = ["GAIN_MAX", "MIN_MARGIN_FLOOR", "GainRejected", "GainVerdict", "check_gain_change", "check_gain_set",
+           "check_values",
            "judge", "loop_poles", "spectral_radius", "value_problem"]
 
 # The stability margin 1 − ρ must exceed this at least (strictly inside the unit circle, with a hair
@@ -222,14 +223,26 @@ def check_gain_change(law: Any, joint: int | None, changes: Mapping[str, Any], p
     """
     if not changes and switch_off is None:
         raise GainRejected("gains", {}, "no gain given (use kp=, kpi=, kv=, kvi=)")
-    n = int(law.n)
+    so = switch_off if switch_off is not None else _staged(law, "switch_off")
+    check_gain_set(_staged(law, "gains"), so, changes, period_s, delay, joint=joint, min_margin=min_margin)
+
+
+def check_gain_set(gains: Gains[np.ndarray], switch_off: Any, changes: Mapping[str, Any], period_s: float,
+                   delay: float = 0.0, *, joint: int | None = None, min_margin: float = 0.0) -> dict[str, float]:
+    """Raise :class:`GainRejected` unless ``changes`` (gain name → value) applied to the per-joint
+    set ``gains`` (of joint ``joint``, or of every joint for None) pass: values first, then every
+    changed joint's sampled loop with ``switch_off`` (a :class:`~servo.control.law.SwitchOffConfig`).
+    Returns ``changes`` as floats (:func:`check_values`).
+    :func:`check_gain_change` (a live law) and an override of a rig's settings
+    (:meth:`servo.settings.ServoSettings.overridden`) both ask this."""
+    n = int(gains.n or 1)
     if joint is not None and not (isinstance(joint, int) and not isinstance(joint, bool) and 0 <= joint < n):
         raise GainRejected("joint", joint, f"a joint index in 0..{n - 1}")
     clean = check_values(changes, joint)
-    gains = _staged(law, "gains")
-    so = switch_off if switch_off is not None else _staged(law, "switch_off")
+    so = switch_off
     shown = ", ".join(f"{k}={v:g}" for k, v in clean.items()) or "switch-off change"
     for j in range(n) if joint is None else (joint,):
         g = gains.joint(j).replace(**clean)
         kp_off = float(switched_off_kp(g.kp, g.kvi, float(so.kp_boost[j]))) if bool(so.enabled[j]) else None
         judge(g, period_s, delay, kp_off=kp_off, min_margin=min_margin).raise_if_refused(shown, j)
+    return clean

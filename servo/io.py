@@ -22,8 +22,9 @@ It imports ``hal`` only: it cannot tell an emulated crate from real hardware.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any, ClassVar, Protocol
 
 import numpy as np
@@ -36,6 +37,7 @@ from hal.amplifiers import duty_for_current
 from hal.pio.pio import PioDriver, PwmRangeError
 from hal.quadrature.quad import QuadratureDriver
 from hal.vme.bus import VmeBus
+from servo.interrupts import INTERRUPTS, SignalsDeferred
 from servo.rig import DIGITAL_OUTPUTS, WATCHDOG_NET, RigSpec
 
 
@@ -113,6 +115,9 @@ class Measurement:
     fault: np.ndarray
     theta: np.ndarray = field(default_factory=lambda: np.zeros(0))
     omega: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: per joint: its decoder flagged an illegal transition (A and B changed in one decoder
+    #: sample: counts were lost) since the previous read; the flag is cleared after each read
+    encoder_illegal: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
 
 @dataclass(frozen=True)
@@ -159,6 +164,9 @@ class JointIO:
     ``calibration``: the calibration data to apply at start (:class:`CalibrationSource`, e.g.
     a store loaded by ``vmehil.calibration.store.load_store``), or ``None`` (nominal values).
     """
+
+    #: how often :meth:`safe_stop` makes one write (or its read-back) that an interrupt cut short
+    STOP_STEP_ATTEMPTS = 5
 
     def __init__(self, bus: VmeBus, rig: RigSpec, scaling: list[SensorScaling],
                  calibration: CalibrationSource | None = None) -> None:
@@ -438,15 +446,20 @@ class JointIO:
             omega_tach[js] = volts[board][chs] / self._tach_v_per_rad_s[js]
         for board, js, chs in self._imon_plan:
             current[js] = volts[board][chs] / self._monitor_v_per_a[js]
+        illegal = np.zeros(n, bool)
         for board, js, chans in self._enc_plan:
             r = readings[board]
             got = [r[c] for c in chans]
             theta_enc[js] = [x.position_rad for x in got]
             omega_enc[js] = [x.velocity_rad_s for x in got]
+            for i, x in zip(js, got, strict=True):
+                if x.status.illegal:  # sticky in the decoder: cleared, so that each read tells anew
+                    illegal[i] = True
+                    self.quad[board].clear_illegal(x.channel)
         for board, port, js, bits in self._fault_plan:
             value = self.pio[board].read_port(port)  # DATA_x, as get_line reads
             fault[js] = (value >> bits) & 1
-        m = Measurement(theta_pot, theta_enc, omega_tach, omega_enc, current, pot_v, fault)
+        m = Measurement(theta_pot, theta_enc, omega_tach, omega_enc, current, pot_v, fault, encoder_illegal=illegal)
         m.theta = np.where(self._position_from_pot, theta_pot, theta_enc)
         m.omega = np.where(self._velocity_from_tach, omega_tach, omega_enc)
         return m
@@ -455,10 +468,11 @@ class JointIO:
         """Command joint torques (N·m). Linear amps: DAC volts = τ/(N·Kt·gain), one strobe per
         DAC board. H-bridges: V = R·i + Ke·ω_motor as PWM duty. Returns the commanded current (A).
 
-        The conversions run over all joints as arrays; they give the same numbers, bit for bit,
-        as :func:`~hal.amplifiers.current_for_torque`, :func:`~hal.amplifiers.clamp_current`
-        and :func:`~hal.amplifiers.command_volts` joint by joint (the clamps are written as the
-        same comparisons, so a NaN clamps to the limit as ``min``/``max`` do)."""
+        The one torque-to-command conversion (the controller's output is torque; the drivers take
+        amperes and volts), with the calibrated scaling. It runs over all joints as arrays and gives
+        the same numbers, bit for bit, as i = τ/(N·Kt), :func:`~hal.amplifiers.clamp_current` and
+        :func:`~hal.amplifiers.command_volts` joint by joint (the clamps are written as the same
+        comparisons, so a NaN clamps to the limit as ``min``/``max`` do)."""
         self._scaling_arrays()
         tau = np.asarray(torque_nm, dtype=float)
         limit = self._limit_a
@@ -578,46 +592,82 @@ class JointIO:
                 drv.set_line(j.net("amp_reset"), True)
                 drv.set_line(j.net("amp_reset"), False)
 
-    def safe_stop(self) -> list[str]:
+    def safe_stop(self, interruptions: list[BaseException] | None = None) -> list[str]:
         """Amplifiers disabled, holding-brake lines low (the brakes hold), DAC outputs to 0 V, PWM
         off, the watchdog line no longer toggled (left low) — then read back that it happened.
 
         Keeps going past driver errors (a safe stop must do as much as it can) and returns what
         failed or could not be confirmed (:meth:`verify_stopped`): an empty list means every
         enable line reads low, every amplifier command's DAC output holds the 0 V code and every
-        PWM timer is off."""
+        PWM timer is off.
+
+        A signal-safe critical section (:class:`servo.interrupts.SignalsDeferred`): a SIGINT,
+        SIGTERM or SIGHUP arriving during the stop, or a ``KeyboardInterrupt``/``Terminated``
+        raised inside one of its steps, does not cut it short. Each is appended to
+        ``interruptions`` when given (the caller records them and decides); without it the first
+        is raised once the stop and its read-back are done."""
+        held: list[BaseException] = []
+        with SignalsDeferred(held):
+            failures = self._stop_outputs(held)
+        if interruptions is not None:
+            interruptions.extend(held)
+        elif held:
+            raise held[0]
+        return failures
+
+    def _stop_outputs(self, held: list[BaseException]) -> list[str]:
         failures: list[str] = []
+
+        def step(what: str, action: Callable[[], object]) -> None:
+            # An interrupt raised inside a write is held, not raised, and the write (idempotent)
+            # made again: the interrupted one may not have reached the board.
+            for _ in range(self.STOP_STEP_ATTEMPTS):
+                try:
+                    action()
+                    return
+                except INTERRUPTS as e:
+                    held.append(e)
+                except Exception as e:
+                    failures.append(f"{what}: {e}")
+                    return
+            failures.append(f"{what}: interrupted {self.STOP_STEP_ATTEMPTS} times")
+
+        def dac_zero(drv: DacDriver) -> None:
+            drv.write_many({ch: 0.0 for ch in range(drv.CHANNELS)}, update=True)
+
+        def pwm_off(j: Any) -> None:
+            self._set_hbridge(j, 0.0)
+            self.pio[j.wiring["pwm"].board].pwm_enable(False)
+
+        def enable_low(j: Any) -> None:
+            self.pio[j.wiring["amp_enable"].board].set_line(j.net("amp_enable"), False)
+
+        def brake_low(i: int, board: str, net: str) -> None:
+            self.pio[board].set_line(net, False)
+            self.brake_released[i] = False
+
         self._release_pending = False
         for i, board, net in self._holding_brakes:  # first: the brakes start engaging at once
-            try:
-                self.pio[board].set_line(net, False)
-                self.brake_released[i] = False
-            except Exception as e:
-                failures.append(f"{self.rig.joints[i].name}: holding brake {e}")
+            step(f"{self.rig.joints[i].name}: holding brake", partial(brake_low, i, board, net))
         for name, drv in self.dac.items():
-            try:
-                drv.write_many({ch: 0.0 for ch in range(drv.CHANNELS)}, update=True)
-            except Exception as e:
-                failures.append(f"{name}: {e}")
+            step(name, partial(dac_zero, drv))
         for j in self.rig.joints:
-            try:
-                if "pwm" in j.wiring:
-                    self._set_hbridge(j, 0.0)
-                    self.pio[j.wiring["pwm"].board].pwm_enable(False)
-            except Exception as e:
-                failures.append(f"{j.name}: {e}")
-            try:
-                if "amp_enable" in j.wiring:
-                    self.pio[j.wiring["amp_enable"].board].set_line(j.net("amp_enable"), False)
-            except Exception as e:
-                failures.append(f"{j.name}: {e}")
-        try:
-            self._stop_watchdog()
-        except Exception as e:
-            failures.append(f"watchdog line: {e}")
+            if "pwm" in j.wiring:
+                step(j.name, partial(pwm_off, j))
+            if "amp_enable" in j.wiring:
+                step(j.name, partial(enable_low, j))
+        step("watchdog line", self._stop_watchdog)
         self.last_dac_volts[:] = 0.0
         self.last_current_a[:] = 0.0
-        return failures + [f for f in self.verify_stopped() if f not in failures]
+        verified: list[str] = []
+        for _ in range(self.STOP_STEP_ATTEMPTS):  # an interrupted read-back is read again
+            try:
+                verified = self.verify_stopped()
+                break
+            except INTERRUPTS as e:
+                held.append(e)
+                verified = ["the read-back was interrupted"]
+        return failures + [f for f in verified if f not in failures]
 
     def verify_stopped(self) -> list[str]:
         """Read back every actuator output: what is not provably safe, one line each.

@@ -33,7 +33,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from servo.control.objects import ControlContext, Controller, SwitchableController
-from servo.interrupts import Terminated, interrupt_name
+from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_name
 from servo.io import JointIO, Measurement
 from servo.trajectory.sequencer import PlanContext, Sequencer
 from servo.watchdog import CrossChecks, WatchdogConfig
@@ -141,6 +141,11 @@ class ServoLoop:
         self.stop_incomplete: list[str] = []
         #: how the run ended (:meth:`shutdown`): reason, tick, whether the read-back confirmed it
         self.final_stop: dict[str, Any] | None = None
+        #: every interruption of the run, in order: ``{"signal", "tick", "during"}`` with
+        #: ``during`` ``run`` (it ended the ticks), ``stop`` (held by a stop's critical section
+        #: until the stop was done) or ``after`` (held while the run's results were written)
+        self.interruptions: list[dict[str, Any]] = []
+        self._interrupts_seen: list[BaseException] = []
         self.enabled = False
         self.tick_count = 0
         self._inbox: queue.SimpleQueue[tuple[LiveCommand, Callable[[Any, BaseException | None], None] | None]] = (
@@ -149,6 +154,9 @@ class ServoLoop:
         self._last_theta: np.ndarray | None = None
         self.cross_checks = CrossChecks(io, watchdog)
         self.last: dict[str, Any] = {}
+        #: every fault of the run, oldest first (``fault`` is the current one; a resume clears
+        #: ``fault`` but not this list)
+        self.faults: list[Fault] = []
         #: live changes and notes, (time, source, message), the newest ``LOG_MAX`` of them
         self.log: deque[tuple[float, str, str]] = deque(maxlen=self.LOG_MAX)
         #: notes dropped from the front of ``log`` to keep it bounded (long runs)
@@ -206,43 +214,101 @@ class ServoLoop:
         self.io.enable(True)
         self.enabled = True
 
+    @property
+    def interrupted_by(self) -> BaseException | None:
+        """The first interruption recorded (:meth:`note_interruption`), ``None`` if none was."""
+        return self._interrupts_seen[0] if self._interrupts_seen else None
+
+    def note_interruption(self, exc: BaseException, during: str) -> None:
+        """Record a SIGINT/SIGTERM/SIGHUP (as raised or held) in :attr:`interruptions`; the same
+        exception seen again (re-raised up the stack) is recorded once."""
+        if any(x is exc for x in self._interrupts_seen):
+            return
+        self._interrupts_seen.append(exc)
+        self.interruptions.append({"signal": interrupt_name(exc), "tick": self.tick_count, "during": during})
+
     def shutdown(self, reason: str, detail: str = "") -> list[str]:
         """End of a run: amplifiers disabled, 0 V commanded, PWM off, read back.
 
         Recorded in :attr:`final_stop` (``reason``: ``end``, ``fault``, ``interrupted`` or
-        ``exception``; ``detail``; what the read-back could not confirm); a fault recorded
-        earlier is kept as it was. Returns the unconfirmed items."""
-        failures = self.io.safe_stop()
-        self.enabled = False
-        self.stop_incomplete = failures
-        self.final_stop = {"reason": reason, "detail": detail, "tick": self.tick_count,
-                           "time_s": self.tick_count * self.period_s, "verified": not failures,
-                           "incomplete": list(failures)}
-        return failures
+        ``exception``; ``detail``; what the read-back could not confirm; ``interruptions``: every
+        interruption of the run, this list kept up to date to the end); a fault recorded earlier
+        is kept as it was. Returns the unconfirmed items. A signal-safe critical section like
+        :meth:`safe_stop`: a signal arriving meanwhile is raised when it is done."""
+        held = self._shutdown(reason, detail)
+        if held:
+            raise held[0]
+        return self.stop_incomplete
+
+    def _shutdown(self, reason: str, detail: str, then: SignalsDeferred | None = None) -> list[BaseException]:
+        """:meth:`shutdown`'s work in a critical section; returns what it held. ``then`` (a
+        section of the caller's) begins before this one ends, so no signal falls in between."""
+        held: list[BaseException] = []
+        with SignalsDeferred(held):
+            failures = self.io.safe_stop(held)
+            self.enabled = False
+            self.stop_incomplete = failures
+            self.final_stop = {"reason": reason, "detail": detail, "tick": self.tick_count,
+                               "time_s": self.tick_count * self.period_s, "verified": not failures,
+                               "incomplete": list(failures), "interruptions": self.interruptions}
+            for e in held:
+                self.note_interruption(e, "stop")
+            if then is not None:
+                then.begin()
+        for e in held:  # any held after the notes above
+            self.note_interruption(e, "stop")
+        return held
 
     @contextmanager
-    def armed(self) -> Iterator[ServoLoop]:
+    def armed(self, then: SignalsDeferred | None = None) -> Iterator[ServoLoop]:
         """``start()`` the loop; however the block is left — its end, an exception, Ctrl-C,
         SIGTERM raised as :class:`servo.interrupts.Terminated` — :meth:`shutdown` it. An
         exception or a signal that leaves the block is also recorded as the fault (cause
         ``exception`` or ``interrupted``) unless one was recorded already, and re-raised; a
         block that ends after a fault (a watchdog stop, or a runner that caught a signal) ends
-        with that fault's cause as the reason."""
+        with that fault's cause as the reason.
+
+        The stops here complete whatever signals arrive (each a critical section, retried when
+        a signal came just before it began); every interruption is recorded (:attr:`interruptions`).
+        A block that ended normally but was interrupted during its final stop raises the first
+        such interruption after it. ``then``: the caller's critical section (writing the run's
+        results), begun before the final stop's own ends — the caller ends it."""
         self.start()
+        ended = False
         try:
             yield self
-        except (KeyboardInterrupt, Terminated) as e:
-            self.safe_stop("interrupted", f"{interrupt_name(e)} received")
+            ended = True
+        except INTERRUPTS as e:
+            self.note_interruption(e, "run")
+            self._stop_retrying("interrupted", f"{interrupt_name(e)} received")
             raise
         except BaseException as e:
-            self.safe_stop("exception", f"{type(e).__name__}: {e}")
+            self._stop_retrying("exception", f"{type(e).__name__}: {e}")
             raise
         finally:
-            f = self.fault
-            if f is None:
-                self.shutdown("end", "the run ended")
-            else:
-                self.shutdown(f.cause if f.cause in ("interrupted", "exception") else "fault", f.detail)
+            held: list[BaseException] = []
+            while True:
+                try:
+                    f = self.fault
+                    if f is None:
+                        held = self._shutdown("end", "the run ended", then)
+                    else:
+                        reason = f.cause if f.cause in ("interrupted", "exception") else "fault"
+                        held = self._shutdown(reason, f.detail, then)
+                    break
+                except INTERRUPTS as e:  # came before the stop's section began: stop again
+                    self.note_interruption(e, "stop")
+            if held and ended:
+                raise held[0]
+
+    def _stop_retrying(self, cause: str, detail: str) -> None:
+        """:meth:`safe_stop` until it has run to its end; interruptions are recorded, not raised."""
+        while True:
+            try:
+                self._safe_stop(cause, detail, None)
+                return
+            except INTERRUPTS as e:  # came before the stop's section began
+                self.note_interruption(e, "stop")
 
     def resume(self, hold_measured: bool = True) -> np.ndarray | None:
         """Leave a safe stop (or a stop) and servo again: clear the fault, forget the watchdog's
@@ -291,15 +357,33 @@ class ServoLoop:
 
         The first fault is kept (later stops add nothing to it). What the read-back could not
         confirm goes to :attr:`stop_incomplete` — a separate, louder condition than the fault
-        itself: the rig may still be powered."""
-        failures = self.io.safe_stop()
-        self.stop_incomplete = failures
-        if failures:
-            detail += " (safe stop incomplete: " + "; ".join(failures) + ")"
-        if self.fault is None:
-            self.fault = Fault(self.tick_count, self.tick_count * self.period_s, cause,
-                               self.names[joint] if joint is not None else None, detail)
-        self.enabled = False
+        itself: the rig may still be powered.
+
+        A signal-safe critical section (:class:`servo.interrupts.SignalsDeferred`): a signal
+        arriving during the stop, or an interrupt raised inside one of its driver writes, does
+        not cut it short; each is recorded (:attr:`interruptions`) and the first is raised once
+        the stop is done and recorded."""
+        held = self._safe_stop(cause, detail, joint)
+        if held:
+            raise held[0]
+
+    def _safe_stop(self, cause: str, detail: str, joint: int | None) -> list[BaseException]:
+        held: list[BaseException] = []
+        with SignalsDeferred(held):
+            failures = self.io.safe_stop(held)
+            self.stop_incomplete = failures
+            if failures:
+                detail += " (safe stop incomplete: " + "; ".join(failures) + ")"
+            if self.fault is None:
+                self.fault = Fault(self.tick_count, self.tick_count * self.period_s, cause,
+                                   self.names[joint] if joint is not None else None, detail)
+                self.faults.append(self.fault)
+            self.enabled = False
+            for e in held:
+                self.note_interruption(e, "stop")
+        for e in held:
+            self.note_interruption(e, "stop")
+        return held
 
     # --- one tick ---------------------------------------------------------------------------------
     def tick(self, truth: Mapping[str, np.ndarray] | None = None) -> None:

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from servo.boundary import PlantBoundary, PlantBoundaryError
-from servo.interrupts import Terminated, interrupt_name
+from servo.interrupts import INTERRUPTS, interrupt_name
 from servo.loop import ServoLoop
 from servo.rt import RealtimeSettings, apply_realtime, check_rt_priority, involuntary_switches, wait_until
 
@@ -179,7 +179,8 @@ class LockstepRunner:
         self._completed = 0
         try:
             return self._run(n_ticks, progress, stop)
-        except (KeyboardInterrupt, Terminated) as e:
+        except INTERRUPTS as e:
+            self.loop.note_interruption(e, "run")
             self.stop_now("interrupted", f"{interrupt_name(e)} received", e)
         except Exception as e:
             self.stop_now("exception", f"{type(e).__name__}: {e}", e)
@@ -201,18 +202,21 @@ class LockstepRunner:
         The exchange of the tick that failed is made if it had not happened yet; otherwise the
         next tick's. Errors while carrying the stop over are ignored: the drivers have already
         disabled the amplifiers and zeroed the DACs (and read it back) in :meth:`ServoLoop.safe_stop`.
+        A signal that the stop held is raised after the exchange.
         """
         self.ended_by = exc
-        self.loop.safe_stop(cause, detail)
-        k = self.loop.tick_count
-        if self._exchanged:
-            k += 1
         try:
-            self.plant.advance_to(k * self.period_ns + self.delay_ns)
-            self.plant.exchange(k)
-        except Exception:  # the stop itself is done; the plant may be what failed
-            pass
-        self._exchanged = True
+            self.loop.safe_stop(cause, detail)
+        finally:
+            k = self.loop.tick_count
+            if self._exchanged:
+                k += 1
+            try:
+                self.plant.advance_to(k * self.period_ns + self.delay_ns)
+                self.plant.exchange(k)
+            except Exception:  # the stop itself is done; the plant may be what failed
+                pass
+            self._exchanged = True
 
 
 OVERRUN_POLICIES = ("stop", "warn")

@@ -4,7 +4,7 @@ While a ``vservo`` move runs, the servo loop follows the vision system's end-eff
 commands, which arrive over the BIT3 VME-to-VME link (``hal.bit3``): each tick the robot side
 publishes the measured joint angles, runs its protocol state machine and, when a complete new
 command arrived, turns the end-effector increment into joint increments with the arm model's
-damped-least-squares Jacobian (``hal.bit3.arm.ArmModel.ee_delta_to_joint_delta``) and adds them
+damped-least-squares Jacobian (``hal.kinematics.ArmModel.ee_delta_to_joint_delta``) and adds them
 to the joint targets. Whenever the protocol says *hold* (requested, ending, idle, peer dead) the
 targets stay where they are. The move ends when the task ends (either side, or a dead peer) or
 after ``timeout_s``; the sequencer then goes on from where the arm is held.
@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from hal.bit3.arm import ArmModel
 from hal.bit3.protocol import RobotState, VisionServoClient
 from hal.config import ConfigTable
+from hal.kinematics import ArmModel
 from servo.trajectory.base import Sample, TrajectoryError
 from servo.trajectory.sequencer import PlanContext
 

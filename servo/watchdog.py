@@ -30,6 +30,14 @@ then shows as a disagreement within a few ticks, long before the following error
   ``stale_travel_rad``. A joint held by stiction at the start of a move lags its target by
   less than that; the band (not bit-equality) keeps ADC noise on a frozen signal from hiding it.
 
+* **illegal quadrature transitions** — a decoder flags ILLEGAL when A and B change in one of its
+  input samples: counts were lost. Motion alone cannot do that below one x4 count per decoder
+  sample; at a joint's top speed a healthy encoder gives far fewer (jpl-arm: 20 °/s · 200 000
+  counts/rev = 89 counts per 8 ms period against the decoder's 8 000 samples in it, 1 MHz: 90×
+  margin), so a healthy encoder never sets it. A single noise spike (a lost count or two) is
+  harmless; the check trips when ILLEGAL is seen in ``encoder_illegal_ticks`` (3) ticks of the
+  last ``encoder_illegal_window_ticks`` (125, 1 s) — a noisy or failing encoder within 24 ms.
+
 Defaults (``None`` in the config) are derived per joint from the sensors' nominal resolution
 (:meth:`servo.io.JointIO.resolution`) and the tach dead band; docs/faults.md says how.
 """
@@ -89,6 +97,10 @@ class WatchdogConfig:
     #: the previous tick's command, as in lockstep; a free-running plant answers 1-2 periods late):
     #: the current check then accepts any command of the last ``1 + command_lag_ticks`` ticks
     command_lag_ticks: int = 0
+    #: ticks whose decoder read found ILLEGAL set, within the last ``encoder_illegal_window_ticks``,
+    #: that stop the loop (cause ``encoder_illegal``; a healthy encoder never sets it, see above)
+    encoder_illegal_ticks: int = 3
+    encoder_illegal_window_ticks: int = 125
 
 
 @dataclass
@@ -197,6 +209,9 @@ class CrossChecks:
         self._stale_count = np.zeros(n, int)
         self._stale_travel = np.zeros(n)
         self._last_theta_d: np.ndarray | None = None
+        self._tick = 0
+        #: per joint with ILLEGAL seen in the window: the ticks it was seen at
+        self._illegal_seen: dict[int, deque[int]] = {}
         #: per check and joint, the largest disagreement seen as a fraction of its limit (1 trips):
         #: how close a healthy run came (reports, tests)
         self.peak_ratio = {name: np.zeros(n) for name in ("position", "velocity", "current")}
@@ -225,9 +240,36 @@ class CrossChecks:
             self._filled = 0
         self.limit("stale_travel_rad")  # the limits in force, resolved once for this tick's checks
         stale = self._stale(m, np.asarray(theta_d, float), np.asarray(omega_d, float))
+        illegal = self._illegal(m)
         if not self.config.cross_checks:
-            return stale
-        return self._current(m) or self._velocity(m, sample_time_s) or self._position(m) or stale
+            return illegal or stale
+        return illegal or self._current(m) or self._velocity(m, sample_time_s) or self._position(m) or stale
+
+    def _illegal(self, m: Any) -> Trip | None:
+        """ILLEGAL seen in ``encoder_illegal_ticks`` of the last ``encoder_illegal_window_ticks``."""
+        self._tick += 1
+        flags = getattr(m, "encoder_illegal", None)
+        seen = self._illegal_seen
+        if flags is None or len(flags) != self.n or (not seen and not flags.any()):
+            return None  # the healthy path: nothing flagged now or in the window
+        window = max(1, int(self.config.encoder_illegal_window_ticks))
+        for flagged in np.flatnonzero(flags):
+            seen.setdefault(int(flagged), deque()).append(self._tick)
+        worst: int | None = None
+        most = 0
+        for joint, ticks in list(seen.items()):
+            while ticks and ticks[0] <= self._tick - window:
+                ticks.popleft()
+            if not ticks:
+                del seen[joint]
+            elif len(ticks) > most:
+                worst, most = joint, len(ticks)
+        if worst is None or most < max(1, int(self.config.encoder_illegal_ticks)):
+            return None
+        return Trip("encoder_illegal", worst,
+                    f"the quadrature decoder flagged illegal transitions (A and B changed in one sample: counts "
+                    f"lost) in {most} of the last {window} ticks (limit {self.config.encoder_illegal_ticks}): "
+                    "a noisy or failing encoder, or a shaft faster than the decoder samples")
 
     def _position(self, m: Any) -> Trip | None:
         if not self.both.any():

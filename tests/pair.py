@@ -40,6 +40,7 @@ NETWORK_GROUP = (
     "tests/vmehil/test_units_plant_node.py",
     "tests/vmehil/test_units_processes.py",
     "tests/vmehil/test_units_remote.py",
+    "tests/vmehil/test_units_sessions.py",
 )
 #: long tests without ports run in the network group's process: measured at 10:28 UTC (idle
 #: machine), the network group took 206 s and the rest 303 s; these two files are ~50 s of it

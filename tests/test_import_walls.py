@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import grimp
+import pytest
 
 OURS = ("hal", "emulators", "servo", "vmehil")
 
@@ -87,3 +89,40 @@ def test_the_controller_runs_without_loading_an_emulator():
     code = "import servo.runner, sys; print([m for m in sys.modules if m.startswith('emulators')])"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
     assert out.stdout.strip() == "[]"
+
+
+# Runs pytest on tests/servo in a fresh interpreter whose import system refuses every vmehil
+# module (a meta-path finder ahead of the others): the controller's own tests need only servo,
+# hal and, for the rig presets, emulators.
+_WITHOUT_VMEHIL = """
+import sys
+
+class RefuseVmehil:
+    def find_spec(self, name, path=None, target=None):
+        if name == "vmehil" or name.startswith("vmehil."):
+            raise ModuleNotFoundError(f"No module named {name!r} (refused: tests/servo runs without vmehil)",
+                                      name=name)
+        return None
+
+sys.meta_path.insert(0, RefuseVmehil())
+import pytest
+code = pytest.main(["-q", "-p", "no:cacheprovider", "-x", "tests/servo"])
+print("vmehil loaded:", [m for m in sys.modules if m == "vmehil" or m.startswith("vmehil.")])
+sys.exit(int(code))
+"""
+
+
+@pytest.mark.slow  # runs tests/servo once more (~20 s)
+def test_the_servo_tests_run_with_vmehil_absent():
+    root = Path(__file__).resolve().parent.parent
+    out = subprocess.run([sys.executable, "-c", _WITHOUT_VMEHIL], capture_output=True, text=True, timeout=600,
+                         cwd=root)
+    assert out.returncode == 0, out.stdout[-4000:] + out.stderr[-2000:]
+    assert "vmehil loaded: []" in out.stdout
+    assert " passed" in out.stdout
+
+
+def test_the_vmehil_refusing_finder_refuses():
+    code = _WITHOUT_VMEHIL.split("import pytest")[0] + "import vmehil.cli\n"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode != 0 and "refused: tests/servo runs without vmehil" in out.stderr

@@ -37,7 +37,7 @@ def test_every_path_of_the_groups_exists() -> None:
     (["-q", "-m", "not slow"], False),
     (["-k", "tests"], False),  # an option's value, not a path
     (["tests/hal"], True),
-    (["-q", "tests/servo/test_watchdog_cross_checks.py::test_x"], True),
+    (["-q", "tests/vmehil/servo_on_rig/test_watchdog_cross_checks.py::test_x"], True),
 ])
 def test_test_paths_among_the_arguments_mean_one_plain_run(args, paths) -> None:
     assert _names_paths(args) is paths

@@ -26,7 +26,7 @@ import itertools
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from vmehil.cli_types import bounded_float, bounded_int
 
@@ -92,7 +92,7 @@ class CanPlantOptions:
     @classmethod
     def from_args(cls, args: argparse.Namespace, *, own_node: bool | None = None) -> CanPlantOptions | None:
         """The options of ``--plant can``; None for ``--plant inprocess`` (or no such options)."""
-        if getattr(args, "plant", "inprocess") != "can":
+        if args.plant != "can":
             return None
         return cls(args.interface, args.channel, args.plant_mode, args.can_log, args.can_timeout,
                    args.stale_ticks, own_node)
@@ -270,24 +270,34 @@ class CanLinkFactory:
         return self.options.starts_node
 
 
-def link_factory(args: argparse.Namespace) -> CanLinkFactory | None:
+class RunNeeds(Protocol):
+    """What of ``vmehil run``'s options (:class:`vmehil.commands.run_options.RunOptions`) the plant link reads."""
+
+    @property
+    def plant(self) -> CanPlantOptions | None: ...
+    @property
+    def seed(self) -> int: ...
+    @property
+    def quiet(self) -> bool: ...
+
+
+def link_factory(options: CanPlantOptions | None) -> CanLinkFactory | None:
     """The link factory of ``--plant can`` for the tuning commands, else None (in-process plant).
     On ``virtual`` every link starts its own plant node thread; on ``socketcan``/``udp_multicast``
     the links talk to the external ``vmehil plant-node`` (one run at a time)."""
-    opts = CanPlantOptions.from_args(args)
-    return None if opts is None else CanLinkFactory(opts)
+    return None if options is None else CanLinkFactory(options)
 
 
-def make_link(args: argparse.Namespace, rig: Any):
+def make_link(run: RunNeeds, rig: Any):
     """``vmehil run``: the :class:`~emulators.can.link.CanPlantLink` for ``--plant can``, else
     ``None``. On ``virtual`` (the default: python-can's virtual bus reaches this process only) it
     starts the plant node in this process, as ``vmehil tune`` does; on ``socketcan`` and
     ``udp_multicast`` it talks to the ``vmehil plant-node`` already on the bus."""
-    opts = CanPlantOptions.from_args(args)
+    opts = run.plant
     if opts is None:
         return None
-    link = opts.open_link(rig, args.seed)
-    if link.node is not None and not getattr(args, "quiet", False):
+    link = opts.open_link(rig, run.seed)
+    if link.node is not None and not run.quiet:
         import sys
 
         iface = opts.resolved()[0]
@@ -296,6 +306,6 @@ def make_link(args: argparse.Namespace, rig: Any):
     return link
 
 
-def attach(args: argparse.Namespace, system: Any, loop: Any, runner: Any) -> None:
+def attach(run: RunNeeds, system: Any, loop: Any, runner: Any, prepared: None = None) -> None:
     """Nothing to attach: the link is closed with the system."""
     return None

@@ -13,22 +13,34 @@ for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402  (after the BLAS setting above)
+import signal  # noqa: E402
 import sys  # noqa: E402
 import traceback  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 
 from hal.config import ConfigError  # noqa: E402
 from hal.vme.errors import VmeError  # noqa: E402
-from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name, stop_signals_raise  # noqa: E402
+from servo.interrupts import (  # noqa: E402
+    DEFERRED_SIGNALS,
+    EXIT_SIGINT,
+    EXIT_SIGTERM,
+    Terminated,
+    interrupt_exit_status,
+    interrupt_name,
+    stop_signals_raise,
+)
+from vmehil import cli_style  # noqa: E402
 from vmehil.commands import calibrate, console, crate, plant_node, reproduce, run, tune, units, vision  # noqa: E402
 from vmehil.commands.errors import CliError  # noqa: E402
 from vmehil.exit_status import EXIT_BROKEN_PIPE, EXIT_UNEXPECTED, EXIT_USAGE  # noqa: E402
-from vmehil.outputs import check_outputs, mark_output_dirs  # noqa: E402
+from vmehil.outputs import OutputPaths, check_outputs, mark_output_dirs  # noqa: E402
 
 __all__ = ["COMMANDS", "CliError", "build_parser", "main"]
 
 # The subcommands, in the order of `vmehil --help`; each ``register(subparsers)`` adds its parser
-# and sets ``func`` on it.
+# and sets two defaults on it: ``options``, the one step that reads the parsed namespace into the
+# command's typed options (a frozen dataclass's ``from_args``), and ``func``, the command, which
+# receives those options: nothing below this module sees the namespace.
 COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
     crate.register,
     run.register,
@@ -43,7 +55,7 @@ COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = cli_style.VmehilArgumentParser(
         prog="vmehil",
         description="VME hardware-in-the-loop emulation, drivers and servo tools for robot joints.",
     )
@@ -51,28 +63,44 @@ def build_parser() -> argparse.ArgumentParser:
                         help="show the traceback of an unexpected error (also VMEHIL_DEBUG=1); anywhere on the line")
     parser.add_argument("--force", action="store_true",
                         help="overwrite output files and directories vmehil did not write; anywhere on the line")
+    parser.add_argument("--version", action="version", version=f"vmehil {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for register in COMMANDS:
         register(sub)
+    cli_style.apply(parser)
     return parser
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("vmehil")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "(not installed)"
 
 
 def main(argv: list[str] | None = None) -> int:
     # --debug is accepted anywhere on the line (before or after the subcommand)
+    process = argv is None  # the program itself, not a call from Python
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv or os.environ.get("VMEHIL_DEBUG", "") not in ("", "0")
     force = "--force" in argv  # overwrite output files that vmehil did not write (vmehil.outputs)
     argv = [a for a in argv if a not in ("--debug", "--force")]
     parser = build_parser()
+    if not argv:  # bare `vmehil`: the commands, not argparse's "the following arguments are required"
+        parser.print_help()
+        return EXIT_USAGE
     args = parser.parse_args(argv)
     try:
-        check_outputs(args, force=force)
+        outputs = OutputPaths.from_args(args)
+        check_outputs(outputs, force=force)
         try:
             with stop_signals_raise():
-                return int(args.func(args) or 0)
+                return _ending(int(args.func(args.options(args)) or 0), process)
         finally:
-            mark_output_dirs(args)
+            mark_output_dirs(outputs)
     except (CliError, ConfigError, VmeError, FileNotFoundError, ValueError) as e:
         if debug:
             traceback.print_exc()
@@ -87,10 +115,21 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(devnull, sys.stdout.fileno())
         return EXIT_BROKEN_PIPE
     except (KeyboardInterrupt, Terminated) as e:
+        status = _ending(interrupt_exit_status(e), process)
         print(f"vmehil {args.command}: interrupted ({interrupt_name(e)})", file=sys.stderr)
-        return interrupt_exit_status(e)
+        return status
     except Exception as e:
         return _unexpected(args.command, e, debug)
+
+
+def _ending(status: int, process: bool) -> int:
+    """A program ending by a signal (status 130/143, its stop done, its results written) ignores
+    further signals while it exits: a burst of them must not kill the interpreter's shutdown and
+    turn the exit status into a death by signal (docs/safe-stop.md, "A second signal")."""
+    if process and status in (EXIT_SIGINT, EXIT_SIGTERM):
+        for s in DEFERRED_SIGNALS:
+            signal.signal(s, signal.SIG_IGN)
+    return status
 
 
 def _unexpected(command: str, e: BaseException, debug: bool) -> int:

@@ -9,7 +9,7 @@ or ``no stop`` (a fault the loop rides through, or one documented as undetectabl
 
     python -m vmehil.fault_matrix            # the table of docs/faults.md (measured figures)
 
-``tests/test_fault_matrix.py`` asserts every case's outcome.
+``tests/vmehil/test_fault_matrix.py`` asserts every case's outcome.
 """
 
 from __future__ import annotations
@@ -73,7 +73,9 @@ MATRIX: tuple[MatrixCase, ...] = (
     MatrixCase("encoder_glitch:joint=j1,counts=2000", "velocity_mismatch",
                "2000 extra counts (3.6°) in one period: the tach's reference speed jumps"),
     MatrixCase("encoder_glitch:joint=j1", NO_STOP,
-               "200 counts (0.36°) stay inside the encoder/pot tolerance: harmless, undetected"),
+               "200 counts (0.36°) stay inside the encoder/pot tolerance, one illegal sample: harmless"),
+    MatrixCase("encoder_glitch:joint=j1,counts=0,illegal=60000,intervals=150", "encoder_illegal",
+               "the decoder flags illegal transitions every period: counts are being lost"),
     MatrixCase("board_removed:board=adc0", "driver_error", "the next ADC scan ends in BERR"),
     MatrixCase("board_removed:board=dac0", "driver_error", "the next command write ends in BERR; the stop "
                "cannot confirm the DAC outputs (the enables are low)", readback="cannot be read back"),
@@ -92,10 +94,12 @@ MATRIX: tuple[MatrixCase, ...] = (
 )
 
 
-def _vision_args() -> Any:
+def _vision_options() -> Any:
+    """``vmehil run --vision inprocess --seed SEED``'s options, as the command line makes them."""
     from vmehil.cli import build_parser
+    from vmehil.commands.run_options import RunOptions
 
-    return build_parser().parse_args(["run", "--vision", "inprocess", "--seed", str(SEED)])
+    return RunOptions.from_args(build_parser().parse_args(["run", "--vision", "inprocess", "--seed", str(SEED)]))
 
 
 def run_case(case: MatrixCase) -> dict[str, Any]:
@@ -124,7 +128,7 @@ def run_case(case: MatrixCase) -> dict[str, Any]:
         if case.vision:
             from vmehil import vision_options
 
-            attached = vision_options.attach(_vision_args(), system, loop, runner)
+            attached = vision_options.attach(_vision_options(), system, loop, runner)
         schedule = FaultSchedule([fault], FaultContext(system, loop, SEED))
         schedule.attach(runner)
         runner.run(RUN_TICKS)

@@ -10,7 +10,8 @@ and the emulator part and pin it hit) and ``stop`` (:func:`vmehil.fault_injectio
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 from servo.rig import RigSpec
 from vmehil.fault_injection import (
@@ -37,9 +38,34 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a TOML scenario: [[fault]] tables with name, at_s and params = {...}")
 
 
-def wants_list(args: argparse.Namespace) -> bool:
-    """``--fault list``: print the catalogue instead of running."""
-    return LIST in (getattr(args, "fault", None) or [])
+@dataclass(frozen=True)
+class FaultOptions:
+    """``--fault`` (each as given) and ``--faults``; parsed into faults by :func:`scenario`."""
+
+    specs: tuple[str, ...] = ()
+    file: str | None = None
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> FaultOptions:
+        return cls(specs=tuple(args.fault or ()), file=args.faults)
+
+    @property
+    def wants_list(self) -> bool:
+        """``--fault list``: print the catalogue instead of running."""
+        return LIST in self.specs
+
+
+class RunNeeds(Protocol):
+    """What of ``vmehil run``'s options (:class:`vmehil.commands.run_options.RunOptions`) the faults read."""
+
+    @property
+    def faults(self) -> FaultOptions: ...
+    @property
+    def plant_over_can(self) -> bool: ...
+    @property
+    def vision_mode(self) -> str | None: ...
+    @property
+    def seed(self) -> int: ...
 
 
 def list_faults() -> int:
@@ -47,30 +73,40 @@ def list_faults() -> int:
     return 0
 
 
-def scenario(args: argparse.Namespace) -> list[ScheduledFault]:
+def scenario(options: FaultOptions) -> list[ScheduledFault]:
     """Every fault of ``--fault`` and ``--faults``, parsed and checked (defaults filled in)."""
-    faults = [parse_fault_spec(text) for text in (getattr(args, "fault", None) or []) if text != LIST]
-    if getattr(args, "faults", None):
-        faults += load_scenario(args.faults)
+    faults = [parse_fault_spec(text) for text in options.specs if text != LIST]
+    if options.file:
+        faults += load_scenario(options.file)
     return faults
 
 
-def _check_needs(faults: list[ScheduledFault], args: argparse.Namespace) -> None:
+def _check_needs(faults: list[ScheduledFault], run: RunNeeds) -> None:
     for f in faults:
         name = f.kind.name
-        if name.startswith("can_") and getattr(args, "plant", "inprocess") != "can":
+        if name.startswith("can_") and not run.plant_over_can:
             raise ValueError(f"{f.source}: {name} needs the plant over CAN (--plant can)")
-        if name == "vision_death" and getattr(args, "vision", None) != "inprocess":
+        if name == "vision_death" and run.vision_mode != "inprocess":
             raise ValueError(f"{f.source}: vision_death needs the vision system in this process (--vision inprocess)")
 
 
-def prepare(args: argparse.Namespace, rig: RigSpec) -> dict[str, Any] | None:
+@dataclass(frozen=True)
+class FaultPreparation:
+    """The run's scenario, parsed and checked before the rig is built."""
+
+    faults: tuple[ScheduledFault, ...]
+    defaults: dict[str, Any] = field(default_factory=dict)  #: none: the faults change no run default
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+def prepare(run: RunNeeds, rig: RigSpec) -> FaultPreparation | None:
     """Before the rig is built: parse and check the scenario, so that a typo costs no run."""
-    faults = scenario(args)
+    faults = scenario(run.faults)
     check_rig(faults, rig)
-    _check_needs(faults, args)
-    args._fault_scenario = faults
-    return None
+    _check_needs(faults, run)
+    return FaultPreparation(tuple(faults))
 
 
 class _Attachment:
@@ -85,11 +121,12 @@ class _Attachment:
         summary["stop"] = stop_report(self.loop, self.schedule.first_tick, self.schedule.joint)
 
 
-def attach(args: argparse.Namespace, system: Any, loop: Any, runner: Any) -> _Attachment | None:
-    faults = getattr(args, "_fault_scenario", None)
+def attach(run: RunNeeds, system: Any, loop: Any, runner: Any,
+           prepared: FaultPreparation | None = None) -> _Attachment | None:
+    faults = list(prepared.faults) if prepared is not None else []
     if not faults:
         return None
-    schedule = FaultSchedule(faults, FaultContext(system, loop, args.seed))
+    schedule = FaultSchedule(faults, FaultContext(system, loop, run.seed))
     schedule.attach(runner)
     for f in faults:
         print(announcement(f))

@@ -125,6 +125,25 @@ class _OpenLoop(BaseControlObject):
         return out
 
 
+#: a breakout stroke starts only after the encoder stood still this long at zero torque (s)
+REST_WINDOW_S = 0.08
+#: how long a released joint may take to come to rest before the stroke is refused (s)
+MAX_REST_WAIT_S = 2.0
+#: the amplifier's first ticks of a ramp: a "breakout" in them is a joint that was still moving
+SETTLE_TICKS = 3
+#: strokes tried per ramp before the procedure refuses (it repeats one that did not start at rest)
+STROKE_TRIES = 4
+
+
+@dataclass
+class _Stroke:
+    """One breakout stroke: the ramp tick the joint moved in (``None``: not clean, ``why``)."""
+
+    moved_at: int | None
+    why: str
+    trace: dict[str, list[float]]
+
+
 @dataclass
 class _Records:
     t: list[float]
@@ -265,6 +284,58 @@ def _identify(system: EmulatedRig, joint: int, amplitude_rad: float, frequency_h
         ramp_out: list[dict[str, Any]] = []
         ramp_traces: list[dict[str, list[float]]] = []
         found: list[float] = []
+        rest_ticks = ticks(REST_WINDOW_S)
+
+        def encoder_counts() -> float:
+            return float(loop.last["theta_enc"][j]) * cpr_joint / (2.0 * math.pi)
+
+        def _stroke(tq0: float, sign: float) -> _Stroke:
+            """One ramp from rest: release the joint (zero torque) until its encoder has stood still
+            for REST_WINDOW_S, then ramp the torque in ``sign``'s direction until it moves
+            ``move_counts`` that way. Not clean when it never came to rest, moved the other way, or
+            "broke out" within the amplifier's first ticks (it was still moving)."""
+            opener.torque_nm = 0.0
+            still, last_counts = 0, None
+            for _ in range(ticks(MAX_REST_WAIT_S)):
+                run.run(1)
+                check()
+                c = encoder_counts()
+                still = still + 1 if last_counts is not None and abs(c - last_counts) < 0.5 else 0
+                last_counts = c
+                if still >= rest_ticks:
+                    break
+            else:
+                opener.torque_nm = None
+                return _Stroke(None, "not at rest", {})
+            start_counts = encoder_counts()
+            trace: dict[str, list[float]] = {"t": [], "command_nm": [], "measured_nm": [], "counts": []}
+            k = 0
+            try:
+                while True:
+                    cmd = tq0 + rate * k * period
+                    if cmd > max_torque:
+                        return _Stroke(None, "no movement", trace)
+                    opener.torque_nm = sign * cmd * ratio  # joint torque: write_torque divides by N·Kt
+                    run.run(1)
+                    check()
+                    last = loop.last
+                    # counts in the commanded direction: a move the other way is not a breakout
+                    counts = sign * (encoder_counts() - start_counts)
+                    trace["t"].append(k * period)
+                    trace["command_nm"].append(cmd)
+                    trace["measured_nm"].append(kt * float(last["current"][j]) * sign)
+                    trace["counts"].append(counts)
+                    if counts <= -move_counts + 1e-6:
+                        return _Stroke(None, "moved against the torque", trace)
+                    if counts >= move_counts - 1e-6:
+                        if k < SETTLE_TICKS:
+                            return _Stroke(None, f"moved in tick {k} of the ramp", trace)
+                        return _Stroke(k, "", trace)
+                    k += 1
+            finally:
+                opener.torque_nm = None
+
+        retried = 0
         for r in range(ramps):
             sign = 1.0 if r % 2 == 0 else -1.0
             if r > 0:
@@ -276,39 +347,29 @@ def _identify(system: EmulatedRig, joint: int, amplitude_rad: float, frequency_h
                 play(move)
                 run.run(ticks(move.duration))
                 target = new
-            play(Stay(target, float("inf")))
-            run.run(ticks(settle_s))
-            check()
-            start_counts = io.read().theta_enc[j] * cpr_joint / (2.0 * math.pi)
             tq0 = 0.0 if not found else 0.5 * min(found)
-            trace: dict[str, list[float]] = {"t": [], "command_nm": [], "measured_nm": [], "counts": []}
-            moved_at: int | None = None
-            k = 0
-            while True:
-                cmd = tq0 + rate * k * period
-                if cmd > max_torque:
-                    break
-                opener.torque_nm = sign * cmd * ratio  # joint torque: write_torque divides by N·Kt
-                run.run(1)
+            refused: list[str] = []
+            for _try in range(STROKE_TRIES):
+                play(Stay(target, float("inf")))
+                run.run(ticks(settle_s))
                 check()
-                last = loop.last
-                counts = float(last["theta_enc"][j]) * cpr_joint / (2.0 * math.pi) - start_counts
-                trace["t"].append(k * period)
-                trace["command_nm"].append(cmd)
-                trace["measured_nm"].append(kt * float(last["current"][j]) * sign)
-                trace["counts"].append(counts)
-                k += 1
-                if abs(counts) >= move_counts - 1e-6:
-                    moved_at = k - 1
+                stroke = _stroke(tq0, sign)
+                if stroke.moved_at is not None:
                     break
-            opener.torque_nm = None
-            if moved_at is None:
+                if stroke.why == "no movement":
+                    raise FrictionIdError(
+                        f"joint {joint} ({spec.name}) did not move with up to {nm_to_oz_in(max_torque):.1f} oz-in "
+                        "(the amplifier's current limit): is the joint blocked, or the amplifier disabled?")
+                refused.append(stroke.why)
+            else:
                 raise FrictionIdError(
-                    f"joint {joint} ({spec.name}) did not move with up to {nm_to_oz_in(max_torque):.1f} oz-in "
-                    "(the amplifier's current limit): is the joint blocked, or the amplifier disabled?")
+                    f"joint {joint} ({spec.name}): breakout ramp {r + 1} never started cleanly from rest in "
+                    f"{STROKE_TRIES} tries ({'; '.join(refused)}): is the joint being moved by something else?")
+            retried += len(refused)
+            moved_at, trace = stroke.moved_at, stroke.trace
             tt = np.asarray(trace["t"])
             meas = np.asarray(trace["measured_nm"])
-            use = slice(min(3, moved_at), moved_at + 1)  # skip the amplifier's first ticks
+            use = slice(SETTLE_TICKS, moved_at + 1)  # skip the amplifier's first ticks
             if moved_at - use.start >= 2:
                 coef = np.polyfit(tt[use], meas[use], 1)
                 breakout = float(np.polyval(coef, tt[moved_at]))
@@ -358,6 +419,8 @@ def _identify(system: EmulatedRig, joint: int, amplitude_rad: float, frequency_h
             "strokes": metrics.strokes,
             "ramp_rate_oz_in_s": float(nm_to_oz_in(rate)),
             "move_counts": move_counts,
+            "ramps": ramps,
+            "ramp_retries": retried,
             "measurement": "docs/plant.md (Friction measurement); torque = Kt x current monitor",
         },
     }
@@ -505,6 +568,9 @@ class FrictionProcedure:
                 joints[r["joint_name"]] = pub
                 name = r["joint_name"]
                 res.checks.append(Check(f"{name} strokes measured", pub["test"]["strokes"], "", 2, kind="min"))
+                # every ramp started from rest (a stroke that did not was repeated, up to STROKE_TRIES)
+                res.checks.append(Check(f"{name} breakout ramps from rest", len(pub["breakout_ramps"]), "",
+                                        pub["test"]["ramps"], kind="min"))
         finally:
             ctx.refresh_positioner()  # this procedure ran its own loop on the rig
         res.data = {"joints": joints}

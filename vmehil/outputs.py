@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 from vmehil.files import WRITTEN_BY
@@ -60,7 +61,9 @@ def check_output_file(path: str | Path, flag: str, *, force: bool = False,
 
 def check_output_dir(path: str | Path, flag: str, *, force: bool = False) -> Path:
     """Check ``path`` before the command runs; nothing is created (a refused command leaves no
-    trace). :func:`mark_output_dirs` marks it as vmehil's once the command has written it."""
+    trace). Once every output is accepted, :func:`check_outputs` creates it and marks it as
+    vmehil's before the command writes anything: a command killed half-way leaves a directory
+    the next run (or ``tune sweep --resume``) accepts as its own."""
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise OutputPathError(f"{flag} {p}: exists and is not a directory; give a directory name")
@@ -70,25 +73,34 @@ def check_output_dir(path: str | Path, flag: str, *, force: bool = False) -> Pat
     return p
 
 
-def _dir_options(args: argparse.Namespace) -> list[tuple[str, Path]]:
-    out = []
-    for attr, flag in DIR_OPTIONS.items():
-        if attr == "out" and getattr(args, "command", None) == "calibrate":
-            continue
-        value = getattr(args, attr, None)
-        if isinstance(value, str | Path):
-            out.append((flag, Path(value)))
-    return out
+@dataclass(frozen=True)
+class OutputPaths:
+    """The output files and directories a command line names, each with its flag."""
+
+    files: tuple[tuple[str, Path], ...] = ()
+    dirs: tuple[tuple[str, Path], ...] = ()
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> OutputPaths:
+        """Every output option of a parsed command line (calibrate's ``--out`` is its calibration
+        file, kept with a ``.prev`` by the store, and is not an output directory)."""
+        def named(options: dict[str, str], skip: str | None = None) -> tuple[tuple[str, Path], ...]:
+            out = []
+            for attr, flag in options.items():
+                value = None if attr == skip else getattr(args, attr, None)
+                if isinstance(value, str | Path):
+                    out.append((flag, Path(value)))
+            return tuple(out)
+
+        return cls(files=named(FILE_OPTIONS),
+                   dirs=named(DIR_OPTIONS, skip="out" if getattr(args, "command", None) == "calibrate" else None))
 
 
-def mark_output_dirs(args: argparse.Namespace) -> None:
-    """After a command: mark the output directories it wrote (checked as ours or new at start)."""
-    for _flag, p in _dir_options(args):
-        if p.is_dir():
-            try:
-                (p / MARKER).touch()
-            except OSError:
-                pass
+def mark_output_dirs(outputs: OutputPaths) -> None:
+    """After a command: mark the output directories it wrote again (made and marked at start by
+    :func:`check_outputs`; a command may have replaced their contents)."""
+    for _flag, p in outputs.dirs:
+        _mark(p)
 
 
 def _inside_any(p: Path, dirs: tuple[Path, ...]) -> bool:
@@ -96,19 +108,29 @@ def _inside_any(p: Path, dirs: tuple[Path, ...]) -> bool:
     return any(rp == d.resolve() or d.resolve() in rp.parents for d in dirs)
 
 
-def check_outputs(args: argparse.Namespace, *, force: bool = False) -> None:
-    """Check every output option of a parsed command line (calibrate's ``--out`` is its
-    calibration file, kept with a ``.prev`` by the store, and is not checked here). Once all are
-    accepted, the folder of an output file that lies in a new output directory is created."""
-    dirs = _dir_options(args)
-    for flag, p in dirs:
+def check_outputs(outputs: OutputPaths, *, force: bool = False) -> None:
+    """Check every output option of a command line before it runs. Once all are accepted, the
+    folder of an output file that lies in a new output directory is created."""
+    for flag, p in outputs.dirs:
         check_output_dir(p, flag, force=force)
-    made_here = tuple(p for _flag, p in dirs if not p.exists())
-    files = []
-    for attr, flag in FILE_OPTIONS.items():
-        value = getattr(args, attr, None)
-        if isinstance(value, str | Path):
-            files.append(check_output_file(value, flag, force=force, made_here=made_here))
-    for f in files:  # every check passed: nothing is created for a refused command
+    made_here = tuple(p for _flag, p in outputs.dirs if not p.exists())
+    files = [check_output_file(p, flag, force=force, made_here=made_here) for flag, p in outputs.files]
+    # every check passed (nothing is created for a refused command): the output directories are
+    # made and marked first, so that a command killed before its end (SIGKILL) leaves them ours
+    for _flag, p in outputs.dirs:
+        _mark(p, create=True)
+    for f in files:
         if not f.parent.is_dir():
             f.parent.mkdir(parents=True, exist_ok=True)
+
+
+def _mark(p: Path, *, create: bool = False) -> None:
+    """Put the marker in directory ``p`` (made first with ``create``); a failure here is left to
+    the command's own writes to report."""
+    try:
+        if create:
+            p.mkdir(parents=True, exist_ok=True)
+        if p.is_dir():
+            (p / MARKER).touch()
+    except OSError:
+        pass

@@ -17,6 +17,7 @@ no emulated truth.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -114,7 +115,8 @@ def exercise_safe_stop(io: JointIO) -> list[str]:
 
 @dataclass
 class RealRig:
-    """A rig on a real bus: what :func:`vmehil.session.build_loop` and the runners need."""
+    """A rig on a real bus: what :func:`vmehil.session.build_loop` and the runners need (a
+    :class:`servo.boundary.PlantBoundary` with the rig and its drivers)."""
 
     rig: RigSpec
     bus: VmeBus
@@ -145,6 +147,14 @@ class RealRig:
 
     def truth(self) -> None:
         return None
+
+    @property
+    def answer_lag_ticks(self) -> int:
+        return self.boundary.answer_lag_ticks
+
+    @property
+    def sample_clock(self) -> Callable[[], float | None] | None:
+        return self.boundary.sample_clock
 
     def close(self) -> None:
         close = getattr(self.bus, "close", None)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from typing import Any
 
 from servo.runner import OVERRUN_POLICIES
@@ -26,9 +27,30 @@ def add_overrun_args(p: argparse.ArgumentParser) -> None:
                         "is reported, not fatal")
 
 
-def overrun_options(args: argparse.Namespace) -> dict[str, Any]:
-    return {"overrun": args.overrun, "max_lateness_periods": args.max_lateness,
-            "rt_priority": getattr(args, "rt_priority", None), "lock_memory": getattr(args, "lock_memory", False)}
+@dataclass(frozen=True)
+class RealtimeOptions:
+    """The pacing of a command's ticks and, when paced by the wall clock, its overrun policy and
+    real-time settings (``--realtime``/``--lockstep``, ``--overrun``, ``--max-lateness``,
+    ``--rt-priority``, ``--lock-memory``)."""
+
+    realtime: bool = False
+    overrun: str = "stop"
+    max_lateness_periods: float = 5.0
+    rt_priority: int | None = None
+    lock_memory: bool = False
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace, *, default: bool) -> RealtimeOptions:
+        """``default``: whether the command paces by the wall clock without ``--realtime``/``--lockstep``."""
+        value = getattr(args, "realtime", None)
+        return cls(realtime=default if value is None else bool(value),
+                   overrun=getattr(args, "overrun", "stop"), max_lateness_periods=getattr(args, "max_lateness", 5.0),
+                   rt_priority=getattr(args, "rt_priority", None), lock_memory=getattr(args, "lock_memory", False))
+
+    def runner_options(self) -> dict[str, Any]:
+        """The keyword arguments of :class:`servo.runner.RealtimeRunner` these options set."""
+        return {"overrun": self.overrun, "max_lateness_periods": self.max_lateness_periods,
+                "rt_priority": self.rt_priority, "lock_memory": self.lock_memory}
 
 
 def realtime_settings_summary(runner: object) -> dict[str, Any] | None:
@@ -48,9 +70,3 @@ def add_pacing_args(p: argparse.ArgumentParser, *, default: str) -> None:
                    help=f"pace ticks by the wall clock at the servo rate ({default})")
     g.add_argument("--lockstep", dest="realtime", action="store_false",
                    help="tick as fast as the CPU allows, on simulated time")
-
-
-def realtime(args: argparse.Namespace, default: bool) -> bool:
-    """Whether the command paces by the wall clock: ``--realtime``/``--lockstep``, else ``default``."""
-    value = getattr(args, "realtime", None)
-    return default if value is None else bool(value)

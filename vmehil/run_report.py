@@ -29,6 +29,8 @@ def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns:
     t = rec.get("t", np.zeros(0))
     t_end_motion = motion_end_time(loop)
     t_window = t_end_motion + SETTLE_S
+    # no move (--motion none, a hold): no tracking error to speak of, not the first sample's
+    has_moves = any(r.kind not in ("wait", "stay") for r in loop.sequencer.records)
     joints = []
     # one ADC code of each pot (NaN: no pot); an I/O without converters (a test's fake) has none
     resolution = getattr(loop.io, "resolution", None)
@@ -38,7 +40,7 @@ def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns:
         th_d = rec["theta_d"][:, i] if rec else np.zeros(0)
         th_pot = rec["theta_pot"][:, i] if rec else np.zeros(0)
         err = th_d - th_true
-        moving = t <= t_end_motion
+        moving = (t <= t_end_motion) if has_moves else np.zeros(t.shape, bool)
         finite = np.isfinite(err)
         lc = limit_cycle(t, th_true, t_window)
         q = float(pot_step_rad[i]) if np.isfinite(pot_step_rad[i]) else 0.0
@@ -66,7 +68,7 @@ def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns:
         "ticks": loop.tick_count,
         "duration_s": loop.tick_count * loop.period_s,
         "overruns": overruns,
-        "faults": [loop.fault.as_dict()] if loop.fault else [],
+        "faults": [f.as_dict() for f in loop.faults],
         # how the run ended: the final safe stop and what its read-back could not confirm
         "final_stop": loop.final_stop,
         "safe_stop_incomplete": list(loop.stop_incomplete),
@@ -93,7 +95,9 @@ def _deg(x: float) -> float:
 
 
 def table(summary: dict[str, Any]) -> str:
-    rows = [("joint", "final err °", "max track err °", "LC amp ° (true)", "LC Hz", "LC amp ° (pot)")]
+    # the two errors are of different moments (the last tick; the moves), both on the true angle:
+    # named so that a small one beside a large one does not read as a contradiction
+    rows = [("joint", "err at end °", "max err in moves °", "LC amp ° (true)", "LC Hz", "LC amp ° (pot)")]
     for j in summary["joints"]:
         lc, lp = j["limit_cycle"], j["limit_cycle_pot"]
         rows.append((j["name"], _f(j["final_error_deg"]), _f(j["max_tracking_error_deg"]), _f(_cycle_amp(lc)),
@@ -107,7 +111,8 @@ def table(summary: dict[str, Any]) -> str:
     vis = [] if v is None else [
         f"vision: {v['commands']} commands, robot {v['robot_state']} ({v['end_reason']}), "
         f"end effector {_f(v['final_distance_mm'], 2)} mm from the target"]
-    tail = [*vis] + [f"fault: {f['cause']} at {f['time_s']:.3f} s ({f['joint']}): {f['detail']}"
+    tail = [*vis] + [f"fault: {f['cause']} at {f['time_s']:.3f} s"
+                     + (f" ({f['joint']})" if f["joint"] is not None else "") + f": {f['detail']}"
                      for f in summary["faults"]]
     note = [f"LC: limit cycle over the hold from {SETTLE_S:g} s after the last move; \"—\": none ({CYCLE_RULE})."]
     return "\n".join([head, "", *lines, *note, *tail, *units_section(summary)])

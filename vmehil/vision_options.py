@@ -17,7 +17,8 @@ import argparse
 import subprocess
 import sys
 import time
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -43,35 +44,87 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    type=duration_s, default=20.0, help="end the vservo task after this long (s)")
 
 
-def prepare(args: argparse.Namespace, rig: RigSpec) -> dict[str, Any] | None:
+@dataclass(frozen=True)
+class VisionOptions:
+    """``--vision`` and its settings (``mode`` None: no visual servoing)."""
+
+    mode: str | None = None
+    target: str | None = None
+    rate_hz: float = 30.0
+    latency_ms: float = 30.0
+    tolerance_mm: float = 5.0
+    timeout_s: float = 20.0
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> VisionOptions:
+        return cls(mode=args.vision, target=args.vision_target, rate_hz=args.vision_rate_hz,
+                   latency_ms=args.vision_latency_ms, tolerance_mm=args.vision_tolerance_mm,
+                   timeout_s=args.vision_timeout)
+
+
+class RunNeeds(Protocol):
+    """What of ``vmehil run``'s options (:class:`vmehil.commands.run_options.RunOptions`) the vision reads."""
+
+    @property
+    def vision(self) -> VisionOptions: ...
+    @property
+    def realtime(self) -> bool: ...
+    @property
+    def motion(self) -> str | None: ...
+
+
+@dataclass(frozen=True)
+class VisionPreparation:
+    """What :func:`prepare` made before the rig was built: the run's default motion and duration,
+    the shared memory of ``process`` (closed and unlinked by :meth:`close`, at the run's end) and
+    the ready move's joint deltas (where the ``vservo`` move will start)."""
+
+    defaults: dict[str, Any] = field(default_factory=dict)
+    shm: Any = None
+    ready_delta: Any = 0.0
+
+    def close(self) -> None:
+        if self.shm is not None:
+            self.shm.close(unlink=True)
+
+
+def prepare(run: RunNeeds, rig: RigSpec) -> VisionPreparation | None:
     """Before the rig is built: pick the default motion and, for ``process``, the shared memory."""
-    if not getattr(args, "vision", None):
+    opts = run.vision
+    if not opts.mode:
         return None
     board = _bit3_board(rig)
-    if args.vision == "process":
-        if not args.realtime:
+    shm = None
+    if opts.mode == "process":
+        if not run.realtime:
             raise ValueError("--vision process runs the vision system on the wall clock: add --realtime")
         from emulators.bit3 import Bit3Link
 
-        link = Bit3Link.create_shared(int(board.get("window_size", 0x10000)))
-        board["shm"] = link.shm_name
+        shm = Bit3Link.create_shared(int(board.get("window_size", 0x10000)))
+        board["shm"] = shm.shm_name
         board["poll_period_us"] = 100.0
-        args._vision_shm = link  # closed and unlinked by the attachment
-    out: dict[str, Any] = {}
-    if args.motion is None:
+    prepared = VisionPreparation(shm=shm)  # closes the shared memory if what follows fails
+    if run.motion is None:
         from servo.motion import Motion, QuinticMove, WaitMove
         from servo.vservo import VservoMove
 
-        # Out of the stretched-out (singular) start pose first (joints 1–3 only, relative to where
-        # they start), then the vision task, then a hold.
-        ready = np.radians(np.array([10.0, 30.0, -60.0] + [0.0] * (rig.n_joints - 3)))
-        vmax = np.radians(rig.table.table("servo", {}).get_float("max_velocity_deg_s", 30.0, min=1e-3))
-        t_ready = 1.875 * float(np.max(np.abs(ready))) / vmax
-        out["motion"] = Motion((QuinticMove(None, ready, 1.0), VservoMove(args.vision_timeout), WaitMove(3.0)),
-                               "vservo", "<--vision>")
-        out["duration"] = t_ready + args.vision_timeout + 3.0
-        args._vision_ready_delta = ready
-    return out
+        try:
+            # Out of the stretched-out (singular) start pose first (joints 1–3 only, relative to
+            # where they start), then the vision task, then a hold.
+            ready = np.radians(np.array([10.0, 30.0, -60.0] + [0.0] * (rig.n_joints - 3)))
+            from servo.settings import servo_settings
+
+            # the planning limits the servo will plan the move with (a quintic's peak speed is 1.875·Δ/t)
+            vmax = np.asarray(servo_settings(rig).max_velocity_rad_s, float)
+        except BaseException:
+            prepared.close()
+            raise
+        t_ready = 1.875 * float(np.max(np.abs(ready) / vmax))
+        prepared = VisionPreparation(
+            {"motion": Motion((QuinticMove(None, ready, 1.0), VservoMove(opts.timeout_s), WaitMove(3.0)),
+                              "vservo", "<--vision>"),
+             "duration": t_ready + opts.timeout_s + 3.0}, shm, ready)
+    return prepared
 
 
 def _bit3_board(rig: RigSpec) -> dict[str, Any]:
@@ -100,13 +153,16 @@ class _Attachment:
                 pass
 
 
-def attach(args: argparse.Namespace, system, loop, runner) -> _Attachment | None:
-    if not getattr(args, "vision", None):
+def attach(run: RunNeeds, system, loop, runner, prepared: VisionPreparation | None = None) -> _Attachment | None:
+    opts = run.vision
+    if not opts.mode:
         return None
+    prepared = prepared or VisionPreparation()
     from emulators.vision import VisionParams, VisionSystem
+    from emulators.vision_protocol import VisionServer
     from hal.bit3 import Bit3Driver
-    from hal.bit3.arm import ArmModel
-    from hal.bit3.protocol import Timeouts, VisionServoClient, VisionServoServer, format_layout
+    from hal.bit3.protocol import Timeouts, VisionServoClient, format_layout
+    from hal.kinematics import ArmModel
     from servo.vservo import VisionLink
 
     rig = system.rig
@@ -116,29 +172,29 @@ def attach(args: argparse.Namespace, system, loop, runner) -> _Attachment | None
                      csr_space=board.get("space", "A16"), window_space=board.get("window_space", "A24"),
                      window_size=int(board.get("window_size", 0x10000)))
     arm = ArmModel.from_table(rig.table.data.get("arm", {}))
-    theta0 = system.io.read().theta + getattr(args, "_vision_ready_delta", 0.0)  # where vservo will start
-    target = _target(args.vision_target, arm, theta0)
-    params = VisionParams(rate_hz=args.vision_rate_hz, latency_s=args.vision_latency_ms * 1e-3,
-                          tolerance_m=args.vision_tolerance_mm * 1e-3)
+    theta0 = system.io.read().theta + prepared.ready_delta  # where vservo will start
+    target = _target(opts.target, arm, theta0)
+    params = VisionParams(rate_hz=opts.rate_hz, latency_s=opts.latency_ms * 1e-3,
+                          tolerance_m=opts.tolerance_mm * 1e-3)
     vision = None
     proc = None
-    if args.vision == "inprocess":
+    if opts.mode == "inprocess":
         from emulators.bit3 import Bit3RemotePort
 
         remote = Bit3RemotePort(card.link)
         remote.power_on()
         format_layout(drv.memory())
-        server = VisionServoServer(remote.memory, ring=remote.ring)
+        server = VisionServer(remote.memory, ring=remote.ring)
         remote.on_doorbell(server.notify)
         vision = VisionSystem(server, target.tolist(), arm, params)
         timeouts = Timeouts()
     else:
-        shm = args._vision_shm
+        shm = prepared.shm
         proc = subprocess.Popen(
             [sys.executable, "-m", "servo", "vision", "--shm", shm.shm_name, "--target",
-             ",".join(f"{x:.6f}" for x in target), "--rate-hz", str(args.vision_rate_hz),
-             "--latency-ms", str(args.vision_latency_ms), "--peer-timeout-ms", "1000",
-             "--tolerance-mm", str(args.vision_tolerance_mm)],
+             ",".join(f"{x:.6f}" for x in target), "--rate-hz", str(opts.rate_hz),
+             "--latency-ms", str(opts.latency_ms), "--peer-timeout-ms", "1000",
+             "--tolerance-mm", str(opts.tolerance_mm)],
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         t0 = time.monotonic()
         while not drv.status().link_up:  # the vision process formats the memory and powers on
@@ -154,9 +210,9 @@ def attach(args: argparse.Namespace, system, loop, runner) -> _Attachment | None
     link = VisionLink(client, arm, system.crate.now, lambda: loop.last.get("theta"), rig.n_joints, vision)
     loop.sequencer.ctx.extras["vision"] = link
     loop.vision = link
-    print(f"vision: {args.vision}, target {np.round(target, 4).tolist()} m")
+    print(f"vision: {opts.mode}, target {np.round(target, 4).tolist()} m")
     # the shared memory itself is unlinked by `vmehil run` at exit
-    return _Attachment(proc, card if args.vision == "process" else None)
+    return _Attachment(proc, card if opts.mode == "process" else None)
 
 
 def _target(text: str | None, arm, theta0: np.ndarray) -> np.ndarray:

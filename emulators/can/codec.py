@@ -353,13 +353,14 @@ class CanCodec:
 
     def sensor_frames(self, raw: dict[str, np.ndarray], seq: int,
                       truth: dict[str, np.ndarray] | None = None,
-                      totals: Sequence[int] | np.ndarray | None = None) -> list[can.Message]:
+                      totals: Sequence[int] | np.ndarray | None = None, boot_id: int = 0) -> list[can.Message]:
         """SENS frames of every joint, then TRUTH frames when ``truth`` has the keys.
-        ``totals``: each joint's running count (:class:`EncoderTotals`), else none is kept."""
+        ``totals``: each joint's running count (:class:`EncoderTotals`), else none is kept;
+        ``boot_id``: the sender's (its low byte goes in every SENS frame)."""
         n = len(raw["PotVoltage"])
         out = [self._frame(self.message("SENS", j), {k: int(v[j]) for k, v in raw.items()} | {
             "Seq": seq & 0xFF, "EncoderTotal": 0 if totals is None else int(totals[j]) & _TOTAL_MASK,
-            "HasTotal": int(totals is not None)}) for j in range(n)]
+            "HasTotal": int(totals is not None), "BootIdLow": boot_id & 0xFF}) for j in range(n)]
         if truth is not None and all(key in truth for key in TRUTH_SIGNALS.values()):
             cols = {sig: np.asarray(truth[key], dtype=float) for sig, key in TRUTH_SIGNALS.items()}
             out += [self._frame(self.message("TRUTH", j), {sig: float(c[j]) for sig, c in cols.items()})

@@ -2,7 +2,7 @@
 
 The DBC file is the single source of truth at run time: the codec reads every scale, offset,
 length and range from it (:mod:`emulators.can.codec`). This module only *writes* it, so the
-layout is reviewable as Python; ``tests/test_can_dbc.py`` checks that the shipped file equals
+layout is reviewable as Python; ``tests/emulators/can/test_codec.py`` checks that the shipped file equals
 the generator's output. Regenerate with ``python -m emulators.can.dbc``.
 
 Frame identifiers (11-bit; lower = higher bus priority). ``j`` is the joint index 0..31.
@@ -90,7 +90,8 @@ def _bit(name: str, start: int, comment: str, receiver: str) -> Signal:
 NODE_STATES = {0: "BOOT", 1: "READY", 2: "RUNNING", 3: "STOPPED", 4: "FAULT"}
 #: UNIT_STOP.Cause and UNIT_ANSWER.Stop: why every unit stops
 UNIT_STOP_CAUSES = {0: "NONE", 1: "UNIT_STOPPED", 2: "UNIT_LOST", 3: "COORDINATOR_END", 4: "REFUSED_RIG",
-                    5: "REFUSED_LATE", 6: "COORDINATOR_STOPPED", 7: "ANSWER_INCOMPLETE", 8: "PLANT_LOST"}
+                    5: "REFUSED_LATE", 6: "COORDINATOR_STOPPED", 7: "ANSWER_INCOMPLETE", 8: "PLANT_LOST",
+                    9: "REFUSED_DUPLICATE", 10: "RUN_REFUSED"}
 COORDINATOR = "COORDINATOR"
 UNIT = "UNIT"
 #: HEARTBEAT_PLANT.OffCause: the bits of emulators.plant.amplifier.WATCHDOG_EXPIRED / _COMMAND_TIMEOUT
@@ -217,6 +218,8 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
                  comment="net x4 counts since the session's start, mod 2^32 (HasTotal): a receiver that "
                          "missed answers recovers their counts from it"),
             _bit("HasTotal", 208, "EncoderTotal is kept by the sender", C),
+            _sig("BootIdLow", 216, 8, minimum=0, maximum=255, receiver=C,
+                 comment="sender's boot id, low byte: a receiver takes its session's only"),
         ], senders=[P], is_fd=True, comment=f"Joint {j}: sensors at the end of the period."))
         msgs.append(Message(ID_TRUTH + j, f"TRUTH_J{j:02d}", 32, [
             _sig("ThetaJoint", 0, 64, is_float=True, unit="rad", receiver=C),
@@ -241,13 +244,15 @@ def _unit_messages() -> list[Message]:
     K, U = COORDINATOR, UNIT
     boot = _sig("BootId", 48, 16, minimum=0, maximum=65535, comment="sender's boot id")
     return [
-        Message(ID_UNIT_STOP, "UNIT_STOP", 8, [
+        Message(ID_UNIT_STOP, "UNIT_STOP", 12, [
             _sig("Cause", 0, 8, minimum=0, maximum=255, choices=dict(UNIT_STOP_CAUSES), receiver=U),
             _sig("Unit", 8, 8, minimum=0, maximum=255, receiver=U,
                  comment="the unit it concerns (255: every unit)"),
             _sig("Exchange", 16, 32, minimum=0, maximum=2**32 - 1, receiver=U, comment="the exchange it is sent at"),
             boot,
-        ], senders=[K], comment="Stop: every unit (or the one named, refused) safe-stops at once."),
+            _sig("UnitBootId", 64, 16, minimum=0, maximum=65535, receiver=U,
+                 comment="before the start: the boot id of the unit refused (from its heartbeat)"),
+        ], senders=[K], is_fd=True, comment="Stop: every unit (or the one named, refused) safe-stops at once."),
         Message(ID_UNIT_START, "UNIT_START", 64, [
             _sig("Seed", 0, 32, minimum=0, maximum=2**32 - 1, receiver=U, comment="seed of every noise source"),
             _sig("NTicks", 32, 32, minimum=0, maximum=2**32 - 1, receiver=U, comment="ticks to run"),
@@ -266,8 +271,11 @@ def _unit_messages() -> list[Message]:
                  comment="free-running: exchanges without a fresh answer before a unit safe-stops"),
             *[_sig(name, 192 + 64 * i, 64, is_float=True, receiver=U, comment="gain override (float64, exact)")
               for i, name in enumerate(("Kp", "Kpi", "Kv", "Kvi"))],
+            _sig("Unit", 448, 8, minimum=0, maximum=255, receiver=U, comment="the unit this start is for"),
+            _sig("UnitBootId", 456, 16, minimum=0, maximum=65535, receiver=U,
+                 comment="that unit's boot id, from its heartbeat: a unit starts only on its own"),
         ], senders=[K], is_fd=True,
-            comment="Start: every unit builds its boards and runs NTicks (lockstep or free-running)."),
+            comment="Start, one per unit: every unit builds its boards and runs NTicks (lockstep or free-running)."),
         Message(ID_UNIT_SYNC, "UNIT_SYNC", 8, [
             _sig("Exchange", 0, 32, minimum=0, maximum=2**32 - 1, receiver=K,
                  comment="the unit's exchange number (0 = power-up); its CMD frames precede it"),
@@ -281,6 +289,7 @@ def _unit_messages() -> list[Message]:
             _sig("Unit", 0, 8, minimum=0, maximum=255, receiver=U),
             *[_sig(f"Theta{i}", 64 + 64 * i, 64, is_float=True, unit="rad", receiver=U,
                    comment="measured start of the unit's joint i (float64, exact; NaN: none)") for i in range(4)],
+            _sig("BootId", 320, 16, minimum=0, maximum=65535, receiver=U, comment="sender's boot id"),
         ], senders=[U], is_fd=True, comment="A unit's measured start: every unit plans the global motion from all."),
         Message(ID_UNIT_TIMING, "UNIT_TIMING", 48, [
             _sig("Unit", 0, 8, minimum=0, maximum=255, receiver=K),
@@ -292,6 +301,7 @@ def _unit_messages() -> list[Message]:
                    comment="per tick (p50/p99/max): compute = the whole tick, lateness = its start after the "
                            "deadline, controller = drivers + law")
               for i, name in enumerate(UNIT_TIMING_FIGURES)],
+            _sig("BootId", 336, 16, minimum=0, maximum=65535, receiver=K, comment="sender's boot id"),
         ], senders=[U], is_fd=True, comment="A unit's real-time figures, sent once as it leaves the run."),
         Message(ID_UNIT_ANSWER, "UNIT_ANSWER", 12, [
             _sig("Exchange", 0, 32, minimum=0, maximum=2**32 - 1, receiver=U,

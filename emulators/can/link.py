@@ -19,8 +19,11 @@ into a safe stop in the same tick):
   before that return the held values with no encoder motion.
 * nothing at all from the plant node (no answer, no heartbeat) for ``heartbeat_timeout_s`` →
   :class:`PlantLostError`.
-* a frame from the node with a boot id other than the one that acknowledged our RESET →
-  :class:`PlantRestartedError`.
+* the node restarted: ``RESTART_EVIDENCE_FRAMES`` (3) status or heartbeat frames in a row from
+  one boot id other than the one that acknowledged our RESET, with nothing from that one between
+  them → :class:`PlantRestartedError`. A single frame of another boot id proves nothing (a stray
+  or corrupted frame, another session's node): it is dropped and counted
+  (``LinkCounters.other_boot``), as is a SENS frame whose ``BootIdLow`` is not our node's.
 * the node acknowledging another controller's RESET, or reporting another owner
   (``PLANT_SESSION``), after it acknowledged ours → :class:`SessionLostError` (a
   :class:`PlantRestartedError`: the plant is no longer ours).
@@ -94,6 +97,14 @@ class LinkCounters:
     other_session: int = 0
     #: the node's count of frames it refused from controllers other than its session's owner
     peer_refused: int = 0
+    #: status and heartbeat frames with a boot id other than our node's: dropped (see the module doc)
+    other_boot: int = 0
+
+
+#: status/heartbeat frames in a row from one new boot id, none from our node's between them, that
+#: prove the node restarted: a restarted node sends a heartbeat every 0.1 s and answers each SYNC,
+#: so it shows within a tick or two; a random frame carries a random boot id and never repeats one
+RESTART_EVIDENCE_FRAMES = 3
 
 
 def merge_events(events: list[QuadratureEvents]) -> QuadratureEvents:
@@ -169,6 +180,10 @@ class CanPlantLink(PlantLink):
         self._reset_acked = False
         self.session: int | None = None  #: the node's number of our session (from its acknowledgement)
         self._refused_by: int | None = None  # while connecting: the owner of the session that refused us
+        self._other_boot: int | None = None  # the boot id of the last frames not of our node's, and
+        self._other_run = 0  # how many of them came in a row (RESTART_EVIDENCE_FRAMES)
+        self._taken_by: int | None = None  # PLANT_SESSION frames in a row naming one other owner
+        self._taken_run = 0
 
     # --- sending --------------------------------------------------------------------------------
     def _heartbeat(self, now: float) -> None:
@@ -215,19 +230,36 @@ class CanPlantLink(PlantLink):
         self._process(f, accept_new_boot)
         return True
 
-    def _check_boot(self, boot: int, accept_new_boot: bool) -> None:
-        if accept_new_boot or self.peer_boot is None:
-            return
-        if boot != self.peer_boot:
-            raise PlantRestartedError(f"the plant node restarted (boot id {self.peer_boot:#06x} → {boot:#06x}): "
-                                      "its state no longer matches the servo loop's; restart the run")
+    def _ours(self, boot: int, accept_new_boot: bool) -> bool:
+        """Whether a status or heartbeat frame with boot id ``boot`` is our node's (to be used).
+        Another boot id's is dropped and counted; :data:`RESTART_EVIDENCE_FRAMES` of one new
+        boot id in a row, none of our node's between, raise :class:`PlantRestartedError`."""
+        if accept_new_boot or self.peer_boot is None or boot == self.peer_boot:
+            self._other_boot, self._other_run = None, 0
+            return True
+        self.counters.other_boot += 1
+        if boot == self._other_boot:
+            self._other_run += 1
+        else:
+            self._other_boot, self._other_run = boot, 1
+        if self._other_run >= RESTART_EVIDENCE_FRAMES:
+            raise PlantRestartedError(f"the plant node restarted (boot id {self.peer_boot:#06x} → {boot:#06x}: "
+                                      f"{self._other_run} frames in a row from the new one): its state no longer "
+                                      "matches the servo loop's; restart the run")
+        return False
 
     def _process(self, f: Frame, accept_new_boot: bool) -> None:
         kind = f.kind
+        if kind in ("PLANT_STATUS", "HEARTBEAT_PLANT") and not self._ours(int(f.raw["BootId"]), accept_new_boot):
+            return  # another node's, or not a frame at all: it keeps nothing alive either
+        if kind == "SENS" and not accept_new_boot and self.peer_boot is not None \
+                and int(f.raw["BootIdLow"]) != self.peer_boot & 0xFF:
+            self.counters.other_boot += 1  # another node's values: never part of our answer
+            return
         if kind in ("SENS", "TRUTH", "PLANT_STATUS", "HEARTBEAT_PLANT"):
             self._last_peer = time.monotonic()
         if kind == "HEARTBEAT_PLANT":
-            self._check_boot(int(f.raw["BootId"]), accept_new_boot)
+            pass  # alive (above)
         elif kind == "PLANT_SESSION":
             self._session_report(f.raw)
         elif kind == "SENS":
@@ -250,7 +282,18 @@ class CanPlantLink(PlantLink):
             if active and owner != self.boot_id and int(r["RefusedBoot"]) == self.boot_id:
                 self._refused_by = owner
             return
-        if active and owner != self.boot_id:
+        if not (active and owner != self.boot_id):
+            self._taken_by, self._taken_run = None, 0
+            return
+        # PLANT_SESSION names no sender: one frame that says so proves nothing (a stray frame);
+        # the same owner in RESTART_EVIDENCE_FRAMES of them in a row does (the node repeats it
+        # with every heartbeat). The node's own ResetAck of another controller (_status) is quicker.
+        self.counters.other_boot += 1
+        if owner == self._taken_by:
+            self._taken_run += 1
+        else:
+            self._taken_by, self._taken_run = owner, 1
+        if self._taken_run >= RESTART_EVIDENCE_FRAMES:
             raise SessionLostError(f"the plant node now serves another controller (boot id {owner:#06x}): "
                                    "its plant is no longer this run's; restart the run")
 
@@ -285,7 +328,6 @@ class CanPlantLink(PlantLink):
             self._fresh.clear()  # answers of the node's previous session
             self.totals.reset()
             return
-        self._check_boot(int(r["BootId"]), accept_new_boot)
         if not self._reset_acked or int(r["Session"]) != self.session:  # not an answer to us
             c.other_session += 1
             self._sens.clear()

@@ -532,7 +532,7 @@ class PlantNode(FaultInjectable):
             return
         c.steps += 1
         for msg in self.codec.sensor_frames(self.codec.sensors_raw(sensors), tick, sensors.truth,
-                                            totals=self.totals.add(sensors.encoder)):
+                                            totals=self.totals.add(sensors.encoder), boot_id=self.boot_id):
             self._send(msg)
         self._status(tick)
         if self._note_trips():  # the watchdog line stopped (free-running), or an enable into a dead pump

@@ -1,7 +1,7 @@
 """Register map of the 16-channel 12-bit ADC board (A16 short I/O, D16, big-endian).
 
-Shared by :class:`hal.adc_dac.adc.AdcDriver` and ``emulators.adc.AdcBoard``. See
-``docs/boards/adc.md`` for the table, timing and behaviour.
+The driver's reading of ``docs/boards/adc.md`` (the spec: table, timing, behaviour); the emulator
+``emulators.adc.AdcBoard`` has its own, and tests check each against the doc's table.
 
 CSR layout (D16 at +0x02; D8 allowed — the *high* byte +0x02 holds configuration, the *low*
 byte +0x03 holds the action and status bits, so a D8 write of ``START`` to +0x03 starts a

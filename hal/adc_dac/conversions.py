@@ -1,4 +1,5 @@
-"""Volts ↔ code conversions of the ADC and DAC boards, shared by the drivers and the emulators.
+"""Volts ↔ code conversions of the ADC and DAC boards (the drivers'; docs/boards/adc.md and dac.md
+state the formulas, and the emulators compute them their own way).
 
 Both boards are 12-bit (codes 0..4095). Coding:
 
@@ -97,19 +98,9 @@ def adc_volts_to_code(volts: float, rng: AdcRange, gain: int = 1) -> int:
     """
     if math.isnan(volts):
         raise ValueError("ADC input is NaN")
-    v0_lsb = _ADC_V0_LSB[rng is AdcRange.BIPOLAR_10V].get(gain)
-    if v0_lsb is None:  # not a gain of the table: adc_span / adc_lsb check it (ValueError)
-        v0_lsb = (adc_span(rng, gain)[0], adc_lsb(rng, gain))
-    v0, lsb = v0_lsb
-    code = math.floor((volts - v0) / lsb + 0.5)
+    v0, _ = adc_span(rng, gain)
+    code = math.floor((volts - v0) / adc_lsb(rng, gain) + 0.5)
     return min(max(code, 0), CODE_MAX)
-
-
-#: (volts of code 0, volts per code) per gain, [unipolar, bipolar] (indexed as adc_span and adc_lsb
-#: tell the ranges apart: ``rng is BIPOLAR_10V``), computed once by them (the same floats): the
-#: emulated ADC converts every sample through adc_volts_to_code (20-50 per servo tick)
-_ADC_V0_LSB: tuple[dict[int, tuple[float, float]], ...] = tuple(
-    {g: (adc_span(r, g)[0], adc_lsb(r, g)) for g in ADC_GAINS} for r in (AdcRange.UNIPOLAR_10V, AdcRange.BIPOLAR_10V))
 
 
 def adc_code_to_volts(code: int, rng: AdcRange, gain: int = 1) -> float:

@@ -1,7 +1,7 @@
 """Register map of the 8-channel 12-bit double-buffered DAC board (A16 short I/O, D16, big-endian).
 
-Shared by :class:`hal.adc_dac.dac.DacDriver` and ``emulators.dac.DacBoard``. See
-``docs/boards/dac.md``.
+The driver's reading of ``docs/boards/dac.md`` (the spec); the emulator ``emulators.dac.DacBoard``
+has its own, and tests check each against the doc's table.
 
 Each channel has a holding register (``DATAn``, written by the host) and an output register
 (``OUTn``, driving the converter). Writing ``DATAn`` changes nothing at the output; an update

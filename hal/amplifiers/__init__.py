@@ -8,8 +8,7 @@ from hal.amplifiers.linear import (
     LinearAmpConfig,
     clamp_current,
     command_volts,
-    current_for_torque,
 )
 
 __all__ = ["AmplifierFault", "HBridgeAmp", "HBridgeConfig", "LinearAmp", "LinearAmpConfig", "clamp_current",
-           "command_volts", "current_for_torque", "duty_for_current"]
+           "command_volts", "duty_for_current"]

@@ -8,18 +8,15 @@ Wiring (from the rig file):
 * fault reset ← a PIO output line (a high pulse clears the latch)
 * current monitor → an ADC channel (``monitor_v_per_a`` volts per ampere)
 
-The driver works in amperes and newton metres; volts appear only at the converter edge.
+The driver works in amperes; volts appear only at the converter edge. Joint torque becomes
+current in one place, where the servo writes its commands with the calibrated scaling
+(``servo.io.JointIO.write_torque``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Protocol
-
-
-def current_for_torque(joint_torque_nm: float, ratio: float, kt_nm_per_a: float) -> float:
-    """Motor current (A) for a joint torque (N·m) through the gear: i = τ / (N · Kt)."""
-    return joint_torque_nm / (ratio * kt_nm_per_a)
 
 
 def clamp_current(current_a: float, limit_a: float) -> float:
@@ -60,8 +57,6 @@ class LinearAmpConfig:
         dac_channel: DAC channel driving the command input.
         monitor_channel: ADC channel reading the current monitor (``None`` if not wired).
         enable_line, fault_line, reset_line: PIO logical line names (``None`` if not wired).
-        kt_nm_per_a: motor torque constant (N·m/A), for torque commands at the motor shaft.
-        ratio: gear ratio N (joint torque = N · motor torque).
         offset_a: output current at 0 V command (A; from calibration).
     """
 
@@ -73,13 +68,11 @@ class LinearAmpConfig:
     enable_line: str | None = None
     fault_line: str | None = None
     reset_line: str | None = None
-    kt_nm_per_a: float = 1.0
-    ratio: float = 1.0
     offset_a: float = 0.0
 
 
 class LinearAmp:
-    """Set current (A) or joint torque (N·m), enable/disable, read the monitor, clear faults."""
+    """Set current (A), enable/disable, read the monitor, clear faults."""
 
     def __init__(self, cfg: LinearAmpConfig, dac: DacChannel, pio: DigitalLines | None = None,
                  adc: AnalogInput | None = None) -> None:
@@ -99,14 +92,6 @@ class LinearAmp:
         self.dac.write_volts(self.cfg.dac_channel, volts, update=update)
         self.commanded_a = volts * self.cfg.gain_a_per_v + self.cfg.offset_a
         return volts
-
-    def current_for_torque(self, joint_torque_nm: float) -> float:
-        """Motor current (A) for a joint torque (N·m): i = τ / (N · Kt)."""
-        return current_for_torque(joint_torque_nm, self.cfg.ratio, self.cfg.kt_nm_per_a)
-
-    def set_torque(self, joint_torque_nm: float, update: bool = True) -> float:
-        """Command a joint-side torque (N·m) through Kt and the ratio; returns DAC volts."""
-        return self.set_current(self.current_for_torque(joint_torque_nm), update=update)
 
     def enable(self, on: bool = True) -> None:
         if self.pio is None or self.cfg.enable_line is None:

@@ -2,8 +2,8 @@
 
 from hal.bit3.driver import Bit3Driver, Bit3Status, Bit3WindowMemory
 from hal.bit3.errors import Bit3Error, LinkDownError, ProtocolError, RemoteBusError
-from hal.bit3.memory import BufferMemory, Memory
 from hal.bit3.regs import BIT3_CSR, CARD_ID
+from hal.shm import BufferMemory, Memory
 
 __all__ = [
     "BIT3_CSR",

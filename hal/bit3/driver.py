@@ -181,7 +181,7 @@ class Bit3Driver:
             self.write(offset + i, data[i], Width.D8)
 
     def memory(self, offset: int = 0, size: int | None = None) -> Bit3WindowMemory:
-        """A :class:`hal.bit3.memory.Memory` view of (part of) the window for the protocol."""
+        """A :class:`hal.shm.Memory` view of (part of) the window for the protocol."""
         return Bit3WindowMemory(self, offset, self.window_size - offset if size is None else size)
 
     # --- doorbells -----------------------------------------------------------------------
@@ -218,7 +218,7 @@ class Bit3Driver:
 
 
 class Bit3WindowMemory:
-    """:class:`hal.bit3.memory.Memory` through the BIT3 window (raises ``Bit3Error`` on link failure)."""
+    """:class:`hal.shm.Memory` through the BIT3 window (raises ``Bit3Error`` on link failure)."""
 
     def __init__(self, driver: Bit3Driver, offset: int = 0, size: int | None = None) -> None:
         self.driver = driver

@@ -1,11 +1,10 @@
 """The vision-servo protocol over the BIT3 shared (dual-port) memory.
 
-Two endpoints, each a pure state machine driven by explicit ``step(now_s)`` calls (no
-threads, no clocks inside), reading and writing through a :class:`hal.bit3.memory.Memory`:
-
-* :class:`VisionServoClient` — the robot's real-time computer (the ``vservo`` trajectory
-  object drives it every servo tick);
-* :class:`VisionServoServer` — the vision computer.
+The robot's endpoint, :class:`VisionServoClient`: a pure state machine driven by explicit
+``step(now_s)`` calls (no threads, no clocks inside; the ``vservo`` trajectory object drives it
+every servo tick), reading and writing through a :class:`hal.shm.Memory`. The vision
+computer's endpoint is not here: it runs on the other crate, and the emulated one
+(``emulators.vision_protocol``) is its own implementation of docs/bit3.md.
 
 Memory layout (byte offsets from the protocol base, big-endian; ``u32`` unsigned, ``f32`` /
 ``f64`` IEEE 754)::
@@ -53,7 +52,7 @@ from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 
 from hal.bit3.errors import Bit3Error, ProtocolError
-from hal.bit3.memory import Memory
+from hal.shm import Memory
 
 MAGIC = 0x56534D31
 VERSION = 1
@@ -144,17 +143,6 @@ class EeCommand:
 
 
 @dataclass(frozen=True)
-class RobotStatus:
-    state: int
-    task_id: int
-    heartbeat: int
-    end_reason: int
-    task_kind: int
-    max_step_m: float
-    max_rot_rad: float
-
-
-@dataclass(frozen=True)
 class VisionStatus:
     state: int
     task_id: int
@@ -162,15 +150,6 @@ class VisionStatus:
     end_reason: int
     frames: int
     commands: int
-
-
-@dataclass(frozen=True)
-class Telemetry:
-    """Robot → vision: joint angles (rad) at robot time ``time_s``."""
-
-    tick: int
-    time_s: float
-    theta: tuple[float, ...]
 
 
 # --- records -----------------------------------------------------------------------------
@@ -275,7 +254,7 @@ def _records(memory: Memory) -> dict[str, Record]:
 
 
 class _Endpoint:
-    """What both sides share: records, heartbeat bookkeeping, doorbell hints."""
+    """Records, heartbeat bookkeeping and doorbell hints of an endpoint."""
 
     def __init__(self, memory: Memory, timeouts: Timeouts, ring: Callable[[int], None] | None) -> None:
         self.memory = memory
@@ -524,149 +503,3 @@ def _limit(v: Sequence[float], limit: float) -> tuple[tuple[float, float, float]
         s = limit / n
         return (v[0] * s, v[1] * s, v[2] * s), True
     return (float(v[0]), float(v[1]), float(v[2])), False
-
-
-class VisionServoServer(_Endpoint):
-    """Vision side of the protocol.
-
-    State machine::
-
-        IDLE --robot REQUESTED (new task) and accept()--> TRACKING
-        IDLE --robot REQUESTED and not accept()--> IDLE (end_reason REFUSED, task_id echoed)
-        TRACKING --end()--> ENDING --robot ENDING/IDLE/other task, peer or ending timeout--> IDLE
-        TRACKING --robot ENDING/IDLE/other task or peer timeout--> IDLE
-
-    ``send()`` writes a command only in TRACKING. ``telemetry()`` returns the robot's latest
-    complete joint-angle record.
-
-    Args:
-        memory: the dual-port memory (``Bit3RemotePort.memory`` on the vision side).
-        accept: decides whether to serve a task (called with the task kind); default: yes.
-        ring: doorbell to the robot (``Bit3RemotePort.ring``).
-    """
-
-    def __init__(
-        self,
-        memory: Memory,
-        timeouts: Timeouts | None = None,
-        *,
-        accept: Callable[[int], bool] | None = None,
-        ring: Callable[[int], None] | None = None,
-    ) -> None:
-        super().__init__(memory, timeouts or Timeouts(), ring)
-        self.state = VisionState.IDLE
-        self.accept = accept
-        self.peer: RobotStatus | None = None
-        self._handled: int | None = None
-        self.frames = 0
-        self.commands = 0
-        self._cmd_no = 0
-        self._safe_write_status()
-
-    @property
-    def tracking(self) -> bool:
-        return self.state is VisionState.TRACKING
-
-    def send(self, now: float, dp: Sequence[float], drot: Sequence[float] = (0.0, 0.0, 0.0),
-             flags: int = FLAG_TARGET_VISIBLE, frame_ms: int | None = None) -> EeCommand | None:
-        """Write a command (EE-frame increments: m, rad). Returns it, or ``None`` if not TRACKING."""
-        if self.state is not VisionState.TRACKING:
-            return None
-        self._cmd_no = (self._cmd_no + 1) & 0xFFFFFFFF
-        fms = int(now * 1000) & 0xFFFFFFFF if frame_ms is None else frame_ms & 0xFFFFFFFF
-        vals = [float(x) for x in (*dp, *drot)]
-        payload = _COMMAND.pack(self.task_id, self._cmd_no, flags, fms, *vals)
-        try:
-            self.rec["command"].write(payload)
-        except Bit3Error:
-            self.link_errors += 1
-            return None
-        self.commands += 1
-        self._ring(DOORBELL_COMMAND)
-        v = _COMMAND.unpack(payload)[4:]  # as the robot will see them (f32)
-        return EeCommand(self.task_id, self._cmd_no, tuple(v[:3]), tuple(v[3:]), flags, fms)  # type: ignore[arg-type]
-
-    def end(self, now: float, reason: EndReason = EndReason.REQUESTED_END) -> None:
-        """End the task (TRACKING → ENDING); no-op otherwise."""
-        if self.state is VisionState.TRACKING:
-            self.end_reason = reason
-            self._enter(VisionState.ENDING, now)
-            self._safe_write_status(DOORBELL_STATE)
-
-    def telemetry(self) -> Telemetry | None:
-        """The robot's latest complete TELEMETRY record (``None`` while being written/never)."""
-        got = self.rec["telemetry"].read()
-        if got is None:
-            return None
-        tick, n, t, *theta = _TELEMETRY.unpack(got[1])
-        return Telemetry(tick, t, tuple(theta[: min(n, MAX_JOINTS)]))
-
-    def step(self, now: float) -> VisionState:
-        """Run the state machine once; returns the new state."""
-        before = self.state
-        got = self.rec["robot"].read()
-        peer = None
-        if got is None:
-            self.torn_reads += 1
-        else:
-            peer = RobotStatus(*_ROBOT_STATUS.unpack(got[1])[:7])
-            self._note_peer(peer.heartbeat, now)
-            self.peer = peer
-        robot_on_task = (peer is not None and peer.task_id == self.task_id
-                         and peer.state in (RobotState.REQUESTED, RobotState.SERVOING))
-        if self.state is VisionState.IDLE:
-            if peer is not None and peer.state == RobotState.IDLE:
-                self._handled = None
-            if peer is not None and peer.state == RobotState.REQUESTED and peer.task_id != self._handled:
-                self._handled = peer.task_id
-                self.task_id = peer.task_id
-                if self.accept is None or self.accept(peer.task_kind):
-                    self.end_reason = EndReason.NONE
-                    self._cmd_no = 0
-                    self._enter(VisionState.TRACKING, now)
-                    self._peer_seen_at = now
-                else:
-                    self.end_reason = EndReason.REFUSED
-        elif self.state is VisionState.TRACKING:
-            if self._stale(now):
-                self._finish(now, EndReason.PEER_TIMEOUT)
-            elif peer is not None and not robot_on_task:
-                self._finish(now, EndReason.PEER_ENDED)
-        elif self.state is VisionState.ENDING:
-            if (peer is not None and not robot_on_task) or self._stale(now):
-                self._enter(VisionState.IDLE, now)
-            elif now - self.state_since > self.timeouts.ending_timeout_s:
-                self.end_reason = EndReason.ENDING_TIMEOUT
-                self._enter(VisionState.IDLE, now)
-        self._safe_write_status(DOORBELL_STATE if self.state is not before else None)
-        return self.state
-
-    def frame(self) -> None:
-        """Count a processed camera frame (reported in VISION_STATUS.frames)."""
-        self.frames = (self.frames + 1) & 0xFFFFFFFF
-
-    def shutdown(self, now: float) -> None:
-        """Leave the protocol cleanly (process exit): end any task and write IDLE."""
-        if self.state is not VisionState.IDLE:
-            self.end_reason = EndReason.SHUTDOWN
-        self._enter(VisionState.IDLE, now)
-        self._safe_write_status(DOORBELL_STATE)
-
-    def _enter(self, state: VisionState, now: float) -> None:
-        self.state = state
-        self.state_since = now
-
-    def _finish(self, now: float, reason: EndReason) -> None:
-        self.end_reason = reason
-        self._enter(VisionState.IDLE, now)
-
-    def _safe_write_status(self, doorbell: int | None = None) -> None:
-        self.heartbeat = (self.heartbeat + 1) & 0xFFFFFFFF
-        try:
-            self.rec["vision"].write(_VISION_STATUS.pack(
-                int(self.state), self.task_id, self.heartbeat, int(self.end_reason),
-                self.frames, self.commands, 0, 0))
-            if doorbell is not None:
-                self._ring(doorbell)
-        except Bit3Error:
-            self.link_errors += 1

@@ -271,6 +271,12 @@ class QuadratureDriver:
         self._check_ch(ch)
         self.win.write(reg_name(ch, "STATUS"), ST_ILLEGAL | ST_OVERFLOW | ST_UNDERFLOW)
 
+    def clear_illegal(self, ch: int) -> None:
+        """Clear ILLEGAL alone (W1C), leaving OVERFLOW/UNDERFLOW to the unwrapping: a watchdog
+        that counts the reads that found ILLEGAL set clears it after each."""
+        self._check_ch(ch)
+        self.win.write(reg_name(ch, "STATUS"), ST_ILLEGAL)
+
     def set_mode(self, ch: int, mode: int) -> None:
         """Counting mode 1, 2 or 4 (counts per quadrature cycle). The position in radians is
         kept continuous across the change (to the new resolution); :meth:`check_index` needs a

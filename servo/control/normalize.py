@@ -77,22 +77,6 @@ class NormalizingChain:
         """τ = J_eff·a: N·m at the joint from rad/s²."""
         return self.j_eff * accel
 
-    def current_from_torque(self, torque: np.ndarray) -> np.ndarray:
-        """i = τ/(N·Kt): motor current in A from joint torque in N·m."""
-        return torque / (self.ratio * self.kt)
-
-    def volts_from_current(self, current: np.ndarray) -> np.ndarray:
-        """u = i/g_amp: amplifier command in V from motor current in A."""
-        return current / self.amp_gain
-
-    def volts_from_torque(self, torque: np.ndarray) -> np.ndarray:
-        """Amplifier command in V for a joint torque in N·m."""
-        return self.volts_from_current(self.current_from_torque(torque))
-
-    def counts_from_volts(self, volts: np.ndarray) -> np.ndarray:
-        """DAC counts (float, not rounded; NaN where no DAC LSB was given) for a command in V."""
-        return volts / self.dac_volts_per_count
-
     # --- inverses (limits given as current or volts → torque) -----------------------------------
     def torque_from_current(self, current: np.ndarray) -> np.ndarray:
         """τ = N·Kt·i: joint torque in N·m for a motor current in A."""

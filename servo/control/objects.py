@@ -362,16 +362,15 @@ class GravityComp(BaseControlObject):
 @dataclass(frozen=True)
 class ControlOutput:
     """One tick's output (arrays of length n): ``accel`` rad/s² (the law's normalized output, 0 if
-    no pid), ``torque`` N·m after limits, ``torque_unlimited`` N·m, ``current`` A, ``volts`` V
-    amplifier command, ``counts`` DAC counts (float, NaN without a DAC LSB), ``saturation`` −1/0/+1,
-    ``integrating`` (switch-off state: True = integrators fed)."""
+    no pid), ``torque`` N·m after limits, ``torque_unlimited`` N·m, ``saturation`` −1/0/+1,
+    ``integrating`` (switch-off state: True = integrators fed).
+
+    The torque is the command: the drivers turn it into amperes, volts and DAC codes with the
+    calibrated scaling (:meth:`servo.io.JointIO.write_torque`, the one conversion), not here."""
 
     accel: np.ndarray
     torque: np.ndarray
     torque_unlimited: np.ndarray
-    current: np.ndarray
-    volts: np.ndarray
-    counts: np.ndarray
     saturation: np.ndarray
     integrating: np.ndarray
 
@@ -433,15 +432,10 @@ class Controller:
         for o in self.objects:
             o.commit(ctx)
         law = self.law
-        current = self.chain.current_from_torque(tau)
-        volts = self.chain.volts_from_current(current)
         return ControlOutput(
             accel=ctx.accel if ctx.accel is not None else np.zeros(self.n),
             torque=tau,
             torque_unlimited=ctx.torque_unlimited if ctx.torque_unlimited is not None else tau.copy(),
-            current=current,
-            volts=volts,
-            counts=self.chain.counts_from_volts(volts),
             saturation=ctx.saturation.copy(),
             integrating=law.integrating if law is not None else np.zeros(self.n, bool),
         )

@@ -13,26 +13,29 @@ import math
 import subprocess
 import sys
 import time
+import zlib
 
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from emulators import vision_protocol as vp
 from emulators.bit3 import Bit3Board, Bit3Link, Bit3RemotePort
 from emulators.crate import Crate
 from emulators.vision import VisionParams, VisionSystem
-from hal.bit3 import Bit3Driver, BufferMemory
-from hal.bit3.arm import ArmModel
+from emulators.vision_protocol import EndReason as VisionEndReason
+from emulators.vision_protocol import VisionServer, VisionState
+from hal.bit3 import Bit3Driver
 from hal.bit3.protocol import (
     EndReason,
     RobotState,
     Timeouts,
     VisionServoClient,
-    VisionServoServer,
-    VisionState,
     format_layout,
 )
+from hal.kinematics import ArmModel
+from hal.shm import BufferMemory
 
 ARM = ArmModel()
 angles = st.floats(-2.5, 2.5)
@@ -90,12 +93,110 @@ def test_arm_from_parameter_table() -> None:
         ArmModel.from_table({"length": 1.0})
 
 
+# --- the vision side's own protocol, read with the bytes docs/bit3.md gives --------------------
+def _u32(*words: int) -> bytes:
+    return b"".join(w.to_bytes(4, "big") for w in words)
+
+
+def _slot(seq: int, payload: bytes) -> bytes:
+    """SEQ_BEGIN | payload | CRC32 | SEQ_END, the CRC (zlib CRC-32) over big-endian seq + payload."""
+    return _u32(seq) + payload + _u32(zlib.crc32(_u32(seq) + payload)) + _u32(seq)
+
+
+def test_vision_side_formats_the_layout_header_of_the_doc() -> None:
+    buf = bytearray(b"\xff" * 0x200)
+    vp.format_layout(BufferMemory(buf))
+    assert bytes(buf[:12]) == bytes.fromhex("56534D31 00000001 00000200")
+    assert bytes(buf[12:0x200]) == bytes(0x200 - 12)
+
+
+def test_vision_side_refuses_an_unformatted_memory_or_another_version() -> None:
+    with pytest.raises(vp.LayoutError, match="format it first"):
+        VisionServer(BufferMemory(bytearray(0x200)))
+    buf = bytearray(0x200)
+    buf[:12] = bytes.fromhex("56534D31 00000002 00000200")
+    with pytest.raises(vp.LayoutError, match="version 2"):
+        VisionServer(BufferMemory(buf))
+
+
+def _formatted() -> bytearray:
+    buf = bytearray(0x200)
+    buf[:12] = bytes.fromhex("56534D31 00000001 00000200")
+    return buf
+
+
+def test_vision_status_version_1_lands_in_slot_1_at_0x09c() -> None:
+    buf = _formatted()
+    VisionServer(BufferMemory(buf))  # writes its first status: IDLE, heartbeat 1
+    payload = _u32(0, 0, 1, 0, 0, 0, 0, 0)  # state, task_id, heartbeat, end_reason, frames, commands, 2 reserved
+    assert bytes(buf[0x070 + 44 : 0x070 + 88]) == _slot(1, payload)
+    assert bytes(buf[0x070 : 0x070 + 44]) == bytes(44)  # slot 0 untouched
+
+
+def test_vision_side_accepts_a_request_and_writes_the_command_record() -> None:
+    buf = _formatted()
+    # ROBOT_STATUS version 1 (slot 1, 0x010 + 44): REQUESTED, task 5, heartbeat 1, kind 1, 10 mm, 0.05 rad
+    robot = _u32(1, 5, 1, 0, 1) + bytes.fromhex("3C23D70A 3D4CCCCD") + _u32(0)
+    buf[0x010 + 44 : 0x010 + 88] = _slot(1, robot)
+    bells: list[int] = []
+    server = VisionServer(BufferMemory(buf), ring=bells.append)
+    assert server.step(0.01) is VisionState.TRACKING and server.task_id == 5
+    assert server.peer is not None and server.peer.max_step_m == pytest.approx(0.01)
+    assert bells == [1]  # state changed: doorbell code 1
+    sent = server.send(0.25, (0.001, -0.002, 0.0005))
+    assert sent is not None and bells == [1, 2]  # a new command: doorbell code 2
+    # COMMAND version 1 in slot 1 at 0x0D0 + 52: task 5, cmd 1, flags 1, frame_ms 250, dx dy dz, drx dry drz
+    payload = _u32(5, 1, 1, 250) + bytes.fromhex("3A83126F BB03126F 3A03126F") + bytes(12)
+    assert bytes(buf[0x0D0 + 52 : 0x0D0 + 104]) == _slot(1, payload)
+
+
+def test_vision_side_ignores_a_torn_robot_record_and_keeps_the_complete_one() -> None:
+    buf = _formatted()
+    buf[0x010 + 44 : 0x010 + 88] = _slot(1, _u32(1, 5, 1, 0, 1, 0, 0, 0))
+    torn = bytearray(_slot(2, _u32(0, 5, 2, 0, 1, 0, 0, 0)))
+    torn[-4:] = _u32(1)  # SEQ_END still the old number: version 2 is being written
+    buf[0x010 : 0x010 + 44] = torn
+    server = VisionServer(BufferMemory(buf))
+    server.step(0.0)
+    assert server.peer is not None and (server.peer.state, server.peer.heartbeat) == (1, 1)
+
+
+def test_restarted_vision_side_continues_its_record_sequence() -> None:
+    buf = _formatted()
+    buf[0x070 : 0x070 + 4] = _u32(6)  # slot 0 holds version 6, slot 1 version 5
+    buf[0x070 + 44 : 0x070 + 48] = _u32(5)
+    VisionServer(BufferMemory(buf))
+    assert bytes(buf[0x070 + 44 : 0x070 + 48]) == _u32(7)  # version 7 → slot 1
+    assert bytes(buf[0x070 + 84 : 0x070 + 88]) == _u32(7)
+
+
+def test_vision_side_reads_telemetry_of_the_doc_layout() -> None:
+    buf = _formatted()
+    # TELEMETRY version 1 (slot 1 at 0x140 + 60): tick 9, 3 joints, time 0.5 s (f64), theta f32 × 8
+    payload = _u32(9, 3) + bytes.fromhex("3FE0000000000000") + bytes.fromhex("3F800000 BF000000 40000000") + bytes(20)
+    buf[0x140 + 60 : 0x140 + 120] = _slot(1, payload)
+    tel = VisionServer(BufferMemory(buf)).telemetry()
+    assert tel is not None and (tel.tick, tel.time_s, tel.theta) == (9, 0.5, (1.0, -0.5, 2.0))
+
+
+def test_vision_side_ends_on_robot_silence_after_peer_timeout() -> None:
+    buf = _formatted()
+    buf[0x010 + 44 : 0x010 + 88] = _slot(1, _u32(1, 5, 1, 0, 1, 0, 0, 0))
+    server = VisionServer(BufferMemory(buf), vp.VisionTimeouts(peer_timeout_s=0.125, ending_timeout_s=0.0625))
+    server.step(1.0)
+    assert server.tracking
+    server.step(1.125)  # heartbeat unchanged for exactly the timeout: not yet ("> peer_timeout")
+    assert server.tracking
+    server.step(1.1875)
+    assert server.state is VisionState.IDLE and server.end_reason is VisionEndReason.PEER_TIMEOUT
+
+
 # --- vision system -------------------------------------------------------------------------
 def test_vision_measures_the_target_in_the_camera_frame() -> None:
     theta = [0.4, 0.6, -1.1]
     p, R = ARM.pose(theta)
     target = p + 0.2 * R[:, 0] + 0.05 * R[:, 1]  # ahead and to the left
-    vision = VisionSystem(VisionServoServer.__new__(VisionServoServer), target, ARM,
+    vision = VisionSystem(VisionServer.__new__(VisionServer), target, ARM,
                           ee_pose=lambda: ARM.pose(theta))
     e, visible = vision.measure()
     assert e == pytest.approx([0.2, 0.05, 0.0], abs=1e-12) and visible
@@ -130,7 +231,7 @@ def _closed_loop(latency_s: float, rate_hz: float, use_telemetry: bool, seconds:
     theta = np.array([0.2, 0.5, -1.0, 0.0, 0.0, 0.0])
     target = ARM.position(theta) + np.array([0.08, -0.12, 0.05])
     params = VisionParams(rate_hz=rate_hz, latency_s=latency_s, gain=0.5, max_step_m=0.01, tolerance_m=0.002)
-    server = VisionServoServer(remote.memory, ring=remote.ring)
+    server = VisionServer(remote.memory, ring=remote.ring)
     remote.on_doorbell(server.notify)
     vision = VisionSystem(server, target, ARM, params, ee_pose=None if use_telemetry else lambda: ARM.pose(theta))
     dt = 0.008
@@ -155,7 +256,7 @@ def _closed_loop(latency_s: float, rate_hz: float, use_telemetry: bool, seconds:
                          [(0.03, 30.0, True), (0.0, 60.0, False), (0.06, 25.0, True)])
 def test_closed_loop_visual_servo_converges_in_lockstep(latency_s, rate_hz, use_telemetry) -> None:
     robot, server, vision, err, n = _closed_loop(latency_s, rate_hz, use_telemetry)
-    assert server.end_reason is EndReason.TARGET_REACHED
+    assert server.end_reason is VisionEndReason.TARGET_REACHED
     assert robot.state is RobotState.IDLE and robot.end_reason is EndReason.PEER_ENDED
     assert err < 2 * vision.params.tolerance_m
     assert n > 10 and vision.stats.frames > n // 2

@@ -18,7 +18,6 @@ from emulators.dac import DacBoard
 from emulators.pio import PioBoard
 from emulators.quadrature import QuadratureBoard
 from emulators.ram import RamBoard
-from hal.adc_dac.adc_regs import ADC_BUFFER_OFFSET, ADC_REGMAP
 from hal.vme import AddressSpace, BusError, BusErrorCause, Width
 from hal.vme.types import AddressModifier, resolve_am
 from hal.vme.window import BoardWindow
@@ -41,7 +40,9 @@ def _reference_write(board: RegisterBoard, offset: int, width: Width, value: int
     reg, sub = board._locate(offset, width)
     if not reg.access.writable:
         raise BoardAccessError(BusErrorCause.ACCESS, f"{board.name}.{reg.name} is read-only")
-    if width is not reg.width:
+    if isinstance(board, AdcBoard) and reg.name == "CSR" and width is Width.D8 and sub == 0:
+        value <<= 8  # the configuration byte alone: the action/status byte sees zeros (adc.md)
+    elif width is not reg.width:
         shift = 8 * (int(reg.width) - sub - int(width))
         mask = width.max_value << shift
         value = (board.regs[reg.name] & ~mask) | ((value << shift) & mask)
@@ -79,6 +80,8 @@ def _reference_cycle(crate: Crate, am: AddressModifier, address: int, width: Wid
 
 
 BASES = {"adc": 0x1000, "dac": 0x2000, "pio": 0x3000, "quad": 0x4000}
+ADC_REGMAP = AdcBoard.REGMAP  # the emulator's own map (these tests are of the crate's dispatch)
+ADC_BUFFER_OFFSET = ADC_REGMAP["BUF0"].offset
 
 
 def _rack() -> Crate:

@@ -81,7 +81,7 @@ def _field(draw, sig, interesting: list[int]) -> Any:
 
 
 _INTERESTING = {
-    "BootId": [OWNER, STRANGER, NODE_BOOT], "BootIdLow": [OWNER & 0xFF, STRANGER & 0xFF],
+    "BootId": [OWNER, STRANGER, NODE_BOOT], "BootIdLow": [OWNER & 0xFF, STRANGER & 0xFF, NODE_BOOT & 0xFF],
     "Owner": [OWNER, STRANGER], "RefusedBoot": [OWNER, STRANGER], "Tick": [OWNER, STRANGER, 0, 1],
     "Session": [SESSION, SESSION + 1], "NJoints": [N], "Command": [0, 1, 2, 3], "Seed": [0, 5],
     "Seq": [0, 1], "ResetAck": [0, 1], "FreeRunning": [0], "StepError": [0],
@@ -211,7 +211,7 @@ _SENSORS = _sensors()
 def _answer_frames(tick: int) -> list[can.Message]:
     """A proper answer of our session (so the fuzzed frames meet a link with answers flowing)."""
     s = _SENSORS
-    out = CODEC.sensor_frames(CODEC.sensors_raw(s), tick, s.truth)
+    out = CODEC.sensor_frames(CODEC.sensors_raw(s), tick, s.truth, boot_id=NODE_BOOT)
     return [*out, CODEC.frame("PLANT_STATUS", Tick=tick, BootId=NODE_BOOT, NJoints=N, Session=SESSION)]
 
 
@@ -287,4 +287,6 @@ def _codec_refused(link: CanPlantLink) -> int:
 
 
 def _statuses_sorted(link: CanPlantLink) -> int:
-    return link.counters.other_session + link.counters.incomplete + len(link._fresh)
+    # other_boot: a status of another boot id, dropped before it is sorted (one frame proves no restart)
+    c = link.counters
+    return c.other_session + c.other_boot + c.incomplete + len(link._fresh)

@@ -29,8 +29,7 @@ def _linear_j1(system) -> LinearAmp:
     p, io = system.params[0], system.io
     cfg = LinearAmpConfig(gain_a_per_v=p.linear_amp.gain_a_per_v, current_limit_a=p.linear_amp.current_limit_a,
                           monitor_v_per_a=p.linear_amp.monitor_v_per_a, dac_channel=0, monitor_channel=0,
-                          enable_line="j1.amp_enable", fault_line="j1.amp_fault", reset_line="j1.amp_reset",
-                          kt_nm_per_a=p.motor.kt_nm_per_a, ratio=p.gear.ratio)
+                          enable_line="j1.amp_enable", fault_line="j1.amp_fault", reset_line="j1.amp_reset")
     return LinearAmp(cfg, io.dac["dac0"], io.pio["pio0"], io.adc["adc1"])
 
 
@@ -45,15 +44,6 @@ def test_linear_amp_drives_current_read_back_on_the_monitor(rig) -> None:
     _advance(rig, 3)
     assert abs(amp.monitor_current()) < 0.05
     assert amp.set_current(100.0) == pytest.approx(30.0 / 3.0)  # clamped to the current limit
-
-
-def test_linear_amp_torque_goes_through_kt_and_the_ratio(rig) -> None:
-    amp = _linear_j1(rig)
-    p = rig.params[0]
-    assert (p.gear.ratio, p.motor.kt_nm_per_a, p.linear_amp.gain_a_per_v) == (100.0, 0.028, 3.0)  # jpl-arm j1
-    tau = 5.0  # N·m at the joint: 5 / (100 · 0.028 N·m/A) = 1.785714 A; / 3 A/V = 0.595238 V (by hand)
-    assert amp.current_for_torque(tau) == pytest.approx(1.7857142857)
-    assert amp.set_torque(tau) == pytest.approx(0.5952380952)
 
 
 def test_linear_amp_fault_line_raises_and_reset_pulses(rig) -> None:

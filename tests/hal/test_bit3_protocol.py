@@ -1,5 +1,9 @@
 """The vision-servo protocol: transitions, torn writes, lost doorbells, peer death.
 
+The robot side is ``hal.bit3.protocol``; its peer is the emulated vision computer's own
+implementation of docs/bit3.md (``emulators.vision_protocol``), so every exchange here is two
+independent readings of the spec talking to each other.
+
 The stateful test gives each side its own port onto one shared buffer. A side's writes may
 be held back and applied word by word while the other side reads (a torn, half-written
 record), doorbells may be lost, and either side may die at any point, leaving its last write
@@ -22,6 +26,8 @@ from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, pr
 
 from emulators.bit3 import Bit3Board, Bit3Link, Bit3RemotePort
 from emulators.crate import Crate
+from emulators.vision_protocol import EndReason as VisionEndReason
+from emulators.vision_protocol import VisionServer, VisionState, VisionTimeouts
 from hal.bit3 import Bit3Driver, BufferMemory, ProtocolError
 from hal.bit3.protocol import (
     LAYOUT_SIZE,
@@ -31,21 +37,20 @@ from hal.bit3.protocol import (
     RobotState,
     Timeouts,
     VisionServoClient,
-    VisionServoServer,
-    VisionState,
     _limit,
     format_layout,
 )
 
 T = Timeouts(peer_timeout_s=0.1, accept_timeout_s=0.2, ending_timeout_s=0.05)
+VT = VisionTimeouts(peer_timeout_s=0.1, ending_timeout_s=0.05)  # the vision side's, the same values
 
 
-def _pair(timeouts: Timeouts = T, accept=None):
+def _pair(accept=None):
     buf = bytearray(LAYOUT_SIZE)
     mem = BufferMemory(buf)
     format_layout(mem)
-    robot = VisionServoClient(mem, timeouts)
-    vision = VisionServoServer(mem, timeouts, accept=accept)
+    robot = VisionServoClient(mem, T)
+    vision = VisionServer(mem, VT, accept=accept)
     return buf, robot, vision
 
 
@@ -89,7 +94,7 @@ def test_record_sequence_survives_wrap_around(start: int, n: int) -> None:
 
 def test_layout_must_be_formatted_before_the_endpoints_start() -> None:
     with pytest.raises(ProtocolError, match="format"):
-        VisionServoServer(BufferMemory(bytearray(LAYOUT_SIZE)))
+        VisionServoClient(BufferMemory(bytearray(LAYOUT_SIZE)))
 
 
 # --- transitions ---------------------------------------------------------------------------
@@ -107,7 +112,7 @@ def test_request_accept_command_and_robot_end() -> None:
     robot.end(0.006)
     assert robot.state is RobotState.ENDING and robot.holding
     vision.step(0.007)
-    assert vision.state is VisionState.IDLE and vision.end_reason is EndReason.PEER_ENDED
+    assert vision.state is VisionState.IDLE and vision.end_reason is VisionEndReason.PEER_ENDED
     robot.step(0.008)
     assert robot.state is RobotState.IDLE and robot.end_reason is EndReason.REQUESTED_END
 
@@ -117,12 +122,12 @@ def test_vision_ends_the_task() -> None:
     robot.request(0.0)
     _run(robot, vision, 0.0, 0.02)
     assert robot.active
-    vision.end(0.021, EndReason.TARGET_REACHED)
+    vision.end(0.021, VisionEndReason.TARGET_REACHED)
     assert vision.send(0.021, (1e-3, 0, 0)) is None  # no commands once ending
     robot.step(0.022)
     assert robot.state is RobotState.IDLE and robot.end_reason is EndReason.PEER_ENDED
     vision.step(0.023)
-    assert vision.state is VisionState.IDLE and vision.end_reason is EndReason.TARGET_REACHED
+    assert vision.state is VisionState.IDLE and vision.end_reason is VisionEndReason.TARGET_REACHED
     assert vision.peer is not None
 
 
@@ -154,7 +159,7 @@ def test_live_but_unresponsive_vision_gives_accept_timeout() -> None:
     t = 0.0
     while robot.state is RobotState.REQUESTED and t < 1:
         t += 0.008
-        vision._safe_write_status()  # heartbeat advances, but the vision side never looks
+        vision._write_status()  # heartbeat advances, but the vision side never looks
         robot.step(t)
     assert robot.end_reason is EndReason.ACCEPT_TIMEOUT
     assert t <= T.accept_timeout_s + 0.008 + 1e-9
@@ -181,7 +186,7 @@ def test_robot_dies_vision_returns_to_idle() -> None:
     while vision.state is not VisionState.IDLE:
         t += 0.01
         vision.step(t)
-    assert vision.end_reason is EndReason.PEER_TIMEOUT
+    assert vision.end_reason is VisionEndReason.PEER_TIMEOUT
     assert t - died <= T.peer_timeout_s + 0.02
 
 
@@ -248,7 +253,7 @@ def test_link_down_through_the_driver_ends_the_task_with_link_error() -> None:
     drv = Bit3Driver(crate, 0xC000, 0x400000, window_size=0x1000)
     format_layout(drv.memory())
     robot = VisionServoClient(drv.memory(), T, ring=drv.ring_doorbell)
-    vision = VisionServoServer(remote.memory, T, ring=remote.ring)
+    vision = VisionServer(remote.memory, VT, ring=remote.ring)
     bells: list[int] = []
     remote.on_doorbell(bells.append)
     robot.request(crate.now())
@@ -261,7 +266,7 @@ def test_link_down_through_the_driver_ends_the_task_with_link_error() -> None:
     while vision.state is not VisionState.IDLE:  # the vision side sees the robot go silent
         t += 0.01
         vision.step(t)
-    assert vision.end_reason is EndReason.PEER_TIMEOUT
+    assert vision.end_reason is VisionEndReason.PEER_TIMEOUT
     card.clear_fault("link_down")
     drv.reset_link()
     robot.request(t)
@@ -314,7 +319,7 @@ class ProtocolMachine(RuleBasedStateMachine):
         self.bells: list[tuple[str, int]] = []
         self.robot = VisionServoClient(self.rport, T, ring=lambda c: self.bells.append(("vision", c)))
         self.accepting = True
-        self.vision = VisionServoServer(self.vport, T, ring=lambda c: self.bells.append(("robot", c)),
+        self.vision = VisionServer(self.vport, VT, ring=lambda c: self.bells.append(("robot", c)),
                                         accept=lambda kind: self.accepting)
         self.rport.defer = self.vport.defer = defer
         self.t = 0.0
@@ -426,7 +431,7 @@ class ProtocolMachine(RuleBasedStateMachine):
     @rule()
     def vision_end(self) -> None:
         self.vport.flush()
-        self.vision.end(self.t, EndReason.TARGET_REACHED)
+        self.vision.end(self.t, VisionEndReason.TARGET_REACHED)
 
     @rule(accepting=st.booleans())
     def vision_policy(self, accepting: bool) -> None:
@@ -499,7 +504,7 @@ def test_the_stateful_model_can_reach_servoing_and_deliver_commands() -> None:
     buf = bytearray(LAYOUT_SIZE)
     format_layout(BufferMemory(buf))
     rp, vp = Port(buf), Port(buf)
-    robot, vision = VisionServoClient(rp, T), VisionServoServer(vp, T)
+    robot, vision = VisionServoClient(rp, T), VisionServer(vp, VT)
     robot.request(0.0)
     got = []
     for i in range(1, 20):

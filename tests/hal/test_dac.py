@@ -1,5 +1,9 @@
-"""DAC board: registers, double buffering, simultaneous update, settling, range errors and
-clamping, calibration, the dead-channel fault and a DAC→ADC loopback through a signals net."""
+"""DAC board: the doc (docs/boards/dac.md) as the spec of both the driver's map and the emulator's
+own; registers, double buffering, simultaneous update, settling, range errors and clamping,
+calibration, the dead-channel fault and a DAC→ADC loopback through a signals net.
+
+Expected codes and volts are literals from the doc's coding and worked examples, never the
+library's conversion functions (the driver's bus cycles: test_dac_traces.py)."""
 
 from __future__ import annotations
 
@@ -25,16 +29,17 @@ from hal.adc_dac import (
 from hal.adc_dac.conversions import (
     CODE_MAX,
     CODE_MID,
-    DAC_LSB_V,
     DAC_V_MAX,
     DAC_V_MIN,
     dac_code_to_volts,
     dac_volts_to_code,
 )
 from hal.vme import BusError, BusErrorCause, Width
+from tests.support.board_spec import doc_registers, doc_rows, map_differences
 
 BASE = 0x7000
 ADC_BASE = 0x6000
+DAC_LSB_V = 20.0 / 4096  # 4.8828125 mV (docs/boards/dac.md), the tolerance of the end-to-end checks
 
 
 def make(**kw) -> tuple[Crate, DacBoard, DacDriver]:
@@ -73,11 +78,51 @@ def test_dac_code_volts_code_is_identity(code: int) -> None:
 
 
 def test_dac_offset_binary_scaling() -> None:
-    assert dac_volts_to_code(0.0) == (CODE_MID, False)
+    assert dac_volts_to_code(0.0) == (0x800, False)
     assert dac_volts_to_code(-10.0) == (0, False)
-    assert dac_volts_to_code(DAC_V_MAX) == (CODE_MAX, False)
-    assert dac_volts_to_code(10.0) == (CODE_MAX, True)  # +10 V itself is not representable
+    assert dac_volts_to_code(9.9951171875) == (0xFFF, False)
+    assert dac_volts_to_code(10.0) == (0xFFF, True)  # +10 V itself is not representable
     assert dac_volts_to_code(-10.01) == (0, True)
+
+
+# --- the doc is the spec: the driver and the emulator, each checked against it ---------------
+
+def _examples() -> list[tuple[float, int, float]]:
+    """The doc's worked examples: (volts, code, output volts)."""
+    return [(float(r["volts"].replace("−", "-")), int(r["code"], 16), float(r["output v"].replace("−", "-")))
+            for r in doc_rows("dac", "volts", "code", "output V")]
+
+
+def test_the_driver_register_map_is_the_docs_register_table() -> None:
+    assert map_differences(DAC_REGMAP, doc_registers("dac"), who="driver") == []
+
+
+def test_the_emulator_register_map_is_the_docs_register_table() -> None:
+    assert map_differences(DacBoard.REGMAP, doc_registers("dac"), who="emulator") == []
+
+
+def test_the_driver_converts_the_docs_worked_examples() -> None:
+    examples = _examples()
+    assert len(examples) == 9
+    for v, code, out in examples:
+        assert dac_volts_to_code(v) == (code, False), v
+        assert dac_code_to_volts(code) == out, code
+    assert dac_volts_to_code(10.0) == (0xFFF, True)  # the doc: +10.0 V is out of range
+
+
+def test_the_emulator_outputs_the_docs_worked_examples() -> None:
+    """Each example's code written to DATA5 and strobed with UPDATE bit 5 (the doc's offsets and
+    bit): the output pin settles at the example's volts."""
+    regs = doc_registers("dac")
+    c = Crate("doc")
+    board = DacBoard("dac0", wiring={5: "out5"}, settling_time_ns=10_000)
+    c.install(board, base=BASE, space="A16")
+    for _, code, out in _examples():
+        c.write(BASE + regs["DATA5"].offset, code)
+        c.write(BASE + regs["UPDATE"].offset, 1 << regs["UPDATE"].fields["CH5"][0])
+        c.delay(12e-6)
+        assert c.signals.get_analog("out5") == out and board.output_volts(5) == out, code
+        assert c.read(BASE + regs["OUT5"].offset) == code
 
 
 # --- registers --------------------------------------------------------------------------
@@ -119,6 +164,34 @@ def test_update_register_is_write_only_and_data_keeps_12_bits() -> None:
     assert dac.read_holding_counts(3) == 0xABC
 
 
+@pytest.mark.parametrize(("offset", "width", "write", "cause"), [
+    (0x06, Width.D16, False, BusErrorCause.NO_RESPONDER),  # 0x06-0x0F not decoded
+    (0x0E, Width.D16, True, BusErrorCause.NO_RESPONDER),
+    (0x11, Width.D8, True, BusErrorCause.UNSUPPORTED_WIDTH),  # D8 only on ID, CSR and UPDATE
+    (0x20, Width.D8, False, BusErrorCause.UNSUPPORTED_WIDTH),
+    (0x10, Width.D32, True, BusErrorCause.UNSUPPORTED_WIDTH),  # no D32 anywhere
+    (0x00, Width.D16, True, BusErrorCause.ACCESS),  # ID is read-only
+])
+def test_bad_accesses_end_in_the_docs_bus_errors(offset: int, width: Width, write: bool,
+                                                  cause: BusErrorCause) -> None:
+    c, _, _ = make()
+    with pytest.raises(BusError) as ei:
+        if write:
+            c.write(BASE + offset, 0, space="A16", width=width)
+        else:
+            c.read(BASE + offset, space="A16", width=width)
+    assert ei.value.cause is cause
+
+
+def test_a_d8_strobe_of_update_bits_7_0_updates_and_of_bits_15_8_does_nothing() -> None:
+    c, _, dac = make()
+    dac.write_counts(2, 0xA00, update=False)
+    c.write(BASE + 0x04, 0xFF, space="A16", width=Width.D8)  # +0x04 holds bits 15:8: no channel
+    assert dac.read_back_counts(2) == 0x800
+    c.write(BASE + 0x05, 0x04, space="A16", width=Width.D8)  # bit 2: channel 2
+    assert dac.read_back_counts(2) == 0xA00
+
+
 def test_csr_strobes_read_zero() -> None:
     c, _, _ = make()
     wr(c, "CSR", 0x0001)
@@ -132,11 +205,11 @@ def test_holding_register_does_not_change_the_output_until_the_strobe() -> None:
     res = dac.write_volts(2, 5.0, update=False)
     assert not res.updated
     settle(c)
-    assert dac.read_holding_counts(2) == dac_volts_to_code(5.0)[0]
+    assert dac.read_holding_counts(2) == 0xC00  # +5.0 V
     assert dac.read_back_counts(2) == CODE_MID
     assert c.signals.get_analog("out2") == 0.0 and board.output_volts(2) == 0.0
     dac.update([2])
-    assert dac.read_back_counts(2) == dac_volts_to_code(5.0)[0]
+    assert dac.read_back_counts(2) == 0xC00
     settle(c)
     assert c.signals.get_analog("out2") == pytest.approx(5.0, abs=DAC_LSB_V / 2)
 
@@ -256,7 +329,7 @@ def test_dead_channel_fault_is_seen_through_the_loopback() -> None:
     settle(c)
     board.inject("dead_channel", channel=0)
     assert abs(adc.read_volts(0)) < 2 * DAC_LSB_V  # the driver sees 0 V where it wrote 4 V
-    assert dac.read_back_counts(0) == dac_volts_to_code(4.0)[0]  # registers still say 4 V
+    assert dac.read_back_counts(0) == 0xB33  # registers still say 4 V (14 V / 4.8828125 mV = 2867.2)
     dac.write_volts(0, -4.0)
     settle(c)
     assert abs(adc.read_volts(0)) < 2 * DAC_LSB_V

@@ -6,7 +6,7 @@ import pytest
 
 from hal.config import ConfigError
 from servo.rig import Pin, loopback_net, reference_net
-from tests.support.calib_bench import RIG_TOML, write_rig
+from tests.support.bench_rig import RIG_TOML, write_rig
 
 
 def test_references_and_loopback_are_parsed(tmp_path):

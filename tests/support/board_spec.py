@@ -14,7 +14,9 @@ names at least these columns (any order, more columns allowed)::
 - ``bits``: the fields, ``<br>``-separated, each ``[msb:lsb] NAME — text`` or ``[bit] NAME — text``
   (empty for a plain data register).
 
-:func:`doc_registers` reads every such table in a doc; :func:`map_differences` lists how a
+:func:`doc_registers` reads every such table in a doc; :func:`doc_rows` reads the rows of any other
+table of the doc by its column names (a gain table, worked conversion examples);
+:func:`map_differences` lists how a
 ``hal.vme.RegisterMap`` (the driver's, or the emulator's own) differs from it. The doc is the
 spec: the two maps are each checked against it, never against each other.
 
@@ -85,6 +87,31 @@ def doc_registers(doc: str | Path, *, table: int | None = None) -> dict[str, Doc
     if not out:
         raise ValueError(f"{path}: no register table with the columns {', '.join(REQUIRED)}")
     return out
+
+
+def doc_rows(doc: str | Path, *columns: str) -> list[dict[str, str]]:
+    """The rows (column name, lower case → cell text) of every table of the doc whose header
+    names all ``columns`` (case-insensitive). Raises ``ValueError`` when there is none, so a
+    renamed column fails loudly rather than leaving a check with nothing to check."""
+    path = Path(doc) if isinstance(doc, Path) or "/" in str(doc) else DOCS / f"{doc}.md"
+    want = [c.lower() for c in columns]
+    lines = path.read_text().splitlines()
+    rows: list[dict[str, str]] = []
+    found = False
+    i = 0
+    while i < len(lines):
+        cols = [c.lower() for c in _cells(lines[i])] if lines[i].lstrip().startswith("|") else []
+        if not cols or not all(k in cols for k in want):
+            i += 1
+            continue
+        found = True
+        i += 2  # the header and the |---| line
+        while i < len(lines) and lines[i].lstrip().startswith("|"):
+            rows.append(dict(zip(cols, _cells(lines[i]), strict=False)))
+            i += 1
+    if not found:
+        raise ValueError(f"{path}: no table with the columns {', '.join(columns)}")
+    return rows
 
 
 def _register(row: dict[str, str]) -> DocRegister:

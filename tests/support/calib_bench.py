@@ -20,101 +20,10 @@ from emulators.quadrature import QuadratureBoard
 from emulators.rng import rng_for
 from hal.adc_dac.calibration import Calibration
 from servo.io import JointIO, SensorScaling
-from servo.rig import RigSpec, load_rig, loopback_net, reference_net
+from servo.rig import RigSpec, loopback_net, reference_net
+from tests.support.bench_rig import POT_SPAN, RIG_TOML, write_rig
 from vmehil.calibration.base import CalibrationContext
 from vmehil.calibration.store import BoardCal, CalibrationStore, JointCal, rig_boards, utc_now
-
-RIG_TOML = """
-[rig]
-name = "bench"
-
-[rig.references]
-"adc1:12" = 5.0
-"adc1:13" = 0.0
-
-[rig.loopback]
-"dac0:6" = "adc1:14"
-"dac0:7" = "adc1:15"
-
-[crate]
-name = "bench-rack"
-
-[[crate.board]]
-type = "adc"
-name = "adc0"
-space = "A16"
-base = 0x6000
-
-[[crate.board]]
-type = "adc"
-name = "adc1"
-space = "A16"
-base = 0x6100
-
-[[crate.board]]
-type = "dac"
-name = "dac0"
-space = "A16"
-base = 0x7000
-
-[[crate.board]]
-type = "quad"
-name = "quad0"
-space = "A16"
-base = 0x5000
-
-[[joint]]
-name = "j1"
-amplifier = "linear"
-[joint.wiring]
-amp_command = "dac0:0"
-pot = "adc0:0"
-imon = "adc1:0"
-encoder = "quad0:0"
-[joint.servo]
-velocity = "encoder"
-[joint.link]
-lower_stop_rad = -2.88
-upper_stop_rad = 2.88
-[joint.encoder]
-lines_per_rev = 500
-[joint.gear]
-ratio = 100.0
-[joint.linear_amp]
-gain_a_per_v = 3.0
-monitor_v_per_a = 0.3333333333
-current_limit_a = 30.0
-
-[[joint]]
-name = "j2"
-amplifier = "linear"
-[joint.wiring]
-amp_command = "dac0:1"
-pot = "adc0:1"
-imon = "adc1:1"
-encoder = "quad0:1"
-[joint.servo]
-velocity = "encoder"
-[joint.link]
-lower_stop_rad = -0.35
-upper_stop_rad = 1.9
-[joint.encoder]
-lines_per_rev = 500
-[joint.gear]
-ratio = 100.0
-[joint.linear_amp]
-gain_a_per_v = 2.0
-monitor_v_per_a = 0.5
-current_limit_a = 20.0
-"""
-
-POT_SPAN = 5.934  # rad, ~340° element across ±10 V
-
-
-def write_rig(folder: Path, text: str = RIG_TOML, name: str = "bench.toml") -> RigSpec:
-    p = folder / name
-    p.write_text(text)
-    return load_rig(p)
 
 
 def pot_volts(theta: float, bow: float, periodic: float, centre: float = 0.0, cycles: float = 3.0) -> float:

@@ -82,7 +82,7 @@ class DoubleIntegrator:
     def clear_faults(self) -> None:
         self.fault[:] = False
 
-    def safe_stop(self) -> list[str]:
+    def safe_stop(self, interruptions: list[BaseException] | None = None) -> list[str]:
         self.enabled = False
         self.torque = np.zeros(self.n)
         return []

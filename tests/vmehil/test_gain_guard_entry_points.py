@@ -49,7 +49,7 @@ def live_rig():
     runner = LockstepRunner(system, loop)
     port = free_udp_port()
     args = build_parser().parse_args(["run", "--mavlink", f"udpin:127.0.0.1:{port}", "--mavlink-rate", "0"])
-    endpoint = attach(args, system, loop, runner)
+    endpoint = attach(args.options(args), system, loop, runner)
     console = start_console("loop://", loop, runner=runner, announce=lambda _text: None)
     client = Client(port)
     client.hello()
@@ -100,3 +100,21 @@ def test_a_sweep_classifies_the_set_instead_of_refusing(name, param, value, tmp_
     rows = json.loads((out / "sweep.json").read_text())["rows"]
     assert [(r["stable"], r["unstable_reason"]) for r in rows] == [(False, reason), (True, None)]
     assert rows[0]["status"] == "unstable (servo.gain_guard): not simulated"
+
+
+@pytest.mark.parametrize(("gains", "reason"), [("kp = 1e30, kv = 50.0", "kp is limited to 100000"),
+                                               ("kp = 100000, kv = 0", "unstable (pole radius 2.21")])
+def test_a_rig_files_gains_go_through_the_guard_as_the_command_lines_do(gains, reason, tmp_path: Path, capsys):
+    """Issue #30 item 3: the same sets the command line refuses ran from a rig file."""
+    from emulators.presets import resolve_rig
+
+    paper = "gains = { kp = 100.0, kpi = 5000.0, kv = 50.0, kvi = 1000.0 }"
+    text = resolve_rig("jpl-arm").read_text(encoding="utf-8")
+    assert paper in text
+    rig = tmp_path / "rig.toml"
+    rig.write_text(text.replace(paper, f"gains = {{ kpi = 5000.0, kvi = 1000.0, {gains} }}", 1), encoding="utf-8")
+    assert main(["run", "--rig", str(rig), "--duration", "0.1", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert reason in err and f"{rig}: key 'servo.gains'" in err
+    assert main(["run", "--gains", gains.replace(" ", ""), "--duration", "0.1", "--quiet"]) == 2
+    assert reason in capsys.readouterr().err  # the command line's refusal, for the same set

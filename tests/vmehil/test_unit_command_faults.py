@@ -5,7 +5,6 @@ bus stand in for the processes here (the same run_unit)."""
 
 from __future__ import annotations
 
-import argparse
 import itertools
 from pathlib import Path
 
@@ -16,6 +15,7 @@ from servo.rig import load_rig
 from tests.vmehil.test_units_remote import UNITS, start_units
 from vmehil.cli import main
 from vmehil.commands.units import unit_faults
+from vmehil.fault_options import FaultOptions
 from vmehil.units.processes import run_coordinator
 from vmehil.units.remote import unit_bus
 
@@ -40,8 +40,7 @@ def test_a_units_own_board_fault_stops_it_at_the_single_runs_tick_and_every_unit
     leg3`: leg3 stops in tick 50 on `amplifier_fault`, as the single run and `--units parallel`
     do (test_units_options), and every other unit stops at the end of that tick (the answer to
     its exchange carries the stop), its final stop verified."""
-    before_run, faults = unit_faults(argparse.Namespace(unit="leg3", fault=["amp_fault_line@0.4:joint=leg3_knee"],
-                                                        faults=None), RIG)
+    before_run, faults = unit_faults("leg3", FaultOptions(specs=("amp_fault_line@0.4:joint=leg3_knee",)), RIG)
     assert [f.kind.name for f in faults] == ["amp_fault_line"]
     channel = f"unit-faults-{next(_channels)}"
     results, threads = start_units(RIG, channel, per_unit={"leg3": {"before_run": before_run}})

@@ -25,6 +25,7 @@ import logging
 import os
 import time
 import uuid
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -120,6 +121,58 @@ def check_workers(client: Any) -> dict[str, dict[str, str]]:
     return theirs
 
 
+class ExposedClusterWarning(UserWarning):
+    """The Dask cluster vmehil connected to listens on more than loopback (docs/sweeps.md)."""
+
+
+def _listening_sockets() -> list[str]:
+    """``host:port`` of every socket this process listens on (run in the scheduler or a worker)."""
+    import psutil
+
+    proc = psutil.Process()
+    conns = proc.net_connections(kind="inet") if hasattr(proc, "net_connections") else proc.connections(kind="inet")
+    return [f"{c.laddr.ip}:{c.laddr.port}" for c in conns if c.status == psutil.CONN_LISTEN]
+
+
+def beyond_loopback(addresses: list[str]) -> list[str]:
+    """The ``host:port`` addresses whose host is not loopback (127.0.0.0/8, ::1); 0.0.0.0 and ::
+    (every interface) are beyond it."""
+    import ipaddress
+
+    out = []
+    for a in addresses:
+        host = a.rsplit(":", 1)[0].strip("[]")
+        try:
+            if ipaddress.ip_address(host).is_loopback:
+                continue
+        except ValueError:
+            pass  # a name, not an address: cannot tell, so say it
+        out.append(a)
+    return out
+
+
+def cluster_exposure(client: Any) -> dict[str, list[str]]:
+    """Where the cluster behind ``client`` listens beyond loopback: ``{"scheduler": [...],
+    "<worker address>": [...]}`` (empty: loopback only, or it could not tell — the scheduler or a
+    worker could not run the check)."""
+    try:
+        found = {"scheduler": client.run_on_scheduler(_listening_sockets), **client.run(_listening_sockets)}
+    except Exception:  # an old or locked-down cluster: nothing to say rather than a false alarm
+        return {}
+    return {where: wide for where, socks in found.items() if (wide := beyond_loopback(list(socks)))}
+
+
+def warn_if_exposed(client: Any, address: str) -> None:
+    """An :class:`ExposedClusterWarning` when the cluster listens beyond loopback: anyone who can
+    reach those ports can run code on it (a Dask cluster has no authentication by default)."""
+    exposed = cluster_exposure(client)
+    if exposed:
+        where = "; ".join(f"{who} on {', '.join(socks)}" for who, socks in sorted(exposed.items()))
+        warnings.warn(f"the Dask cluster at {address} listens beyond loopback ({where}): anyone who reaches "
+                      "those ports can run code on it; docs/sweeps.md has a loopback-only recipe",
+                      ExposedClusterWarning, stacklevel=3)
+
+
 class DaskEngine:
     """Dask ``distributed``: a LocalCluster of ``jobs`` workers on 127.0.0.1 (default one per core)
     or, with ``scheduler`` (``tcp://HOST:PORT``), that cluster's workers."""
@@ -153,6 +206,7 @@ class DaskEngine:
             if self.scheduler:
                 self.client = Client(self.scheduler, timeout=CONNECT_TIMEOUT_S)
                 self.client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
+                warn_if_exposed(self.client, self.scheduler)
             else:
                 n = max(1, self.jobs or os.cpu_count() or 1)
                 self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",

@@ -74,6 +74,9 @@ def bode_figure(cfg: LoopConfig, result: dict[str, Any]) -> Figure:
     ax2.semilogx(fc, pc, color=_C["continuous"])
     ax2.semilogx(fs, ps, color=_C["sampled"])
     ax2.axhline(-180, color="k", lw=0.6)
+    # the two PM arrows usually stand close together: the lower crossover's label goes to the left
+    # of its arrow, the other's to the right, each on a white ground, so no label sits on an arrow
+    crossovers = [result[k]["crossover_hz"] for k in ("continuous", "sampled") if result[k].get("crossover_hz")]
     for kind, f, p in (("continuous", fc, pc), ("sampled", fs, ps)):
         m = result[kind]
         col = _C[kind]
@@ -83,7 +86,10 @@ def bode_figure(cfg: LoopConfig, result: dict[str, Any]) -> Figure:
             ax2.axvline(x, color=col, ls=":", lw=0.8)
             ph = float(np.interp(math.log(x), np.log(f), p))
             ax2.annotate("", xy=(x, -180), xytext=(x, ph), arrowprops={"arrowstyle": "<->", "color": col})
-            ax2.text(x * 1.05, (ph - 180) / 2, f"PM {m['phase_margin_deg']:.1f}°", color=col, fontsize=8)
+            left = len(crossovers) == 2 and x == min(crossovers)
+            ax2.text(x / 1.08 if left else x * 1.08, (ph - 180) / 2, f"PM {m['phase_margin_deg']:.1f}°", color=col,
+                     fontsize=8, ha="right" if left else "left", va="center",
+                     bbox={"boxstyle": "square,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.85})
         if m.get("gain_margin_hz") and m.get("gain_margin_db") is not None:
             x = m["gain_margin_hz"]
             ax1.annotate("", xy=(x, 0), xytext=(x, -m["gain_margin_db"]),
@@ -142,18 +148,28 @@ def nyquist_df_figure(cfg: LoopConfig, nl: Nonlinearity, cycles: list[dict], tit
     pts = []
     dense = [np.linspace(0.3 * c["frequency_hz"], 3.0 * c["frequency_hz"], 3000) for c in cycles
              if c.get("frequency_hz")]
+    ref = [abs(c["g_at_crossing"]) for c in cycles] or [1.0]
+    span = 2.5 * max([*ref, 1.0])
+    # frequency marks where the curves are on the plot: around the predicted cycles (fixed 1, 3,
+    # 10 Hz sat in a heap at the origin); a mark closer than 6 % of the span to a labelled one
+    # keeps its dot but not its label
+    cycle_hz = [c["frequency_hz"] for c in cycles if c.get("frequency_hz")]
+    marks = sorted({float(f"{k * fc:.2g}") for fc in cycle_hz for k in (0.5, 1.0, 2.0)}) or [1.0, 3.0, 10.0]
+    labelled: list[complex] = []
     for sampled, f in ((False, frequency_grid(100.0, 0.2, 2000)), (True, frequency_grid(f_top, 0.2, 2000))):
         f = np.unique(np.concatenate([f, *[d[d < f[-1]] for d in dense]]))
         g = linear_response_fn(cfg, nl.location, sampled)(f)[0]
         kind = "sampled" if sampled else "continuous"
         ax.plot(g.real, g.imag, color=_C[kind], label=f"G(jω) {kind}" if not sampled else "G(e^{jωT}) sampled")
         pts.append(g)
-        for fm in (1.0, 3.0, 10.0):
+        for fm in marks:
             if fm < f[-1]:
                 gm = complex(linear_response_fn(cfg, nl.location, sampled)(np.array([fm]))[0][0])
                 ax.plot(gm.real, gm.imag, ".", color=_C[kind])
-                ax.annotate(f"{fm:g} Hz", (gm.real, gm.imag), fontsize=7, color=_C[kind],
-                            textcoords="offset points", xytext=(4, 4))
+                if all(abs(gm - other) > 0.06 * span for other in labelled):
+                    labelled.append(gm)
+                    ax.annotate(f"{fm:g} Hz", (gm.real, gm.imag), fontsize=7, color=_C[kind],
+                                textcoords="offset points", xytext=(4, 4) if sampled else (-30, 4))
     lo, hi = nl.amplitude_range()
     amps = np.logspace(math.log10(max(lo, 1e-12)), math.log10(min(hi, 1e6)), 600)
     n = np.array([nl.df(a) for a in amps])
@@ -168,8 +184,6 @@ def nyquist_df_figure(cfg: LoopConfig, nl: Nonlinearity, cycles: list[dict], tit
                     (c["g_at_crossing"], 0), textcoords="offset points", xytext=(8, -30), fontsize=8,
                     color="tab:green")
     allg = np.concatenate(pts)
-    ref = [abs(c["g_at_crossing"]) for c in cycles] or [1.0]
-    span = 2.5 * max([*ref, 1.0])
     ax.set_xlim(-span, span * 0.6)
     yl = np.clip(np.abs(allg.imag), 0, span).max() if allg.size else span
     ax.set_ylim(-min(yl, span), min(yl, span))
@@ -307,7 +321,7 @@ def limit_cycle_text(r: dict[str, Any]) -> str:
             if sim.get("fault"):
                 got = f"stopped by the watchdog: {sim['fault']['cause']} ({sim['fault']['detail']})"
             elif sim.get("frequency_hz") is not None:
-                got = f"±{sim['amplitude_deg']:.3f}° at {sim['frequency_hz']:.2f} Hz"
+                got = f"±{sim['amplitude_deg']:.3f}° at {sim['frequency_hz']:.2f} Hz" + unsettled_note(sim)
             else:
                 got = ("no cycle (hold too short to measure)" if sim["amplitude_deg"] is None
                        else f"no cycle (±{sim['amplitude_deg']:.3f}°)")
@@ -353,6 +367,14 @@ def markdown(title: str, command: str, text: str, images: list[str]) -> str:
 # ------------------------------------------------------------- full-stack simulations
 
 
+def unsettled_note(sim: dict) -> str:
+    """`` (NOT SETTLED: …)`` for a simulated cycle whose amplitude still changes through the window."""
+    if sim.get("settled") is not False:
+        return ""
+    return (f" (NOT SETTLED: ±{sim['amplitude_first_third_deg']:.3f}° in the window's first third, "
+            f"±{sim['amplitude_last_third_deg']:.3f}° in its last: hold longer, --hold)")
+
+
 def limit_cycle_sim_figure(sim_on: dict | None, sim_off: dict | None, predicted: dict, title: str) -> Figure | None:
     """The full-stack runs: joint error over the whole run (integrators on / switched off) with the
     measurement window, a zoom on the cycle, and the spectrum of the window with the predicted
@@ -371,6 +393,9 @@ def limit_cycle_sim_figure(sim_on: dict | None, sim_off: dict | None, predicted:
         amp = d.get("amplitude_deg")
         freq = d.get("frequency_hz")
         desc = f"{lab}: ±{amp:.3f}°" + (f" at {freq:.2f} Hz" if freq else " (no cycle)") if amp is not None else lab
+        if d.get("settled") is False:
+            desc += (f" — not settled: ±{d['amplitude_first_third_deg']:.2f}° → "
+                     f"±{d['amplitude_last_third_deg']:.2f}° over the window")
         ax[0].plot(t, err, lw=0.8, color=col, label=desc)
         sel = (t >= w0) & (t <= w1)
         mean = float(np.mean(th[sel])) if sel.any() else 0.0
@@ -450,6 +475,10 @@ HEATMAP_METRICS = (("lc_amplitude_deg", "limit-cycle amplitude (deg)", "viridis_
                    ("settling_time_s", "settling time into the steady state (s)", "viridis_r"))
 
 
+#: why a cell of each map has no value (grey "—"), said on the map
+NO_VALUE_REASON = {"lc_amplitude_deg": "no limit cycle", "phase_margin_deg": "no gain crossover",
+                   "rms_tracking_error_deg": "not simulated", "settling_time_s": "never settled"}
+
 IN_BAND_METRIC = "settling_time_s"
 IN_BAND_LABEL = "in band\nfrom start"  #: settling 0 s: never left the band (not "settled at once")
 
@@ -493,7 +522,12 @@ def sweep_heatmaps(rows: list[dict], x: str, y: str, title: str) -> Figure | Non
         m = np.ma.masked_invalid(grid)
         im = a.imshow(m, origin="lower", aspect="auto", cmap=cmap,
                       extent=(-0.5, len(xs) - 0.5, -0.5, len(ys) - 0.5))
-        fig.colorbar(im, ax=a, shrink=0.85)
+        reason = NO_VALUE_REASON.get(key, "no value")
+        if np.isfinite(grid).any():
+            fig.colorbar(im, ax=a, shrink=0.85)
+        else:  # a colour bar of nothing (−0.1…+0.1 by default) would only mislead
+            a.text(0.5, 0.5, f"no point has a value here:\n{reason} (or unstable)", transform=a.transAxes,
+                   ha="center", va="center", fontsize=9, bbox={"fc": "white", "ec": "#888888"})
         for iy in range(len(ys)):
             for ix in range(len(xs)):
                 v = grid[iy, ix]
@@ -511,7 +545,7 @@ def sweep_heatmaps(rows: list[dict], x: str, y: str, title: str) -> Figure | Non
         a.set_yticks(range(len(ys)), [f"{v:g}" for v in ys])
         a.set_xlabel(x)
         a.set_ylabel(y)
-        a.set_title(label)
+        a.set_title(label + (f"\ngrey —: {reason}" if not np.isfinite(grid).all() else ""), fontsize=10)
     fig.suptitle(title)
     fig.tight_layout()
     return fig

@@ -5,7 +5,7 @@ the full-stack simulation describe the same joint:
 
 * servo rate and computation delay: :func:`servo.rig.load_rig` (``[rig] servo_rate_hz``,
   ``computation_delay_s``);
-* gains, switch-off settings and torque limit: :func:`vmehil.session.servo_settings` (``[servo]``
+* gains, switch-off settings and torque limit: :func:`servo.settings.servo_settings` (``[servo]``
   defaults + ``[joint.servo]`` overrides); the switch-off position gain is what the control law
   computes, :meth:`servo.control.law.PidLaw.kp_off` of the controller built from those settings;
 * plant: :func:`emulators.plant.plant_params_from_config` (the plant subtables of ``[[joint]]``).
@@ -40,6 +40,7 @@ joint 1) — exactly what the emulator then simulates — and is listed in :attr
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,6 +54,7 @@ from servo.control.gains import GAIN_NAMES, Gains, parse_gains
 from servo.control.linear import delay_periods
 from servo.gain_guard import GainVerdict, check_values, judge
 from servo.rig import RigSpec, load_rig
+from servo.settings import ServoSettings, servo_settings
 from vmehil.analysis.describing import DeadZone, Nonlinearity, Quantizer, Relay, Saturation
 from vmehil.analysis.loop import LoopConfig, VelocitySource
 
@@ -80,6 +82,8 @@ class JointParams:
     switch_off_enabled: bool
     gain_overrides: dict[str, float] = field(default_factory=dict)  #: applied to this joint only
     notes: list[str] = field(default_factory=list)
+    spec: RigSpec | None = None  #: the parsed rig (a sweep task's, with its plant values)
+    servo: ServoSettings | None = None  #: the rig's servo settings, as parsed (without the overrides)
 
     def switch_off_cfg(self) -> LoopConfig:
         """The loop while the integrators are switched off: no integral action, Kp raised."""
@@ -145,8 +149,8 @@ def _joint_data(spec: RigSpec, index: int) -> dict[str, Any]:
     return data
 
 
-def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, float] | None = None,
-               switch_off_kp: float | None = None) -> JointParams:
+def load_joint(rig: str | Path | RigSpec | None, joint: int = 1, gains: str | dict[str, float] | None = None,
+               switch_off_kp: float | None = None, *, servo: ServoSettings | None = None) -> JointParams:
     """Read joint ``joint`` (1-based) of ``rig`` (preset name or path; None = jpl-arm).
 
     ``gains``: ``"kp=..,kv=.."`` text (:func:`servo.control.gains.parse_gains`) or a mapping of
@@ -156,13 +160,13 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
     Raises :class:`hal.config.ConfigError` (a ValueError) for a malformed rig file,
     :class:`servo.control.errors.GainError` for bad gains and ValueError for a bad joint number.
     """
-    from vmehil.session import build_controller_for, servo_settings
+    from servo.assembly import build_controller
     from vmehil.system import NON_PLANT_JOINT_KEYS
 
     if isinstance(joint, bool) or not isinstance(joint, int) or joint < 1:
         raise ValueError(f"joint number {joint!r} must be 1 or more (joints are numbered from 1)")
-    path = resolve_rig(rig)
-    spec = load_rig(path)
+    spec = rig if isinstance(rig, RigSpec) else load_rig(resolve_rig(rig))
+    path = spec.path
     if joint > spec.n_joints:
         raise ValueError(f"rig {spec.name} has {spec.n_joints} joints; --joint must be 1..{spec.n_joints}, not {joint}")
     plant = plant_params_from_config(spec.table, foreign_keys=NON_PLANT_JOINT_KEYS).joints
@@ -187,12 +191,13 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
     T = spec.period_s
 
     # ---- gains and switch-off, as the session resolves them
-    settings = servo_settings(spec)
-    base = {k: settings.gains[k][j] for k in GAIN_NAMES}
-    servo_top = spec.table.data.get("servo", {})
-    if "gains" in js.servo.data:
-        gsrc = "rig [joint.servo]" + (" + [servo]" if "gains" in servo_top else "")
-    elif "gains" in servo_top:
+    rig_settings = servo if servo is not None else servo_settings(spec)
+    settings = rig_settings
+    base = settings.gains.joint(j).as_dict()
+    given = rig_settings.gains_given[j]
+    if given.startswith("joint"):
+        gsrc = "rig [joint.servo]" + (" + [servo]" if given == "joint+rig" else "")
+    elif given == "rig":
         gsrc = "rig [servo]"
     else:
         gsrc = "session defaults (the paper's)"
@@ -202,11 +207,13 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
     if overrides:
         gsrc += " + --gains overrides"
     g = Gains.from_mapping({**base, **overrides})
+    # the point's gains on this joint; judged (classified) by JointParams.verdict, not refused here
+    per_joint = {k: [*getattr(settings.gains, k)] for k in GAIN_NAMES}
     for k in GAIN_NAMES:
-        settings.gains[k][j] = getattr(g, k)
-    enabled = settings.switch_off.get("enabled", [None] * spec.n_joints)[j]
-    so_enabled = True if enabled is None else bool(enabled)
-    controller = build_controller_for(spec, settings)
+        per_joint[k][j] = getattr(g, k)
+    settings = dataclasses.replace(settings, gains=settings.gains.replace(**per_joint))
+    so_enabled = bool(settings.switch_off.enabled[j])
+    controller = build_controller(settings)
     law = controller.law
     if switch_off_kp is None:
         if law is not None:
@@ -239,8 +246,8 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
     viscous = n_gear**2 * fr.viscous_nm_s_per_rad
 
     # get_str has checked the choices: narrow the str to the literal type LoopConfig takes
-    velocity = cast(VelocitySource, js.servo.get_str("velocity", "tach", choices=("tach", "encoder")))
-    position = js.servo.get_str("position", "pot", choices=("pot", "encoder"))
+    velocity = cast(VelocitySource, settings.velocity_source[j])
+    position = settings.position_source[j]
     if "velocity" not in js.servo.data:
         notes.append("[joint.servo] velocity not in the rig: the servo's default, the tachometer")
     deadband = None
@@ -286,10 +293,11 @@ def load_joint(rig: str | Path | None, joint: int = 1, gains: str | dict[str, fl
                        viscous_nm_s_per_rad=viscous, inertia_kg_m2=inertia, position_quantum_rad=quantum,
                        position_source=position, torque_limit_nm=torque_limit, accel_limit_rad_s2=accel_limit,
                        switch_off_kp=float(switch_off_kp), switch_off_enabled=so_enabled,
-                       gain_overrides=overrides, notes=notes)
+                       gain_overrides=overrides, notes=notes, spec=spec, servo=rig_settings)
 
 
 def with_gains(jp: JointParams, gains: Gains[float]) -> JointParams:
     """The same joint re-read with another gain set (so the switch-off gain is again what the
     control law computes for it)."""
-    return load_joint(jp.rig_path, jp.joint, gains=gains.as_dict())
+    return load_joint(jp.spec if jp.spec is not None else jp.rig_path, jp.joint, gains=gains.as_dict(),
+                      servo=jp.servo)

@@ -72,6 +72,9 @@ class SimSettings:
     hold_s: float = 8.0
     settle_band_deg: float = 0.1
     allow_short: bool = False
+    #: the drivers' calibration (a :class:`~vmehil.calibration.store.CalibrationStore`, loaded once
+    #: by the command and shipped as data with each run); None: nominal values
+    calibration: Any = None
 
     def __post_init__(self) -> None:
         if self.motion not in MOTIONS:
@@ -89,7 +92,7 @@ class SimSettings:
 
 
 Progress = Callable[[int, int], None]
-LinkFactory = Callable[[str, int], Any]  #: ``(rig_path, seed) -> PlantLink`` (connected, plant reset)
+LinkFactory = Callable[[Any, int], Any]  #: ``(rig, seed) -> PlantLink`` (connected, plant reset; rig: path or RigSpec)
 
 
 def _motion(system, jp: JointParams, s: SimSettings, step_deg: float | None):
@@ -122,13 +125,13 @@ class StepMove:
         return Stay(np.asarray(start, float) + self.delta, 0.0)
 
 
-def _planned_s(system, motion) -> float:
+def _planned_s(system, motion, settings=None) -> float:
+    from servo.settings import servo_settings
     from servo.trajectory.base import JointLimits
     from servo.trajectory.sequencer import PlanContext
-    from vmehil.session import servo_settings
 
-    st = servo_settings(system.rig)
-    ctx = PlanContext(JointLimits.make(system.rig.n_joints, st.max_velocity_rad_s))
+    st = settings if settings is not None else servo_settings(system.rig)
+    ctx = PlanContext(JointLimits.make(system.rig.n_joints, list(st.max_velocity_rad_s)))
     start = np.zeros(system.rig.n_joints)
     total = 0.0
     for m in motion.moves:
@@ -166,9 +169,10 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
     from vmehil.system import build_emulated_rig
 
     s = settings or SimSettings()
-    link = None if link_factory is None else link_factory(jp.rig_path, s.seed)
+    rig = jp.spec if jp.spec is not None else jp.rig_path
+    link = None if link_factory is None else link_factory(rig, s.seed)
     try:
-        system = build_emulated_rig(jp.rig_path, seed=s.seed, link=link)
+        system = build_emulated_rig(rig, seed=s.seed, link=link, calibration=s.calibration)
     except BaseException:
         if link is not None:
             link.close()
@@ -176,9 +180,9 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
     try:
         j = jp.joint - 1
         motion = _motion(system, jp, s, step_deg)
-        duration = _planned_s(system, motion)
+        duration = _planned_s(system, motion, jp.servo)
         n_ticks = max(2, round(duration * system.rig.servo_rate_hz))
-        loop = build_loop(system, motion=motion, switch_off=switch_off, n_ticks=n_ticks)
+        loop = build_loop(system, motion=motion, switch_off=switch_off, n_ticks=n_ticks, settings=jp.servo)
         law = loop.law
         theta_start = float(loop.sequencer.current.end[j])  # the target before the first move
         law.set_gains(**jp.cfg.gains.as_dict(), joint=j)
@@ -200,6 +204,7 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
     th_true, th_meas, th_d = rec["theta_true"][:, j], rec["theta"][:, j], rec["theta_d"][:, j]
     t_end = summary["motion_end_s"]
     lc = limit_cycle(t, th_true, t_end + SETTLE_S)
+    growth = window_thirds(t, th_true, t_end + SETTLE_S)
     err_true = th_d - th_true
     err_servo = th_d - th_meas
     last = t >= (t[-1] - STATIC_WINDOW_S) if t.size else np.zeros(0, bool)
@@ -225,6 +230,12 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
         "frequency_hz": None if fault else js["limit_cycle"]["frequency_hz"],
         "amplitude_pot_deg": None if fault else js["limit_cycle_pot"]["amplitude_deg"],
         "spectrum_peak_hz": None if fault or lc.frequency_hz is None else lc.spectrum_peak_hz,
+        # a cycle still growing (or dying) through the window: its amplitude is an average of a
+        # transient, not the cycle's (half peak-to-peak of the window's first and last thirds)
+        "amplitude_first_third_deg": None if fault or growth is None else _deg(growth[0]),
+        "amplitude_last_third_deg": None if fault or growth is None else _deg(growth[1]),
+        "settled": None if fault or growth is None or lc.frequency_hz is None else
+        bool(abs(growth[1] - growth[0]) <= SETTLED_FRACTION * max(growth)),
         "max_tracking_error_deg": js["max_tracking_error_deg"],
         "max_tracking_error_servo_deg": track_servo,
         "rms_tracking_error_servo_deg": track_rms,
@@ -246,6 +257,21 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
             "omega_d_deg_s": np.degrees(rec["omega_d"][:, j]).tolist(),
         })
     return out
+
+
+#: a cycle is settled when the amplitudes of the window's first and last thirds differ by at most
+#: this fraction of the larger (the jpl-arm demo's integrators-on cycle grew ±0.45° → ±0.71°)
+SETTLED_FRACTION = 0.15
+
+
+def window_thirds(t: np.ndarray, x: np.ndarray, t_start: float) -> tuple[float, float] | None:
+    """Half peak-to-peak of ``x`` over the first and the last third of the window from ``t_start``
+    (``None``: fewer than 12 samples in the window)."""
+    xw = x[(t >= t_start) & np.isfinite(x)]
+    if xw.size < 12:
+        return None
+    n = xw.size // 3
+    return 0.5 * float(np.ptp(xw[:n])), 0.5 * float(np.ptp(xw[-n:]))
 
 
 @dataclass(frozen=True)

@@ -17,8 +17,9 @@ settling time after it (:mod:`vmehil.analysis.simulate`).
 Execution (:func:`evaluate_points`): an engine of :mod:`vmehil.analysis.parallel` — by default
 the local process pool of ``jobs`` workers, or Dask (:class:`vmehil.analysis.dask_engine.DaskEngine`,
 ``--engine dask``). A task carries everything a worker needs as content: the rig file's TEXT
-(:attr:`SweepTask.rig_text`, written to a private temporary file on the worker, so no worker
-reads the client's disk), the gains, the simulation settings with their seed, and for a tolerance
+(:attr:`SweepTask.rig`, parsed once on the client, with a tolerance sample's drawn plant values
+applied, and the servo's typed settings, :attr:`SweepTask.servo`: nothing is read from a disk on
+the worker, nothing re-parsed per point), the gains, the simulation settings with their seed, and for a tolerance
 study the drawn plant values (:mod:`vmehil.analysis.tolerance`). So every engine gives the same
 rows. Results are handed to ``on_result`` as they complete; the CLI rewrites CSV and JSON
 atomically at most once a second (:class:`BatchedWrites`: a 400-point sweep rewrote them 400
@@ -36,22 +37,22 @@ import hashlib
 import io
 import itertools
 import math
-import tempfile
 import time
 import tomllib
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from concurrent.futures import Executor
-from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from hal.config import ConfigError, load_toml
+from hal.config import ConfigError, ConfigTable, load_toml
 from servo.control.errors import GainError, GainSyntaxError
 from servo.control.gains import GAIN_NAMES, Gains, gain_items
 from servo.gain_guard import check_values
+from servo.rig import RigSpec, rig_from_table
+from servo.settings import ServoSettings
 from vmehil.analysis.parallel import Engine, ParallelInterrupted, run_parallel, stop_requested
 from vmehil.analysis.simulate import SimSettings
 
@@ -185,11 +186,13 @@ class SweepTask:
     """One point to evaluate: the joint (rig file path, 1-based number), full gain set, settings,
     and where the plant runs (``link_factory``, see :func:`vmehil.analysis.simulate.simulate`; it is
     pickled to the worker, so a CAN factory there opens its own bus — and its own node on
-    ``virtual``). ``rig_text``: the rig file's content (then ``rig_path`` only names it; the worker
-    writes the text to a private temporary file); ``switch_off``: the integrator switch-off of the
-    simulated run; ``plant``: a tolerance sample's drawn plant values (SI, by
-    :data:`vmehil.analysis.tolerance.PARAMETERS` name), applied to the emulated plant only;
-    ``sample``: its number."""
+    ``virtual``). ``rig``: the parsed rig (:func:`task_rig`: a tolerance sample's drawn plant
+    values already applied; then ``rig_path`` only names it, no worker reads it); ``servo``: the
+    servo's typed settings of the rig (:func:`servo.settings.servo_settings`, parsed once on the
+    client; the point's ``gains`` are applied to ``joint`` on the worker); ``switch_off``: the
+    integrator switch-off of the simulated run; ``plant``: the drawn plant values (SI, by
+    :data:`vmehil.analysis.tolerance.PARAMETERS` name, for the row: they are in ``rig``),
+    applied to the emulated plant only; ``sample``: its number."""
 
     index: int
     rig_path: str
@@ -198,7 +201,8 @@ class SweepTask:
     sim: SimSettings = field(default_factory=SimSettings)
     simulate: bool = True
     link_factory: Callable[[str, int], Any] | None = None  #: picklable; None = in-process plant
-    rig_text: str | None = None
+    rig: RigSpec | None = None
+    servo: ServoSettings | None = None
     switch_off: bool = False
     plant: dict[str, float] = field(default_factory=dict)
     sample: int | None = None
@@ -215,26 +219,16 @@ def text_sha256(text: str) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
-@contextmanager
-def task_rig_file(task: SweepTask) -> Iterator[str]:
-    """The path of the task's rig on this worker: ``rig_path`` itself without ``rig_text``, else a
-    private temporary file holding the text (with the drawn plant values applied), removed after."""
-    if task.rig_text is None:
-        if task.plant:
-            raise ValueError("a sweep task with plant values carries its rig as rig_text")
-        yield task.rig_path
-        return
-    text = task.rig_text
-    if task.plant:
-        import tomli_w
-
+def task_rig(text: str, path: str | Path, joint: int = 1, plant: dict[str, float] | None = None) -> RigSpec:
+    """The rig a task carries: parsed from its ``text`` (``path`` names it in errors), with a
+    tolerance sample's drawn ``plant`` values applied to ``joint``'s plant tables (the servo's
+    tables are never touched)."""
+    data = tomllib.loads(text)
+    if plant:
         from vmehil.analysis.tolerance import apply_plant_values
 
-        text = tomli_w.dumps(apply_plant_values(tomllib.loads(text), task.joint, task.plant))
-    with tempfile.TemporaryDirectory(prefix="vmehil-task-") as d:
-        path = Path(d) / (Path(task.rig_path).stem + ".toml")
-        path.write_text(text, encoding="utf-8")
-        yield str(path)
+        data = apply_plant_values(data, joint, plant)
+    return rig_from_table(ConfigTable(data, str(path)), path)
 
 
 def task_columns(task: SweepTask) -> tuple[str, ...]:
@@ -247,13 +241,14 @@ def task_columns(task: SweepTask) -> tuple[str, ...]:
 def evaluate_point(task: SweepTask) -> dict[str, Any]:
     """Margins and (unless unstable) a full-stack run for one gain set; a flat, JSON/CSV-ready row."""
     t0 = time.perf_counter()
-    with task_rig_file(task) as path:
-        row = _evaluate(task, path)
+    if task.plant and task.rig is None:
+        raise ValueError("a sweep task with plant values carries its rig (task_rig)")
+    row = _evaluate(task)
     row["wall_s"] = time.perf_counter() - t0
     return row
 
 
-def _evaluate(task: SweepTask, rig_path: str) -> dict[str, Any]:
+def _evaluate(task: SweepTask) -> dict[str, Any]:
     from vmehil.analysis.rigparams import load_joint
     from vmehil.analysis.simulate import simulate
     from vmehil.analysis.tolerance import PARAMETERS
@@ -263,7 +258,8 @@ def _evaluate(task: SweepTask, rig_path: str) -> dict[str, Any]:
     row: dict[str, Any] = {"index": task.index, **{k: float(task.gains[k]) for k in GAIN_NAMES},
                            "switch_off": task.switch_off, "sample": task.sample,
                            **{PARAMETERS[k].column: float(v) for k, v in task.plant.items()}}
-    jp = load_joint(rig_path, task.joint, gains=task.gains)
+    jp = load_joint(task.rig if task.rig is not None else task.rig_path, task.joint, gains=task.gains,
+                    servo=task.servo)
     # the servo's own verdict, for the loop simulated here (integrators on; switch-off as the task says)
     verdict = jp.verdict(switch_off=task.switch_off)
     m = margins_summary(jp.cfg)

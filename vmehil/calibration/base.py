@@ -226,3 +226,6 @@ class ProcedureSpec:
     order: int
     help: str
     in_all: bool = True
+    #: the procedure asks the operator (angles typed at a prompt) unless ``--auto``: without a
+    #: terminal it is refused before anything is built, not at its first prompt
+    asks_operator: bool = False

@@ -42,7 +42,8 @@ BUILTIN_PROCEDURES: dict[str, ProcedureSpec] = {spec.name: spec for spec in (
     ProcedureSpec("encoder", EncoderProcedure, order=30, help="encoder counts/rev index to index, index, direction"),
     ProcedureSpec("amplifier", AmplifierProcedure, order=40,
                   help="amplifier transconductance and offset from the current monitor, current limit"),
-    ProcedureSpec("pot", PotProcedure, order=50, help="potentiometers: nine points 45° apart, eight segments"),
+    ProcedureSpec("pot", PotProcedure, order=50, help="potentiometers: nine points 45° apart, eight segments",
+                  asks_operator=True),
 )}
 
 

@@ -80,7 +80,7 @@ def load_store_or_nominal(path: str | Path, rig: RigSpec, *, bus: Any = None) ->
         return load_store(path, rig, bus=bus)
     except FileNotFoundError:
         warnings.warn(f"no calibration file {path}: drivers use nominal values "
-                      f"(run `vmehil calibrate all --rig {rig.name}`)", CalibrationMissingWarning, stacklevel=3)
+                      f"(run `vmehil calibrate all --auto --rig {rig.name}`)", CalibrationMissingWarning, stacklevel=3)
         return None
 
 
@@ -282,7 +282,7 @@ def load_store(path: str | Path, rig: RigSpec, *, bus: Any = None) -> Calibratio
     if file_rig != rig.name:
         raise CalibrationFileError(
             p, f"written for rig {file_rig!r}, but this rig is {rig.name!r}; use that rig's file or re-calibrate "
-               f"(vmehil calibrate all --rig {rig.name})")
+               f"(vmehil calibrate all --auto --rig {rig.name})")
     file_crate = head.get("crate")
     if file_crate != crate_name(rig):
         raise CalibrationFileError(

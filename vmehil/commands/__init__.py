@@ -7,11 +7,13 @@ option, imports it only when it runs, and checks first (:func:`needs_extra`,
 
 from __future__ import annotations
 
-import argparse
 import functools
 import importlib
 import sys
 from collections.abc import Callable
+from typing import TypeVar
+
+_Options = TypeVar("_Options")
 
 #: The modules each extra of pyproject.toml brings, as the commands import them.
 EXTRA_MODULES: dict[str, tuple[str, ...]] = {
@@ -41,15 +43,16 @@ def refuse_without(what: str, extra: str) -> bool:
     return line is not None
 
 
-def needs_extra(extra: str) -> Callable[[Callable[[argparse.Namespace], int]], Callable[[argparse.Namespace], int]]:
-    """Decorate a command function: without ``extra`` it returns 2 after one line on stderr."""
+def needs_extra(extra: str, what: str) -> Callable[[Callable[[_Options], int]], Callable[[_Options], int]]:
+    """Decorate a command function (``what``: the command, as its refusal names it, e.g.
+    ``vmehil tune``): without ``extra`` it returns 2 after one line on stderr."""
 
-    def wrap(func: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+    def wrap(func: Callable[[_Options], int]) -> Callable[[_Options], int]:
         @functools.wraps(func)
-        def command(args: argparse.Namespace) -> int:
-            if refuse_without(f"vmehil {args.command}", extra):
+        def command(options: _Options) -> int:
+            if refuse_without(what, extra):
                 return 2
-            return func(args)
+            return func(options)
 
         return command
 

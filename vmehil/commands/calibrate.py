@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 from vmehil.calibration.base import Procedure
@@ -53,27 +54,59 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--verify-per-segment", type=bounded_int(0, 16, what="a number of verification points"), default=1,
                    help="pot: verification stops per segment")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, options=CalibrateOptions.from_args)
 
 
-def run(args: argparse.Namespace) -> int:
-    if args.procedure == "friction" and refuse_without("vmehil calibrate friction", "tune"):
+@dataclass(frozen=True)
+class CalibrateOptions:
+    """``vmehil calibrate``'s options (``out``: ``--calibration``/``--out``, the file to read and write;
+    ``joints``: 1-based joint numbers, empty = all)."""
+
+    procedure: str
+    rig: str | None = None
+    seed: int = 0
+    joints: tuple[int, ...] = ()
+    auto: bool = False
+    out: str | None = None
+    json: str | None = None
+    report: str | None = None
+    write_on_fail: bool = False
+    points: int = 9
+    verify_per_segment: int = 1
+    quiet: bool = False
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> CalibrateOptions:
+        return cls(procedure=args.procedure, rig=args.rig, seed=args.seed, joints=tuple(args.joint or ()),
+                   auto=args.auto, out=args.out, json=args.json, report=args.report,
+                   write_on_fail=args.write_on_fail, points=args.points, verify_per_segment=args.verify_per_segment,
+                   quiet=args.quiet)
+
+
+def run(opts: CalibrateOptions) -> int:
+    if opts.procedure == "friction" and refuse_without("vmehil calibrate friction", "tune"):
         return 2
-    if args.report and refuse_without("vmehil calibrate --report", "plots"):
+    if opts.report and refuse_without("vmehil calibrate --report", "plots"):
         return 2
     from emulators.presets import resolve_rig
     from servo.rig import load_rig
     from vmehil.calibration.base import CalibrationContext
     from vmehil.calibration.pot import PotProcedure
     from vmehil.calibration.procedure_runner import procedure_results_table, resolve_procedure_names, run_procedures
+    from vmehil.calibration.procedures import PROCEDURES
     from vmehil.calibration.store import CalibrationStore, default_store_path, load_store
     from vmehil.emulated_calibration import EmulatedFixture, EmulatedPositioner
     from vmehil.progress import PhaseProgress
     from vmehil.system import build_emulated_rig
 
-    rig = load_rig(resolve_rig(args.rig))
-    names = resolve_procedure_names(args.procedure)
-    out = Path(args.out) if args.out else default_store_path(rig)
+    rig = load_rig(resolve_rig(opts.rig))
+    names = resolve_procedure_names(opts.procedure)
+    asking = [n for n in names if PROCEDURES[n].asks_operator]
+    if asking and not opts.auto and not sys.stdin.isatty():
+        # it would fail at its first prompt (EOFError) with the rig built and the loop running
+        raise CliError(f"{', '.join(asking)} asks the operator for joint angles and standard input is not a "
+                       "terminal: run it from a terminal, or with --auto (the rig's reference fixture)")
+    out = Path(opts.out) if opts.out else default_store_path(rig)
     if out.exists():
         store = load_store(out, rig)  # a foreign or malformed file is refused here, before anything runs
         print(f"calibration in force: {out} (written {store.written})")
@@ -81,23 +114,23 @@ def run(args: argparse.Namespace) -> int:
         store = CalibrationStore.empty(rig)
         print(f"no calibration file {out} yet: starting from nominal values")
     joints = None
-    if args.joint:
-        joints = [rig.joint(n).index for n in args.joint]
+    if opts.joints:
+        joints = [rig.joint(n).index for n in opts.joints]
     factories: dict[str, Callable[[], Procedure]] = {}
-    if "pot" in names and (args.points != 9 or args.verify_per_segment != 1):
-        factories["pot"] = lambda: PotProcedure(points=args.points, verify_per_segment=args.verify_per_segment)
-    system = build_emulated_rig(rig, seed=args.seed, calibration=store)
-    progress = PhaseProgress(quiet=args.quiet)
+    if "pot" in names and (opts.points != 9 or opts.verify_per_segment != 1):
+        factories["pot"] = lambda: PotProcedure(points=opts.points, verify_per_segment=opts.verify_per_segment)
+    system = build_emulated_rig(rig, seed=opts.seed, calibration=store)
+    progress = PhaseProgress(quiet=opts.quiet)
     ctx = CalibrationContext(
-        rig=rig, bus=system.crate, store=store, auto=args.auto,
-        fixture=EmulatedFixture(system) if args.auto else None,
+        rig=rig, bus=system.crate, store=store, auto=opts.auto,
+        fixture=EmulatedFixture(system) if opts.auto else None,
         positioner_factory=lambda st: EmulatedPositioner(system, st),
-        joints=joints, prompt=progress.ask, say=progress.say, progress=progress, options={"report": args.report},
+        joints=joints, prompt=progress.ask, say=progress.say, progress=progress, options={"report": opts.report},
     )
-    print(f"calibrating {', '.join(names)} on rig {rig.name}" + (" (auto: reference fixture)" if args.auto else ""))
+    print(f"calibrating {', '.join(names)} on rig {rig.name}" + (" (auto: reference fixture)" if opts.auto else ""))
     try:
         with progress:
-            outcome = run_procedures(ctx, names, out_path=out, write_on_fail=args.write_on_fail,
+            outcome = run_procedures(ctx, names, out_path=out, write_on_fail=opts.write_on_fail,
                                      factories=factories)
     finally:
         # Procedures drive amplifiers (positioners, amplifier and friction tests): however they
@@ -106,13 +139,13 @@ def run(args: argparse.Namespace) -> int:
         for line in unconfirmed:
             print(f"calibrate: SAFE STOP INCOMPLETE: {line}", file=sys.stderr)
         system.close()
-    summary = {"rig": rig.name, "seed": args.seed, "auto": args.auto, **outcome.as_dict()}
+    summary = {"rig": rig.name, "seed": opts.seed, "auto": opts.auto, **outcome.as_dict()}
     _flatten_single_joint(summary)
-    if args.json:
-        write_json(args.json, summary)
-    if args.report:
-        _write_report(Path(args.report), summary, procedure_results_table(outcome.results), outcome)
-        print(f"report: {args.report}")
+    if opts.json:
+        write_json(opts.json, summary)
+    if opts.report:
+        _write_report(Path(opts.report), summary, procedure_results_table(outcome.results), outcome)
+        print(f"report: {opts.report}")
     if outcome.error:
         raise CliError(outcome.error)
     return 0 if outcome.passed else 1

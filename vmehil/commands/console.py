@@ -21,12 +21,15 @@ import signal
 import sys
 import threading
 import warnings
+from dataclasses import dataclass, field
 from pathlib import Path
 
+from servo.control.gains import parse_gains
 from servo.interrupts import Terminated, interrupt_name
 from vmehil.cli_types import duration_s
+from vmehil.console.extension import ConsoleOptions
 from vmehil.files import write_json
-from vmehil.realtime_options import add_overrun_args, add_pacing_args, overrun_options, realtime
+from vmehil.realtime_options import RealtimeOptions, add_overrun_args, add_pacing_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -49,61 +52,82 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(default: calibration/<rig>.toml or $VMEHIL_CALIBRATION_DIR/<rig>.toml)")
     p.add_argument("--json", default=None, metavar="PATH",
                    help="write the session's summary here at exit (ticks, commands, how it stopped)")
-    p.set_defaults(func=run_console)
+    p.set_defaults(func=run_console, options=ConsoleCommandOptions.from_args)
 
 
-def run_console(args: argparse.Namespace) -> int:
-    from servo.control.gains import parse_gains
-    from servo.gain_guard import check_values
+@dataclass(frozen=True)
+class ConsoleCommandOptions:
+    """``vmehil console``'s options (``gains``: ``--gains`` parsed; paced by the wall clock unless
+    ``--lockstep``)."""
+
+    console: ConsoleOptions
+    rig: str | None = None
+    seed: int = 0
+    motion: str | None = None
+    gains: dict[str, float] = field(default_factory=dict)
+    pacing: RealtimeOptions = field(default_factory=lambda: RealtimeOptions(realtime=True))
+    duration: float | None = None
+    calibration: str | None = None
+    json: str | None = None
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> ConsoleCommandOptions:
+        return cls(console=ConsoleOptions.from_args(args), rig=args.rig, seed=args.seed, motion=args.motion,
+                   gains=parse_gains(args.gains, what="--gains"), pacing=RealtimeOptions.from_args(args, default=True),
+                   duration=args.duration, calibration=args.calibration, json=args.json)
+
+
+def run_console(opts: ConsoleCommandOptions) -> int:
     from vmehil.commands import console_port_needs_serial, refuse_without
 
-    if console_port_needs_serial(args.console) and refuse_without("vmehil console --console " + args.console,
-                                                                 "console"):
+    port = opts.console.port
+    assert port is not None  # the parser's default: a new pty
+    if console_port_needs_serial(port) and refuse_without("vmehil console --console " + port, "console"):
         return 2
     from servo.motion import NO_MOTION, hold_motion, load_motion
     from servo.rig import load_rig
     from servo.runner import LockstepRunner, RealtimeRunner
     from vmehil.calibration.store import CalibrationMissingWarning, default_store_path
-    from vmehil.console.extension import start_console, terminal_settings
+    from vmehil.console.extension import start_console
     from vmehil.session import build_loop
     from vmehil.system import build_emulated_rig
 
-    gains = check_values(parse_gains(args.gains, what="--gains"))  # stability: in build_loop
-    if args.duration is not None and args.duration <= 0:
+    gains = opts.gains  # values and stability: once, in build_loop
+    if opts.duration is not None and opts.duration <= 0:
         raise ValueError("--duration must be > 0")
     from emulators.presets import resolve_rig
 
-    rig = load_rig(resolve_rig(args.rig))
-    calibration = args.calibration or str(default_store_path(rig))
-    if args.calibration and not Path(args.calibration).exists():
-        raise FileNotFoundError(f"--calibration {args.calibration}: no such file")
+    rig = load_rig(resolve_rig(opts.rig))
+    calibration = opts.calibration or str(default_store_path(rig))
+    if opts.calibration and not Path(opts.calibration).exists():
+        raise FileNotFoundError(f"--calibration {opts.calibration}: no such file")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CalibrationMissingWarning)
-        system = build_emulated_rig(rig, seed=args.seed, calibration=calibration)
+        system = build_emulated_rig(rig, seed=opts.seed, calibration=calibration)
     for w in caught:
         print(f"warning: {w.message}", file=sys.stderr)
     if not caught:
         print(f"calibration: {calibration}", file=sys.stderr)
     n = system.rig.n_joints
-    motion = (load_motion(args.motion, n) if args.motion and args.motion != NO_MOTION
+    motion = (load_motion(opts.motion, n) if opts.motion and opts.motion != NO_MOTION
               else hold_motion("<console>"))
     loop = build_loop(system, motion=motion, gains=gains, n_ticks=0)
     loop.start()
-    paced = realtime(args, default=True)
-    runner = RealtimeRunner(system, loop, **overrun_options(args)) if paced else LockstepRunner(system, loop)
+    paced = opts.pacing.realtime
+    runner = RealtimeRunner(system, loop, **opts.pacing.runner_options()) if paced else LockstepRunner(system, loop)
     done = threading.Event()
     # calibrate jobs run here between runner chunks (not inside a tick hook), so a wall-clock
     # runner restarts its deadlines after a calibration instead of catching up on them
-    prompt, echo = terminal_settings(args, args.console)
-    console = start_console(args.console, loop, runner=runner, commands=args.console_commands,
-                            baudrate=args.console_baud, shutdown=done.set, system=system, calibration=calibration,
+    prompt, echo = opts.console.terminal_settings()
+    console = start_console(port, loop, runner=runner, commands=opts.console.commands,
+                            baudrate=opts.console.baud, shutdown=done.set, system=system, calibration=calibration,
                             jobs_on_tick=False, prompt=prompt, echo=echo)
     # SIGTERM ends the session between runner chunks like the console's own `quit`
     previous = signal.signal(signal.SIGTERM, lambda *_: done.set()) if threading.current_thread() is \
         threading.main_thread() else None
     rate = system.rig.servo_rate_hz
     try:
-        remaining = round(args.duration * rate) if args.duration is not None else None
+        remaining = round(opts.duration * rate) if opts.duration is not None else None
         while not done.is_set() and (remaining is None or remaining > 0):
             chunk = round(60 * rate) if remaining is None else min(remaining, round(60 * rate))
             k0 = loop.tick_count
@@ -130,8 +154,8 @@ def run_console(args: argparse.Namespace) -> int:
             signal.signal(signal.SIGTERM, previous)
     print(f"vmehil console: {loop.tick_count} ticks ({loop.tick_count * loop.period_s:.3f} s), "
           f"{console.stats.handled} commands, stopped: {fault.cause if fault else '-'}")
-    if args.json:
-        write_json(args.json, summary(loop, console, system.rig.name, paced=paced, fault=fault))
+    if opts.json:
+        write_json(opts.json, summary(loop, console, system.rig.name, paced=paced, fault=fault))
     return 0
 
 

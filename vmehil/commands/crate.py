@@ -16,6 +16,7 @@ import argparse
 import json
 import shlex
 import sys
+from dataclasses import dataclass
 from typing import Any
 
 from emulators.board_types import BOARD_TYPES
@@ -49,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     w.add_argument("value", type=_int)
     w.add_argument("--width", default="16")
     csub.add_parser("shell", parents=[common], help="read commands (read/write/list/counters/time) from stdin")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, options=CrateOptions.from_args)
 
 
 def _add_common(p: argparse.ArgumentParser, *, defaults: bool) -> None:
@@ -70,58 +71,93 @@ def _int(text: str) -> int:
     return int(text, 0)
 
 
-def run(args: argparse.Namespace) -> int:
-    if args.bus != "emulated":
-        return _run_real(args)
-    crate = _load(resolve_rig(args.rig))
-    cmd = args.crate_cmd
+@dataclass(frozen=True)
+class CrateOptions:
+    """``vmehil crate``'s options: the action and, for ``read``/``write``, its operands."""
+
+    action: str
+    rig: str | None = None
+    json: bool = False
+    bus: str = "emulated"
+    space: str | None = None
+    address: int | None = None
+    value: int | None = None
+    width: str = "16"
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> CrateOptions:
+        # space, address, value and --width belong to the read/write actions' parsers only
+        return cls(action=args.crate_cmd, rig=args.rig, json=args.json, bus=args.bus,
+                   space=getattr(args, "space", None), address=getattr(args, "address", None),
+                   value=getattr(args, "value", None), width=getattr(args, "width", "16"))
+
+    def location(self) -> tuple[str, int, Width]:
+        """``read``/``write``: the address space, address and width (their parsers require the first two)."""
+        if self.space is None or self.address is None:
+            raise ValueError(f"crate {self.action}: give the address space and the address")
+        return self.space, self.address, Width.parse(self.width)
+
+    def write_value(self) -> int:
+        """``write``: the value (its parser requires it)."""
+        if self.value is None:
+            raise ValueError(f"crate {self.action}: give the value to write")
+        return self.value
+
+
+def run(opts: CrateOptions) -> int:
+    if opts.bus != "emulated":
+        return _run_real(opts)
+    crate = _load(resolve_rig(opts.rig))
+    cmd = opts.action
     if cmd == "types":
-        _emit(args, BOARD_TYPES.names(), lambda v: "\n".join(v))
+        _emit(opts, BOARD_TYPES.names(), lambda v: "\n".join(v))
     elif cmd == "list":
-        _emit(args, crate.describe(), _table)
+        _emit(opts, crate.describe(), _table)
     elif cmd in ("demo", "counters"):
         probes = probe_all(crate)
         if cmd == "demo":
             out = {"crate": crate.name, "boards": crate.describe(), "probes": probes,
                    "counters": crate.counter_snapshot(), "time_us": crate.now() * 1e6}
-            _emit(args, out, _demo_text)
+            _emit(opts, out, _demo_text)
         else:
-            _emit(args, crate.counter_snapshot(), lambda c: "\n".join(f"{k:24s} {v}" for k, v in c.items()))
+            _emit(opts, crate.counter_snapshot(), lambda c: "\n".join(f"{k:24s} {v}" for k, v in c.items()))
     elif cmd == "read":
-        value = crate.read(args.address, space=args.space, width=Width.parse(args.width))
-        width = Width.parse(args.width)
-        _emit(args, {"value": value}, lambda d: f"0x{d['value']:0{int(width) * 2}X}  ({d['value']})")
+        space, address, width = opts.location()
+        value = crate.read(address, space=space, width=width)
+        _emit(opts, {"value": value}, lambda d: f"0x{d['value']:0{int(width) * 2}X}  ({d['value']})")
     elif cmd == "write":
-        crate.write(args.address, args.value, space=args.space, width=Width.parse(args.width))
-        _emit(args, {"ok": True}, lambda d: "ok")
+        space, address, width = opts.location()
+        crate.write(address, opts.write_value(), space=space, width=width)
+        _emit(opts, {"ok": True}, lambda d: "ok")
     elif cmd == "shell":
         return shell(crate, sys.stdin, sys.stdout)
     return 0
 
 
-def _run_real(args: argparse.Namespace) -> int:
+def _run_real(opts: CrateOptions) -> int:
     """The same actions on a real bus: ``list`` shows the rig file's boards with the dry pass
     (ID and status reads) and the master windows; reads and writes go to the hardware."""
     from servo.rig import load_rig
     from vmehil.real_bus import dry_pass, open_bus
 
-    cmd = args.crate_cmd
+    cmd = opts.action
     if cmd not in ("list", "read", "write", "shell"):
         print(f"vmehil crate {cmd}: emulated crates only (on a real bus: list, read, write, shell)", file=sys.stderr)
         return 2
-    with open_bus(args.bus) as bus:
+    with open_bus(opts.bus) as bus:
         if cmd == "list":
-            checks = [c.as_dict() for c in dry_pass(bus, load_rig(resolve_rig(args.rig)))]
-            _emit(args, {"boards": checks, "windows": bus.describe()},
+            checks = [c.as_dict() for c in dry_pass(bus, load_rig(resolve_rig(opts.rig)))]
+            _emit(opts, {"boards": checks, "windows": bus.describe()},
                   lambda d: _table(d["boards"]) + "\n\n" + _table(d["windows"]))
             return 0 if all(c["ok"] for c in checks) else 1
         if cmd == "read":
-            width = Width.parse(args.width)
-            value = bus.read(args.address, space=args.space, width=width)
-            _emit(args, {"value": value}, lambda d: f"0x{d['value']:0{int(width) * 2}X}  ({d['value']})")
+            space, address, width = opts.location()
+            value = bus.read(address, space=space, width=width)
+            _emit(opts, {"value": value}, lambda d: f"0x{d['value']:0{int(width) * 2}X}  ({d['value']})")
         elif cmd == "write":
-            bus.write(args.address, args.value, space=args.space, width=Width.parse(args.width))
-            _emit(args, {"ok": True}, lambda d: "ok")
+            space, address, width = opts.location()
+            bus.write(address, opts.write_value(), space=space, width=width)
+            _emit(opts, {"ok": True}, lambda d: "ok")
         else:
             return shell(bus, sys.stdin, sys.stdout)  # type: ignore[arg-type]
     return 0
@@ -202,8 +238,8 @@ def _shell_one(crate: Crate, words: list[str]) -> str:
     raise ValueError(f"unknown command {op!r} (read, write, list, counters, time, delay)")
 
 
-def _emit(args: argparse.Namespace, data: Any, text) -> None:
-    print(json.dumps(data, indent=2) if args.json else text(data))
+def _emit(opts: CrateOptions, data: Any, text) -> None:
+    print(json.dumps(data, indent=2) if opts.json else text(data))
 
 
 _TEXT_COLUMNS = ("slot", "name", "space", "base", "end", "type", "id", "wired", "ok", "detail",

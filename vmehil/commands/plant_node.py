@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import dataclass
 
 from vmehil.cli_types import bounded_float, duration_s
 from vmehil.commands.errors import CliError
@@ -44,34 +45,55 @@ def register(sub: argparse._SubParsersAction) -> None:
                         f"time (default {DEFAULT_COMMAND_TIMEOUT_S:g}; 0 = off)")
     p.add_argument("--json", default=None, metavar="PATH",
                    help="write the node's summary here at exit (counters, amplifier state and why)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, options=PlantNodeOptions.from_args)
 
 
-def run(args: argparse.Namespace) -> int:
+@dataclass(frozen=True)
+class PlantNodeOptions:
+    """``vmehil plant-node``'s options (``command_timeout`` 0: off)."""
+
+    rig: str | None = None
+    seed: int = 0
+    interface: str | None = None
+    channel: str | None = None
+    can_log: str | None = None
+    free_running: bool = False
+    duration: float | None = None
+    command_timeout: float = 0.0
+    json: str | None = None
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> PlantNodeOptions:
+        return cls(rig=args.rig, seed=args.seed, interface=args.interface, channel=args.channel,
+                   can_log=args.can_log, free_running=args.free_running, duration=args.duration,
+                   command_timeout=args.command_timeout, json=args.json)
+
+
+def run(opts: PlantNodeOptions) -> int:
     from emulators.can.bus import Endpoint, open_bus, resolve
     from emulators.can.node import PLANT_IDS, PlantNode, exit_on_sigterm, node_spec
     from emulators.plant import Plant
     from vmehil.system import NON_PLANT_JOINT_KEYS
 
-    spec = node_spec(args.rig, foreign_keys=NON_PLANT_JOINT_KEYS)  # fails early on a bad rig file
-    if resolve(args.interface, args.channel)[0] == "virtual":
+    spec = node_spec(opts.rig, foreign_keys=NON_PLANT_JOINT_KEYS)  # fails early on a bad rig file
+    if resolve(opts.interface, opts.channel)[0] == "virtual":
         raise CliError("a plant node on python-can's virtual interface (the default) can serve no controller: "
                        "virtual does not cross processes. Give --interface udp_multicast (between processes, "
                        "docs/can.md) or --interface socketcan --channel vcan0; for one process, "
                        "`vmehil run --plant can` alone starts its node itself")
-    bus = open_bus(args.interface, args.channel)
-    ep = Endpoint(bus, PLANT_IDS, log_path=args.can_log)
-    node = PlantNode(ep, lambda seed: Plant.from_config(spec.table, seed=seed), spec.n_joints, seed=args.seed,
-                     free_running=args.free_running, period_s=spec.period_s, delay_s=spec.delay_s,
-                     command_timeout_s=args.command_timeout or None, names=spec.names)
-    mode = "free-running" if args.free_running else "lockstep"
-    iface, chan = resolve(args.interface, args.channel)
+    bus = open_bus(opts.interface, opts.channel)
+    ep = Endpoint(bus, PLANT_IDS, log_path=opts.can_log)
+    node = PlantNode(ep, lambda seed: Plant.from_config(spec.table, seed=seed), spec.n_joints, seed=opts.seed,
+                     free_running=opts.free_running, period_s=spec.period_s, delay_s=spec.delay_s,
+                     command_timeout_s=opts.command_timeout or None, names=spec.names)
+    mode = "free-running" if opts.free_running else "lockstep"
+    iface, chan = resolve(opts.interface, opts.channel)
     exit_on_sigterm()
-    timeout = f"command timeout {args.command_timeout:g} s" if args.command_timeout else "no command timeout"
+    timeout = f"command timeout {opts.command_timeout:g} s" if opts.command_timeout else "no command timeout"
     print(f"plant node: rig {spec.name} ({spec.n_joints} joints), {mode}, {iface} {chan}, {timeout}, "
           f"boot id {node.boot_id:#06x}", file=sys.stderr, flush=True)
     try:
-        node.serve(duration_s=args.duration)
+        node.serve(duration_s=opts.duration)
     except KeyboardInterrupt:
         pass
     finally:
@@ -81,8 +103,8 @@ def run(args: argparse.Namespace) -> int:
               f"{node.dropped_total()}, sequence jumps {c.seq_jumps}, refused {c.refused} (other controllers); "
               f"{node.amplifiers().describe(spec.names)}",
               file=sys.stderr)
-        if args.json:
-            write_json(args.json, summary(node, spec, mode))
+        if opts.json:
+            write_json(opts.json, summary(node, spec, mode))
     return 0
 
 

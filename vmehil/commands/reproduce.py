@@ -12,6 +12,7 @@ side. Exit status 0 when every figure lies in the paper's band, 1 when one does 
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 
 from vmehil.cli_types import seed
 from vmehil.exit_status import EXIT_CHECK_FAILED, EXIT_OK
@@ -24,21 +25,34 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=seed, default=0, help="seed of every step's emulated rig (default 0, the README's)")
     p.add_argument("--json", default=None, help="write the figures, bands and steps here")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, options=ReproduceOptions.from_args)
 
 
-def run(args: argparse.Namespace) -> int:
+@dataclass(frozen=True)
+class ReproduceOptions:
+    """``vmehil reproduce``'s options."""
+
+    seed: int = 0
+    json: str | None = None
+    quiet: bool = False
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> ReproduceOptions:
+        return cls(seed=args.seed, json=args.json, quiet=args.quiet)
+
+
+def run(opts: ReproduceOptions) -> int:
     from vmehil.progress import progress_bar, say
     from vmehil.reproduce import STEPS, reproduce
 
-    say(f"reproducing the README's table (seed {args.seed}): {len(STEPS)} commands in a temporary directory, "
+    say(f"reproducing the README's table (seed {opts.seed}): {len(STEPS)} commands in a temporary directory, "
         "no calibration file (a fresh clone's state)")
-    with progress_bar("reproduce", len(STEPS), quiet=args.quiet, unit="command") as bar:
-        result = reproduce(seed=args.seed, say=say, advance=lambda: bar.update(1))
+    with progress_bar("reproduce", len(STEPS), quiet=opts.quiet, unit="command") as bar:
+        result = reproduce(seed=opts.seed, say=say, advance=lambda: bar.update(1))
     say("")
     say(result["table"])
     say("")
     say("every figure in the paper's band" if result["passed"] else "a figure is OUTSIDE the paper's band")
-    if args.json:
-        write_json(args.json, {k: v for k, v in result.items() if k != "table"})
+    if opts.json:
+        write_json(opts.json, {k: v for k, v in result.items() if k != "table"})
     return EXIT_OK if result["passed"] else EXIT_CHECK_FAILED

@@ -11,32 +11,34 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
-from servo.interrupts import Terminated, interrupt_exit_status
+from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_exit_status
 from vmehil import can_options, fault_options, vision_options
 from vmehil.cli_types import duration_s, seed
 from vmehil.commands import console_port_needs_serial, refuse_without, run_units
+from vmehil.commands.calibration_file import calibrated
+from vmehil.commands.run_options import RunOptions
 from vmehil.console import extension as console_extension
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
 from vmehil.files import write_json
 from vmehil.mavlink import extension as mavlink_extension
-from vmehil.realtime_options import (
-    add_overrun_args,
-    add_pacing_args,
-    overrun_options,
-    realtime,
-    realtime_settings_summary,
-)
+from vmehil.realtime_options import add_overrun_args, add_pacing_args, realtime_settings_summary
+
+if TYPE_CHECKING:
+    from servo.settings import ServoSettings
 
 # Modules that extend `vmehil run` (live tuning over MAVLink, the operator console, ...). Each
-# defines ``add_arguments(parser)`` and ``attach(args, system, loop, runner)``, which returns
-# ``None`` when its options are unused, or an object with ``close()`` called after the run.
-# An extension may also define ``prepare(args, rig) -> dict | None``, called before the rig is
-# built: it may adjust the rig table and return defaults ``{"motion": Motion, "duration": s}``;
-# and ``make_link(args, rig) -> PlantLink | None`` to run the plant elsewhere (the CAN plant
-# node): the first link returned replaces the in-process plant. An attached object with
+# defines ``add_arguments(parser)``, a frozen dataclass of its options (a field of RunOptions) and
+# ``attach(options, system, loop, runner, prepared)``, which returns ``None`` when its options are
+# unused, or an object with ``close()`` called after the run. ``options`` is the RunOptions; each
+# module declares what it reads of them as a protocol (``RunNeeds``). An extension may also define
+# ``prepare(options, rig)``, called before the rig is built: it may adjust the rig table and returns
+# None or a preparation with ``defaults`` (``{"motion": Motion, "duration": s}``) and ``close()``
+# (called when the run ends), handed back to its ``attach`` as ``prepared``; and
+# ``make_link(options, rig) -> PlantLink | None`` to run the plant elsewhere (the CAN plant node):
+# the first link returned replaces the in-process plant. An attached object with
 # ``add_to_summary(summary)`` adds its keys to the run's summary.
 RUN_EXTENSIONS: tuple[ModuleType, ...] = (
     mavlink_extension,
@@ -79,40 +81,37 @@ def register(sub: argparse._SubParsersAction) -> None:
     for ext in RUN_EXTENSIONS:
         ext.add_arguments(p)
     run_units.add_arguments(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, options=RunOptions.from_args)
 
 
-def run(args: argparse.Namespace) -> int:
-    console = getattr(args, "console", None)
-    # a person at the console needs the loop at the wall clock's pace (a lockstep run would be over
-    # before they typed); --lockstep still wins
-    args.realtime = realtime(args, default=bool(console))
-    for option, extra, used in (("--report", "plots", bool(args.report)),
-                                ("--mavlink", "mavlink", bool(getattr(args, "mavlink", None))),
+def run(opts: RunOptions) -> int:
+    console = opts.console.port
+    for option, extra, used in (("--report", "plots", bool(opts.report)),
+                                ("--mavlink", "mavlink", bool(opts.mavlink.url)),
                                 ("--console", "console", bool(console and console_port_needs_serial(console)))):
         if used and refuse_without(f"vmehil run {option}", extra):
             return 2
     from emulators.presets import resolve_rig
-    from servo.control.gains import parse_gains
-    from servo.gain_guard import check_values
     from servo.rig import load_rig
-    if fault_options.wants_list(args):
+    from servo.settings import servo_settings
+    if opts.faults.wants_list:
         return fault_options.list_faults()
-    # values now (before a rig is built); stability in build_loop, on the rig's loop
-    gains = check_values(parse_gains(args.gains, what="--gains"))
-    rig = load_rig(resolve_rig(args.rig))
+    rig = load_rig(resolve_rig(opts.rig))
+    # the servo's settings, parsed once; the command line's override applied and guarded here, once
+    settings = servo_settings(rig).overridden(opts.gains, opts.integrator_switch_off)
+    prepared: dict[ModuleType, Any] = {}  # the extensions' preparations, filled by _run
     try:
-        return _run(args, rig, gains)
+        return _run(opts, rig, opts.gains, settings, prepared)
     finally:
-        shm = getattr(args, "_vision_shm", None)  # created by an extension's prepare()
-        if shm is not None:
-            shm.close(unlink=True)
+        for prep in prepared.values():  # e.g. the shared memory of --vision process
+            prep.close()
 
 
-def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
-    parallel = getattr(args, "units", "single") == "parallel"
+def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings,
+         prepared: dict[ModuleType, Any]) -> int:
+    parallel = opts.units == "parallel"
     if parallel:
-        refused = run_units.refused_options(args)
+        refused = run_units.refused_options(opts)
         if refused:
             print("vmehil run --units parallel: not with parallel units (docs/melmalec.md, \"Options with --units "
                   "parallel\"):\n  " + "\n  ".join(refused), file=sys.stderr)
@@ -122,35 +121,36 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
             print(f"vmehil run --units parallel: rig {rig.name} ({rig.path}) declares no [[rig.unit]] tables",
                   file=sys.stderr)
             return 2
-    if getattr(args, "bus", "emulated") != "emulated":
+    if opts.bus != "emulated":
         from vmehil.commands.run_real import run_on_real_bus
-        return run_on_real_bus(args, rig, gains, exit_status=run_exit_status)
+        return run_on_real_bus(opts, rig, settings, exit_status=run_exit_status)
     from servo.motion import NO_MOTION, default_demo_motion, hold_motion, load_motion
     from servo.runner import LockstepRunner, RealtimeRunner
     from vmehil.progress import TickProgress
-    from vmehil.run_report import summarize, table, write_report
     from vmehil.session import build_loop
     from vmehil.system import build_emulated_rig
 
     defaults: dict = {}
     for ext in RUN_EXTENSIONS:
-        prep = getattr(ext, "prepare", None)
+        prepare = getattr(ext, "prepare", None)
+        prep = prepare(opts, rig) if prepare is not None else None
         if prep is not None:
-            defaults.update(prep(args, rig) or {})
+            prepared[ext] = prep
+            defaults.update(prep.defaults)
     n = rig.n_joints
-    if args.motion == NO_MOTION:
-        if args.duration is None and "duration" not in defaults:
+    if opts.motion == NO_MOTION:
+        if opts.duration is None and "duration" not in defaults:
             raise ValueError(f"--motion {NO_MOTION} holds the joints: give --duration S (how long to run)")
         motion = hold_motion()
     else:
-        motion = load_motion(args.motion, n) if args.motion else defaults.get("motion") or default_demo_motion(n)
-    if args.duration is not None:
-        duration = args.duration
+        motion = load_motion(opts.motion, n) if opts.motion else defaults.get("motion") or default_demo_motion(n)
+    if opts.duration is not None:
+        duration = opts.duration
     elif "duration" in defaults:
         duration = defaults["duration"]
     else:
-        probe_system = build_emulated_rig(rig, seed=args.seed)
-        duration = _planned_duration(build_loop(probe_system, motion=motion, n_ticks=1)) + 1.0
+        probe_system = build_emulated_rig(rig, seed=opts.seed)
+        duration = _planned_duration(build_loop(probe_system, motion=motion, n_ticks=1, settings=settings)) + 1.0
         probe_system.close()
     if not duration > 0:
         raise ValueError("--duration must be > 0")
@@ -159,32 +159,57 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
         from vmehil.calibration.store import load_store_or_nominal
 
         # one file, the single run's loader and checks; each unit applies its own entries
-        store = _calibrated(args, rig, lambda cal: load_store_or_nominal(cal, rig))
-        return run_units.run_parallel(args, rig, gains, motion, n_ticks, lambda: _make_link(args, rig),
-                                      calibration=store)
-    system = _build_calibrated(args, rig, build_emulated_rig)
-    loop = build_loop(system, motion=motion, gains=gains, n_ticks=n_ticks,
-                      switch_off=False if args.no_integrator_switch_off else None)
-    runner = RealtimeRunner(system, loop, **overrun_options(args)) if args.realtime else LockstepRunner(system, loop)
-    progress = TickProgress("run", quiet=args.quiet)
+        store = calibrated(opts.calibration, rig, lambda cal: load_store_or_nominal(cal, rig))
+        faults = prepared.get(fault_options)
+        return run_units.run_parallel(opts, rig, gains, motion, n_ticks, lambda: _make_link(opts, rig),
+                                      calibration=store, faults=list(faults.faults) if faults is not None else [])
+    system = _build_calibrated(opts, rig, build_emulated_rig)
+    loop = build_loop(system, motion=motion, n_ticks=n_ticks, settings=settings)
+    runner = (RealtimeRunner(system, loop, **opts.pacing.runner_options()) if opts.realtime
+              else LockstepRunner(system, loop))
+    progress = TickProgress("run", quiet=opts.quiet)
     attached: list = []
     interrupted: BaseException | None = None
+    # Once the run ends, signals are held (recorded, not raised) until its results are written:
+    # a second Ctrl-C must not lose the JSON or the report. armed() begins this section before its
+    # final stop's own ends (docs/safe-stop.md, "A second signal").
+    after = SignalsDeferred()
     try:
-        # armed(): whatever ends the block (its end, an exception, Ctrl-C, SIGTERM) ends with the
-        # amplifiers disabled, 0 V on the DACs and PWM off, read back (loop.final_stop).
-        with loop.armed():
-            attached = [a for a in (ext.attach(args, system, loop, runner) for ext in RUN_EXTENSIONS) if a is not None]
-            if not args.quiet:
-                print(f"run: {n_ticks} ticks ({duration:g} s) on {rig.name}, amplifiers enabled", file=sys.stderr)
-            with progress:
-                runner.run(n_ticks, progress=progress if progress.enabled else None)
-    except (KeyboardInterrupt, Terminated) as e:  # between ticks' reach (set-up): still reported
-        interrupted = e
+        try:
+            # armed(): whatever ends the block (its end, an exception, Ctrl-C, SIGTERM) ends with the
+            # amplifiers disabled, 0 V on the DACs and PWM off, read back (loop.final_stop).
+            with loop.armed(then=after):
+                attached = [a for a in (ext.attach(opts, system, loop, runner, prepared.get(ext))
+                                        for ext in RUN_EXTENSIONS) if a is not None]
+                if not opts.quiet:
+                    print(f"run: {n_ticks} ticks ({duration:g} s) on {rig.name}, amplifiers enabled", file=sys.stderr)
+                with progress:
+                    runner.run(n_ticks, progress=progress if progress.enabled else None)
+        except INTERRUPTS as e:  # between ticks' reach (set-up), or held by a stop: still reported
+            interrupted = e
+        finally:
+            after.begin()  # when armed() never got as far
+            for a in attached:
+                a.close()
+        for late in list(after.held):
+            loop.note_interruption(late, "after")
+        noted = len(after.held)
+        ended_by = interrupted or runner.ended_by or loop.interrupted_by
+        status = _finish(opts, system, loop, runner, rig, attached, ended_by)
+        if len(after.held) > noted and status in (0, EXIT_FAULT):  # a signal while the results were written
+            status = interrupt_exit_status(after.held[noted])
+        return status
     finally:
-        for a in attached:
-            a.close()
+        after.end()
+
+
+def _finish(opts: RunOptions, system, loop, runner, rig, attached: list, ended_by: BaseException | None) -> int:
+    """Summary, table, JSON and report of a run that has ended; its exit status."""
+    from servo.runner import RealtimeRunner
+    from vmehil.run_report import summarize, table, write_report
+
     timing = runner.timing.summary(system.rig.period_s) if isinstance(runner, RealtimeRunner) else None
-    summary = summarize(loop, rig=system.rig.name, seed=args.seed, realtime=args.realtime,
+    summary = summarize(loop, rig=system.rig.name, seed=opts.seed, realtime=opts.realtime,
                         overruns=runner.overruns, timing=timing)
     for a in attached:
         add = getattr(a, "add_to_summary", None)
@@ -198,13 +223,13 @@ def _run(args: argparse.Namespace, rig, gains: dict[str, float]) -> int:
     if timing:
         print(f"timing: compute p50 {timing['compute_p50_ms']:.3f} ms, p99 {timing['compute_p99_ms']:.3f} ms; "
               f"lateness p99 {timing['lateness_p99_ms']:.3f} ms, max {timing['lateness_max_ms']:.3f} ms")
-    if args.json:
-        write_json(args.json, summary)
-    if args.report:
-        files = write_report(loop, summary, args.report)
-        print(f"report: {len(files)} files in {args.report}")
+    if opts.json:
+        write_json(opts.json, summary)
+    if opts.report:
+        files = write_report(loop, summary, opts.report)
+        print(f"report: {len(files)} files in {opts.report}")
     system.close()
-    return run_exit_status(loop, interrupted or runner.ended_by)
+    return run_exit_status(loop, ended_by)
 
 
 def run_exit_status(loop, ended_by: BaseException | None) -> int:
@@ -212,44 +237,24 @@ def run_exit_status(loop, ended_by: BaseException | None) -> int:
     confirm, 130/143 ended by SIGINT/SIGTERM, 1 a fault stopped the run, 0 it ran to the end."""
     if loop.stop_incomplete:
         return EXIT_STOP_INCOMPLETE
-    if isinstance(ended_by, KeyboardInterrupt | Terminated):
+    if ended_by is None:
+        ended_by = getattr(loop, "interrupted_by", None)  # a signal held by a stop or while writing
+    if isinstance(ended_by, INTERRUPTS):
         return interrupt_exit_status(ended_by)
     return EXIT_FAULT if loop.fault is not None else 0
 
 
-def _build_calibrated(args: argparse.Namespace, rig, build):
+def _build_calibrated(opts: RunOptions, rig, build):
     """Build the rig with the drivers' calibration file; a missing file is a one-line warning."""
-    return _calibrated(args, rig, lambda cal: build(rig, seed=args.seed, link=_make_link(args, rig), calibration=cal))
+    return calibrated(opts.calibration, rig,
+                       lambda cal: build(rig, seed=opts.seed, link=_make_link(opts, rig), calibration=cal))
 
 
-def _calibrated(args: argparse.Namespace, rig, use):
-    """``use(path)`` with the drivers' calibration file (``--calibration``, which must exist, or
-    the rig's default file); a missing default file is a one-line warning (nominal values)."""
-    import warnings
-
-    from vmehil.calibration.store import CalibrationMissingWarning, default_store_path
-
-    if args.calibration and not Path(args.calibration).exists():
-        raise FileNotFoundError(f"--calibration {args.calibration}: no such file")
-    cal = args.calibration or default_store_path(rig)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", CalibrationMissingWarning)
-        result = use(cal)
-    for w in caught:
-        if issubclass(w.category, CalibrationMissingWarning):
-            print(f"warning: {w.message}", file=sys.stderr)
-        else:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    if not caught:
-        print(f"calibration: {cal}", file=sys.stderr)
-    return result
-
-
-def _make_link(args: argparse.Namespace, rig):
+def _make_link(opts: RunOptions, rig):
     """The plant link an extension asks for (``--plant can``), else ``None`` (in-process)."""
     for ext in RUN_EXTENSIONS:
         make = getattr(ext, "make_link", None)
-        link = make(args, rig) if make is not None else None
+        link = make(opts, rig) if make is not None else None
         if link is not None:
             return link
     return None

@@ -9,25 +9,29 @@ with enables low, DACs at 0 V and PWM off, read back.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Callable
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from servo.settings import ServoSettings
+    from vmehil.commands.run_options import RunOptions
 
 
-def run_on_real_bus(args: argparse.Namespace, rig, gains: dict[str, float], *,
+def run_on_real_bus(opts: RunOptions, rig, settings: ServoSettings, *,
                     exit_status: Callable[[Any, BaseException | None], int], **bus_options: Any) -> int:
-    """``exit_status``: ``vmehil.commands.run.run_exit_status`` (passed in: no import cycle);
-    ``bus_options`` go to :class:`hal.vme.vme_user.VmeUserBus` (tests inject a clock)."""
+    """``settings``: the rig's servo settings with the command line's override applied
+    (:meth:`servo.settings.ServoSettings.overridden`). ``exit_status``:
+    ``vmehil.commands.run.run_exit_status`` (passed in: no import cycle); ``bus_options`` go to
+    :class:`hal.vme.vme_user.VmeUserBus` (tests inject a clock)."""
     from servo.interrupts import Terminated
     from servo.motion import default_demo_motion, load_motion
     from servo.runner import RealtimeRunner
     from vmehil.real_bus import RealBusRefused, open_bus, prepare_real_rig
     from vmehil.run_report import summarize, table
     from vmehil.session import build_loop
-    from vmehil.system import EmulatedRig
 
-    bus = open_bus(args.bus, **bus_options)
+    bus = open_bus(opts.bus, **bus_options)
     try:
         try:
             system, checks = prepare_real_rig(rig, bus)
@@ -37,20 +41,19 @@ def run_on_real_bus(args: argparse.Namespace, rig, gains: dict[str, float], *,
         for c in checks:
             print(f"dry pass: {c.name:8s} {c.type:5s} {c.space} 0x{c.base:X}: {c.detail}", file=sys.stderr)
         print("start-up safe stop: enables low, DACs 0 V, PWM off — read back", file=sys.stderr)
-        if not args.enable_amplifiers:
+        if not opts.enable_amplifiers:
             print("run: dry run only (pass --enable-amplifiers to run the loop on this bus)", file=sys.stderr)
             return 0
         n = rig.n_joints
-        motion = load_motion(args.motion, n) if args.motion else default_demo_motion(n)
-        duration = args.duration if args.duration is not None else 10.0
+        motion = load_motion(opts.motion, n) if opts.motion else default_demo_motion(n)
+        duration = opts.duration if opts.duration is not None else 10.0
         n_ticks = round(duration * rig.servo_rate_hz)
-        loop = build_loop(cast(EmulatedRig, system), motion=motion, gains=gains, n_ticks=n_ticks,
-                          switch_off=False if args.no_integrator_switch_off else None)
+        loop = build_loop(system, motion=motion, n_ticks=n_ticks, settings=settings)
         runner = RealtimeRunner(system, loop)
         interrupted: BaseException | None = None
         try:
             with loop.armed():
-                print(f"run: {n_ticks} ticks ({duration:g} s) on {rig.name} over {args.bus}, amplifiers enabled",
+                print(f"run: {n_ticks} ticks ({duration:g} s) on {rig.name} over {opts.bus}, amplifiers enabled",
                       file=sys.stderr)
                 runner.run(n_ticks)
         except (KeyboardInterrupt, Terminated) as e:

@@ -12,23 +12,27 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
 from vmehil.files import write_json
 
+if TYPE_CHECKING:
+    from vmehil.commands.run_options import RunOptions
+
 UNIT_MODES = ("single", "parallel")
 
-#: options of `vmehil run` a parallel run does not take: why, and what to do instead
-#: (docs/melmalec.md, "Options with --units parallel")
-_NOT_WITH_UNITS: tuple[tuple[str, str, str], ...] = (
-    ("mavlink", "--mavlink", "live tuning talks to one servo loop and there are five; tune with --units single "
-                             "--mavlink, then give the gains to every unit with --gains"),
-    ("console", "--console", "the operator console drives one servo loop (its motions, calibration, stops); "
-                             "use it with --units single"),
-    ("vision", "--vision", "the visual servo commands one loop's joints over one BIT3 window; run it with "
-                           "--units single"),
+#: options of `vmehil run` a parallel run does not take (whether given, the flag), why, and what
+#: to do instead (docs/melmalec.md, "Options with --units parallel")
+_NOT_WITH_UNITS: tuple[tuple[Callable[[RunOptions], object], str, str], ...] = (
+    (lambda o: o.mavlink.url, "--mavlink",
+     "live tuning talks to one servo loop and there are five; tune with --units single --mavlink, then give the "
+     "gains to every unit with --gains"),
+    (lambda o: o.console.port, "--console",
+     "the operator console drives one servo loop (its motions, calibration, stops); use it with --units single"),
+    (lambda o: o.vision.mode, "--vision",
+     "the visual servo commands one loop's joints over one BIT3 window; run it with --units single"),
 )
 
 
@@ -44,43 +48,43 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         f"and every unit stops ({UNIT_TIMEOUT_S:g})")
 
 
-def refused_options(args: argparse.Namespace) -> list[str]:
+def refused_options(opts: RunOptions) -> list[str]:
     """Why each option given cannot go with a parallel run (one line each, with what to do)."""
-    out = [f"{flag}: {why}" for attr, flag, why in _NOT_WITH_UNITS if getattr(args, attr, None)]
-    if getattr(args, "bus", "emulated") != "emulated":
+    out = [f"{flag}: {why}" for given, flag, why in _NOT_WITH_UNITS if given(opts)]
+    if opts.bus != "emulated":
         out.append("--bus: the unit controllers run on emulated boards of their own; a real crate runs one "
                    "controller of every joint (--units single --bus ...)")
     return out
 
 
-def run_parallel(args: argparse.Namespace, rig: Any, gains: dict[str, float], motion: Any, n_ticks: int,
-                 make_link: Callable[[], Any], calibration: Any = None) -> int:
+def run_parallel(opts: RunOptions, rig: Any, gains: dict[str, float], motion: Any, n_ticks: int,
+                 make_link: Callable[[], Any], calibration: Any = None, faults: list | None = None) -> int:
     """Run the units; the same summary, table, JSON and report as the single run (from the units'
     loops merged in joint order, :class:`vmehil.units.options.MergedUnits`) plus each unit's.
     ``make_link()``: the plant link ``--plant can`` asks for, else None (called once the faults
-    are routed: a refused fault opens no link)."""
+    are routed: a refused fault opens no link). ``faults``: the run's scenario, checked
+    (:func:`vmehil.fault_options.prepare`)."""
     from typing import cast
 
     from servo.loop import ServoLoop
     from servo.units import rig_units
     from vmehil.fault_injection import announcement, first_joint, first_tick, stop_report
-    from vmehil.realtime_options import overrun_options
     from vmehil.run_report import summarize, table, units_section, write_report
     from vmehil.units.coordinator import plant_link_for, run_units
     from vmehil.units.options import MergedUnits, fault_hook, route_faults
 
-    faults = list(getattr(args, "_fault_scenario", None) or [])
+    faults = list(faults or [])
     routed = route_faults(faults, rig, rig_units(rig)) if faults else {}
     link = make_link()
     if link is None:
-        link = plant_link_for(rig, args.seed)  # made here: a plant fault goes to this plant
-    before_run, _ = fault_hook(routed, link, args.seed)
+        link = plant_link_for(rig, opts.seed)  # made here: a plant fault goes to this plant
+    before_run, _ = fault_hook(routed, link, opts.seed)
     run = None
     try:
-        run = run_units(rig, seed=args.seed, n_ticks=n_ticks, motion=motion, gains=gains,
-                        switch_off=False if args.no_integrator_switch_off else None, link=link,
-                        realtime=args.realtime, realtime_options=overrun_options(args),
-                        timeout_s=args.unit_timeout, calibration=calibration, before_run=before_run)
+        run = run_units(rig, seed=opts.seed, n_ticks=n_ticks, motion=motion, gains=gains,
+                        switch_off=opts.integrator_switch_off, link=link,
+                        realtime=opts.realtime, realtime_options=opts.pacing.runner_options(),
+                        timeout_s=opts.unit_timeout_s, calibration=calibration, before_run=before_run)
     except (KeyboardInterrupt, Terminated) as e:
         # run_units has stopped every unit (each one's armed() block: enables low, 0 V) first
         print(f"run: interrupted ({interrupt_name(e)}); every unit safe-stopped", file=sys.stderr)
@@ -97,7 +101,7 @@ def run_parallel(args: argparse.Namespace, rig: Any, gains: dict[str, float], mo
             status = max(status, EXIT_FAULT)
             continue
         timing = runner.timing.summary(rig.period_s) if hasattr(runner, "timing") else None
-        s = summarize(loop, rig=rig.name, seed=args.seed, realtime=args.realtime, overruns=runner.overruns,
+        s = summarize(loop, rig=rig.name, seed=opts.seed, realtime=opts.realtime, overruns=runner.overruns,
                       timing=timing)
         s["unit"] = u.unit.name
         units[u.unit.name] = s
@@ -110,10 +114,10 @@ def run_parallel(args: argparse.Namespace, rig: Any, gains: dict[str, float], mo
                                    {"unit": hub_stop.unit, "exchange": hub_stop.exchange, "what": hub_stop.what})
     merged = cast(ServoLoop, MergedUnits(run)) if all(u.loop is not None for u in run.units) else None
     if merged is not None:  # the single run's summary, of every joint (the units' loops merged)
-        summary = summarize(merged, rig=rig.name, seed=args.seed, realtime=args.realtime,
+        summary = summarize(merged, rig=rig.name, seed=opts.seed, realtime=opts.realtime,
                             overruns=max((int(x.get("overruns", 0)) for x in units.values()), default=0))
     else:
-        summary = {"rig": rig.name, "seed": args.seed, "joints": []}
+        summary = {"rig": rig.name, "seed": opts.seed, "joints": []}
     if faults:
         summary["injected_faults"] = [{**f.as_dict(), "unit": next(n for n, fs in routed.items() if f in fs)}
                                       for f in faults]
@@ -126,10 +130,10 @@ def run_parallel(args: argparse.Namespace, rig: Any, gains: dict[str, float], mo
                     "hub_events": [{"exchange": e.exchange, "unit": e.unit, "what": e.what} for e in run.hub.events],
                     "units": units})
     print(table(summary) if merged is not None else "\n".join(units_section(summary)))
-    if args.json:
-        write_json(args.json, summary)
-    if args.report and merged is not None:
-        files = write_report(merged, summary, args.report)
-        print(f"report: {len(files)} files in {args.report}")
+    if opts.json:
+        write_json(opts.json, summary)
+    if opts.report and merged is not None:
+        files = write_report(merged, summary, opts.report)
+        print(f"report: {len(files)} files in {opts.report}")
     run.close()
     return status

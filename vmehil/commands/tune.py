@@ -38,9 +38,12 @@ import math
 import shlex
 import sys
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from servo.control.gains import parse_gains
+from vmehil.can_options import CanPlantOptions
 from vmehil.cli_types import bounded_int, joint_number, nonzero_float, positive_float, seed
 from vmehil.commands import needs_extra
 from vmehil.files import write_atomic, write_json
@@ -71,6 +74,9 @@ def _sim_args(p: argparse.ArgumentParser, hold: float, band: float) -> None:
     p.add_argument("--settle-band-deg", type=positive_float, default=band,
                    help=f"settling: into the steady-state envelope (last 2 s) ± this, deg (default {band:g})")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--calibration", default=None, metavar="PATH",
+                   help="the drivers' calibration file, as vmehil run loads it (default: calibration/<rig>.toml or "
+                        "$VMEHIL_CALIBRATION_DIR/<rig>.toml; none: nominal values, said); shipped with every run")
     from vmehil.can_options import add_plant_arguments
 
     add_plant_arguments(p)
@@ -83,7 +89,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     common = _common()
     b = tsub.add_parser("bode", parents=[common],
                         help="margins, crossover, bandwidth; open/closed-loop and disturbance responses")
-    b.set_defaults(func=run_bode)
+    b.set_defaults(func=run_bode, options=TuneOptions.from_args)
     lc = tsub.add_parser("limit-cycle", parents=[common],
                          help="limit cycles predicted (describing function) and simulated (full stack), "
                               "with and without integrator switch-off")
@@ -94,7 +100,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                          "(default: what the control law uses, PidLaw.kp_off)")
     _sim_args(lc, 8.0, 0.1)
     _jobs_arg(lc, "the two runs (integrators on, switch-off)")
-    lc.set_defaults(func=run_limit_cycle)
+    lc.set_defaults(func=run_limit_cycle, options=TuneOptions.from_args)
     sw = tsub.add_parser("sweep", parents=[common],
                          help="many gain sets: margins, simulated limit cycle, tracking and settling; "
                               "parallel, CSV/JSON, heat maps")
@@ -131,7 +137,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="write sweep.csv and sweep.json here (default: the --report folder, else ./sweep-out)")
     sw.add_argument("--margins-only", action="store_true", help="no simulations: margins only (fast)")
     _sim_args(sw, 8.0, 0.1)
-    sw.set_defaults(func=run_sweep)
+    sw.set_defaults(func=run_sweep, options=TuneOptions.from_args)
     st = tsub.add_parser("step", parents=[common],
                          help="step and quintic-move responses through the full stack, over the linear prediction")
     st.add_argument("--step-deg", type=nonzero_float, default=2.0, help="step size, deg (default 2)")
@@ -139,7 +145,69 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="integrator switch-off: as the rig says (default), forced on, or off")
     _sim_args(st, 4.0, 0.1)
     _jobs_arg(st, "the two runs (step, quintic move)")
-    st.set_defaults(func=run_step)
+    st.set_defaults(func=run_step, options=TuneOptions.from_args)
+
+
+@dataclass(frozen=True)
+class TuneOptions:
+    """The options of every ``vmehil tune`` analysis (``tune_cmd``); an option an analysis does not
+    take holds its default. ``gains``: ``--gains`` parsed (this joint's, over the rig's);
+    ``plant``: ``--plant can``'s options, None for the in-process plant."""
+
+    tune_cmd: str
+    rig: str | None = None
+    joint: int = 1
+    gains: dict[str, float] = field(default_factory=dict)
+    json_path: str | None = None
+    report: str | None = None
+    # the simulating analyses (limit-cycle, sweep, step)
+    seed: int = 0
+    motion: str = "joint"
+    move_deg: float | None = None
+    hold: float = 8.0
+    settle_band_deg: float = 0.1
+    quiet: bool = False
+    calibration: str | None = None
+    plant: CanPlantOptions | None = None
+    jobs: int | None = None
+    # limit-cycle
+    predict_only: bool = False
+    switch_off_kp: float | None = None
+    # sweep
+    grid: tuple[str, ...] = ()
+    gains_file: str | None = None
+    engine: str | None = None
+    scheduler: str | None = None
+    resume: str | None = None
+    vary: tuple[str, ...] = ()
+    samples: int | None = None
+    threshold: tuple[str, ...] = ()
+    x: str | None = None
+    y: str | None = None
+    out: str | None = None
+    margins_only: bool = False
+    # sweep (off|on|both) and step (rig|on|off)
+    switch_off: str = "off"
+    # step
+    step_deg: float = 2.0
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> TuneOptions:
+        def given(name: str, default: Any = None) -> Any:  # an option of some analyses only
+            return getattr(args, name, default)
+
+        return cls(tune_cmd=args.tune_cmd, rig=args.rig, joint=args.joint,
+                   gains=parse_gains(args.gains, what="--gains"), json_path=args.json_path, report=args.report,
+                   seed=given("seed", 0), motion=given("motion", "joint"), move_deg=given("move_deg"),
+                   hold=given("hold", 8.0), settle_band_deg=given("settle_band_deg", 0.1), quiet=given("quiet", False),
+                   calibration=given("calibration"),
+                   plant=CanPlantOptions.from_args(args) if hasattr(args, "plant") else None, jobs=given("jobs"),
+                   predict_only=given("predict_only", False), switch_off_kp=given("switch_off_kp"),
+                   grid=tuple(given("grid") or ()), gains_file=given("gains_file"), engine=given("engine"),
+                   scheduler=given("scheduler"), resume=given("resume"), vary=tuple(given("vary") or ()),
+                   samples=given("samples"), threshold=tuple(given("threshold") or ()), x=given("x"), y=given("y"),
+                   out=given("out"), margins_only=given("margins_only", False),
+                   switch_off=given("switch_off", "off"), step_deg=given("step_deg", 2.0))
 
 
 def _jobs_arg(p: argparse.ArgumentParser, what: str) -> None:
@@ -148,7 +216,7 @@ def _jobs_arg(p: argparse.ArgumentParser, what: str) -> None:
                         "1: one after the other in this process, with a bar per run")
 
 
-def _simulate_runs(args: argparse.Namespace, jobs: list, labels: list[str], links,
+def _simulate_runs(opts: TuneOptions, jobs: list, labels: list[str], links,
                    meanwhile: Callable[[], None] | None = None) -> list[dict[str, Any]]:
     """The full-stack runs ``jobs`` (:class:`~vmehil.analysis.simulate.SimJob`), side by side in
     worker processes (one per core, ``--jobs``), each a complete safe-stopping run, or one after
@@ -161,7 +229,7 @@ def _simulate_runs(args: argparse.Namespace, jobs: list, labels: list[str], link
     from vmehil.analysis.simulate import run_job, simulate
     from vmehil.progress import TickProgress, progress_bar
 
-    n = min(len(jobs), args.jobs or os.cpu_count() or 1)
+    n = min(len(jobs), opts.jobs or os.cpu_count() or 1)
     if links is not None and not links.shareable:
         n = 1
     if n <= 1:
@@ -169,11 +237,11 @@ def _simulate_runs(args: argparse.Namespace, jobs: list, labels: list[str], link
             meanwhile()
         out = []
         for job, label in zip(jobs, labels, strict=True):
-            with TickProgress(f"simulating ({label})", quiet=args.quiet) as progress:
+            with TickProgress(f"simulating ({label})", quiet=opts.quiet) as progress:
                 out.append(simulate(job.jp, switch_off=job.switch_off, settings=job.settings, step_deg=job.step_deg,
                                     traces=job.traces, progress=progress, link_factory=job.link_factory))
         return out
-    with progress_bar(f"simulating ({', '.join(labels)})", len(jobs), quiet=args.quiet, unit="run") as bar:
+    with progress_bar(f"simulating ({', '.join(labels)})", len(jobs), quiet=opts.quiet, unit="run") as bar:
         try:
             return run_parallel(run_job, jobs, jobs=n, on_result=lambda _i, _r: bar.update(1),
                                 finished=lambda r: r is not None, meanwhile=meanwhile)
@@ -189,67 +257,73 @@ def _default_grid() -> str:
     return DEFAULT_GRID
 
 
-def _command_line(args: argparse.Namespace) -> str:
+def _command_line(opts: TuneOptions) -> str:
     argv = sys.argv[1:] if sys.argv and Path(sys.argv[0]).name in ("vmehil", "__main__.py") else None
     if argv:
         return "vmehil " + " ".join(shlex.quote(a) for a in argv)
-    return f"vmehil tune {args.tune_cmd}"
+    return f"vmehil tune {opts.tune_cmd}"
 
 
-def _load(args: argparse.Namespace) -> JointParams:
-    from servo.control.gains import parse_gains
+def _load(opts: TuneOptions) -> JointParams:
     from vmehil.analysis.rigparams import load_joint
 
-    return load_joint(args.rig, args.joint, gains=parse_gains(args.gains, what="--gains"),
-                      switch_off_kp=getattr(args, "switch_off_kp", None))
+    return load_joint(opts.rig, opts.joint, gains=opts.gains, switch_off_kp=opts.switch_off_kp)
 
 
-def _link_factory(args: argparse.Namespace):
+def _link_factory(opts: TuneOptions):
     """``--plant can``: a :class:`~vmehil.can_options.CanLinkFactory`; else None (in-process)."""
     from vmehil.can_options import link_factory
 
-    return link_factory(args)
+    return link_factory(opts.plant)
 
 
 def _tagged(factory, tag: str):
     return None if factory is None else factory.tagged(tag)
 
 
-def _sim_settings(args: argparse.Namespace, allow_short: bool = False):
+def _sim_settings(opts: TuneOptions, jp, allow_short: bool = False):
+    """The simulations' settings, with the drivers' calibration loaded here once, as `vmehil run`
+    loads it (it was ignored: 1.14° of static error on the true angle in a calibrated directory),
+    and said on stderr; it travels with every run (worker processes, Dask) as data."""
+    from servo.rig import load_rig
     from vmehil.analysis.simulate import SimSettings
+    from vmehil.calibration.store import load_store_or_nominal
+    from vmehil.commands.calibration_file import calibrated
 
-    return SimSettings(seed=args.seed, motion=args.motion, move_deg=args.move_deg, hold_s=args.hold,
-                       settle_band_deg=args.settle_band_deg, allow_short=allow_short)
+    rig = jp.spec if jp.spec is not None else load_rig(jp.rig_path)
+    store = calibrated(opts.calibration, rig, lambda cal: load_store_or_nominal(cal, rig))
+    return SimSettings(seed=opts.seed, motion=opts.motion, move_deg=opts.move_deg, hold_s=opts.hold,
+                       settle_band_deg=opts.settle_band_deg, allow_short=allow_short, calibration=store)
 
 
 # ------------------------------------------------------------------------------- bode
 
 
-@needs_extra("tune")
-def run_bode(args: argparse.Namespace) -> int:
+@needs_extra("tune", "vmehil tune")
+def run_bode(opts: TuneOptions) -> int:
     from vmehil.analysis import report
     from vmehil.analysis.tuning import bode_analysis
 
-    jp = _load(args)
+    jp = _load(opts)
     verdict = _guard(jp)  # an unstable set is analysed and reported, not hidden (exit status 1)
     result = bode_analysis(jp)
     text = report.bode_text(result)
     print("vmehil tune bode — open loop broken at the plant input")
     print(text)
     files: list[Path] = []
-    if args.report:
-        d = Path(args.report)
+    if opts.report:
+        d = Path(opts.report)
         imgs = []
         files += report.save_figure_both(report.bode_figure(jp.cfg, result), d, "bode_open_loop")
         imgs.append("bode_open_loop.png")
         files += report.save_figure_both(report.responses_figure(jp.cfg, result, jp.inertia_kg_m2), d,
                                          "closed_loop_and_disturbance")
         imgs.append("closed_loop_and_disturbance.png")
-        md = report.markdown(f"Bode analysis — {jp.rig} joint {jp.joint}", _command_line(args), text, imgs)
+        md = report.markdown(f"Bode analysis — {jp.rig} joint {jp.joint}", _command_line(opts), text, imgs)
         files.append(write_atomic(d / "summary.md", md))
         result["report_files"] = [str(f) for f in files]
-    if args.json_path:
-        files.append(write_json(args.json_path, result))
+    if opts.json_path:
+        files.append(write_json(opts.json_path, result))
     for f in files:
         print(f"wrote {f}")
     if not verdict.ok:
@@ -289,13 +363,13 @@ def _guard(jp: JointParams, switch_off: bool | None = None):
     return verdict
 
 
-@needs_extra("tune")
-def run_limit_cycle(args: argparse.Namespace) -> int:
+@needs_extra("tune", "vmehil tune")
+def run_limit_cycle(opts: TuneOptions) -> int:
     from vmehil.analysis import report
     from vmehil.analysis.simulate import SimJob, strip_traces
     from vmehil.analysis.tuning import add_simulations, limit_cycle_prediction
 
-    jp = _load(args)
+    jp = _load(opts)
     bad = _unstable_message(jp, switch_off=True)  # it simulates the switched-off loop as well
     if bad:
         print(f"vmehil tune limit-cycle: {bad}", file=sys.stderr)
@@ -303,29 +377,29 @@ def run_limit_cycle(args: argparse.Namespace) -> int:
     predicted: list[dict[str, Any]] = []
 
     def predict() -> None:
-        predicted.append(limit_cycle_prediction(jp, with_traces=bool(args.report)))
+        predicted.append(limit_cycle_prediction(jp, with_traces=bool(opts.report)))
 
-    if args.predict_only:
+    if opts.predict_only:
         predict()
         result = predicted[0]
     else:
         # The two full-stack runs start first, in worker processes (--jobs); this process computes
         # the describing-function prediction while they run (same figures as one after the other).
-        settings = _sim_settings(args)
-        links = _link_factory(args)
+        settings = _sim_settings(opts, jp)
+        links = _link_factory(opts)
         modes = (False, True)
         labels = ["integrators on", "switch-off"]
         jobs = [SimJob(jp, mode, settings, _tagged(links, label.replace(" ", "-")))
                 for mode, label in zip(modes, labels, strict=True)]
-        runs = dict(zip(modes, _simulate_runs(args, jobs, labels, links, meanwhile=predict), strict=True))
+        runs = dict(zip(modes, _simulate_runs(opts, jobs, labels, links, meanwhile=predict), strict=True))
         result = add_simulations(predicted[0], jp, lambda _jp, switch_off: runs[switch_off])
     text = report.limit_cycle_text(result)
     print("vmehil tune limit-cycle — describing-function prediction of the sampled loop"
-          + ("" if args.predict_only else " and the full-stack simulation"))
+          + ("" if opts.predict_only else " and the full-stack simulation"))
     print(text)
     files: list[Path] = []
-    if args.report:
-        d = Path(args.report)
+    if opts.report:
+        d = Path(opts.report)
         imgs = []
         views = (("df_nyquist", jp.cfg, result["predicted"], "integrators on"),
                  ("df_nyquist_switch_off", jp.switch_off_cfg(), result["switch_off"]["predicted"],
@@ -351,14 +425,14 @@ def run_limit_cycle(args: argparse.Namespace) -> int:
         if check_fig is not None:
             files += report.save_figure_both(check_fig, d, "cycle_model_check")
             imgs.append("cycle_model_check.png")
-        md = report.markdown(f"Limit cycles — {jp.rig} joint {jp.joint}", _command_line(args), text, imgs)
+        md = report.markdown(f"Limit cycles — {jp.rig} joint {jp.joint}", _command_line(opts), text, imgs)
         files.append(write_atomic(d / "summary.md", md))
         result["report_files"] = [str(f) for f in files]
     out = _strip_model_traces(result)
     out["simulated"] = strip_traces(out.get("simulated"))
     out["switch_off"]["simulated"] = strip_traces(out["switch_off"].get("simulated"))
-    if args.json_path:
-        files.append(write_json(args.json_path, out))
+    if opts.json_path:
+        files.append(write_json(opts.json_path, out))
     for f in files:
         print(f"wrote {f}")
     faults = [s["fault"] for s in (result.get("simulated"), result["switch_off"].get("simulated")) if s and s["fault"]]
@@ -416,8 +490,8 @@ def _strip_model_traces(result: dict) -> dict:
 # ------------------------------------------------------------------------------ sweep
 
 
-@needs_extra("tune")
-def run_sweep(args: argparse.Namespace) -> int:
+@needs_extra("tune", "vmehil tune")
+def run_sweep(opts: TuneOptions) -> int:
     import tomllib
 
     from servo.control.gains import GAIN_NAMES
@@ -434,52 +508,53 @@ def run_sweep(args: argparse.Namespace) -> int:
         parse_grid,
         rig_text,
         rows_csv,
+        task_rig,
         text_sha256,
     )
     from vmehil.analysis.tolerance import draw_samples, nominal_values, parse_varies
     from vmehil.analysis.tolerance_report import parse_thresholds
     from vmehil.progress import progress_bar
 
-    jp = _load(args)
+    jp = _load(opts)
     base = jp.cfg.gains
-    if args.gains_file and args.grid:
+    if opts.gains_file and opts.grid:
         raise ValueError("give either --grid/--set or --gains-file, not both")
-    spreads = parse_varies(args.vary or [])
-    thresholds = parse_thresholds(args.threshold or [])
-    if args.samples is not None and not spreads:
+    spreads = parse_varies(opts.vary or [])
+    thresholds = parse_thresholds(opts.threshold or [])
+    if opts.samples is not None and not spreads:
         raise ValueError("--samples needs --vary: the samples of a tolerance study differ by the varied plant values")
     if thresholds and not spreads:
         raise ValueError("--threshold reports over the samples of a tolerance study: give --vary too")
-    if spreads and args.margins_only:
+    if spreads and opts.margins_only:
         raise ValueError("--vary with --margins-only: a tolerance study simulates every sample; drop one of them")
-    if args.gains_file:
-        points = load_gains_file(args.gains_file, base)
+    if opts.gains_file:
+        points = load_gains_file(opts.gains_file, base)
         axes_names = [k for k in GAIN_NAMES if len({p[k] for p in points}) > 1]
         grid_text = None
-    elif spreads and not args.grid:  # a tolerance study of the rig's gains (or --gains)
+    elif spreads and not opts.grid:  # a tolerance study of the rig's gains (or --gains)
         points = [base.as_dict()]
         axes_names = []
         grid_text = None
     else:
-        grid_text = ",".join(args.grid) if args.grid else DEFAULT_GRID
+        grid_text = ",".join(opts.grid) if opts.grid else DEFAULT_GRID
         axes = parse_grid(grid_text)
         points = grid_points(axes, base)
         axes_names = [k for k in axes if len(axes[k]) > 1]
-    if args.jobs is not None and args.jobs < 1:
-        raise ValueError(f"--jobs {args.jobs} must be at least 1")
-    engine_name = "dask" if args.scheduler else (args.engine or "local")
-    if args.scheduler and args.engine == "local":
+    if opts.jobs is not None and opts.jobs < 1:
+        raise ValueError(f"--jobs {opts.jobs} must be at least 1")
+    engine_name = "dask" if opts.scheduler else (opts.engine or "local")
+    if opts.scheduler and opts.engine == "local":
         raise ValueError("--scheduler sends the points to a Dask cluster: it needs --engine dask (or no --engine)")
     if engine_name == "dask":
         from vmehil.commands import refuse_without
 
         if refuse_without("vmehil tune sweep --engine dask", "dask"):
             return 2
-    if args.scheduler and args.jobs is not None:
-        print(f"note: --jobs {args.jobs} is ignored with --scheduler: the cluster's workers are what it has",
+    if opts.scheduler and opts.jobs is not None:
+        print(f"note: --jobs {opts.jobs} is ignored with --scheduler: the cluster's workers are what it has",
               file=sys.stderr)
-    links = None if args.margins_only else _link_factory(args)
-    jobs = args.jobs
+    links = None if opts.margins_only else _link_factory(opts)
+    jobs = opts.jobs
     if links is not None and not links.shareable:
         iface, chan = links.options.resolved()
         if engine_name == "dask":
@@ -490,52 +565,54 @@ def run_sweep(args: argparse.Namespace) -> int:
                              "one run at a time; use --jobs 1, or --interface virtual (each worker then runs its "
                              "own in-process plant node)")
         jobs = 1
-    x = args.x or (axes_names[0] if axes_names else "kp")
-    y = args.y or (axes_names[1] if len(axes_names) > 1 else next(k for k in GAIN_NAMES if k != x))
+    x = opts.x or (axes_names[0] if axes_names else "kp")
+    y = opts.y or (axes_names[1] if len(axes_names) > 1 else next(k for k in GAIN_NAMES if k != x))
     for name, v in (("--x", x), ("--y", y)):
         if v not in GAIN_NAMES:
             raise ValueError(f"{name} {v!r} must be one of {', '.join(GAIN_NAMES)}")
-    settings = _sim_settings(args, allow_short=True)
-    if settings.hold_s < 8.0 and not args.margins_only:
+    settings = _sim_settings(opts, jp, allow_short=True)
+    if settings.hold_s < 8.0 and not opts.margins_only:
         print(f"note: a {settings.hold_s:g} s hold is too short for a reliable limit-cycle figure (use ≥ 8 s)",
               file=sys.stderr)
-    # The rig travels as content (its text) with every task, so no worker reads this machine's disk.
+    # The rig travels parsed (its plant values drawn) with the servo's typed settings in every task:
+    # no worker reads this machine's disk, nothing is parsed again per point.
     text = rig_text(jp.rig_path)
-    n_samples = (args.samples or 20) if spreads else 1
+    n_samples = (opts.samples or 20) if spreads else 1
     draws: list[dict[str, float]] = [{}]
     if spreads:
         draws = draw_samples(spreads, nominal_values(tomllib.loads(text), jp.joint, str(jp.rig_path)),
-                             n_samples, args.seed)
-    modes = {"off": [False], "on": [True], "both": [False, True]}[args.switch_off]
+                             n_samples, opts.seed)
+    modes = {"off": [False], "on": [True], "both": [False, True]}[opts.switch_off]
+    rigs = [task_rig(text, jp.rig_path, jp.joint, plant) for plant in draws]
     tasks: list[SweepTask] = []
     for g in points:
         for so in modes:
             for k, plant in enumerate(draws):
                 i = len(tasks)
-                tasks.append(SweepTask(i, jp.rig_path, jp.joint, g, settings, simulate=not args.margins_only,
-                                       link_factory=_tagged(links, f"p{i}"), rig_text=text, switch_off=so,
-                                       plant=plant, sample=k if spreads else None))
-    out_dir = Path(args.resume or args.out or args.report or "sweep-out")
-    csv_path, json_path = out_dir / "sweep.csv", Path(args.json_path) if args.json_path else out_dir / "sweep.json"
+                tasks.append(SweepTask(i, jp.rig_path, jp.joint, g, settings, simulate=not opts.margins_only,
+                                       link_factory=_tagged(links, f"p{i}"), rig=rigs[k], servo=jp.servo,
+                                       switch_off=so, plant=plant, sample=k if spreads else None))
+    out_dir = Path(opts.resume or opts.out or opts.report or "sweep-out")
+    csv_path, json_path = out_dir / "sweep.csv", Path(opts.json_path) if opts.json_path else out_dir / "sweep.json"
     # What makes two runs the same sweep (checked by --resume): the points, the rig's content, the
     # simulation and its seed, the study.
     identity = {"rig_sha256": text_sha256(text), "joint": jp.joint,
                 "points_sha256": text_sha256(repr(points)), "points": len(tasks),
-                "simulation": None if args.margins_only else _settings_meta(settings),
-                "switch_off": args.switch_off, "vary": [s.text() for s in spreads],
+                "simulation": None if opts.margins_only else _settings_meta(settings),
+                "switch_off": opts.switch_off, "vary": [s.text() for s in spreads],
                 "samples": n_samples if spreads else None}
     meta: dict[str, Any] = {
         "command": "tune sweep", "rig": jp.rig, "joint": jp.joint, "joint_name": jp.name,
-        "base_gains": base.as_dict(), "grid": grid_text, "gains_file": args.gains_file,
-        "simulation": None if args.margins_only else {
+        "base_gains": base.as_dict(), "grid": grid_text, "gains_file": opts.gains_file,
+        "simulation": None if opts.margins_only else {
             **_settings_meta(settings),  # switch_off: false as before; true (--switch-off on) or "both"
-            "switch_off": {"off": False, "on": True}.get(args.switch_off, args.switch_off)},
+            "switch_off": {"off": False, "on": True}.get(opts.switch_off, opts.switch_off)},
         "points_total": len(tasks), "heatmap_axes": [x, y], "engine": engine_name, "identity": identity,
     }
     if spreads:
-        meta["tolerance"] = {"vary": [s.text() for s in spreads], "samples": n_samples, "seed": args.seed,
+        meta["tolerance"] = {"vary": [s.text() for s in spreads], "samples": n_samples, "seed": opts.seed,
                              "thresholds": thresholds}
-    done_rows = _resumed_rows(json_path, identity) if args.resume else []
+    done_rows = _resumed_rows(json_path, identity) if opts.resume else []
 
     def write(rows: list[dict[str, Any]], done: bool, interrupted: bool = False) -> None:
         write_atomic(csv_path, rows_csv(rows))
@@ -548,7 +625,7 @@ def run_sweep(args: argparse.Namespace) -> int:
         from vmehil.analysis.dask_engine import DaskEngine
 
         try:
-            engine = DaskEngine(args.scheduler, jobs).open()
+            engine = DaskEngine(opts.scheduler, jobs).open()
         except EngineError as e:
             print(f"vmehil tune sweep: {e}", file=sys.stderr)
             return 2
@@ -559,13 +636,13 @@ def run_sweep(args: argparse.Namespace) -> int:
     what = f"{len(points)} gain sets" + (f" × {n_samples} samples" if spreads else "") + \
         (" × switch-off on/off" if len(modes) > 1 else "")
     print(f"vmehil tune sweep — {jp.rig} joint {jp.joint} ({jp.name}): {what} = {len(tasks)} points"
-          + (f" ({len(done_rows)} done before, {todo} to go)" if args.resume else "")
+          + (f" ({len(done_rows)} done before, {todo} to go)" if opts.resume else "")
           + f", {where}; writing {csv_path} and {json_path}")
     # sweep.csv/.json at most once a second (every completed row is on disk within ~1 s), and
     # with every row at the end, on interruption and on an error
     batch = BatchedWrites(lambda rows: write(rows, False))
     try:
-        with progress_bar("sweep", len(tasks), quiet=args.quiet, unit="point", initial=len(done_rows)) as bar:
+        with progress_bar("sweep", len(tasks), quiet=opts.quiet, unit="point", initial=len(done_rows)) as bar:
 
             def on_result(row: dict[str, Any], rows: list[dict[str, Any]]) -> None:
                 batch.result(rows)
@@ -591,17 +668,17 @@ def run_sweep(args: argparse.Namespace) -> int:
         write(rows, True)
         files = [csv_path, json_path]
         if spreads:
-            files += _tolerance_outputs(args, jp, rows, spreads, thresholds, meta, write)
+            files += _tolerance_outputs(opts, jp, rows, spreads, thresholds, meta, write)
         else:
             print(_sweep_table(rows))
-        if args.report and not spreads:
-            d = Path(args.report)
+        if opts.report and not spreads:
+            d = Path(opts.report)
             fig = report.sweep_heatmaps(rows, x, y, f"Gain sweep, {jp.rig} joint {jp.joint} ({jp.name})")
             imgs = []
             if fig is not None:
                 files += report.save_figure_both(fig, d, f"heatmap_{x}_{y}")
                 imgs.append(f"heatmap_{x}_{y}.png")
-            md = report.markdown(f"Gain sweep — {jp.rig} joint {jp.joint}", _command_line(args),
+            md = report.markdown(f"Gain sweep — {jp.rig} joint {jp.joint}", _command_line(opts),
                                  _sweep_table(rows), imgs)
             files.append(write_atomic(d / "summary.md", md))
         for f in files:
@@ -614,8 +691,10 @@ def run_sweep(args: argparse.Namespace) -> int:
 
 
 def _settings_meta(settings) -> dict[str, Any]:
+    cal = settings.calibration
     return {"motion": settings.motion, "move_deg": settings.move_deg, "speed": settings.speed,
-            "hold_s": settings.hold_s, "seed": settings.seed, "settle_band_deg": settings.settle_band_deg}
+            "hold_s": settings.hold_s, "seed": settings.seed, "settle_band_deg": settings.settle_band_deg,
+            "calibration": None if cal is None else {"path": str(cal.path), "written": cal.written}}
 
 
 def _resumed_rows(json_path: Path, identity: dict[str, Any]) -> list[dict[str, Any]]:
@@ -641,7 +720,7 @@ def _resumed_rows(json_path: Path, identity: dict[str, Any]) -> list[dict[str, A
     return [r for r in stored.get("rows", []) if r.get("status") != "interrupted"]
 
 
-def _tolerance_outputs(args: argparse.Namespace, jp: JointParams, rows: list[dict[str, Any]], spreads,
+def _tolerance_outputs(opts: TuneOptions, jp: JointParams, rows: list[dict[str, Any]], spreads,
                        thresholds: dict[str, float], meta: dict[str, Any], write) -> list[Path]:
     """A tolerance study's summary (percentiles, fractions over thresholds) into the JSON, printed,
     and with --report its histograms and summary.md."""
@@ -657,10 +736,10 @@ def _tolerance_outputs(args: argparse.Namespace, jp: JointParams, rows: list[dic
     print(title)
     print(text)
     files: list[Path] = []
-    if args.report:
-        d = Path(args.report)
+    if opts.report:
+        d = Path(opts.report)
         files += report.save_figure_both(histogram_figure(rows, thresholds, title), d, "tolerance_histograms")
-        md = report.markdown(title, _command_line(args), text, ["tolerance_histograms.png"])
+        md = report.markdown(title, _command_line(opts), text, ["tolerance_histograms.png"])
         files.append(write_atomic(d / "summary.md", md))
     return files
 
@@ -697,22 +776,22 @@ def _sweep_table(rows: list[dict[str, Any]]) -> str:
 # ------------------------------------------------------------------------------- step
 
 
-@needs_extra("tune")
-def run_step(args: argparse.Namespace) -> int:
+@needs_extra("tune", "vmehil tune")
+def run_step(opts: TuneOptions) -> int:
     import numpy as np
 
     from vmehil.analysis import report
     from vmehil.analysis.simulate import SimJob, linear_prediction, step_metrics, strip_traces
 
-    jp = _load(args)
-    so = {"rig": None, "on": True, "off": False}[args.switch_off]
+    jp = _load(opts)
+    so = {"rig": None, "on": True, "off": False}[opts.switch_off]
     bad = _unstable_message(jp, switch_off=so)
     if bad:
         print(f"vmehil tune step: {bad}", file=sys.stderr)
         return 1
-    settings = _sim_settings(args, allow_short=True)
-    links = _link_factory(args)
-    step, move = _simulate_runs(args, [SimJob(jp, so, settings, _tagged(links, "step"), step_deg=args.step_deg),
+    settings = _sim_settings(opts, jp, allow_short=True)
+    links = _link_factory(opts)
+    step, move = _simulate_runs(opts, [SimJob(jp, so, settings, _tagged(links, "step"), step_deg=opts.step_deg),
                                        SimJob(jp, so, settings, _tagged(links, "move"))],
                                 ["step", "quintic move"], links)
     T = jp.cfg.sample_period_s
@@ -723,25 +802,25 @@ def run_step(args: argparse.Namespace) -> int:
         ad = np.gradient(wd, T) if name == "move" else np.zeros_like(wd)
         lin[name] = linear_prediction(jp, np.asarray(d["t_s"]), thd, wd, ad, math.radians(d["theta_start_deg"]))
     result: dict[str, Any] = {"command": "tune step", **jp.describe(),
-                              "switch_off": args.switch_off, "step_deg": args.step_deg}
+                              "switch_off": opts.switch_off, "step_deg": opts.step_deg}
     for name, d in (("step", step), ("move", move)):
-        result[name] = {"simulated": {**strip_traces(d), **step_metrics(d, None, args.settle_band_deg)},
-                        "linear": step_metrics(d, lin[name], args.settle_band_deg)}
+        result[name] = {"simulated": {**strip_traces(d), **step_metrics(d, None, opts.settle_band_deg)},
+                        "linear": step_metrics(d, lin[name], opts.settle_band_deg)}
     text = _step_text(result)
     print(f"vmehil tune step — {jp.rig} joint {jp.joint} ({jp.name}), full stack vs the sampled linear loop")
     print(text)
     files: list[Path] = []
-    if args.report:
-        out_dir = Path(args.report)
+    if opts.report:
+        out_dir = Path(opts.report)
         fig = report.step_figure(step, lin["step"], move, lin["move"],
                                  f"{jp.rig} joint {jp.joint} ({jp.name}), {report._gain_text(jp.cfg)}, "
-                                 f"switch-off: {args.switch_off}")
+                                 f"switch-off: {opts.switch_off}")
         files += report.save_figure_both(fig, out_dir, "step_and_move")
-        md = report.markdown(f"Step and move — {jp.rig} joint {jp.joint}", _command_line(args), text,
+        md = report.markdown(f"Step and move — {jp.rig} joint {jp.joint}", _command_line(opts), text,
                              ["step_and_move.png"])
         files.append(write_atomic(out_dir / "summary.md", md))
-    if args.json_path:
-        files.append(write_json(args.json_path, result))
+    if opts.json_path:
+        files.append(write_json(opts.json_path, result))
     for f in files:
         print(f"wrote {f}")
     faults = [s["fault"] for s in (step, move) if s["fault"]]

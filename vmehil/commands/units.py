@@ -16,11 +16,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+from dataclasses import dataclass
 from typing import Any
 
+from servo.control.gains import parse_gains
 from vmehil import fault_options
 from vmehil.cli_types import bounded_float, bounded_int, duration_s
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE, EXIT_USAGE
+from vmehil.fault_options import FaultOptions
 from vmehil.files import write_json
 
 EXIT_REFUSED = 2
@@ -70,23 +73,87 @@ def _plant_args(p: argparse.ArgumentParser) -> None:
                         f"can also the plant link's (as `vmehil run`'s)")
 
 
-def plant_options(args: argparse.Namespace):
+@dataclass(frozen=True)
+class UnitBusOptions:
+    """The unit bus and the run's timing, as ``vmehil unit`` and ``vmehil coordinate`` share them."""
+
+    interface: str | None
+    channel: str | None
+    can_log: str | None
+    unit_timeout_s: float
+    start_timeout_s: float
+    motion: str | None
+    json: str | None
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> UnitBusOptions:
+        return cls(interface=args.interface, channel=args.channel, can_log=args.can_log,
+                   unit_timeout_s=args.unit_timeout, start_timeout_s=args.start_timeout, motion=args.motion,
+                   json=args.json)
+
+
+@dataclass(frozen=True)
+class UnitOptions:
+    """``vmehil unit``'s options."""
+
+    unit: str
+    bus: UnitBusOptions
+    rig: str | None = None
+    realtime: bool = False
+    record: str | None = None
+    calibration: str | None = None
+    faults: FaultOptions = dataclasses.field(default_factory=FaultOptions)
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> UnitOptions:
+        return cls(unit=args.unit, bus=UnitBusOptions.from_args(args), rig=args.rig, realtime=args.realtime,
+                   record=args.record, calibration=args.calibration, faults=FaultOptions.from_args(args))
+
+
+@dataclass(frozen=True)
+class CoordinatorOptions:
+    """``vmehil coordinate``'s options. ``gains``: ``--gains`` parsed (checked by the command);
+    ``integrator_switch_off``: False with ``--no-integrator-switch-off``, else None (the rig's)."""
+
+    bus: UnitBusOptions
+    rig: str | None = None
+    seed: int = 0
+    duration_s: float = 8.0
+    gains: dict[str, float] = dataclasses.field(default_factory=dict)
+    integrator_switch_off: bool | None = None
+    plant: str = "inprocess"
+    plant_interface: str | None = None
+    plant_channel: str | None = None
+    plant_mode: str = "lockstep"
+    can_timeout_s: float = 1.0
+    stale_ticks: int | None = None
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> CoordinatorOptions:
+        return cls(bus=UnitBusOptions.from_args(args), rig=args.rig, seed=args.seed, duration_s=args.duration,
+                   gains=parse_gains(args.gains, what="--gains"),
+                   integrator_switch_off=False if args.no_integrator_switch_off else None, plant=args.plant,
+                   plant_interface=args.plant_interface, plant_channel=args.plant_channel,
+                   plant_mode=args.plant_mode, can_timeout_s=args.can_timeout, stale_ticks=args.stale_ticks)
+
+
+def plant_options(opts: CoordinatorOptions):
     """The plant bus's :class:`~vmehil.can_options.CanPlantOptions` for ``--plant can`` (None:
     in-process). Refuses the unit bus's own channel: both buses carry CMD/SENS frames."""
     from vmehil.can_options import CanPlantOptions
     from vmehil.units.remote import unit_channel
 
-    if args.plant != "can":
+    if opts.plant != "can":
         return None
-    iface = args.plant_interface or args.interface
-    opts = CanPlantOptions(interface=iface, channel=args.plant_channel, plant_mode=args.plant_mode,
-                           can_timeout_s=args.can_timeout, stale_ticks=args.stale_ticks)
-    p_iface, p_chan = opts.resolved()
-    u_iface, u_chan = unit_channel(args.interface, args.channel)
+    iface = opts.plant_interface or opts.bus.interface
+    plant = CanPlantOptions(interface=iface, channel=opts.plant_channel, plant_mode=opts.plant_mode,
+                            can_timeout_s=opts.can_timeout_s, stale_ticks=opts.stale_ticks)
+    p_iface, p_chan = plant.resolved()
+    u_iface, u_chan = unit_channel(opts.bus.interface, opts.bus.channel)
     if (p_iface, p_chan) == (u_iface, u_chan):
         raise ValueError(f"--plant can: the plant bus ({p_iface} {p_chan}) is the unit bus: give the plant node "
                          f"and the units channels of their own (--plant-channel, --channel)")
-    return opts
+    return plant
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -102,7 +169,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "as vmehil run); the unit applies its own boards' and joints' entries")
     fault_options.add_arguments(p)
     _bus_args(p)
-    p.set_defaults(func=run_unit_command)
+    p.set_defaults(func=run_unit_command, options=UnitOptions.from_args)
 
     c = sub.add_parser("coordinate", help="coordinate the rig's unit controllers and serve them the plant")
     add_rig_args(c)
@@ -111,51 +178,51 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--no-integrator-switch-off", action="store_true", help="keep the integrators fed at rest")
     _bus_args(c)
     _plant_args(c)
-    c.set_defaults(func=run_coordinator_command)
+    c.set_defaults(func=run_coordinator_command, options=CoordinatorOptions.from_args)
 
 
-def _load(args: argparse.Namespace):
+def _load(rig: str | None):
     from emulators.presets import resolve_rig
     from servo.rig import load_rig
 
-    return load_rig(resolve_rig(args.rig))
+    return load_rig(resolve_rig(rig))
 
 
-def run_unit_command(args: argparse.Namespace) -> int:
+def run_unit_command(opts: UnitOptions) -> int:
     import numpy as np
 
     from emulators.plant_link import PlantLinkError
     from servo.runner import RealtimeRunner
     from vmehil.calibration.store import load_store_or_nominal
-    from vmehil.commands.run import _calibrated
+    from vmehil.commands.calibration_file import calibrated
     from vmehil.fault_injection import first_joint, first_tick, stop_report
     from vmehil.run_report import summarize
     from vmehil.units.processes import run_unit
     from vmehil.units.remote import UnitRefused, unit_bus
 
-    if fault_options.wants_list(args):
+    if opts.faults.wants_list:
         return fault_options.list_faults()
-    spec = _load(args)
+    spec = _load(opts.rig)
     try:  # before joining the run: a fault this unit cannot take costs no run
-        before_run, faults = unit_faults(args, spec)
+        before_run, faults = unit_faults(opts.unit, opts.faults, spec)
     except ValueError as e:
-        print(f"vmehil unit {args.unit}: {e}", file=sys.stderr)
+        print(f"vmehil unit {opts.unit}: {e}", file=sys.stderr)
         return EXIT_USAGE
-    store = _calibrated(args, spec, lambda cal: load_store_or_nominal(cal, spec))
-    bus = unit_bus(args.interface, args.channel, args.can_log)
+    store = calibrated(opts.calibration, spec, lambda cal: load_store_or_nominal(cal, spec))
+    bus = unit_bus(opts.bus.interface, opts.bus.channel, opts.bus.can_log)
     try:
-        out = run_unit(spec, args.unit, bus, timeout_s=args.unit_timeout, start_timeout_s=args.start_timeout,
-                       motion_path=args.motion, realtime=args.realtime,
+        out = run_unit(spec, opts.unit, bus, timeout_s=opts.bus.unit_timeout_s,
+                       start_timeout_s=opts.bus.start_timeout_s, motion_path=opts.bus.motion, realtime=opts.realtime,
                        # no spinning to the deadline (the single run spins its last 0.5 ms): five units
                        # and the coordinator share the cores, and five spins cost 2.5 ms of CPU a
                        # period; with them no free-running run went 10 s at rest, without them two did
                        realtime_options={"overrun": "warn", "max_lateness_periods": 5.0, "spin_s": 0.0},
                        calibration=store, before_run=before_run)
     except UnitRefused as e:
-        print(f"vmehil unit {args.unit}: refused: {e}", file=sys.stderr)
+        print(f"vmehil unit {opts.unit}: refused: {e}", file=sys.stderr)
         return EXIT_REFUSED
     except PlantLinkError as e:  # before its loop (the power-up exchange): its boards safe-stopped
-        print(f"vmehil unit {args.unit}: stopped before its loop ran: {e.cause}: {e}", file=sys.stderr)
+        print(f"vmehil unit {opts.unit}: stopped before its loop ran: {e.cause}: {e}", file=sys.stderr)
         return EXIT_FAULT
     finally:
         bus.close()
@@ -165,7 +232,7 @@ def run_unit_command(args: argparse.Namespace) -> int:
     timing = runner.timing.summary(spec.period_s) if isinstance(runner, RealtimeRunner) else None
     summary = summarize(loop, rig=spec.name, seed=out.seed, realtime=realtime, overruns=runner.overruns,
                         timing=timing)
-    summary.update(unit=args.unit, completed=out.completed, ended=out.ended,
+    summary.update(unit=opts.unit, completed=out.completed, ended=out.ended,
                    plant_mode="free-running" if out.free_running else "lockstep")
     if out.free_running:
         summary["answers"] = {"stale_exchanges": out.stale, "incomplete": out.incomplete}
@@ -173,16 +240,16 @@ def run_unit_command(args: argparse.Namespace) -> int:
         summary["injected_faults"] = [f.as_dict() for f in faults]
         summary["stop"] = stop_report(loop, first_tick(faults), first_joint(faults))
     fault = loop.fault
-    print(f"unit {args.unit}: {out.completed} ticks; " + ("ran to the end" if fault is None else
+    print(f"unit {opts.unit}: {out.completed} ticks; " + ("ran to the end" if fault is None else
           f"stopped: {fault.cause} at tick {fault.tick}: {fault.detail}") +
           f"; final stop {'verified' if not loop.stop_incomplete else 'INCOMPLETE'}", file=sys.stderr)
     if timing:
-        print(f"unit {args.unit}: {timing_line(timing)}", file=sys.stderr)
-    if args.json:
-        write_json(args.json, summary)
-    if args.record:
+        print(f"unit {opts.unit}: {timing_line(timing)}", file=sys.stderr)
+    if opts.bus.json:
+        write_json(opts.bus.json, summary)
+    if opts.record:
         rec = loop.recorder.trimmed() if loop.recorder is not None else {}
-        np.savez(args.record, **rec)  # type: ignore[arg-type]  # (numpy stubs: **kwds vs allow_pickle)
+        np.savez(opts.record, **rec)  # type: ignore[arg-type]  # (numpy stubs: **kwds vs allow_pickle)
     if out.system is not None:
         out.system.close()
     if loop.stop_incomplete:
@@ -190,8 +257,8 @@ def run_unit_command(args: argparse.Namespace) -> int:
     return EXIT_FAULT if fault is not None else 0
 
 
-def unit_faults(args: argparse.Namespace, spec) -> tuple[Any, list]:
-    """This unit's faults of ``--fault``/``--faults`` (checked against the rig, each routed to
+def unit_faults(unit: str, options: FaultOptions, spec) -> tuple[Any, list]:
+    """Unit ``unit``'s faults of ``--fault``/``--faults`` (checked against the rig, each routed to
     the unit that owns its joint or board, as ``--units parallel`` does) and the hook that
     attaches their schedule to its runner. Raises ValueError, saying which unit to give it to,
     for a fault of another unit's joints or boards, and for a fault of the plant (the
@@ -200,7 +267,7 @@ def unit_faults(args: argparse.Namespace, spec) -> tuple[Any, list]:
     from vmehil.fault_injection import FaultSchedule, announcement, check_rig, on_the_plant
     from vmehil.units.options import UnitFaultContext, route_faults
 
-    faults = fault_options.scenario(args)
+    faults = fault_options.scenario(options)
     if not faults:
         return None, []
     check_rig(faults, spec)
@@ -210,10 +277,10 @@ def unit_faults(args: argparse.Namespace, spec) -> tuple[Any, list]:
                              "(or the plant node): a unit controller has its boards only")
     routed = route_faults(faults, spec, rig_units(spec))
     for name, theirs in routed.items():
-        if name != args.unit and theirs:
-            raise ValueError(f"{theirs[0].source}: not a fault of unit {args.unit}'s joints or boards: "
+        if name != unit and theirs:
+            raise ValueError(f"{theirs[0].source}: not a fault of unit {unit}'s joints or boards: "
                              f"give it to `vmehil unit --unit {name}`")
-    mine = routed.get(args.unit, [])
+    mine = routed.get(unit, [])
 
     def before_run(run: Any) -> None:
         FaultSchedule(mine, UnitFaultContext(run.system, run.loop, run.seed)).attach(run.runner)
@@ -231,20 +298,19 @@ def timing_line(t: dict) -> str:
             f"overruns {t['overruns']} of {t.get('ticks', '?')} ticks")
 
 
-def run_coordinator_command(args: argparse.Namespace) -> int:
-    from servo.control.gains import parse_gains
+def run_coordinator_command(opts: CoordinatorOptions) -> int:
     from servo.gain_guard import check_values
     from vmehil.units.processes import run_coordinator
     from vmehil.units.remote import FREE_STALE_TICKS, UnitRefused, unit_bus
 
-    spec = _load(args)
-    gains = check_values(parse_gains(args.gains, what="--gains"))
-    n_ticks = round(args.duration * spec.servo_rate_hz)
-    plant = plant_options(args)
+    spec = _load(opts.rig)
+    gains = check_values(opts.gains)
+    n_ticks = round(opts.duration_s * spec.servo_rate_hz)
+    plant = plant_options(opts)
     # the plant node first: no node (or another rig, or mode) is an error before any unit waits
-    link = plant.open_link(spec, args.seed) if plant is not None else None
+    link = plant.open_link(spec, opts.seed) if plant is not None else None
     try:
-        bus = unit_bus(args.interface, args.channel, args.can_log)
+        bus = unit_bus(opts.bus.interface, opts.bus.channel, opts.bus.can_log)
     except BaseException:
         if link is not None:
             link.close()
@@ -253,11 +319,11 @@ def run_coordinator_command(args: argparse.Namespace) -> int:
         iface, chan = plant.resolved()  # type: ignore[union-attr]
         print(f"coordinate: the plant node on {iface} {chan}", file=sys.stderr)
     try:
-        out = run_coordinator(spec, bus, seed=args.seed, n_ticks=n_ticks, timeout_s=args.unit_timeout,
-                              start_timeout_s=args.start_timeout, motion_path=args.motion, gains=gains,
-                              switch_off=False if args.no_integrator_switch_off else None, plant_link=link,
-                              free_running=args.plant_mode == "free-running",
-                              stale_ticks=args.stale_ticks or FREE_STALE_TICKS)
+        out = run_coordinator(spec, bus, seed=opts.seed, n_ticks=n_ticks, timeout_s=opts.bus.unit_timeout_s,
+                              start_timeout_s=opts.bus.start_timeout_s, motion_path=opts.bus.motion, gains=gains,
+                              switch_off=opts.integrator_switch_off, plant_link=link,
+                              free_running=opts.plant_mode == "free-running",
+                              stale_ticks=opts.stale_ticks or FREE_STALE_TICKS)
     except UnitRefused as e:
         print(f"vmehil coordinate: {e}", file=sys.stderr)
         return EXIT_REFUSED
@@ -269,19 +335,23 @@ def run_coordinator_command(args: argparse.Namespace) -> int:
                                                             f"{stop.what}"), file=sys.stderr)
     for note in out.refused:
         print(f"coordinate: {note}", file=sys.stderr)
+    if out.other_session:
+        print(f"coordinate: {out.other_session} frames of another session dropped (boot ids the run did not "
+              "start with)", file=sys.stderr)
     figures = out.timing.figures(spec.period_s)
     if "compute_p50_ms" in figures:
         print(f"coordinate: steps: {timing_line(figures)}", file=sys.stderr)
     for name, fig in out.unit_timing.items():
         if fig.get("realtime"):
             print(f"coordinate: unit {name}: {timing_line(fig)}", file=sys.stderr)
-    if args.json:
-        write_json(args.json, {
-            "rig": spec.name, "seed": args.seed, "ticks": n_ticks, "plant": args.plant, "plant_mode": args.plant_mode,
+    if opts.bus.json:
+        write_json(opts.bus.json, {
+            "rig": spec.name, "seed": opts.seed, "ticks": n_ticks, "plant": opts.plant, "plant_mode": opts.plant_mode,
             "plant_steps": out.exchanges,
             "stop": None if stop is None else {"unit": stop.unit, "exchange": stop.exchange, "what": stop.what},
             "events": [{"exchange": e.exchange, "unit": e.unit, "what": e.what} for e in out.events],
             "amps_on": out.amps_on, "refused": out.refused, "missing_cmd": out.missing_cmd,
+            "other_session": out.other_session,
             "timing": figures, "units": out.unit_timing,
             # --plant can: the link's counts (answers, stale, incomplete…), as the plant node's own
             "plant_link": dataclasses.asdict(link.counters) if link is not None else None})

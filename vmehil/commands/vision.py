@@ -16,10 +16,11 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+from dataclasses import dataclass
 
 from emulators.vision import VisionParams, run_vision_process
-from hal.bit3.arm import ArmModel
-from hal.bit3.protocol import Timeouts
+from emulators.vision_protocol import VisionTimeouts
+from hal.kinematics import ArmModel
 from vmehil.cli_types import bounded_float, bounded_int, duration_s, positive_float
 from vmehil.files import to_json, write_json
 
@@ -57,7 +58,37 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", default=None, metavar="PATH",
                    help="also write the summary here (it is always printed as one JSON line on stdout)")
     p.add_argument("-v", "--verbose", action="store_true", help="log to stderr")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, options=VisionCommandOptions.from_args)
+
+
+@dataclass(frozen=True)
+class VisionCommandOptions:
+    """``vmehil vision``'s options (the vision system's own process; SI where the flag is not)."""
+
+    shm: str
+    target: tuple[float, float, float] = (0.8, 0.2, 0.5)
+    rate_hz: float = 30.0
+    latency_ms: float = 30.0
+    gain: float = 0.5
+    max_step_mm: float = 10.0
+    tolerance_mm: float = 2.0
+    hold_frames: int = 3
+    fov_deg: float = 180.0
+    arm: tuple[float, float, float] | None = None
+    offset: int = 0
+    peer_timeout_ms: float = 250.0
+    duration: float | None = None
+    exit_after_task: bool = False
+    json: str | None = None
+    verbose: bool = False
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> VisionCommandOptions:
+        return cls(shm=args.shm, target=args.target, rate_hz=args.rate_hz, latency_ms=args.latency_ms,
+                   gain=args.gain, max_step_mm=args.max_step_mm, tolerance_mm=args.tolerance_mm,
+                   hold_frames=args.hold_frames, fov_deg=args.fov_deg, arm=args.arm, offset=args.offset,
+                   peer_timeout_ms=args.peer_timeout_ms, duration=args.duration,
+                   exit_after_task=args.exit_after_task, json=args.json, verbose=args.verbose)
 
 
 def _xyz(text: str) -> tuple[float, float, float]:
@@ -67,21 +98,21 @@ def _xyz(text: str) -> tuple[float, float, float]:
     return parts[0], parts[1], parts[2]
 
 
-def run(args: argparse.Namespace) -> int:
-    if args.verbose:
+def run(opts: VisionCommandOptions) -> int:
+    if opts.verbose:
         logging.basicConfig(level=logging.INFO, format="%(message)s")
     params = VisionParams(
-        rate_hz=args.rate_hz, latency_s=args.latency_ms * 1e-3, gain=args.gain,
-        max_step_m=args.max_step_mm * 1e-3, tolerance_m=args.tolerance_mm * 1e-3,
-        hold_frames=args.hold_frames, fov_half_angle_rad=math.radians(args.fov_deg),
+        rate_hz=opts.rate_hz, latency_s=opts.latency_ms * 1e-3, gain=opts.gain,
+        max_step_m=opts.max_step_mm * 1e-3, tolerance_m=opts.tolerance_mm * 1e-3,
+        hold_frames=opts.hold_frames, fov_half_angle_rad=math.radians(opts.fov_deg),
     )
-    arm = ArmModel() if args.arm is None else ArmModel(*args.arm)
+    arm = ArmModel() if opts.arm is None else ArmModel(*opts.arm)
     summary = run_vision_process(
-        args.shm, args.target, params=params, arm=arm,
-        timeouts=Timeouts(peer_timeout_s=args.peer_timeout_ms * 1e-3), offset=args.offset,
-        duration_s=args.duration, exit_after_task=args.exit_after_task,
+        opts.shm, opts.target, params=params, arm=arm,
+        timeouts=VisionTimeouts(peer_timeout_s=opts.peer_timeout_ms * 1e-3), offset=opts.offset,
+        duration_s=opts.duration, exit_after_task=opts.exit_after_task,
     )
     print(to_json(summary, indent=None), end="")  # one line of standard JSON (NaN → null), as --json writes
-    if args.json:
-        write_json(args.json, summary)
+    if opts.json:
+        write_json(opts.json, summary)
     return 0

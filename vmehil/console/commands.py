@@ -613,11 +613,14 @@ def _log(s: Session, a: dict[str, Any]) -> Outcome:
     if not 1 <= count <= MAX_LOG_LINES:
         raise ConsoleError(VALUE, f"count {count} must be within 1..{MAX_LOG_LINES}")
     loop = s.loop
-    lines = [kv("DATA", "log", t_s=t, source=src, message=msg) for t, src, msg in list(loop.log)[-count:]]
-    if loop.fault is not None:
-        f = loop.fault
-        lines.append(kv("DATA", "log", t_s=f.time_s, source="watchdog", message=f"fault {f.cause}: {f.detail}"))
-    return Outcome(lines, kv(entries=len(loop.log)))
+    # the change log and every fault of the run (a resume clears the current fault, not its
+    # entry here), in time order; faults sort after a note of the same instant
+    entries = [(t, 0, src, msg) for t, src, msg in loop.log]
+    entries += [(f.time_s, 1, "watchdog", f"fault {f.cause}" + (f" ({f.joint})" if f.joint else "") + f": {f.detail}")
+                for f in loop.faults]
+    shown = sorted(entries, key=lambda e: (e[0], e[1]))[-count:]
+    lines = [kv("DATA", "log", t_s=t, source=src, message=msg) for t, _, src, msg in shown]
+    return Outcome(lines, kv(entries=len(lines), total=len(entries) + loop.log_dropped))
 
 
 @atom("commands", (), "list the compound commands loaded from files", in_files=False)

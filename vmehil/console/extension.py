@@ -11,8 +11,9 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from servo.control.linear import delay_periods
 from vmehil.cli_types import bounded_int
@@ -57,14 +58,40 @@ def is_terminal_port(port: str) -> bool:
     return "://" not in port
 
 
-def terminal_settings(args: argparse.Namespace, port: str) -> tuple[str | None, bool]:
-    """(prompt, echo) from ``--console-prompt`` / ``--console-echo`` for ``port``; both off for a
-    namespace without them (a program that builds its own, as before these options)."""
-    def on(value: str) -> bool:
-        return is_terminal_port(port) if value == "auto" else value == "on"
+@dataclass(frozen=True)
+class ConsoleOptions:
+    """The console's options (``port`` None: no console beside a run). ``prompt`` and ``echo``
+    default to off for a program that builds its own (as before these options); the command line
+    gives auto."""
 
-    return (PROMPT if on(getattr(args, "console_prompt", "off")) else None,
-            on(getattr(args, "console_echo", "off")))
+    port: str | None = None
+    commands: str | None = None
+    baud: int = 115200
+    prompt: str = "off"
+    echo: str = "off"
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> ConsoleOptions:
+        return cls(port=args.console, commands=args.console_commands, baud=args.console_baud,
+                   prompt=args.console_prompt, echo=args.console_echo)
+
+    def terminal_settings(self) -> tuple[str | None, bool]:
+        """(prompt, echo) from ``--console-prompt`` / ``--console-echo`` for the port."""
+        port = self.port or ""
+
+        def on(value: str) -> bool:
+            return is_terminal_port(port) if value == "auto" else value == "on"
+
+        return (PROMPT if on(self.prompt) else None, on(self.echo))
+
+
+class RunNeeds(Protocol):
+    """What of ``vmehil run``'s options (:class:`vmehil.commands.run_options.RunOptions`) the console reads."""
+
+    @property
+    def console(self) -> ConsoleOptions: ...
+    @property
+    def calibration(self) -> str | None: ...
 
 
 def start_console(port: str, loop: Any, *, runner: Any = None, commands: str | None = None,
@@ -109,16 +136,16 @@ def start_console(port: str, loop: Any, *, runner: Any = None, commands: str | N
     return console
 
 
-def attach(args: argparse.Namespace, system: Any, loop: Any, runner: Any) -> Console | None:
-    port = getattr(args, "console", None)
+def attach(run: RunNeeds, system: Any, loop: Any, runner: Any, prepared: None = None) -> Console | None:
+    opts = run.console
+    port = opts.port
     if not port:
-        if getattr(args, "console_commands", None):
+        if opts.commands:
             raise ValueError("--console-commands needs --console PORT")
         return None
     from vmehil.calibration.store import default_store_path
 
-    calibration = getattr(args, "calibration", None) or (default_store_path(system.rig) if system is not None
-                                                         else None)
-    prompt, echo = terminal_settings(args, port)
-    return start_console(port, loop, runner=runner, commands=args.console_commands, baudrate=args.console_baud,
+    calibration = run.calibration or (default_store_path(system.rig) if system is not None else None)
+    prompt, echo = opts.terminal_settings()
+    return start_console(port, loop, runner=runner, commands=opts.commands, baudrate=opts.baud,
                          system=system, calibration=calibration, prompt=prompt, echo=echo)

@@ -18,7 +18,8 @@ Options::
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Protocol
 
 from servo.control.linear import delay_periods
 from vmehil.mavlink.endpoint import MavlinkEndpoint, MavlinkError
@@ -46,22 +47,51 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="wait up to S s for a client to arm before the first tick (default 0: start at once)")
 
 
-def attach(args: argparse.Namespace, system: Any, loop: Any, runner: Any) -> MavlinkEndpoint | None:
+@dataclass(frozen=True)
+class MavlinkOptions:
+    """``--mavlink URL`` and its settings (``url`` None: no MAVLink endpoint)."""
+
+    url: str | None = None
+    rate_hz: float = 10.0
+    telemetry: str = "array"
+    key_file: str | None = None
+    allow_unsigned_read: bool = False
+    allow_remote: bool = False
+    sysid: int = 1
+    min_margin: float = 0.0
+    wait_s: float = 0.0
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> MavlinkOptions:
+        return cls(url=args.mavlink, rate_hz=args.mavlink_rate, telemetry=args.mavlink_telemetry,
+                   key_file=args.mavlink_key_file, allow_unsigned_read=args.mavlink_allow_unsigned_read,
+                   allow_remote=args.mavlink_allow_remote, sysid=args.mavlink_sysid,
+                   min_margin=args.mavlink_min_margin, wait_s=args.mavlink_wait)
+
+
+class RunNeeds(Protocol):
+    """What of ``vmehil run``'s options (:class:`vmehil.commands.run_options.RunOptions`) MAVLink reads."""
+
+    @property
+    def mavlink(self) -> MavlinkOptions: ...
+
+
+def attach(run: RunNeeds, system: Any, loop: Any, runner: Any, prepared: None = None) -> MavlinkEndpoint | None:
     """Open the endpoint and hook it to ``runner.after_tick``; None when --mavlink is not given."""
-    url = getattr(args, "mavlink", None)
-    if not url:
+    opts = run.mavlink
+    if not opts.url:
         return None
-    key = load_key_file(args.mavlink_key_file) if args.mavlink_key_file else None
+    key = load_key_file(opts.key_file) if opts.key_file else None
     delay = delay_periods(getattr(runner, "delay_s", 0.0) or 0.0, loop.period_s)
     endpoint = MavlinkEndpoint(
-        loop, url, sysid=args.mavlink_sysid, rate_hz=args.mavlink_rate, key=key,
-        allow_unsigned_read=args.mavlink_allow_unsigned_read, allow_remote=args.mavlink_allow_remote,
-        delay_periods=delay, min_margin=args.mavlink_min_margin,
-        telemetry=args.mavlink_telemetry)
-    if args.mavlink_wait > 0:
-        if not endpoint.wait_for_start(args.mavlink_wait):
+        loop, opts.url, sysid=opts.sysid, rate_hz=opts.rate_hz, key=key,
+        allow_unsigned_read=opts.allow_unsigned_read, allow_remote=opts.allow_remote,
+        delay_periods=delay, min_margin=opts.min_margin,
+        telemetry=opts.telemetry)
+    if opts.wait_s > 0:
+        if not endpoint.wait_for_start(opts.wait_s):
             endpoint.close()
-            raise MavlinkError(f"--mavlink-wait: no client armed within {args.mavlink_wait:g} s; "
+            raise MavlinkError(f"--mavlink-wait: no client armed within {opts.wait_s:g} s; "
                                "arm from the ground station (MAVProxy: 'arm throttle') or drop --mavlink-wait")
     runner.after_tick.append(endpoint.after_tick)
     return endpoint

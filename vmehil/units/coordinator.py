@@ -36,10 +36,11 @@ from servo.loop import ServoLoop
 from servo.motion import Motion, default_demo_motion
 from servo.rig import RigSpec, load_rig
 from servo.runner import LockstepRunner, RealtimeRunner
+from servo.settings import servo_settings
 from servo.trajectory.base import JointLimits
 from servo.trajectory.sequencer import PlanContext
 from servo.units import UnitSegments, UnitSpec, rig_units, unit_rig, watchdog_unit
-from vmehil.session import build_loop, servo_settings
+from vmehil.session import build_loop
 from vmehil.system import NON_PLANT_JOINT_KEYS, EmulatedRig, build_emulated_rig
 from vmehil.units.hub import UNIT_TIMEOUT_S, PlantHub, UnitLink
 
@@ -131,7 +132,7 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
     run = ParallelRun(spec, hub, [UnitRun(u) for u in units])
     motion = motion or default_demo_motion(spec.n_joints)
     settings = servo_settings(spec)
-    limits = JointLimits.make(spec.n_joints, settings.max_velocity_rad_s)
+    limits = JointLimits.make(spec.n_joints, list(settings.max_velocity_rad_s))
     starts: dict[str, np.ndarray] = {}
     go = threading.Barrier(len(units))
     stop_all = abort if abort is not None else threading.Event()

@@ -170,6 +170,8 @@ class MergedUnits:
         laws = [(u.unit.indices, u.loop.law) for u in ran if u.loop is not None]
         self.law = _MergedLaw(laws, self.n) if all(law is not None for _, law in laws) else None
         self.fault = _first_fault(run, ran)
+        #: the run's faults for the summary: the stop that stopped the run (units do not resume)
+        self.faults = [self.fault] if self.fault is not None else []
         self.stop_incomplete = [f"{u.unit.name}: {item}" for u in ran if u.loop is not None
                                 for item in u.loop.stop_incomplete]
         self.final_stop = _merged_final_stop(run, ran, self.stop_incomplete)

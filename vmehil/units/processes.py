@@ -21,10 +21,11 @@ from emulators.plant_link import PlantLink, PlantLinkError
 from servo.motion import default_demo_motion, load_motion
 from servo.rig import RigSpec
 from servo.runner import LockstepRunner, RealtimeRunner
+from servo.settings import servo_settings
 from servo.trajectory.base import JointLimits
 from servo.trajectory.sequencer import PlanContext
 from servo.units import UnitSegments, rig_units, unit_named, unit_rig
-from vmehil.session import build_loop, servo_settings
+from vmehil.session import build_loop
 from vmehil.system import build_emulated_rig
 from vmehil.units.coordinator import UnitHook, UnitRun, plant_link_for
 from vmehil.units.remote import (
@@ -62,13 +63,15 @@ def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, s
     unit = unit_named(units, unit_name, str(spec.path))
     number = unit_number(spec, unit_name)
     boot = boot_id()
-    start = wait_for_start(bus, number=number, digest=file_digest(spec.path), boot_id=boot, timeout_s=start_timeout_s)
+    members: dict[int, int] = {}  # the session's units' boot ids (their UNIT_STARTs)
+    start = wait_for_start(bus, number=number, digest=file_digest(spec.path), boot_id=boot, timeout_s=start_timeout_s,
+                           members=members)
     if int(start.raw["MotionDigest"]) != file_digest(motion_path):
         raise UnitRefused("the coordinator's motion differs from this unit's (give every unit and the coordinator "
                           "the same --motion file, or none)")
     seed, n_ticks = int(start.raw["Seed"]), int(start.raw["NTicks"])
     out = UnitRun(unit, seed=seed)
-    link = UnitCanLink(bus, unit, number, boot, timeout_s)
+    link = UnitCanLink(bus, unit, number, boot, timeout_s, session_boot=int(start.raw["BootId"]), members=members)
     link.free_running = bool(int(start.raw["FreeRunning"]))
     link.stale_ticks = max(1, int(start.raw["StaleTicks"]))
     realtime = realtime or link.free_running  # free-running: every unit on its own wall clock
@@ -77,19 +80,18 @@ def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, s
                                                  calibration=calibration)
         theta = np.asarray(system.io.read().theta, float)  # the unit's only read before its loop
         pad = [float(x) for x in theta] + [float("nan")] * (4 - len(theta))
-        bus.send("UNIT_POS", Unit=number, **{f"Theta{i}": pad[i] for i in range(4)})
+        bus.send("UNIT_POS", Unit=number, BootId=boot, **{f"Theta{i}": pad[i] for i in range(4)})
         link.positions[number] = pad
         while len(link.positions) < len(units):
             f = bus.recv(timeout_s)
             if f is None:
                 raise UnitRefused(f"the other units' start positions did not come within {timeout_s:g} s")
-            if f.kind == "UNIT_POS":
-                link.positions[int(f.raw["Unit"])] = [float(f.raw[f"Theta{i}"]) for i in range(4)]
+            link.note(f)  # UNIT_POS (of the session's units only), and the session's other UNIT_STARTs
         start_all = np.full(spec.n_joints, np.nan)
         for i, u in enumerate(units):
             start_all[list(u.indices)] = link.positions[i][:len(u.indices)]
         motion = load_motion(motion_path, spec.n_joints) if motion_path else default_demo_motion(spec.n_joints)
-        limits = JointLimits.make(spec.n_joints, servo_settings(spec).max_velocity_rad_s)
+        limits = JointLimits.make(spec.n_joints, list(servo_settings(spec).max_velocity_rad_s))
         segments = UnitSegments(list(motion.moves), start_all, PlanContext(limits), unit.indices)
         loop = out.loop = build_loop(system, sequencer=segments, gains=start_gains(start) or None,
                                      switch_off=start_switch_off(start), n_ticks=n_ticks)

@@ -8,8 +8,24 @@ The unit bus carries, per lockstep exchange ``r``:
             off), → SENS_Jjj, TRUTH_Jjj (every joint), UNIT_ANSWER (r, stop cause, unit)
 
 and around the run: UNIT_HEARTBEAT (a unit waiting to start, with its rig file's CRC-32),
-UNIT_START (seed, ticks, digests, gains), UNIT_POS (each unit's measured start: every unit
-plans the global motion from all of them), UNIT_STOP (the coordinator's stop, or a refusal).
+UNIT_START (seed, ticks, digests, gains; one per unit, naming it and its boot id), UNIT_POS (each
+unit's measured start: every unit plans the global motion from all of them), UNIT_STOP (the
+coordinator's stop, or a refusal).
+
+**Sessions.** Every node has a boot id, new at each start; the session is the coordinator's and
+the units' it started with (UNIT_START: the coordinator's ``BootId``, and per unit the
+``UnitBootId`` it heard in that unit's READY heartbeat). Every frame carries its sender's boot id
+(CMD its low byte) and is checked against the session's: a unit starts only on a UNIT_START
+naming its own boot id and, from then on, takes UNIT_ANSWER/UNIT_STOP only with the session's
+coordinator boot id and UNIT_POS only with the boot id its START gave that unit; the
+coordinator takes CMD/UNIT_SYNC/UNIT_TIMING only from the units it started. Frames of another
+session are dropped and counted (``other_session``). A refusal before the start names the
+refused unit's boot id (``UNIT_STOP.UnitBootId``). SENS carries the coordinator's low byte
+(``BootIdLow``); TRUTH (ground truth for reports, never for the servo) carries none: it counts
+only in an answer that a session UNIT_ANSWER completes. Two READY units with one name (two ``vmehil unit
+--unit leg2``): the coordinator listens ``DUPLICATE_WINDOW_S`` past the last unit's first
+heartbeat, refuses both (``REFUSED_DUPLICATE``) and every other unit (``RUN_REFUSED``), and the
+run does not start.
 The values travel through the DBC codec exactly as between a controller and the plant node
 (quantizing twice is quantizing once), so the units' lockstep results equal the single
 controller's, bit for bit.
@@ -68,6 +84,11 @@ UNIT_PORT = 43114
 ALL_UNITS = 255
 STOP = {name: code for code, name in UNIT_STOP_CAUSES.items()}
 START_TIMEOUT_S = 30.0
+#: the coordinator listens this long after every unit has reported, for a second unit with one of
+#: their names (a READY unit beats every 100 ms: 2.5 beats)
+DUPLICATE_WINDOW_S = 0.25
+#: UNIT_HEARTBEAT.State of a unit waiting to start
+STATE_READY = 1
 #: free-running: periods of wall time without news before a unit is lost (coordinator) / stops (unit)
 FREE_STALE_TICKS = 5
 #: UNIT_TIMING's signals and the keys of the runner's timing summary they carry (ms there, µs raw)
@@ -176,8 +197,16 @@ def latch_newest(fresh: list[PlantSensors]) -> PlantSensors:
 class UnitCanLink(PlantLink):
     """A unit controller's plant link over the unit bus (see the module docstring)."""
 
-    def __init__(self, bus: UnitBus, unit: UnitSpec, number: int, boot_id: int, timeout_s: float) -> None:
+    def __init__(self, bus: UnitBus, unit: UnitSpec, number: int, boot_id: int, timeout_s: float,
+                 *, session_boot: int | None = None, members: dict[int, int] | None = None) -> None:
+        """``session_boot``: the coordinator's boot id (UNIT_START.BootId; None: any — tests of
+        one unit without a session), ``members``: every unit's boot id of the session."""
         self.bus = bus
+        self.session_boot = session_boot
+        self.members = dict(members or {})
+        #: frames of another session (another coordinator's, or a unit's the run did not start): dropped
+        self.other_session = 0
+        self._early_pos: dict[int, Frame] = {}  # UNIT_POS of units whose UNIT_START was not heard yet
         self.unit = unit
         self.number = number
         self.boot_id = boot_id
@@ -209,9 +238,41 @@ class UnitCanLink(PlantLink):
         bus.accept = ({ID_SENS + j for j in self.joints} | {ID_TRUTH + j for j in self.joints}
                       | {ID_UNIT_ANSWER, ID_UNIT_STOP, ID_UNIT_POS, ID_UNIT_START})
 
-    def _note(self, f: Frame) -> None:
-        if f.kind == "UNIT_POS":
+    def of_session(self, f: Frame) -> bool:
+        """Whether a frame of the coordinator (UNIT_ANSWER, UNIT_STOP) or of a unit (UNIT_POS) is
+        this session's by its boot id; others' are dropped and counted (module docstring)."""
+        if f.kind in ("UNIT_ANSWER", "UNIT_STOP"):
+            ok = self.session_boot is None or int(f.raw["BootId"]) == self.session_boot
+        elif f.kind == "SENS":
+            ok = self.session_boot is None or int(f.raw["BootIdLow"]) == self.session_boot & 0xFF
+        elif f.kind == "UNIT_POS":
+            ok = not self.members or self.members.get(int(f.raw["Unit"])) == int(f.raw["BootId"])
+        else:
+            return True
+        if not ok:
+            self.other_session += 1
+        return ok
+
+    def take_position(self, f: Frame) -> bool:
+        """A UNIT_POS: kept when its boot id is its unit's in the session, dropped and counted
+        when not; False (nothing done) when that unit's UNIT_START has not been heard yet."""
+        if self.members and int(f.raw["Unit"]) not in self.members:
+            return False
+        if self.of_session(f):
             self.positions[int(f.raw["Unit"])] = [float(f.raw[f"Theta{i}"]) for i in range(4)]
+        return True
+
+    def note(self, f: Frame) -> None:
+        """A frame outside an answer: another unit's UNIT_START of this session (its boot id) or
+        its UNIT_POS (kept for later when that unit's start has not been heard yet)."""
+        if f.kind == "UNIT_START" and self.session_boot is not None and int(f.raw["BootId"]) == self.session_boot:
+            u = int(f.raw["Unit"])
+            self.members[u] = int(f.raw["UnitBootId"])
+            early = self._early_pos.pop(u, None)
+            if early is not None:
+                self.take_position(early)
+        elif f.kind == "UNIT_POS" and not self.take_position(f):
+            self._early_pos[int(f.raw["Unit"])] = f  # the newest per unit number: bounded
 
     def exchange(self, cmd: PlantCommand, period_s: float, delay_s: float) -> PlantSensors:
         r = self.exchanges
@@ -237,6 +298,8 @@ class UnitCanLink(PlantLink):
                 self.dead = True
                 raise CoordinatorLostError(f"unit {self.unit.name}: no answer from the coordinator for exchange {r} "
                                            f"within {self.timeout_s:g} s")
+            if f.kind in ("UNIT_ANSWER", "UNIT_STOP", "SENS") and not self.of_session(f):
+                continue
             if f.kind == "SENS" and f.joint in mine and int(f.raw["Seq"]) == r & 0xFF:
                 sens[int(f.joint)] = f.raw
             elif f.kind == "TRUTH" and f.joint in mine:
@@ -249,7 +312,7 @@ class UnitCanLink(PlantLink):
                     self.dead = True
                     raise CoordinatorLostError(f"unit {self.unit.name}: the coordinator ended the run at exchange {r}")
             else:
-                self._note(f)
+                self.note(f)
         stop = int(answer.raw["Stop"])
         if set(sens) != mine:
             if stop:  # a stop without the plant's values (the plant node was lost): the stop first
@@ -336,6 +399,8 @@ class UnitCanLink(PlantLink):
     def _take(self, f: Frame) -> None:
         """One frame of the free-running answer stream: an answer is complete at its UNIT_ANSWER
         when every joint of the unit has its SENS frame with that step's sequence number."""
+        if f.kind in ("UNIT_ANSWER", "UNIT_STOP", "SENS") and not self.of_session(f):
+            return
         self._heard = time.monotonic()
         if f.kind == "SENS" and f.joint is not None:
             self._sens[int(f.joint)] = f.raw
@@ -358,7 +423,7 @@ class UnitCanLink(PlantLink):
                 self.dead = True
                 raise CoordinatorLostError(f"unit {self.unit.name}: the coordinator ended the run")
         else:
-            self._note(f)
+            self.note(f)
 
     def _held_still(self) -> PlantSensors:
         """The last answer again with no encoder motion (nothing new was observed)."""
@@ -381,7 +446,8 @@ class UnitCanLink(PlantLink):
         real-time figures (``timing``: :meth:`servo.runner.TimingStats.summary`) in UNIT_TIMING."""
         try:
             t = timing or {}
-            self.bus.send("UNIT_TIMING", Unit=self.number, Realtime=int(timing is not None), Ticks=ticks,
+            self.bus.send("UNIT_TIMING", Unit=self.number, BootId=self.boot_id, Realtime=int(timing is not None),
+                          Ticks=ticks,
                           Overruns=int(t.get("overruns", 0)),
                           **{name: ms_to_us(float(t.get(key, 0.0))) for name, key in UNIT_TIMING_KEYS.items()})
             self.bus.send("UNIT_SYNC", Exchange=self.exchanges, Unit=self.number, Left=1,
@@ -426,6 +492,8 @@ class CoordinatorOutcome:
     missing_cmd: int = 0
     #: per unit: the figures it reported when it left (UNIT_TIMING)
     unit_timing: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: frames of another session (a boot id the run did not start with): dropped
+    other_session: int = 0
 
 
 def coordinate(spec: RigSpec, bus: UnitBus, link: PlantLink, *, seed: int, n_ticks: int, boot_id: int,
@@ -444,30 +512,56 @@ def coordinate(spec: RigSpec, bus: UnitBus, link: PlantLink, *, seed: int, n_tic
     bus.accept = {ID_CMD + j for j in range(spec.n_joints)} | {ID_UNIT_SYNC, ID_UNIT_HEARTBEAT, ID_UNIT_TIMING}
     digest = file_digest(spec.path)
     out = CoordinatorOutcome()
-    ready: dict[int, int] = {}  # unit number → its boot id
+    ready: dict[int, int] = {}  # unit number → its boot id (its first READY heartbeat)
+    heard: dict[int, set[int]] = {}  # unit number → every boot id a READY heartbeat gave it
     deadline = time.monotonic() + start_timeout_s
-    while len(ready) < len(units):
-        left = deadline - time.monotonic()
-        f = bus.recv(left) if left > 0 else None
-        if f is None:
-            missing = ", ".join(u.name for i, u in enumerate(units) if i not in ready)
-            raise UnitRefused(f"units {missing} did not report within {start_timeout_s:g} s "
-                              f"(start them: vmehil unit --rig {spec.name} --unit NAME)")
-        if f.kind != "UNIT_HEARTBEAT" or int(f.raw["Unit"]) >= len(units):
+    settle_until: float | None = None
+    while True:
+        now = time.monotonic()
+        if len(ready) == len(units):  # listen a little longer: a second unit of one name?
+            settle_until = settle_until if settle_until is not None else now + DUPLICATE_WINDOW_S
+            if now >= settle_until:
+                break
+            f = bus.recv(settle_until - now)
+        else:
+            f = bus.recv(deadline - now) if deadline > now else None
+            if f is None:
+                missing = ", ".join(u.name for i, u in enumerate(units) if i not in ready)
+                raise UnitRefused(f"units {missing} did not report within {start_timeout_s:g} s "
+                                  f"(start them: vmehil unit --rig {spec.name} --unit NAME)")
+        if f is None or f.kind != "UNIT_HEARTBEAT" or int(f.raw["Unit"]) >= len(units):
             continue
-        u = int(f.raw["Unit"])
+        u, unit_boot = int(f.raw["Unit"]), int(f.raw["BootId"])
+        if int(f.raw["State"]) != STATE_READY:  # a unit of a session already running
+            out.other_session += 1
+            continue
         if int(f.raw["RigDigest"]) != digest:
-            bus.send("UNIT_STOP", Cause=STOP["REFUSED_RIG"], Unit=u, BootId=boot_id)
+            bus.send("UNIT_STOP", Cause=STOP["REFUSED_RIG"], Unit=u, BootId=boot_id, UnitBootId=unit_boot)
             note = f"unit {units[u].name} refused: its rig file differs from {spec.path}"
             if note not in out.refused:
                 out.refused.append(note)
             continue
-        ready[u] = int(f.raw["BootId"])
+        heard.setdefault(u, set()).add(unit_boot)
+        ready.setdefault(u, unit_boot)
+    twice = {u: sorted(boots) for u, boots in heard.items() if len(boots) > 1}
+    if twice:
+        for u, boots in twice.items():
+            for b in boots:
+                bus.send("UNIT_STOP", Cause=STOP["REFUSED_DUPLICATE"], Unit=u, BootId=boot_id, UnitBootId=b)
+        for u, b in ready.items():
+            if u not in twice:
+                bus.send("UNIT_STOP", Cause=STOP["RUN_REFUSED"], Unit=u, BootId=boot_id, UnitBootId=b)
+        which = "; ".join(f"{len(b)} units {units[u].name} (boot ids {', '.join(f'{x:#06x}' for x in b)})"
+                          for u, b in twice.items())
+        raise UnitRefused(f"the run does not start: {which} on the unit bus (one `vmehil unit --unit NAME` per "
+                          "unit); every unit was refused")
     g = gains or {}
-    bus.send("UNIT_START", Seed=seed, NTicks=n_ticks, RigDigest=digest, MotionDigest=file_digest(motion_path),
-             NUnits=len(units), SwitchOff=0 if switch_off is None else 2 if switch_off else 1,
-             GainsSet=int(bool(g)), BootId=boot_id, FreeRunning=int(free_running), StaleTicks=stale_ticks,
-             **{k.capitalize(): float(g.get(k, np.nan)) for k in ("kp", "kpi", "kv", "kvi")})
+    for u, unit_boot in sorted(ready.items()):  # one start per unit, naming it: it starts on its own only
+        bus.send("UNIT_START", Seed=seed, NTicks=n_ticks, RigDigest=digest, MotionDigest=file_digest(motion_path),
+                 NUnits=len(units), SwitchOff=0 if switch_off is None else 2 if switch_off else 1,
+                 GainsSet=int(bool(g)), BootId=boot_id, FreeRunning=int(free_running), StaleTicks=stale_ticks,
+                 Unit=u, UnitBootId=unit_boot,
+                 **{k.capitalize(): float(g.get(k, np.nan)) for k in ("kp", "kpi", "kv", "kvi")})
     try:
         server = _Server(spec, units, bus, link, out, n_ticks=n_ticks, boot_id=boot_id, timeout_s=timeout_s,
                          stale_ticks=stale_ticks, stop_requested=stop_requested, started=ready)
@@ -499,6 +593,21 @@ class _Server:
         self.backlog: list[PlantSensors] = []  # a free-running node's answers not yet passed on
         self.totals = EncoderTotals()  # the running counts sent with every answer (UnitCanLink.totals)
 
+    def of_session(self, f: Frame) -> bool:
+        """Whether a unit's frame comes from a unit this run started (its boot id; a CMD's low
+        byte): others' are dropped and counted (module docstring, "Sessions")."""
+        raw = f.raw
+        if f.kind == "CMD":
+            u = self.owner.get(int(f.joint)) if f.joint is not None else None
+            ok = u is not None and u in self.started and int(raw["BootIdLow"]) == self.started[u] & 0xFF
+        elif f.kind in ("UNIT_SYNC", "UNIT_TIMING"):
+            ok = self.started.get(int(raw["Unit"])) == int(raw["BootId"])
+        else:
+            ok = True
+        if not ok:
+            self.out.other_session += 1
+        return ok
+
     def stop_now(self, r: int, u: int, cause: str, what: str) -> None:
         name = self.units[u].name if u < len(self.units) else "coordinator"
         self.out.events.append(HubEvent(r, name, what))
@@ -511,7 +620,8 @@ class _Server:
         u = int(f.raw["Unit"])
         if u >= len(self.units) or self.started.get(u) == int(f.raw["BootId"]):
             return  # not a unit of the rig, or a started unit's last beat
-        self.bus.send("UNIT_STOP", Cause=STOP["REFUSED_LATE"], Unit=u, Exchange=r, BootId=self.boot_id)
+        self.bus.send("UNIT_STOP", Cause=STOP["REFUSED_LATE"], Unit=u, Exchange=r, BootId=self.boot_id,
+                      UnitBootId=int(f.raw["BootId"]))
         note = f"unit {self.units[u].name} refused: it reported at exchange {r}, after the start"
         if note not in self.out.refused:
             self.out.refused.append(note)
@@ -535,14 +645,16 @@ class _Server:
             f = self.bus.recv(end - time.monotonic())
             if f is None:
                 return
-            if f.kind == "UNIT_TIMING":
+            if f.kind == "UNIT_TIMING" and self.of_session(f):
                 self.unit_figures(f)
 
     def left(self, f: Frame, r: int) -> None:
         u = int(f.raw["Unit"])
         self.running.discard(u)
         self.out.events.append(HubEvent(r, self.units[u].name, "left"))
-        if int(f.raw["Stopped"]) or int(f.raw["Exchange"]) < self.n_ticks + 1:
+        # a unit that ran to the end leaves after its n_ticks + 1 exchanges (power-up included);
+        # any other count is no normal end either
+        if int(f.raw["Stopped"]) or int(f.raw["Exchange"]) != self.n_ticks + 1:
             self.stop_now(r, u, "UNIT_STOPPED", "left before the run's end")
 
     def keep_plant(self) -> None:
@@ -577,7 +689,7 @@ class _Server:
             enabled = sensors.truth.get("amp_enabled")
             out.amps_on.append(int(np.count_nonzero(enabled)) if enabled is not None else -1)
             self.bus.send_all(codec.sensor_frames(codec.sensors_raw(sensors), r, truth=sensors.truth,
-                                                  totals=self.totals.add(sensors.encoder)))
+                                                  totals=self.totals.add(sensors.encoder), boot_id=self.boot_id))
         else:
             out.amps_on.append(-1)  # unknown: the plant did not answer
         stop = self.stop
@@ -623,6 +735,8 @@ class _Server:
                     self.running.discard(u)
                     self.stop_now(r, u, "UNIT_LOST", f"lost: no commands for exchange {r} within {self.timeout_s:g} s")
                 break
+            if not self.of_session(f):
+                continue
             if f.kind == "CMD" and f.joint is not None and f.joint < self.n and int(f.raw["Seq"]) == r & 0xFF:
                 cmds[int(f.joint)] = f.raw
             elif f.kind == "UNIT_SYNC" and int(f.raw["Unit"]) in self.running:
@@ -675,6 +789,8 @@ class _Server:
 
         def take(f: Frame) -> None:
             nonlocal wd_level, wd_edge
+            if not self.of_session(f):
+                return
             if f.kind == "CMD" and f.joint is not None and f.joint < self.n:
                 pending[int(f.joint)] = f.raw
             elif f.kind == "UNIT_SYNC" and int(f.raw["Unit"]) in self.running:
@@ -795,30 +911,51 @@ def unit_number(spec: RigSpec, name: str) -> int:
     raise UnitRefused(f"rig {spec.name} has no unit {name!r}")
 
 
-def wait_for_start(bus: UnitBus, *, number: int, digest: int, boot_id: int, timeout_s: float) -> Frame:
-    """Announce the unit (READY heartbeats every 100 ms) until UNIT_START; a refusal or no
-    coordinator within ``timeout_s`` raises :class:`UnitRefused`."""
+#: why the coordinator refused a unit before the start (UNIT_STOP causes → the unit's message)
+REFUSALS = {
+    "REFUSED_RIG": "the coordinator refused this unit: its rig file differs from the coordinator's (start every "
+                   "unit with the same --rig file)",
+    "REFUSED_LATE": "the coordinator refused this unit: the run had already started (start the units before the "
+                    "run starts)",
+    "REFUSED_DUPLICATE": "the coordinator refused this unit: another unit of the same name is on the unit bus "
+                         "(one `vmehil unit --unit NAME` per unit); the run does not start",
+    "RUN_REFUSED": "the coordinator refused the run before it started (two units of one name on the unit bus; "
+                   "its stderr says which)",
+}
+
+
+def wait_for_start(bus: UnitBus, *, number: int, digest: int, boot_id: int, timeout_s: float,
+                   members: dict[int, int] | None = None) -> Frame:
+    """Announce the unit (READY heartbeats every 100 ms) until a UNIT_START for it — naming this
+    unit and its boot id; a refusal naming its boot id, or no coordinator within ``timeout_s``,
+    raises :class:`UnitRefused`. ``members``: filled with every unit's boot id of the session (the
+    UNIT_STARTs with the coordinator's boot id of ours), for checking the units' UNIT_POS."""
     deadline = time.monotonic() + timeout_s
     counter = 0
+    starts: dict[int, dict[int, int]] = {}  # coordinator boot id → unit → boot id (STARTs heard)
     while time.monotonic() < deadline:
-        bus.send("UNIT_HEARTBEAT", State=1, Unit=number, Counter=counter & 0xFF, RigDigest=digest, BootId=boot_id)
+        bus.send("UNIT_HEARTBEAT", State=STATE_READY, Unit=number, Counter=counter & 0xFF, RigDigest=digest,
+                 BootId=boot_id)
         counter += 1
         beat_end = min(deadline, time.monotonic() + 0.1)
         while True:
             f = bus.recv(beat_end - time.monotonic())
             if f is None:
                 break
-            if f.kind == "UNIT_STOP" and int(f.raw["Unit"]) in (number, ALL_UNITS):
-                cause = UNIT_STOP_CAUSES.get(int(f.raw["Cause"]), "UNKNOWN")
-                if cause == "REFUSED_RIG":
-                    raise UnitRefused("the coordinator refused this unit: its rig file differs from the "
-                                      "coordinator's (start every unit with the same --rig file)")
-                if cause == "REFUSED_LATE":
-                    raise UnitRefused("the coordinator refused this unit: the run had already started "
-                                      "(start the units before the run starts)")
+            if f.kind == "UNIT_STOP" and int(f.raw["Unit"]) in (number, ALL_UNITS) \
+                    and int(f.raw["UnitBootId"]) == boot_id:
+                refusal = REFUSALS.get(UNIT_STOP_CAUSES.get(int(f.raw["Cause"]), "UNKNOWN"))
+                if refusal is not None:
+                    raise UnitRefused(refusal)
             if f.kind == "UNIT_START":
+                coord = int(f.raw["BootId"])
+                starts.setdefault(coord, {})[int(f.raw["Unit"])] = int(f.raw["UnitBootId"])
+                if int(f.raw["Unit"]) != number or int(f.raw["UnitBootId"]) != boot_id:
+                    continue  # another unit's start, or another session's
                 if int(f.raw["RigDigest"]) != digest:
                     raise UnitRefused("the coordinator's rig file differs from this unit's")
+                if members is not None:
+                    members.update(starts[coord])
                 return f
     raise UnitRefused(f"no coordinator started the run within {timeout_s:g} s "
                       "(start one: vmehil coordinate --rig ...)")

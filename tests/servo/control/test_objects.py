@@ -39,25 +39,22 @@ def test_normalizing_chain_numbers():
     assert ch.volts_per_accel[0] == pytest.approx(3.0 / (100 * 0.028 * 2.0))
     tau = ch.torque_from_accel(np.array([10.0]))
     assert tau[0] == pytest.approx(30.0)
-    assert ch.current_from_torque(tau)[0] == pytest.approx(30.0 / 2.8)
-    assert ch.volts_from_torque(tau)[0] == pytest.approx(30.0 / 2.8 / 2.0)
-    assert ch.counts_from_volts(np.array([1.0]))[0] == pytest.approx(4096 / 20.0)
-    # 6 oz-in breakout at the motor is ~1.5 A (docs/jpl-figures.md)
-    assert ch.current_from_torque(np.array([oz_in_to_nm(6.0) * 100]))[0] == pytest.approx(1.51, abs=0.01)
+    assert ch.torque_from_current(np.array([1.0]))[0] == pytest.approx(2.8)  # N·Kt = 100 · 0.028
+    assert ch.torque_from_volts(np.array([1.0]))[0] == pytest.approx(5.6)  # · 2 A/V
+    # 6 oz-in breakout at the motor is ~1.5 A (docs/jpl-figures.md): 6 · 0.0070615518 / 0.028
+    assert oz_in_to_nm(6.0) * 100 / ch.torque_from_current(np.array([1.0]))[0] == pytest.approx(1.51, abs=0.01)
     assert ch.describe()[0]["volts_per_accel"] == pytest.approx(ch.volts_per_accel[0])
     with pytest.raises(GainError, match=r"kt\[1\] = 0.0"):
         normalizing_chain(1.0, 1.0, [0.1, 0.0], 1.0)
 
 
-def test_controller_outputs_torque_current_and_volts_through_the_chain():
+def test_controller_outputs_torque_through_the_chain():
     ch = jpl_chain(2)
     c = Controller([PidObject(PidLaw(2, T, switch_off=SwitchOffConfig.disabled(2)))], ch, T)
     out = c.step(0, np.zeros(2), np.zeros(2), np.array([0.01, -0.02]), np.zeros(2))
-    np.testing.assert_allclose(out.torque, 3.0 * out.accel)
-    np.testing.assert_allclose(out.current, out.torque / 2.8)
-    np.testing.assert_allclose(out.volts, out.current / 2.0)
-    np.testing.assert_allclose(out.counts, out.volts * 4096 / 20.0)
-    np.testing.assert_allclose(out.accel, (100 + 5000 * T) * np.array([0.01, -0.02]))
+    # a = (Kp + Kpi·T)·e = (100 + 5000 · 0.008)·e = 140·e; τ = J_eff·a = 3 · a
+    np.testing.assert_allclose(out.accel, [1.4, -2.8])
+    np.testing.assert_allclose(out.torque, [4.2, -8.4])
 
 
 def _saturating_run(objects_factory, ticks=120, step=1.0):

@@ -15,20 +15,21 @@ import pytest
 
 pytest.importorskip("distributed")
 
+from servo.settings import servo_settings
 from tests.support.dask_cluster import cli_cluster, marked_call, wait_for
 from vmehil.analysis.dask_engine import DaskEngine, _run_task, check_workers, code_identity
 from vmehil.analysis.parallel import EngineError, run_parallel
 from vmehil.analysis.simulate import SimSettings
-from vmehil.analysis.sweep import SweepTask, evaluate_point, evaluate_points, rig_text
+from vmehil.analysis.sweep import SweepTask, evaluate_point, evaluate_points, rig_text, task_rig
 
 FAST = SimSettings(move_deg=2.0, hold_s=1.0, allow_short=True)  # ~1.4 s simulated per point
 
 
 def _tasks() -> list[SweepTask]:
-    text = rig_text("jpl-arm")
+    rig = task_rig(rig_text("jpl-arm"), "/nonexistent/jpl-arm.toml")
     base = {"kp": 100.0, "kpi": 5000.0, "kv": 50.0, "kvi": 1000.0}
-    # a path no worker has: the rig travels as its text
-    return [SweepTask(i, "/nonexistent/jpl-arm.toml", 1, {**base, "kp": kp}, FAST, rig_text=text)
+    # a path no worker has: the rig travels parsed, with the servo's typed settings
+    return [SweepTask(i, "/nonexistent/jpl-arm.toml", 1, {**base, "kp": kp}, FAST, rig=rig, servo=servo_settings(rig))
             for i, kp in enumerate((80.0, 110.0, 140.0))]
 
 

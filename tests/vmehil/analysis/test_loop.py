@@ -5,6 +5,7 @@ and shows the ZOH and computation-delay lag."""
 from __future__ import annotations
 
 import math
+import re
 
 import control as ct
 import numpy as np
@@ -161,17 +162,34 @@ def _interconnected(cfg, sampled, break_at):
     return ct.ss(ct.interconnect([P, K, *extra], inplist=inputs, outlist=outputs))
 
 
-@pytest.mark.parametrize("sampled", [True, False])
-@pytest.mark.parametrize("break_at", [None, "actuator", "position_sensor", "velocity_sensor", "friction"])
-@pytest.mark.parametrize("velocity", ["tach", "encoder"])
+def _direct_cfg(velocity: str) -> LoopConfig:
+    return LoopConfig(gains=Gains(kp=120.0, kpi=4000.0, kv=45.0, kvi=900.0), velocity_source=velocity,
+                      amplifier_bandwidth_hz=300.0, position_filter_hz=200.0, velocity_filter_hz=150.0,
+                      viscous_damping=0.7, delay_fraction=0.125)
+
+
+#: the break points a configuration does not have, each refused with its reason (no skip: a new
+#: refusal of a valid case would otherwise pass silently)
+NO_SUCH_BREAK = {
+    (True, "friction", "tach"): "friction acts in continuous time",
+    (True, "friction", "encoder"): "friction acts in continuous time",
+    (True, "velocity_sensor", "encoder"): "needs velocity_source='tach'",
+    (False, "velocity_sensor", "encoder"): "needs velocity_source='tach'",
+}
+
+
+@pytest.mark.parametrize(("sampled", "break_at", "velocity"), list(NO_SUCH_BREAK))
+def test_a_break_point_the_configuration_does_not_have_is_refused(sampled, break_at, velocity) -> None:
+    with pytest.raises(LoopConfigError, match=re.escape(NO_SUCH_BREAK[(sampled, break_at, velocity)])):
+        build_loop(_direct_cfg(velocity), sampled, break_at)
+
+
+@pytest.mark.parametrize(("sampled", "break_at", "velocity"), [
+    (s, b, v) for s in (True, False) for b in (None, "actuator", "position_sensor", "velocity_sensor", "friction")
+    for v in ("tach", "encoder") if (s, b, v) not in NO_SUCH_BREAK])
 def test_the_directly_assembled_loop_is_the_interconnected_one(sampled, break_at, velocity) -> None:
-    cfg = LoopConfig(gains=Gains(kp=120.0, kpi=4000.0, kv=45.0, kvi=900.0), velocity_source=velocity,
-                     amplifier_bandwidth_hz=300.0, position_filter_hz=200.0, velocity_filter_hz=150.0,
-                     viscous_damping=0.7, delay_fraction=0.125)
-    try:
-        got = build_loop(cfg, sampled, break_at)
-    except LoopConfigError:
-        pytest.skip("a break point this configuration does not have")
+    cfg = _direct_cfg(velocity)
+    got = build_loop(cfg, sampled, break_at)
     ref = _interconnected(cfg, sampled, break_at)
     for a, b in ((got.A, ref.A), (got.B, ref.B), (got.C, ref.C), (got.D, ref.D)):
         assert a.shape == b.shape

@@ -85,3 +85,60 @@ def test_settling_map_shows_in_band_from_start_as_its_own_class(settle, label) -
     # the other maps never use the settling class
     assert all(IN_BAND_LABEL not in t.get_text() for k, a in axes.items() if k != "settling_time_s" for t in a.texts)
     plt.close(fig)
+
+
+def test_a_metric_with_no_value_anywhere_says_why_and_draws_no_colour_bar() -> None:
+    # no point had a cycle: the map showed a −0.1…+0.1 colour bar and grey cells nobody explained
+    rows = [{"kp": kp, "kvi": 1000.0, "stable": True, "sampled_stable": True, "phase_margin_deg": 40.0,
+             "lc_amplitude_deg": None, "rms_tracking_error_deg": 0.1, "settling_time_s": 0.5} for kp in (100.0, 120.0)]
+    fig = sweep_heatmaps(rows, "kp", "kvi", "t")
+    axes = dict(zip((k for k, _, _ in HEATMAP_METRICS), fig.axes, strict=False))
+    assert len(fig.axes) == 4 + 3  # four maps, a colour bar for the three with values
+    lc = axes["lc_amplitude_deg"]
+    assert any("no point has a value here" in t.get_text() and "no limit cycle" in t.get_text() for t in lc.texts)
+    assert lc.get_title().endswith("grey —: no limit cycle")
+    assert "grey" not in axes["phase_margin_deg"].get_title()  # every cell has a value there
+    plt.close(fig)
+
+
+def test_bode_phase_margin_labels_sit_on_no_arrow() -> None:
+    from emulators.presets import resolve_rig
+    from vmehil.analysis.rigparams import load_joint
+
+    cfg = load_joint(resolve_rig("jpl-arm"), 1).cfg  # crossovers 6.7 and 7.2 Hz: the two arrows side by side
+    fig = bode_figure(cfg, margins_summary(cfg))
+    phase = fig.axes[1]
+    fig.canvas.draw()
+    labels = [t for t in phase.texts if t.get_text().startswith("PM")]
+    arrows_x = [phase.transData.transform((a.xy[0], -180.0))[0] for a in phase.texts if not a.get_text()]
+    assert len(labels) == 2 and len(arrows_x) == 2
+    for t in labels:
+        box = t.get_window_extent()
+        assert not any(box.x0 - 1 <= x <= box.x1 + 1 for x in arrows_x), t.get_text()
+    plt.close(fig)
+
+
+@pytest.mark.slow  # the describing-function prediction of `tune limit-cycle --predict-only` (≈ 3 s of CPU)
+def test_nyquist_frequency_labels_do_not_overlap(tmp_path, monkeypatch) -> None:
+    # the fixed 1, 3 and 10 Hz labels sat in a heap at the origin of df_nyquist.png
+    from vmehil.analysis import report
+    from vmehil.cli import main
+
+    figures: dict = {}
+
+    def keep(fig, directory, stem):
+        figures[stem] = fig
+        return []
+
+    monkeypatch.setattr(report, "save_figure_both", keep)
+    assert main(["tune", "limit-cycle", "--predict-only", "--report", str(tmp_path)]) == 0
+    fig = figures["df_nyquist"]
+    fig.canvas.draw()
+    ax = fig.axes[0]
+    boxes = [t.get_window_extent() for t in ax.texts if t.get_text().endswith(" Hz")]
+    assert len(boxes) >= 2
+    for i, a in enumerate(boxes):
+        for b in boxes[i + 1:]:
+            assert not a.overlaps(b)
+    for f in figures.values():
+        plt.close(f)

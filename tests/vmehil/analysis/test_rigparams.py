@@ -13,7 +13,6 @@ from emulators.plant import load_plant_params
 from emulators.presets import resolve_rig
 from hal.adc_dac.conversions import N_CODES
 from servo.control.errors import GainError
-from servo.control.gains import GAIN_NAMES
 from vmehil.analysis.rigparams import load_joint, with_gains
 from vmehil.session import build_loop, servo_settings
 from vmehil.system import build_emulated_rig
@@ -53,7 +52,7 @@ def test_gains_switch_off_gain_and_torque_limit_match_the_session_and_the_law() 
     loop = build_loop(system, n_ticks=1)
     for j in (1, 4):
         jp = load_joint(None, j)
-        assert jp.cfg.gains.as_dict() == {k: st.gains[k][j - 1] for k in GAIN_NAMES}
+        assert jp.cfg.gains == st.gains.joint(j - 1)
         assert jp.switch_off_kp == pytest.approx(float(loop.law.kp_off()[j - 1]))
         assert jp.torque_limit_nm == pytest.approx(st.torque_limit_nm[j - 1])
         inertia = system.params[j - 1].inertia_at_joint()

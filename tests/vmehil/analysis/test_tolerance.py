@@ -12,7 +12,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from vmehil.analysis.simulate import SimSettings
-from vmehil.analysis.sweep import SweepTask, evaluate_point, rig_text, task_rig_file
+from vmehil.analysis.sweep import SweepTask, evaluate_point, rig_text, task_rig
 from vmehil.analysis.tolerance import (
     PARAMETERS,
     Spread,
@@ -119,13 +119,12 @@ def test_varying_the_plant_never_changes_what_the_controller_believes() -> None:
     assert perturbed["joint"][0]["servo"] == data["joint"][0]["servo"]  # the nominal tables are untouched
     built = {}
     for name, plant in (("nominal", {}), ("perturbed", values)):
-        task = SweepTask(0, "jpl-arm", 1, {}, rig_text=RIG, plant=plant)
-        with task_rig_file(task) as path:
-            system = build_emulated_rig(path)
-            try:
-                built[name] = (system, build_loop(system))
-            finally:
-                system.close()
+        task = SweepTask(0, "jpl-arm", 1, {}, rig=task_rig(RIG, "jpl-arm", 1, plant), plant=plant)
+        system = build_emulated_rig(task.rig)
+        try:
+            built[name] = (system, build_loop(system))
+        finally:
+            system.close()
     (sys_n, loop_n), (sys_p, loop_p) = built["nominal"], built["perturbed"]
     assert sys_n.io.scaling == sys_p.io.scaling
     cn, cp = loop_n.controller.active.chain, loop_p.controller.active.chain
@@ -153,13 +152,15 @@ def test_zero_spread_samples_equal_the_nominal_run_and_a_sample_is_reproducible(
     gains = {"kp": 100.0, "kpi": 5000.0, "kv": 50.0, "kvi": 1000.0}
     figures = [k for k in ("lc_amplitude_deg", "lc_frequency_hz", "rms_tracking_error_deg", "max_tracking_error_deg",
                            "settling_time_s", "final_error_deg", "phase_margin_deg", "status")]
-    nominal = evaluate_point(SweepTask(0, "jpl-arm", 1, gains, FAST, rig_text=RIG))
+    nominal = evaluate_point(SweepTask(0, "jpl-arm", 1, gains, FAST, rig=task_rig(RIG, "jpl-arm")))
     zero = draw_samples(parse_varies(["coulomb=±0%", "tach_brush_drop=normal:0%"]), NOMINAL, 2, seed=3)
     for k, plant in enumerate(zero):
-        row = evaluate_point(SweepTask(k, "jpl-arm", 1, gains, FAST, rig_text=RIG, plant=plant, sample=k))
+        row = evaluate_point(SweepTask(k, "jpl-arm", 1, gains, FAST, rig=task_rig(RIG, "jpl-arm", 1, plant),
+                                       plant=plant, sample=k))
         assert {f: row[f] for f in figures} == {f: nominal[f] for f in figures}
     wide = draw_samples(parse_varies(["coulomb=±30%", "tach_brush_drop=±30%"]), NOMINAL, 1, seed=3)[0]
-    a, b = (evaluate_point(SweepTask(0, "jpl-arm", 1, gains, FAST, rig_text=RIG, plant=wide, sample=0))
+    a, b = (evaluate_point(SweepTask(0, "jpl-arm", 1, gains, FAST, rig=task_rig(RIG, "jpl-arm", 1, wide), plant=wide,
+                                     sample=0))
             for _ in range(2))
     assert {f: a[f] for f in figures} == {f: b[f] for f in figures}
     assert a["rms_tracking_error_deg"] != nominal["rms_tracking_error_deg"]

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from emulators.presets import resolve_rig
 from servo.rig import load_rig
-from vmehil.calibration.store import load_store
+from vmehil.calibration.store import CalibrationMissingWarning, load_store, load_store_or_nominal
 from vmehil.cli import main
 
 
@@ -42,3 +44,24 @@ def test_calibrate_refuses_a_foreign_file_before_running(tmp_path, capsys):
     assert main(["calibrate", "adc", "--rig", str(rig_path), "--out", str(out)]) == 2
     assert "written for rig 'other'" in capsys.readouterr().err
     assert "rig = \"other\"" in out.read_text()
+
+
+def test_an_operator_procedure_without_a_terminal_is_refused_in_one_line_before_anything_runs(tmp_path, monkeypatch,
+                                                                                             capsys):
+    # it ended "pot: EOFError: EOF when reading a line" after the adc, dac, encoder and amplifier
+    # procedures had run on a built rig
+    class NoTerminal:
+        def isatty(self) -> bool:
+            return False
+
+    monkeypatch.setattr("sys.stdin", NoTerminal())
+    out = tmp_path / "cal.toml"
+    assert main(["calibrate", "all", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pot asks the operator" in err[0] and "--auto" in err[0]
+    assert not out.exists()
+
+
+def test_the_missing_calibration_warning_suggests_the_command_that_works_without_a_terminal(tmp_path):
+    with pytest.warns(CalibrationMissingWarning, match="vmehil calibrate all --auto --rig jpl-arm"):
+        load_store_or_nominal(tmp_path / "none.toml", load_rig(resolve_rig("jpl-arm")))

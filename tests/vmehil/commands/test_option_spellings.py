@@ -40,10 +40,10 @@ def test_run_and_console_share_the_console_options():
 
 @pytest.mark.parametrize("command", ["run", "console"])
 def test_pacing_is_realtime_or_lockstep_in_both_commands(command):
-    from vmehil.realtime_options import realtime
+    from vmehil.realtime_options import RealtimeOptions
 
-    assert realtime(_parse(command, "--realtime"), default=False) is True
-    assert realtime(_parse(command, "--lockstep"), default=True) is False
+    assert RealtimeOptions.from_args(_parse(command, "--realtime"), default=False).realtime is True
+    assert RealtimeOptions.from_args(_parse(command, "--lockstep"), default=True).realtime is False
     assert _parse(command).realtime is None  # the command's own default applies
     with pytest.raises(SystemExit):
         _parse(command, "--realtime", "--lockstep")

@@ -19,13 +19,19 @@ def _start_run(tmp_path):
     out = tmp_path / "run.json"
     proc = subprocess.Popen([sys.executable, "-m", "vmehil", "run", "--duration", "120", "--json", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=str(tmp_path))
+    _wait_started(proc)
+    return proc, out
+
+
+def _wait_started(proc: subprocess.Popen) -> None:
+    """Read the run's stderr until it says the amplifiers are enabled."""
     assert proc.stderr is not None
     seen = []
     deadline = time.monotonic() + 120  # a bound on a hang only
     for line in proc.stderr:  # the run announces that the amplifiers are enabled, then ticks
         seen.append(line)
         if "amplifiers enabled" in line:
-            return proc, out
+            return
         assert time.monotonic() < deadline
     raise AssertionError(f"the run never started: {''.join(seen)}")
 
@@ -50,7 +56,7 @@ def test_a_normal_end_is_a_verified_stop(tmp_path):
     assert cli.main(["run", "--duration", "1", "--quiet", "--json", str(out)]) == 0
     summary = json.loads(out.read_text())
     assert summary["final_stop"] == {"reason": "end", "detail": "the run ended", "tick": 125, "time_s": 1.0,
-                                     "verified": True, "incomplete": []}
+                                     "verified": True, "incomplete": [], "interruptions": []}
 
 
 def test_an_unexpected_error_is_one_line_and_exit_status_3(monkeypatch, capsys):

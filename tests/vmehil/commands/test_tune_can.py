@@ -85,7 +85,7 @@ def test_tune_limit_cycle_json_over_can_equals_in_process(tmp_path: Path, monkey
     from vmehil.commands import tune
 
     real = tune._sim_settings
-    monkeypatch.setattr(tune, "_sim_settings", lambda args, allow_short=False: real(args, True))  # 1 s hold: fast
+    monkeypatch.setattr(tune, "_sim_settings", lambda opts, jp, allow_short=False: real(opts, jp, True))  # 1 s hold
     a, b = tmp_path / "a.json", tmp_path / "b.json"
     assert main(["tune", "limit-cycle", *FAST, "--json", str(a)]) in (0, 1)
     assert main(["tune", "limit-cycle", *FAST, "--json", str(b), "--plant", "can", "--interface", "virtual",

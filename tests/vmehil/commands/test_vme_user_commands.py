@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from hal.vme import AddressSpace, Width
+from servo.settings import servo_settings
 from tests.support.vme_fuse import MountedVmeUser, fuse_unavailable
 from vmehil.cli import build_parser, main
 from vmehil.commands.run import run_exit_status
@@ -78,7 +79,8 @@ def test_run_with_the_flag_runs_the_loop_and_ends_safe(rig_on_fuse, capsys) -> N
     in the boards' time), the pacing the wall clock's."""
     system, bus = rig_on_fuse
     args = build_parser().parse_args(["run", "--bus", bus, "--enable-amplifiers", "--duration", "0.1"])
-    code = run_on_real_bus(args, system.rig, {}, exit_status=run_exit_status, clock=system.crate.now,
+    code = run_on_real_bus(args.options(args), system.rig, servo_settings(system.rig), exit_status=run_exit_status,
+                           clock=system.crate.now,
                            sleep=system.crate.delay)
     err = capsys.readouterr().err
     assert "amplifiers enabled" in err, err

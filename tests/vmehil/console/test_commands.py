@@ -212,6 +212,24 @@ def test_log_lists_changes(console_driver):
     err(drv.ask("log 0"), "VALUE")
 
 
+def test_log_lists_every_fault_of_the_run_and_counts_the_lines_it_shows(console_driver):
+    # three stops, each cleared by `enable`: the log showed only the last, and said entries=5
+    # beside 6 DATA lines
+    drv = console_driver
+    for n in range(3):
+        drv.loop.safe_stop("following_error", f"stop {n}", joint=n % 2)
+        ok(drv.ask("enable"), "enable")
+    ok(drv.ask("gains kp=110"), "gains")
+    r = drv.ask("log 20")
+    rows = data(r, "log")
+    assert [d["message"] for d in rows if d["source"] == "watchdog"] == [
+        "fault following_error (j1): stop 0", "fault following_error (j2): stop 1",
+        "fault following_error (j1): stop 2"]
+    assert rows[-1]["message"] == "gains all joints: kp=110"
+    assert ok(r, "log")["entries"] == str(len(rows))
+    assert len(data(drv.ask("log 2"), "log")) == 2
+
+
 @pytest.mark.slow
 def test_compound_commands_load_run_and_cancel(console_driver, tmp_path):
     drv = console_driver

@@ -4,7 +4,6 @@ through the pty by a terminal program."""
 
 from __future__ import annotations
 
-import argparse
 import os
 import queue
 import shutil
@@ -21,7 +20,8 @@ import serial
 from servo.motion import default_demo_motion
 from servo.runner import LockstepRunner
 from tests.support.console import Driver, LineReader, wait_for_link
-from vmehil.console.extension import attach
+from vmehil.commands.run_options import RunOptions
+from vmehil.console.extension import ConsoleOptions, attach
 from vmehil.console.protocol import parse_reply_line
 from vmehil.session import build_loop
 from vmehil.system import build_emulated_rig
@@ -48,8 +48,8 @@ def test_console_beside_a_lockstep_run_moves_a_joint(tmp_path):
     cmd_file = tmp_path / "ops.cmd"
     cmd_file.write_text(COMMANDS)
     link = tmp_path / "console"
-    args = argparse.Namespace(console=f"pty:{link}", console_commands=str(cmd_file), console_baud=115200)
-    console = attach(args, system, loop, runner)
+    options = RunOptions(console=ConsoleOptions(port=f"pty:{link}", commands=str(cmd_file), baud=115200))
+    console = attach(options, system, loop, runner)
     assert console is not None and console.on_tick in runner.after_tick
     assert console.session.delay == pytest.approx(system.rig.computation_delay_s / system.rig.period_s)
     client = serial.Serial(str(link), timeout=0.02)

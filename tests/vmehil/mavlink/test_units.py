@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import argparse
 import os
+from types import SimpleNamespace
 
 import pytest
 
 from tests.support.fakes import fake_loop
 from vmehil.mavlink.endpoint import MavlinkEndpoint, MavlinkError, check_url, free_udp_port
-from vmehil.mavlink.extension import add_arguments, attach
+from vmehil.mavlink.extension import MavlinkOptions, add_arguments, attach
 from vmehil.mavlink.params import MAX_NAME_LEN, ParamRefused, ParamTable
 from vmehil.mavlink.signing import KeyFileError, key_from_passphrase, load_key_file, write_key_file
 
@@ -71,12 +72,13 @@ def test_parameter_names_fit_mavlink_and_indices_are_stable():
 
 
 def _args(**kw):
+    """The run's options as the MAVLink extension reads them (``RunNeeds``), from these flags."""
     p = argparse.ArgumentParser()
     add_arguments(p)
     argv = []
     for k, v in kw.items():
         argv += [f"--{k.replace('_', '-')}"] + ([] if v is True else [str(v)])
-    return p.parse_args(argv)
+    return SimpleNamespace(mavlink=MavlinkOptions.from_args(p.parse_args(argv)))
 
 
 def test_extension_attaches_only_when_asked_and_hooks_after_tick(tmp_path):

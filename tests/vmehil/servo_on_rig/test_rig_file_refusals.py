@@ -69,7 +69,7 @@ def test_a_rig_file_that_is_not_utf8_is_refused_naming_the_file(tmp_path) -> Non
     path.write_bytes(b"\x80" + PRESET.encode())
     with pytest.raises(ConfigError, match="a UTF-8 text file") as e:
         load_rig(path)
-    assert str(path) in str(e.value) and e.value.key == "<file>"
+    assert str(path) in str(e.value) and e.value.key == "" and "key" not in str(e.value)
 
 
 def test_a_servo_sensor_that_is_not_wired_is_refused_naming_file_and_key(tmp_path) -> None:

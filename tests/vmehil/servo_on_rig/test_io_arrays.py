@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hal.adc_dac.conversions import DAC_V_MAX, DAC_V_MIN
-from hal.amplifiers import clamp_current, command_volts, current_for_torque, duty_for_current
+from hal.amplifiers import clamp_current, command_volts, duty_for_current
 from servo.io import JointIO, Measurement, PotCalibration, SensorScaling
 from servo.runner import LockstepRunner
 from vmehil.session import build_loop
@@ -54,7 +54,7 @@ def _reference_write_torque(io: JointIO, torque_nm: np.ndarray, omega: np.ndarra
     per_dac: dict[str, dict[int, float]] = {}
     for j in io.rig.joints:
         i, s = j.index, io.scaling[j.index]
-        amps = clamp_current(current_for_torque(float(torque_nm[i]), s.ratio, s.kt_nm_per_a), s.current_limit_a)
+        amps = clamp_current(float(torque_nm[i]) / (s.ratio * s.kt_nm_per_a), s.current_limit_a)  # i = τ/(N·Kt)
         if j.amplifier == "linear":
             volts = min(DAC_V_MAX, max(DAC_V_MIN, command_volts(amps, s.amp_gain_a_per_v, s.amp_offset_a)))
             pin = j.wiring["amp_command"]
@@ -126,3 +126,23 @@ def test_a_scaling_changed_in_place_is_used_at_the_next_read() -> None:
     io.scaling[0] = SensorScaling(**{**io.scaling[0].__dict__, "pot_v_per_rad": 1.0})  # a new object
     assert io.read().theta_pot[0] == pytest.approx(after.pot_v[0] - io.scaling[0].pot_zero_v)
     system.close()
+
+
+def test_write_torque_is_the_one_conversion_of_torque_to_amps_and_dac_volts() -> None:
+    """jpl-arm joint 1, nominal scaling ([joint.servo.nominal]: N = 100, Kt = 0.028 N·m/A, 3 A/V):
+    5.6 N·m → i = 5.6/(100 · 0.028) = 2 A → 2/3 V on the DAC; 100 N·m → 35.7 A, clamped to the
+    30 A limit → 10 V, which the ±10 V 12-bit DAC tops at 10 − 20/4096 V = 9.9951171875 V, so
+    29.9853515625 A commanded."""
+    system = build_emulated_rig("jpl-arm")
+    try:
+        io = system.io
+        tau = np.zeros(io.n)
+        tau[0] = 5.6
+        assert io.write_torque(tau)[0] == pytest.approx(2.0)
+        assert io.last_dac_volts[0] == pytest.approx(2.0 / 3.0)
+        tau[0] = 100.0
+        assert io.write_torque(tau)[0] == pytest.approx(29.9853515625)
+        assert io.last_dac_volts[0] == pytest.approx(9.9951171875)
+        io.write_torque(np.zeros(io.n))
+    finally:
+        system.close()

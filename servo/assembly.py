@@ -1,0 +1,85 @@
+"""The servo builds its own loop: controller, motion, watchdog and recorder from its typed
+settings (:mod:`servo.settings`), against the plant boundary and the drivers.
+
+The application assembles (it builds the rig and the drivers, parses the settings once and may
+override them) and hands the pieces here::
+
+    settings = servo_settings(rig).overridden(gains, switch_off)
+    loop = build_loop(plant, io, settings, motion=motion, n_ticks=n)
+
+``plant`` is any :class:`servo.boundary.PlantBoundary` (the emulated rig, a real rig's wall
+clock): the loop takes the plant's ``answer_lag_ticks`` (the watchdog's current check) and
+``sample_clock`` (the cross-checks' time base) from it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hal.config import ConfigTable
+from servo.boundary import PlantBoundary
+from servo.control.law import PidLaw
+from servo.control.objects import CONTROL_OBJECTS, BaseControlObject, Controller, PidObject, TorqueLimit
+from servo.io import JointIO
+from servo.loop import Recorder, ServoLoop, WatchdogConfig
+from servo.motion import Motion, default_demo_motion
+from servo.settings import ServoSettings
+from servo.trajectory.base import JointLimits
+from servo.trajectory.sequencer import PlanContext, Sequencer
+
+__all__ = ["build_controller", "build_loop", "plan_context", "watchdog_config"]
+
+
+def build_controller(settings: ServoSettings) -> Controller:
+    """The controller the settings name: its objects in order, normalized with the nominal chain."""
+    objects: list[BaseControlObject] = []
+    for name in settings.objects:
+        if name == "pid":
+            objects.append(PidObject(PidLaw(settings.n, settings.period_s, settings.gains, settings.switch_off)))
+        elif name == "torque_limit":
+            objects.append(TorqueLimit(np.asarray(settings.torque_limit_nm, float)))
+        else:  # another object: its defaults ([servo] gives them no table)
+            factory = CONTROL_OBJECTS[name]
+            objects.append(factory(ConfigTable({}, f"{settings.source} (servo settings)", name), settings.n,
+                                   settings.chain, settings.period_s))
+    return Controller(objects, settings.chain, settings.period_s)
+
+
+def watchdog_config(settings: ServoSettings, *, enabled: bool = True, answer_lag_ticks: int = 0) -> WatchdogConfig:
+    """The watchdog's limits (NaN per joint: derived from the sensors when the loop is built)."""
+    wd = WatchdogConfig(following_error_rad=np.asarray(settings.following_error_rad, float), enabled=enabled,
+                        cross_checks=settings.watchdog.cross_checks)
+    for key, value in settings.watchdog.rig_wide:
+        setattr(wd, key, value)
+    # a free-running plant node answers late; a real rig or an in-process plant does not
+    wd.command_lag_ticks = int(answer_lag_ticks)
+    for field, values in settings.watchdog.per_joint:
+        setattr(wd, field, np.asarray(values, float))
+    return wd
+
+
+def plan_context(settings: ServoSettings) -> PlanContext:
+    """The limits moves are planned with (the planning velocity per joint)."""
+    return PlanContext(JointLimits.make(settings.n, list(settings.max_velocity_rad_s)))
+
+
+def build_loop(plant: PlantBoundary, io: JointIO, settings: ServoSettings, *, motion: Motion | None = None,
+               n_ticks: int = 0, watchdog: bool = True, sequencer: Sequencer | None = None) -> ServoLoop:
+    """A ready-to-start :class:`ServoLoop` for the joints ``io`` drives.
+
+    ``motion`` (default: the demo motion) is planned from the joints' angles read now;
+    ``sequencer``: the motion already planned (a unit controller's segments of the global plan,
+    :class:`servo.units.UnitSegments`) — the joints are then not read here. ``n_ticks`` > 0 adds a
+    recorder of that many ticks; ``watchdog=False`` disables the watchdog's stops."""
+    controller = build_controller(settings)
+    ctx = plan_context(settings)
+    if sequencer is None:
+        motion = motion or default_demo_motion(settings.n)
+        sequencer = Sequencer(list(motion.moves), io.read().theta, ctx)
+    wd = watchdog_config(settings, enabled=watchdog, answer_lag_ticks=plant.answer_lag_ticks)
+    recorder = Recorder(n_ticks, settings.n) if n_ticks else None
+    loop = ServoLoop(io, controller, sequencer, wd, recorder=recorder, names=list(settings.joint_names),
+                     plan_context=plan_context(settings))
+    # an emulated rig's free-running plant: its answers may skip or repeat plant steps
+    loop.sample_clock = plant.sample_clock
+    return loop
