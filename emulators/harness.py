@@ -2,7 +2,7 @@
 
 The boards see only nets (:class:`emulators.signals.Signals`). Once per servo period the
 harness reads the command nets (amplifier command volts, enables, PWM, direction, brake,
-fault reset, and the rig's amplifier enable-watchdog line) into a :class:`PlantCommand`, hands
+holding-brake lines, fault reset, and the rig's amplifier enable-watchdog line) into a :class:`PlantCommand`, hands
 it to a :class:`PlantLink` — a function call in-process, frames on CAN for the plant node — and
 publishes the returned :class:`PlantSensors` (pot, tach and current-monitor volts at the next
 sampling instant, the encoder's quadrature events during the period, fault lines) on the sensor
@@ -64,6 +64,7 @@ class JointNets:
     pwm: str | None = None
     direction: str | None = None
     brake: str | None = None
+    holding_brake: str | None = None
     pot: str | None = None
     tach: str | None = None
     imon: str | None = None
@@ -92,7 +93,8 @@ class Harness:
         """The joints' nets as flat tuples, built once (``joints`` is fixed after construction)."""
         w = self.__dict__.get("_wired")
         if w is None:
-            cmd = tuple((j.amp_command, j.amp_enable, j.amp_reset, j.pwm, j.direction, j.brake) for j in self.joints)
+            cmd = tuple((j.amp_command, j.amp_enable, j.amp_reset, j.pwm, j.direction, j.brake, j.holding_brake)
+                        for j in self.joints)
             sens = tuple((i, j.pot, j.tach, j.imon, j.amp_fault, j.encoder) for i, j in enumerate(self.joints)
                          if j.pot or j.tach or j.imon or j.amp_fault or j.encoder)
             w = self.__dict__["_wired"] = (cmd, sens)
@@ -102,8 +104,8 @@ class Harness:
         """Read the command nets into a :class:`PlantCommand`."""
         s = self.signals
         analog, digital = s.analog, s.digital
-        cmd_v, enable, reset, duty, direction, brake = [], [], [], [], [], []
-        for command, en, rst, pwm, dirn, brk in self._wiring()[0]:
+        cmd_v, enable, reset, duty, direction, brake, holding = [], [], [], [], [], [], []
+        for command, en, rst, pwm, dirn, brk, hold in self._wiring()[0]:
             cmd_v.append(analog.get(command, 0.0) if command else 0.0)
             # An unwired enable is tied high on the amplifier (always enabled).
             enable.append(digital.get(en, False) if en else True)
@@ -111,12 +113,14 @@ class Harness:
             duty.append(analog.get(pwm, 0.0) if pwm else 0.0)
             direction.append(digital.get(dirn, False) if dirn else False)
             brake.append(digital.get(brk, False) if brk else False)
+            # An unwired holding-brake line is low: a plant brake nobody wired never releases.
+            holding.append(digital.get(hold, False) if hold else False)
         watchdog = s.get_digital(self.watchdog_net) if self.watchdog_net else False
         return PlantCommand(
             amp_command_v=np.array(cmd_v, dtype=float), amp_enable=np.array(enable, dtype=bool),
             fault_reset=np.array(reset, dtype=bool), pwm_duty=np.array(duty, dtype=float),
             pwm_direction=np.array(direction, dtype=bool), brake=np.array(brake, dtype=bool),
-            watchdog_line=watchdog,
+            watchdog_line=watchdog, holding_brake=np.array(holding, dtype=bool),
         )
 
     def step(self, period_s: float, delay_s: float) -> PlantSensors:

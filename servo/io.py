@@ -11,7 +11,11 @@ addresses and spaces come from there, for emulated and real crates alike) and, o
 * while the amplifiers are enabled, toggles the rig's enable-watchdog line (``[rig.watchdog]``,
   a charge pump on the amplifier side) once per torque write, i.e. once per tick: one PIO
   write. A controller that is killed or hangs stops toggling, and the amplifiers drop their
-  enables on their own.
+  enables (and the holding brakes' lines) on their own;
+* drives the joints' holding-brake lines (``[joint.wiring] holding_brake``; energised =
+  released): after an enable a brake's line rises only with the first torque write, after the
+  DAC strobe, so the amplifier carries the joint's load before the brake lets go (it releases
+  its release delay later); every stop drops the lines with the enables and reads them back.
 
 It imports ``hal`` only: it cannot tell an emulated crate from real hardware.
 """
@@ -34,7 +38,7 @@ from hal.pio.pio import PioDriver, PwmRangeError
 from hal.quadrature.quad import QuadratureDriver
 from hal.vme.bus import VmeBus
 from servo.interrupts import INTERRUPTS, SignalsDeferred
-from servo.rig import WATCHDOG_NET, RigSpec
+from servo.rig import DIGITAL_OUTPUTS, WATCHDOG_NET, RigSpec
 
 
 class CalibrationEntry(Protocol):
@@ -214,13 +218,29 @@ class JointIO:
                 cpr = quad_cpr[name]
                 self.quad[name] = QuadratureDriver(bus, base, space=space, counts_per_rev=cpr,
                                                    channels=sorted(cpr), errors="report")
-        # Configure PIO output lines (enables, resets, direction, brake, watchdog) low = safe.
+        # Configure PIO output lines (enables, resets, direction, brakes, watchdog) low = safe
+        # (a holding brake's line low: the brake holds).
         for pname, drv in self.pio.items():
             outs = [j.net(s) for j in rig.joints for s, p in j.wiring.items()
-                    if p.board == pname and s in ("amp_enable", "amp_reset", "direction", "brake")]
+                    if p.board == pname and s in DIGITAL_OUTPUTS]
             if wd is not None and wd.line.board == pname:
                 outs.append(WATCHDOG_NET)
             drv.configure(outputs=outs, initial={o: False for o in outs})
+        #: the holding brakes' lines, (joint index, PIO board, net), in joint order
+        self._holding_brakes = [(j.index, j.wiring["holding_brake"].board, j.net("holding_brake"))
+                                for j in rig.joints if "holding_brake" in j.wiring]
+        #: the rig has holding brakes (a stop then leaves gravity-loaded joints held)
+        self.has_holding_brakes = bool(self._holding_brakes)
+        #: the brakes' lines are to rise with the next torque write (set by enabling)
+        self._release_pending = False
+        #: per joint: its holding brake's line is high (energised: released or releasing)
+        self.brake_released = np.zeros(self.n, dtype=bool)
+        #: per joint: it has a holding brake
+        self.holding_brake_mask = np.zeros(self.n, dtype=bool)
+        for i, _, _ in self._holding_brakes:
+            self.holding_brake_mask[i] = True
+        #: per joint the torque (N·m) the last torque write commanded (kept through a stop)
+        self.last_torque_nm = np.zeros(self.n)
         #: the PIO driver of the watchdog line (None: no watchdog), its level, and whether it toggles
         self._watchdog_pio = self.pio[wd.line.board] if wd is not None else None
         self._watchdog_level = False
@@ -478,6 +498,9 @@ class JointIO:
             for board, js, chans in self._dac_plan:
                 self.dac[board].write_many(dict(zip(chans, dv[js].tolist(), strict=True)), update=True)
         self.last_current_a[:] = current
+        self.last_torque_nm[:] = np.where(np.isfinite(tau), tau, 0.0)
+        if self._release_pending:
+            self.release_brakes()
         if self.watchdog_running:
             self._toggle_watchdog()
         return current
@@ -520,14 +543,41 @@ class JointIO:
         direction = j.net("direction") if "direction" in j.wiring else None
         drv.set_pwm(duty, direction_line=direction)
 
+    @property
+    def torque_at_stop_nm(self) -> np.ndarray:
+        """Per braked joint the torque last commanded (0 for joints without a brake): after a stop,
+        what held each joint its brake then kept in place — a resume starts its law there."""
+        return np.where(self.holding_brake_mask, self.last_torque_nm, 0.0)
+
+    def release_brakes(self) -> None:
+        """Raise every holding brake's line (energised: the brake releases after its release
+        delay). Called by the first torque write after :meth:`enable` — after the DAC strobe, so
+        the amplifiers already carry the command that holds the joints."""
+        self._release_pending = False
+        for i, board, net in self._holding_brakes:
+            self.pio[board].set_line(net, True)
+            self.brake_released[i] = True
+
+    def engage_brakes(self) -> None:
+        """Drop every holding brake's line (the brake holds after its engage delay)."""
+        self._release_pending = False
+        for i, board, net in self._holding_brakes:
+            self.pio[board].set_line(net, False)
+            self.brake_released[i] = False
+
     def enable(self, on: bool = True) -> None:
         """Drive every amplifier enable line (and the PWM timers). Enabling starts the watchdog
         line: its first edge comes with the tick's torque write, so the amplifiers see it
         together with the rising enables (which re-arms one the watchdog tripped) — and never a
-        second edge in the same tick, which would cancel the first. Disabling stops it, low."""
+        second edge in the same tick, which would cancel the first. Disabling stops it, low.
+
+        Holding brakes: enabling leaves them holding and releases them with the next torque
+        write (:meth:`release_brakes`); disabling drops their lines first."""
         if on:
             self.watchdog_running = self._watchdog_pio is not None
+            self._release_pending = self.has_holding_brakes
         else:
+            self.engage_brakes()
             self._stop_watchdog()
         for j in self.rig.joints:
             if "amp_enable" in j.wiring:
@@ -543,8 +593,8 @@ class JointIO:
                 drv.set_line(j.net("amp_reset"), False)
 
     def safe_stop(self, interruptions: list[BaseException] | None = None) -> list[str]:
-        """Amplifiers disabled, DAC outputs to 0 V, PWM off, the watchdog line no longer
-        toggled (left low) — then read back that it happened.
+        """Amplifiers disabled, holding-brake lines low (the brakes hold), DAC outputs to 0 V, PWM
+        off, the watchdog line no longer toggled (left low) — then read back that it happened.
 
         Keeps going past driver errors (a safe stop must do as much as it can) and returns what
         failed or could not be confirmed (:meth:`verify_stopped`): an empty list means every
@@ -592,6 +642,13 @@ class JointIO:
         def enable_low(j: Any) -> None:
             self.pio[j.wiring["amp_enable"].board].set_line(j.net("amp_enable"), False)
 
+        def brake_low(i: int, board: str, net: str) -> None:
+            self.pio[board].set_line(net, False)
+            self.brake_released[i] = False
+
+        self._release_pending = False
+        for i, board, net in self._holding_brakes:  # first: the brakes start engaging at once
+            step(f"{self.rig.joints[i].name}: holding brake", partial(brake_low, i, board, net))
         for name, drv in self.dac.items():
             step(name, partial(dac_zero, drv))
         for j in self.rig.joints:
@@ -617,8 +674,18 @@ class JointIO:
 
         An enable line is read from its PIO latch and pin; an amplifier command from its DAC
         output register (``OUTn``) against the 0 V code; a PWM timer from its control register.
-        A board that does not answer cannot be confirmed and is reported as such."""
+        A board that does not answer cannot be confirmed and is reported as such. A holding
+        brake's line is read like an enable: it must read low (the brake holding)."""
         problems: list[str] = []
+        for i, board, net in self._holding_brakes:
+            pin = self.rig.joints[i].wiring["holding_brake"]
+            try:
+                pio = self.pio[board]
+                port, bit = pio.resolve(net)
+                if pio.get_line(net) or pio.read_pins(port) >> bit & 1:
+                    problems.append(f"{self.rig.joints[i].name}: holding brake {pin} still reads high (released)")
+            except Exception as e:
+                problems.append(f"{self.rig.joints[i].name}: holding brake {pin} cannot be read back ({e})")
         for j in self.rig.joints:
             w = j.wiring
             try:

@@ -313,8 +313,11 @@ class ServoLoop:
     def resume(self, hold_measured: bool = True) -> np.ndarray | None:
         """Leave a safe stop (or a stop) and servo again: clear the fault, forget the watchdog's
         memory of positions from before the stop (the joints may have moved meanwhile), reset the
-        control objects' state (pid integrators, switch-off), then :meth:`start` (clear amplifier
-        faults, zero the outputs, enable).
+        control objects' state (pid integrators, switch-off) — with ``hold_measured``, a joint its
+        holding brake kept where it stopped starts with the torque that held it then
+        (``preload_torque``), so the amplifier
+        carries its load when the brake releases (:class:`servo.io.JointIO`) — then :meth:`start`
+        (clear amplifier faults, zero the outputs, enable).
 
         ``hold_measured``: read the joints first and hold them where they are (a new, empty
         motion from the measured position, rad) — returned. A read error or a non-finite position
@@ -332,8 +335,16 @@ class ServoLoop:
         if theta is not None:
             ctx = self.plan_context or self.sequencer.ctx
             self.set_motion(Sequencer([], theta, ctx))
+        # The torque that held each braked joint when it stopped (before start() zeroes the outputs)
+        held = getattr(self.io, "torque_at_stop_nm", None)  # (test fakes of JointIO have none)
+        # (only when the hold is where the joints are: a kept target's error would add to it)
+        held = None if held is None or not hold_measured else np.asarray(held, float).copy()
         for obj in self.controller.active.objects:
             obj.reset()
+            if held is not None and held.any():
+                # Its brake kept the joint where it stopped: the law starts with that torque, so the
+                # amplifier carries the load before the brake lets go (servo.io.JointIO).
+                obj.preload_torque(held, self.controller.active.chain)
         try:
             self.start()
         except Exception as e:

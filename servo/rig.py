@@ -15,6 +15,12 @@ or ``"board:PA0"`` (PIO lines)::
     amp_reset = "pio0:PC0"   pot = "adc0:0"            tach = "adc0:8"
     imon = "adc1:0"          encoder = "quad0:0"
     pwm = "pio0:PWM"         direction = "pio0:PA6"    brake = "pio0:PA7"   # H-bridge joints
+    holding_brake = "pio1:PA0"                         # a spring-applied holding brake's line
+
+``brake`` is an H-bridge's dynamic brake (the winding shorted); ``holding_brake`` the line of a
+spring-applied, power-released holding brake on the joint (energised = released, low = holding):
+the drivers raise it only once the enabled amplifier carries the joint's load and drop it with
+the enables on every stop (:class:`servo.io.JointIO`).
 
 Each wired signal becomes the net ``<joint>.<signal>`` between the boards and the plant.
 
@@ -70,7 +76,7 @@ from hal.pio.pio_regs import ALL_LINES, parse_line
 from hal.quadrature.quad_regs import CHANNELS as QUAD_CHANNELS
 
 ANALOG_INPUTS = ("pot", "tach", "imon")
-DIGITAL_OUTPUTS = ("amp_enable", "amp_reset", "direction", "brake")
+DIGITAL_OUTPUTS = ("amp_enable", "amp_reset", "direction", "brake", "holding_brake")
 DIGITAL_INPUTS = ("amp_fault",)
 WIRING_KEYS = ("amp_command", "encoder", "pwm", *ANALOG_INPUTS, *DIGITAL_OUTPUTS, *DIGITAL_INPUTS)
 #: The keys of a ``[[joint]]`` table that only the servo side reads (``name`` and ``amplifier`` are

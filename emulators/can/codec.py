@@ -57,7 +57,7 @@ from emulators.signals import QuadratureEvents
 TRUTH_SIGNALS = {"ThetaJoint": "theta_joint", "OmegaJoint": "omega_joint", "CurrentA": "current_a",
                  "FrictionNm": "friction_torque_nm"}
 
-CMD_BITS = ("AmpEnable", "FaultReset", "PwmDirection", "Brake")
+CMD_BITS = ("AmpEnable", "FaultReset", "PwmDirection", "Brake", "HoldingBrake")
 #: the per-joint signals of CMD_Jxx (besides Seq); a command's raw dict also holds the rig-level
 #: ``Watchdog`` line, which travels in SYNC
 CMD_SIGNALS = ("AmpCommand", "PwmDuty", *CMD_BITS)
@@ -253,7 +253,8 @@ class CanCodec:
             "AmpCommand": self._q("CMD", "AmpCommand", cmd.amp_command_v),
             "PwmDuty": self._q("CMD", "PwmDuty", cmd.pwm_duty),
         }
-        for name, arr in zip(CMD_BITS, (cmd.amp_enable, cmd.fault_reset, cmd.pwm_direction, cmd.brake), strict=True):
+        bits = (cmd.amp_enable, cmd.fault_reset, cmd.pwm_direction, cmd.brake, cmd.holding_brake)
+        for name, arr in zip(CMD_BITS, bits, strict=True):
             out[name] = np.asarray(arr, dtype=bool).astype(np.int64)
         out["Watchdog"] = np.asarray(bool(cmd.watchdog_line), dtype=np.int64)
         return out
@@ -267,6 +268,7 @@ class CanCodec:
             pwm_duty=self._p("CMD", "PwmDuty", raw["PwmDuty"]),
             pwm_direction=np.asarray(raw["PwmDirection"]) != 0,
             brake=np.asarray(raw["Brake"]) != 0,
+            holding_brake=np.asarray(raw["HoldingBrake"]) != 0,
             watchdog_line=bool(raw["Watchdog"]),
         )
 
@@ -339,7 +341,8 @@ class CanCodec:
         n = len(raw["AmpCommand"])
         ids = range(n) if joints is None else joints
         tail = {"Seq": seq & 0xFF, "BootIdLow": boot_id & 0xFF}
-        return [self._frame(self.message("CMD", j), {k: int(raw[k][i]) for k in CMD_SIGNALS} | tail)
+        # a signal missing from ``raw`` goes as 0 (a holding-brake line low: the brake holds)
+        return [self._frame(self.message("CMD", j), {k: int(raw[k][i]) if k in raw else 0 for k in CMD_SIGNALS} | tail)
                 for i, j in enumerate(ids)]
 
     def sync_frame(self, raw: dict[str, np.ndarray], tick: int, period_s: float, delay_s: float,

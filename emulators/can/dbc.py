@@ -12,7 +12,7 @@ ID      message             bytes  sender → receiver          content
 ======  ==================  =====  =========================  =====================================
 0x080   SYNC                24 FD  controller → plant         tick, period, delay, watchdog line
 0x081   CONTROL             8      controller → plant         reset request (seed), joint count
-0x100+j CMD_Jjj             8      controller → plant         amplifier command / enable / reset, PWM
+0x100+j CMD_Jjj             12 FD  controller → plant         amplifier command / enable / reset, PWM, brake
 0x200+j SENS_Jjj            24 FD  plant → controller         pot, tach, current monitor, encoder, fault
 0x280   PLANT_STATUS        16 FD  plant → controller         end of answer: tick echo, counters, watchdog
 0x300+j TRUTH_Jjj           32 FD  plant → controller         ground truth (float64), reports only
@@ -184,7 +184,7 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
     ], senders=[P], comment="Sent with every HEARTBEAT_PLANT and at once on a session change or a refused RESET."))
     msgs += _unit_messages()
     for j in range(max_joints):
-        msgs.append(Message(ID_CMD + j, f"CMD_J{j:02d}", 8, [
+        msgs.append(Message(ID_CMD + j, f"CMD_J{j:02d}", 12, [
             _volts("AmpCommand", 0, "transconductance amplifier input", P),
             _sig("PwmDuty", 24, 20, scale=DUTY_LSB, minimum=0, maximum=1, comment="H-bridge PWM duty 0..1"),
             _bit("AmpEnable", 44, "amplifier enable line", P),
@@ -194,7 +194,8 @@ def build_database(max_joints: int = MAX_JOINTS) -> Database:
             _sig("Seq", 48, 8, minimum=0, maximum=255, comment="Tick mod 256 of the SYNC this belongs to"),
             _sig("BootIdLow", 56, 8, minimum=0, maximum=255,
                  comment="low byte of the sender's controller boot id: the node takes only its session owner's"),
-        ], senders=[C], comment=f"Joint {j}: commands held over the coming servo period."))
+            _bit("HoldingBrake", 64, "holding brake line (1 = energised = released; 0 = the brake holds)", P),
+        ], senders=[C], is_fd=True, comment=f"Joint {j}: commands held over the coming servo period."))
         msgs.append(Message(ID_SENS + j, f"SENS_J{j:02d}", 32, [
             _volts("PotVoltage", 0, "joint potentiometer wiper at the sampling instant", C),
             _volts("TachVoltage", 24, "tachometer at the sampling instant (0 without one)", C),

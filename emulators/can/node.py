@@ -26,7 +26,8 @@ Protocol (frames of ``vmehil.dbc``; see ``docs/can.md``):
 * **Command timeout** (both modes; ``command_timeout_s``, ``vmehil plant-node
   --command-timeout``): when no CONTROL or SYNC has arrived for that long of wall-clock time,
   the node latches every enabled amplifier off (the plant's enable-watchdog latch, cause
-  ``command_timeout``; re-armed by an enable rising while commands come again). In lockstep
+  ``command_timeout``; re-armed by an enable rising while commands come again) and engages every
+  holding brake (the wall-clock silence outlasts their engage delay). In lockstep
   simulated time stops with the controller, so the plant's own charge-pump watchdog cannot run
   out: this is the amplifier side's watchdog on the clock that still runs.
 * **HEARTBEAT_PLANT** every ``heartbeat_s`` of wall-clock time, and at once when the amplifier
@@ -259,7 +260,7 @@ class PlantNode(FaultInjectable):
     def _idle_raw(self) -> dict[str, np.ndarray]:
         z = np.zeros(self.n, dtype=np.int64)
         return {"AmpCommand": z.copy(), "PwmDuty": z.copy(), "AmpEnable": z.copy(), "FaultReset": z.copy(),
-                "PwmDirection": np.ones(self.n, dtype=np.int64), "Brake": z.copy()}
+                "PwmDirection": np.ones(self.n, dtype=np.int64), "Brake": z.copy(), "HoldingBrake": z.copy()}
 
     def _reset_state(self, seed: int) -> None:
         self.seed = int(seed)

@@ -96,7 +96,11 @@ class StickSlipStepper:
         self.d_ts = fr.breakout - fr.coulomb
         self._last: tuple[np.ndarray, ...] | None = None
 
-    def __call__(self, omega: np.ndarray, theta_m: np.ndarray, t_drive: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(self, omega: np.ndarray, theta_m: np.ndarray, t_drive: np.ndarray,
+                 brake: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``brake``: an engaged holding brake's torque at the motor shaft (N·m, ≥ 0; 0 where
+        released), added to the static and the kinetic level alike (not rippled: it is not the
+        Harmonic Drive's); ``None``: no brakes (the arithmetic of a rig without them)."""
         fr = self.fr
         h = self.h
         r = 1.0 + fr.ripple * np.sin(2.0 * theta_m + fr.ripple_phase)
@@ -104,6 +108,8 @@ class StickSlipStepper:
         s = np.sign(omega) + stuck0 * np.sign(t_drive)
         q = omega * self.inv_ws
         tk = (fr.coulomb + self.d_ts * np.exp(-(q * q))) * r
+        if brake is not None:
+            tk = tk + brake
         x = self.bjh * r
         e = np.exp(-x)
         if self.direct:
@@ -115,17 +121,20 @@ class StickSlipStepper:
         acc0 = (t_drive - s * tk) * self.inv_j
         w1 = omega * e + acc0 * (h * p1)
         dth = h * (omega * p1 + acc0 * (h * p2))
-        hold = stuck0 & (np.abs(t_drive) <= fr.breakout * r)
+        brk = fr.breakout * r
+        if brake is not None:
+            brk = brk + brake
+        hold = stuck0 & (np.abs(t_drive) <= brk)
         cross = (w1 * s <= 0.0) & ~stuck0
         moving = ~hold
         w1 = w1 * moving
         dth = dth * moving
         self._last = (hold, t_drive, s, tk, r, w1, cross)
         if cross.any():
-            w1, dth = self._crossing(omega, theta_m, t_drive, acc0, x, w1, dth, cross)
+            w1, dth = self._crossing(omega, theta_m, t_drive, acc0, x, w1, dth, cross, brake)
         return w1, dth
 
-    def _crossing(self, omega, theta_m, t_drive, acc0, x, w1, dth, cross):
+    def _crossing(self, omega, theta_m, t_drive, acc0, x, w1, dth, cross, brake=None):
         """Zero-crossing capture for the joints whose speed would change sign in the step."""
         fr = self.fr
         h = self.h
@@ -141,6 +150,8 @@ class StickSlipStepper:
         td = t_drive[cross]
         rc = 1.0 + fr.ripple[cross] * np.sin(2.0 * th_c + fr.ripple_phase[cross])
         brk_c = fr.breakout[cross] * rc
+        if brake is not None:
+            brk_c = brk_c + brake[cross]
         rev = np.abs(td) > brk_c
         rem = h - tc
         s2 = np.sign(td)

@@ -16,6 +16,7 @@ from emulators.plant.kernel_layout import (
     B_STUCK,
     B_SWITCHING,
     BJH,
+    BRAKE_HOLD,
     BREAKOUT,
     C_FLEX,
     COMPLIANT,
@@ -29,6 +30,7 @@ from emulators.plant.kernel_layout import (
     ENC_FS,
     ENC_SCALE,
     EXT_TORQUE,
+    F_BRAKE,
     F_COMPLIANT,
     F_DIRECT,
     F_EXTERNAL,
@@ -110,7 +112,7 @@ SIGNATURE = (
     "void(float64[:, ::1], int64[:, ::1], int64[::1], float64, int64, int64, float64[:, :, ::1], "
     "boolean[:, :, ::1], int64[::1], int64[::1], boolean[:, ::1], boolean[::1], float64[:, ::1], boolean[::1], "
     "int64[::1], boolean[::1], float64[:, ::1], float64[:, ::1], float64[::1], float64[:, ::1], boolean[:, ::1], "
-    "int64[:, ::1], int64[:, ::1])"
+    "int64[:, ::1], int64[:, ::1], boolean[::1], int64[:, ::1])"
 )
 
 
@@ -226,7 +228,7 @@ def period_kernel(
     cmd_f: np.ndarray, cmd_b: np.ndarray, seg_start: np.ndarray, seg_cmd: np.ndarray, seg_enable: np.ndarray,
     reset_edge: np.ndarray, X: np.ndarray, fault: np.ndarray, cause: np.ndarray, saturated: np.ndarray,
     noise: np.ndarray, held: np.ndarray, x4: np.ndarray, O: np.ndarray, B: np.ndarray, E: np.ndarray,
-    idx: np.ndarray,
+    idx: np.ndarray, brake_on: np.ndarray, flips: np.ndarray,
 ) -> None:
     """One servo period of every joint (state in place; see the module docstring).
 
@@ -246,12 +248,16 @@ def period_kernel(
             and tach volts (NaN: healthy).
         x4: scratch, ``n_sub + 1`` floats.
         O, B, E, idx: outputs (rows ``O_*``, ``B_*``, ``E_*``; index offsets per joint).
+        brake_on, flips: the holding brakes engaged at the period's start, and per joint the
+            substeps at which the armature moves (``[k, j]``, -1: none;
+            :class:`emulators.plant.brake.HoldingBrakes`).
     """
     n = P.shape[1]
     n_seg = seg_start.shape[0]
     if (x4.shape[0] < n_sub + 1 or O.shape[1] != n or B.shape[1] != n or E.shape[1] != n
             or idx.shape[0] != n or X.shape[1] != n or seg_enable.shape[0] != n_seg or n_seg < 1
-            or seg_cmd.shape[0] != n_seg or cmd_f.shape[2] != n or cmd_b.shape[2] != n):
+            or seg_cmd.shape[0] != n_seg or cmd_f.shape[2] != n or cmd_b.shape[2] != n
+            or brake_on.shape[0] != n or flips.shape[1] != n):
         raise ValueError("period_kernel: array shapes do not match the plant")
     if F[F_LAYOUT] != LAYOUT_ID:
         raise RuntimeError("period_kernel: numba's cached machine code is stale (kernel_layout.py changed): "
@@ -263,6 +269,8 @@ def period_kernel(
     has_tach = F[F_TACH] != 0
     has_tach_ripple = F[F_TACH_RIPPLE] != 0
     direct = F[F_DIRECT] != 0
+    has_brake = F[F_BRAKE] != 0
+    n_flips = flips.shape[0]
     for j in range(n):
         is_lin = P[IS_LIN, j] != 0.0
         rl = P[RL, j]
@@ -305,6 +313,10 @@ def period_kernel(
         t_decay = P[T_DECAY, j]
         enc_scale = P[ENC_SCALE, j]
         j_link = P[J_LINK, j]
+        brake_hold = P[BRAKE_HOLD, j]
+        engaged = brake_on[j]
+        kf = 0
+        brk = 0.0
 
         theta_m = X[0, j]
         omega_m = X[1, j]
@@ -409,6 +421,12 @@ def period_kernel(
                 if has_ke:
                     th_out = th_out + ke_amp * math.sin(2.0 * theta_m + ke_phase)
                 t_drive = t_drive - g_torque * math.cos(th_out + g_phase) * inv_n
+            # ---- holding brake: the armature moves at its flip substeps
+            if has_brake:
+                while kf < n_flips and flips[kf, j] == s:
+                    engaged = not engaged
+                    kf += 1
+                brk = brake_hold if engaged else 0.0
             # ---- exact stick/slip step of the motor shaft
             omega = omega_m
             r = 1.0 + fr_ripple * math.sin(2.0 * theta_m + fr_phase)
@@ -416,6 +434,8 @@ def period_kernel(
             sgn = _sign(omega) + (_sign(t_drive) if stuck0 else 0.0)
             q = omega * inv_ws
             tk = (coulomb + d_ts * math.exp(-(q * q))) * r
+            if has_brake:
+                tk = tk + brk
             x = bjh * r
             e = math.exp(-x)
             if direct:
@@ -427,7 +447,10 @@ def period_kernel(
             acc0 = (t_drive - sgn * tk) * inv_j
             w1 = omega * e + acc0 * (h * p1)
             dth = h * (omega * p1 + acc0 * (h * p2))
-            hold = stuck0 and abs(t_drive) <= breakout * r
+            brk_s = breakout * r
+            if has_brake:
+                brk_s = brk_s + brk
+            hold = stuck0 and abs(t_drive) <= brk_s
             cross = (w1 * sgn <= 0.0) and not stuck0
             if hold:
                 w1 = w1 * 0.0
@@ -446,6 +469,8 @@ def period_kernel(
                 th_c = theta_m + dth_c
                 rc = 1.0 + fr_ripple * math.sin(2.0 * th_c + fr_phase)
                 brk_c = breakout * rc
+                if has_brake:
+                    brk_c = brk_c + brk
                 rev = abs(t_drive) > brk_c
                 rem = h - tc
                 s2 = _sign(t_drive)

@@ -25,6 +25,7 @@ Rig-file layout (``emulators/presets/*.toml``)::
     [joint.pot]      ...               # PotParams
     [joint.encoder]  ...               # EncoderParams
     [joint.tach]     ...               # TachParams
+    [joint.holding_brake] ...          # HoldingBrakeParams (optional: joints without one have none)
 
     [rig.watchdog]                     # optional: the amplifiers' enable watchdog (charge pump)
     line = "pio0:PB7"                  # the PIO output the controller toggles (read by servo.rig)
@@ -190,6 +191,24 @@ class TachParams:
     noise_v: float = 0.002
 
 
+@dataclass(frozen=True)
+class HoldingBrakeParams:
+    """Spring-applied, power-released holding brake on the motor shaft (optional per joint).
+
+    Its line energised releases it, low engages it (a dead controller, a cut power rail: the
+    spring holds). The armature moves ``engage_delay_s`` after the line drops and
+    ``release_delay_s`` after it rises; a line that changes back before the armature has moved
+    cancels the change. Engaged, it holds up to ``holding_torque_nm`` (at the joint, i.e. N times
+    what it holds on the motor shaft) and slips beyond it with kinetic friction equal to the
+    holding torque; it adds to the Harmonic Drive's own friction. Released it adds nothing.
+    """
+
+    present: bool = False
+    holding_torque_nm: float = 0.0  #: static and kinetic torque it holds at the joint (output) side
+    engage_delay_s: float = 0.04  #: line low → brake holds
+    release_delay_s: float = 0.06  #: line high → brake free
+
+
 @dataclass
 class JointParams:
     """One joint: motor, Harmonic Drive, friction, link, its amplifier and its sensors."""
@@ -205,6 +224,7 @@ class JointParams:
     pot: PotParams = field(default_factory=PotParams)
     encoder: EncoderParams = field(default_factory=EncoderParams)
     tach: TachParams = field(default_factory=TachParams)
+    holding_brake: HoldingBrakeParams = field(default_factory=HoldingBrakeParams)
 
     # ---- derived quantities -------------------------------------------------------------
     def inertia_at_motor(self) -> float:
@@ -254,6 +274,11 @@ class JointParams:
             raise ValueError(w + "link.initial_angle_rad must lie between the hard stops")
         if self.encoder.lines_per_rev < 1:
             raise ValueError(w + "encoder.lines_per_rev must be >= 1")
+        b = self.holding_brake
+        if b.present and not b.holding_torque_nm > 0:
+            raise ValueError(w + "holding_brake.holding_torque_nm must be > 0")
+        if not (b.engage_delay_s >= 0 and b.release_delay_s >= 0):
+            raise ValueError(w + "holding_brake delays must be >= 0")
 
 
 @dataclass
@@ -293,12 +318,14 @@ _SUBTABLES: dict[str, type] = {
     "pot": PotParams,
     "encoder": EncoderParams,
     "tach": TachParams,
+    "holding_brake": HoldingBrakeParams,
 }
 
 
 def _read_dataclass(cls: type, tbl: ConfigTable) -> Any:
     """Build dataclass ``cls`` from a table, typed by the dataclass defaults."""
     obj = cls()
+    values: dict[str, Any] = {}
     for f in fields(cls):
         if f.name not in tbl:
             continue
@@ -311,9 +338,9 @@ def _read_dataclass(cls: type, tbl: ConfigTable) -> Any:
             v = tbl.get_float(f.name)
         else:
             v = tbl.get_str(f.name)
-        setattr(obj, f.name, v)
+        values[f.name] = v
     tbl.check_unknown({f.name for f in fields(cls)})
-    return obj
+    return cls(**values)  # frozen tables too
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:

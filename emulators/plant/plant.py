@@ -43,6 +43,7 @@ from emulators.plant.amplifier import (
     current_step_linear,
     prepare_drive,
 )
+from emulators.plant.brake import HoldingBrakes
 from emulators.plant.encoder import encoder_events
 from emulators.plant.friction import FrictionArrays, StickSlipStepper
 from emulators.plant.link import gravity_torque, hard_stop_overshoot
@@ -65,6 +66,8 @@ class PlantCommand:
         brake: H-bridge brake line (True = winding shorted through the low-side switches).
         watchdog_line: the level of the amplifiers' enable-watchdog (charge-pump) line, one
             line for the whole rig (False where none is wired).
+        holding_brake: per joint the holding brake's line (True = energised = released; low
+            engages the brake; ignored where a joint has none). Left empty it is all low.
     """
 
     amp_command_v: np.ndarray
@@ -74,6 +77,11 @@ class PlantCommand:
     pwm_direction: np.ndarray
     brake: np.ndarray
     watchdog_line: bool = False
+    holding_brake: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+
+    def __post_init__(self) -> None:
+        if np.size(self.holding_brake) == 0 and np.size(self.amp_enable) != 0:
+            self.holding_brake = np.zeros(np.size(self.amp_enable), dtype=bool)
 
     def copy(self) -> PlantCommand:
         """A copy with its own arrays."""
@@ -85,11 +93,13 @@ class PlantCommand:
             pwm_direction=np.array(self.pwm_direction, dtype=bool),
             brake=np.array(self.brake, dtype=bool),
             watchdog_line=bool(self.watchdog_line),
+            holding_brake=np.array(self.holding_brake, dtype=bool),
         )
 
     @classmethod
     def idle(cls, n: int) -> PlantCommand:
-        """All amplifiers disabled, zero command, no brake, the watchdog line low."""
+        """All amplifiers disabled, zero command, no brake, the watchdog line low, every holding
+        brake's line low (engaged)."""
         return cls(
             amp_command_v=np.zeros(n),
             amp_enable=np.zeros(n, dtype=bool),
@@ -97,6 +107,7 @@ class PlantCommand:
             pwm_duty=np.zeros(n),
             pwm_direction=np.ones(n, dtype=bool),
             brake=np.zeros(n, dtype=bool),
+            holding_brake=np.zeros(n, dtype=bool),
         )
 
 
@@ -120,8 +131,9 @@ class PlantSensors:
             ``amp_enabled`` (the output stage is on: enable line high, not latched off by the
             enable watchdog, no latched fault), ``amp_watchdog_cause`` (why the enable watchdog
             latched the amplifier off: ``WATCHDOG_*`` bits, 0 = not latched),
-            ``amp_watchdog_tripped`` (cause ≠ 0); and ``encoder_x4`` (float encoder position at
-            the end).
+            ``amp_watchdog_tripped`` (cause ≠ 0); ``encoder_x4`` (float encoder position at
+            the end); and ``brake_engaged`` (the holding brake's armature holds at the end; False
+            where a joint has none).
     """
 
     pot_v: np.ndarray
@@ -171,6 +183,7 @@ class _StepConsts:
             _k.POT_NOISE: pot.noise, _k.MON_GAIN: np.where(amp.is_lin, amp.lin_monitor, amp.hb_monitor),
             _k.MON_OFFSET: np.where(amp.is_lin, amp.lin_monitor_offset, amp.hb_monitor_offset),
             _k.MON_NOISE: amp.monitor_noise, _k.SW_NOISE: plant.hb_switching_noise,
+            _k.BRAKE_HOLD: plant.brakes.hold_motor_nm,
         }
         for row, values in rows.items():
             P[row] = values
@@ -182,6 +195,7 @@ class _StepConsts:
         F[_k.F_TACH] = plant.has_tach
         F[_k.F_TACH_RIPPLE] = plant.has_tach_ripple
         F[_k.F_DIRECT] = st.direct
+        F[_k.F_BRAKE] = plant.has_brakes
         F[_k.F_LAYOUT] = _k.LAYOUT_ID
         self.set_external(plant)
         self.enci = np.ascontiguousarray(np.stack([plant.enc_counts_per_rev, plant.enc_index_phase]), dtype=np.int64)
@@ -343,6 +357,13 @@ class Plant(FaultInjectable):
         self.has_tach_ripple = bool(np.any(self.tach.ripple != 0.0))
         self.enc_scale = self.enc_counts_per_rev / (2.0 * math.pi)  #: x4 counts per motor radian
         self.watchdog_timeout_s = params.watchdog_timeout_s
+        self.brakes = HoldingBrakes(
+            present=_stack(js, "holding_brake.present", bool),
+            hold_motor_nm=_stack(js, "holding_brake.holding_torque_nm") / self.N,
+            engage_s=_stack(js, "holding_brake.engage_delay_s"),
+            release_s=_stack(js, "holding_brake.release_delay_s"),
+        )
+        self.has_brakes = self.brakes.any
         self._consts: dict[float, _StepConsts] = {}
         # injected sensor faults: per joint the held volts (NaN: healthy); see _fault_changed
         self._held_v = np.full((2, self.n_joints), np.nan)  # rows: pot, tach (the kernel reads both)
@@ -432,6 +453,7 @@ class Plant(FaultInjectable):
         self.tach_state = np.zeros(n)
         self.amp_state = AmpState(n)
         self.watchdog = EnableWatchdog(n, self.watchdog_timeout_s)
+        self.brakes.reset()
         self.at_stop = np.zeros(n, dtype=bool)
         self.external_torque_nm = np.zeros(n)
         self.has_external = False
@@ -473,8 +495,10 @@ class Plant(FaultInjectable):
             c = self._consts[h] = _StepConsts(self, h)
         return c
 
-    def _substep(self, c: _StepConsts, drv: AmpDrive, fast_amp: bool, i_ref_term: np.ndarray) -> None:
-        """One fixed step of every joint (state updated in place)."""
+    def _substep(self, c: _StepConsts, drv: AmpDrive, fast_amp: bool, i_ref_term: np.ndarray,
+                 brake: np.ndarray | None = None) -> None:
+        """One fixed step of every joint (state updated in place); ``brake``: the engaged holding
+        brakes' motor-shaft torque (``None``: a plant without brakes)."""
         if fast_amp:
             self.i = current_step_linear(self.amp_state, i_ref_term, self.i, self.omega_m, c.amp)
         else:
@@ -493,7 +517,7 @@ class Plant(FaultInjectable):
             t_drive = t_drive - load * self.inv_N
         elif self.has_gravity:
             t_drive = t_drive - gravity_torque(self._theta_out(self.theta_m), self.G, self.G_phase) * self.inv_N
-        w1, dth = c.stick_slip(self.omega_m, self.theta_m, t_drive)
+        w1, dth = c.stick_slip(self.omega_m, self.theta_m, t_drive, brake)
         self.theta_m = self.theta_m + dth
         self.omega_m = w1
         if self.any_compliant:
@@ -554,6 +578,10 @@ class Plant(FaultInjectable):
         held = prev  # the command the amplifiers obey in the current segment
         drv = self._drive(held)
         s_out = wd.expiry_substep(t0, h, n_sub)
+        brakes = self.brakes if self.has_brakes else None
+        if brakes is not None:
+            brakes.begin(t0, h)
+        brake_t = None
         for s in range(n_sub + 1):
             segment = s == 0
             if s == n_old:
@@ -564,9 +592,14 @@ class Plant(FaultInjectable):
                 held = cmd
                 drv = self._drive(held)
                 segment = True
-            if s == s_out and wd.expire(held.amp_enable):
-                drv = self._drive(held)
-                segment = True
+                if brakes is not None:
+                    brakes.event(s, self._brake_lines(cmd, t0 + s * h))
+            if s == s_out:
+                if wd.expire(held.amp_enable):
+                    drv = self._drive(held)
+                    segment = True
+                if brakes is not None:  # the pump feeds the brakes' lines too
+                    brakes.event(s, np.zeros(self.n_joints, dtype=bool))
             if segment:
                 fast = bool(np.all(drv.lin_on & ~self.amp_state.fault))
                 i_ref_term = drv.i_ref * (1.0 - c.amp.loop)
@@ -576,10 +609,14 @@ class Plant(FaultInjectable):
                     sw = drv.hb_drive & (np.abs(drv.hb_v) < self.amp.hb_supply)
             if s == n_sub:
                 break
-            self._substep(c, drv, fast, i_ref_term)
+            if brakes is not None:
+                brake_t = brakes.torque_at(s)
+            self._substep(c, drv, fast, i_ref_term, brake_t)
             if sw is not None:
                 switching |= sw & ~self.amp_state.fault
             x4[s + 1] = self.theta_m * self.enc_scale
+        if brakes is not None:
+            brakes.finish(n_sub)
         check_slow_faults(self.amp, self.amp_state)
         self._prev_cmd = cmd.copy()  # callers may mutate their command in place
         self.time_s += period_s
@@ -645,6 +682,8 @@ class Plant(FaultInjectable):
         k_seg = 0
         held, held_k = prev.amp_enable, 0
         s_out = wd.expiry_substep(t0, h, n_sub)
+        brakes = self.brakes
+        brake_on = brakes.begin(t0, h) if self.has_brakes else brakes.present
         s = 0
         while True:
             changed = s == 0
@@ -653,8 +692,13 @@ class Plant(FaultInjectable):
                 s_out = wd.expiry_substep(t0, h, n_sub)  # an edge retriggers the pump
                 held, held_k = new_enable, 1
                 changed = True
-            if s == s_out and wd.expire(held):
-                changed = True
+                if self.has_brakes:
+                    brakes.event(s, self._brake_lines(cmd, t0 + s * h))
+            if s == s_out:
+                if wd.expire(held):
+                    changed = True
+                if self.has_brakes:  # the pump feeds the brakes' lines too
+                    brakes.event(s, np.zeros(n, dtype=bool))
             if s >= n_sub:
                 break
             if changed:
@@ -669,6 +713,8 @@ class Plant(FaultInjectable):
             if s < s_out < nxt:
                 nxt = s_out
             s = nxt
+        if self.has_brakes:
+            brakes.finish(n_sub)
         cmd_f = np.empty((2, 2, n))
         cmd_f[0, 0] = prev.amp_command_v
         cmd_f[0, 1] = prev.pwm_duty
@@ -694,6 +740,7 @@ class Plant(FaultInjectable):
         kernel(
             c.P, c.enci, c.F, h, n_sub, n_old, cmd_f, cmd_b, seg_start[:k_seg], seg_cmd[:k_seg],
             seg_enable[:k_seg], reset_edge, X, st.fault, st.cause, st.saturated, noise, self._held_v, x4, O, B, E, idx,
+            brake_on, brakes.flips,
         )
         self.at_stop = B[_k.B_AT_STOP]
         self._prev_cmd = cmd.copy()  # callers may mutate their command in place
@@ -735,6 +782,7 @@ class Plant(FaultInjectable):
             "amp_watchdog_cause": wd.cause.copy(),
             "amp_watchdog_tripped": wd.latched,
             "encoder_x4": O[_k.O_X4],
+            "brake_engaged": brakes.engaged.copy(),
         }
         return PlantSensors(
             pot_v=O[_k.O_POT],
@@ -766,9 +814,24 @@ class Plant(FaultInjectable):
 
     def hold_amplifiers_off(self, cause: int) -> np.ndarray:
         """Latch every amplifier enabled now off for ``cause`` (an amplifier-side watchdog outside
-        simulated time: the plant node's command timeout); re-armed like a watchdog trip.
-        Returns the joints this latched."""
+        simulated time: the plant node's command timeout); re-armed like a watchdog trip. The
+        holding brakes engage at once (:meth:`HoldingBrakes.hold`): the wall-clock time the
+        timeout took exceeds their engage delay. Returns the joints this latched."""
+        self.brakes.hold()
         return self.watchdog.hold_off(self._prev_cmd.amp_enable, cause)
+
+    def brakes_engaged(self) -> np.ndarray:
+        """Per joint: the holding brake's armature holds now (False where a joint has none)."""
+        return self.brakes.engaged.copy()
+
+    def _brake_lines(self, cmd: PlantCommand, t_s: float) -> np.ndarray:
+        """The brake lines as the brakes see them at ``t_s``: the command's lines, all low while the
+        enable watchdog's pump is out, and low for an amplifier the watchdog latched off (its brake
+        holds until the amplifier is re-armed)."""
+        wd = self.watchdog
+        if not wd.alive(t_s):
+            return np.zeros(self.n_joints, dtype=bool)
+        return np.asarray(cmd.holding_brake, dtype=bool) & (wd.cause == 0)
 
     def _sense(self, x4: np.ndarray, h: float, c: _StepConsts, switching: np.ndarray) -> PlantSensors:
         th_j = self.joint_angle()
@@ -801,6 +864,7 @@ class Plant(FaultInjectable):
             "amp_watchdog_cause": self.amplifier_watchdog_cause(),
             "amp_watchdog_tripped": self.watchdog.latched,
             "encoder_x4": x4[-1].copy(),
+            "brake_engaged": self.brakes.engaged.copy(),
         }
         return PlantSensors(
             pot_v=pot_v,

@@ -247,6 +247,14 @@ class PidLaw:
         """Clear integrators and switch-off state (keeps gains and configuration)."""
         self.state = LawState.zeros(self.n)
 
+    def preload(self, accel: np.ndarray) -> None:
+        """Set the position integrator so that with zero errors the law's output is ``accel``
+        (rad/s² per joint): ``Ie = a/Kpi`` (0 where Kpi is 0), ``Iv`` unchanged. A resume after
+        a stop whose brakes held the joints takes up their loads this way (servo.loop)."""
+        kpi = np.broadcast_to(np.asarray(self.gains.kpi, float), (self.n,))
+        a = np.broadcast_to(np.asarray(accel, float), (self.n,))
+        self.state.ie = np.where(a == 0, self.state.ie, np.divide(a, kpi, out=np.zeros(self.n), where=kpi != 0))
+
     # ---- the three phases of a tick ----------------------------------------------------------------
     def begin(self, tick: int, theta: np.ndarray, omega: np.ndarray, theta_d: np.ndarray,
               omega_d: np.ndarray, motion_done: bool | np.ndarray) -> None:

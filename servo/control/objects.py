@@ -124,6 +124,10 @@ class BaseControlObject:
     def reset(self) -> None:
         """Clear internal state."""
 
+    def preload_torque(self, torque: np.ndarray, chain: NormalizingChain) -> None:
+        """After :meth:`reset`: start so that with zero error the output is ``torque`` (N·m per
+        joint; 0: as reset) — a resume whose holding brakes kept the joints where they stopped."""
+
     def describe(self) -> dict[str, Any]:
         """Parameters for reports (SI, keys carry units)."""
         return {}
@@ -193,6 +197,9 @@ class PidObject(BaseControlObject):
 
     def reset(self) -> None:
         self.law.reset()
+
+    def preload_torque(self, torque: np.ndarray, chain: NormalizingChain) -> None:
+        self.law.preload(np.asarray(torque, float) / chain.j_eff)
 
     def describe(self) -> dict[str, Any]:
         so = self.law.switch_off

@@ -187,6 +187,7 @@ class PlantHub:
             cmd.pwm_duty[idx] = c.pwm_duty
             cmd.pwm_direction[idx] = c.pwm_direction
             cmd.brake[idx] = c.brake
+            cmd.holding_brake[idx] = c.holding_brake
         wd = rd.cmds.get(self.watchdog_unit) if self.watchdog_unit is not None else None
         cmd.watchdog_line = bool(wd.watchdog_line) if wd is not None else False
         rd.answer = self.link.exchange(cmd, period_s, delay_s)

@@ -32,7 +32,9 @@ def test_the_shipped_dbc_is_the_generators_output_and_is_package_data():
 
 def test_fd_frames_are_marked_fd_in_the_dbc():
     assert CODEC.message("SENS", 0).is_fd and CODEC.message("SYNC").is_fd
-    assert not CODEC.message("CMD", 0).is_fd  # 8 bytes: classic CAN
+    # 12 bytes since the holding-brake line (#29): FD like SENS (its first 8 bytes as before)
+    assert CODEC.message("CMD", 0).is_fd and CODEC.message("CMD", 0).length == 12
+    assert CODEC.message("CMD", 0).get_signal_by_name("HoldingBrake").start == 64
 
 
 def test_resolutions_are_finer_than_the_electronics():

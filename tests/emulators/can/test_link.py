@@ -251,14 +251,14 @@ def test_garbage_on_the_bus_is_counted_and_dropped_without_changing_results(tran
         stop = threading.Event()
 
         # CMD_J00 with PwmDuty raw 2^20 - 1 (> 1.0): the right length, out of range
-        out_of_range = bytes([0, 0, 0, 0xFF, 0xFF, 0x0F, 0, 0])
+        out_of_range = bytes([0, 0, 0, 0xFF, 0xFF, 0x0F, 0, 0, 0, 0, 0, 0])  # CMD: 12 bytes (FD) since #29
 
         ids = [0x7FF, 0x080, 0x100, 0x200, 0x280, 0x281, 0x123]
         # one frame of every bad kind goes out before the first tick, so both sides' counters
         # have something to count however the spam thread is scheduled on a loaded machine
-        first_round = [can.Message(arbitration_id=0x100, data=out_of_range, is_extended_id=False)]
+        first_round = [can.Message(arbitration_id=0x100, data=out_of_range, is_extended_id=False, is_fd=True)]
         first_round += [can.Message(arbitration_id=fid, data=bytes(size), is_extended_id=False, is_fd=size > 8)
-                        for fid in ids for size in (0, 3, 12)]
+                        for fid in ids for size in (0, 3, 20)]
         sent_first_round = threading.Event()
 
         def spam() -> None:
@@ -269,10 +269,11 @@ def test_garbage_on_the_bus_is_counted_and_dropped_without_changing_results(tran
             while not stop.is_set():
                 k += 1
                 if k % 4 == 0:
-                    noise_bus.send(can.Message(arbitration_id=0x100, data=out_of_range, is_extended_id=False))
+                    noise_bus.send(can.Message(arbitration_id=0x100, data=out_of_range, is_extended_id=False,
+                                               is_fd=True))
                 else:  # unknown identifiers and wrong lengths for every known one
                     fid = int(rng.choice(ids))
-                    size = int(rng.choice([0, 3, 12, 64]))
+                    size = int(rng.choice([0, 3, 20, 64]))  # 20: no frame's length (CMD is 12 since #29)
                     data = bytes(rng.integers(0, 256, size, dtype=np.uint8))
                     noise_bus.send(can.Message(arbitration_id=fid, data=data, is_extended_id=False, is_fd=size > 8))
                 time.sleep(0.001)
@@ -386,6 +387,7 @@ def test_free_running_the_first_answers_after_connect_are_the_new_sessions_not_q
     thread, stop = node.start_thread()
     link = CanPlantLink(ep, spec.names, seed=3, free_running=True, stale_ticks=10_000, heartbeat_timeout_s=30.0)
     cmd = PlantCommand.idle(spec.n_joints)
+    cmd.holding_brake[:] = True  # the holding brakes released: gravity moves the joints
     try:
         _wait_for(lambda: node.counters.steps >= 100, "100 steps of the node's first plant")  # gravity moves it
         link.connect()

@@ -17,6 +17,7 @@ STEP_TOLERANCE_RAD = 5.0e-4  #: a third of a 12-bit pot count (1.45 mrad)
 def _drive(p: Plant, t: float) -> PlantCommand:
     c = p.idle_command()
     c.amp_enable[:] = True
+    c.holding_brake[:] = True  # powered: the holding brakes released
     c.amp_command_v[:6] = np.array([1.2, 3.0, 3.5, 2.0, 2.5, 0.8]) * np.sin(2 * math.pi * 0.3 * t + np.arange(6))
     c.pwm_duty[6] = 0.3 * abs(math.sin(2 * math.pi * 0.2 * t))
     c.pwm_direction[6] = math.sin(2 * math.pi * 0.2 * t) > 0

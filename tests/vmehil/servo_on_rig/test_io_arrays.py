@@ -68,6 +68,8 @@ def _reference_write_torque(io: JointIO, torque_nm: np.ndarray, omega: np.ndarra
     for board, cmds in per_dac.items():
         io.dac[board].write_many(cmds, update=True)
     io.last_current_a[:] = current
+    if io._release_pending:
+        io.release_brakes()
     if io.watchdog_running:
         io._toggle_watchdog()
     return current

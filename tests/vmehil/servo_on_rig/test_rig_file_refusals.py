@@ -36,6 +36,11 @@ def _swap_first(pattern: str, replacement: str) -> str:
     ((r'^pot = "adc0:0"', 'pot = "adc9:0"'), "joint[0].wiring.pot", "no board named 'adc9'"),
     ((r'^name = "adc1"', 'name = "adc0"'), "crate.board[1].name", "a board name not used before"),
     ((r'^slot = 3', 'slot = 2'), "crate.board[1].slot", "a free slot"),
+    # a holding brake's line is a PIO output, free (issue #29)
+    ((r'^holding_brake = "pio1:PA0"', 'holding_brake = "dac0:6"'), "joint[1].wiring.holding_brake",
+     "a pin of a pio board"),
+    ((r'^holding_brake = "pio1:PA1"', 'holding_brake = "pio1:PA0"'), "joint[2].wiring.holding_brake",
+     "already carries j2.holding_brake"),
 ])
 def test_a_miswired_rig_is_refused_naming_file_and_key(tmp_path, edit, key, expected) -> None:
     path = _rig(tmp_path, _swap_first(*edit))
