@@ -99,9 +99,12 @@ def main(argv: list[str] | None = None) -> int:
         made = check_outputs(outputs, force=force)
         try:
             with stop_signals_raise():
-                return _ending(int(args.func(args.options(args)) or 0), process)
+                status = _ending(int(args.func(args.options(args)) or 0), process)
         finally:
             mark_output_dirs(outputs)
+        if status == EXIT_USAGE:  # refused (bad input, a missing extra): the folders made for it go again
+            remove_unused(made)
+        return status
     except (CliError, ConfigError, VmeError, FileNotFoundError, ValueError) as e:
         if debug:
             traceback.print_exc()
