@@ -45,6 +45,13 @@ class PlantLostError(StaleDataError):
     cause = "plant_lost"
 
 
+class AmplifiersLatchedError(PlantLinkError):
+    """The plant node latched amplifiers off on its own (its enable watchdog or its command
+    timeout): the controller's commands came too late or stopped, and no current reaches them."""
+
+    cause = "amplifiers_latched"
+
+
 class PlantRestartedError(PlantLinkError):
     """The plant node restarted (new boot identifier): its state no longer matches the loop's."""
 

@@ -60,9 +60,11 @@ from emulators.can.dbc import (
     ID_HEARTBEAT_CONTROLLER,
     ID_SYNC,
     MAX_JOINTS,
+    OFF_CAUSES,
 )
 from emulators.can.node import new_boot_id
 from emulators.plant_link import (
+    AmplifiersLatchedError,
     PlantLink,
     PlantLinkError,
     PlantLostError,
@@ -184,6 +186,7 @@ class CanPlantLink(PlantLink):
         self._other_run = 0  # how many of them came in a row (RESTART_EVIDENCE_FRAMES)
         self._taken_by: int | None = None  # PLANT_SESSION frames in a row naming one other owner
         self._taken_run = 0
+        self._peer_off_cause = 0  # the node's last HEARTBEAT_PLANT.OffCause (why amplifiers are latched)
 
     # --- sending --------------------------------------------------------------------------------
     def _heartbeat(self, now: float) -> None:
@@ -258,8 +261,8 @@ class CanPlantLink(PlantLink):
             return
         if kind in ("SENS", "TRUTH", "PLANT_STATUS", "HEARTBEAT_PLANT"):
             self._last_peer = time.monotonic()
-        if kind == "HEARTBEAT_PLANT":
-            pass  # alive (above)
+        if kind == "HEARTBEAT_PLANT":  # alive (above); why the node latched amplifiers off, if it did
+            self._peer_off_cause = int(f.raw["OffCause"])
         elif kind == "PLANT_SESSION":
             self._session_report(f.raw)
         elif kind == "SENS":
@@ -336,6 +339,15 @@ class CanPlantLink(PlantLink):
         c.peer_missing_cmd, c.peer_dropped, c.peer_seq_jumps = int(r["MissingCmd"]), int(r["Dropped"]), int(
             r["SeqJumps"])
         c.peer_watchdog_tripped = bool(r["WatchdogTripped"])
+        if c.peer_watchdog_tripped:
+            # the node latched amplifiers off on its own: no current reaches them, so say so now,
+            # with the node's reason (its heartbeat's), not as a current mismatch ticks later
+            why = ("its enable watchdog or its command timeout" if not self._peer_off_cause else
+                   OFF_CAUSES.get(self._peer_off_cause, "its enable watchdog or its command timeout").lower()
+                   .replace("_", " ").replace("watchdog", "enable watchdog"))
+            raise AmplifiersLatchedError(
+                f"the plant node latched amplifiers off ({why}): the controller's commands came too late or "
+                "stopped (docs/can.md, \"Command timeout\")")
         tick = int(r["Tick"])
         sens, truth = self._sens, self._truth
         self._sens, self._truth = {}, {}

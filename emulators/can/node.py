@@ -27,7 +27,10 @@ Protocol (frames of ``vmehil.dbc``; see ``docs/can.md``):
   --command-timeout``): when no CONTROL or SYNC has arrived for that long of wall-clock time,
   the node latches every enabled amplifier off (the plant's enable-watchdog latch, cause
   ``command_timeout``; re-armed by an enable rising while commands come again) and engages every
-  holding brake (the wall-clock silence outlasts their engage delay). In lockstep
+  holding brake (the wall-clock silence outlasts their engage delay). ``"auto"`` (the default of
+  ``vmehil plant-node``) follows the rig's period and the link's measured lateness
+  (:meth:`PlantNode.effective_command_timeout_s`). A clean ``END`` disarms it until the next
+  command. In lockstep
   simulated time stops with the controller, so the plant's own charge-pump watchdog cannot run
   out: this is the amplifier side's watchdog on the clock that still runs.
 * **HEARTBEAT_PLANT** every ``heartbeat_s`` of wall-clock time, and at once when the amplifier
@@ -46,6 +49,7 @@ import os
 import signal
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from pathlib import Path
@@ -70,6 +74,13 @@ from emulators.faults import FaultInjectable
 from emulators.plant.amplifier import WATCHDOG_COMMAND_TIMEOUT, cause_names
 
 log = logging.getLogger(__name__)
+
+#: ``command_timeout_s=AUTO``: the command timeout follows the rig's period and the link's lateness
+AUTO = "auto"
+AUTO_TIMEOUT_PERIODS = 25  #: the automatic timeout's floor, in servo periods (0.2 s at 125 Hz)
+AUTO_LATENESS_FACTOR = 3.0  #: … or this many times the longest recent gap between commands
+AUTO_GAP_WINDOW = 500  #: the gaps it looks back over (4 s at 125 Hz)
+AUTO_TIMEOUT_MAX_S = 1.0  #: and never longer than this (a dead controller must still be caught)
 
 PLANT_IDS = {ID_STATUS, ID_HEARTBEAT_PLANT, ID_SESSION} | {ID_SENS + j for j in range(MAX_JOINTS)} | {
     ID_TRUTH + j for j in range(MAX_JOINTS)}
@@ -193,8 +204,9 @@ class PlantNode(FaultInjectable):
         heartbeat_s: heartbeat interval (s, wall clock).
         controller_timeout_s: free-running: silence after which amplifiers are disabled (s).
         command_timeout_s: both modes: no CONTROL/SYNC for this long latches every enabled
-            amplifier off (s; ``None``: off — the default for a node in the controller's own
-            process, which dies with it; ``vmehil plant-node`` sets 0.2 s).
+            amplifier off (s; ``"auto"``: follows the period and the measured lateness, what
+            ``vmehil plant-node`` uses by default; ``None``: off — the default for a node in the
+            controller's own process, which dies with it).
         command_type: the plant's command class (default :class:`emulators.plant.PlantCommand`).
         names: joint names for the log (default ``joint0``, ``joint1``, …).
         clock: monotonic wall clock (s), for the timeouts.
@@ -210,12 +222,13 @@ class PlantNode(FaultInjectable):
     def __init__(self, endpoint: Endpoint | can.BusABC, plant_factory: Callable[[int], Any], n_joints: int, *,
                  seed: int = 0, free_running: bool = False, period_s: float = 0.008, delay_s: float = 0.0,
                  heartbeat_s: float = 0.1, controller_timeout_s: float = 0.5,
-                 command_timeout_s: float | None = None,
+                 command_timeout_s: float | str | None = None,
                  command_type: Callable[..., Any] | None = None, codec: CanCodec | None = None,
                  boot_id: int | None = None, names: list[str] | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
-        if command_timeout_s is not None and not command_timeout_s > 0:
-            raise ValueError(f"command_timeout_s must be > 0 (or None), got {command_timeout_s}")
+        if command_timeout_s is not None and command_timeout_s != AUTO and not (
+                isinstance(command_timeout_s, int | float) and command_timeout_s > 0):
+            raise ValueError(f"command_timeout_s must be > 0, {AUTO!r} or None, got {command_timeout_s!r}")
         self.ep = endpoint if isinstance(endpoint, Endpoint) else Endpoint(endpoint, PLANT_IDS, owns_bus=False)
         self.ep.own_ids |= PLANT_IDS
         self.codec = codec or CanCodec()
@@ -243,6 +256,9 @@ class PlantNode(FaultInjectable):
         self._next_hb = 0.0
         self._last_controller: float | None = None  # monotonic time of the last controller frame
         self._last_command: float | None = None  # monotonic time of the last CONTROL or SYNC
+        #: the latest gaps between two CONTROL/SYNC (wall clock): the link's measured lateness, which
+        #: the automatic command timeout follows
+        self._gaps: deque[float] = deque(maxlen=AUTO_GAP_WINDOW)
         self.command_timed_out = False  #: the command timeout is in force
         self.last_silence_s: float | None = None  #: the silence that brought the last command timeout
         self.state = STATE_READY
@@ -387,7 +403,10 @@ class PlantNode(FaultInjectable):
             log.info("plant node: controller %#06x ended its session %d", boot, self.session_no)
             self.cmd_raw = self._idle_raw()
             self.session_owner, self.session_no = None, 0
-            self._owner_seen = self._last_controller = None  # the command timeout stays armed
+            # a clean end: the amplifiers are idle and no command is due, so the command timeout
+            # is disarmed (it latched every amplifier 0.2 s after every clean run) until the next one
+            self._owner_seen = self._last_controller = self._last_command = None
+            self._gaps.clear()
             self.state = STATE_READY
             self._session_frame()
             return
@@ -419,16 +438,28 @@ class PlantNode(FaultInjectable):
         # A warning only when it cut power: a controller pausing with its amplifiers off is no event.
         log.log(logging.WARNING if latched.any() else logging.INFO,
                 "plant node: command timeout: no CONTROL/SYNC for %.3f s (limit %g s); %d amplifier(s) latched off",
-                silence, self.command_timeout_s, int(np.count_nonzero(latched)))
+                silence, self.effective_command_timeout_s(), int(np.count_nonzero(latched)))
         self._note_trips()
         self.heartbeat(now, force=True)
         return True
 
+    def effective_command_timeout_s(self) -> float | None:
+        """The command timeout in force (s; None: off). ``"auto"`` follows the rig's period and the
+        link's measured lateness: ``AUTO_TIMEOUT_PERIODS`` servo periods (0.2 s at 125 Hz), or
+        ``AUTO_LATENESS_FACTOR`` × the longest of the last ``AUTO_GAP_WINDOW`` gaps between the
+        controller's commands when that is longer (a loaded machine's late ticks must not trip it),
+        never beyond ``AUTO_TIMEOUT_MAX_S``."""
+        if self.command_timeout_s != AUTO:
+            return None if self.command_timeout_s is None else float(self.command_timeout_s)
+        lateness = max(self._gaps, default=0.0)
+        return min(AUTO_TIMEOUT_MAX_S, max(AUTO_TIMEOUT_PERIODS * self.period_s, AUTO_LATENESS_FACTOR * lateness))
+
     def _command_expiry(self) -> float | None:
         """When the command timeout comes into force unless a CONTROL/SYNC arrives (None: not armed)."""
-        if self.command_timeout_s is None or self._last_command is None or self.command_timed_out:
+        timeout = self.effective_command_timeout_s()
+        if timeout is None or self._last_command is None or self.command_timed_out:
             return None
-        return self._last_command + self.command_timeout_s
+        return self._last_command + timeout
 
     def _note_trips(self) -> bool:
         """Count amplifiers newly latched off (True when there are some)."""
@@ -454,6 +485,8 @@ class PlantNode(FaultInjectable):
         return ok
 
     def _commands_again(self, now: float | None) -> None:
+        if now is not None and self._last_command is not None:
+            self._gaps.append(now - self._last_command)
         self._last_command = now
         if self.command_timed_out:
             self.command_timed_out = False

@@ -8,8 +8,9 @@ The controller side is ``vmehil run --plant can`` with the same rig, interface a
 docs/can.md). A controller's RESET rebuilds the plant with the controller's seed, so one node
 serves any number of runs. Stop with Ctrl-C, SIGTERM (or ``--duration``).
 
-``--command-timeout`` (default 0.2 s, 0 = off): no CONTROL/SYNC from the controller for that long
-(wall clock) latches every enabled amplifier off — a killed or hung controller leaves no
+``--command-timeout`` (default auto: 25 servo periods, or 3 × the longest recent gap between the
+controller's commands when longer, at most 1 s; 0 = off): no CONTROL/SYNC from the controller for
+that long (wall clock) latches every enabled amplifier off — a killed or hung controller leaves no
 powered joints, also in lockstep, where the plant's own enable watchdog cannot run out because
 simulated time stops with the controller. ``--json PATH`` writes the node's summary at exit:
 counters and the amplifiers' state (on or off, and why).
@@ -25,7 +26,12 @@ from vmehil.cli_types import bounded_float, duration_s
 from vmehil.commands.errors import CliError
 from vmehil.files import write_json
 
-DEFAULT_COMMAND_TIMEOUT_S = 0.2
+
+def command_timeout(text: str) -> float | str:
+    """``--command-timeout``: ``auto`` or seconds (0: off)."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    return bounded_float(0.0, 3600.0, what="seconds (0 = off) or auto")(text)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,10 +45,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="step on the wall clock at the servo rate instead of on the controller's SYNC")
     p.add_argument("--duration", metavar="S", type=duration_s, default=None,
                    help="serve this many seconds (default: until Ctrl-C)")
-    p.add_argument("--command-timeout", type=bounded_float(0.0, 3600.0, what="seconds (0 = off)"),
-                   default=DEFAULT_COMMAND_TIMEOUT_S, metavar="S",
+    p.add_argument("--command-timeout", type=command_timeout, default="auto", metavar="S|auto",
                    help="latch every enabled amplifier off when no CONTROL/SYNC came for S seconds of wall-clock "
-                        f"time (default {DEFAULT_COMMAND_TIMEOUT_S:g}; 0 = off)")
+                        "time (default auto: 25 servo periods, or 3 × the longest recent gap between the "
+                        "controller's commands when longer, at most 1 s; 0 = off; docs/can.md)")
     p.add_argument("--json", default=None, metavar="PATH",
                    help="write the node's summary here at exit (counters, amplifier state and why)")
     p.set_defaults(func=run, options=PlantNodeOptions.from_args)
@@ -59,7 +65,7 @@ class PlantNodeOptions:
     can_log: str | None = None
     free_running: bool = False
     duration: float | None = None
-    command_timeout: float = 0.0
+    command_timeout: float | str = "auto"
     json: str | None = None
 
     @classmethod
@@ -89,7 +95,9 @@ def run(opts: PlantNodeOptions) -> int:
     mode = "free-running" if opts.free_running else "lockstep"
     iface, chan = resolve(opts.interface, opts.channel)
     exit_on_sigterm()
-    timeout = f"command timeout {opts.command_timeout:g} s" if opts.command_timeout else "no command timeout"
+    timeout = (f"command timeout auto (now {node.effective_command_timeout_s() or 0.0:g} s)"
+               if opts.command_timeout == "auto" else
+               f"command timeout {opts.command_timeout:g} s" if opts.command_timeout else "no command timeout")
     print(f"plant node: rig {spec.name} ({spec.n_joints} joints), {mode}, {iface} {chan}, {timeout}, "
           f"boot id {node.boot_id:#06x}", file=sys.stderr, flush=True)
     try:
@@ -115,7 +123,9 @@ def summary(node, spec, mode: str) -> dict:
         "rig": spec.name, "mode": mode, "boot_id": node.boot_id, "steps": c.steps, "resets": c.resets,
         "missing_cmd": c.missing_cmd, "dropped": node.dropped_total(), "seq_jumps": c.seq_jumps,
         "step_errors": c.step_errors, "controller_lost": c.controller_lost,
-        "command_timeout_s": node.command_timeout_s, "command_timeouts": c.command_timeouts,
+        "command_timeout_s": node.effective_command_timeout_s(),
+        "command_timeout_mode": "auto" if node.command_timeout_s == "auto" else
+        "fixed" if node.command_timeout_s else "off", "command_timeouts": c.command_timeouts,
         "last_command_silence_s": node.last_silence_s, "watchdog_trips": c.watchdog_trips,
         "refused": c.refused, "refused_resets": c.refused_resets, "session_owner": node.session_owner,
         "amplifiers": node.amplifiers().as_dict(spec.names),

@@ -175,7 +175,17 @@ class PlantHub:
             self._stopped(r, name, f"lost: no commands for exchange {r} within {self.timeout_s:g} s")
         self.lost.set()
         if rd.answer is None:
-            self._step(r, rd, period_s, delay_s)
+            try:
+                self._step(r, rd, period_s, delay_s)
+            except PlantLinkError as e:
+                # the plant's side reacted to the silence too (its node latched the amplifiers off:
+                # no commands reached it either); the run already stops for the lost unit, and that
+                # is what every unit hears — the plant's reaction is kept as an event
+                if self._last_answer is None:
+                    raise
+                self.events.append(HubEvent(r, "plant", f"after the loss: {e.cause}: {e}"))
+                rd.answer = self._last_answer
+                self._cv.notify_all()
 
     def _step(self, r: int, rd: _Round, period_s: float, delay_s: float) -> None:
         cmd = PlantCommand.idle(self.n)  # a unit not handing in (lost, gone): its amplifiers off

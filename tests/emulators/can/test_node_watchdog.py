@@ -200,3 +200,40 @@ def test_a_sync_asking_for_another_period_or_an_impossible_delay_is_refused_not_
         assert ctl.node.counters.steps == steps + 1
     finally:
         ctl.close()
+
+
+def test_a_clean_end_disarms_the_command_timeout():
+    # after every clean run the node still reported "7 latched off (command_timeout)": the timeout
+    # fired 0.2 s after END
+    c = Controller()
+    try:
+        for _ in range(5):
+            c.send()
+        c.node.handle(CODEC.frame("CONTROL", Command=2, Seed=0, NJoints=N, BootId=BOOT))  # END
+        c.clock.t += 5.0
+        assert not c.node.check_command_timeout()
+        assert not c.node.amplifiers().tripped.any() and c.node.counters.command_timeouts == 0
+    finally:
+        c.close()
+
+
+def test_the_automatic_command_timeout_follows_the_period_and_the_measured_lateness():
+    c = Controller(command_timeout_s="auto")
+    try:
+        for _ in range(5):
+            c.send()
+        assert c.node.effective_command_timeout_s() == pytest.approx(25 * PERIOD)  # 0.2 s at 125 Hz
+        c.clock.t += 0.15 - PERIOD  # one tick 0.15 s late (a loaded machine)...
+        c.send()
+        assert c.node.effective_command_timeout_s() == pytest.approx(3 * 0.15)  # ...widens it to 0.45 s
+        c.clock.t += 0.3
+        assert not c.node.check_command_timeout()  # 0.3 s of silence: within 0.45 s
+        c.clock.t += 0.2
+        assert c.node.check_command_timeout() and not c.node.amplifiers().enabled.any()
+        c.clock.t += 100.0  # never beyond 1 s, however late a tick once came
+        c.send()
+        c.clock.t += 30.0 - PERIOD
+        c.send()
+        assert c.node.effective_command_timeout_s() == 1.0
+    finally:
+        c.close()
