@@ -41,6 +41,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 from hal.quadrature.quad_regs import (
+    BOARD_TYPE,
     CHANNELS,
     CMD_CLEAR,
     CMD_LATCH,
@@ -57,6 +58,7 @@ from hal.quadrature.quad_regs import (
     reg_name,
 )
 from hal.vme.bus import SpaceLike, VmeBus
+from hal.vme.errors import BoardIdError
 from hal.vme.window import BoardWindow
 
 _HALF = COUNTER_MODULUS // 2
@@ -250,6 +252,18 @@ class QuadratureDriver:
         return self.counts_per_rev_x4[ch] * self._t(ch).mode / 4.0
 
     # --- raw access ----------------------------------------------------------------------
+    def probe(self) -> int:
+        """Read the ID register; return the board revision (ID[7:0]). Raises
+        :class:`hal.vme.BoardIdError` when ID[15:8] is not the decoder's type 0x51 (wrong base
+        address or board). Not part of construction, which makes only the cycles it documents."""
+        ident = self.win.read("ID")
+        if ident >> 8 != BOARD_TYPE:
+            raise BoardIdError(
+                f"no quadrature decoder at 0x{self.win.base:X}: ID reads 0x{ident:04X}, expected type "
+                f"0x{BOARD_TYPE:02X} in bits 15:8; check the base address in the crate/rig file"
+            )
+        return ident & 0xFF
+
     def read_count(self, ch: int) -> int:
         """Latch and read the 24-bit counter (0..0xFFFFFF); cannot tear."""
         self._t(ch)
