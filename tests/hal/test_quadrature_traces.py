@@ -60,19 +60,21 @@ def test_probe_of_another_board_is_a_board_id_error() -> None:
 def test_construction_latches_reads_each_channel_and_clears_its_wrap_flags() -> None:
     bus = RecordingBus(answers={
         ("A16", 0x5028): 0x00FF, ("A16", 0x502A): 0xFFFE, ("A16", 0x5020): 0x0002,  # channel 0
-        ("A16", 0x5068): 0x0012, ("A16", 0x506A): 0x3456, ("A16", 0x5060): 0x0000,  # channel 2: x1
+        ("A16", 0x5068): 0x0080, ("A16", 0x506A): 0x0000, ("A16", 0x5060): 0x0000,  # channel 2: x1
+        ("A16", 0x5024): 0x0000, ("A16", 0x5064): 0x0000,
     })
     d = QuadratureDriver(bus, BASE, counts_per_rev=CPR, channels=(2, 0))
     assert bus.trace() == [
         "W A16 0x5022 D16 0x0001", "R A16 0x5028 D16 0x00FF", "R A16 0x502A D16 0xFFFE",
         "R A16 0x5020 D16 0x0002", "W A16 0x5024 D16 0x000C",
-        "W A16 0x5062 D16 0x0001", "R A16 0x5068 D16 0x0012", "R A16 0x506A D16 0x3456",
+        "W A16 0x5062 D16 0x0001", "R A16 0x5068 D16 0x0080", "R A16 0x506A D16 0x0000",
         "R A16 0x5060 D16 0x0000", "W A16 0x5064 D16 0x000C",
     ]
     assert d.counts_per_rev(0) == 2000.0 and d.counts_per_rev(2) == 500.0  # x4 and x1 read from CTL
-    # the first value is sign-extended from 24 bits: 0xFFFFFE → −2
-    bus.clear()
-    assert d.read_count(0) == 0xFFFFFE
+    # the first value is sign-extended from 24 bits: 0xFFFFFE → −2, 0x800000 → −8 388 608
+    assert (d.position_counts(0), d.position_counts(2)) == (-2, -8_388_608)
+    # until homed the zero is count 0: −2 counts of 2000 per revolution = −6.2832 mrad
+    assert d.position_rad(0) == pytest.approx(-0.0062832, abs=1e-7)
 
 
 # --- latch and read, across a wrap ---------------------------------------------------------
