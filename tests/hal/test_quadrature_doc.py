@@ -11,7 +11,7 @@ import pytest
 from emulators.crate import Crate
 from emulators.quadrature import BOARD_MAP, QuadratureBoard
 from emulators.signals import QuadratureEvents
-from hal.quadrature import QUAD_REGS, QuadratureDriver
+from hal.quadrature import QUAD_REGS, CountJumpError, QuadratureDriver
 from hal.vme import BusError, BusErrorCause, Width
 from tests.support.board_spec import doc_registers, map_differences
 
@@ -120,3 +120,29 @@ def test_velocity_of_40_counts_per_8_ms_tick() -> None:
     assert r.velocity_counts_s == pytest.approx(5000.0)
     assert r.velocity_rad_s == pytest.approx(15.70796, abs=1e-5)
     assert math.isclose(r.position_rad, 0.1256637, abs_tol=1e-7)
+    c.signals.publish_quadrature("enc0", QuadratureEvents(counts=40))
+    assert d.velocity(0, 0.008) == pytest.approx(15.70796, abs=1e-5)  # the one-channel read, same tick rule
+
+
+def test_velocity_estimator_edges() -> None:
+    # the first tick has no previous count: 0; |Δ| equal to low_speed_counts (4) is Δ/dt
+    c, d = _driver(2000.0)
+    assert d.update(0.008)[0].velocity_counts_s == 0.0
+    c.signals.publish_quadrature("enc0", QuadratureEvents(counts=4))
+    assert d.update(0.008)[0].velocity_counts_s == pytest.approx(500.0)
+    # |Δ| equal to max_counts_per_tick is allowed; one more is a CountJumpError
+    c, _ = _board()
+    d = QuadratureDriver(c, BASE, counts_per_rev=2000.0, channels=(0,), max_counts_per_tick=100)
+    d.update(0.008)
+    c.signals.publish_quadrature("enc0", QuadratureEvents(counts=100))
+    assert d.update(0.008)[0].velocity_counts_s == pytest.approx(12500.0)
+    c.signals.publish_quadrature("enc0", QuadratureEvents(counts=-101))
+    with pytest.raises(CountJumpError):
+        d.update(0.008)
+    # no count for stop_ticks (3) ticks: 0; before that at most one count per elapsed time
+    c, _ = _board()
+    d = QuadratureDriver(c, BASE, counts_per_rev=2000.0, channels=(0,), stop_ticks=3)
+    d.update(0.008)
+    c.signals.publish_quadrature("enc0", QuadratureEvents(counts=1))
+    v = [d.update(0.008)[0].velocity_counts_s for _ in range(4)]
+    assert v == pytest.approx([125.0, 125.0, 62.5, 0.0])  # 1/(m·dt) for m = 1, 1, 2 ticks; then 0

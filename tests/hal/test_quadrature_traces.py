@@ -17,7 +17,7 @@ import pytest
 from emulators.crate import Crate
 from emulators.quadrature import QuadratureBoard
 from emulators.signals import QuadratureEvents
-from hal.quadrature import IllegalTransitionError, QuadratureDriver, TrackingLostError
+from hal.quadrature import IllegalTransitionError, IndexMismatchError, QuadratureDriver, TrackingLostError
 from hal.vme import BoardIdError
 from tests.support.bus_trace import RecordingBus
 
@@ -129,11 +129,45 @@ def test_more_than_a_quarter_range_through_the_top_needs_overflow() -> None:
     answers = {0x5028: [0x00C0, 0x0030], 0x502A: [0x0000, 0x0000], 0x5020: 0x0002}
     _, d = _scripted({**answers, 0x5024: 0x0004})
     assert d.position_counts(0) == 3_145_728
-    # ... and tracking is lost without it (or with UNDERFLOW instead)
+    # ... and tracking is lost without it (or with UNDERFLOW instead); it goes on from the new value
     for status in (0x0000, 0x0008):
+        _, d = _scripted({**answers, 0x5024: status})
+        with pytest.raises(TrackingLostError) as ei:
+            d.update(0.008)
+        assert ei.value.channel == 0
+        assert d.position_counts(0) == 3_145_728
+
+
+def test_more_than_a_quarter_range_through_zero_needs_underflow() -> None:
+    # 0x300000 → 0xC00000 is −7 340 032 through zero
+    answers = {0x5028: [0x0030, 0x00C0], 0x502A: 0x0000, 0x5020: 0x0002}
+    _, d = _scripted({**answers, 0x5024: 0x0008})
+    assert d.position_counts(0) == 3_145_728 - 7_340_032
+    for status in (0x0000, 0x0004):
         _, d = _scripted({**answers, 0x5024: status})
         with pytest.raises(TrackingLostError):
             d.position_counts(0)
+
+
+@pytest.mark.parametrize("old,new,delta", [
+    (0x000000, 0x400000, 0x400000),  # exactly a quarter range through the top: no flag needed
+    (0x900000, 0xFFFFFF, 0x6FFFFF),  # up to 0xFFFFFF, not through it
+    (0x700000, 0x000000, -0x700000),  # down to 0, not through it
+    (0xD00000, 0x100000, 0x400000),  # a quarter range through the top, no flag
+])
+def test_moves_that_need_no_wrap_flag(old: int, new: int, delta: int) -> None:
+    _, d = _scripted({0x5028: [old >> 16, new >> 16], 0x502A: [old & 0xFFFF, new & 0xFFFF], 0x5020: 0x0002,
+                      0x5024: 0x0000})
+    first = old - (1 << 24) if old >= 0x800000 else old
+    assert d.position_counts(0) == first + delta
+
+
+def test_illegal_status_raises_from_a_position_or_velocity_read() -> None:
+    _, d = _scripted({0x5028: 0, 0x502A: 0, 0x5020: 0x0002, 0x5024: 0x0002})
+    for read in (lambda: d.position_counts(0), lambda: d.velocity(0, 0.008)):
+        with pytest.raises(IllegalTransitionError) as ei:
+            read()
+        assert ei.value.channel == 0
 
 
 def test_latch_and_read_across_a_wrap_on_the_emulated_board() -> None:
@@ -293,3 +327,36 @@ def test_hold_writes_mode_3() -> None:
     bus, d = _scripted({0x5028: 0, 0x502A: 0, 0x5020: 0x0012})
     d.hold(0)
     assert bus.trace() == ["R A16 0x5020 D16 0x0012", "W A16 0x5020 D16 0x0013"]
+
+
+def test_check_index_compares_with_the_homed_grid_within_the_tolerance() -> None:
+    # homed at IDX 100; the next capture at 2101 = 100 + 2000 (one revolution) + 1 count
+    bus, d = _scripted({0x5028: 0, 0x502A: 0, 0x5020: 0x0002, 0x5024: 0x0001, 0x5030: 0x0000,
+                        0x5032: [0x0064, 0x0835]})
+    assert d.home_at_index(0, position_rad=1.0) == 100
+    # the zero is 1 rad (318.31 counts) below the index: count 0 is at 1 − 100·2π/2000 rad
+    assert d.position_rad(0) == pytest.approx(1.0 - 0.3141593, abs=1e-7)
+    bus.clear()
+    assert d.check_index(0, tolerance_counts=1) == 1.0
+    assert bus.trace() == [
+        "R A16 0x5024 D16 0x0001", "R A16 0x5024 D16 0x0001",
+        "W A16 0x5022 D16 0x0001", "R A16 0x5024 D16 0x0001", "R A16 0x5028 D16 0x0000",
+        "R A16 0x502A D16 0x0000", "R A16 0x5030 D16 0x0000", "R A16 0x5032 D16 0x0835",
+        "W A16 0x5024 D16 0x0001", "R A16 0x5020 D16 0x0002", "W A16 0x5020 D16 0x0012",
+    ]
+    with pytest.raises(IndexMismatchError) as ei:
+        d.check_index(0, tolerance_counts=0.5)
+    assert (ei.value.channel, ei.value.error_counts) == (0, 1.0)
+
+
+def test_channels_are_0_to_3_and_the_preset_24_bits() -> None:
+    bus, d = _scripted({0x5028: 0, 0x502A: 0, 0x5020: 0x0002})
+    for bad in (4, -1):
+        with pytest.raises(ValueError, match="0..3"):
+            d.status(bad)
+    with pytest.raises(ValueError, match="0..3"):
+        QuadratureDriver(bus, BASE, counts_per_rev=CPR, channels=(4,))
+    d.preset(0, 0xFFFFFF)  # the largest 24-bit value is a preset
+    assert bus.trace()[:2] == ["W A16 0x5034 D16 0x00FF", "W A16 0x5036 D16 0xFFFF"]
+    with pytest.raises(ValueError):
+        d.preset(0, 0x1000000)
