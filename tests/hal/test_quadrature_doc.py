@@ -11,7 +11,7 @@ import pytest
 from emulators.crate import Crate
 from emulators.quadrature import BOARD_MAP, QuadratureBoard
 from emulators.signals import QuadratureEvents
-from hal.quadrature import QUAD_REGS, CountJumpError, QuadratureDriver
+from hal.quadrature import QUAD_REGS, CountJumpError, IndexNotSeenError, QuadratureDriver
 from hal.vme import BusError, BusErrorCause, Width
 from tests.support.board_spec import doc_registers, map_differences
 
@@ -146,3 +146,46 @@ def test_velocity_estimator_edges() -> None:
     c.signals.publish_quadrature("enc0", QuadratureEvents(counts=1))
     v = [d.update(0.008)[0].velocity_counts_s for _ in range(4)]
     assert v == pytest.approx([125.0, 125.0, 62.5, 0.0])  # 1/(m·dt) for m = 1, 1, 2 ticks; then 0
+
+
+def test_velocity_at_rest_and_the_low_speed_threshold_after_a_pause() -> None:
+    c, d = _driver(2000.0)
+    assert [d.update(0.008)[0].velocity_counts_s for _ in range(3)] == [0.0, 0.0, 0.0]
+    # two ticks without a count, then 4 counts (= low_speed_counts): Δ/dt, not 4 counts over 3 ticks
+    c.signals.publish_quadrature("enc0", QuadratureEvents(counts=4))
+    assert d.update(0.008)[0].velocity_counts_s == pytest.approx(500.0)
+
+
+def test_driver_defaults_and_limits_from_the_api() -> None:
+    c, _ = _board()
+    d = QuadratureDriver(c, BASE, counts_per_rev=0.5, channels=(0,))  # any counts_per_rev > 0
+    assert (d.low_speed_counts, d.stop_ticks, d.max_counts_per_tick) == (4, 125, None)
+    d = QuadratureDriver(c, BASE, counts_per_rev=2000.0, channels=(0,), low_speed_counts=0, stop_ticks=0)
+    assert (d.low_speed_counts, d.stop_ticks) == (1, 1)
+
+
+def test_preset_and_mode_change_keep_home_and_velocity_consistent() -> None:
+    c, _ = _board()
+    d = QuadratureDriver(c, BASE, counts_per_rev=2000.0, channels=(0,), max_counts_per_tick=50)
+    d.arm_index(0)
+    c.signals.publish_quadrature("enc0", QuadratureEvents(counts=30, index_offsets=(10,)))
+    assert d.home_at_index(0) == 10
+    d.update(0.008)
+    d.preset(0, 0x400000)  # the counter jumps; the home and the velocity's last count move with it
+    c.signals.publish_quadrature("enc0", QuadratureEvents(counts=10))
+    assert d.update(0.008)[0].velocity_counts_s == pytest.approx(1250.0)  # 10 counts, not a jump
+    # one revolution after the homed index (at 10, now at 40): the next index 1970 counts on
+    c.signals.publish_quadrature("enc0", QuadratureEvents(counts=1990, index_offsets=(1970,)))
+    assert d.check_index(0) == 0.0
+    d.set_mode(0, 2)
+    with pytest.raises(IndexNotSeenError):  # the grid was in x4 counts: re-home first
+        d.check_index(0)
+    assert d.update(0.008)[0].velocity_counts_s == 0.0  # the estimator restarts in the new mode
+
+
+def test_update_reports_the_position_from_the_zero() -> None:
+    c, d = _driver(2000.0)
+    c.signals.publish_quadrature("enc0", QuadratureEvents(counts=100))
+    d.set_zero(0, 1.0)
+    c.signals.publish_quadrature("enc0", QuadratureEvents(counts=500))
+    assert d.update(0.008)[0].position_rad == pytest.approx(1.0 + 1.5707963, abs=1e-7)  # + 500 counts = π/2

@@ -360,3 +360,15 @@ def test_channels_are_0_to_3_and_the_preset_24_bits() -> None:
     assert bus.trace()[:2] == ["W A16 0x5034 D16 0x00FF", "W A16 0x5036 D16 0xFFFF"]
     with pytest.raises(ValueError):
         d.preset(0, 0x1000000)
+
+
+def test_a_channel_found_in_hold_is_taken_as_x4_and_status_keeps_its_raw_value() -> None:
+    _, d = _scripted({0x5028: 0, 0x502A: 0, 0x5020: 0x0003, 0x5024: 0x0309})
+    assert d.counts_per_rev(0) == 2000.0
+    st = d.status(0)
+    assert (st.raw, st.index, st.underflow) == (0x0309, True, True)
+    # +0x600000 without a crossing, OVERFLOW set: lost; an error outside update() carries no readings
+    with pytest.raises(TrackingLostError) as ei:
+        _, d2 = _scripted({0x5028: [0x0000, 0x0060], 0x502A: 0, 0x5020: 0x0002, 0x5024: 0x0004})
+        d2.position_counts(0)
+    assert ei.value.readings == {}
