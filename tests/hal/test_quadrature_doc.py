@@ -172,6 +172,7 @@ def test_preset_and_mode_change_keep_home_and_velocity_consistent() -> None:
     assert d.home_at_index(0) == 10
     d.update(0.008)
     d.preset(0, 0x400000)  # the counter jumps; the home and the velocity's last count move with it
+    assert d.position_counts(0) == 0x400000  # the unwrapped count jumps with the counter
     c.signals.publish_quadrature("enc0", QuadratureEvents(counts=10))
     assert d.update(0.008)[0].velocity_counts_s == pytest.approx(1250.0)  # 10 counts, not a jump
     # one revolution after the homed index (at 10, now at 40): the next index 1970 counts on
@@ -189,3 +190,5 @@ def test_update_reports_the_position_from_the_zero() -> None:
     d.set_zero(0, 1.0)
     c.signals.publish_quadrature("enc0", QuadratureEvents(counts=500))
     assert d.update(0.008)[0].position_rad == pytest.approx(1.0 + 1.5707963, abs=1e-7)  # + 500 counts = π/2
+    d.set_zero(0)  # by default the current position becomes 0 rad
+    assert d.position_rad(0) == 0.0

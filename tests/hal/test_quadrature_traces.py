@@ -345,7 +345,7 @@ def test_check_index_compares_with_the_homed_grid_within_the_tolerance() -> None
         "W A16 0x5024 D16 0x0001", "R A16 0x5020 D16 0x0002", "W A16 0x5020 D16 0x0012",
     ]
     with pytest.raises(IndexMismatchError) as ei:
-        d.check_index(0, tolerance_counts=0.5)
+        d.check_index(0)  # the default tolerance is half a count
     assert (ei.value.channel, ei.value.error_counts) == (0, 1.0)
 
 
