@@ -7,7 +7,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: run test test-fast lint venv tools constraints bench clean reproduce
+.PHONY: run test test-fast lint venv tools constraints bench clean reproduce mutation
 
 venv: $(STAMP) tools
 
@@ -94,6 +94,20 @@ test-fast: test
 
 bench: $(STAMP)
 	$(PY) -m benchmarks
+
+# Mutation testing (docs/mutation.md; not part of make test or CI: hours for every module). mutmut
+# ([tool.mutmut] in pyproject.toml) mutates hal's drivers, register maps and conversions and
+# servo/control/law.py and runs the fast tests that reach each mutant. Resumable: the results stay
+# in mutants/, a second run checks only what is not checked yet (delete mutants/ to start afresh).
+# MUTATE narrows it to mutant names (globs): make mutation MUTATE='hal.quadrature.*'.
+# MUTATION_JOBS: mutants run in parallel (default 2, the reference machine's cores).
+MUTATE ?=
+MUTATION_JOBS ?= 2
+mutation: $(STAMP)
+	@start=$$(date +%s); \
+	$(VENV)/bin/mutmut run --max-children $(MUTATION_JOBS) $(MUTATE); status=$$?; \
+	$(PY) -m tests.mutation_report mutants; \
+	echo "make mutation: $$(( $$(date +%s) - start )) s elapsed (exit $$status)"; exit $$status
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .hypothesis .import_linter_cache

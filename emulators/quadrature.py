@@ -1,10 +1,15 @@
-"""Emulated 4-channel quadrature decoder board (register map: :mod:`hal.quadrature.quad_regs`).
+"""Emulated 4-channel quadrature decoder board, written from its spec, docs/boards/quadrature.md.
+
+A second reading of the board, independent of the driver: its register map, bit masks, ID and
+counting rules are its own literals taken from the doc's tables (nothing from ``hal.quadrature``),
+so a wrong offset, bit or width in the driver shows as a disagreement, not as a shared mistake.
 
 Input: each channel is wired to a quadrature net; the harness publishes one
 :class:`emulators.signals.QuadratureEvents` per interval (``Signals.publish_quadrature``),
-made on the plant side by :func:`emulators.encoder_edges.quadrature_events` at this board's
-input sampling rate (``sample_hz``). The board applies the interval's counts when the events
-arrive.
+made on the plant side at this board's input sampling rate (``sample_hz``) — by
+:func:`emulators.plant.encoder.encoder_events` in the plant, by
+:func:`emulators.encoder_edges.quadrature_events` for an encoder on its own. The board applies
+the interval's counts when the events arrive.
 
 Counting: the board keeps an x4 accumulator per channel (valid x4 transitions only) and the
 24-bit counter advances by ``floor(acc/k)`` steps with ``k`` = 4 (x1), 2 (x2) or 1 (x4): x1
@@ -38,38 +43,97 @@ from typing import Any, ClassVar
 
 from emulators.board import RegisterBoard
 from emulators.signals import QuadratureEvents
-from hal.quadrature.quad_regs import (
-    CHANNELS,
-    CMD_CLEAR,
-    CMD_LATCH,
-    CMD_PRESET,
-    COUNTER_MASK,
-    COUNTER_MODULUS,
-    MODE_CODES,
-    MODE_HOLD,
-    QUAD_REGS,
-    ST_ILLEGAL,
-    ST_INDEX,
-    ST_OVERFLOW,
-    ST_UNDERFLOW,
-    ST_W1C_MASK,
-    reg_name,
+from hal.vme.registers import Access, Field, Register, RegisterMap
+from hal.vme.types import AddressSpace, Width
+
+# --- the board as docs/boards/quadrature.md states it -----------------------------------
+CHANNELS = 4
+_WINDOW = 0xA0  #: bytes decoded from the base
+_ID = 0x5101  #: type 0x51 ("Q") in [15:8], revision 0x01 in [7:0]
+_MODULUS = 0x1000000  #: the counters wrap modulo 2**24
+_TOP = 0xFFFFFF
+# CTL
+_ARM = 0x0010  #: [4] index_arm
+_MODE = 0x0003  #: [1:0] mode
+_CTL_BITS = _ARM | _MODE  #: the bits CTL keeps (others are ignored and read 0)
+_HOLD = 3
+_PRESCALE = (4, 2, 1)  #: x4 counts per counter step for mode codes 0 (x1), 1 (x2), 2 (x4)
+_CTL_RESET = 0x0002  #: x4, index disarmed
+# CMD (strobes, run in this order)
+_LATCH, _CLEAR, _PRESET = 0x1, 0x2, 0x4
+# STATUS
+_INDEX, _ILLEGAL, _OVERFLOW, _UNDERFLOW = 0x1, 0x2, 0x4, 0x8
+_FLAGS = 0x000F  #: the write-1-to-clear flags; [9:8] are the A/B levels (read-only)
+_A_HIGH = (False, True, True, False)  #: A level per Gray state 0..3 (00, A, AB, B)
+_B_HIGH = (False, False, True, True)
+
+_D8 = (Width.D8,)
+
+
+def _block(n: int) -> int:
+    """Offset of channel ``n``'s register block (0x20, 0x40, 0x60, 0x80)."""
+    return 0x20 + 0x20 * n
+
+
+def _name(n: int, reg: str) -> str:
+    return f"CH{n}_{reg}"
+
+
+def _data(n: int, reg: str, off: int, access: Access, hi: str | None) -> Register:
+    """One half of a 24-bit value: ``hi`` names the high half's 8-bit field (the low half has none)."""
+    fields = (Field("value", 0, 8, hi),) if hi else ()
+    return Register(_name(n, reg), _block(n) + off, Width.D16, access, fields=fields, also=_D8)
+
+
+def _channel_registers(n: int) -> tuple[Register, ...]:
+    ro, rw = Access.RO, Access.RW
+    return (
+        Register(_name(n, "CTL"), _block(n) + 0x00, Width.D16, rw, reset=_CTL_RESET, also=_D8,
+                 fields=(Field("mode", 0, 2), Field("index_arm", 4, 1))),
+        Register(_name(n, "CMD"), _block(n) + 0x02, Width.D16, Access.WO, also=_D8,
+                 fields=(Field("latch", 0), Field("clear", 1), Field("preset", 2))),
+        Register(_name(n, "STATUS"), _block(n) + 0x04, Width.D16, Access.W1C, also=_D8,
+                 fields=(Field("index", 0), Field("illegal", 1), Field("overflow", 2), Field("underflow", 3),
+                         Field("a", 8), Field("b", 9))),
+        _data(n, "OL_HI", 0x08, ro, "output latch [23:16]"),
+        _data(n, "OL_LO", 0x0A, ro, None),
+        _data(n, "CNT_HI", 0x0C, ro, "live counter [23:16]"),
+        _data(n, "CNT_LO", 0x0E, ro, None),
+        _data(n, "IDX_HI", 0x10, ro, "index latch [23:16]"),
+        _data(n, "IDX_LO", 0x12, ro, None),
+        _data(n, "PRE_HI", 0x14, rw, "preset [23:16]"),
+        _data(n, "PRE_LO", 0x16, rw, None),
+    )
+
+
+#: The emulator's own declaration of the board (checked against the doc by tests, not against
+#: the driver's map).
+BOARD_MAP = RegisterMap(
+    "quad",
+    _WINDOW,
+    AddressSpace.A16,
+    (
+        Register("ID", 0x00, Width.D16, Access.RO, reset=_ID, also=_D8,
+                 fields=(Field("rev", 0, 8), Field("type", 8, 8))),
+        Register("GCMD", 0x02, Width.D16, Access.WO, also=_D8, fields=(Field("latch", 0, 4),)),
+        *(r for n in range(CHANNELS) for r in _channel_registers(n)),
+    ),
 )
 
-_DIVIDER = {MODE_CODES[1]: 4, MODE_CODES[2]: 2, MODE_CODES[4]: 1}
 DEFAULT_SAMPLE_HZ = 1_000_000.0  #: decoder input sampling rate (HCTL-2016-like filter on a 4 MHz clock)
 
 
 @dataclass
 class _Channel:
+    """One counter chip. CTL and PRE live in the board's ``regs`` (plain read/write storage,
+    so a D8 write merges with the other byte's current value)."""
+
     counter: int = 0
-    acc: int = 0
+    acc: int = 0  #: x4 counts since reset (the prescaler's input)
     ol: int = 0
     idx: int = 0
-    pre: int = 0
-    status: int = 0
-    ctl: int = MODE_CODES[4]
-    phase: int = 0
+    status: int = 0  #: the W1C flags [3:0]
+    phase: int = 0  #: last sampled Gray state 0..3
     glitch_left: int = 0
     missed_left: int = 0
     stats: dict[str, int] = field(default_factory=lambda: {"counts": 0, "illegal": 0, "index": 0, "intervals": 0})
@@ -85,7 +149,7 @@ class QuadratureBoard(RegisterBoard):
     """
 
     TYPE = "quad"
-    REGMAP = QUAD_REGS
+    REGMAP = BOARD_MAP
     FAULTS: ClassVar[dict[str, str]] = {
         "glitch": "channel, counts=0, illegal=1, intervals=1: noise edges in the next intervals",
         "missed_counts": "channel, counts=N: the next N incoming counts are lost",
@@ -101,17 +165,17 @@ class QuadratureBoard(RegisterBoard):
             raise ValueError(f"{name}: sample_hz must be > 0")
         self.sample_hz = float(sample_hz)
         self.ch = [_Channel() for _ in range(CHANNELS)]
+        self._ctl = tuple(_name(c, "CTL") for c in range(CHANNELS))  # regs keys, built once
+        self._pre = tuple((_name(c, "PRE_HI"), _name(c, "PRE_LO")) for c in range(CHANNELS))
         for c in range(CHANNELS):
-            for reg, get in (("OL", "ol"), ("CNT", "counter"), ("IDX", "idx"), ("PRE", "pre")):
-                setattr(self, f"read_{reg_name(c, reg + '_HI')}", partial(self._get_hi, c, get))
-                setattr(self, f"read_{reg_name(c, reg + '_LO')}", partial(self._get_lo, c, get))
-            setattr(self, f"write_{reg_name(c, 'PRE_HI')}", partial(self._set_pre, c, True))
-            setattr(self, f"write_{reg_name(c, 'PRE_LO')}", partial(self._set_pre, c, False))
-            setattr(self, f"read_{reg_name(c, 'CTL')}", partial(self._read_ctl, c))
-            setattr(self, f"write_{reg_name(c, 'CTL')}", partial(self._write_ctl, c))
-            setattr(self, f"write_{reg_name(c, 'CMD')}", partial(self._command, c))
-            setattr(self, f"read_{reg_name(c, 'STATUS')}", partial(self._read_status, c))
-            setattr(self, f"write_{reg_name(c, 'STATUS')}", partial(self._write_status, c))
+            for reg, attr in (("OL", "ol"), ("CNT", "counter"), ("IDX", "idx")):
+                setattr(self, f"read_{_name(c, reg + '_HI')}", partial(self._high, c, attr))
+                setattr(self, f"read_{_name(c, reg + '_LO')}", partial(self._low, c, attr))
+            setattr(self, f"write_{_name(c, 'PRE_HI')}", partial(self._store, _name(c, "PRE_HI"), 0x00FF))
+            setattr(self, f"write_{_name(c, 'CTL')}", partial(self._store, _name(c, "CTL"), _CTL_BITS))
+            setattr(self, f"write_{_name(c, 'CMD')}", partial(self._command, c))
+            setattr(self, f"read_{_name(c, 'STATUS')}", partial(self._read_status, c))
+            setattr(self, f"write_{_name(c, 'STATUS')}", partial(self._clear_flags, c))
         super().__init__(name)
 
     def attach(self, crate) -> None:
@@ -120,7 +184,7 @@ class QuadratureBoard(RegisterBoard):
             crate.signals.subscribe(net, partial(self._on_net, c))
 
     def reset(self) -> None:
-        super().reset()
+        super().reset()  # regs: ID, CTL (x4, disarmed) and PRE at their reset values
         self.ch = [_Channel() for _ in range(CHANNELS)]
 
     def describe(self) -> dict[str, Any]:
@@ -128,61 +192,60 @@ class QuadratureBoard(RegisterBoard):
                 "sample_hz": self.sample_hz}
 
     # --- register handlers ---------------------------------------------------------------
-    def _get_hi(self, c: int, attr: str) -> int:
-        return getattr(self.ch[c], attr) >> 16 & 0xFF
+    def _high(self, c: int, attr: str) -> int:
+        return getattr(self.ch[c], attr) >> 16  # bits 23:16; HI bits 15:8 read 0
 
-    def _get_lo(self, c: int, attr: str) -> int:
+    def _low(self, c: int, attr: str) -> int:
         return getattr(self.ch[c], attr) & 0xFFFF
 
-    def _set_pre(self, c: int, hi: bool, value: int) -> None:
-        ch = self.ch[c]
-        ch.pre = ((value & 0xFF) << 16 | ch.pre & 0xFFFF) if hi else (ch.pre & 0xFF0000 | value & 0xFFFF)
+    def _store(self, reg: str, keep: int, value: int) -> None:
+        self.regs[reg] = value & keep
 
-    def _read_ctl(self, c: int) -> int:
-        return self.ch[c].ctl
-
-    def _write_ctl(self, c: int, value: int) -> None:
-        self.ch[c].ctl = value & 0x13
+    def _preset_value(self, c: int) -> int:
+        hi, lo = self._pre[c]
+        return self.regs[hi] << 16 | self.regs[lo]
 
     def _command(self, c: int, value: int) -> None:
         ch = self.ch[c]
-        if value & CMD_LATCH:
+        if value & _LATCH:
             ch.ol = ch.counter
-        if value & CMD_CLEAR:
+        if value & _CLEAR:
             ch.counter = 0
-        if value & CMD_PRESET:
-            ch.counter = ch.pre
+        if value & _PRESET:
+            ch.counter = self._preset_value(c)
 
     def write_GCMD(self, value: int) -> None:
-        for c in range(CHANNELS):
-            if value >> c & 1:
-                self.ch[c].ol = self.ch[c].counter
+        for c, ch in enumerate(self.ch):
+            if value & (1 << c):
+                ch.ol = ch.counter
 
     def _read_status(self, c: int) -> int:
         ch = self.ch[c]
-        a = int(ch.phase in (1, 2))
-        b = int(ch.phase in (2, 3))
-        return ch.status | a << 8 | b << 9
+        return ch.status | _A_HIGH[ch.phase] << 8 | _B_HIGH[ch.phase] << 9
 
-    def _write_status(self, c: int, value: int) -> None:
-        self.ch[c].status &= ~(value & ST_W1C_MASK)
+    def _clear_flags(self, c: int, value: int) -> None:
+        self.ch[c].status &= ~value & _FLAGS
 
     # --- counting ------------------------------------------------------------------------
-    def _steps(self, c: int, acc_from: int, acc_to: int) -> int:
-        mode = self.ch[c].ctl & 3
-        if mode == MODE_HOLD:
+    def _mode(self, c: int) -> int:
+        return self.regs[self._ctl[c]] & _MODE
+
+    def _counter_steps(self, mode: int, acc_from: int, acc_to: int) -> int:
+        """Counter steps while the x4 accumulator goes from ``acc_from`` to ``acc_to``: the
+        ÷k prescaler moves at multiples of k (floor division, both directions)."""
+        if mode == _HOLD:
             return 0
-        k = _DIVIDER[mode]
+        k = _PRESCALE[mode]
         return acc_to // k - acc_from // k
 
-    def _add(self, c: int, steps: int) -> None:
+    def _count(self, c: int, steps: int) -> None:
         ch = self.ch[c]
-        raw = ch.counter + steps
-        if raw > COUNTER_MASK:
-            ch.status |= ST_OVERFLOW
-        elif raw < 0:
-            ch.status |= ST_UNDERFLOW
-        ch.counter = raw % COUNTER_MODULUS
+        value = ch.counter + steps
+        if value > _TOP:
+            ch.status |= _OVERFLOW
+        elif value < 0:
+            ch.status |= _UNDERFLOW
+        ch.counter = value % _MODULUS
 
     def _on_net(self, c: int, net: str, events: Any) -> None:
         if not isinstance(events, QuadratureEvents):
@@ -213,19 +276,22 @@ class QuadratureBoard(RegisterBoard):
             illegal += int(glitch.get("illegal", 1))
             if ch.glitch_left > 0:
                 ch.glitch_left -= 1
-        start_counter, start_acc = ch.counter, ch.acc
-        if offsets and ch.ctl & 0x10:
-            ch.idx = (start_counter + self._steps(c, start_acc, start_acc + offsets[0])) % COUNTER_MODULUS
-            ch.status |= ST_INDEX
-            ch.ctl &= ~0x10
+        ctl_key = self._ctl[c]
+        ctl = self.regs[ctl_key]
+        mode = ctl & _MODE
         if offsets:
             ch.stats["index"] += len(offsets)
+            if ctl & _ARM:  # the first pulse is captured, at the count it arrived at; disarm
+                steps = self._counter_steps(mode, ch.acc, ch.acc + offsets[0])
+                ch.idx = (ch.counter + steps) % _MODULUS
+                ch.status |= _INDEX
+                self.regs[ctl_key] = ctl & ~_ARM
         total = counts + extra
-        if (ch.ctl & 3) != MODE_HOLD:
-            self._add(c, self._steps(c, ch.acc, ch.acc + total))
+        if mode != _HOLD:
+            self._count(c, self._counter_steps(mode, ch.acc, ch.acc + total))
             ch.acc += total
         if illegal:
-            ch.status |= ST_ILLEGAL
+            ch.status |= _ILLEGAL
             ch.stats["illegal"] += illegal
         ch.stats["counts"] += total
         ch.phase = int(ev.phase) % 4
@@ -244,7 +310,7 @@ class QuadratureBoard(RegisterBoard):
         elif name == "missed_counts":
             self.ch[c].missed_left = abs(int(f.get("counts", 1)))
         elif name == "counter_jump":
-            self._add(c, int(f.get("counts", 1)))
+            self._count(c, int(f.get("counts", 1)))
 
 
 def quad_from_config(name: str, cfg, ctx) -> QuadratureBoard:

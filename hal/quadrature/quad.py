@@ -41,6 +41,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 from hal.quadrature.quad_regs import (
+    BOARD_TYPE,
     CHANNELS,
     CMD_CLEAR,
     CMD_LATCH,
@@ -57,6 +58,7 @@ from hal.quadrature.quad_regs import (
     reg_name,
 )
 from hal.vme.bus import SpaceLike, VmeBus
+from hal.vme.errors import BoardIdError
 from hal.vme.window import BoardWindow
 
 _HALF = COUNTER_MODULUS // 2
@@ -115,16 +117,8 @@ class ChannelStatus:
 
     @classmethod
     def decode(cls, raw: int) -> ChannelStatus:
-        st = _STATUS_CACHE.get(raw)  # immutable: one object per register value, shared
-        if st is None:
-            st = cls(bool(raw & ST_INDEX), bool(raw & ST_ILLEGAL), bool(raw & ST_OVERFLOW),
-                     bool(raw & ST_UNDERFLOW), bool(raw >> 8 & 1), bool(raw >> 9 & 1), raw)
-            if len(_STATUS_CACHE) < 1 << 16:
-                _STATUS_CACHE[raw] = st
-        return st
-
-
-_STATUS_CACHE: dict[int, ChannelStatus] = {}
+        return cls(bool(raw & ST_INDEX), bool(raw & ST_ILLEGAL), bool(raw & ST_OVERFLOW),
+                   bool(raw & ST_UNDERFLOW), bool(raw >> 8 & 1), bool(raw >> 9 & 1), raw)
 
 
 @dataclass(frozen=True)
@@ -215,6 +209,9 @@ class QuadratureDriver:
         #: window's resolved cycle per name serves them (a Register object takes its general path)
         self._regs = {ch: {name: QUAD_REGS[reg_name(ch, name)].name for name in ("CMD", "STATUS", "OL_HI", "OL_LO")}
                       for ch in self.channels}
+        #: decoded STATUS values, one immutable object per register value (no allocation per
+        #: tick); the driver's own, so a new driver decodes afresh
+        self._status_cache: dict[int, ChannelStatus] = {}
         self._track: dict[int, _Track] = {}
         for ch in self.channels:
             self.win.write(reg_name(ch, "CMD"), CMD_LATCH)
@@ -238,10 +235,7 @@ class QuadratureDriver:
         return {v: k for k, v in MODE_CODES.items()}.get(code, 4)
 
     def _read_ol(self, ch: int) -> int:
-        regs = self._regs.get(ch)
-        if regs is None:
-            hi = self.win.read(reg_name(ch, "OL_HI")) & 0xFF
-            return hi << 16 | self.win.read(reg_name(ch, "OL_LO"))
+        regs = self._regs[ch]  # every channel in use has its names (built before the first read)
         hi = self.win.read(regs["OL_HI"]) & 0xFF
         return hi << 16 | self.win.read(regs["OL_LO"])
 
@@ -250,6 +244,18 @@ class QuadratureDriver:
         return self.counts_per_rev_x4[ch] * self._t(ch).mode / 4.0
 
     # --- raw access ----------------------------------------------------------------------
+    def probe(self) -> int:
+        """Read the ID register; return the board revision (ID[7:0]). Raises
+        :class:`hal.vme.BoardIdError` when ID[15:8] is not the decoder's type 0x51 (wrong base
+        address or board). Not part of construction, which makes only the cycles it documents."""
+        ident = self.win.read("ID")
+        if ident >> 8 != BOARD_TYPE:
+            raise BoardIdError(
+                f"no quadrature decoder at 0x{self.win.base:X}: ID reads 0x{ident:04X}, expected type "
+                f"0x{BOARD_TYPE:02X} in bits 15:8; check the base address in the crate/rig file"
+            )
+        return ident & 0xFF
+
     def read_count(self, ch: int) -> int:
         """Latch and read the 24-bit counter (0..0xFFFFFF); cannot tear."""
         self._t(ch)
@@ -264,7 +270,7 @@ class QuadratureDriver:
 
     def status(self, ch: int) -> ChannelStatus:
         self._check_ch(ch)
-        return ChannelStatus.decode(self.win.read(reg_name(ch, "STATUS")))
+        return self._decode(self.win.read(reg_name(ch, "STATUS")))
 
     def clear_errors(self, ch: int) -> None:
         """Clear ILLEGAL, OVERFLOW and UNDERFLOW of a channel (after dealing with the cause)."""
@@ -358,7 +364,13 @@ class QuadratureDriver:
         if wrap:
             self.win.write(regs["STATUS"], wrap)
         self._unwrap(ch, t, raw, st)
-        return raw, ChannelStatus.decode(st)
+        return raw, self._decode(st)
+
+    def _decode(self, raw: int) -> ChannelStatus:
+        st = self._status_cache.get(raw)
+        if st is None:
+            st = self._status_cache[raw] = ChannelStatus.decode(raw)  # at most 2**16 values
+        return st
 
     def _raise_flags(self, ch: int, status: ChannelStatus) -> None:
         if status.illegal and self.errors == "raise":
@@ -448,13 +460,13 @@ class QuadratureDriver:
                 if wrap:
                     write(regs["STATUS"], wrap)
                 self._unwrap(ch, t, raw, status)
-                st = ChannelStatus.decode(status)
+                st = self._decode(status)
                 v = self._velocity_step(ch, t, dt)
                 if st.illegal and raise_illegal:
                     self._raise_flags(ch, st)
             except QuadratureError as e:
                 first_error = first_error or e
-                st = ChannelStatus.decode(self.win.read(reg_name(ch, "STATUS")))
+                st = self._decode(self.win.read(reg_name(ch, "STATUS")))
                 raw, v = t.raw, t.velocity
             cpr = self.counts_per_rev_x4[ch] * t.mode / 4.0  # counts_per_rev(ch)
             out[ch] = ChannelReading(ch, raw, t.counts, (t.counts - t.zero) * TWO_PI / cpr, v, v * TWO_PI / cpr, st)

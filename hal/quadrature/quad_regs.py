@@ -1,5 +1,5 @@
-"""Register map of the 4-channel quadrature decoder board, shared by :mod:`hal.quadrature.quad`
-and ``emulators.quadrature``.
+"""Register map of the 4-channel quadrature decoder board, the driver's reading of its spec
+(docs/boards/quadrature.md; the emulator keeps its own).
 
 Inspired by the LSI LS7166 24-bit quadrature counter (x1/x2/x4, output latch loaded by a
 transfer command, preset register, carry/borrow flags) and the HP HCTL-2016/2020 (sampled
@@ -119,7 +119,7 @@ QUAD_REGS = RegisterMap(
     (
         Register("ID", 0x00, Width.D16, Access.RO,
                  fields=(Field("type", 8, 8, "board type 0x51"), Field("rev", 0, 8, "revision")),
-                 reset=(BOARD_TYPE << 8) | REVISION, doc="board identification (read-only)"),
+                 reset=(BOARD_TYPE << 8) | REVISION, doc="board identification (read-only)", also=(Width.D8,)),
         Register("GCMD", 0x02, Width.D16, Access.WO,
                  fields=(Field("latch", 0, 4, "latch channels (bit n = channel n) simultaneously"),),
                  doc="global command", also=(Width.D8,)),
