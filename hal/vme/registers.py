@@ -1,9 +1,13 @@
-"""Register-map declarations shared by a driver and its emulator (one source of truth).
+"""The one way a board's registers are declared: a :class:`RegisterMap` of :class:`Register`
+objects (offset from the board base, width, access, reset value) with named bit :class:`Field`
+objects.
 
-A :class:`RegisterMap` lists :class:`Register` objects (offset from the board base, width,
-access) with named bit :class:`Field` objects. Drivers use :class:`hal.vme.window.BoardWindow`
-to access registers by name; emulators dispatch on the same declarations, so the two cannot
-drift apart. :meth:`RegisterMap.markdown_table` renders the table used in ``docs/boards``.
+The declaration *style* is shared; the declarations are not. A driver declares its board's map
+in its own package (``hal/<area>/<board>_regs.py``) and accesses registers by name through
+:class:`hal.vme.window.BoardWindow`; the board's emulator declares its own map, written from the
+board's documentation (``docs/boards/<board>.md``, the spec), and dispatches bus cycles on it.
+Tests check each map against the doc's register table separately (``tests/support/board_spec``),
+so a wrong bit in one is caught instead of being copied into the other.
 """
 
 from __future__ import annotations
@@ -149,24 +153,6 @@ class RegisterMap:
     def containing(self, offset: int) -> Register | None:
         """The register whose bytes include ``offset``, or ``None``."""
         return self._by_byte.get(offset)
-
-    def markdown_table(self) -> str:
-        """The register table as Markdown (offset, width, access, name, fields, description)."""
-        lines = [
-            "| offset | width | access | register | bits | description |",
-            "|---|---|---|---|---|---|",
-        ]
-        for r in sorted(self.registers, key=lambda r: r.offset):
-            bits = "<br>".join(_field_text(f) for f in sorted(r.fields, key=lambda f: -f.lsb))
-            lines.append(
-                f"| 0x{r.offset:02X} | {r.width.name} | {r.access.value} | {r.name} | {bits} | {r.doc} |"
-            )
-        return "\n".join(lines)
-
-
-def _field_text(f: Field) -> str:
-    bits = f"{f.lsb}" if f.width == 1 else f"{f.lsb + f.width - 1}:{f.lsb}"
-    return f"[{bits}] {f.name}" + (f" — {f.doc}" if f.doc else "")
 
 
 def fields(*items: Field) -> tuple[Field, ...]:
