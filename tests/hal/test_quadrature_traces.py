@@ -266,6 +266,13 @@ def test_status_and_clear_errors() -> None:
     assert (st.underflow, st.illegal, st.b, st.a, st.overflow, st.index) == (True, True, True, False, False, False)
 
 
+def test_clear_illegal_writes_the_illegal_bit_alone() -> None:
+    # docs/boards/quadrature.md: `clear_illegal(n)` — W STATUS 0x0002 (channel 0's STATUS at +0x24)
+    bus, d = _scripted({0x5028: 0, 0x502A: 0, 0x5020: 0x0002, 0x5024: 0x0000})
+    d.clear_illegal(0)
+    assert bus.trace() == ["W A16 0x5024 D16 0x0002"]
+
+
 def test_illegal_transition_on_the_emulated_board_is_sticky_until_cleared() -> None:
     crate, bus, _, d = _emulated()
     crate.signals.publish_quadrature("enc0", QuadratureEvents(counts=0, illegal=3, phase=1))
