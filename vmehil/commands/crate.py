@@ -95,13 +95,13 @@ class CrateOptions:
     def location(self) -> tuple[str, int, Width]:
         """``read``/``write``: the address space, address and width (their parsers require the first two)."""
         if self.space is None or self.address is None:
-            raise ValueError(f"crate {self.action}: give the address space and the address")
+            raise CliError(f"crate {self.action}: give the address space and the address")
         return self.space, self.address, Width.parse(self.width)
 
     def write_value(self) -> int:
         """``write``: the value (its parser requires it)."""
         if self.value is None:
-            raise ValueError(f"crate {self.action}: give the value to write")
+            raise CliError(f"crate {self.action}: give the value to write")
         return self.value
 
 
