@@ -12,6 +12,7 @@ from functools import partial
 from typing import Any, ClassVar, Protocol
 
 from emulators.clock import SimClock
+from emulators.errors import EmulatorError
 from emulators.faults import FaultInjectable
 from emulators.irq import IrqController
 from emulators.signals import Signals
@@ -30,7 +31,7 @@ class Backplane(Protocol):
     signals: Signals
 
 
-class BoardAccessError(Exception):
+class BoardAccessError(EmulatorError):
     """Raised by a board to end the current cycle in BERR."""
 
     def __init__(self, cause: BusErrorCause, detail: str = "") -> None:

@@ -20,7 +20,7 @@ from emulators.irq import IrqController
 from emulators.signals import Signals
 from hal.vme.bus import SpaceLike, VmeBus
 from hal.vme.errors import BusError, BusErrorCause, VmeConfigError
-from hal.vme.types import AddressModifier, AddressSpace, Width
+from hal.vme.types import AddressModifier, AddressSpace, VmeValueError, Width
 
 DEFAULT_BUS_TIMEOUT_NS = 64_000  #: VMEbus BTO(64): the usual system-controller timer
 
@@ -344,5 +344,5 @@ def _checked_value(cycle: Callable[[int], None], width: Width, max_value: int, v
     """:meth:`VmeBus.write`'s value check, then the resolved cycle with ``int(value)``."""
     v = int(value)
     if not 0 <= v <= max_value:
-        raise ValueError(f"value {value} does not fit {width.name} (0..{max_value})")
+        raise VmeValueError(f"value {value} does not fit {width.name} (0..{max_value})")
     cycle(v)

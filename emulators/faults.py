@@ -11,8 +11,10 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
+from emulators.errors import EmulatorError
 
-class UnknownFaultError(KeyError):
+
+class UnknownFaultError(EmulatorError, KeyError):
     """The board has no fault of that name."""
 
 

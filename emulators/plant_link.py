@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 
+from emulators.errors import EmulatorError
 from emulators.plant import PlantCommand, PlantSensors
 
 
@@ -27,7 +28,7 @@ class ExchangeCodec:
         return s
 
 
-class PlantLinkError(RuntimeError):
+class PlantLinkError(EmulatorError, RuntimeError):
     """The link to the plant failed; the runner turns it into a safe stop with ``cause``."""
 
     cause = "plant_link"

@@ -21,6 +21,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
+from emulators.errors import EmulatorError
+
 
 class Memory(Protocol):
     """What the endpoint needs of its dual-port memory: byte reads and writes."""
@@ -30,7 +32,7 @@ class Memory(Protocol):
     def write(self, offset: int, data: bytes) -> None: ...
 
 
-class LayoutError(ValueError):
+class LayoutError(EmulatorError, ValueError):
     """The memory holds no protocol layout, or one of another version."""
 
 

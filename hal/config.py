@@ -13,10 +13,12 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from hal.errors import HalError
+
 _MISSING = object()
 
 
-class ConfigError(ValueError):
+class ConfigError(HalError, ValueError):
     """A configuration file is malformed; the message names file, key and expectation."""
 
     def __init__(self, source: str, key: str, expected: str, got: Any = _MISSING) -> None:

@@ -21,10 +21,12 @@ from collections.abc import Callable, Iterator, Mapping
 from importlib.metadata import EntryPoint, entry_points
 from typing import Any, Generic, TypeVar
 
+from hal.errors import HalError
+
 T = TypeVar("T")
 
 
-class PluginError(ValueError):
+class PluginError(HalError, ValueError):
     """An entry point that cannot be used: it fails to import, or is not what the group expects.
     A ValueError, as a bad value in a config file is: the command line reports it in one line."""
 

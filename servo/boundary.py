@@ -27,8 +27,10 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from servo.errors import ServoError
 
-class PlantBoundaryError(RuntimeError):
+
+class PlantBoundaryError(ServoError, RuntimeError):
     """The rest of the rig failed at the boundary (no fresh data, a lost or restarted plant node).
 
     The runner turns it into a safe stop in the same tick, with :attr:`cause` as the fault cause.

@@ -74,6 +74,7 @@ from hal.adc_dac.dac_regs import DAC_CHANNELS
 from hal.config import ConfigError, ConfigTable, load_toml
 from hal.pio.pio_regs import ALL_LINES, parse_line
 from hal.quadrature.quad_regs import CHANNELS as QUAD_CHANNELS
+from servo.errors import ServoError
 
 ANALOG_INPUTS = ("pot", "tach", "imon")
 DIGITAL_OUTPUTS = ("amp_enable", "amp_reset", "direction", "brake", "holding_brake")
@@ -82,6 +83,10 @@ WIRING_KEYS = ("amp_command", "encoder", "pwm", *ANALOG_INPUTS, *DIGITAL_OUTPUTS
 #: The keys of a ``[[joint]]`` table that only the servo side reads (``name`` and ``amplifier`` are
 #: shared with the plant, whose subtables sit beside these).
 SERVO_JOINT_KEYS = ("wiring", "servo")
+
+
+class NoSuchJointError(ServoError, ValueError):
+    """A joint number the rig does not have (``--joint 9`` on a 7-joint rig): bad input."""
 
 
 @dataclass(frozen=True)
@@ -154,7 +159,7 @@ class RigSpec:
     def joint(self, number: int) -> JointSpec:
         """Joint by 1-based number, as the papers number links."""
         if not 1 <= number <= len(self.joints):
-            raise ValueError(f"rig {self.name} has joints 1..{len(self.joints)}; there is no joint {number}")
+            raise NoSuchJointError(f"rig {self.name} has joints 1..{len(self.joints)}; there is no joint {number}")
         return self.joints[number - 1]
 
 

@@ -62,6 +62,7 @@ from typing import Any
 import numpy as np
 
 from hal.config import ConfigTable
+from servo.control.errors import ControlError
 from servo.control.gains import DEFAULT_GAINS, GAIN_NAMES, Gains
 from servo.control.law import SwitchOffConfig
 from servo.control.linear import delay_periods
@@ -153,7 +154,7 @@ class ServoSettings:
         if gains:
             if "pid" not in self.objects:
                 check_values(gains)  # a value no gain may have is refused as such first
-                raise ValueError(f"gain overrides {dict(gains)}: the rig's controller has no pid object to take them")
+                raise ControlError(f"gain overrides {dict(gains)}: the rig's controller has no pid object to take them")
             clean = check_gain_set(out.gains, out.switch_off, gains, self.period_s, self.delay_periods)
             out = dataclasses.replace(out, gains=out.gains.replace(**clean))
         return out

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from vmehil.cli_types import bounded_float, bounded_int
+from vmehil.errors import CliError
 
 PLANT_MODES = ("lockstep", "free-running")
 _node_channels = itertools.count()
@@ -83,11 +84,11 @@ class CanPlantOptions:
 
     def __post_init__(self) -> None:
         if self.plant_mode not in PLANT_MODES:
-            raise ValueError(f"plant mode {self.plant_mode!r} must be one of {', '.join(PLANT_MODES)}")
+            raise CliError(f"plant mode {self.plant_mode!r} must be one of {', '.join(PLANT_MODES)}")
         if not self.can_timeout_s > 0:
-            raise ValueError(f"--can-timeout {self.can_timeout_s} must be > 0 s")
+            raise CliError(f"--can-timeout {self.can_timeout_s} must be > 0 s")
         if self.stale_ticks is not None and self.stale_ticks < 1:
-            raise ValueError(f"--stale-ticks {self.stale_ticks} must be at least 1")
+            raise CliError(f"--stale-ticks {self.stale_ticks} must be at least 1")
 
     @classmethod
     def from_args(cls, args: argparse.Namespace, *, own_node: bool | None = None) -> CanPlantOptions | None:
@@ -154,7 +155,7 @@ class CanPlantOptions:
             return link
         except PlantLinkError as e:  # no node / wrong rig or mode: a user error, not a crash
             link.close()
-            raise ValueError(f"{e}{self._advice(e, rig, iface, chan, node is not None)}") from e
+            raise CliError(f"{e}{self._advice(e, rig, iface, chan, node is not None)}") from e
         except BaseException:
             link.close()
             raise

@@ -18,8 +18,10 @@ import sys  # noqa: E402
 import traceback  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 
-from hal.config import ConfigError  # noqa: E402
+from emulators.errors import EmulatorError  # noqa: E402
+from hal.errors import HalError  # noqa: E402
 from hal.vme.errors import VmeError  # noqa: E402
+from servo.errors import ServoError  # noqa: E402
 from servo.interrupts import (  # noqa: E402
     DEFERRED_SIGNALS,
     EXIT_SIGINT,
@@ -32,10 +34,14 @@ from servo.interrupts import (  # noqa: E402
 from vmehil import cli_style  # noqa: E402
 from vmehil.commands import calibrate, console, crate, plant_node, reproduce, run, tune, units, vision  # noqa: E402
 from vmehil.commands.errors import CliError  # noqa: E402
+from vmehil.errors import VmehilError  # noqa: E402
 from vmehil.exit_status import EXIT_BROKEN_PIPE, EXIT_UNEXPECTED, EXIT_USAGE  # noqa: E402
 from vmehil.outputs import OutputPaths, check_outputs, mark_output_dirs, remove_unused  # noqa: E402
 
-__all__ = ["COMMANDS", "CliError", "build_parser", "main"]
+__all__ = ["COMMANDS", "ROOTS", "CliError", "build_parser", "main"]
+
+# Every typed error of ours derives from one of the four package roots (tests/test_exception_roots.py).
+ROOTS = (HalError, EmulatorError, ServoError, VmehilError)
 
 # The subcommands, in the order of `vmehil --help`; each ``register(subparsers)`` adds its parser
 # and sets two defaults on it: ``options``, the one step that reads the parsed namespace into the
@@ -105,7 +111,9 @@ def main(argv: list[str] | None = None) -> int:
         if status == EXIT_USAGE:  # refused (bad input, a missing extra): the folders made for it go again
             remove_unused(made)
         return status
-    except (CliError, ConfigError, VmeError, FileNotFoundError, ValueError) as e:
+    except (HalError, EmulatorError, ServoError, VmehilError, FileNotFoundError) as e:
+        if not _bad_input(e):
+            return _unexpected(args.command, e, debug)
         if debug:
             traceback.print_exc()
         print(f"vmehil {args.command}: error: {e}", file=sys.stderr)
@@ -135,6 +143,17 @@ def _ending(status: int, process: bool) -> int:
         for s in DEFERRED_SIGNALS:
             signal.signal(s, signal.SIG_IGN)
     return status
+
+
+def _bad_input(e: BaseException) -> bool:
+    """Bad input (exit 2, nothing moved) is what the argument and file checks refuse, with their
+    typed errors: a refused value (a typed error that is also a ``ValueError``: ``ConfigError``,
+    ``FaultSpecError``, ``GainError``…), a ``CliError``, the bus configuration (``VmeError``), a
+    file that is not there. Any other error — a typed runtime one, or a ``ValueError`` from numpy
+    or a bug — is unexpected (exit 3), never reported as the user's mistake."""
+    if isinstance(e, FileNotFoundError):
+        return True
+    return isinstance(e, ROOTS) and isinstance(e, (CliError, VmeError, ValueError))
 
 
 def _unexpected(command: str, e: BaseException, debug: bool) -> int:

@@ -33,6 +33,7 @@ import numpy as np
 
 from hal.config import ConfigError, load_toml
 from servo.rig import RigSpec
+from vmehil.errors import CliError, VmehilError
 
 _REQUIRED = object()
 
@@ -88,13 +89,13 @@ class FaultContext:
     def can_link(self, what: str) -> Any:
         link = self.system.link
         if not hasattr(link, "ep"):
-            raise ValueError(f"{what} needs the plant over CAN (--plant can)")
+            raise CliError(f"{what} needs the plant over CAN (--plant can)")
         return link
 
     def can_node(self, what: str) -> Any:
         runner = getattr(self.can_link(what), "node", None)
         if runner is None:
-            raise ValueError(f"{what} needs the plant node in this process; this run talks to an external "
+            raise CliError(f"{what} needs the plant node in this process; this run talks to an external "
                              "`vmehil plant-node` (stop that process to see the loop's answer to a dead node, or leave "
                              "--interface out: on virtual the node runs in this process)")
         return runner.node
@@ -102,19 +103,19 @@ class FaultContext:
     def board_of_type(self, kind: str, what: str) -> Any:
         boards = [b for b in self.rig.table.table("crate", {}).tables("board", []) if b.get_str("type") == kind]
         if not boards:
-            raise ValueError(f"{what}: rig {self.rig.name} has no {kind} board")
+            raise CliError(f"{what}: rig {self.rig.name} has no {kind} board")
         return self.system.crate.board(boards[0].get_str("name"))
 
     def joint(self, joint: str, what: str):
         names = [j.name for j in self.rig.joints]
         if joint not in names:
-            raise ValueError(f"{what}: rig {self.rig.name} has no joint {joint!r} (joints: {', '.join(names)})")
+            raise CliError(f"{what}: rig {self.rig.name} has no joint {joint!r} (joints: {', '.join(names)})")
         return self.rig.joints[names.index(joint)]
 
     def pin(self, joint: str, signal: str, what: str):
         j = self.joint(joint, what)
         if signal not in j.wiring:
-            raise ValueError(f"{what}: joint {joint} has no {signal} wired")
+            raise CliError(f"{what}: joint {joint} has no {signal} wired")
         return j.wiring[signal]
 
 
@@ -181,7 +182,7 @@ def _adc_noise(ctx: FaultContext, kind: FaultType, p: dict[str, Any]) -> Injecti
     if p["board"]:
         return kind.injection(ctx.system.crate.board(p["board"]), {"rms_v": p["rms_v"]}, f"{p['board']} (all channels)")
     if not p["joint"]:
-        raise ValueError("adc_noise: give joint=… (with signal=pot|tach|imon) or board=…")
+        raise CliError("adc_noise: give joint=… (with signal=pot|tach|imon) or board=…")
     pin = ctx.pin(p["joint"], p["signal"], kind.name)
     return kind.injection(ctx.system.crate.board(pin.board), {"rms_v": p["rms_v"], "channels": [pin.index]}, str(pin))
 
@@ -206,7 +207,7 @@ def _on_bit3(ctx: FaultContext, kind: FaultType, p: dict[str, Any]) -> Injection
 def _on_vision(ctx: FaultContext, kind: FaultType, p: dict[str, Any]) -> Injection:
     vision = getattr(getattr(ctx.loop, "vision", None), "vision", None)
     if vision is None:
-        raise ValueError(f"{kind.name} needs the vision system in this process (--vision inprocess)")
+        raise CliError(f"{kind.name} needs the vision system in this process (--vision inprocess)")
     return kind.injection(vision, {}, "vision system")
 
 
@@ -281,7 +282,7 @@ class ScheduledFault:
         return out
 
 
-class FaultSpecError(ValueError):
+class FaultSpecError(VmehilError, ValueError):
     """A fault given wrongly: ``key`` is ``name``, ``at_s`` or the parameter concerned."""
 
     def __init__(self, source: str, key: str, expected: str, got: Any = None) -> None:
@@ -376,12 +377,12 @@ def check_rig(faults: list[ScheduledFault], rig: RigSpec) -> None:
     for f in faults:
         joint, board = f.params.get("joint"), f.params.get("board")
         if joint and joint not in joints:
-            raise ValueError(f"{f.source}: rig {rig.name} has no joint {joint!r} (joints: {', '.join(joints)})")
+            raise CliError(f"{f.source}: rig {rig.name} has no joint {joint!r} (joints: {', '.join(joints)})")
         signal = f.kind.signal or (f.params.get("signal") if joint else None)
         if joint and signal and signal not in rig.joints[joints.index(joint)].wiring:
-            raise ValueError(f"{f.source}: joint {joint} of rig {rig.name} has no {signal} wired")
+            raise CliError(f"{f.source}: joint {joint} of rig {rig.name} has no {signal} wired")
         if board and board not in boards:
-            raise ValueError(f"{f.source}: rig {rig.name} has no board {board!r} (boards: {', '.join(boards)})")
+            raise CliError(f"{f.source}: rig {rig.name} has no board {board!r} (boards: {', '.join(boards)})")
 
 
 # --- the schedule ------------------------------------------------------------------------------
@@ -445,7 +446,8 @@ def stop_report(loop: Any, first_tick: int | None, joint: str | None = None) -> 
     |θd − θ_true| (degrees) of ``joint`` (default: the stopped joint, else the worst) at the stop
     (``true_error_deg``) and at worst between the first fault and the stop or the end of the run
     (``max_true_error_deg``). After a stop the joints coast (gravity joints sag: the plant has no
-    brakes), so the figures end at the stop."""
+    brakes), so the figures end at the stop. A figure that is not known (no target yet: a fault at
+    tick 0 stops before the first one) is left out, never NaN."""
     rec = loop.recorder.trimmed() if loop.recorder is not None else {}
     fault = loop.fault
     out: dict[str, Any] = {"stopped": fault is not None}
@@ -462,20 +464,29 @@ def stop_report(loop: Any, first_tick: int | None, joint: str | None = None) -> 
     k1 = min(fault.tick if fault is not None else err.shape[0] - 1, err.shape[0] - 1)
     if k0 > k1:
         return out
+    window = err[k0:k1 + 1]
+    known = np.isfinite(window)
     name = joint or (fault.joint if fault is not None else None)
-    i = loop.names.index(name) if name in loop.names else int(np.nanargmax(np.nanmax(err[k0:k1 + 1], axis=0)))
-    out["error_joint"] = loop.names[i]
-    if fault is not None:
-        out["true_error_deg"] = float(err[k1, i])
-    out["max_true_error_deg"] = float(np.nanmax(err[k0:k1 + 1, i]))
+    if name in loop.names:
+        i: int | None = loop.names.index(name)
+    elif known.any():  # the worst joint among those with a known error
+        i = int(np.argmax(np.where(known, window, -np.inf).max(axis=0)))
+    else:  # no joint's error is known (a fault at tick 0 stops before the first target)
+        i = None
+    if i is not None and known[:, i].any():
+        out["error_joint"] = loop.names[i]
+        if fault is not None and np.isfinite(err[k1, i]):
+            out["true_error_deg"] = float(err[k1, i])
+        out["max_true_error_deg"] = float(window[known[:, i], i].max())
     # how far the arm really went from where it was when the fault struck, to the stop (or the
     # end): the largest true movement of any joint — what a fault costs, free of the pot's bow
     # that the error against the target carries (≈ 1° uncalibrated)
     moved = np.degrees(np.abs(rec["theta_true"][k0:k1 + 1] - rec["theta_true"][k0]))
-    if np.isfinite(moved).any():
-        worst = int(np.nanargmax(np.nanmax(moved, axis=0)))
+    seen = np.isfinite(moved)
+    if seen.any():
+        worst = int(np.argmax(np.where(seen, moved, -np.inf).max(axis=0)))
         out["movement_joint"] = loop.names[worst]
-        out["true_movement_deg"] = float(np.nanmax(moved[:, worst]))
+        out["true_movement_deg"] = float(moved[seen[:, worst], worst].max())
     return out
 
 

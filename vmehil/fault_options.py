@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from servo.rig import RigSpec
+from vmehil.errors import CliError
 from vmehil.fault_injection import (
     FaultContext,
     FaultSchedule,
@@ -85,9 +86,9 @@ def _check_needs(faults: list[ScheduledFault], run: RunNeeds) -> None:
     for f in faults:
         name = f.kind.name
         if name.startswith("can_") and not run.plant_over_can:
-            raise ValueError(f"{f.source}: {name} needs the plant over CAN (--plant can)")
+            raise CliError(f"{f.source}: {name} needs the plant over CAN (--plant can)")
         if name == "vision_death" and run.vision_mode != "inprocess":
-            raise ValueError(f"{f.source}: vision_death needs the vision system in this process (--vision inprocess)")
+            raise CliError(f"{f.source}: vision_death needs the vision system in this process (--vision inprocess)")
 
 
 @dataclass(frozen=True)

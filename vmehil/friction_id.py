@@ -51,6 +51,7 @@ from servo.trajectory.quintic import Quintic
 from servo.trajectory.sequencer import Sequencer
 from servo.trajectory.stay import Stay
 from vmehil.calibration.base import CalibrationAbort, Check, ProcedureResult, ProcedureSpec
+from vmehil.errors import VmehilError
 from vmehil.files import save_figure, write_atomic
 from vmehil.session import build_loop, plan_context_of
 from vmehil.system import EmulatedRig
@@ -59,7 +60,7 @@ PAPER_AMPLITUDE_RAD = 0.4
 PAPER_FREQUENCY_HZ = 0.06
 
 
-class FrictionIdError(RuntimeError):
+class FrictionIdError(VmehilError, RuntimeError):
     """The procedure cannot run or went wrong (unsuitable joint, watchdog stop, no breakout)."""
 
 

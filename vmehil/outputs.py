@@ -15,6 +15,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from vmehil.errors import VmehilError
 from vmehil.files import WRITTEN_BY
 
 MARKER = ".vmehil-output"  #: the file that marks a directory as vmehil's (report, sweep output)
@@ -24,7 +25,7 @@ FILE_OPTIONS = {"json": "--json", "json_path": "--json", "can_log": "--can-log"}
 DIR_OPTIONS = {"report": "--report", "out": "--out", "resume": "--resume"}
 
 
-class OutputPathError(ValueError):
+class OutputPathError(VmehilError, ValueError):
     """An output path that cannot or must not be written; the message names the flag."""
 
 

@@ -34,6 +34,7 @@ from servo.boundary import WallClockPlant
 from servo.io import JointIO
 from servo.nominal import nominal_scaling, rig_nominal
 from servo.rig import RigSpec
+from vmehil.errors import VmehilError
 
 #: register maps of the board types a rig file names (the drivers' own declarations)
 REGMAPS: dict[str, RegisterMap] = {"adc": ADC_REGMAP, "dac": DAC_REGMAP, "pio": PIO_REGS, "quad": QUAD_REGS,
@@ -41,7 +42,7 @@ REGMAPS: dict[str, RegisterMap] = {"adc": ADC_REGMAP, "dac": DAC_REGMAP, "pio": 
 _STATUS_NAMES = ("CSR", "STATUS", "CTRL", "CONTROL")
 
 
-class RealBusRefused(RuntimeError):
+class RealBusRefused(VmehilError, RuntimeError):
     """The dry pass or the start-up safe stop found the crate unlike the rig file: nothing enabled."""
 
 

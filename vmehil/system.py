@@ -1,6 +1,6 @@
 """Assemble an emulated rig: crate + boards wired to the plant through the harness, the
-drivers (:class:`servo.io.JointIO`) and the servo loop. This module is the tools layer: it
-imports ``emulators``; the loop and the drivers do not.
+drivers (:class:`servo.io.JointIO`) and the servo loop. Rig assembly is the application's job
+(``vmehil``): this module imports ``emulators``; the loop and the drivers do not.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from servo.nominal import nominal_scaling, rig_nominal
 from servo.rig import SERVO_JOINT_KEYS, WATCHDOG_NET, RigSpec, load_rig, loopback_net, reference_net
 from servo.units import rig_units
 from vmehil.calibration.store import load_store_or_nominal
+from vmehil.errors import CliError
 
 #: The ``[[joint]]`` keys that are not the plant's: the servo side's and ``[joint.calibration]``
 #: (the calibration procedures' settings, vmehil.calibration.pot). The plant is told them
@@ -181,7 +182,7 @@ def build_emulated_rig(rig: str | Path | RigSpec | None = None, *, seed: int = 0
     publish_references(crate, spec)
     params = plant_params_from_config(spec.table, foreign_keys=NON_PLANT_JOINT_KEYS).joints
     if [p.name for p in params] != [j.name for j in spec.joints]:
-        raise ValueError(f"rig {spec.name}: plant joints and servo joints differ")
+        raise CliError(f"rig {spec.name}: plant joints and servo joints differ")
     plant = None
     if link is None:
         plant = Plant.from_config(spec.table, seed=seed, foreign_keys=NON_PLANT_JOINT_KEYS)

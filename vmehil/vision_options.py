@@ -24,6 +24,7 @@ import numpy as np
 
 from servo.rig import RigSpec
 from vmehil.cli_types import bounded_float, duration_s, positive_float
+from vmehil.errors import CliError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -97,7 +98,7 @@ def prepare(run: RunNeeds, rig: RigSpec) -> VisionPreparation | None:
     shm = None
     if opts.mode == "process":
         if not run.realtime:
-            raise ValueError("--vision process runs the vision system on the wall clock: add --realtime")
+            raise CliError("--vision process runs the vision system on the wall clock: add --realtime")
         from emulators.bit3 import Bit3Link
 
         shm = Bit3Link.create_shared(int(board.get("window_size", 0x10000)))
@@ -130,7 +131,7 @@ def prepare(run: RunNeeds, rig: RigSpec) -> VisionPreparation | None:
 def _bit3_board(rig: RigSpec) -> dict[str, Any]:
     boards = [b for b in rig.table.data.get("crate", {}).get("board", []) if b.get("type") == "bit3"]
     if not boards:
-        raise ValueError(f"rig {rig.name} has no BIT3 card (a [[crate.board]] with type = \"bit3\")")
+        raise CliError(f"rig {rig.name} has no BIT3 card (a [[crate.board]] with type = \"bit3\")")
     return boards[0]
 
 
@@ -220,8 +221,8 @@ def _target(text: str | None, arm, theta0: np.ndarray) -> np.ndarray:
         try:
             xyz = np.array([float(v) for v in text.split(",")])
         except ValueError:
-            raise ValueError(f"--vision-target {text!r}: expected x,y,z in metres") from None
+            raise CliError(f"--vision-target {text!r}: expected x,y,z in metres") from None
         if xyz.shape != (3,) or not np.all(np.isfinite(xyz)):
-            raise ValueError(f"--vision-target {text!r}: expected three finite numbers x,y,z")
+            raise CliError(f"--vision-target {text!r}: expected three finite numbers x,y,z")
         return xyz
     return np.asarray(arm.position(theta0[:6]), float) + np.array([0.04, 0.03, -0.03])

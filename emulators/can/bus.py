@@ -33,6 +33,7 @@ from typing import Any
 
 import can
 
+from emulators.errors import EmulatorError
 from emulators.faults import FaultInjectable
 from emulators.rng import rng_for
 
@@ -40,7 +41,7 @@ DEFAULT_CHANNEL = {"virtual": "vmehil", "socketcan": "vcan0", "udp_multicast": "
 INTERFACES = ("virtual", "socketcan", "udp_multicast")
 
 
-class BusConfigError(ValueError):
+class BusConfigError(EmulatorError, ValueError):
     """The bus cannot be opened as configured (message says what to change)."""
 
 

@@ -51,6 +51,7 @@ from emulators.can.dbc import (
     ID_UNIT_TIMING,
     MAX_JOINTS,
 )
+from emulators.errors import EmulatorError
 from emulators.signals import QuadratureEvents
 
 #: truth keys carried by the TRUTH frames (float64, in this order)
@@ -72,7 +73,7 @@ _UNIT_KINDS = {ID_UNIT_STOP: "UNIT_STOP", ID_UNIT_START: "UNIT_START", ID_UNIT_S
                ID_UNIT_HEARTBEAT: "UNIT_HEARTBEAT"}
 
 
-class FrameError(ValueError):
+class FrameError(EmulatorError, ValueError):
     """A frame that cannot be used: unknown identifier, wrong length, undecodable, or a value
     outside its declared range. Receivers count these and drop the frame."""
 

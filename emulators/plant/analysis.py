@@ -26,7 +26,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
 
 
 @dataclass
@@ -163,6 +162,8 @@ def deadband_limit_cycle(
     idx = np.flatnonzero((vals[:-1] < 0.0) & (vals[1:] >= 0.0))
     if len(idx) == 0:
         return None
+    from scipy.optimize import brentq  # scipy is an extra (tune): imported only where it is needed
+
     v = float(brentq(balance, vs[idx[0]], vs[idx[0] + 1]))
     n = deadzone_df(v, d)
     w = float(np.sqrt(kp + kvi * n))

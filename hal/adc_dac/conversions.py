@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 
+from hal.errors import HalError
 from hal.vme.errors import BoardIdError as VmeBoardIdError
 
 BITS = 12
@@ -37,7 +38,7 @@ DAC_V_MIN = -DAC_FULL_SCALE_V  #: volts of code 0
 DAC_V_MAX = DAC_FULL_SCALE_V - DAC_LSB_V  #: volts of code 0xFFF (+9.99512 V)
 
 
-class AdcDacError(Exception):
+class AdcDacError(HalError):
     """Base class of the ADC/DAC driver errors."""
 
 

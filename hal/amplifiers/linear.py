@@ -18,6 +18,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol
 
+from hal.errors import HalError
+
 
 def clamp_current(current_a: float, limit_a: float) -> float:
     """``current_a`` limited to ±``limit_a`` (the amplifier's current limit)."""
@@ -29,7 +31,7 @@ def command_volts(current_a: float, gain_a_per_v: float, offset_a: float = 0.0) 
     return (current_a - offset_a) / gain_a_per_v
 
 
-class AmplifierFault(RuntimeError):
+class AmplifierFault(HalError, RuntimeError):
     """The amplifier's fault line is asserted (latched in the amplifier until reset)."""
 
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable
 
+from hal.errors import HalError
 from hal.pio.pio_regs import BOARD_TYPE, LINES_PER_PORT, PIO_REGS, PORTS, PWM_CLOCK_HZ, REVISION, parse_line
 from hal.vme.bus import SpaceLike, VmeBus
 from hal.vme.errors import BoardIdError
@@ -33,7 +34,7 @@ PortCallback = Callable[[str, int, int], None]
 """``callback(port, changed_mask, pin_levels)`` for a port's input changes."""
 
 
-class PioError(Exception):
+class PioError(HalError):
     """Base class of parallel-I/O driver errors."""
 
 

@@ -40,6 +40,7 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+from hal.errors import HalError
 from hal.quadrature.quad_regs import (
     BOARD_TYPE,
     CHANNELS,
@@ -66,7 +67,7 @@ _QUARTER = COUNTER_MODULUS // 4
 TWO_PI = 2.0 * math.pi
 
 
-class QuadratureError(Exception):
+class QuadratureError(HalError):
     """Base class of quadrature decoder errors; ``channel`` names the channel."""
 
     def __init__(self, channel: int, message: str) -> None:

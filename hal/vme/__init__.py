@@ -3,7 +3,7 @@
 from hal.vme.bus import IrqHandler, VmeBus
 from hal.vme.errors import BoardIdError, BusError, BusErrorCause, VmeConfigError, VmeError
 from hal.vme.registers import Access, Field, Register, RegisterMap
-from hal.vme.types import AddressModifier, AddressSpace, Width, am_for, decode_am, resolve_am
+from hal.vme.types import AddressModifier, AddressSpace, VmeValueError, Width, am_for, decode_am, resolve_am
 from hal.vme.window import BoardWindow
 
 __all__ = [
@@ -21,6 +21,7 @@ __all__ = [
     "VmeBus",
     "VmeConfigError",
     "VmeError",
+    "VmeValueError",
     "Width",
     "am_for",
     "decode_am",

@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 from functools import partial
 
 from hal.vme.errors import BusError, BusErrorCause
-from hal.vme.types import AddressModifier, AddressSpace, Width, am_for, resolve_am
+from hal.vme.types import AddressModifier, AddressSpace, VmeValueError, Width, am_for, resolve_am
 
 IrqHandler = Callable[[int], None]
 """An interrupt handler; called with the 8-bit status/ID vector it was registered for."""
@@ -45,7 +45,7 @@ class VmeBus(ABC):
         """Write ``value`` (unsigned, must fit ``width``) at ``address`` in ``space``."""
         am, width = self._check(address, space, width, write=True)
         if not 0 <= int(value) <= width.max_value:
-            raise ValueError(f"value {value} does not fit {width.name} (0..{width.max_value})")
+            raise VmeValueError(f"value {value} does not fit {width.name} (0..{width.max_value})")
         self._write(am, address, width, int(value))
 
     # --- resolved cycles -----------------------------------------------------------------
@@ -90,7 +90,7 @@ class VmeBus(ABC):
         am = self._block_am(am)
         for i, v in enumerate(values):
             if not 0 <= int(v) <= width.max_value:
-                raise ValueError(f"value {v} at index {i} does not fit {width.name}")
+                raise VmeValueError(f"value {v} at index {i} does not fit {width.name}")
             self._write(am, address + i * width, width, int(v))
 
     # --- interrupts ----------------------------------------------------------------------
@@ -130,7 +130,7 @@ class VmeBus(ABC):
         am = resolve_am(space)
         width = Width.parse(width)
         if not 0 <= address < am.space.size:
-            raise ValueError(
+            raise VmeValueError(
                 f"address 0x{address:X} is outside {am.space.name} (0..0x{am.space.size - 1:X})"
             )
         if address % int(width):
@@ -151,5 +151,5 @@ def _call_write(write: Callable[..., None], address: int, space: SpaceLike, widt
 def _checked_write(write: Callable[[AddressModifier, int, Width, int], None], am: AddressModifier, address: int,
                    width: Width, max_value: int, value: int) -> None:
     if not 0 <= int(value) <= max_value:
-        raise ValueError(f"value {value} does not fit {width.name} (0..{max_value})")
+        raise VmeValueError(f"value {value} does not fit {width.name} (0..{max_value})")
     write(am, address, width, int(value))

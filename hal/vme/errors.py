@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import enum
 
+from hal.errors import HalError
 from hal.vme.types import AddressModifier, Width
 
 
-class VmeError(Exception):
+class VmeError(HalError):
     """Base class of every error raised by the VME layer."""
 
 

@@ -27,6 +27,14 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
+from hal.errors import HalError
+
+
+class VmeValueError(HalError, ValueError):
+    """A VME name or value that is not one: an address space, a data width or an AM code that
+    does not exist, an address outside its space, a value too wide for its data width. Bad input
+    when a user gave it (``vmehil crate read A17 …``); a ``ValueError`` too."""
+
 
 class AddressSpace(enum.Enum):
     """A VME address space; the value is the number of address bits."""
@@ -53,7 +61,7 @@ class AddressSpace(enum.Enum):
         try:
             return cls[str(text).strip().upper()]
         except KeyError:
-            raise ValueError(f"unknown address space {text!r}; expected one of A16, A24, A32") from None
+            raise VmeValueError(f"unknown address space {text!r}; expected one of A16, A24, A32") from None
 
 
 class Width(enum.IntEnum):
@@ -84,14 +92,14 @@ class Width(enum.IntEnum):
             for w in cls:
                 if w.bits == text:
                     return w
-            raise ValueError(f"unknown data width {text}; expected 8, 16 or 32")
+            raise VmeValueError(f"unknown data width {text}; expected 8, 16 or 32")
         s = str(text).strip().upper()
         if s.isdigit():
             return cls.parse(int(s))
         try:
             return cls[s]
         except KeyError:
-            raise ValueError(f"unknown data width {text!r}; expected D8, D16 or D32") from None
+            raise VmeValueError(f"unknown data width {text!r}; expected D8, D16 or D32") from None
 
 
 @dataclass(frozen=True)
@@ -138,7 +146,7 @@ def decode_am(code: int) -> AddressModifier:
         return _AM_TABLE[code]
     except KeyError:
         known = ", ".join(f"0x{c:02X}" for c in sorted(_AM_TABLE))
-        raise ValueError(f"address modifier 0x{code:02X} is not implemented (known: {known})") from None
+        raise VmeValueError(f"address modifier 0x{code:02X} is not implemented (known: {known})") from None
 
 
 def am_for(
@@ -148,7 +156,7 @@ def am_for(
     for am in _AM_TABLE.values():
         if (am.space, am.supervisory, am.program, am.block) == (space, supervisory, program, block):
             return am
-    raise ValueError(f"no address modifier for {space.name} program={program} block={block}")
+    raise VmeValueError(f"no address modifier for {space.name} program={program} block={block}")
 
 
 def resolve_am(space: AddressSpace | AddressModifier | int | str) -> AddressModifier:

@@ -51,7 +51,7 @@ from pathlib import Path
 from hal.vme import vme_user_abi as abi
 from hal.vme.bus import VmeBus
 from hal.vme.errors import BusError, BusErrorCause, VmeConfigError, VmeError
-from hal.vme.types import AddressModifier, Width
+from hal.vme.types import AddressModifier, VmeValueError, Width
 
 DEFAULT_DEVICE_DIR = "/dev/bus/vme"
 DEFAULT_WINDOW_SIZE = 0x10000
@@ -470,7 +470,7 @@ def parse_bus_spec(text: str) -> str:
     """``vme_user`` or ``vme_user:/dev/bus/vme`` → the device directory."""
     name, _, rest = text.partition(":")
     if name != "vme_user":
-        raise ValueError(f"bus {text!r}: expected 'emulated', 'vme_user' or 'vme_user:DIR'")
+        raise VmeValueError(f"bus {text!r}: expected 'emulated', 'vme_user' or 'vme_user:DIR'")
     return rest or DEFAULT_DEVICE_DIR
 
 

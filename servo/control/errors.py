@@ -13,6 +13,8 @@ from __future__ import annotations
 import numbers
 from typing import Any
 
+from servo.errors import ServoError
+
 
 def _shown(value: Any) -> str:
     """A value for a message: a number as a plain float (not ``np.float64(…)``), else its repr."""
@@ -21,7 +23,7 @@ def _shown(value: Any) -> str:
     return repr(value)
 
 
-class ControlError(ValueError):
+class ControlError(ServoError, ValueError):
     """Base class for control-layer errors (bad gains, bad controller composition)."""
 
 

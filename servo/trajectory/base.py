@@ -8,9 +8,10 @@ from typing import NamedTuple, Protocol, runtime_checkable
 import numpy as np
 
 from servo.control.normalize import per_joint
+from servo.errors import ServoError
 
 
-class TrajectoryError(ValueError):
+class TrajectoryError(ServoError, ValueError):
     """A trajectory cannot be planned (bad limits, wrong number of joints, bad speed factor)."""
 
 

@@ -41,6 +41,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from servo.control.gains import Gains
+from vmehil.errors import VmehilError
 
 VelocitySource = Literal["tach", "encoder"]
 
@@ -52,7 +53,7 @@ VelocitySource = Literal["tach", "encoder"]
 BREAK_POINTS = ("actuator", "position_sensor", "velocity_sensor", "friction")
 
 
-class LoopConfigError(ValueError):
+class LoopConfigError(VmehilError, ValueError):
     """A loop model parameter is out of range."""
 
 

@@ -34,6 +34,7 @@ from contextlib import contextmanager
 from typing import Any, Protocol
 
 from servo.interrupts import Terminated
+from vmehil.errors import VmehilError
 
 _STOP: Any = None  # a multiprocessing.Event in workers (set by the pool initializer)
 _TASK = threading.local()  # .stop: the stop poll of the task running in this thread (an engine's wrapper)
@@ -85,7 +86,7 @@ def _run_in_worker(fn: Callable[[Any], Any], item: Any) -> Any:
         _BUSY.clear()
 
 
-class ParallelInterrupted(Exception):
+class ParallelInterrupted(VmehilError):
     """:func:`run_parallel` was interrupted; ``done`` maps item positions to finished results."""
 
     def __init__(self, done: dict[int, Any]) -> None:
@@ -93,7 +94,7 @@ class ParallelInterrupted(Exception):
         self.done = done
 
 
-class EngineError(RuntimeError):
+class EngineError(VmehilError, RuntimeError):
     """An engine could not start or refused its workers (e.g. a mixed-version cluster)."""
 
 

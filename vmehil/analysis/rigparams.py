@@ -57,6 +57,7 @@ from servo.rig import RigSpec, load_rig
 from servo.settings import ServoSettings, servo_settings
 from vmehil.analysis.describing import DeadZone, Nonlinearity, Quantizer, Relay, Saturation
 from vmehil.analysis.loop import LoopConfig, VelocitySource
+from vmehil.errors import CliError
 
 
 @dataclass
@@ -164,11 +165,11 @@ def load_joint(rig: str | Path | RigSpec | None, joint: int = 1, gains: str | di
     from vmehil.system import NON_PLANT_JOINT_KEYS
 
     if isinstance(joint, bool) or not isinstance(joint, int) or joint < 1:
-        raise ValueError(f"joint number {joint!r} must be 1 or more (joints are numbered from 1)")
+        raise CliError(f"joint number {joint!r} must be 1 or more (joints are numbered from 1)")
     spec = rig if isinstance(rig, RigSpec) else load_rig(resolve_rig(rig))
     path = spec.path
     if joint > spec.n_joints:
-        raise ValueError(f"rig {spec.name} has {spec.n_joints} joints; --joint must be 1..{spec.n_joints}, not {joint}")
+        raise CliError(f"rig {spec.name} has {spec.n_joints} joints; --joint must be 1..{spec.n_joints}, not {joint}")
     plant = plant_params_from_config(spec.table, foreign_keys=NON_PLANT_JOINT_KEYS).joints
     j = joint - 1
     p = plant[j]
@@ -254,7 +255,7 @@ def load_joint(rig: str | Path | RigSpec | None, joint: int = 1, gains: str | di
     vel_filter = None
     if velocity == "tach":
         if not p.tach.present:
-            raise ValueError(f"rig {spec.name} joint {js.name}: the servo uses the tach but "
+            raise CliError(f"rig {spec.name} joint {js.name}: the servo uses the tach but "
                              "[joint.tach] present = false")
         for key in ("brush_drop_v", "gradient_v_per_rad_s"):
             note_default("tach", key, getattr(p.tach, key), "V" if key == "brush_drop_v" else "V/(rad/s)")

@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 
+from vmehil.errors import VmehilError
 from vmehil.metrics import limit_cycle, settling_time
 
 if TYPE_CHECKING:  # rigparams brings python-control and scipy (≈1 s): only where a joint is analysed
@@ -55,7 +56,7 @@ def settling_after(t: np.ndarray, y: np.ndarray, t_start: float, band: float) ->
     return settling_time(t, y - mid, t_start, half + band)
 
 
-class SimulationError(ValueError):
+class SimulationError(VmehilError, ValueError):
     """Bad simulation settings (hold too short, move of zero size, ...)."""
 
 

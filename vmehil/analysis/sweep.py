@@ -55,6 +55,7 @@ from servo.rig import RigSpec, rig_from_table
 from servo.settings import ServoSettings
 from vmehil.analysis.parallel import Engine, EngineError, ParallelInterrupted, run_parallel, stop_requested
 from vmehil.analysis.simulate import SimSettings
+from vmehil.errors import VmehilError
 
 DEFAULT_GRID = "kp=80:140:3,kvi=600:1400:3"  #: 9 points: about 40 s on 2 busy cores
 
@@ -67,7 +68,7 @@ COLUMNS = ("index", *GAIN_NAMES, "status", "stable", "unstable_reason", "sampled
            "final_error_deg", "fault", "wall_s", "switch_off", "sample")
 
 
-class SweepError(ValueError):
+class SweepError(VmehilError, ValueError):
     """A malformed grid or gains file."""
 
 
@@ -76,7 +77,7 @@ class SweepResultError(EngineError):
     the rows that finished before it are kept."""
 
 
-class SweepInterrupted(Exception):
+class SweepInterrupted(VmehilError):
     """The sweep was interrupted; ``rows`` holds the points that finished."""
 
     def __init__(self, rows: list[dict[str, Any]]) -> None:

@@ -30,10 +30,12 @@ from typing import Any
 
 import numpy as np
 
+from vmehil.errors import VmehilError
+
 TRUNCATE_SIGMA = 3.0  #: a normal spread is truncated at ±3σ (redrawn beyond), so its extremes are known
 
 
-class VaryError(ValueError):
+class VaryError(VmehilError, ValueError):
     """A malformed ``--vary`` spread, an unknown parameter, or a spread leaving its range."""
 
 

@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from vmehil.errors import VmehilError
+
 #: reported metrics: row column -> (label, unit)
 METRICS: dict[str, tuple[str, str]] = {
     "lc_amplitude_deg": ("limit-cycle amplitude", "deg"),
@@ -32,7 +34,7 @@ ALIASES = {"lc_amp_deg": "lc_amplitude_deg", "lc_amp": "lc_amplitude_deg", "lc_f
 PERCENTILES = (5, 25, 50, 75, 95)
 
 
-class ThresholdError(ValueError):
+class ThresholdError(VmehilError, ValueError):
     """A malformed ``--threshold``."""
 
 

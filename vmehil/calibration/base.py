@@ -30,9 +30,10 @@ from hal.vme.bus import VmeBus
 from servo.io import JointIO
 from servo.rig import RigSpec
 from vmehil.calibration.store import CalibrationStore, rig_boards
+from vmehil.errors import VmehilError
 
 
-class CalibrationAbort(RuntimeError):
+class CalibrationAbort(VmehilError, RuntimeError):
     """A procedure cannot go on (missing wiring, operator abort, unusable data); nothing is written."""
 
 

@@ -19,6 +19,7 @@ from typing import Any
 from vmehil.calibration.base import CalibrationContext, Procedure, ProcedureResult
 from vmehil.calibration.procedures import ALL, PROCEDURES, procedures_for_all
 from vmehil.calibration.store import CalibrationStore
+from vmehil.errors import CliError
 
 
 @dataclass
@@ -51,7 +52,7 @@ def resolve_procedure_names(name: str) -> list[str]:
     if name == ALL:
         return [p.name for p in procedures_for_all()]
     if name not in PROCEDURES:
-        raise ValueError(f"unknown calibration procedure {name!r}; choose from {ALL}, {', '.join(PROCEDURES.names())}")
+        raise CliError(f"unknown calibration procedure {name!r}; choose from {ALL}, {', '.join(PROCEDURES.names())}")
     return [name]
 
 

@@ -56,6 +56,7 @@ from hal.adc_dac.calibration import Calibration, CalibrationError
 from hal.adc_dac.dac_regs import DAC_BOARD_ID, DAC_CHANNELS
 from hal.config import ConfigError, read_limited
 from servo.rig import RigSpec
+from vmehil.errors import VmehilError
 from vmehil.files import PREVIOUS_SUFFIX, write_atomic_keeping_previous
 
 FORMAT = "vmehil-calibration"
@@ -85,7 +86,7 @@ def load_store_or_nominal(path: str | Path, rig: RigSpec, *, bus: Any = None) ->
         return None
 
 
-class CalibrationFileError(ValueError):
+class CalibrationFileError(VmehilError, ValueError):
     """A calibration file cannot be used: malformed, another format, another rig or board."""
 
     def __init__(self, path: str | Path, reason: str) -> None:

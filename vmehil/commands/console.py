@@ -28,6 +28,7 @@ from servo.control.gains import parse_gains
 from servo.interrupts import Terminated, interrupt_name
 from vmehil.cli_types import duration_s
 from vmehil.console.extension import ConsoleOptions
+from vmehil.errors import CliError
 from vmehil.files import write_json
 from vmehil.realtime_options import RealtimeOptions, add_overrun_args, add_pacing_args
 
@@ -94,7 +95,7 @@ def run_console(opts: ConsoleCommandOptions) -> int:
 
     gains = opts.gains  # values and stability: once, in build_loop
     if opts.duration is not None and opts.duration <= 0:
-        raise ValueError("--duration must be > 0")
+        raise CliError("--duration must be > 0")
     from emulators.presets import resolve_rig
 
     rig = load_rig(resolve_rig(opts.rig))

@@ -25,6 +25,7 @@ from emulators.crate_file import load_crate
 from emulators.presets import resolve_rig
 from hal.vme.errors import BusError, VmeError
 from hal.vme.types import AddressSpace, Width
+from vmehil.errors import CliError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -94,13 +95,13 @@ class CrateOptions:
     def location(self) -> tuple[str, int, Width]:
         """``read``/``write``: the address space, address and width (their parsers require the first two)."""
         if self.space is None or self.address is None:
-            raise ValueError(f"crate {self.action}: give the address space and the address")
+            raise CliError(f"crate {self.action}: give the address space and the address")
         return self.space, self.address, Width.parse(self.width)
 
     def write_value(self) -> int:
         """``write``: the value (its parser requires it)."""
         if self.value is None:
-            raise ValueError(f"crate {self.action}: give the value to write")
+            raise CliError(f"crate {self.action}: give the value to write")
         return self.value
 
 
@@ -228,14 +229,14 @@ def _shell_one(crate: Crate, words: list[str]) -> str:
         return _table(crate.describe())
     if op == "counters":
         if not hasattr(crate, "counter_snapshot"):
-            raise ValueError("no access counters on a real bus")
+            raise CliError("no access counters on a real bus")
         return "\n".join(f"{k} {v}" for k, v in crate.counter_snapshot().items())
     if op == "time":
         return f"{crate.now() * 1e6:.3f} us"
     if op == "delay":
         crate.delay(float(words[1]) * 1e-6)
         return "ok"
-    raise ValueError(f"unknown command {op!r} (read, write, list, counters, time, delay)")
+    raise CliError(f"unknown command {op!r} (read, write, list, counters, time, delay)")
 
 
 def _emit(opts: CrateOptions, data: Any, text) -> None:

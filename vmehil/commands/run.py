@@ -22,6 +22,7 @@ from vmehil.commands.calibration_file import calibrated
 from vmehil.commands.run_options import RunOptions
 from vmehil.commands.run_results import finish_run, run_exit_status
 from vmehil.console import extension as console_extension
+from vmehil.errors import CliError
 from vmehil.exit_status import EXIT_FAULT
 from vmehil.mavlink import extension as mavlink_extension
 from vmehil.realtime_options import add_overrun_args, add_pacing_args
@@ -140,7 +141,7 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
     n = rig.n_joints
     if opts.motion == NO_MOTION:
         if opts.duration is None and "duration" not in defaults:
-            raise ValueError(f"--motion {NO_MOTION} holds the joints: give --duration S (how long to run)")
+            raise CliError(f"--motion {NO_MOTION} holds the joints: give --duration S (how long to run)")
         motion = hold_motion()
     else:
         motion = load_motion(opts.motion, n) if opts.motion else defaults.get("motion") or default_demo_motion(n)
@@ -153,7 +154,7 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
         duration = _planned_duration(build_loop(probe_system, motion=motion, n_ticks=1, settings=settings)) + 1.0
         probe_system.close()
     if not duration > 0:
-        raise ValueError("--duration must be > 0")
+        raise CliError("--duration must be > 0")
     n_ticks = round(duration * rig.servo_rate_hz)
     if parallel:
         from vmehil.calibration.store import load_store_or_nominal
@@ -231,6 +232,6 @@ def _planned_duration(loop) -> float:
             t += max(seq.current.duration, 1e-3)
             seq.sample(t)
     except TrajectoryError as e:
-        raise ValueError(f"{e}; or give --duration") from None
+        raise CliError(f"{e}; or give --duration") from None
     return float(seq.total_duration or t)
 

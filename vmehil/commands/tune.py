@@ -47,6 +47,7 @@ from servo.control.gains import parse_gains
 from vmehil.can_options import CanPlantOptions
 from vmehil.cli_types import bounded_int, joint_number, nonzero_float, positive_float, seed
 from vmehil.commands import needs_extra
+from vmehil.errors import CliError
 from vmehil.files import write_atomic, write_json
 
 if TYPE_CHECKING:  # the analysis needs the 'tune' extra: imported when a tune command runs
@@ -520,15 +521,15 @@ def run_sweep(opts: TuneOptions) -> int:
     jp = _load(opts)
     base = jp.cfg.gains
     if opts.gains_file and opts.grid:
-        raise ValueError("give either --grid/--set or --gains-file, not both")
+        raise CliError("give either --grid/--set or --gains-file, not both")
     spreads = parse_varies(opts.vary or [])
     thresholds = parse_thresholds(opts.threshold or [])
     if opts.samples is not None and not spreads:
-        raise ValueError("--samples needs --vary: the samples of a tolerance study differ by the varied plant values")
+        raise CliError("--samples needs --vary: the samples of a tolerance study differ by the varied plant values")
     if thresholds and not spreads:
-        raise ValueError("--threshold reports over the samples of a tolerance study: give --vary too")
+        raise CliError("--threshold reports over the samples of a tolerance study: give --vary too")
     if spreads and opts.margins_only:
-        raise ValueError("--vary with --margins-only: a tolerance study simulates every sample; drop one of them")
+        raise CliError("--vary with --margins-only: a tolerance study simulates every sample; drop one of them")
     if opts.gains_file:
         points = load_gains_file(opts.gains_file, base)
         axes_names = [k for k in GAIN_NAMES if len({p[k] for p in points}) > 1]
@@ -543,10 +544,10 @@ def run_sweep(opts: TuneOptions) -> int:
         points = grid_points(axes, base)
         axes_names = [k for k in axes if len(axes[k]) > 1]
     if opts.jobs is not None and opts.jobs < 1:
-        raise ValueError(f"--jobs {opts.jobs} must be at least 1")
+        raise CliError(f"--jobs {opts.jobs} must be at least 1")
     engine_name = "dask" if opts.scheduler else (opts.engine or "local")
     if opts.scheduler and opts.engine == "local":
-        raise ValueError("--scheduler sends the points to a Dask cluster: it needs --engine dask (or no --engine)")
+        raise CliError("--scheduler sends the points to a Dask cluster: it needs --engine dask (or no --engine)")
     if engine_name == "dask":
         from vmehil.commands import refuse_without
 
@@ -560,10 +561,10 @@ def run_sweep(opts: TuneOptions) -> int:
     if links is not None and not links.shareable:
         iface, chan = links.options.resolved()
         if engine_name == "dask":
-            raise ValueError(f"--engine dask with --plant can on {iface} {chan}: the one external plant node serves "
+            raise CliError(f"--engine dask with --plant can on {iface} {chan}: the one external plant node serves "
                              "one run at a time; use the local engine with --jobs 1, or --interface virtual")
         if jobs is not None and jobs > 1:
-            raise ValueError(f"--jobs {jobs} with --plant can on {iface} {chan}: the one external plant node serves "
+            raise CliError(f"--jobs {jobs} with --plant can on {iface} {chan}: the one external plant node serves "
                              "one run at a time; use --jobs 1, or --interface virtual (each worker then runs its "
                              "own in-process plant node)")
         jobs = 1
@@ -571,7 +572,7 @@ def run_sweep(opts: TuneOptions) -> int:
     y = opts.y or (axes_names[1] if len(axes_names) > 1 else next(k for k in GAIN_NAMES if k != x))
     for name, v in (("--x", x), ("--y", y)):
         if v not in GAIN_NAMES:
-            raise ValueError(f"{name} {v!r} must be one of {', '.join(GAIN_NAMES)}")
+            raise CliError(f"{name} {v!r} must be one of {', '.join(GAIN_NAMES)}")
     n_samples = (opts.samples or 20) if spreads else 1
     modes = {"off": [False], "on": [True], "both": [False, True]}[opts.switch_off]
     check_sweep_size(len(points), len(modes), n_samples)  # before anything is loaded, drawn or made
@@ -716,15 +717,15 @@ def _resumed_rows(json_path: Path, identity: dict[str, Any]) -> list[dict[str, A
         # a sweep's JSON holds < 16 KiB a point; the bound keeps a wrong path (a device) from filling memory
         stored = json.loads(read_limited(json_path, (1 << 20) + (16 << 10) * int(identity["points"]), "a sweep's JSON"))
     except ValueError as e:
-        raise ValueError(f"--resume: {json_path} is not a sweep's JSON ({e})") from None
+        raise CliError(f"--resume: {json_path} is not a sweep's JSON ({e})") from None
     theirs = stored.get("identity") if isinstance(stored, dict) else None
     if not isinstance(theirs, dict):
-        raise ValueError(f"--resume: {json_path} holds no sweep identity (written by an older vmehil?); "
+        raise CliError(f"--resume: {json_path} holds no sweep identity (written by an older vmehil?); "
                          "run the sweep again without --resume")
     differ = [k for k in identity if theirs.get(k) != identity[k]]
     if differ:
         detail = "; ".join(f"{k}: stored {theirs.get(k)!r}, now {identity[k]!r}" for k in differ)
-        raise ValueError(f"--resume: {json_path} is another sweep ({detail}); give the same rig, grid, "
+        raise CliError(f"--resume: {json_path} is another sweep ({detail}); give the same rig, grid, "
                          "simulation options, seed and study as the interrupted run")
     return [r for r in stored.get("rows", []) if r.get("status") != "interrupted"]
 

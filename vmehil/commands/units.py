@@ -22,6 +22,7 @@ from typing import Any
 from servo.control.gains import parse_gains
 from vmehil import fault_options
 from vmehil.cli_types import bounded_float, bounded_int, duration_s
+from vmehil.errors import CliError
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE, EXIT_USAGE
 from vmehil.fault_options import FaultOptions
 from vmehil.files import write_json
@@ -151,7 +152,7 @@ def plant_options(opts: CoordinatorOptions):
     p_iface, p_chan = plant.resolved()
     u_iface, u_chan = unit_channel(opts.bus.interface, opts.bus.channel)
     if (p_iface, p_chan) == (u_iface, u_chan):
-        raise ValueError(f"--plant can: the plant bus ({p_iface} {p_chan}) is the unit bus: give the plant node "
+        raise CliError(f"--plant can: the plant bus ({p_iface} {p_chan}) is the unit bus: give the plant node "
                          f"and the units channels of their own (--plant-channel, --channel)")
     return plant
 
@@ -273,12 +274,12 @@ def unit_faults(unit: str, options: FaultOptions, spec) -> tuple[Any, list]:
     check_rig(faults, spec)
     for f in faults:
         if on_the_plant(f.kind):
-            raise ValueError(f"{f.source}: {f.kind.name} is a fault of the plant, which runs in the coordinator "
+            raise CliError(f"{f.source}: {f.kind.name} is a fault of the plant, which runs in the coordinator "
                              "(or the plant node): a unit controller has its boards only")
     routed = route_faults(faults, spec, rig_units(spec))
     for name, theirs in routed.items():
         if name != unit and theirs:
-            raise ValueError(f"{theirs[0].source}: not a fault of unit {unit}'s joints or boards: "
+            raise CliError(f"{theirs[0].source}: not a fault of unit {unit}'s joints or boards: "
                              f"give it to `vmehil unit --unit {name}`")
     mine = routed.get(unit, [])
 

@@ -66,6 +66,7 @@ from vmehil.console.commands import (
 )
 from vmehil.console.commands import prepare as prepare_atom
 from vmehil.console.protocol import BUSY, FILE, INTERNAL, STATE, ConsoleError, Value, kv, one_line, type_name
+from vmehil.errors import VmehilError
 
 TYPES = (STRING, INT, FLOAT, VECTOR)
 KEYWORDS = {"command", "async", "sync"}
@@ -74,7 +75,7 @@ MAX_FILE_BYTES = 1_000_000
 MAX_DEPTH = 64
 
 
-class CompoundError(ValueError):
+class CompoundError(VmehilError, ValueError):
     """A compound command file error at ``file:line:col``."""
 
     def __init__(self, file: str, line: int, col: int, message: str) -> None:
@@ -706,7 +707,7 @@ class Executor:
         return iter(self.active.values())
 
 
-class _StatementError(Exception):
+class _StatementError(VmehilError):
     def __init__(self, code: str, pos: Pos | None, message: str) -> None:
         self.code, self.pos, self.message = code, pos, message
         super().__init__(message)

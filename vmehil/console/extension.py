@@ -20,6 +20,7 @@ from vmehil.cli_types import bounded_int
 from vmehil.console.calibrate import calibrator_for
 from vmehil.console.compound import CompoundLibrary, load_compound_file
 from vmehil.console.server import Console, PtyTransport, open_transport
+from vmehil.errors import CliError
 
 #: ``--console-prompt`` / ``--console-echo`` values; auto = on for a pty or serial device (a
 #: person at a terminal), off for network and pyserial URLs (programs)
@@ -141,7 +142,7 @@ def attach(run: RunNeeds, system: Any, loop: Any, runner: Any, prepared: None = 
     port = opts.port
     if not port:
         if opts.commands:
-            raise ValueError("--console-commands needs --console PORT")
+            raise CliError("--console-commands needs --console PORT")
         return None
     from vmehil.calibration.store import default_store_path
 

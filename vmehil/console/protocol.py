@@ -31,6 +31,8 @@ import shlex
 from dataclasses import dataclass
 from typing import Union
 
+from vmehil.errors import VmehilError
+
 MAX_LINE = 512  # bytes per request line (without the terminator)
 REPLY_PREFIXES = ("OK", "ERR", "DATA", "INFO", "EVT")
 
@@ -58,7 +60,7 @@ FLOAT_RE = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?\Z")
 KEY_RE = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)=")
 
 
-class ConsoleError(Exception):
+class ConsoleError(VmehilError):
     """A typed console error: ``code`` (one of :data:`ERROR_CODES`) and a message saying what to do."""
 
     def __init__(self, code: str, message: str) -> None:

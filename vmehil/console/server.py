@@ -59,13 +59,14 @@ from vmehil.console.protocol import (
     parse_line,
 )
 from vmehil.console.terminal import TerminalView
+from vmehil.errors import VmehilError
 
 DEFAULT_PTY_LINK = "/tmp/vmehil-console"
 READ_TIMEOUT_S = 0.1
 WRITE_TIMEOUT_S = 0.5
 
 
-class ConsoleSetupError(ValueError):
+class ConsoleSetupError(VmehilError, ValueError):
     """The console's PORT cannot be opened (says which and what to do)."""
 
 

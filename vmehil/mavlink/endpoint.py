@@ -29,6 +29,7 @@ from typing import Any, ClassVar
 
 import vmehil.mavlink  # noqa: F401  (MAVLINK20=1 before pymavlink)
 from vmehil.ascii_text import to_ascii
+from vmehil.errors import VmehilError
 from vmehil.mavlink import params as P
 from vmehil.mavlink.params import ParamRefused, ParamTable
 from vmehil.mavlink.signing import UnsignedPolicy, install_verified_signature_check
@@ -43,7 +44,7 @@ def _mavutil():
     return mavutil
 
 
-class MavlinkError(ValueError):
+class MavlinkError(VmehilError, ValueError):
     """A bad endpoint set-up (URL, remote bind, rate, key): the message says what to change."""
 
 

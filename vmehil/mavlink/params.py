@@ -41,6 +41,7 @@ import numpy as np
 from servo.control.gains import GAIN_DESCRIPTIONS, GAIN_NAMES, GAIN_UNITS
 from servo.control.law import SwitchOffConfig
 from servo.gain_guard import GAIN_MAX, GainRejected, check_gain_change
+from vmehil.errors import VmehilError
 
 MAX_NAME_LEN = 16
 
@@ -51,7 +52,7 @@ OUT_OF_RANGE = "out_of_range"
 PERMISSION_DENIED = "permission_denied"
 
 
-class ParamRefused(Exception):
+class ParamRefused(VmehilError):
     """A parameter read or write was refused: ``code`` (one of the codes above) and ``reason``."""
 
     def __init__(self, code: str, name: str, reason: str) -> None:

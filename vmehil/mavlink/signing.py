@@ -19,12 +19,13 @@ from pathlib import Path
 from typing import Any
 
 from hal.config import ConfigError, read_limited
+from vmehil.errors import VmehilError
 from vmehil.files import write_atomic
 
 KEY_LEN = 32
 
 
-class KeyFileError(ValueError):
+class KeyFileError(VmehilError, ValueError):
     """The signing key file is missing, too open, or not a 32-byte hex key."""
 
 

@@ -40,6 +40,7 @@ from servo.settings import servo_settings
 from servo.trajectory.base import JointLimits
 from servo.trajectory.sequencer import PlanContext
 from servo.units import UnitSegments, UnitSpec, rig_units, unit_rig, watchdog_unit
+from vmehil.errors import VmehilError
 from vmehil.session import build_loop
 from vmehil.system import NON_PLANT_JOINT_KEYS, EmulatedRig, build_emulated_rig
 from vmehil.units.hub import UNIT_TIMEOUT_S, PlantHub, UnitLink
@@ -48,7 +49,7 @@ from vmehil.units.hub import UNIT_TIMEOUT_S, PlantHub, UnitLink
 UnitHook = Callable[[str, EmulatedRig, ServoLoop], None]
 
 
-class UnitsRefused(ValueError):
+class UnitsRefused(VmehilError, ValueError):
     """The rig cannot run as units (it declares none), or a unit is not the rig's."""
 
 

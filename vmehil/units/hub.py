@@ -36,18 +36,19 @@ import numpy as np
 from emulators.plant import PlantCommand, PlantSensors
 from emulators.plant_link import PlantLink, PlantLinkError
 from servo.units import UnitSpec
+from vmehil.errors import VmehilError
 
 #: default wall-clock wait for a unit's commands before it is declared lost (s)
 UNIT_TIMEOUT_S = 2.0
 
 
-class UnitStopError(PlantLinkError):
+class UnitStopError(VmehilError, PlantLinkError):
     """Another unit stopped: this one safe-stops in the same tick."""
 
     cause = "unit_stop"
 
 
-class UnitLostError(PlantLinkError):
+class UnitLostError(VmehilError, PlantLinkError):
     """A unit fell silent (no commands within the hub's timeout): every unit safe-stops."""
 
     cause = "unit_lost"

@@ -31,11 +31,12 @@ from servo.loop import Fault, ServoLoop
 from servo.rig import RigSpec
 from servo.trajectory.sequencer import Sequencer
 from servo.units import UnitSpec
+from vmehil.errors import VmehilError
 from vmehil.fault_injection import FaultContext, FaultSchedule, ScheduledFault
 from vmehil.units.coordinator import ParallelRun, UnitRun
 
 
-class UnitFaultError(ValueError):
+class UnitFaultError(VmehilError, ValueError):
     """A fault that no single unit can take (a board no unit owns, the coordinator's CAN link)."""
 
 

@@ -76,6 +76,7 @@ from hal.config import read_limited
 from servo.rig import RigSpec
 from servo.runner import TickSeries, TimingStats, series_summary
 from servo.units import UnitSpec, rig_units, watchdog_unit
+from vmehil.errors import VmehilError
 from vmehil.units.hub import HubEvent, UnitLostError, UnitStopError
 
 #: the unit bus's default channel per interface (never the plant bus's: both use SENS/CMD frames)
@@ -106,23 +107,23 @@ def us_to_ms(us: int) -> float:
     return us / 1e3
 
 
-class UnitRefused(RuntimeError):
+class UnitRefused(VmehilError, RuntimeError):
     """A unit cannot join the run (another rig file or motion, started late, no coordinator)."""
 
 
-class CoordinatorLostError(PlantLostError):
+class CoordinatorLostError(VmehilError, PlantLostError):
     """No answer from the coordinator within the timeout: the unit safe-stops."""
 
     cause = "coordinator_lost"
 
 
-class PlantNodeLostError(PlantLostError):
+class PlantNodeLostError(VmehilError, PlantLostError):
     """The coordinator's plant (the CAN plant node, ``--plant can``) failed: every unit stops."""
 
     cause = "plant_lost"
 
 
-class AnswerIncompleteError(StaleDataError):
+class AnswerIncompleteError(VmehilError, StaleDataError):
     """A frame of the exchange was lost or late: every unit stops in that exchange."""
 
     cause = "answer_incomplete"

@@ -65,3 +65,12 @@ def test_an_operator_procedure_without_a_terminal_is_refused_in_one_line_before_
 def test_the_missing_calibration_warning_suggests_the_command_that_works_without_a_terminal(tmp_path):
     with pytest.warns(CalibrationMissingWarning, match="vmehil calibrate all --auto --rig jpl-arm"):
         load_store_or_nominal(tmp_path / "none.toml", load_rig(resolve_rig("jpl-arm")))
+
+
+def test_a_joint_the_rig_does_not_have_is_bad_input(tmp_path, capsys):
+    # the rig's joint check is an argument check: exit 2 with its text, never "unexpected" (3)
+    out = tmp_path / "cal.toml"
+    assert main(["calibrate", "friction", "--joint", "9", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err == "vmehil calibrate: error: rig jpl-arm has joints 1..7; there is no joint 9"
+    assert not out.exists()

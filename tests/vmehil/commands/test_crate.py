@@ -39,3 +39,16 @@ def test_crate_list_of_a_rig_shows_its_wiring(capsys) -> None:
     assert boards["adc0"]["wired"] == 13  # 7 pots + 6 tachs of jpl-arm
     assert main(["crate", "list"]) == 0
     assert "wired" in capsys.readouterr().out
+
+
+def test_a_vme_name_or_value_that_is_not_one_is_bad_input(capsys) -> None:
+    # typed refusals (hal.vme.VmeValueError): exit 2 with their text, not "unexpected" (3)
+    cases = {
+        ("crate", "read", "A17", "0x200000"): "unknown address space 'A17'; expected one of A16, A24, A32",
+        ("crate", "read", "A24", "0x200000", "--width", "12"): "unknown data width 12; expected 8, 16 or 32",
+        ("crate", "write", "A24", "0x200000", "0x1FFFF", "--width", "8"): "value 131071 does not fit D8 (0..255)",
+        ("crate", "--bus", "bogus", "list"): "bus 'bogus': expected 'emulated', 'vme_user' or 'vme_user:DIR'",
+    }
+    for argv, text in cases.items():
+        assert main(list(argv)) == 2, argv
+        assert capsys.readouterr().err.strip().splitlines()[-1] == f"vmehil crate: error: {text}"

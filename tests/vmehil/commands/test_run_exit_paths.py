@@ -73,3 +73,34 @@ def test_an_unexpected_error_is_one_line_and_exit_status_3(monkeypatch, capsys):
                    "(run with --debug or VMEHIL_DEBUG=1 for the traceback)"]
     assert cli.main(["run", "--debug"]) == EXIT_UNEXPECTED
     assert "Traceback" in capsys.readouterr().err
+
+
+def test_a_stray_value_error_is_unexpected_not_bad_input(monkeypatch, capsys):
+    # bad input (exit 2) is what the argument and file checks refuse with their typed errors; a
+    # ValueError from anywhere else (numpy, a bug) is an unexpected error (issue #30, item 5)
+    def broken(args):
+        raise ValueError("All-NaN slice encountered")
+
+    parser = cli.build_parser()
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    run_parser = parser._subparsers._group_actions[0].choices["run"]  # type: ignore[union-attr]
+    run_parser.set_defaults(func=broken)
+    assert cli.main(["run"]) == EXIT_UNEXPECTED
+    assert capsys.readouterr().err.strip() == (
+        "vmehil run: unexpected error: ValueError: All-NaN slice encountered "
+        "(run with --debug or VMEHIL_DEBUG=1 for the traceback)")
+
+
+def test_a_board_removed_at_tick_0_ends_unverified_with_exit_4_and_writes_the_json(tmp_path, capsys):
+    # the stop is in the very first tick, before any target: no true error is known, and the stop
+    # report says so by leaving the figures out (it crashed on an all-NaN slice, issue #30, item 5)
+    out = tmp_path / "r.json"
+    code = cli.main(["run", "--duration", "0.5", "--quiet", "--fault", "board_removed:board=pio0",
+                     "--json", str(out)])
+    assert code == 4, capsys.readouterr().err  # the read-back could not confirm the enables low
+    summary = json.loads(out.read_text())
+    stop = summary["stop"]
+    assert stop["stopped"] is True and stop["tick"] == 0 and stop["ticks_after_fault"] == 0
+    assert stop["cause"] == "driver_error" and "safe stop incomplete" in stop["detail"]
+    assert "true_error_deg" not in stop and "max_true_error_deg" not in stop
+    assert summary["final_stop"]["verified"] is False
