@@ -46,6 +46,8 @@ class Param:
     kind: type
     default: Any
     help: str
+    minimum: float | None = None  #: the smallest value that means something (a count, an rms)
+    maximum: float | None = None
 
     @property
     def required(self) -> bool:
@@ -137,6 +139,9 @@ class FaultType:
     signal: str | None = None
     fixed: tuple[tuple[str, Any], ...] = ()  #: emulator parameters the fault always has
     needs: str = ""  #: the run option it needs ("--plant can", "--vision inprocess"), for the listing
+    #: the crate board type the fault acts on (checked against the rig before anything is built);
+    #: None: not a board's fault, or any board (board_removed)
+    board_type: str | None = None
 
     def param(self, name: str) -> Param | None:
         return next((p for p in self.params if p.name == name), None)
@@ -214,6 +219,9 @@ def _on_vision(ctx: FaultContext, kind: FaultType, p: dict[str, Any]) -> Injecti
 _VOLTS_HELD = "the volts held (default: where the wiper is when the fault strikes)"
 _POT, _TACH = "plant: a joint's potentiometer", "plant: a joint's tachometer"
 _ENABLE, _ENCODER = "PIO board: a joint's amplifier enable", "decoder board: a joint's encoder"
+#: the latest a fault may be scheduled (s of simulated time: a day, as `--duration`'s bound)
+MAX_FAULT_TIME_S = 86400.0
+
 CATALOGUE: dict[str, FaultType] = {f.name: f for f in (
     FaultType("pot_open", _POT, "the wiper lifts off the element; the floating ADC input goes to the rail",
               (_joint(), Param("volts", float, 10.0, "where the input floats to")), _on_plant, "pot_open", "pot"),
@@ -226,32 +234,37 @@ CATALOGUE: dict[str, FaultType] = {f.name: f for f in (
     FaultType("adc_noise", "ADC board", "a burst of extra Gaussian noise on one joint's input or a whole board",
               (Param("joint", str, "", "the joint (or board=…)"), Param("signal", str, "pot", "pot, tach or imon"),
                Param("board", str, "", "a whole ADC board instead of one input"),
-               Param("rms_v", float, 0.05, "extra noise, V rms")), _adc_noise, "noise_burst"),
+               Param("rms_v", float, 0.05, "extra noise, V rms", minimum=0.0)), _adc_noise, "noise_burst",
+              board_type="adc"),
     FaultType("dac_dead", "DAC board: a joint's amplifier command", "the output channel is stuck whatever is "
               "written", (_joint(), Param("volts", float, 0.0, "the volts it is stuck at")), _on_pin,
-              "dead_channel", "amp_command"),
+              "dead_channel", "amp_command", board_type="dac"),
     FaultType("enable_stuck_low", _ENABLE, "the enable pin is held low (amplifier off)", (_joint(),), _on_pin,
-              "line_stuck", "amp_enable", (("level", False),)),
+              "line_stuck", "amp_enable", (("level", False),), board_type="pio"),
     FaultType("enable_stuck_high", _ENABLE, "the enable pin is held high (the safe stop cannot disable the "
-              "amplifier)", (_joint(),), _on_pin, "line_stuck", "amp_enable", (("level", True),)),
+              "amplifier)", (_joint(),), _on_pin, "line_stuck", "amp_enable", (("level", True),), board_type="pio"),
     FaultType("amp_fault", "plant: a joint's amplifier", "the amplifier trips (output off, fault line asserted)",
               (_joint(),), _on_plant, "amp_fault"),
     FaultType("amp_fault_line", "PIO board: a joint's amplifier fault input", "the fault input pin is held "
               "asserted (the amplifier itself is fine)", (_joint(),), _on_pin, "line_stuck", "amp_fault",
-              (("level", True),)),
+              (("level", True),), board_type="pio"),
     FaultType("encoder_missed", _ENCODER, "the next N counts are lost",
-              (_joint(), Param("counts", int, 1_000_000, "counts lost")), _on_pin, "missed_counts", "encoder"),
+              (_joint(), Param("counts", int, 1_000_000, "counts lost", minimum=0)), _on_pin, "missed_counts",
+              "encoder", board_type="quad"),
     FaultType("encoder_glitch", _ENCODER, "noise edges: extra counts and illegal transitions",
-              (_joint(), Param("counts", int, 200, "extra counts per interval"),
-               Param("illegal", int, 1, "illegal transitions per interval"),
-               Param("intervals", int, 1, "servo periods it lasts")), _on_pin, "glitch", "encoder"),
+              (_joint(), Param("counts", int, 200, "extra counts per interval", minimum=0),
+               Param("illegal", int, 1, "illegal transitions per interval", minimum=0),
+               Param("intervals", int, 1, "servo periods it lasts", minimum=1)), _on_pin, "glitch", "encoder",
+              board_type="quad"),
     FaultType("board_removed", "a VME board", "the board is pulled from the crate: every access ends in BERR",
               (Param("board", str, _REQUIRED, "the board's name in [crate]"),), _on_board, "removed"),
     FaultType("can_frame_loss", "CAN bus (controller side)", "a percentage of the frames is lost",
-              (Param("percent", float, 10.0, "frames lost, %"), Param("direction", str, "both", "both, rx or tx")),
+              (Param("percent", float, 10.0, "frames lost, %", minimum=0.0, maximum=100.0),
+               Param("direction", str, "both", "both, rx or tx")),
               _on_can_endpoint, "frame_loss", needs="--plant can"),
     FaultType("can_frame_delay", "CAN bus (controller side)", "a percentage of the received frames arrives late",
-              (Param("ms", float, 20.0, "delay, ms of wall time"), Param("percent", float, 100.0, "frames delayed, %")),
+              (Param("ms", float, 20.0, "delay, ms of wall time", minimum=0.0),
+               Param("percent", float, 100.0, "frames delayed, %", minimum=0.0, maximum=100.0)),
               _on_can_endpoint, "frame_delay", needs="--plant can"),
     FaultType("can_node_death", "CAN plant node", "the plant node dies: no answers, no heartbeats", (),
               _on_can_node, "dead", needs="--plant can, the node in this process"),
@@ -301,6 +314,10 @@ def _coerce(kind: FaultType, key: str, value: Any, where: str) -> Any:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or (
             p.kind is int and float(value) != int(value)):
         raise FaultSpecError(where, key, number, value)
+    if (p.minimum is not None and value < p.minimum) or (p.maximum is not None and value > p.maximum):
+        bounds = (f">= {p.minimum:g}" if p.maximum is None else f"in [{p.minimum:g}, {p.maximum:g}]"
+                  if p.minimum is not None else f"<= {p.maximum:g}")
+        raise FaultSpecError(where, key, f"{number} {bounds}", value)
     return p.kind(value)
 
 
@@ -309,8 +326,8 @@ def make_fault(name: str, at_s: float, params: Mapping[str, Any], source: str) -
     kind = CATALOGUE.get(name)
     if kind is None:
         raise FaultSpecError(source, "name", "a fault of `vmehil run --fault list`", name)
-    if not math.isfinite(at_s) or at_s < 0:
-        raise FaultSpecError(source, "at_s", "a time in seconds >= 0", at_s)
+    if not math.isfinite(at_s) or not 0 <= at_s <= MAX_FAULT_TIME_S:
+        raise FaultSpecError(source, "at_s", f"a time in seconds in [0, {MAX_FAULT_TIME_S:g}]", at_s)
     values = {k: _coerce(kind, k, v, source) for k, v in params.items()}
     for p in kind.params:
         if p.name not in values:
@@ -346,6 +363,8 @@ def parse_fault_spec(text: str) -> ScheduledFault:
         key, eq, value = part.partition("=")
         if not eq or not key.strip():
             raise FaultSpecError(where, "parameters", "key=value", part)
+        if key.strip() in params:  # joint=j1,joint=j2: which one was meant?
+            raise FaultSpecError(where, key.strip(), "one value (the key is given twice)", value)
         params[key.strip()] = _scalar(value)
     return make_fault(name.strip(), at_s, params, where)
 
@@ -371,9 +390,11 @@ def load_scenario(path: str | Path) -> list[ScheduledFault]:
 
 
 def check_rig(faults: list[ScheduledFault], rig: RigSpec) -> None:
-    """Refuse joints and boards the rig does not have (before anything is built)."""
+    """Refuse joints, signals and boards the rig does not have, and a fault on a board of another
+    type (``adc_noise`` on a decoder's encoder, on a DAC board), before anything is built (it was
+    found at injection, after the rig was armed)."""
     joints = [j.name for j in rig.joints]
-    boards = [b.get_str("name") for b in rig.table.table("crate", {}).tables("board", [])]
+    types = {b.get_str("name"): b.get_str("type") for b in rig.table.table("crate", {}).tables("board", [])}
     for f in faults:
         joint, board = f.params.get("joint"), f.params.get("board")
         if joint and joint not in joints:
@@ -381,8 +402,13 @@ def check_rig(faults: list[ScheduledFault], rig: RigSpec) -> None:
         signal = f.kind.signal or (f.params.get("signal") if joint else None)
         if joint and signal and signal not in rig.joints[joints.index(joint)].wiring:
             raise CliError(f"{f.source}: joint {joint} of rig {rig.name} has no {signal} wired")
-        if board and board not in boards:
-            raise CliError(f"{f.source}: rig {rig.name} has no board {board!r} (boards: {', '.join(boards)})")
+        if board and board not in types:
+            raise CliError(f"{f.source}: rig {rig.name} has no board {board!r} (boards: {', '.join(types)})")
+        target = board or (rig.joints[joints.index(joint)].wiring[signal].board if joint and signal else None)
+        if f.kind.board_type is not None and target is not None and types.get(target) != f.kind.board_type:
+            what = f"{joint}'s {signal} is on" if not board else "it names"
+            raise CliError(f"{f.source}: {f.kind.name} acts on a board of type {f.kind.board_type!r}; {what} "
+                           f"{target} (type {types.get(target)!r})")
 
 
 # --- the schedule ------------------------------------------------------------------------------

@@ -23,6 +23,8 @@ from typing import Any
 
 from hal.adc_dac import ADC_REGMAP, DAC_REGMAP
 from hal.bit3 import BIT3_CSR
+from hal.config import ConfigError
+from hal.errors import HalError
 from hal.pio import PIO_REGS
 from hal.quadrature import QUAD_REGS
 from hal.vme.bus import VmeBus
@@ -171,8 +173,15 @@ def prepare_real_rig(rig: RigSpec, bus: VmeBus, *, calibration: Any = None) -> t
     if bad:
         raise RealBusRefused("dry pass failed, nothing enabled: "
                              + "; ".join(f"{c.name} ({c.type} {c.space} 0x{c.base:X}): {c.detail}" for c in bad))
-    io = JointIO(bus, rig, nominal_scaling(rig_nominal(rig)), calibration=calibration)
-    failures = exercise_safe_stop(io)
+    try:
+        io = JointIO(bus, rig, nominal_scaling(rig_nominal(rig)), calibration=calibration)
+        failures = exercise_safe_stop(io)
+    except HalError as e:
+        if isinstance(e, ConfigError):
+            raise  # the rig file's wiring: bad input, said as such
+        # a driver that fails while it is set up (an ADC conversion that never finishes, a short
+        # write): the crate is not what the rig needs — refused like a failed dry pass (exit 1)
+        raise RealBusRefused(f"setting up the drivers failed, nothing enabled: {type(e).__name__}: {e}") from e
     if failures:
         raise RealBusRefused("the start-up safe stop could not be confirmed: " + "; ".join(failures))
     boundary = WallClockPlant([j.name for j in rig.joints], rig.period_s, rig.computation_delay_s)

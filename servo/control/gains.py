@@ -214,6 +214,8 @@ def gain_items(text: str | None, what: str = "gains") -> list[tuple[str, str, st
         if not value:
             raise GainSyntaxError(token, text, "is malformed: no value after '='", key, what=what)
         items.append((key, value, token))
+    if not items and normalized.strip():  # ",,,": separators and nothing else is no gain set
+        raise GainSyntaxError(text.strip(), text, "names no gain (write name=value, e.g. kp=100)", what=what)
     return items
 
 

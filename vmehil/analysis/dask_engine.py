@@ -293,9 +293,12 @@ class DaskEngine:
                 warn_if_exposed(self.client, self.scheduler)
             else:
                 n = max(1, self.jobs or os.cpu_count() or 1)
-                self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                            scheduler_port=0, protocol="tcp://", dashboard_address=None,
-                                            silence_logs=logging.ERROR)
+                try:
+                    self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                                host="127.0.0.1", scheduler_port=0, protocol="tcp://",
+                                                dashboard_address=None, silence_logs=logging.ERROR)
+                except RuntimeError as e:  # Dask's "Nanny failed to start" (a worker killed while starting)
+                    raise OSError(f"{type(e).__name__}: {e}") from e
                 self.client = Client(self.cluster)
                 self.client.run(_ignore_sigint)
         except (OSError, TimeoutError) as e:

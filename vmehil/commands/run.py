@@ -156,6 +156,8 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
     if not duration > 0:
         raise CliError("--duration must be > 0")
     n_ticks = round(duration * rig.servo_rate_hz)
+    if n_ticks < 1:  # 1e-9 s ran no tick at all and reported a run
+        raise CliError(f"--duration {duration:g} s is shorter than one servo period ({rig.period_s * 1e3:g} ms)")
     if parallel:
         from vmehil.calibration.store import load_store_or_nominal
 

@@ -377,10 +377,15 @@ def _speed(v: float) -> float:
     return v
 
 
+#: no console angle is larger than a turn (1e300 was accepted and planned): a sanity bound on the
+#: command, not a joint's limit
+MAX_ANGLE_DEG = 360.0
+
+
 def _angles(values: tuple[float, ...], what: str) -> np.ndarray:
     arr = np.asarray(values, float)
-    if not np.all(np.isfinite(arr)):
-        raise ConsoleError(VALUE, f"{what} must be finite angles in degrees")
+    if not np.all(np.isfinite(arr)) or np.any(np.abs(arr) > MAX_ANGLE_DEG):
+        raise ConsoleError(VALUE, f"{what} must be finite angles in degrees, within ±{MAX_ANGLE_DEG:g}")
     return deg_to_rad(arr)
 
 
@@ -469,8 +474,8 @@ def _move_joint(s: Session, a: dict[str, Any]) -> Outcome:
     j = a["joint"]
     if j is None:
         raise ConsoleError(VALUE, "move_joint needs one joint (not all); use move for every joint")
-    if not math.isfinite(a["target"]):
-        raise ConsoleError(VALUE, "target must be a finite angle in degrees")
+    if not math.isfinite(a["target"]) or abs(a["target"]) > MAX_ANGLE_DEG:
+        raise ConsoleError(VALUE, f"target must be a finite angle in degrees, within ±{MAX_ANGLE_DEG:g}")
     _require_running(s.loop)
     _require_idle(s.loop)
     target = hold_position(s.loop)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from servo.control.linear import delay_periods
+from vmehil.cli_types import bounded_float
 from vmehil.mavlink.endpoint import MavlinkEndpoint, MavlinkError
 from vmehil.mavlink.signing import load_key_file
 
@@ -41,7 +42,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--mavlink-allow-remote", action="store_true",
                    help="allow a non-loopback address in --mavlink (exposes live gain changes to the network)")
     g.add_argument("--mavlink-sysid", metavar="N", type=int, default=1, help="MAVLink system id (default 1)")
-    g.add_argument("--mavlink-min-margin", metavar="M", type=float, default=0.0,
+    g.add_argument("--mavlink-min-margin", metavar="M", default=0.0,
+                   type=bounded_float(0.0, 1.0, what="a stability margin 1 − ρ in [0, 1]"),
                    help="refuse gains leaving less than this stability margin 1-rho (default 0)")
     g.add_argument("--mavlink-wait", metavar="S", type=float, default=0.0,
                    help="wait up to S s for a client to arm before the first tick (default 0: start at once)")

@@ -287,3 +287,10 @@ def test_a_motion_file_is_planned_off_the_loop_thread(console_driver, tmp_path, 
     assert np.degrees(drv.loop.sequencer.current.end) == pytest.approx([3.0, 3.0])
     ticking = threading.current_thread().name  # the test ticks the loop (tick())
     assert built_in and ticking not in built_in, built_in
+
+
+def test_an_angle_beyond_a_turn_is_refused(console_driver):
+    # `move_joint j1 1e300` was accepted and planned
+    drv = console_driver
+    assert "within +/-360" in err(drv.ask("move_joint j1 1e300"), "VALUE")  # the console speaks ASCII
+    assert "within +/-360" in err(drv.ask("move 400,0"), "VALUE")
