@@ -1,7 +1,10 @@
-"""Adapter: x4 encoder positions during a servo period → :class:`QuadratureEvents` per joint.
+"""The plant's encoder edge model: x4 encoder positions during a servo period →
+:class:`QuadratureEvents` per joint, what the harness publishes to the decoder board.
 
-A simple stand-in for the shared edge model (branch ``pioquad``); the harness may swap in the
-shared function with the same signature at merge.
+:mod:`emulators.encoder_edges` is a second model of the same thing (a sampler whose state is
+carried between intervals), used for an encoder on its own — the calibration bench of the tests
+(``tests/support/calib_bench.py``) — and tested there; the two can differ by one count at an
+interval's end. One model for both is left to do: it changes the lockstep fingerprint.
 
 Definition used here:
 
