@@ -61,12 +61,14 @@ def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns:
             "switch_off_events": len(so_events),
             "final_integrating": bool(loop.law.integrating[i]) if loop.law is not None else None,
         })
+    ticks = loop.tick_count if getattr(loop, "run_ticks", None) is None else loop.run_ticks
     out = {
         "rig": rig,
         "seed": seed,
         "mode": "realtime" if realtime else "lockstep",
-        "ticks": loop.tick_count,
-        "duration_s": loop.tick_count * loop.period_s,
+        # the run's own ticks: the end-of-run stop and the 2 s watched after it are in final_stop
+        "ticks": ticks,
+        "duration_s": ticks * loop.period_s,
         "overruns": overruns,
         "faults": [f.as_dict() for f in loop.faults],
         # how the run ended: the final safe stop and what its read-back could not confirm
@@ -205,3 +207,11 @@ def write_report(loop: ServoLoop, summary: dict[str, Any], out_dir: str | Path) 
     files.append(write_json(out / "run.json", summary))
     files.append(write_atomic(out / "summary.md", "# vmehil run\n\n```\n" + table(summary) + "\n```\n"))
     return files
+
+
+def excursion_text(excursion_deg: dict[str, float | None] | None) -> str:
+    """A stop's excursion for the terminal: "moved after the stop (deg): j1 0.012, j2 0.150, …"."""
+    if not excursion_deg:
+        return "moved after the stop: not measured"
+    parts = [f"{name} {'?' if v is None else f'{v:.3f}'}" for name, v in excursion_deg.items()]
+    return "moved after the stop (deg, over the stop and 2 s after it): " + ", ".join(parts)
