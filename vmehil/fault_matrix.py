@@ -149,8 +149,9 @@ def run_case(case: MatrixCase) -> dict[str, Any]:
         out = stop_report(loop, schedule.first_tick, schedule.joint)
         out["injected_faults"] = [f.as_dict() for f in schedule.faults]
         if loop.fault is None:  # what a stop now would leave powered (enable stuck high: that enable)
-            loop.safe_stop("operator_stop", "end of the fault-matrix run")
-            runner.run(AFTER_TICKS)  # the window after the operator's stop
+            # the operator's stop (category 1: decelerate, brakes, power off), then its window
+            runner.stop_by_category("operator_stop", "end of the fault-matrix run")
+            runner.run(AFTER_TICKS)
         out["stop_incomplete"] = list(loop.stop_incomplete)
         out.update(excursion(loop))
         if case.vision and loop.vision is not None:

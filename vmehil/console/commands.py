@@ -305,6 +305,10 @@ def _require_running(loop: Any) -> None:
         f = loop.fault
         raise ConsoleError(STATE, f"the loop is stopped by a fault ({f.cause}"
                                   f"{' on ' + f.joint if f.joint else ''}): check status, then enable")
+    st = getattr(loop, "stopping", None)
+    if st is not None:
+        raise ConsoleError(STATE, f"the loop is stopping ({st.cause}, category 1: decelerating, then brakes and "
+                                  "power off): wait for it, then enable")
     if not loop.enabled:
         raise ConsoleError(STATE, "the amplifiers are not enabled: enable first")
 
