@@ -460,7 +460,7 @@ class ServoLoop:
         stop fell to category 0, or ``None``), ``excursion_deg`` (joint → the largest movement from
         the angle at the stop, degrees: the plant's truth where there is one, else the sensors) and
         ``excursion_sensor_deg`` (the same from the sensors)."""
-        def per_joint(v: np.ndarray | None) -> dict[str, float] | None:
+        def per_joint(v: np.ndarray | None) -> dict[str, float | None] | None:
             if v is None:
                 return None
             return {n: (round(float(np.degrees(x)), 4) if np.isfinite(x) else None)

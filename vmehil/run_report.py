@@ -61,7 +61,8 @@ def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns:
             "switch_off_events": len(so_events),
             "final_integrating": bool(loop.law.integrating[i]) if loop.law is not None else None,
         })
-    ticks = loop.tick_count if getattr(loop, "run_ticks", None) is None else loop.run_ticks
+    run_ticks = getattr(loop, "run_ticks", None)
+    ticks: int = loop.tick_count if run_ticks is None else int(run_ticks)
     out = {
         "rig": rig,
         "seed": seed,

@@ -170,3 +170,57 @@ def test_the_category_table_and_a_rig_file_may_make_a_stop_stricter_never_looser
     looser.write_text(text.replace("[servo]\n", "[servo.stop_categories]\nestop = 1\n\n[servo]\n", 1))
     with pytest.raises(ConfigError, match="estop"):
         servo_settings(load_rig(looser))
+
+
+@pytest.mark.parametrize(("line", "category"), [("estop", 0), ("stop", 1)])
+def test_the_console_stops_by_category_reads_its_sensors_after_and_announces_the_excursion(line, category):
+    from tests.support.console import Driver, tap_poll
+    from vmehil.console.protocol import parse_reply_line
+    from vmehil.console.server import Console, open_transport
+
+    system = build_emulated_rig("jpl-arm", seed=0)
+    loop = build_loop(system, n_ticks=0)
+    runner = LockstepRunner(system, loop)
+    console = Console(loop, open_transport("loop://")).start()
+    runner.after_tick.append(console.on_tick)
+    drv = Driver(loop, console, console.transport.write, tap_poll(console), step=runner.tick)
+    try:
+        loop.start()
+        runner.run(250)  # mid-move
+        at_stop = _theta(system)
+        assert drv.ask(line)[-1].startswith(f"OK {line} state=")
+        evt = drv.wait_event("EVT stop", max_ticks=600)  # after the stop and the 2 s watched after it
+        assert_boards_safe(system)
+        fields = parse_reply_line(evt)[2]
+        assert int(fields["category"]) == category
+        assert fields["cause"] == ("estop" if line == "estop" else "operator_stop")
+        moved = {name: float(v) for name, v in (p.split(":") for p in fields["excursion_deg"].split(","))}
+        assert list(moved) == list(JOINTS) and max(moved.values()) < 1.0
+        truth = np.degrees(np.abs(_theta(system) - at_stop))
+        assert truth.max() < 1.0, truth  # the true angle, read off the plant
+        for r in drv.ask("status")[1:-1]:
+            kind, f = parse_reply_line(r)[1:3]
+            if kind == "joint":  # the sensors still answer: measured values, flagged as stopped
+                assert f["stopped"] == "1" and f["pos_deg"] != "nan" and f["vel_deg_s"] != "nan", r
+                assert f["current_a"] != "nan", r
+    finally:
+        console.close()
+        system.close()
+
+
+def test_melmalec_legs_stay_within_1_degree_after_a_controlled_stop_in_mid_move():
+    system = build_emulated_rig("melmalec-16", seed=0)
+    try:
+        loop = build_loop(system, n_ticks=800)
+        runner = LockstepRunner(system, loop)
+        loop.start()
+        runner.run(250)
+        at_stop = _theta(system)
+        runner.stop_by_category("operator_stop", "test")
+        worst = _watch(runner, system, at_stop, 250)
+        legs = [i for i, j in enumerate(system.rig.joints) if j.name.startswith("leg")]
+        assert len(legs) == 12 and worst[legs].max() < 1.0, worst
+        assert_boards_safe(system)
+        assert loop.stop_summary()["category"] == 1
+    finally:
+        system.close()
