@@ -1,17 +1,17 @@
 """The fault matrix: every fault of the catalogue on jpl-arm, and what the watchdog makes of it.
 
-Each case runs the demo move (lockstep, seed 0) with one fault injected at tick 100 (0.8 s,
-joints moving) for 400 ticks in all (room for the stop and the 2 s after it); plant-over-CAN
-cases run on python-can's ``virtual`` interface with a plant node thread in this process, vision
-cases with the vision system in this
-process and a ``vservo`` task from the start. The documented outcome of a case is a stop cause
-within ``max_ticks`` of the fault (20: docs/faults.md's claim) during which no joint's true angle
-moved more than ``max_movement_deg`` from where it was at the fault (1.2°: the claim), with at most
-``max_true_error_deg`` of true error at the stop (that error carries the uncalibrated pots' bow,
-≈ 1°: a loose second bound), or ``no stop`` (a fault the loop rides through, or one documented as
-undetectable). The excursion column (issue #29) is the largest movement of any joint's true angle
-from where it was when the stop began, over the stop and the ``AFTER_TICKS`` (2 s) after it —
-for a ``no stop`` case, after the operator's stop that ends its run.
+Each case runs the demo move (lockstep, seed 0) with one fault injected at tick 100 (0.8 s, joints
+moving) for 400 ticks in all (room for the stop and the 2 s after it); plant-over-CAN cases run on
+python-can's ``virtual`` interface with a plant node thread in this process, vision cases with the
+vision system in this process and a ``vservo`` task from the start. The documented outcome of a
+case is a stop cause within ``max_ticks`` of the fault (20: docs/faults.md's claim) during which no
+joint's true angle moved more than ``max_movement_deg`` from where it was at the fault (1.2°: the
+claim), with at most ``max_true_error_deg`` of true error at the stop (that error carries the
+uncalibrated pots' bow, ≈ 1°: a loose second bound), or ``no stop`` (a fault the loop rides
+through, or one documented as undetectable). The excursion column (issue #29) is the largest
+movement of any joint's true angle from where it was when the stop began, over the stop and the
+``AFTER_TICKS`` (2 s) after it — for a ``no stop`` case, after the operator's stop that ends its
+run.
 
     python -m vmehil.fault_matrix            # the table of docs/faults.md (measured figures)
 

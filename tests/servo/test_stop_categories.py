@@ -224,3 +224,30 @@ def test_melmalec_legs_stay_within_1_degree_after_a_controlled_stop_in_mid_move(
         assert loop.stop_summary()["category"] == 1
     finally:
         system.close()
+
+
+def test_a_controlled_stop_over_can_holds_the_arm_and_the_node_sees_power_off():
+    """The plant over CAN (python-can's ``virtual`` bus, the node a thread here): the category-1
+    stop's brake lines and enables travel in the frames; the node's truth (its answers) shows the
+    amplifiers off and the arm held."""
+    import os
+
+    from vmehil.can_options import CanPlantOptions
+
+    link = CanPlantOptions("virtual", f"stopcat-{os.getpid()}", own_node=True).open_link("jpl-arm", 0)
+    system = build_emulated_rig("jpl-arm", seed=0, link=link)
+    try:
+        loop = build_loop(system, n_ticks=800)
+        runner = LockstepRunner(system, loop)
+        loop.start()
+        runner.run(250)
+        at_stop = _theta(system)
+        runner.stop_by_category("operator_stop", "test")
+        assert loop.stop_summary()["category"] == 1 and loop.fault is not None
+        worst = _watch(runner, system, at_stop, 250)
+        truth = system.truth()
+        assert np.all(np.abs(truth["current_a"]) < 0.5)  # the node sees the amplifiers off
+        assert not any(_net(system, j, "holding_brake") for j in BRAKED)  # the lines the frames carry
+        assert worst.max() < 1.0, worst
+    finally:
+        system.close()
