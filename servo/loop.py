@@ -35,6 +35,7 @@ import numpy as np
 from servo.control.objects import ControlContext, Controller, SwitchableController
 from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_name
 from servo.io import JointIO, Measurement
+from servo.stops import NOT_FAULTS, ControlledStop, Deceleration, StopCategory, StopSettings
 from servo.trajectory.sequencer import PlanContext, Sequencer
 from servo.watchdog import CrossChecks, WatchdogConfig
 
@@ -167,6 +168,24 @@ class ServoLoop:
         #: when this tick's readings were taken (s; ``None``: one period per tick), for the
         #: cross-checks: set where samples can skip or repeat periods (a free-running plant)
         self.sample_clock: Callable[[], float | None] | None = None
+        #: how stops run (servo.stops; set by servo.assembly.build_loop). ``None``: every stop is
+        #: category 0, as a loop built by hand always stopped
+        self.stop_settings: StopSettings | None = None
+        #: the ticks of the run proper, before its end (the end-of-run stop and the window watched
+        #: after it: :meth:`servo.runner.LockstepRunner.end_run`); ``None``: not ended that way
+        self.run_ticks: int | None = None
+        #: a category-1 stop under way (``None``: none)
+        self.stopping: ControlledStop | None = None
+        #: the category of the last stop (``None``: none yet), and its cause
+        self.stop_category: StopCategory | None = None
+        self.stop_cause: str | None = None
+        #: a category-1 stop that fell to category 0: why (``None``: none did)
+        self.stop_fell: str | None = None
+        #: the tick the last stop began, and the true (plant) and measured angles then (rad)
+        self.stop_tick: int | None = None
+        self._stop_origin: dict[str, np.ndarray] = {}
+        #: per joint the largest movement from the angles at the stop, true and measured (rad)
+        self.stop_excursion: dict[str, np.ndarray] = {}
 
     # --- live interface ------------------------------------------------------------------------
     def submit(self, command: LiveCommand,
@@ -245,12 +264,21 @@ class ServoLoop:
         section of the caller's) begins before this one ends, so no signal falls in between."""
         held: list[BaseException] = []
         with SignalsDeferred(held):
+            powered = self.enabled and self.fault is None  # this shutdown is the stop itself
             failures = self.io.safe_stop(held)
             self.enabled = False
             self.stop_incomplete = failures
+            if self.stopping is not None:  # a category-1 stop cut short by the end of the run
+                self.stop_fell = f"{reason}: {detail} (before the category-1 stop for {self.stopping.cause} completed)"
+                self.stopping = None
+                self.stop_category = StopCategory.UNCONTROLLED
+            if powered or self.stop_category is None:  # no stop before this one: power off at once
+                self._note_stop_begin(reason)
+                self.stop_category = StopCategory.UNCONTROLLED
             self.final_stop = {"reason": reason, "detail": detail, "tick": self.tick_count,
                                "time_s": self.tick_count * self.period_s, "verified": not failures,
-                               "incomplete": list(failures), "interruptions": self.interruptions}
+                               "incomplete": list(failures), "interruptions": self.interruptions,
+                               **self.stop_summary()}
             for e in held:
                 self.note_interruption(e, "stop")
             if then is not None:
@@ -330,6 +358,8 @@ class ServoLoop:
             if not np.all(np.isfinite(theta)):
                 raise ValueError("a joint position reads as not finite; check the sensors before resuming")
         self.fault = None
+        self.stopping = None
+        self.stop_tick = None  # the excursion of the last stop is kept, no longer tracked
         self._last_theta = None
         self.cross_checks.reset()
         if theta is not None:
@@ -352,6 +382,120 @@ class ServoLoop:
             raise
         return theta
 
+    def category_of(self, cause: str) -> StopCategory:
+        """The stop category for ``cause`` (servo.stops; 0 for a loop without stop settings)."""
+        return self.stop_settings.category(cause) if self.stop_settings is not None else StopCategory.UNCONTROLLED
+
+    def stop(self, cause: str, detail: str = "", joint: int | None = None) -> StopCategory:
+        """Stop by ``cause``'s category (:mod:`servo.stops`): 0 — :meth:`safe_stop` now; 1 — begin
+        a controlled deceleration (the ticks that follow decelerate, engage the brakes with the
+        amplifiers holding, then :meth:`safe_stop`; :attr:`stopping` until then); 2 — hold where
+        the joints are, power kept. A category-1 stop asked of a loop that is not servoing (or
+        already stopping) is done at once as category 0 (or left to the one under way). Call it
+        at a tick boundary (inside a live command, or between runner ticks). Returns the category."""
+        cat = self.category_of(cause)
+        if cat == StopCategory.CONTROLLED and self.stopping is not None:
+            return cat
+        if not self.enabled and self.stopping is None and self.stop_category is not None:
+            # already stopped: this request is the final stop's cause (the operator's shutdown
+            # after an overrun); the category is that of the stop that removed the power
+            self.stop_cause = cause
+            self.safe_stop(cause, detail, joint)
+            return self.stop_category
+        if cat != StopCategory.UNCONTROLLED and (self.fault is not None or not self.enabled):
+            cat = StopCategory.UNCONTROLLED
+        if cat == StopCategory.UNCONTROLLED:
+            self.safe_stop(cause, detail, joint)
+            return cat
+        # from where the joints are (not where their target was: the joints lag it by the following
+        # error, and catching up would add that to the way to rest), at the target's speed
+        target = self.last.get("theta")
+        speed = self.last.get("omega_d")
+        if speed is None or not np.all(np.isfinite(speed)):
+            speed = self.last.get("omega")
+        if target is None or speed is None or not np.all(np.isfinite(target)):
+            self.safe_stop(cause, detail + " (no position to decelerate from)", joint)
+            return StopCategory.UNCONTROLLED
+        assert self.stop_settings is not None
+        decel = np.asarray(self.stop_settings.decel_rad_s2, float)
+        if cat == StopCategory.HOLDING:
+            speed = np.zeros(self.n)
+        self._note_stop_begin(cause)
+        traj = Deceleration(np.asarray(target, float), np.asarray(speed, float), decel)
+        if cat == StopCategory.HOLDING:
+            ctx = self.plan_context or self.sequencer.ctx
+            self.set_motion(Sequencer([], traj.theta0, ctx))
+            self.stop_category = cat
+            return cat
+        self.stopping = ControlledStop(cause, detail, joint, self.tick_count, traj)
+        self.note("servo", f"category-1 stop for {cause}: decelerating ({traj.duration:.3f} s)")
+        return cat
+
+    def _note_stop_begin(self, cause: str) -> None:
+        """Remember where the joints were when a stop began (for :attr:`stop_excursion`)."""
+        self.stop_cause = cause
+        self.stop_fell = None
+        self.stop_tick = self.tick_count
+        self._stop_origin = {}
+        self.stop_excursion = {}
+        for key, name in (("theta_true", "true"), ("theta", "sensor")):
+            v = self.last.get(key)
+            if v is not None:
+                self._stop_origin[name] = np.asarray(v, float).copy()
+                self.stop_excursion[name] = np.zeros(self.n)
+
+    def _track_excursion(self, truth: np.ndarray | None, theta: np.ndarray | None) -> None:
+        for name, v in (("true", truth), ("sensor", theta)):
+            if v is None:
+                continue
+            v = np.asarray(v, float)
+            if name not in self._stop_origin:
+                self._stop_origin[name] = v.copy()
+                self.stop_excursion[name] = np.zeros(self.n)
+            moved = np.abs(v - self._stop_origin[name])
+            self.stop_excursion[name] = np.fmax(self.stop_excursion[name], moved)
+
+    def stop_summary(self) -> dict[str, Any]:
+        """The last stop for the run JSON: ``category``, ``cause``, ``fell_to_0`` (why a category-1
+        stop fell to category 0, or ``None``), ``excursion_deg`` (joint → the largest movement from
+        the angle at the stop, degrees: the plant's truth where there is one, else the sensors) and
+        ``excursion_sensor_deg`` (the same from the sensors)."""
+        def per_joint(v: np.ndarray | None) -> dict[str, float | None] | None:
+            if v is None:
+                return None
+            return {n: (round(float(np.degrees(x)), 4) if np.isfinite(x) else None)
+                    for n, x in zip(self.names, v, strict=True)}
+
+        sensor = per_joint(self.stop_excursion.get("sensor"))
+        true = per_joint(self.stop_excursion.get("true"))
+        return {"category": None if self.stop_category is None else int(self.stop_category),
+                "cause": self.stop_cause, "fell_to_0": self.stop_fell,
+                "excursion_deg": true if true is not None else sensor, "excursion_sensor_deg": sensor}
+
+    def _advance_stop(self, k: int) -> None:
+        """A category-1 stop's next step, after this tick's command: past its time bound it falls to
+        category 0; at rest (and settled) the brake lines drop, the amplifiers still holding; one
+        engage delay later, power off."""
+        st, cfg = self.stopping, self.stop_settings
+        if st is None or cfg is None:
+            return
+        elapsed = (k + 1 - st.tick0) * self.period_s
+        if elapsed > cfg.time_bound_s:
+            self.safe_stop(st.cause, f"{st.detail} (the category-1 stop passed its time bound of "
+                           f"{cfg.time_bound_s:g} s: fell to category 0)".lstrip(), st.joint)
+            return
+        if st.brakes_tick is None:
+            if elapsed >= st.trajectory.duration + cfg.settle_s:
+                self.io.engage_brakes()
+                st.brakes_tick = k
+            return
+        # the brake lines dropped with tick brakes_tick's outputs, the enables drop with this tick's:
+        # (k - brakes_tick) periods apart, at least the engage delay
+        if (k - st.brakes_tick) * self.period_s >= cfg.brake_engage_s - 1e-9:
+            held = self._safe_stop(st.cause, st.detail, st.joint, StopCategory.CONTROLLED)
+            if held:
+                raise held[0]
+
     def safe_stop(self, cause: str, detail: str, joint: int | None = None) -> None:
         """Disable the amplifiers, command 0 V, stop PWM, read it all back, and record why.
 
@@ -367,17 +511,31 @@ class ServoLoop:
         if held:
             raise held[0]
 
-    def _safe_stop(self, cause: str, detail: str, joint: int | None) -> list[BaseException]:
+    def _safe_stop(self, cause: str, detail: str, joint: int | None,
+                   category: StopCategory = StopCategory.UNCONTROLLED) -> list[BaseException]:
         held: list[BaseException] = []
         with SignalsDeferred(held):
             failures = self.io.safe_stop(held)
             self.stop_incomplete = failures
             if failures:
                 detail += " (safe stop incomplete: " + "; ".join(failures) + ")"
-            if self.fault is None:
-                self.fault = Fault(self.tick_count, self.tick_count * self.period_s, cause,
+            controlled = self.stopping
+            self.stopping = None
+            if controlled is not None and category != StopCategory.CONTROLLED:
+                # a category-1 stop that could not complete falls to category 0
+                self.stop_fell = f"{cause}: {detail}"
+                detail += f" (during a category-1 stop for {controlled.cause}: fell to category 0)"
+            first = self.fault is None and (self.enabled or controlled is not None)
+            if self.fault is None and cause not in NOT_FAULTS:
+                tick = controlled.tick0 if controlled is not None and category == StopCategory.CONTROLLED \
+                    else self.tick_count
+                self.fault = Fault(tick, tick * self.period_s, cause,
                                    self.names[joint] if joint is not None else None, detail)
                 self.faults.append(self.fault)
+            if first:
+                if controlled is None:
+                    self._note_stop_begin(cause)
+                self.stop_category = category
             self.enabled = False
             for e in held:
                 self.note_interruption(e, "stop")
@@ -393,7 +551,13 @@ class ServoLoop:
         self._drain()
         t = k * self.period_s
         if self.fault is not None or not self.enabled:
-            self._record(k, t, None, None, None, truth, t0)
+            # stopped: the drivers still read (status, the excursion after the stop); a sensor
+            # that no longer answers reads as nothing
+            try:
+                m_stopped: Measurement | None = self.io.read()
+            except Exception:
+                m_stopped = None
+            self._record(k, t, m_stopped, None, None, truth, t0)
             self.tick_count += 1
             return
         try:
@@ -403,7 +567,11 @@ class ServoLoop:
             self._record(k, t, None, None, None, truth, t0)
             self.tick_count += 1
             return
-        sample = self.sequencer.sample(max(0.0, t - self._t_motion0))
+        st = self.stopping
+        if st is not None:
+            sample = st.trajectory.sample((k - st.tick0) * self.period_s)
+        else:
+            sample = self.sequencer.sample(max(0.0, t - self._t_motion0))
         if self._check(m, sample):
             self._record(k, t, m, sample, None, truth, t0)
             self.tick_count += 1
@@ -416,6 +584,8 @@ class ServoLoop:
             current = None
         self._record(k, t, m, sample, (out, current), truth, t0)
         self.tick_count += 1
+        if self.stopping is not None and self.fault is None:
+            self._advance_stop(k)
 
     def _context(self, k: int, t: float, m: Measurement, sample):
         ctrl = self.controller.active
@@ -486,6 +656,8 @@ class ServoLoop:
         if truth is not None:
             row.update(theta_true=truth.get("theta_joint"), omega_true=truth.get("omega_joint"))
         row = {k2: v for k2, v in row.items() if v is not None}
+        if self.stop_tick is not None:
+            self._track_excursion(row.get("theta_true"), row.get("theta"))
         self.last = {**row, "tick": k, "fault": self.fault.as_dict() if self.fault else None}
         if rec is not None:
             rec.put(k, compute_s=time.perf_counter() - t0, **row)

@@ -42,6 +42,8 @@ from servo.loop import ServoLoop
 from servo.rt import RealtimeSettings, apply_realtime, check_rt_priority, involuntary_switches, wait_until
 
 Progress = Callable[[int, int], None]
+#: how long a run watches the joints after its stop (s of simulated time; issue #29)
+WATCH_AFTER_STOP_S = 2.0
 
 
 class TickSeries:
@@ -181,10 +183,77 @@ class LockstepRunner:
             return self._run(n_ticks, progress, stop)
         except INTERRUPTS as e:
             self.loop.note_interruption(e, "run")
-            self.stop_now("interrupted", f"{interrupt_name(e)} received", e)
+            self.stop_by_category("interrupted", f"{interrupt_name(e)} received", e)
         except Exception as e:
             self.stop_now("exception", f"{type(e).__name__}: {e}", e)
         return self._completed
+
+    def stop_by_category(self, cause: str, detail: str, exc: BaseException | None = None) -> None:
+        """Stop by ``cause``'s category (:mod:`servo.stops`): a category-1 stop is ticked through
+        here (decelerate, brakes, power off — :meth:`finish_stop`); a second signal, or an error,
+        while it runs makes it category 0 at once (:meth:`stop_now`)."""
+        loop = self.loop
+        self.ended_by = exc
+        try:
+            loop.stop(cause, detail)
+        except BaseException:  # the stop itself completed (held signals are raised after it)
+            self._carry_to_plant()
+            raise
+        if loop.stopping is None:  # category 0 (or 2): carried to the plant as before
+            if not loop.enabled:
+                self._carry_to_plant()
+            return
+        try:
+            self.finish_stop()
+        except INTERRUPTS as e:
+            loop.note_interruption(e, "stop")
+            if loop.stopping is not None:  # a second signal: power off now (category 0)
+                self.stop_now(cause, f"{detail}; {interrupt_name(e)} during the category-1 stop", exc)
+            else:  # held by the stop's own final section, raised when it was done
+                self._carry_to_plant()
+        except Exception as e:
+            self.stop_now("exception", f"{type(e).__name__}: {e} (during the category-1 stop)", exc)
+        self.ended_by = exc
+
+    def finish_stop(self) -> int:
+        """Tick until the category-1 stop under way (if any) has completed (its time bound ends
+        it); returns the ticks it took."""
+        n = 0
+        while self.loop.stopping is not None:
+            self._pace(n)
+            self.tick()
+            n += 1
+        return n
+
+    def _pace(self, i: int) -> None:
+        """Wait for tick ``i`` of a stop (lockstep: no wait)."""
+
+    def end_run(self, seconds: float = WATCH_AFTER_STOP_S, cause: str = "end", detail: str = "the run ended") -> None:
+        """The end of a run: a loop still servoing stops by the category of ``cause`` (``end``: 1, decelerate,
+        brakes, power off); then, after whatever stop ended the run, :meth:`watch_after_stop`. A
+        plant or driver that fails in the window ends it (the stop is done); a signal is raised."""
+        loop = self.loop
+        loop.run_ticks = loop.tick_count
+        if loop.fault is None and loop.enabled and loop.stopping is None:
+            self.stop_by_category(cause, detail)
+        elif loop.stopping is not None:
+            self.finish_stop()
+        if loop.enabled or loop.stop_category is None:  # nothing stopped
+            return
+        try:
+            self.watch_after_stop(seconds)
+        except Exception:  # the window only watches; what failed may be what stopped the run
+            pass
+
+    def watch_after_stop(self, seconds: float = 2.0) -> int:
+        """After a stop: keep ticking (the loop reads its sensors, the plant keeps stepping with the
+        amplifiers as the stop left them) for ``seconds``, so the run can say how far the joints
+        moved (:meth:`servo.loop.ServoLoop.stop_summary`). A signal ends it at once (raised)."""
+        n = round(seconds / self.period_s)
+        for i in range(n):
+            self._pace(i)
+            self.tick()
+        return n
 
     def _run(self, n_ticks: int, progress: Progress | None, stop: Callable[[], bool] | None) -> int:
         for i in range(n_ticks):
@@ -208,15 +277,19 @@ class LockstepRunner:
         try:
             self.loop.safe_stop(cause, detail)
         finally:
-            k = self.loop.tick_count
-            if self._exchanged:
-                k += 1
-            try:
-                self.plant.advance_to(k * self.period_ns + self.delay_ns)
-                self.plant.exchange(k)
-            except Exception:  # the stop itself is done; the plant may be what failed
-                pass
-            self._exchanged = True
+            self._carry_to_plant()
+
+    def _carry_to_plant(self) -> None:
+        """One more exchange, so that the plant sees the amplifiers as the stop left them."""
+        k = self.loop.tick_count
+        if self._exchanged:
+            k += 1
+        try:
+            self.plant.advance_to(k * self.period_ns + self.delay_ns)
+            self.plant.exchange(k)
+        except Exception:  # the stop itself is done; the plant may be what failed
+            pass
+        self._exchanged = True
 
 
 OVERRUN_POLICIES = ("stop", "warn")
@@ -285,11 +358,12 @@ class RealtimeRunner(LockstepRunner):
             self._wait_until(deadline)
             woke = self.clock()
             behind = (woke - deadline) / self.period_s
-            if behind > self.max_lateness_periods and self.loop.fault is None:
+            if behind > self.max_lateness_periods and self.loop.fault is None and self.loop.stopping is None:
                 self.late_ticks += 1
                 if self.overrun == "stop":
-                    self.stop_now("overrun", f"the loop fell {behind:.1f} periods behind its deadline "
-                                  f"(limit {self.max_lateness_periods:g}; --overrun warn runs on)")
+                    # the sensors are sane: category 1 (decelerate, brakes, power off) — servo.stops
+                    self.stop_by_category("overrun", f"the loop fell {behind:.1f} periods behind its deadline "
+                                          f"(limit {self.max_lateness_periods:g}; --overrun warn runs on)")
                     return i
             switches, cpu0 = involuntary_switches(), time.thread_time()
             self.tick()
@@ -309,6 +383,11 @@ class RealtimeRunner(LockstepRunner):
             if progress is not None:
                 progress(i + 1, n_ticks)
         return n_ticks
+
+    def _pace(self, i: int) -> None:
+        if i == 0:
+            self._pace_t0 = self.clock()
+        self._wait_until(self._pace_t0 + i * self.period_s)
 
     def _wait_until(self, deadline: float) -> None:
         wait_until(deadline, self.clock, self.sleep, self.spin_s)

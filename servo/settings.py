@@ -71,6 +71,7 @@ from servo.control.objects import CONTROL_OBJECTS, cfg_per_joint, parse_switch_o
 from servo.gain_guard import GainRejected, check_gain_set, check_values
 from servo.nominal import nominal_chain, rig_nominal
 from servo.rig import RigSpec
+from servo.stops import CATEGORIES, StopSettings
 
 __all__ = ["MIN_VELOCITY_DEG_S", "ServoSettings", "WatchdogSettings", "servo_settings"]
 
@@ -140,6 +141,9 @@ class ServoSettings:
     def delay_periods(self) -> float:
         """The computation delay in servo periods (0..1), as the gain guard takes it."""
         return delay_periods(self.computation_delay_s, self.period_s)
+
+    #: how a controlled (category-1) stop runs, and the rig file's stricter categories (servo.stops)
+    stop: StopSettings = dataclasses.field(default_factory=lambda: StopSettings(decel_rad_s2=()))
 
     def overridden(self, gains: Mapping[str, float] | None = None, switch_off: bool | None = None) -> ServoSettings:
         """These settings with ``gains`` (name → value) applied to every joint and the switch-off
@@ -228,12 +232,49 @@ def servo_settings(rig: RigSpec) -> ServoSettings:
         following_error_rad=tuple(ferr), chain=nominal_chain(nominal), watchdog=_watchdog(rig, nominal),
         position_source=tuple(j.servo.get_str("position", "pot", choices=("pot", "encoder")) for j in rig.joints),
         velocity_source=tuple(j.servo.get_str("velocity", "tach", choices=("tach", "encoder")) for j in rig.joints),
+        stop=_stop_settings(rig, top),
         gains_given=tuple("+".join(w for w, t in (("joint", j.servo), ("rig", top)) if "gains" in t)
                           for j in rig.joints),
         source=str(rig.path))
     if "pid" in names:
         _guard_rig_gains(rig, top, settings)
     return settings
+
+
+#: a controlled stop's deceleration unless the rig file says (deg/s²): 30°/s to rest in 75 ms, over 1.1°
+DEFAULT_STOP_DECEL_DEG_S2 = 400.0
+#: how long a controlled stop holds with the amplifiers on after dropping the brake lines, when the
+#: rig file does not state the brakes' engage delay (s; the presets' brakes engage in 40 ms)
+DEFAULT_BRAKE_ENGAGE_S = 0.06
+
+
+def _stop_settings(rig: RigSpec, top: ConfigTable) -> StopSettings:
+    """``[servo] stop_deceleration_deg_s2`` (per joint in ``[joint.servo]``), ``stop_time_bound_s``,
+    ``[servo.stop_categories]`` (cause = 0, 1 or 2: only as strict as the table or stricter), and
+    the longest holding-brake engage delay (``[joint.holding_brake] engage_delay_s``)."""
+    base = top.get_float("stop_deceleration_deg_s2", DEFAULT_STOP_DECEL_DEG_S2, min=1.0)
+    decel = tuple(float(np.radians(j.servo.get_float("stop_deceleration_deg_s2", base, min=1.0))) for j in rig.joints)
+    # the brakes' engage delay as the plant's table states it where the joint has one; else the
+    # controller's own figure (templates are the plant's business), longer than the presets' 40 ms
+    default_engage = top.get_float("holding_brake_engage_s", DEFAULT_BRAKE_ENGAGE_S, min=0.0)
+    engage = [j.table.table("holding_brake", {}).get_float("engage_delay_s", default_engage, min=0.0)
+              if isinstance(j.table.raw("holding_brake", None), dict) else default_engage
+              for j in rig.joints if "holding_brake" in j.wiring]
+    bound = top.get_float("stop_time_bound_s", 1.5, min=rig.period_s)
+    cats = top.table("stop_categories", {})
+    stricter: dict[str, int] = {}
+    for cause in cats.keys():
+        if cause not in CATEGORIES:
+            raise cats.error(cause, f"a stop cause ({', '.join(sorted(CATEGORIES))})", cats.raw(cause))
+        value = cats.raw(cause)
+        if isinstance(value, bool) or not isinstance(value, int) or value not in (0, 1, 2):
+            raise cats.error(cause, "a stop category: 0, 1 or 2", value)
+        if value > int(CATEGORIES[cause][0]):
+            raise cats.error(cause, f"category {int(CATEGORIES[cause][0])} or stricter (a lower number): a rig "
+                             "file may make a stop stricter, never looser", value)
+        stricter[cause] = value
+    return StopSettings(decel_rad_s2=decel, brake_engage_s=max(engage, default=0.0), time_bound_s=bound,
+                        stricter=stricter)
 
 
 def _check_objects(cfg: ConfigTable, names: list[Any]) -> tuple[str, ...]:

@@ -1,14 +1,17 @@
 """The fault matrix: every fault of the catalogue on jpl-arm, and what the watchdog makes of it.
 
-Each case runs the demo move (lockstep, seed 0) with one fault injected at tick 100 (0.8 s,
-joints moving) for 300 ticks in all; plant-over-CAN cases run on python-can's ``virtual``
-interface with a plant node thread in this process, vision cases with the vision system in this
-process and a ``vservo`` task from the start. The documented outcome of a case is a stop cause
-within ``max_ticks`` of the fault (20: docs/faults.md's claim) during which no joint's true angle
-moved more than ``max_movement_deg`` from where it was at the fault (1.2°: the claim), with at most
-``max_true_error_deg`` of true error at the stop (that error carries the uncalibrated pots' bow,
-≈ 1°: a loose second bound), or ``no stop`` (a fault the loop rides through, or one documented as
-undetectable).
+Each case runs the demo move (lockstep, seed 0) with one fault injected at tick 100 (0.8 s, joints
+moving) for 400 ticks in all (room for the stop and the 2 s after it); plant-over-CAN cases run on
+python-can's ``virtual`` interface with a plant node thread in this process, vision cases with the
+vision system in this process and a ``vservo`` task from the start. The documented outcome of a
+case is a stop cause within ``max_ticks`` of the fault (20: docs/faults.md's claim) during which no
+joint's true angle moved more than ``max_movement_deg`` from where it was at the fault (1.2°: the
+claim), with at most ``max_true_error_deg`` of true error at the stop (that error carries the
+uncalibrated pots' bow, ≈ 1°: a loose second bound), or ``no stop`` (a fault the loop rides
+through, or one documented as undetectable). The excursion column (issue #29) is the largest
+movement of any joint's true angle from where it was when the stop began, over the stop and the
+``AFTER_TICKS`` (2 s) after it — for a ``no stop`` case, after the operator's stop that ends its
+run.
 
     python -m vmehil.fault_matrix            # the table of docs/faults.md (measured figures)
 
@@ -21,12 +24,16 @@ import os
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from vmehil.fault_injection import FaultContext, FaultSchedule, parse_fault_spec, stop_report
 
 RIG = "jpl-arm"
 SEED = 0
 FAULT_TICK = 100
-RUN_TICKS = 300
+RUN_TICKS = 400
+#: ticks watched after a stop (2 s at 125 Hz: issue #29's window)
+AFTER_TICKS = 250
 NO_STOP = "no stop"
 
 
@@ -128,7 +135,7 @@ def run_case(case: MatrixCase) -> dict[str, Any]:
     try:
         motion = Motion((VservoMove(20.0), WaitMove(3.0)), "vservo", "<matrix>") if case.vision else \
             default_demo_motion(system.rig.n_joints)
-        loop = build_loop(system, motion=motion, n_ticks=RUN_TICKS)
+        loop = build_loop(system, motion=motion, n_ticks=RUN_TICKS + AFTER_TICKS + 1)
         loop.start()
         runner = LockstepRunner(system, loop)
         attached = None
@@ -142,8 +149,11 @@ def run_case(case: MatrixCase) -> dict[str, Any]:
         out = stop_report(loop, schedule.first_tick, schedule.joint)
         out["injected_faults"] = [f.as_dict() for f in schedule.faults]
         if loop.fault is None:  # what a stop now would leave powered (enable stuck high: that enable)
-            loop.safe_stop("operator_stop", "end of the fault-matrix run")
+            # the operator's stop (category 1: decelerate, brakes, power off), then its window
+            runner.stop_by_category("operator_stop", "end of the fault-matrix run")
+            runner.run(AFTER_TICKS)
         out["stop_incomplete"] = list(loop.stop_incomplete)
+        out.update(excursion(loop))
         if case.vision and loop.vision is not None:
             out["vision"] = loop.vision.summary()
         if attached is not None:
@@ -151,6 +161,23 @@ def run_case(case: MatrixCase) -> dict[str, Any]:
         return out
     finally:
         system.close()
+
+
+def excursion(loop: Any) -> dict[str, Any]:
+    """The largest true movement of any joint from where it was when the stop began, over the stop
+    and the ``AFTER_TICKS`` after it (degrees; ``excursion_deg``, ``excursion_joint``)."""
+    rec = loop.recorder.trimmed() if loop.recorder is not None else {}
+    fault = loop.fault
+    if fault is None or not rec or rec["t"].size <= fault.tick:
+        return {}
+    truth = rec["theta_true"][fault.tick:fault.tick + AFTER_TICKS + 1]
+    moved = np.degrees(np.abs(truth - truth[0]))
+    if not np.isfinite(moved).any():
+        return {}
+    worst = np.nanmax(moved, axis=0)
+    i = int(np.nanargmax(worst))
+    return {"excursion_deg": float(worst[i]), "excursion_joint": loop.names[i],
+            "excursion_window_ticks": int(truth.shape[0] - 1)}
 
 
 def outcome_ok(case: MatrixCase, got: dict[str, Any]) -> list[str]:
@@ -182,8 +209,8 @@ def outcome_ok(case: MatrixCase, got: dict[str, Any]) -> list[str]:
 
 def markdown_table(rows: list[tuple[MatrixCase, dict[str, Any]]]) -> str:
     lines = ["| fault (`--fault`, at 0.8 s) | outcome | ticks to stop | moved to stop | true error at stop | "
-             "stop read-back | why |",
-             "|---|---|---|---|---|---|---|"]
+             "stop read-back | after the stop (2 s) | why |",
+             "|---|---|---|---|---|---|---|---|"]
     for case, got in rows:
         where = " (CAN)" if case.plant == "can" else " (vision)" if case.vision else ""
         if got["stopped"]:
@@ -195,7 +222,9 @@ def markdown_table(rows: list[tuple[MatrixCase, dict[str, Any]]]) -> str:
             outcome, ticks, moved = NO_STOP, "—", "—"
             err = f"max {got['max_true_error_deg']:.2f}°" if "max_true_error_deg" in got else "—"
         readback = _short_readback(got.get("stop_incomplete", []))
-        lines.append(f"| `{case.spec}`{where} | {outcome} | {ticks} | {moved} | {err} | {readback} | {case.note} |")
+        after = (f"{got['excursion_deg']:.2f}° ({got['excursion_joint']})" if "excursion_deg" in got else "—")
+        lines.append(f"| `{case.spec}`{where} | {outcome} | {ticks} | {moved} | {err} | {readback} | {after} | "
+                     f"{case.note} |")
     return "\n".join(lines)
 
 

@@ -23,9 +23,22 @@ def motion_end_time(loop: ServoLoop) -> float:
     return end + getattr(loop, "_t_motion0", 0.0)
 
 
+def _final_integrating(loop: ServoLoop, rec: dict[str, np.ndarray], i: int) -> bool | None:
+    """Whether joint ``i``'s integrators ran at the run's last servoing tick: the recorder's last
+    row that has it (a run's end-of-run stop and the 2 s after it are not the run), else the law's."""
+    col = rec.get("integrating")
+    if col is not None and col.size:
+        known = col[:, i][np.isfinite(col[:, i])]
+        if known.size:
+            return bool(known[-1])
+    return bool(loop.law.integrating[i]) if loop.law is not None else None
+
+
 def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns: int,
               timing: dict[str, Any] | None = None) -> dict[str, Any]:
     rec = loop.recorder.trimmed() if loop.recorder is not None else {}
+    run_ticks = getattr(loop, "run_ticks", None)
+    ticks: int = loop.tick_count if run_ticks is None else int(run_ticks)
     t = rec.get("t", np.zeros(0))
     t_end_motion = motion_end_time(loop)
     t_window = t_end_motion + SETTLE_S
@@ -45,7 +58,8 @@ def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns:
         lc = limit_cycle(t, th_true, t_window)
         q = float(pot_step_rad[i]) if np.isfinite(pot_step_rad[i]) else 0.0
         lc_pot = limit_cycle(t, th_pot, t_window, quantum_rad=q)
-        so_events = [e for e in loop.law.events if e.joint == i] if loop.law is not None else []
+        # the run's own events: not those of its end-of-run stop (servo.runner.LockstepRunner.end_run)
+        so_events = [e for e in loop.law.events if e.joint == i and e.tick < ticks] if loop.law is not None else []
         joints.append({
             "name": name,
             "final_error_deg": _deg(err[finite][-1]) if finite.any() else None,
@@ -59,14 +73,15 @@ def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns:
                                 "cycle": lc_pot.cycle, "spectrum_peak_hz": lc_pot.spectrum_peak_hz,
                                 "source": "potentiometer"},
             "switch_off_events": len(so_events),
-            "final_integrating": bool(loop.law.integrating[i]) if loop.law is not None else None,
+            "final_integrating": _final_integrating(loop, rec, i),
         })
     out = {
         "rig": rig,
         "seed": seed,
         "mode": "realtime" if realtime else "lockstep",
-        "ticks": loop.tick_count,
-        "duration_s": loop.tick_count * loop.period_s,
+        # the run's own ticks: the end-of-run stop and the 2 s watched after it are in final_stop
+        "ticks": ticks,
+        "duration_s": ticks * loop.period_s,
         "overruns": overruns,
         "faults": [f.as_dict() for f in loop.faults],
         # how the run ended: the final safe stop and what its read-back could not confirm
@@ -205,3 +220,11 @@ def write_report(loop: ServoLoop, summary: dict[str, Any], out_dir: str | Path) 
     files.append(write_json(out / "run.json", summary))
     files.append(write_atomic(out / "summary.md", "# vmehil run\n\n```\n" + table(summary) + "\n```\n"))
     return files
+
+
+def excursion_text(excursion_deg: dict[str, float | None] | None) -> str:
+    """A stop's excursion for the terminal: "moved after the stop (deg): j1 0.012, j2 0.150, …"."""
+    if not excursion_deg:
+        return "moved after the stop: not measured"
+    parts = [f"{name} {'?' if v is None else f'{v:.3f}'}" for name, v in excursion_deg.items()]
+    return "moved after the stop (deg, over the stop and 2 s after it): " + ", ".join(parts)

@@ -1,5 +1,5 @@
 """The fault matrix (vmehil.fault_matrix): every fault of the catalogue on jpl-arm (lockstep, seed 0,
-injected at tick 100 of the demo move, 300 ticks) ends as docs/faults.md says — the stop's cause
+injected at tick 100 of the demo move, 400 ticks) ends as docs/faults.md says — the stop's cause
 within its tick bound and under its true-error bound, or no stop where that is the documented
 outcome."""
 

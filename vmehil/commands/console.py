@@ -31,6 +31,7 @@ from vmehil.console.extension import ConsoleOptions
 from vmehil.errors import CliError
 from vmehil.files import write_json
 from vmehil.realtime_options import RealtimeOptions, add_overrun_args, add_pacing_args
+from vmehil.run_report import excursion_text
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -141,20 +142,31 @@ def run_console(opts: ConsoleCommandOptions) -> int:
                                runner.timing.harness_s):
                     series.clear()
     except (KeyboardInterrupt, Terminated) as e:
-        loop.safe_stop("interrupted", f"{interrupt_name(e)} received")
+        runner.stop_by_category("interrupted", f"{interrupt_name(e)} received")  # category 1
     except Exception as e:
         loop.safe_stop("exception", f"{type(e).__name__}: {e}")
         raise
     finally:
+        try:
+            # a loop still servoing stops by category 1 (decelerate, brakes, power off); then the
+            # joints are watched 2 s (EVT stop … excursion_deg=…); a signal ends the window at once
+            runner.end_run(cause="session_end", detail="vmehil console ended")
+        except (KeyboardInterrupt, Terminated):
+            pass
+        finally:
+            if loop.enabled or loop.stopping is not None:
+                loop.safe_stop("session_end", "vmehil console ended")
+            console.announce_stop()
         fault = loop.fault
-        if not loop.fault:
-            loop.safe_stop("session_end", "vmehil console ended")
         console.close()
         system.close()
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+    final = loop.stop_summary()
     print(f"vmehil console: {loop.tick_count} ticks ({loop.tick_count * loop.period_s:.3f} s), "
           f"{console.stats.handled} commands, stopped: {fault.cause if fault else '-'}")
+    print(f"final stop: {final['cause'] or '-'} (category {final['category']}); "
+          f"{excursion_text(final['excursion_deg'])}")
     if opts.json:
         write_json(opts.json, summary(loop, console, system.rig.name, paced=paced, fault=fault))
     return 0
@@ -169,4 +181,5 @@ def summary(loop, console, rig: str, *, paced: bool, fault) -> dict:
         "long": s.long, "binary": s.binary, "dropped_out": s.dropped_out,
         "stopped": None if fault is None else {"cause": fault.cause, "detail": fault.detail, "tick": fault.tick},
         "stop_incomplete": bool(getattr(loop, "stop_incomplete", False)),
+        "final_stop": loop.stop_summary(),
     }

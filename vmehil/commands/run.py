@@ -188,6 +188,8 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
                     print(f"run: {n_ticks} ticks ({duration:g} s) on {rig.name}, amplifiers enabled", file=sys.stderr)
                 with progress:
                     runner.run(n_ticks, progress=progress if progress.enabled else None)
+                # a category-1 stop at the end, then 2 s watching the joints (final_stop.excursion_deg)
+                runner.end_run()
         except INTERRUPTS as e:  # between ticks' reach (set-up), or held by a stop: still reported
             interrupted = e
         finally:

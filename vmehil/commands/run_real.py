@@ -98,6 +98,7 @@ def run_on_real_bus(opts: RunOptions, rig, settings: ServoSettings, *,
                     print(f"run: {n_ticks} ticks ({duration:g} s) on {rig.name} over {opts.bus}, amplifiers "
                           "enabled", file=sys.stderr)
                     runner.run(n_ticks)
+                    runner.end_run()  # a category-1 stop, then 2 s reading the sensors
             except INTERRUPTS as e:
                 interrupted = e
             finally:

@@ -18,7 +18,7 @@ if TYPE_CHECKING:
 def finish_run(opts: RunOptions, system, loop, runner, rig, attached: list, ended_by: BaseException | None) -> int:
     """Summary, table, JSON and report of a run that has ended; its exit status."""
     from servo.runner import RealtimeRunner
-    from vmehil.run_report import summarize, table, write_report
+    from vmehil.run_report import excursion_text, summarize, table, write_report
 
     timing = runner.timing.summary(system.rig.period_s) if isinstance(runner, RealtimeRunner) else None
     summary = summarize(loop, rig=system.rig.name, seed=opts.seed, realtime=opts.realtime,
@@ -32,6 +32,10 @@ def finish_run(opts: RunOptions, system, loop, runner, rig, attached: list, ende
         summary["realtime_settings"] = rt_settings
         print(f"real-time settings: {rt_settings['described']}", file=sys.stderr)
     print(table(summary))
+    stop = loop.final_stop or {}
+    if stop.get("category") is not None:
+        print(f"final stop: {stop.get('cause') or stop.get('reason')} (category {stop['category']}); "
+              f"{excursion_text(stop.get('excursion_deg'))}")
     if timing:
         print(f"timing: compute p50 {timing['compute_p50_ms']:.3f} ms, p99 {timing['compute_p99_ms']:.3f} ms; "
               f"lateness p99 {timing['lateness_p99_ms']:.3f} ms, max {timing['lateness_max_ms']:.3f} ms")

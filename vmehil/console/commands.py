@@ -256,7 +256,21 @@ def _deg(x: float) -> float:
 def loop_state(loop: Any) -> str:
     if loop.fault is not None:
         return "fault"
+    if getattr(loop, "stopping", None) is not None:
+        return "stopping"  # a category-1 stop under way: decelerating, then brakes, then power off
     return "running" if loop.enabled else "stopped"
+
+
+#: the stops the reader runs ahead of the queue
+URGENT_STOPS = ("stop", "estop")
+
+
+def stop_event(loop: Any) -> str:
+    """``EVT stop category=N cause=… excursion_deg=j1:…,j2:…`` for the loop's last stop."""
+    st = loop.stop_summary()
+    exc = st.get("excursion_deg") or {}
+    moved = ",".join(f"{name}:{'nan' if v is None else f'{v:.3f}'}" for name, v in exc.items())
+    return kv("EVT", "stop", category=st.get("category"), cause=st.get("cause") or "-", excursion_deg=moved or "-")
 
 
 def _law(loop: Any):
@@ -291,6 +305,10 @@ def _require_running(loop: Any) -> None:
         f = loop.fault
         raise ConsoleError(STATE, f"the loop is stopped by a fault ({f.cause}"
                                   f"{' on ' + f.joint if f.joint else ''}): check status, then enable")
+    st = getattr(loop, "stopping", None)
+    if st is not None:
+        raise ConsoleError(STATE, f"the loop is stopping ({st.cause}, category 1: decelerating, then brakes and "
+                                  "power off): wait for it, then enable")
     if not loop.enabled:
         raise ConsoleError(STATE, "the amplifiers are not enabled: enable first")
 
@@ -425,7 +443,7 @@ def _status(s: Session, a: dict[str, Any]) -> Outcome:
         v = last.get(key)
         return np.asarray(v, float) if v is not None else nan
 
-    theta, theta_d, current = col("theta"), col("theta_d"), col("current")
+    theta, theta_d, current, omega = col("theta"), col("theta_d"), col("current"), col("omega")
     integrating = col("integrating")
     law = loop.law
     kp_eff = np.asarray(law.kp_eff(), float) if law is not None else nan
@@ -439,9 +457,11 @@ def _status(s: Session, a: dict[str, Any]) -> Outcome:
         err = theta_d[i] - theta[i]
         integ = "nan" if math.isnan(integrating[i]) else ("on" if integrating[i] else "off")
         jf = fault.cause if fault is not None and fault.joint == name else "-"
+        # after a stop the drivers still read (servo.loop): positions, velocities and currents as
+        # measured, flagged as stopped; the target and error have no meaning then
         lines.append(kv("DATA", "joint", joint=name, pos_deg=_deg(theta[i]), target_deg=_deg(theta_d[i]),
-                        err_deg=_deg(err), current_a=float(current[i]), integrators=integ,
-                        kp_eff=float(kp_eff[i]), fault=jf))
+                        err_deg=_deg(err), vel_deg_s=_deg(omega[i]), current_a=float(current[i]),
+                        integrators=integ, kp_eff=float(kp_eff[i]), fault=jf, stopped=int(not loop.enabled)))
     if fault is not None:
         lines.append(kv("DATA", "fault", cause=fault.cause, joint=fault.joint or "-", tick=fault.tick,
                         t_s=fault.time_s, detail=fault.detail))
@@ -565,14 +585,25 @@ def _mode(s: Session, a: dict[str, Any]) -> Outcome:
     return Outcome(lines)
 
 
-@atom("stop", (), "safe stop: amplifiers off, outputs 0 V; cancels running compound commands")
+@atom("stop", (), "controlled stop (category 1): decelerate, brakes, then amplifiers off; cancels compound "
+      "commands")
 def _stop(s: Session, a: dict[str, Any]) -> Outcome:
     loop = s.loop
-    loop.safe_stop("operator_stop", f"stop from the {s.source}")
+    category = loop.stop("operator_stop", f"stop from the {s.source}")
     if s.executor is not None:
         s.executor.cancel_all("stopped by the operator")
     loop.note(s.source, "stop")
-    return Outcome(ok=kv(state=loop_state(loop)))
+    return Outcome(ok=kv(state=loop_state(loop), category=int(category)))
+
+
+@atom("estop", (), "emergency stop (category 0): amplifiers off and brakes at once; cancels compound commands")
+def _estop(s: Session, a: dict[str, Any]) -> Outcome:
+    loop = s.loop
+    loop.stop("estop", f"emergency stop from the {s.source}")
+    if s.executor is not None:
+        s.executor.cancel_all("emergency stop by the operator")
+    loop.note(s.source, "estop")
+    return Outcome(ok=kv(state=loop_state(loop), category=0))
 
 
 @atom("enable", (), "clear faults and enable the amplifiers, holding the joints where they are")
@@ -711,16 +742,17 @@ def _echo(s: Session, a: dict[str, Any]) -> Outcome:
 def _shutdown(s: Session, a: dict[str, Any]) -> Outcome:
     if s.shutdown is None:
         raise ConsoleError(UNAVAILABLE, "shutdown: this loop is owned by vmehil run and ends with its --duration")
-    s.loop.safe_stop("operator_shutdown", f"shutdown from the {s.source}")
+    # category 1; the session's host completes it and watches the joints 2 s before it exits
+    category = s.loop.stop("operator_shutdown", f"shutdown from the {s.source}")
     if s.executor is not None:
         s.executor.cancel_all("shutdown")
     s.shutdown()
-    return Outcome(ok=kv(state=loop_state(s.loop)))
+    return Outcome(ok=kv(state=loop_state(s.loop), category=int(category)))
 
 
 #: The atomic commands by name, in the order of ``help``.
 ATOMS: dict[str, Atom] = {a.name: a for a in (
-    _help, _status, _move, _move_rel, _move_joint, _stay, _gains, _mode, _stop, _enable, _run, _calibrate, _log,
+    _help, _status, _move, _move_rel, _move_joint, _stay, _gains, _mode, _stop, _estop, _enable, _run, _calibrate, _log,
     _commands, _load, _cancel, _pause, _echo, _shutdown,
 )}
 

@@ -40,8 +40,9 @@ from pathlib import Path
 from typing import Any, Protocol
 from urllib.parse import urlsplit
 
+from servo.runner import WATCH_AFTER_STOP_S
 from vmehil.ascii_text import to_ascii
-from vmehil.console.commands import ATOMS, Atom, Outcome, Session, bind, bind_request
+from vmehil.console.commands import ATOMS, URGENT_STOPS, Atom, Outcome, Session, bind, bind_request, stop_event
 from vmehil.console.compound import CompoundLibrary, Executor, prepare
 from vmehil.console.protocol import (
     BINARY,
@@ -402,12 +403,13 @@ class _Item:
 
 
 def _is_stop(text: str) -> bool:
-    """Whether a request line is ``stop`` (which the reader acts on itself, ahead of the queue)."""
+    """Whether a request line is ``stop`` or ``estop`` (which the reader acts on itself, ahead of
+    the queue)."""
     try:
         req = parse_line(text)
     except ConsoleError:
         return False
-    return req is not None and req.name == "stop"
+    return req is not None and req.name in URGENT_STOPS
 
 
 class Console:
@@ -462,6 +464,9 @@ class Console:
         self._lines: queue.Queue[str] | None = None
         self._last_fault = loop.fault
         self._dropped_since = 0
+        #: the stop announced last (its begin tick) and the tick the current one completed
+        self._announced_stop: int | None = None
+        self._stop_done_tick: int | None = None
 
     # ---- lifecycle ---------------------------------------------------------------------------------------
     def start(self) -> Console:
@@ -567,8 +572,8 @@ class Console:
             atom = ATOMS.get(req.name)
             if atom is not None and atom.on_line:
                 bound = bind_request(atom, req.args, loop.n, list(loop.names))
-                if atom.name == "stop":
-                    self._urgent_stop()
+                if atom.name in URGENT_STOPS:
+                    self._urgent_stop(atom.name)
                     return
                 bound = prepare(atom.name, bound, loop.n, list(loop.names), loop)
                 self._enqueue(_Item("atom", atom.name, atom, bound))
@@ -595,15 +600,16 @@ class Console:
             self._send([f"ERR {BUSY} console queue full ({self._queue.maxsize} commands waiting); line dropped, "
                         "wait for the replies before sending more"])
 
-    def _urgent_stop(self) -> None:
-        if self._stop_pending.is_set():
+    def _urgent_stop(self, name: str = "stop") -> None:
+        # an estop is never merged into a pending stop: it is the stricter one (category 0)
+        if name == "stop" and self._stop_pending.is_set():
             self._send(["INFO a stop is already pending", "OK stop pending=1"])
             return
         self._stop_pending.set()
 
         def do_stop(loop: Any) -> None:
             try:
-                self._run_item(_Item("atom", "stop", ATOMS["stop"], {}))
+                self._run_item(_Item("atom", name, ATOMS[name], {}))
             finally:
                 self._stop_pending.clear()
 
@@ -617,6 +623,7 @@ class Console:
         if f is not None and f is not self._last_fault:
             self._emit(kv("EVT", "fault", cause=f.cause, joint=f.joint or "-", tick=f.tick, detail=f.detail))
         self._last_fault = f
+        self._watch_stop(loop)
         if self._job is not None:
             if not self.jobs_on_tick:
                 return  # the host runs it between runner chunks
@@ -625,6 +632,24 @@ class Console:
         if not self._scheduled and (not self._queue.empty() or self.executor.active):
             self._scheduled = True
             loop.submit(self._pump)
+
+    def _watch_stop(self, loop: Any, *, now: bool = False) -> None:
+        """``EVT stop category=N cause=… excursion_deg=…`` once per stop, when the joints have been
+        watched for the 2 s after it (or ``now``: the session ends before that)."""
+        began = getattr(loop, "stop_tick", None)
+        if began is None or began == self._announced_stop or loop.enabled or loop.stopping is not None:
+            self._stop_done_tick = None
+            return
+        if self._stop_done_tick is None:
+            self._stop_done_tick = loop.tick_count
+        if not now and loop.tick_count - self._stop_done_tick < round(WATCH_AFTER_STOP_S / loop.period_s):
+            return
+        self._announced_stop = began
+        self._emit(stop_event(loop))
+
+    def announce_stop(self) -> None:
+        """At the end of a session: the last stop's EVT, if it was not announced yet."""
+        self._watch_stop(self.loop, now=True)
 
     def _pump(self, loop: Any) -> None:
         self._scheduled = False

@@ -55,8 +55,17 @@ def test_a_normal_end_is_a_verified_stop(tmp_path):
     out = tmp_path / "run.json"
     assert cli.main(["run", "--duration", "1", "--quiet", "--json", str(out)]) == 0
     summary = json.loads(out.read_text())
-    assert summary["final_stop"] == {"reason": "end", "detail": "the run ended", "tick": 125, "time_s": 1.0,
-                                     "verified": True, "incomplete": [], "interruptions": []}
+    stop = summary["final_stop"]
+    assert {k: stop[k] for k in ("reason", "detail", "verified", "incomplete", "interruptions", "category",
+                                 "cause", "fell_to_0")} == {
+        "reason": "end", "detail": "the run ended", "verified": True, "incomplete": [], "interruptions": [],
+        "category": 1, "cause": "end", "fell_to_0": None}
+    assert summary["faults"] == []  # the planned end is no fault
+    # a category-1 stop (at most its 1.5 s bound) from tick 125, then the 2 s window (250 ticks)
+    assert 125 + 250 <= stop["tick"] <= 125 + round(1.5 * 125) + 250
+    names = ["j1", "j2", "j3", "j4", "j5", "j6", "hand"]
+    assert list(stop["excursion_deg"]) == names and list(stop["excursion_sensor_deg"]) == names
+    assert max(stop["excursion_deg"].values()) <= 1.0  # issue #29's goal, true angle
 
 
 def test_an_unexpected_error_is_one_line_and_exit_status_3(monkeypatch, capsys):

@@ -99,7 +99,9 @@ def test_calibrate_is_refused_while_a_motion_runs_and_on_bad_arguments(rig):
         reply = drv.ask(line)
         assert len(reply) == 1 and reply[0].startswith(f"ERR {code} ") and text in reply[0], (line, reply)
     assert not out.exists() and loop.fault is None
-    drv.ask("stop")
+    drv.ask("stop")  # category 1 (#29): refused while it decelerates, and once it has stopped
+    assert drv.ask("calibrate adc")[0].startswith("ERR STATE the loop is stopping (operator_stop, category 1")
+    _runner.finish_stop()
     assert drv.ask("calibrate adc")[0].startswith("ERR STATE the loop is stopped by a fault")
 
 

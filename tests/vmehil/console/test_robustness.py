@@ -300,6 +300,8 @@ def test_stop_is_heard_while_a_motion_file_is_still_being_read(tmp_path, monkeyp
         assert entered.wait(30.0)  # the preparer is inside the read; it will not come back by itself
         reply = drv.ask("stop")
         assert reply[-1].startswith("OK stop"), reply
+        runner.finish_stop()  # a category-1 stop: decelerate, brakes, then power off (#29)
+        runner.tick()  # the exchange that carries it to the plant
         assert loop.fault is not None and loop.fault.cause == "operator_stop"
         assert_boards_safe(system)
     finally:
