@@ -105,11 +105,19 @@ class SignalsDeferred:
         if self._active or threading.current_thread() is not threading.main_thread():
             return self
         cls = SignalsDeferred
-        if not cls._open:
-            # install before registering, so that no signal finds the list empty in between
-            cls._saved = {s: signal.signal(s, cls._hold) for s in DEFERRED_SIGNALS}
+        first = not cls._open
+        # registered before the handlers go in: a signal after its handler is installed always
+        # finds a section to be held by (before, one arriving while the handlers were being
+        # installed raised from the middle of the installation and left a handler with no section)
         cls._open.append(self)
         self._active = True
+        if first:
+            try:
+                for s in DEFERRED_SIGNALS:
+                    cls._saved[s] = signal.signal(s, cls._hold)
+            except BaseException:  # a signal through a handler not yet replaced: no section after all
+                self.end()
+                raise
         return self
 
     def end(self) -> None:
@@ -121,7 +129,10 @@ class SignalsDeferred:
         if not cls._open:
             saved, cls._saved = cls._saved, {}
             for s, h in saved.items():
-                signal.signal(s, h)
+                # None: the handler found was not installed from Python (it cannot be put back
+                # from Python either); the default is the nearest ("TypeError: signal handler
+                # must be …" came from passing None, seen once under a burst of signals)
+                signal.signal(s, h if h is not None else signal.SIG_DFL)
 
     def __enter__(self) -> list[BaseException]:
         self.begin()
