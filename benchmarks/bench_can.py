@@ -8,7 +8,7 @@ For each transport it measures, in the same run:
   node: a thread on ``virtual``, a second process on ``udp_multicast``) — the transport's
   request/response ceiling;
 * **in-process**: the plant stepped through the same quantization without any bus;
-* **lockstep**: :class:`~emulators.can.link.CanPlantLink` ↔ :class:`~emulators.can.node.PlantNode`
+* **lockstep**: :class:`~emulators.can.can_plant_link.CanPlantLink` ↔ :class:`~emulators.can.node.PlantNode`
   (``vmehil plant-node`` in a second process for ``udp_multicast``), per rig;
 
 and prints ``lockstep / raw`` (what the message set and the plant cost relative to one bare
@@ -88,8 +88,8 @@ def _spawn(args: list[str]) -> subprocess.Popen:
 
 def lockstep_rate(rig: str, interface: str, channel: str, n: int) -> tuple[float, float, int]:
     """(lockstep ticks/s, in-process ticks/s, joints)."""
+    from emulators.can.can_plant_link import CONTROLLER_IDS, CanPlantLink
     from emulators.can.codec import DbcExchangeCodec
-    from emulators.can.link import CONTROLLER_IDS, CanPlantLink
     from emulators.can.node import PLANT_IDS, PlantNode, node_spec
     from emulators.harness import InProcessLink
     from emulators.plant import Plant

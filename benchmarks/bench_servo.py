@@ -19,7 +19,7 @@
     compute) and the overruns among them say where a spike came from: a p99/p50 of the fixed
     workload as large as the controller's is the machine's, not the loop's.
 (c) **python-control per joint**: what a python-control user gets for one joint — the joint's
-    linear plant (:func:`vmehil.analysis.loop.continuous_plant`, jpl-arm joint 1) advanced one
+    linear plant (:func:`vmehil.analysis.loop_model.continuous_plant`, jpl-arm joint 1) advanced one
     8 ms period at a time by ``control.input_output_response`` with a PD command computed between
     periods — in joint-seconds simulated per wall second; the full stack's figure is its lockstep
     rate times its joints. Skipped (said so) when python-control is not installed.
@@ -44,8 +44,8 @@ import time
 from benchmarks.goals import Goal, record
 from servo.rt import apply_realtime, machine_probe
 from servo.runner import LockstepRunner, RealtimeRunner
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 RIGS = ("jpl-arm", "melmalec-16")
 LOCKSTEP_TICKS = 1250  # 10 s simulated
@@ -116,7 +116,7 @@ def bench_python_control(periods: int) -> float | None:
         return None
     import numpy as np
 
-    from vmehil.analysis.loop import continuous_plant
+    from vmehil.analysis.loop_model import continuous_plant
     from vmehil.analysis.rigparams import load_joint
 
     cfg = load_joint("jpl-arm", 1).cfg

@@ -23,8 +23,8 @@ import numpy as np
 from benchmarks.goals import Goal, record
 from servo.motion import DEMO_DELTAS_DEG, Motion, QuinticMove, WaitMove
 from servo.runner import RealtimeRunner
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 RIG = "jpl-arm"
 SAMPLE_TICKS = 1250  # 10 s at 125 Hz

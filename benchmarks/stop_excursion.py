@@ -23,8 +23,8 @@ import numpy as np
 from emulators.presets import resolve_rig
 from servo.rig import load_rig
 from servo.runner import LockstepRunner
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 
 def _without_brakes(text: str) -> str:

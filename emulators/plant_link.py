@@ -1,7 +1,7 @@
 """The link to the plant: where the plant runs (:class:`PlantLink`), how a failing link is reported
 (:class:`PlantLinkError` and its causes) and the wire resolution both links share
 (:class:`ExchangeCodec`). Its own module so that the links (in-process in :mod:`emulators.harness`,
-CAN in :mod:`emulators.can.link`) and the harness import it, and not each other.
+CAN in :mod:`emulators.can.can_plant_link`) and the harness import it, and not each other.
 """
 
 from __future__ import annotations

@@ -69,7 +69,7 @@ def build_loop(plant: PlantBoundary, io: JointIO, settings: ServoSettings, *, mo
 
     ``motion`` (default: the demo motion) is planned from the joints' angles read now;
     ``sequencer``: the motion already planned (a unit controller's segments of the global plan,
-    :class:`servo.units.UnitSegments`) — the joints are then not read here. ``n_ticks`` > 0 adds a
+    :class:`servo.joint_groups.UnitSegments`) — the joints are then not read here. ``n_ticks`` > 0 adds a
     recorder of that many ticks; ``watchdog=False`` disables the watchdog's stops."""
     controller = build_controller(settings)
     ctx = plan_context(settings)

@@ -10,7 +10,7 @@ A runner (:mod:`servo.runner`) executes servo tick ``k`` as::
 
 Implementations:
 
-* the emulated rig (:class:`vmehil.system.EmulatedRig`): the crate's simulated clock, the
+* the emulated rig (:class:`vmehil.rig_setup.system.EmulatedRig`): the crate's simulated clock, the
   harness's publish and exchange, in-process or over CAN, and the plant's true state as truth;
 * a real rig: the wall clock is the plant — ``advance_to`` and ``exchange`` do nothing (the
   boards and the arm move by themselves), ``truth`` is ``None`` (:class:`WallClockPlant`).

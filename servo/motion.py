@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from hal.config import ConfigError, ConfigTable, load_toml
-from hal.units import deg_to_rad
+from hal.si import deg_to_rad
 from servo.trajectory import Lspb, MoveSpec, PlanContext, Quintic, Sequencer, Stay, Trajectory
 from servo.trajectory.lspb import MAX_VIA_POINTS
 from servo.vservo import parse_vservo

@@ -178,7 +178,7 @@ def load_rig(path: str | Path) -> RigSpec:
 
 def rig_from_table(table: ConfigTable, path: str | Path) -> RigSpec:
     """Parse a rig file's table already read (``path``: where it came from; errors name it).
-    A unit controller parses its unit's part of the rig file this way (:mod:`servo.units`)."""
+    A unit controller parses its unit's part of the rig file this way (:mod:`servo.joint_groups`)."""
     rig = table.table("rig", {})
     period_hz = rig.get_float("servo_rate_hz", 125.0, min=1.0, max=10_000.0)
     delay = rig.get_float("computation_delay_s", 0.001, min=0.0)

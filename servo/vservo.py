@@ -16,7 +16,7 @@ Motion file::
     timeout_s = 20        # end the task (robot side) after this long
 
 The link is given to the planner as ``PlanContext.extras["vision"]`` (a :class:`VisionLink`);
-``vmehil run --vision inprocess|process`` sets it up (see ``vmehil/vision_options.py``).
+``vmehil run --vision inprocess|process`` sets it up (see ``vmehil/option_groups/vision_options.py``).
 """
 
 from __future__ import annotations

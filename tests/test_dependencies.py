@@ -74,9 +74,9 @@ def test_all_is_every_extra_but_the_tests() -> None:
 
 
 def test_the_plant_analysis_module_loads_without_scipy() -> None:
-    # scipy is an extra (tune): the plant tests and the friction CLI import emulators.plant.analysis,
+    # scipy is an extra (tune): the plant tests and the friction CLI import emulators.plant.friction_metrics,
     # and only the dead-band cycle's root search needs scipy, so only that imports it
-    code = ("import sys, emulators.plant.analysis as a\n"
+    code = ("import sys, emulators.plant.friction_metrics as a\n"
             "print('scipy' in sys.modules)\n"
             "a.deadband_limit_cycle\n")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120,

@@ -1,26 +1,22 @@
-"""Text for 7-bit lines: serial terminals and MAVLink STATUSTEXT, where a UTF-8 "²" or "…" turns
-into "?" (MAVProxy) or mojibake (a raw terminal). One transliteration table for every such edge."""
+"""An alias: this module moved.
 
-from __future__ import annotations
+Now :mod:`vmehil.writers.ascii_text`
+(docs/architecture.md); this alias keeps the old path
+``vmehil.ascii_text``
+importable for one release (CHANGELOG.md, "Moved modules"); import the new path instead.
 
-import unicodedata
+Importing it gives the moved module itself — the same module object, so attributes, monkeypatching
+and isinstance agree — and ``python -m vmehil.ascii_text`` runs the moved module as ``__main__``.
+"""
 
-#: what the project's messages use, spelled the way an engineer would type it
-_TABLE = {
-    "²": "^2", "³": "^3", "…": "...", "—": "-", "–": "-", "−": "-", "←": "<-", "→": "->", "↔": "<->",
-    "≤": "<=", "≥": ">=", "≠": "!=", "≈": "~", "±": "+/-", "×": "x", "·": "*", "÷": "/", "°": " deg",
-    "µ": "u", "μ": "u", "Ω": "ohm", "ω": "w", "θ": "theta", "Δ": "d", "τ": "tau", "‖": "||",
-    "‘": "'", "’": "'", "“": '"', "”": '"', "√": "sqrt", "∞": "inf", "⁻¹": "^-1", "¹": "^1",
-}
-_TRANS = str.maketrans({k: v for k, v in _TABLE.items() if len(k) == 1})
+# moves: alias written by apply_moves.py — do not edit; remove it in the release after next.
 
+import importlib
+import sys
 
-def to_ascii(text: str) -> str:
-    """``text`` in printable ASCII: the table above, then accents dropped (é → e), then ``?``."""
-    if text.isascii():
-        return text
-    text = text.replace("⁻¹", "^-1").translate(_TRANS)
-    if text.isascii():
-        return text
-    decomposed = unicodedata.normalize("NFKD", text)
-    return "".join(c if c.isascii() else ("" if unicodedata.combining(c) else "?") for c in decomposed)
+if __name__ == "__main__":
+    import runpy
+
+    runpy.run_module("vmehil.writers.ascii_text", run_name="__main__", alter_sys=True)
+else:
+    sys.modules[__name__] = importlib.import_module("vmehil.writers.ascii_text")

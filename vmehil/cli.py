@@ -32,11 +32,12 @@ from servo.interrupts import (  # noqa: E402
     stop_signals_raise,
 )
 from vmehil import cli_style  # noqa: E402
-from vmehil.commands import calibrate, console, crate, plant_node, reproduce, run, tune, units, vision  # noqa: E402
+from vmehil.commands import calibrate, console, crate, plant_node, reproduce, run, tune, vision  # noqa: E402
+from vmehil.commands import unit_coordinate as units  # noqa: E402
 from vmehil.commands.errors import CliError  # noqa: E402
 from vmehil.errors import VmehilError  # noqa: E402
 from vmehil.exit_status import EXIT_BROKEN_PIPE, EXIT_UNEXPECTED, EXIT_USAGE  # noqa: E402
-from vmehil.outputs import OutputPaths, check_outputs, mark_output_dirs, remove_unused  # noqa: E402
+from vmehil.writers.output_paths import OutputPaths, check_outputs, mark_output_dirs, remove_unused  # noqa: E402
 
 __all__ = ["COMMANDS", "ROOTS", "CliError", "build_parser", "main"]
 
@@ -92,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     process = argv is None  # the program itself, not a call from Python
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv or os.environ.get("VMEHIL_DEBUG", "") not in ("", "0")
-    force = "--force" in argv  # overwrite output files that vmehil did not write (vmehil.outputs)
+    force = "--force" in argv  # overwrite output files that vmehil did not write (vmehil.writers.output_paths)
     argv = [a for a in argv if a not in ("--debug", "--force")]
     parser = build_parser()
     if not argv:  # bare `vmehil`: the commands, not argparse's "the following arguments are required"

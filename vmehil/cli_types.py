@@ -1,60 +1,22 @@
-"""argparse types for every number the ``vmehil`` commands take: finite and bounded.
+"""An alias: this module moved.
 
-One place for them, so that no command accepts ``--duration inf`` (an OverflowError later),
-``1e12`` (an allocation of petabytes), ``nan`` (a loop that never ends) or ``--points 100000``
-(a procedure that runs for days). Each bound is stated in the flag's error message.
+Now :mod:`vmehil.option_groups.cli_types`
+(docs/architecture.md); this alias keeps the old path
+``vmehil.cli_types``
+importable for one release (CHANGELOG.md, "Moved modules"); import the new path instead.
+
+Importing it gives the moved module itself — the same module object, so attributes, monkeypatching
+and isinstance agree — and ``python -m vmehil.cli_types`` runs the moved module as ``__main__``.
 """
 
-from __future__ import annotations
+# moves: alias written by apply_moves.py — do not edit; remove it in the release after next.
 
-import argparse
-import math
-from collections.abc import Callable
+import importlib
+import sys
 
-#: the longest run a command accepts: a day of simulated or wall time
-MAX_DURATION_S = 86_400.0
+if __name__ == "__main__":
+    import runpy
 
-
-def bounded_float(lo: float, hi: float, *, what: str = "a number", lo_open: bool = False) -> Callable[[str], float]:
-    """A finite float in ``[lo, hi]`` (``(lo, hi]`` with ``lo_open``)."""
-
-    def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not math.isfinite(v) or v > hi or v < lo or (lo_open and v == lo):
-            bracket = "(" if lo_open else "["
-            raise argparse.ArgumentTypeError(f"{text}: expected {what} in {bracket}{lo:g}, {hi:g}]")
-        return v
-
-    return parse
-
-
-def bounded_int(lo: int, hi: int, *, what: str = "a whole number") -> Callable[[str], int]:
-    """An integer in ``[lo, hi]``."""
-
-    def parse(text: str) -> int:
-        try:
-            v = int(text, 0)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
-        if not lo <= v <= hi:
-            raise argparse.ArgumentTypeError(f"{v}: expected {what} in [{lo}, {hi}]")
-        return v
-
-    return parse
-
-
-def nonzero_float(text: str) -> float:
-    """A finite, non-zero float (a signed step or move), at most 1e6 in magnitude."""
-    v = bounded_float(-1e6, 1e6)(text)
-    if v == 0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be a non-zero finite number")
-    return v
-
-
-positive_float = bounded_float(0.0, 1e9, what="a positive number", lo_open=True)
-duration_s = bounded_float(0.0, MAX_DURATION_S, what="a duration in seconds", lo_open=True)
-seed = bounded_int(0, 2**32 - 1, what="a seed")
-joint_number = bounded_int(1, 64, what="a joint number (joints are numbered from 1)")
+    runpy.run_module("vmehil.option_groups.cli_types", run_name="__main__", alter_sys=True)
+else:
+    sys.modules[__name__] = importlib.import_module("vmehil.option_groups.cli_types")

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from vmehil.fault_injection import FaultContext, FaultSchedule, parse_fault_spec, stop_report
+from vmehil.fault_scenarios.injection import FaultContext, FaultSchedule, parse_fault_spec, stop_report
 
 RIG = "jpl-arm"
 SEED = 0
@@ -117,18 +117,18 @@ def _vision_options() -> Any:
 
 
 def run_case(case: MatrixCase) -> dict[str, Any]:
-    """Run one case; returns :func:`vmehil.fault_injection.stop_report` plus the injected faults
+    """Run one case; returns :func:`vmehil.fault_scenarios.injection.stop_report` plus the injected faults
     and, after a run without a stop, what a safe stop's read-back then reports (``stop_incomplete``)."""
     from servo.motion import Motion, WaitMove, default_demo_motion
     from servo.runner import LockstepRunner
     from servo.vservo import VservoMove
-    from vmehil.session import build_loop
-    from vmehil.system import build_emulated_rig
+    from vmehil.rig_setup.session import build_loop
+    from vmehil.rig_setup.system import build_emulated_rig
 
     fault = parse_fault_spec(f"{case.name}@{FAULT_TICK / 125.0:g}:{case.spec.partition(':')[2]}")
     link = None
     if case.plant == "can":
-        from vmehil.can_options import CanPlantOptions
+        from vmehil.option_groups.can_options import CanPlantOptions
 
         link = CanPlantOptions("virtual", f"fault-matrix-{os.getpid()}", own_node=True).open_link(RIG, SEED)
     system = build_emulated_rig(RIG, seed=SEED, link=link)
@@ -140,7 +140,7 @@ def run_case(case: MatrixCase) -> dict[str, Any]:
         runner = LockstepRunner(system, loop)
         attached = None
         if case.vision:
-            from vmehil import vision_options
+            from vmehil.option_groups import vision_options
 
             attached = vision_options.attach(_vision_options(), system, loop, runner)
         schedule = FaultSchedule([fault], FaultContext(system, loop, SEED))

@@ -24,7 +24,7 @@ from emulators.plant.params import (
     plant_params_from_config,
 )
 from emulators.plant.plant import Plant, PlantCommand, PlantSensors
-from emulators.plant.presets import load_plant, load_plant_params
+from emulators.plant.rig_plants import load_plant, load_plant_params
 
 __all__ = [
     "AMP_HBRIDGE",

@@ -46,7 +46,7 @@ from emulators.plant.amplifier import (
 from emulators.plant.brake import HoldingBrakes
 from emulators.plant.encoder import encoder_events
 from emulators.plant.friction import FrictionArrays, StickSlipStepper
-from emulators.plant.link import gravity_torque, hard_stop_overshoot
+from emulators.plant.link_dynamics import gravity_torque, hard_stop_overshoot
 from emulators.plant.params import AMP_LINEAR, PlantParams, plant_params_from_config
 from emulators.plant.sensors import NoiseStreams, PotArrays, TachArrays
 from emulators.signals import QuadratureEvents

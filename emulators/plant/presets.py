@@ -1,27 +1,22 @@
-"""Plants from rig presets (``jpl-arm``, ``melmalec-16``) or rig-file paths."""
+"""An alias: this module moved.
 
-from __future__ import annotations
+Now :mod:`emulators.plant.rig_plants`
+(docs/architecture.md); this alias keeps the old path
+``emulators.plant.presets``
+importable for one release (CHANGELOG.md, "Moved modules"); import the new path instead.
 
-from collections.abc import Collection
-from pathlib import Path
+Importing it gives the moved module itself — the same module object, so attributes, monkeypatching
+and isinstance agree — and ``python -m emulators.plant.presets`` runs the moved module as ``__main__``.
+"""
 
-from emulators.plant.params import PlantParams, plant_params_from_config
-from emulators.presets import resolve_rig
-from hal.config import load_toml
+# moves: alias written by apply_moves.py — do not edit; remove it in the release after next.
 
+import importlib
+import sys
 
-def load_plant_params(rig: str | Path | None = None, *, foreign_keys: Collection[str] | None = None) -> PlantParams:
-    """Plant parameters of a rig preset name or rig-file path (default: ``jpl-arm``);
-    ``foreign_keys`` as for :func:`~emulators.plant.params.plant_params_from_config`.
+if __name__ == "__main__":
+    import runpy
 
-    Errors: ``FileNotFoundError`` naming the presets, or ``hal.config.ConfigError`` naming the
-    file and the key.
-    """
-    return plant_params_from_config(load_toml(resolve_rig(rig)), foreign_keys=foreign_keys)
-
-
-def load_plant(rig: str | Path | None = None, *, seed: int = 0, rate_hz: float | None = None):
-    """A :class:`emulators.plant.Plant` for a rig preset name or rig-file path."""
-    from emulators.plant.plant import Plant
-
-    return Plant(load_plant_params(rig), seed=seed, rate_hz=rate_hz)
+    runpy.run_module("emulators.plant.rig_plants", run_name="__main__", alter_sys=True)
+else:
+    sys.modules[__name__] = importlib.import_module("emulators.plant.rig_plants")

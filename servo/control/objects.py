@@ -45,7 +45,7 @@ import numpy as np
 
 from hal.config import ConfigError, ConfigTable
 from hal.plugins import PluginTable
-from hal.units import deg_to_rad
+from hal.si import deg_to_rad
 from servo.control.errors import ControlError, GainError
 from servo.control.gains import DEFAULT_GAINS, GAIN_NAMES, Gains
 from servo.control.law import (
@@ -142,7 +142,7 @@ table (e.g. ``[...controller.pid]``), ``n`` the number of joints, ``period`` the
 def cfg_per_joint(cfg: ConfigTable, key: str, n: int, default: Any, *, positive: bool = False,
                   deg_key: str | None = None) -> np.ndarray:
     """A per-joint value from ``cfg[key]`` (scalar or list of n); with ``deg_key`` the value may be
-    given in degrees instead (converted with hal.units). Errors name the file and key."""
+    given in degrees instead (converted with hal.si). Errors name the file and key."""
     if deg_key is not None and deg_key in cfg:
         if key in cfg:
             raise cfg.error(deg_key, f"either {key} or {deg_key}, not both")

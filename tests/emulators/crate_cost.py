@@ -20,8 +20,8 @@ import types
 def main(n: int = 400) -> None:
     import servo.runner as runner_mod
     from servo.runner import LockstepRunner
-    from vmehil.session import build_loop
-    from vmehil.system import build_emulated_rig
+    from vmehil.rig_setup.session import build_loop
+    from vmehil.rig_setup.system import build_emulated_rig
 
     runner_mod.time = types.SimpleNamespace(perf_counter=time.thread_time)  # type: ignore[assignment]
     for rig in ("jpl-arm", "melmalec-16"):

@@ -63,7 +63,7 @@ def _scrub(x: Any) -> Any:
 
 
 def fingerprint(argv: list[str]) -> dict[str, Any]:
-    import vmehil.run_report as run_report
+    import vmehil.reports.run_report as run_report
     from vmehil.cli import main
 
     captured: dict[str, Any] = {}

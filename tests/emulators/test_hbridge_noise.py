@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.system import build_emulated_rig
 
 
 def _reference_readings(system, n: int = 400) -> np.ndarray:

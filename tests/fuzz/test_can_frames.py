@@ -32,9 +32,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from emulators.can.bus import Endpoint, open_bus
+from emulators.can.can_plant_link import CONTROLLER_IDS, CanPlantLink
 from emulators.can.codec import CanCodec, CodecCounters
 from emulators.can.dbc import CONTROL_RESET
-from emulators.can.link import CONTROLLER_IDS, CanPlantLink
 from emulators.can.node import PLANT_IDS, PlantNode, node_spec
 from emulators.plant import Plant
 from emulators.plant_link import PlantLinkError

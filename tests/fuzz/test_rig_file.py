@@ -14,8 +14,8 @@ from hal.config import ConfigError
 from servo.rig import load_rig
 from tests.fuzz.harness import refused
 from tests.fuzz.mutate import mutated
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 PRESET = resolve_rig("jpl-arm").read_text()
 DOC = tomllib.loads(PRESET)

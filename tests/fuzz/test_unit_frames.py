@@ -32,11 +32,11 @@ from emulators.plant import PlantCommand, PlantSensors
 from emulators.plant_link import PlantLinkError
 from emulators.presets import resolve_rig
 from emulators.signals import QuadratureEvents
+from servo.joint_groups import rig_units
 from servo.rig import load_rig
-from servo.units import rig_units
 from tests.fuzz.test_can_frames import raw_frames
-from vmehil.units.coordinator import plant_link_for
-from vmehil.units.remote import CoordinatorOutcome, UnitCanLink, _Server, unit_bus
+from vmehil.unit_controllers.coordinator import plant_link_for
+from vmehil.unit_controllers.remote import CoordinatorOutcome, UnitCanLink, _Server, unit_bus
 
 SPEC = load_rig(resolve_rig("melmalec-16"))
 UNITS = rig_units(SPEC)

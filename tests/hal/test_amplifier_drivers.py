@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from hal.amplifiers import AmplifierFault, HBridgeAmp, HBridgeConfig, LinearAmp, LinearAmpConfig
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.system import build_emulated_rig
 
 
 def _advance(system, ticks: int) -> None:

@@ -12,8 +12,8 @@ from servo.io import JointIO
 from servo.nominal import nominal_scaling, rig_nominal
 from servo.runner import LockstepRunner
 from tests.support.vme_fuse import MountedVmeUser
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 TICKS = 250
 

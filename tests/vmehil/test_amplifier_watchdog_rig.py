@@ -16,8 +16,8 @@ from emulators.presets import resolve_rig
 from hal.config import ConfigError, load_toml
 from servo.rig import WATCHDOG_NET, load_rig
 from servo.runner import LockstepRunner
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 
 def _started(rig=None, ticks: int = 40):

@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
-from vmehil.ascii_text import to_ascii
+from vmehil.writers.ascii_text import to_ascii
 
 
 def test_the_projects_symbols_read_as_an_engineer_would_type_them() -> None:

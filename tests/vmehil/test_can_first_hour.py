@@ -13,8 +13,8 @@ import pytest
 
 from emulators.can.bus import INTERFACES, BusConfigError, config_files, resolve
 from emulators.harness import PlantLostError
-from vmehil.can_options import CanPlantOptions
 from vmehil.cli import build_parser, main
+from vmehil.option_groups.can_options import CanPlantOptions
 
 
 @pytest.fixture

@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 
 import servo.runner as runner_mod
-import vmehil.session as session
-import vmehil.system as system_mod
+import vmehil.rig_setup.session as session
+import vmehil.rig_setup.system as system_mod
 from emulators.can.bus import Endpoint, open_bus, private_multicast_namespace
+from emulators.can.can_plant_link import CONTROLLER_IDS, CanPlantLink
 from emulators.can.codec import CanCodec
 from emulators.can.dbc import ID_HEARTBEAT_PLANT, ID_SENS
-from emulators.can.link import CONTROLLER_IDS, CanPlantLink
 from emulators.can.node import PLANT_IDS, PlantNode
 from emulators.presets import resolve_rig
 from servo.rig import load_rig

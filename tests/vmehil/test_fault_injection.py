@@ -11,8 +11,8 @@ import pytest
 
 from hal.config import ConfigError
 from vmehil.cli import main
-from vmehil.fault_injection import CATALOGUE, FaultSpecError, load_scenario, parse_fault_spec
 from vmehil.fault_matrix import MATRIX, run_case
+from vmehil.fault_scenarios.injection import CATALOGUE, FaultSpecError, load_scenario, parse_fault_spec
 
 
 def test_fault_list_prints_every_fault_with_its_parameters(capsys) -> None:

@@ -8,8 +8,8 @@ from __future__ import annotations
 import pytest
 
 from tests.support import REPO
-from vmehil.fault_injection import CATALOGUE
 from vmehil.fault_matrix import MATRIX, MatrixCase, outcome_ok, run_case
+from vmehil.fault_scenarios.injection import CATALOGUE
 
 DOC = REPO / "docs" / "faults.md"
 

@@ -18,10 +18,10 @@ import pytest
 
 from emulators.plant import load_plant_params
 from emulators.presets import resolve_rig
-from hal.units import nm_to_oz_in
+from hal.si import nm_to_oz_in
+from vmehil.analysis.friction_id import FrictionIdError, Sinusoid, identify_friction
 from vmehil.cli import main
-from vmehil.friction_id import FrictionIdError, Sinusoid, identify_friction
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.system import build_emulated_rig
 
 
 def test_sinusoid_trajectory_is_the_papers_test_then_holds() -> None:

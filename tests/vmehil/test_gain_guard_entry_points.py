@@ -19,8 +19,8 @@ from tests.support.console import Driver, tap_poll
 from vmehil.cli import build_parser, main
 from vmehil.mavlink.client import Client
 from vmehil.mavlink.endpoint import free_udp_port
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 T, DELAY = 0.008, 0.001 / 0.008  # jpl-arm
 

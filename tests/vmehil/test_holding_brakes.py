@@ -11,8 +11,8 @@ import pytest
 
 from servo.motion import hold_motion
 from servo.runner import LockstepRunner
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 BRAKED = ("j2", "j3", "j4", "j6")  # jpl-arm's gravity-loaded joints, the preset's brakes
 

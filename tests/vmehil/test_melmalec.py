@@ -7,9 +7,9 @@ from collections import Counter
 import numpy as np
 
 from servo.runner import LockstepRunner
-from vmehil.run_report import summarize
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.reports.run_report import summarize
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 UNITS = ("leg1", "leg2", "leg3", "leg4", "arm")
 

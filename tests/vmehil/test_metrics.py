@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vmehil.metrics import limit_cycle, settling_time
+from vmehil.reports.metrics import limit_cycle, settling_time
 
 
 @pytest.mark.parametrize("amp_deg,freq", [(0.75, 2.0), (0.3, 1.2), (1.0, 3.1)])
@@ -88,7 +88,7 @@ def test_a_hold_too_short_to_measure_has_no_amplitude() -> None:
 
 
 def test_run_table_prints_a_dash_for_no_cycle_and_states_the_rule() -> None:
-    from vmehil.run_report import table
+    from vmehil.reports.run_report import table
 
     def joint(name: str, amp, freq, cycle):
         lc = {"amplitude_deg": amp, "frequency_hz": freq, "cycle": cycle}

@@ -8,9 +8,9 @@ import time
 
 from servo.runner import LockstepRunner
 from tests.support.boards import driving
-from vmehil.can_options import CanPlantOptions
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.option_groups.can_options import CanPlantOptions
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 
 def test_the_controller_stops_with_the_nodes_latch_named_when_its_command_timeout_fires() -> None:

@@ -13,7 +13,7 @@ import warnings
 import pytest
 
 from vmehil.cli import main
-from vmehil.progress import PhaseProgress, TickProgress, progress_bar, say
+from vmehil.writers.progress import PhaseProgress, TickProgress, progress_bar, say
 
 
 class FakeTerminal(io.StringIO):
@@ -165,7 +165,7 @@ def test_calibrate_pot_log_records_and_remarks_each_land_on_a_line_of_their_own(
     """`calibrate pot --auto` on a terminal, with a library logging through the root logger's
     console handler (as a user's `logging.basicConfig` sets up) at every fixture reading while the
     bar is drawn: the captured output holds every record and remark whole, on its own line."""
-    from vmehil.emulated_calibration import EmulatedFixture
+    from vmehil.rig_setup.emulated_calibration import EmulatedFixture
 
     terminal = on_terminal(monkeypatch)
     root = logging.getLogger()

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from vmehil import reproduce as rp
+from vmehil.analysis import paper_figures as rp
 from vmehil.cli import main
 
 # What the four commands wrote on seed 0 (the keys the figures read; values as measured)

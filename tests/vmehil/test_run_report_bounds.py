@@ -16,7 +16,7 @@ from tests.support.fakes import (
     _started_loop,
     fake_loop,
 )
-from vmehil.run_report import summarize, table
+from vmehil.reports.run_report import summarize, table
 
 
 def _report(loop) -> dict:

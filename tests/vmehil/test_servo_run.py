@@ -12,9 +12,9 @@ import pytest
 from servo.motion import default_demo_motion
 from servo.runner import LockstepRunner, RealtimeRunner
 from vmehil.cli import main
-from vmehil.run_report import summarize
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.reports.run_report import summarize
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 
 def _run(seconds: float, *, seed: int = 0, switch_off: bool | None = None, gains=None, motion=None,

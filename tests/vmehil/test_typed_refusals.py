@@ -45,8 +45,8 @@ def test_a_driver_that_fails_while_the_real_rig_is_set_up_refuses_the_rig() -> N
     # an ADC that never finishes, a short write: "unexpected error" (3) or bad input (2), not "refused"
     from hal.vme.errors import BusError, BusErrorCause
     from tests.support.bus_trace import RecordingBus
-    from vmehil.real_bus import RealBusRefused, prepare_real_rig
-    from vmehil.system import build_emulated_rig
+    from vmehil.rig_setup.real_bus import RealBusRefused, prepare_real_rig
+    from vmehil.rig_setup.system import build_emulated_rig
 
     system = build_emulated_rig("jpl-arm", seed=0)
 

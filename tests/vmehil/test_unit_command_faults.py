@@ -14,10 +14,10 @@ from emulators.presets import resolve_rig
 from servo.rig import load_rig
 from tests.vmehil.test_units_remote import UNITS, start_units
 from vmehil.cli import main
-from vmehil.commands.units import unit_faults
-from vmehil.fault_options import FaultOptions
-from vmehil.units.processes import run_coordinator
-from vmehil.units.remote import unit_bus
+from vmehil.commands.unit_coordinate import unit_faults
+from vmehil.fault_scenarios.options import FaultOptions
+from vmehil.unit_controllers.processes import run_coordinator
+from vmehil.unit_controllers.remote import unit_bus
 
 RIG = load_rig(resolve_rig("melmalec-16"))
 _channels = itertools.count()
@@ -75,8 +75,8 @@ def test_units_on_the_unit_bus_read_through_the_calibration_file_as_the_single_r
     from tests.vmehil.test_units_options import _calibration_file
     from tests.vmehil.test_units_remote import merged
     from vmehil.calibration.store import load_store
-    from vmehil.session import build_loop
-    from vmehil.system import build_emulated_rig
+    from vmehil.rig_setup.session import build_loop
+    from vmehil.rig_setup.system import build_emulated_rig
 
     n = 20
     with tempfile.TemporaryDirectory() as tmp:

@@ -1,4 +1,4 @@
-"""A free-running unit's link (vmehil.units.remote.UnitCanLink) reading the coordinator's answers
+"""A free-running unit's link (vmehil.unit_controllers.remote.UnitCanLink) reading the coordinator's answers
 as they come: the plant step each answer carries, and no encoder count lost with an answer the
 unit never got whole. Frames are sent by the test on a `virtual` unit bus: deterministic."""
 
@@ -13,9 +13,9 @@ from emulators.can.dbc import ID_SENS
 from emulators.plant import PlantCommand, PlantSensors
 from emulators.presets import resolve_rig
 from emulators.signals import QuadratureEvents
+from servo.joint_groups import rig_units
 from servo.rig import load_rig
-from servo.units import rig_units
-from vmehil.units.remote import UnitCanLink, unit_bus
+from vmehil.unit_controllers.remote import UnitCanLink, unit_bus
 
 _channels = itertools.count()
 

@@ -15,8 +15,8 @@ from emulators.presets import resolve_rig
 from servo.rig import load_rig
 from tests.vmehil.test_units_parallel import BoardProbe
 from tests.vmehil.test_units_remote import UNITS, start_units
-from vmehil.units.processes import run_coordinator
-from vmehil.units.remote import unit_bus
+from vmehil.unit_controllers.processes import run_coordinator
+from vmehil.unit_controllers.remote import unit_bus
 
 _channels = itertools.count()
 

@@ -11,19 +11,19 @@ import numpy as np
 import pytest
 
 from emulators.presets import resolve_rig
+from servo.joint_groups import rig_units
 from servo.motion import hold_motion
 from servo.rig import load_rig
 from servo.runner import LockstepRunner
-from servo.units import rig_units
 from tests.vmehil.test_units_parallel import BoardProbe, chain, hub_captured
 from vmehil.calibration.store import CalibrationStore, JointCal, load_store, utc_now
 from vmehil.cli import main
-from vmehil.fault_injection import parse_fault_spec
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
-from vmehil.units import coordinator
-from vmehil.units.coordinator import run_units
-from vmehil.units.options import UnitFaultError, route_faults
+from vmehil.fault_scenarios.injection import parse_fault_spec
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
+from vmehil.unit_controllers import coordinator
+from vmehil.unit_controllers.coordinator import run_units
+from vmehil.unit_controllers.options import UnitFaultError, route_faults
 
 RIG = load_rig(resolve_rig("melmalec-16"))
 
@@ -149,9 +149,9 @@ def test_a_fault_goes_to_the_unit_owning_its_joint_or_board_and_an_unowned_board
 def test_a_plant_fault_reaches_the_one_plant_at_the_single_runs_tick() -> None:
     """pot_frozen on arm_elbow (the plant's) at tick 30, routed to the arm: the same readings as the
     single run, bit for bit."""
-    from vmehil.fault_injection import FaultContext, FaultSchedule
-    from vmehil.units.coordinator import plant_link_for
-    from vmehil.units.options import fault_hook
+    from vmehil.fault_scenarios.injection import FaultContext, FaultSchedule
+    from vmehil.unit_controllers.coordinator import plant_link_for
+    from vmehil.unit_controllers.options import fault_hook
 
     n = 60
     text = "pot_frozen@0.24:joint=arm_elbow"
@@ -202,7 +202,7 @@ def test_a_hung_unit_has_its_amplifiers_latched_off_by_the_plant_nodes_command_t
     off and latched by `command_timeout` while the hub has still made only exchange 51. Then the
     hub declares leg2 lost and every other unit safe-stops in tick 51 (its boards read off)."""
     from emulators.plant.amplifier import WATCHDOG_COMMAND_TIMEOUT
-    from vmehil.can_options import CanPlantOptions
+    from vmehil.option_groups.can_options import CanPlantOptions
 
     link = CanPlantOptions(interface="virtual", channel="units-cmd-timeout", own_node=True).open_link(RIG, 1)
     node = link.node.node

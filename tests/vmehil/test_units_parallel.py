@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from servo.runner import LockstepRunner
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
-from vmehil.units.coordinator import run_units
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
+from vmehil.unit_controllers.coordinator import run_units
 
 N_TICKS = 250
 
@@ -50,7 +50,7 @@ def test_parallel_units_in_lockstep_equal_the_single_controller_bit_for_bit() ->
 def test_parallel_units_with_the_plant_node_over_can_equal_the_single_controller() -> None:
     """The plant of all 16 joints as the CAN plant node (python-can `virtual`, a node thread),
     stepped by the hub once every unit's commands are in: still bit-identical."""
-    from vmehil.can_options import CanPlantOptions
+    from vmehil.option_groups.can_options import CanPlantOptions
 
     n = 120
     ref = single_run(4, n)
@@ -99,7 +99,7 @@ class BoardProbe:
 @contextmanager
 def hub_captured(holder: dict) -> Iterator[dict]:
     """While in the block, the PlantHub run_units makes is also put in ``holder["hub"]``."""
-    import vmehil.units.coordinator as coordinator
+    import vmehil.unit_controllers.coordinator as coordinator
 
     original = coordinator.PlantHub
 
@@ -204,7 +204,7 @@ def test_a_silent_unit_is_declared_lost_its_amplifiers_cut_and_every_unit_stops(
 
 
 def test_a_rig_without_units_is_refused_for_parallel_runs() -> None:
-    from vmehil.units.coordinator import UnitsRefused
+    from vmehil.unit_controllers.coordinator import UnitsRefused
 
     with pytest.raises(UnitsRefused, match="no \\[\\[rig.unit\\]\\] tables"):
         run_units("jpl-arm", n_ticks=10)

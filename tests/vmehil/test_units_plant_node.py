@@ -15,9 +15,9 @@ from emulators.presets import resolve_rig
 from servo.rig import load_rig
 from tests.vmehil.test_units_parallel import BoardProbe, single_run
 from tests.vmehil.test_units_remote import UNITS, merged, start_units
-from vmehil.can_options import CanPlantOptions
-from vmehil.units.processes import run_coordinator
-from vmehil.units.remote import unit_bus
+from vmehil.option_groups.can_options import CanPlantOptions
+from vmehil.unit_controllers.processes import run_coordinator
+from vmehil.unit_controllers.remote import unit_bus
 
 _channels = itertools.count()
 

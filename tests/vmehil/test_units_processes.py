@@ -14,8 +14,8 @@ import pytest
 
 from emulators.can.bus import private_multicast_namespace
 from emulators.presets import resolve_rig
+from servo.joint_groups import rig_units
 from servo.rig import load_rig
-from servo.units import rig_units
 
 pytestmark = pytest.mark.skipif(not private_multicast_namespace(),
                                 reason="udp_multicast only inside a private namespace")
@@ -79,7 +79,7 @@ def kill_leg3_at(exchange: int, coord: subprocess.Popen, units: dict[str, subpro
 
 def wait_for_exchange(at_least: int) -> None:
     """Listen on the unit bus until the coordinator has answered exchange ``at_least``."""
-    from vmehil.units.remote import unit_bus
+    from vmehil.unit_controllers.remote import unit_bus
 
     bus = unit_bus("udp_multicast", None)
     try:

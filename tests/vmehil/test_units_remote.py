@@ -1,4 +1,4 @@
-"""The unit bus (vmehil.units.remote): the unit controllers and the coordinator as separate
+"""The unit bus (vmehil.unit_controllers.remote): the unit controllers and the coordinator as separate
 nodes on CAN. Here over python-can's `virtual` bus with one thread per node (the same code the
 `vmehil unit` / `vmehil coordinate` processes run); the processes themselves over
 `udp_multicast`: tests/vmehil/test_units_processes.py."""
@@ -13,10 +13,10 @@ import pytest
 
 from emulators.can.bus import socketcan_available
 from emulators.presets import resolve_rig
+from servo.joint_groups import rig_units
 from servo.rig import load_rig
-from servo.units import rig_units
-from vmehil.units.processes import run_coordinator, run_unit
-from vmehil.units.remote import UnitRefused, unit_bus
+from vmehil.unit_controllers.processes import run_coordinator, run_unit
+from vmehil.unit_controllers.remote import UnitRefused, unit_bus
 
 UNITS = ("leg1", "leg2", "leg3", "leg4", "arm")
 _channels = itertools.count()

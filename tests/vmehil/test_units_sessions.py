@@ -15,8 +15,8 @@ from emulators.can.dbc import UNIT_STOP_CAUSES
 from emulators.presets import resolve_rig
 from servo.rig import load_rig
 from tests.vmehil.test_units_remote import UNITS, start_units
-from vmehil.units.processes import run_coordinator
-from vmehil.units.remote import ALL_UNITS, UnitRefused, unit_bus
+from vmehil.unit_controllers.processes import run_coordinator
+from vmehil.unit_controllers.remote import ALL_UNITS, UnitRefused, unit_bus
 
 pytestmark = pytest.mark.slow  # five unit controllers and a coordinator: 3-6 s each
 

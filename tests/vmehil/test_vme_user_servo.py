@@ -13,8 +13,8 @@ from servo.io import JointIO
 from servo.nominal import nominal_scaling, rig_nominal
 from servo.runner import LockstepRunner
 from tests.support.vme_fuse import MountedVmeUser, fuse_unavailable
-from vmehil.session import build_loop
-from vmehil.system import EmulatedRig, build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import EmulatedRig, build_emulated_rig
 
 SECONDS = 2.0
 SEED = 11

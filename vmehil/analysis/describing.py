@@ -1,7 +1,7 @@
 """Describing-function (harmonic-balance) prediction of limit cycles in the servo loop.
 
 A single static odd nonlinearity ``v = N(x)`` sits somewhere in the otherwise linear loop. The
-loop is opened there (:func:`vmehil.analysis.loop.build_loop` with ``break_at``) and the linear
+loop is opened there (:func:`vmehil.analysis.loop_model.build_loop` with ``break_at``) and the linear
 part it sees is written in Lur'e form, x = −G·v. A sinusoid x = A·sin ωt is a candidate limit
 cycle when the first harmonic closes the loop::
 
@@ -43,7 +43,7 @@ import control as ct
 import numpy as np
 from scipy.optimize import brentq
 
-from vmehil.analysis.loop import (
+from vmehil.analysis.loop_model import (
     LoopConfig,
     _eval_ss,
     build_loop,

@@ -2,7 +2,7 @@
 
 The margins are computed from the frequency response on a dense logarithmic grid with each
 crossing refined by Brent's method, on the open loop broken at the plant input
-(:func:`vmehil.analysis.loop.open_loop`). Definitions (L = loop transfer, closed loop 1 + L):
+(:func:`vmehil.analysis.loop_model.open_loop`). Definitions (L = loop transfer, closed loop 1 + L):
 
 * **phase margin** (deg): 180° + ∠L at the gain crossover |L| = 1; the smallest over all
   crossovers is reported, with its frequency as ``crossover_hz``;
@@ -26,7 +26,7 @@ import control as ct
 import numpy as np
 from scipy.optimize import brentq
 
-from vmehil.analysis.loop import LoopConfig, closed_loop, closed_loop_poles, freqresp, open_loop, poles_stable
+from vmehil.analysis.loop_model import LoopConfig, closed_loop, closed_loop_poles, freqresp, open_loop, poles_stable
 
 F_MIN_HZ = 1e-3
 F_MAX_CONTINUOUS_HZ = 1e3

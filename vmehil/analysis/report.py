@@ -1,6 +1,6 @@
 """Reports for ``vmehil tune``: plots and markdown summaries.
 
-Files are written with :mod:`vmehil.files` (atomic: a reader never sees a half-written report).
+Files are written with :mod:`vmehil.writers.files` (atomic: a reader never sees a half-written report).
 Plots use matplotlib's Agg backend.
 """
 
@@ -20,7 +20,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
 from vmehil.analysis.describing import Nonlinearity, linear_response_fn
-from vmehil.analysis.loop import (
+from vmehil.analysis.loop_model import (
     LoopConfig,
     closed_loop,
     disturbance_loop,
@@ -29,7 +29,7 @@ from vmehil.analysis.loop import (
     tracking_loop,
 )
 from vmehil.analysis.margins import frequency_grid
-from vmehil.files import save_figure
+from vmehil.writers.files import save_figure
 
 # ----------------------------------------------------------------------- figure files
 

@@ -56,7 +56,7 @@ from servo.gain_guard import GainVerdict, check_values, judge
 from servo.rig import RigSpec, load_rig
 from servo.settings import ServoSettings, servo_settings
 from vmehil.analysis.describing import DeadZone, Nonlinearity, Quantizer, Relay, Saturation
-from vmehil.analysis.loop import LoopConfig, VelocitySource
+from vmehil.analysis.loop_model import LoopConfig, VelocitySource
 from vmehil.errors import CliError
 
 
@@ -162,7 +162,7 @@ def load_joint(rig: str | Path | RigSpec | None, joint: int = 1, gains: str | di
     :class:`servo.control.errors.GainError` for bad gains and ValueError for a bad joint number.
     """
     from servo.assembly import build_controller
-    from vmehil.system import NON_PLANT_JOINT_KEYS
+    from vmehil.rig_setup.system import NON_PLANT_JOINT_KEYS
 
     if isinstance(joint, bool) or not isinstance(joint, int) or joint < 1:
         raise CliError(f"joint number {joint!r} must be 1 or more (joints are numbered from 1)")

@@ -1,15 +1,15 @@
 """Full-stack simulations for ``vmehil tune``: the real servo loop driving the emulated rig.
 
-Each run builds the rig afresh (:func:`vmehil.system.build_emulated_rig`, seeded), the loop with
-the rig's settings (:func:`vmehil.session.build_loop`), sets the analysed joint's gains on that
+Each run builds the rig afresh (:func:`vmehil.rig_setup.system.build_emulated_rig`, seeded), the loop with
+the rig's settings (:func:`vmehil.rig_setup.session.build_loop`), sets the analysed joint's gains on that
 joint only (``PidLaw.set_gains(..., joint=)``, so the other joints keep the rig's gains and hold
 still), and runs it lockstep (:class:`servo.runner.LockstepRunner`). The figures are measured
-exactly as ``vmehil run`` measures them (:func:`vmehil.run_report.summarize`): the limit cycle on
+exactly as ``vmehil run`` measures them (:func:`vmehil.reports.run_report.summarize`): the limit cycle on
 the true angle over the hold from 2 s after the last move ended, amplitude = half peak-to-peak,
 frequency from zero crossings (null below 0.02° or with fewer than two periods).
 
 The plant is in-process by default; ``link_factory(rig_path, seed) -> PlantLink`` runs it elsewhere
-(``vmehil tune … --plant can``: :class:`vmehil.can_options.CanLinkFactory`). It is called
+(``vmehil tune … --plant can``: :class:`vmehil.option_groups.can_options.CanLinkFactory`). It is called
 once per run, so every run gets a fresh link whose plant was reset with the run's seed; the run
 closes it. In lockstep the figures equal the in-process run's bit for bit (docs/can.md).
 
@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any, overload
 import numpy as np
 
 from vmehil.errors import VmehilError
-from vmehil.metrics import limit_cycle, settling_time
+from vmehil.reports.metrics import limit_cycle, settling_time
 
 if TYPE_CHECKING:  # rigparams brings python-control and scipy (≈1 s): only where a joint is analysed
     from vmehil.analysis.rigparams import JointParams
@@ -97,7 +97,7 @@ LinkFactory = Callable[[Any, int], Any]  #: ``(rig, seed) -> PlantLink`` (connec
 
 
 def _motion(system, jp: JointParams, s: SimSettings, step_deg: float | None):
-    from hal.units import deg_to_rad
+    from hal.si import deg_to_rad
     from servo.motion import DEMO_DELTAS_DEG, Motion, QuinticMove, WaitMove, default_demo_motion
 
     n = system.rig.n_joints
@@ -165,9 +165,9 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
     ``omega_d_deg_s``.
     """
     from servo.runner import LockstepRunner
-    from vmehil.run_report import SETTLE_S, summarize
-    from vmehil.session import build_loop
-    from vmehil.system import build_emulated_rig
+    from vmehil.reports.run_report import SETTLE_S, summarize
+    from vmehil.rig_setup.session import build_loop
+    from vmehil.rig_setup.system import build_emulated_rig
 
     s = settings or SimSettings()
     rig = jp.spec if jp.spec is not None else jp.rig_path
@@ -330,7 +330,7 @@ def linear_prediction(jp: JointParams, t: np.ndarray, theta_d: np.ndarray, omega
     delay: a small approximation)."""
     import control as ct
 
-    from vmehil.analysis.loop import build_loop
+    from vmehil.analysis.loop_model import build_loop
 
     cl = build_loop(jp.cfg, sampled=True)
     r = np.asarray(theta_d, float) - float(theta_d[0] if theta_start is None else theta_start)

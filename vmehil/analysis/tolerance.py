@@ -142,7 +142,7 @@ def nominal_values(rig_data: dict[str, Any], joint: int, source: str = "<rig>") 
     rig builds it from ``rig_data`` (a parsed rig file), defaults included."""
     from emulators.plant import plant_params_from_config
     from hal.config import ConfigTable
-    from vmehil.system import NON_PLANT_JOINT_KEYS
+    from vmehil.rig_setup.system import NON_PLANT_JOINT_KEYS
 
     p = plant_params_from_config(ConfigTable(rig_data, source), foreign_keys=NON_PLANT_JOINT_KEYS).joints[joint - 1]
     adcs = _adc_boards(rig_data)
@@ -221,7 +221,7 @@ def apply_plant_values(rig_data: dict[str, Any], joint: int, values: dict[str, f
         if name == "coulomb" and nominal["coulomb"] > 0:
             from emulators.plant import plant_params_from_config
             from hal.config import ConfigTable
-            from vmehil.system import NON_PLANT_JOINT_KEYS
+            from vmehil.rig_setup.system import NON_PLANT_JOINT_KEYS
 
             base = plant_params_from_config(ConfigTable(rig_data, "<rig>"),
                                             foreign_keys=NON_PLANT_JOINT_KEYS).joints[joint - 1]

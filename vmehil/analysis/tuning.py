@@ -24,7 +24,7 @@ from vmehil.analysis.describing import (
     predict_joint_velocity,
     simulate_joint,
 )
-from vmehil.analysis.loop import LoopConfig
+from vmehil.analysis.loop_model import LoopConfig
 from vmehil.analysis.margins import compute_margins, equivalent_s_poles
 from vmehil.analysis.rigparams import JointParams, with_gains  # noqa: F401  (re-exported)
 

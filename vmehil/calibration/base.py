@@ -7,7 +7,7 @@ to the rig only through the context:
 * ``ctx.adc(board)`` / ``ctx.dac(board)`` / ``ctx.quad(board)``: drivers opened on ``ctx.bus``
   from the rig's ``[crate]`` (raw or with the calibration in force);
 * ``ctx.positioner()``: moves joints with the servo loop and lets time pass (emulated rigs:
-  :class:`vmehil.emulated_calibration.EmulatedPositioner`);
+  :class:`vmehil.rig_setup.emulated_calibration.EmulatedPositioner`);
 * ``ctx.reference_angle(j)``: the joint's angle from the reference — the fixture in ``--auto``
   mode, the operator (stdin prompt) otherwise;
 * ``ctx.say`` / ``ctx.progress``: what it is doing, and how far it got.

@@ -30,7 +30,7 @@ Layout (see ``docs/calibration.md`` for a full example)::
 
 Rules: a procedure's result replaces only its own tables (the rest of the file is carried
 over); the file is written with temp + fsync + rename and the previous file (if any) kept as
-``<name>.prev`` (:func:`vmehil.files.write_atomic_keeping_previous`), so a failed or interrupted procedure
+``<name>.prev`` (:func:`vmehil.writers.files.write_atomic_keeping_previous`), so a failed or interrupted procedure
 leaves the old calibration in force. Loading checks the format, the rig name and every
 board's identity against the rig's ``[crate]``; any mismatch raises
 :class:`CalibrationFileError` saying what differs and what to do.
@@ -57,7 +57,7 @@ from hal.adc_dac.dac_regs import DAC_BOARD_ID, DAC_CHANNELS
 from hal.config import ConfigError, read_limited
 from servo.rig import RigSpec
 from vmehil.errors import VmehilError
-from vmehil.files import PREVIOUS_SUFFIX, write_atomic_keeping_previous
+from vmehil.writers.files import PREVIOUS_SUFFIX, write_atomic_keeping_previous
 
 FORMAT = "vmehil-calibration"
 FORMAT_VERSION = 1

@@ -4,7 +4,7 @@
                      [--joint N ...] [--auto] [--calibration CAL.toml] [--json PATH] [--report DIR]
                      [--write-on-fail] [--points 9] [--verify-per-segment 1] [--quiet]
 
-Progress is a bar on stderr (:mod:`vmehil.progress`) when it is a terminal and ``--quiet`` is
+Progress is a bar on stderr (:mod:`vmehil.writers.progress`) when it is a terminal and ``--quiet`` is
 not given; the procedures' lines and prompts are printed above it, never onto it.
 
 Procedures come from :data:`vmehil.calibration.procedures.PROCEDURES`: the built-in ones and
@@ -21,10 +21,10 @@ from pathlib import Path
 
 from vmehil.calibration.base import Procedure
 from vmehil.calibration.procedures import ALL, procedures_in_order
-from vmehil.cli_types import bounded_int, joint_number, seed
 from vmehil.commands import refuse_without
 from vmehil.commands.errors import CliError
-from vmehil.files import write_atomic, write_json
+from vmehil.option_groups.cli_types import bounded_int, joint_number, seed
+from vmehil.writers.files import write_atomic, write_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -95,9 +95,9 @@ def run(opts: CalibrateOptions) -> int:
     from vmehil.calibration.procedure_runner import procedure_results_table, resolve_procedure_names, run_procedures
     from vmehil.calibration.procedures import PROCEDURES
     from vmehil.calibration.store import CalibrationStore, default_store_path, load_store
-    from vmehil.emulated_calibration import EmulatedFixture, EmulatedPositioner
-    from vmehil.progress import PhaseProgress
-    from vmehil.system import build_emulated_rig
+    from vmehil.rig_setup.emulated_calibration import EmulatedFixture, EmulatedPositioner
+    from vmehil.rig_setup.system import build_emulated_rig
+    from vmehil.writers.progress import PhaseProgress
 
     rig = load_rig(resolve_rig(opts.rig))
     names = resolve_procedure_names(opts.procedure)
@@ -174,7 +174,7 @@ def _write_report(folder: Path, summary: dict, table: str, outcome) -> None:
     fig = pot_residuals_figure(pot.data["joints"], f"{summary['rig']} (seed {summary['seed']})")
     import matplotlib.pyplot as plt
 
-    from vmehil.files import save_figure
+    from vmehil.writers.files import save_figure
 
     save_figure(fig, folder / "pot_residuals", ("png",))
     plt.close(fig)

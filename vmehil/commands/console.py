@@ -26,12 +26,12 @@ from pathlib import Path
 
 from servo.control.gains import parse_gains
 from servo.interrupts import Terminated, interrupt_name
-from vmehil.cli_types import duration_s
 from vmehil.console.extension import ConsoleOptions
 from vmehil.errors import CliError
-from vmehil.files import write_json
-from vmehil.realtime_options import RealtimeOptions, add_overrun_args, add_pacing_args
-from vmehil.run_report import excursion_text
+from vmehil.option_groups.cli_types import duration_s
+from vmehil.option_groups.realtime_options import RealtimeOptions, add_overrun_args, add_pacing_args
+from vmehil.reports.run_report import excursion_text
+from vmehil.writers.files import write_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -91,8 +91,8 @@ def run_console(opts: ConsoleCommandOptions) -> int:
     from servo.runner import LockstepRunner, RealtimeRunner
     from vmehil.calibration.store import CalibrationMissingWarning, default_store_path
     from vmehil.console.extension import start_console
-    from vmehil.session import build_loop
-    from vmehil.system import build_emulated_rig
+    from vmehil.rig_setup.session import build_loop
+    from vmehil.rig_setup.system import build_emulated_rig
 
     gains = opts.gains  # values and stability: once, in build_loop
     if opts.duration is not None and opts.duration <= 0:

@@ -139,7 +139,7 @@ def _run_real(opts: CrateOptions) -> int:
     """The same actions on a real bus: ``list`` shows the rig file's boards with the dry pass
     (ID and status reads) and the master windows; reads and writes go to the hardware."""
     from servo.rig import load_rig
-    from vmehil.real_bus import dry_pass, open_bus
+    from vmehil.rig_setup.real_bus import dry_pass, open_bus
 
     cmd = opts.action
     if cmd not in ("list", "read", "write", "shell"):
@@ -172,7 +172,7 @@ def _load(path) -> Crate:
         return load_crate(path)
     from emulators.crate_file import build_crate
     from servo.rig import load_rig
-    from vmehil.system import wired_crate_table
+    from vmehil.rig_setup.system import wired_crate_table
 
     return build_crate(wired_crate_table(load_rig(path)))
 

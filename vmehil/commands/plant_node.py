@@ -22,9 +22,9 @@ import argparse
 import sys
 from dataclasses import dataclass
 
-from vmehil.cli_types import bounded_float, duration_s
 from vmehil.commands.errors import CliError
-from vmehil.files import write_json
+from vmehil.option_groups.cli_types import bounded_float, duration_s
+from vmehil.writers.files import write_json
 
 
 def command_timeout(text: str) -> float | str:
@@ -35,8 +35,8 @@ def command_timeout(text: str) -> float | str:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from vmehil.can_options import add_bus_arguments
     from vmehil.commands.run import add_rig_args
+    from vmehil.option_groups.can_options import add_bus_arguments
 
     p = sub.add_parser("plant-node", help="serve the plant as a node on a CAN bus (vcan, udp_multicast)")
     add_rig_args(p)
@@ -79,7 +79,7 @@ def run(opts: PlantNodeOptions) -> int:
     from emulators.can.bus import Endpoint, open_bus, resolve
     from emulators.can.node import PLANT_IDS, PlantNode, exit_on_sigterm, node_spec
     from emulators.plant import Plant
-    from vmehil.system import NON_PLANT_JOINT_KEYS
+    from vmehil.rig_setup.system import NON_PLANT_JOINT_KEYS
 
     spec = node_spec(opts.rig, foreign_keys=NON_PLANT_JOINT_KEYS)  # fails early on a bad rig file
     if resolve(opts.interface, opts.channel)[0] == "virtual":

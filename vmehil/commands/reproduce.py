@@ -6,7 +6,7 @@ Runs each figure's own command (``vmehil run …``, ``vmehil calibrate …``) in
 in the README's order, from a fresh clone's state (no calibration file; nothing in the current
 directory is read or written but ``--json``), then prints paper / ours / band / command side by
 side. Exit status 0 when every figure lies in the paper's band, 1 when one does not
-(:mod:`vmehil.reproduce`). Progress: a bar on stderr when it is a terminal, without ``--quiet``.
+(:mod:`vmehil.analysis.paper_figures`). Progress: a bar on stderr when it is a terminal, without ``--quiet``.
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass
 
-from vmehil.cli_types import seed
 from vmehil.exit_status import EXIT_CHECK_FAILED, EXIT_OK
-from vmehil.files import write_json
+from vmehil.option_groups.cli_types import seed
+from vmehil.writers.files import write_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -42,8 +42,8 @@ class ReproduceOptions:
 
 
 def run(opts: ReproduceOptions) -> int:
-    from vmehil.progress import progress_bar, say
-    from vmehil.reproduce import STEPS, reproduce
+    from vmehil.analysis.paper_figures import STEPS, reproduce
+    from vmehil.writers.progress import progress_bar, say
 
     say(f"reproducing the README's table (seed {opts.seed}): {len(STEPS)} commands in a temporary directory, "
         "no calibration file (a fresh clone's state)")

@@ -4,7 +4,7 @@
                [--no-integrator-switch-off] [--gains kp=..,kpi=..,kv=..,kvi=..]
                [--json PATH] [--report DIR] [--quiet] [--fault NAME[@T][:k=v,...]]... [--faults FILE]
 
-Progress: a bar on stderr when it is a terminal and ``--quiet`` is not given (:mod:`vmehil.progress`).
+Progress: a bar on stderr when it is a terminal and ``--quiet`` is not given (:mod:`vmehil.writers.progress`).
 """
 
 from __future__ import annotations
@@ -15,8 +15,6 @@ from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_exit_status
-from vmehil import can_options, fault_options, vision_options
-from vmehil.cli_types import duration_s, seed
 from vmehil.commands import console_port_needs_serial, refuse_without, run_units
 from vmehil.commands.calibration_file import calibrated
 from vmehil.commands.run_options import RunOptions
@@ -24,8 +22,11 @@ from vmehil.commands.run_results import finish_run, run_exit_status
 from vmehil.console import extension as console_extension
 from vmehil.errors import CliError
 from vmehil.exit_status import EXIT_FAULT
+from vmehil.fault_scenarios import options as fault_options
 from vmehil.mavlink import extension as mavlink_extension
-from vmehil.realtime_options import add_overrun_args, add_pacing_args
+from vmehil.option_groups import can_options, vision_options
+from vmehil.option_groups.cli_types import duration_s, seed
+from vmehil.option_groups.realtime_options import add_overrun_args, add_pacing_args
 
 if TYPE_CHECKING:
     from servo.settings import ServoSettings
@@ -117,7 +118,7 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
             print("vmehil run --units parallel: not with parallel units (docs/melmalec.md, \"Options with --units "
                   "parallel\"):\n  " + "\n  ".join(refused), file=sys.stderr)
             return 2
-        from servo.units import rig_units
+        from servo.joint_groups import rig_units
         if not rig_units(rig):
             print(f"vmehil run --units parallel: rig {rig.name} ({rig.path}) declares no [[rig.unit]] tables",
                   file=sys.stderr)
@@ -127,9 +128,9 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
         return run_on_real_bus(opts, rig, settings, exit_status=run_exit_status)
     from servo.motion import NO_MOTION, default_demo_motion, hold_motion, load_motion
     from servo.runner import LockstepRunner, RealtimeRunner
-    from vmehil.progress import TickProgress
-    from vmehil.session import build_loop
-    from vmehil.system import build_emulated_rig
+    from vmehil.rig_setup.session import build_loop
+    from vmehil.rig_setup.system import build_emulated_rig
+    from vmehil.writers.progress import TickProgress
 
     defaults: dict = {}
     for ext in RUN_EXTENSIONS:

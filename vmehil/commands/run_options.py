@@ -10,13 +10,13 @@ import argparse
 from dataclasses import dataclass, field
 
 from servo.control.gains import parse_gains
-from vmehil.can_options import CanPlantOptions
 from vmehil.console.extension import ConsoleOptions
-from vmehil.fault_options import FaultOptions
+from vmehil.fault_scenarios.options import FaultOptions
 from vmehil.mavlink.extension import MavlinkOptions
-from vmehil.realtime_options import RealtimeOptions
-from vmehil.units.hub import UNIT_TIMEOUT_S
-from vmehil.vision_options import VisionOptions
+from vmehil.option_groups.can_options import CanPlantOptions
+from vmehil.option_groups.realtime_options import RealtimeOptions
+from vmehil.option_groups.vision_options import VisionOptions
+from vmehil.unit_controllers.hub import UNIT_TIMEOUT_S
 
 
 @dataclass(frozen=True)

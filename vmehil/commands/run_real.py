@@ -1,7 +1,7 @@
 """``vmehil run --bus vme_user[:DIR] --rig FILE``: the same drivers and loop on a real crate.
 
 Dry pass (every board's ID and status against the rig file) and a start-up safe stop read back
-come first (:mod:`vmehil.real_bus`); without ``--enable-amplifiers`` the run ends there. With
+come first (:mod:`vmehil.rig_setup.real_bus`); without ``--enable-amplifiers`` the run ends there. With
 it, the loop runs paced by the wall clock (:class:`servo.runner.RealtimeRunner`) with the plant
 boundary :class:`servo.boundary.WallClockPlant`, inside ``loop.armed()``: whatever ends it ends
 with enables low, DACs at 0 V and PWM off, read back.
@@ -55,9 +55,9 @@ def run_on_real_bus(opts: RunOptions, rig, settings: ServoSettings, *,
     from vmehil.calibration.store import load_store_or_nominal
     from vmehil.commands.calibration_file import calibrated
     from vmehil.commands.run_results import finish_run
-    from vmehil.files import write_json
-    from vmehil.real_bus import RealBusRefused, open_bus, prepare_real_rig
-    from vmehil.session import build_loop
+    from vmehil.rig_setup.real_bus import RealBusRefused, open_bus, prepare_real_rig
+    from vmehil.rig_setup.session import build_loop
+    from vmehil.writers.files import write_json
 
     refused = refused_on_a_real_bus(opts)
     if refused:

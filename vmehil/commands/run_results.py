@@ -8,8 +8,8 @@ from typing import TYPE_CHECKING
 
 from servo.interrupts import INTERRUPTS, interrupt_exit_status
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
-from vmehil.files import write_json
-from vmehil.realtime_options import realtime_settings_summary
+from vmehil.option_groups.realtime_options import realtime_settings_summary
+from vmehil.writers.files import write_json
 
 if TYPE_CHECKING:
     from vmehil.commands.run_options import RunOptions
@@ -18,7 +18,7 @@ if TYPE_CHECKING:
 def finish_run(opts: RunOptions, system, loop, runner, rig, attached: list, ended_by: BaseException | None) -> int:
     """Summary, table, JSON and report of a run that has ended; its exit status."""
     from servo.runner import RealtimeRunner
-    from vmehil.run_report import excursion_text, summarize, table, write_report
+    from vmehil.reports.run_report import excursion_text, summarize, table, write_report
 
     timing = runner.timing.summary(system.rig.period_s) if isinstance(runner, RealtimeRunner) else None
     summary = summarize(loop, rig=system.rig.name, seed=opts.seed, realtime=opts.realtime,

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from servo.interrupts import Terminated, interrupt_exit_status, interrupt_name
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE
-from vmehil.files import write_json
+from vmehil.writers.files import write_json
 
 if TYPE_CHECKING:
     from vmehil.commands.run_options import RunOptions
@@ -37,8 +37,8 @@ _NOT_WITH_UNITS: tuple[tuple[Callable[[RunOptions], object], str, str], ...] = (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from vmehil.cli_types import bounded_float
-    from vmehil.units.hub import UNIT_TIMEOUT_S
+    from vmehil.option_groups.cli_types import bounded_float
+    from vmehil.unit_controllers.hub import UNIT_TIMEOUT_S
 
     p.add_argument("--units", choices=UNIT_MODES, default="single",
                    help="single (default): one controller of every joint; parallel: one controller per "
@@ -60,18 +60,18 @@ def refused_options(opts: RunOptions) -> list[str]:
 def run_parallel(opts: RunOptions, rig: Any, gains: dict[str, float], motion: Any, n_ticks: int,
                  make_link: Callable[[], Any], calibration: Any = None, faults: list | None = None) -> int:
     """Run the units; the same summary, table, JSON and report as the single run (from the units'
-    loops merged in joint order, :class:`vmehil.units.options.MergedUnits`) plus each unit's.
+    loops merged in joint order, :class:`vmehil.unit_controllers.options.MergedUnits`) plus each unit's.
     ``make_link()``: the plant link ``--plant can`` asks for, else None (called once the faults
     are routed: a refused fault opens no link). ``faults``: the run's scenario, checked
-    (:func:`vmehil.fault_options.prepare`)."""
+    (:func:`vmehil.fault_scenarios.options.prepare`)."""
     from typing import cast
 
+    from servo.joint_groups import rig_units
     from servo.loop import ServoLoop
-    from servo.units import rig_units
-    from vmehil.fault_injection import announcement, first_joint, first_tick, stop_report
-    from vmehil.run_report import summarize, table, units_section, write_report
-    from vmehil.units.coordinator import plant_link_for, run_units
-    from vmehil.units.options import MergedUnits, fault_hook, route_faults
+    from vmehil.fault_scenarios.injection import announcement, first_joint, first_tick, stop_report
+    from vmehil.reports.run_report import summarize, table, units_section, write_report
+    from vmehil.unit_controllers.coordinator import plant_link_for, run_units
+    from vmehil.unit_controllers.options import MergedUnits, fault_hook, route_faults
 
     faults = list(faults or [])
     routed = route_faults(faults, rig, rig_units(rig)) if faults else {}

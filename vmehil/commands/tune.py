@@ -14,7 +14,7 @@ Examples::
     vmehil tune step --plant can --interface virtual  # the plant as a CAN node (docs/can.md)
 
 ``limit-cycle``, ``step`` and ``sweep`` take the CAN plant options of ``vmehil run``
-(:mod:`vmehil.can_options`): every simulated run opens a fresh link that RESETs the plant
+(:mod:`vmehil.option_groups.can_options`): every simulated run opens a fresh link that RESETs the plant
 with the run's seed; on ``virtual`` each run starts its own in-process plant node thread on a
 channel of its own, on ``socketcan``/``udp_multicast`` the runs talk to one external
 ``vmehil plant-node`` in turn (so ``sweep`` runs them with one worker).
@@ -44,11 +44,11 @@ from typing import TYPE_CHECKING, Any
 
 from hal.config import read_limited
 from servo.control.gains import parse_gains
-from vmehil.can_options import CanPlantOptions
-from vmehil.cli_types import bounded_int, joint_number, nonzero_float, positive_float, seed
 from vmehil.commands import needs_extra
 from vmehil.errors import CliError
-from vmehil.files import write_atomic, write_json
+from vmehil.option_groups.can_options import CanPlantOptions
+from vmehil.option_groups.cli_types import bounded_int, joint_number, nonzero_float, positive_float, seed
+from vmehil.writers.files import write_atomic, write_json
 
 if TYPE_CHECKING:  # the analysis needs the 'tune' extra: imported when a tune command runs
     from vmehil.analysis.rigparams import JointParams
@@ -79,7 +79,7 @@ def _sim_args(p: argparse.ArgumentParser, hold: float, band: float) -> None:
     p.add_argument("--calibration", default=None, metavar="PATH",
                    help="the drivers' calibration file, as vmehil run loads it (default: calibration/<rig>.toml or "
                         "$VMEHIL_CALIBRATION_DIR/<rig>.toml; none: nominal values, said); shipped with every run")
-    from vmehil.can_options import add_plant_arguments
+    from vmehil.option_groups.can_options import add_plant_arguments
 
     add_plant_arguments(p)
 
@@ -229,7 +229,7 @@ def _simulate_runs(opts: TuneOptions, jobs: list, labels: list[str], links,
 
     from vmehil.analysis.parallel import ParallelInterrupted, run_parallel
     from vmehil.analysis.simulate import run_job, simulate
-    from vmehil.progress import TickProgress, progress_bar
+    from vmehil.writers.progress import TickProgress, progress_bar
 
     n = min(len(jobs), opts.jobs or os.cpu_count() or 1)
     if links is not None and not links.shareable:
@@ -273,8 +273,8 @@ def _load(opts: TuneOptions) -> JointParams:
 
 
 def _link_factory(opts: TuneOptions):
-    """``--plant can``: a :class:`~vmehil.can_options.CanLinkFactory`; else None (in-process)."""
-    from vmehil.can_options import link_factory
+    """``--plant can``: a :class:`~vmehil.option_groups.can_options.CanLinkFactory`; else None (in-process)."""
+    from vmehil.option_groups.can_options import link_factory
 
     return link_factory(opts.plant)
 
@@ -344,7 +344,7 @@ def _unstable_message(jp: JointParams, switch_off: bool | None) -> str | None:
     servo's own check, the reason every entry point gives), or unstable in the sampled linear model
     with the rig's sensor and amplifier lags. ``switch_off``: judge the switched-off loop too (None:
     as the rig says). A value no gain may have is a :class:`GainRejected` (exit status 2)."""
-    from vmehil.analysis.loop import is_stable
+    from vmehil.analysis.loop_model import is_stable
 
     verdict = _guard(jp, switch_off)
     if not verdict.ok:
@@ -516,7 +516,7 @@ def run_sweep(opts: TuneOptions) -> int:
     )
     from vmehil.analysis.tolerance import draw_samples, nominal_values, parse_varies
     from vmehil.analysis.tolerance_report import parse_thresholds
-    from vmehil.progress import progress_bar
+    from vmehil.writers.progress import progress_bar
 
     jp = _load(opts)
     base = jp.cfg.gains

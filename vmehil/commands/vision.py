@@ -21,8 +21,8 @@ from dataclasses import dataclass
 from emulators.vision import VisionParams, run_vision_process
 from emulators.vision_protocol import VisionTimeouts
 from hal.kinematics import ArmModel
-from vmehil.cli_types import bounded_float, bounded_int, duration_s, positive_float
-from vmehil.files import to_json, write_json
+from vmehil.option_groups.cli_types import bounded_float, bounded_int, duration_s, positive_float
+from vmehil.writers.files import to_json, write_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -45,8 +45,8 @@ from vmehil.console.commands import (
     resolve_joint,
 )
 from vmehil.console.protocol import ARGS, FILE, STATE, VALUE, Arg, ConsoleError, kv
-from vmehil.emulated_calibration import EmulatedFixture, EmulatedPositioner
-from vmehil.system import EmulatedRig
+from vmehil.rig_setup.emulated_calibration import EmulatedFixture, EmulatedPositioner
+from vmehil.rig_setup.system import EmulatedRig
 
 #: procedures that ask the operator for reference angles unless ``--auto`` (the console cannot prompt)
 PROMPTING = ("pot",)

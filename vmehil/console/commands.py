@@ -21,7 +21,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from hal.units import deg_to_rad, rad_to_deg
+from hal.si import deg_to_rad, rad_to_deg
 from servo.control.gains import GAIN_NAMES
 from servo.gain_guard import GainRejected, check_gain_change
 from vmehil.console.protocol import (

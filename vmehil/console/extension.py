@@ -16,11 +16,11 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from servo.control.linear import delay_periods
-from vmehil.cli_types import bounded_int
 from vmehil.console.calibrate import calibrator_for
 from vmehil.console.compound import CompoundLibrary, load_compound_file
 from vmehil.console.server import Console, PtyTransport, open_transport
 from vmehil.errors import CliError
+from vmehil.option_groups.cli_types import bounded_int
 
 #: ``--console-prompt`` / ``--console-echo`` values; auto = on for a pty or serial device (a
 #: person at a terminal), off for network and pyserial URLs (programs)

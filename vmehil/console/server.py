@@ -41,7 +41,6 @@ from typing import Any, Protocol
 from urllib.parse import urlsplit
 
 from servo.runner import WATCH_AFTER_STOP_S
-from vmehil.ascii_text import to_ascii
 from vmehil.console.commands import ATOMS, URGENT_STOPS, Atom, Outcome, Session, bind, bind_request, stop_event
 from vmehil.console.compound import CompoundLibrary, Executor, prepare
 from vmehil.console.protocol import (
@@ -61,6 +60,7 @@ from vmehil.console.protocol import (
 )
 from vmehil.console.terminal import TerminalView
 from vmehil.errors import VmehilError
+from vmehil.writers.ascii_text import to_ascii
 
 DEFAULT_PTY_LINK = "/tmp/vmehil-console"
 READ_TIMEOUT_S = 0.1
@@ -448,7 +448,7 @@ class Console:
         self.taps: list[Callable[[str], None]] = []
         self._queue: queue.Queue[_Item] = queue.Queue(maxsize=queue_size)
         self._outbox: queue.Queue[bytes] = queue.Queue(maxsize=outbox_size)
-        #: replies in 7-bit ASCII (vmehil.ascii_text): a serial terminal shows UTF-8 as mojibake
+        #: replies in 7-bit ASCII (vmehil.writers.ascii_text): a serial terminal shows UTF-8 as mojibake
         self.ascii_only = ascii_only
         #: prompt, echo and history for a person at a terminal (None: bytes pass as they are)
         self.terminal: TerminalView | None = None

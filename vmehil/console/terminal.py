@@ -134,6 +134,6 @@ class TerminalView:
 
 
 def _ascii(text: str) -> bytes:
-    from vmehil.ascii_text import to_ascii
+    from vmehil.writers.ascii_text import to_ascii
 
     return to_ascii(text).encode("ascii", errors="replace")

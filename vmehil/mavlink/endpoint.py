@@ -28,12 +28,12 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import vmehil.mavlink  # noqa: F401  (MAVLINK20=1 before pymavlink)
-from vmehil.ascii_text import to_ascii
 from vmehil.errors import VmehilError
 from vmehil.mavlink import params as P
 from vmehil.mavlink.params import ParamRefused, ParamTable
 from vmehil.mavlink.signing import UnsignedPolicy, install_verified_signature_check
 from vmehil.mavlink.telemetry import array_messages, named_messages
+from vmehil.writers.ascii_text import to_ascii
 
 
 def _mavutil():
@@ -410,7 +410,7 @@ class MavlinkEndpoint:
         self.stats.param_errors_sent += 1
 
     def _statustext(self, severity: int, text: str) -> None:
-        """STATUSTEXT in ASCII (:func:`vmehil.ascii_text.to_ascii`: ground stations show "?" for
+        """STATUSTEXT in ASCII (:func:`vmehil.writers.ascii_text.to_ascii`: ground stations show "?" for
         anything else); texts over 50 characters go out in chunks (MAVLink 2 ``id``/``chunk_seq``)."""
         raw = to_ascii(text).encode("ascii", errors="replace")
         if len(raw) <= 50:

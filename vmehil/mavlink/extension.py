@@ -22,9 +22,9 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from servo.control.linear import delay_periods
-from vmehil.cli_types import bounded_float
 from vmehil.mavlink.endpoint import MavlinkEndpoint, MavlinkError
 from vmehil.mavlink.signing import load_key_file
+from vmehil.option_groups.cli_types import bounded_float
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -20,7 +20,7 @@ from typing import Any
 
 from hal.config import ConfigError, read_limited
 from vmehil.errors import VmehilError
-from vmehil.files import write_atomic
+from vmehil.writers.files import write_atomic
 
 KEY_LEN = 32
 

@@ -14,9 +14,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from emulators.can.bus import Endpoint, open_bus, replay
+from emulators.can.can_plant_link import CanPlantLink, merge_events
 from emulators.can.codec import CanCodec, DbcExchangeCodec, FrameError, index_offsets
 from emulators.can.dbc import DBC_PATH, dbc_text
-from emulators.can.link import CanPlantLink, merge_events
 from emulators.can.node import PlantNode
 from emulators.can.toy import ToyCommand, ToyPlant, ToySensors
 from emulators.harness import PlantLinkError

@@ -27,8 +27,8 @@ from emulators.can.bus import (
     socketcan_available,
     vcan_exists,
 )
+from emulators.can.can_plant_link import CONTROLLER_IDS, CanPlantLink
 from emulators.can.codec import DbcExchangeCodec
-from emulators.can.link import CONTROLLER_IDS, CanPlantLink
 from emulators.can.node import PLANT_IDS, PlantNode
 from emulators.can.toy import ToyCommand, ToyPlant, ToySensors
 from emulators.harness import InProcessLink, PlantLostError, PlantRestartedError, StaleDataError
@@ -461,7 +461,7 @@ def test_a_closed_link_ends_its_session_and_the_next_controller_connects_at_once
 
 
 def test_a_link_whose_session_was_taken_over_stops():
-    from emulators.can.link import SessionLostError
+    from emulators.can.can_plant_link import SessionLostError
 
     with node_and_links(2, controller_timeout_s=0.05, answer_timeout_s=2.0) as (node, (first, second)):
         run_ticks(first, 10)

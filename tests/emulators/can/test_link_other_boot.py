@@ -44,6 +44,6 @@ def test_frames_of_another_boot_id_between_ticks_are_dropped_and_counted() -> No
 
 
 def test_restart_evidence_is_a_few_frames_of_one_new_boot_id() -> None:
-    from emulators.can.link import RESTART_EVIDENCE_FRAMES
+    from emulators.can.can_plant_link import RESTART_EVIDENCE_FRAMES
 
     assert 2 <= RESTART_EVIDENCE_FRAMES <= 5  # a restarted node shows within a tick or two; one frame never

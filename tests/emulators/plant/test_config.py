@@ -11,7 +11,7 @@ from emulators.plant import AMP_HBRIDGE, Plant, PlantParams, load_plant, load_pl
 from emulators.plant.params import FrictionParams, JointParams
 from emulators.presets import resolve_rig
 from hal.config import ConfigError, load_toml
-from hal.units import oz_in_to_nm
+from hal.si import oz_in_to_nm
 
 
 def test_jpl_arm_has_six_linear_joints_and_an_h_bridge_hand():

@@ -10,9 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from emulators.plant import Plant, PlantParams, load_plant_params
-from emulators.plant.analysis import breakout_from_ramp, running_torque_metrics
 from emulators.plant.friction import FrictionArrays, stick_slip_step
-from hal.units import nm_to_oz_in
+from emulators.plant.friction_metrics import breakout_from_ramp, running_torque_metrics
+from hal.si import nm_to_oz_in
 
 T = 0.008
 

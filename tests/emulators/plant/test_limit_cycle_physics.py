@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from emulators.plant import Plant, PlantParams, load_plant_params
-from emulators.plant.analysis import deadband_limit_cycle
+from emulators.plant.friction_metrics import deadband_limit_cycle
 
 T = 0.008
 LSB = 1.45e-3

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hal.config import ConfigError, ConfigTable, load_toml
-from hal.units import oz_in_to_nm
+from hal.si import oz_in_to_nm
 from servo.control import (
     Controller,
     FrictionComp,

@@ -27,7 +27,7 @@ from vmehil.analysis.describing import (
     simulate_joint,
     simulate_sampled,
 )
-from vmehil.analysis.loop import LoopConfig
+from vmehil.analysis.loop_model import LoopConfig
 
 S = ct.tf("s")
 

@@ -13,7 +13,7 @@ import pytest
 
 from servo.control.gains import Gains
 from tests.support.fakes import DoubleIntegrator
-from vmehil.analysis.loop import (
+from vmehil.analysis.loop_model import (
     LoopConfig,
     LoopConfigError,
     build_loop,
@@ -134,7 +134,7 @@ def test_loop_config_rejects_out_of_range_parameters() -> None:
 
 def _interconnected(cfg, sampled, break_at):
     """The loop as python-control's interconnect closes it (the reference for build_loop)."""
-    from vmehil.analysis.loop import (
+    from vmehil.analysis.loop_model import (
         continuous_controller,
         continuous_plant,
         sampled_controller,

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from servo.control.gains import Gains
-from vmehil.analysis.loop import LoopConfig, closed_loop, freqresp, open_loop
+from vmehil.analysis.loop_model import LoopConfig, closed_loop, freqresp, open_loop
 from vmehil.analysis.margins import compute_margins
 
 
@@ -104,7 +104,7 @@ def test_margins_read_off_one_shared_grid_equal_those_of_each_function_on_its_ow
 
 
 def test_the_cached_loop_of_one_gain_set_is_never_served_for_another() -> None:
-    from vmehil.analysis.loop import build_loop
+    from vmehil.analysis.loop_model import build_loop
 
     a = LoopConfig(gains=Gains(kp=100.0, kpi=5000.0, kv=50.0, kvi=1000.0))
     b = a.replace(gains=Gains(kp=140.0, kpi=5000.0, kv=50.0, kvi=1000.0))

@@ -56,8 +56,8 @@ def test_bode_gain_margin_labels_are_inside_the_magnitude_axes() -> None:
 
 
 def test_run_report_axes_all_carry_units(tmp_path, monkeypatch) -> None:
-    from vmehil import run_report
     from vmehil.cli import main
+    from vmehil.reports import run_report
 
     labels: list[str] = []
 

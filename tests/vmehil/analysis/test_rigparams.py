@@ -14,8 +14,8 @@ from emulators.presets import resolve_rig
 from hal.adc_dac.conversions import N_CODES
 from servo.control.errors import GainError
 from vmehil.analysis.rigparams import load_joint, with_gains
-from vmehil.session import build_loop, servo_settings
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop, servo_settings
+from vmehil.rig_setup.system import build_emulated_rig
 
 
 def _variant(tmp_path: Path, *subs: tuple[str, str]) -> Path:

@@ -108,8 +108,8 @@ def test_thresholds_parse_and_count_the_samples_over_them() -> None:
 def test_varying_the_plant_never_changes_what_the_controller_believes() -> None:
     """±30 % on every plant parameter: the emulated plant differs, while the controller's scaling,
     normalizing chain and torque limit (from [joint.servo.nominal]) are identical to the nominal rig's."""
-    from vmehil.session import build_loop
-    from vmehil.system import build_emulated_rig
+    from vmehil.rig_setup.session import build_loop
+    from vmehil.rig_setup.system import build_emulated_rig
 
     values = {k: NOMINAL[k] * 1.3 for k in ("coulomb", "viscous", "tach_brush_drop", "inertia", "gear_ratio",
                                             "adc_noise")}

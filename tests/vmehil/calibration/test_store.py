@@ -25,7 +25,7 @@ from vmehil.calibration.store import (
     rig_boards,
     utc_now,
 )
-from vmehil.files import is_temp_file
+from vmehil.writers.files import is_temp_file
 
 
 def sample_store(rig, offset=0.012) -> CalibrationStore:

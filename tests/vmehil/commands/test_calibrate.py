@@ -31,7 +31,7 @@ def test_calibrate_adc_dac_writes_a_file_the_drivers_load(tmp_path, capsys):
     store = load_store(out, load_rig(rig_path))
     assert "adc1" in store.boards and "dac0" in store.boards  # the second run kept the first's tables
     assert json.loads((tmp_path / "r.json").read_text())["passed"] is True
-    from vmehil.system import build_emulated_rig
+    from vmehil.rig_setup.system import build_emulated_rig
 
     system = build_emulated_rig(load_rig(rig_path), calibration=out)
     assert system.io.calibration is not None

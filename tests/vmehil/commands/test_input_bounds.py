@@ -9,7 +9,7 @@ import pytest
 
 from vmehil import cli
 from vmehil.exit_status import EXIT_USAGE
-from vmehil.outputs import MARKER
+from vmehil.writers.output_paths import MARKER
 
 
 @pytest.mark.parametrize("argv", [

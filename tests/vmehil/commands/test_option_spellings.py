@@ -40,7 +40,7 @@ def test_run_and_console_share_the_console_options():
 
 @pytest.mark.parametrize("command", ["run", "console"])
 def test_pacing_is_realtime_or_lockstep_in_both_commands(command):
-    from vmehil.realtime_options import RealtimeOptions
+    from vmehil.option_groups.realtime_options import RealtimeOptions
 
     assert RealtimeOptions.from_args(_parse(command, "--realtime"), default=False).realtime is True
     assert RealtimeOptions.from_args(_parse(command, "--lockstep"), default=True).realtime is False

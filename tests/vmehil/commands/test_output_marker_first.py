@@ -13,7 +13,7 @@ import pytest
 
 from tests.vmehil.commands.test_run_exit_paths import _wait_started
 from vmehil import cli
-from vmehil.outputs import MARKER, check_output_dir
+from vmehil.writers.output_paths import MARKER, check_output_dir
 
 
 @pytest.mark.parametrize("argv", [["run", "--quiet", "--report", "{d}"],
@@ -47,5 +47,5 @@ def test_a_report_directory_of_a_killed_run_is_taken_by_the_next(tmp_path) -> No
         proc.send_signal(signal.SIGKILL)
         proc.communicate(timeout=60)
     (d / "theta.png").write_bytes(b"half a figure")  # what a kill inside write_report leaves
-    # the next run's check at start (vmehil.outputs, as `vmehil run --report DIR` makes it): accepted
+    # the next run's check at start (vmehil.writers.output_paths, as `vmehil run --report DIR` makes it): accepted
     assert check_output_dir(d, "--report") == d

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vmehil import run_report
 from vmehil.cli import main
+from vmehil.reports import run_report
 
 
 def run_json(tmp_path, *argv: str) -> tuple[int, dict]:

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from vmehil.cli import main
-from vmehil.outputs import MARKER
+from vmehil.writers.output_paths import MARKER
 
 
 def test_bode_with_no_arguments_works_on_the_default_rig(capsys) -> None:

@@ -10,12 +10,12 @@ import pytest
 
 from emulators.presets import resolve_rig
 from servo.rig import load_rig
-from vmehil import system as system_module
 from vmehil.analysis.rigparams import load_joint
 from vmehil.analysis.simulate import SimSettings, simulate
 from vmehil.calibration.store import CalibrationStore
 from vmehil.commands import tune
 from vmehil.commands.tune import TuneOptions
+from vmehil.rig_setup import system as system_module
 
 
 @pytest.fixture

@@ -17,8 +17,8 @@ from emulators.can.node import PLANT_IDS, PlantNode, node_spec
 from emulators.plant import Plant
 from vmehil.analysis.rigparams import load_joint
 from vmehil.analysis.simulate import SimSettings, simulate
-from vmehil.can_options import CanLinkFactory, CanPlantOptions
 from vmehil.cli import main
+from vmehil.option_groups.can_options import CanLinkFactory, CanPlantOptions
 
 SHORT = SimSettings(seed=4, move_deg=2.0, hold_s=0.5, allow_short=True)
 FAST = ["--move-deg", "2", "--hold", "1"]

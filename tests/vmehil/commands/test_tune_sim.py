@@ -19,7 +19,7 @@ from tests.support import REPO
 from vmehil.analysis.rigparams import load_joint
 from vmehil.analysis.sweep import SweepError, load_gains_file, parse_grid
 from vmehil.cli import main
-from vmehil.files import is_temp_file
+from vmehil.writers.files import is_temp_file
 
 FAST = ["--move-deg", "2", "--hold", "1"]  # a 0.375 s move and a 1 s hold: ~1.4 s simulated per point
 

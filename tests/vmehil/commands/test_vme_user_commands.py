@@ -17,7 +17,7 @@ from tests.support.vme_fuse import MountedVmeUser, fuse_unavailable
 from vmehil.cli import build_parser, main
 from vmehil.commands.run import run_exit_status
 from vmehil.commands.run_real import run_on_real_bus
-from vmehil.system import EmulatedRig, build_emulated_rig
+from vmehil.rig_setup.system import EmulatedRig, build_emulated_rig
 
 
 @pytest.fixture

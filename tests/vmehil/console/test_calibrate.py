@@ -14,8 +14,8 @@ from tests.support.console import Driver, tap_poll
 from vmehil.calibration.store import load_store
 from vmehil.console.extension import start_console
 from vmehil.console.protocol import parse_reply_line
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 
 @pytest.fixture

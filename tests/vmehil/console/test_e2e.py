@@ -23,8 +23,8 @@ from tests.support.console import Driver, LineReader, wait_for_link
 from vmehil.commands.run_options import RunOptions
 from vmehil.console.extension import ConsoleOptions, attach
 from vmehil.console.protocol import parse_reply_line
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 COMMANDS = ('command nudge(float a) = {\n    move_joint(1, a, 1.0);\n    move_joint(1, 0.0);\n'
             '    echo("nudged");\n}\n')

@@ -272,8 +272,8 @@ def test_stop_is_heard_while_a_motion_file_is_still_being_read(tmp_path, monkeyp
     import servo.motion
     from servo.runner import LockstepRunner
     from tests.support.boards import assert_boards_safe, driving
-    from vmehil.session import build_loop
-    from vmehil.system import build_emulated_rig
+    from vmehil.rig_setup.session import build_loop
+    from vmehil.rig_setup.system import build_emulated_rig
 
     entered, release = threading.Event(), threading.Event()
     real_load = servo.motion.load_motion

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from servo.runner import LockstepRunner
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 DECODER_SAMPLE_HZ = 1_000_000.0  # the decoder board's input sampling (an HCTL-2016-like filter on a 4 MHz clock)
 

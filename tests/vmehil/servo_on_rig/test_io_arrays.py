@@ -12,8 +12,8 @@ from hal.adc_dac.conversions import DAC_V_MAX, DAC_V_MIN
 from hal.amplifiers import clamp_current, command_volts, duty_for_current
 from servo.io import JointIO, Measurement, PotCalibration, SensorScaling
 from servo.runner import LockstepRunner
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 
 def _reference_read(io: JointIO) -> Measurement:

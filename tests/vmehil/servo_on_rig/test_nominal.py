@@ -15,8 +15,8 @@ from hal.config import ConfigError
 from servo.nominal import NOMINAL_KEYS, required_keys, rig_nominal
 from servo.rig import load_rig
 from vmehil.analysis.rigparams import load_joint
-from vmehil.session import build_loop, servo_settings
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop, servo_settings
+from vmehil.rig_setup.system import build_emulated_rig
 
 
 def _variant(tmp_path: Path, name: str, *subs: tuple[str, str], rig: str = "jpl-arm") -> Path:

@@ -10,8 +10,8 @@ import pytest
 
 from servo.rt import apply_realtime, machine_probe, wait_until
 from servo.runner import RealtimeRunner
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 linux_only = pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="CPU affinity is Linux-only")
 

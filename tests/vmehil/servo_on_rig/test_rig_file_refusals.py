@@ -11,7 +11,7 @@ import pytest
 from emulators.presets import resolve_rig
 from hal.config import ConfigError
 from servo.rig import load_rig
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.system import build_emulated_rig
 
 PRESET = resolve_rig("jpl-arm").read_text()
 
@@ -92,7 +92,7 @@ def test_a_pwm_period_the_pio_cannot_take_is_refused_naming_file_and_key(tmp_pat
 
 def test_a_zero_planning_speed_limit_is_refused_naming_file_and_key(tmp_path) -> None:
     """Found by tests/fuzz/test_rig_file.py: this used to escape as a TrajectoryError naming neither."""
-    from vmehil.session import build_loop
+    from vmehil.rig_setup.session import build_loop
 
     path = _rig(tmp_path, _swap_first(r"^max_velocity_deg_s = 20\.0", "max_velocity_deg_s = 0.0"))
     system = build_emulated_rig(load_rig(path))

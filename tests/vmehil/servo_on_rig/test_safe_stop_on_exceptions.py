@@ -14,8 +14,8 @@ from hal.vme import BusErrorCause
 from servo.interrupts import Terminated, stop_signals_raise
 from servo.runner import LockstepRunner, RealtimeRunner
 from tests.support.boards import assert_boards_safe, driving
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 FAIL_AT = 100  # the demo move is under way: every amplifier enabled, DACs at a few volts
 

@@ -8,8 +8,8 @@ import pytest
 from emulators.board import BoardAccessError
 from hal.vme import BusErrorCause
 from servo.runner import LockstepRunner
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 
 def _started(seed: int = 0, n_ticks: int = 400):

@@ -16,8 +16,8 @@ from servo.io import PotCalibration
 from servo.runner import LockstepRunner
 from servo.watchdog import CrossChecks, WatchdogConfig
 from vmehil.cli import main
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 T = 0.008
 

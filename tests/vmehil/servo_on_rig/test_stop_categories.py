@@ -17,8 +17,8 @@ from servo.runner import LockstepRunner, RealtimeRunner
 from servo.settings import servo_settings
 from servo.stops import StopCategory, category_for
 from tests.support.boards import assert_boards_safe
-from vmehil.session import build_loop
-from vmehil.system import build_emulated_rig
+from vmehil.rig_setup.session import build_loop
+from vmehil.rig_setup.system import build_emulated_rig
 
 BRAKED = ("j2", "j3", "j4", "j6")  # jpl-arm's gravity-loaded joints (the preset's brakes)
 JOINTS = ("j1", "j2", "j3", "j4", "j5", "j6", "hand")
@@ -232,7 +232,7 @@ def test_a_controlled_stop_over_can_holds_the_arm_and_the_node_sees_power_off():
     amplifiers off and the arm held."""
     import os
 
-    from vmehil.can_options import CanPlantOptions
+    from vmehil.option_groups.can_options import CanPlantOptions
 
     link = CanPlantOptions("virtual", f"stopcat-{os.getpid()}", own_node=True).open_link("jpl-arm", 0)
     system = build_emulated_rig("jpl-arm", seed=0, link=link)

@@ -2,7 +2,7 @@
 
 import math
 
-from hal import units
+from hal import si as units
 
 
 def test_oz_in_conversion_matches_design_constant() -> None:

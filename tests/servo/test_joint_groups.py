@@ -8,8 +8,8 @@ import pytest
 
 from emulators.presets import resolve_rig
 from hal.config import ConfigError, ConfigTable
+from servo.joint_groups import rig_units, unit_named, unit_rig, watchdog_unit
 from servo.rig import load_rig, rig_from_table
-from servo.units import rig_units, unit_named, unit_rig, watchdog_unit
 
 UNITS = ("leg1", "leg2", "leg3", "leg4", "arm")
 
