@@ -50,6 +50,9 @@ class VisionOutcome(Protocol):
 
     def summary(self) -> dict[str, Any]: ...
 
+    def freeze(self) -> None:
+        """Keep the state at the end of the run's own ticks (before its end-of-run stop)."""
+
 
 @dataclass
 class Fault:

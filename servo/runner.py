@@ -234,6 +234,8 @@ class LockstepRunner:
         plant or driver that fails in the window ends it (the stop is done); a signal is raised."""
         loop = self.loop
         loop.run_ticks = loop.tick_count
+        if loop.vision is not None:  # where the run left the arm, not where its stop and the 2 s after did
+            loop.vision.freeze()
         if loop.fault is None and loop.enabled and loop.stopping is None:
             self.stop_by_category(cause, detail)
         elif loop.stopping is not None:

@@ -57,10 +57,19 @@ class VisionLink:
         self.n = n_joints
         self.vision = vision
         self.commands = 0
+        self._frozen: np.ndarray | None = None
+
+    def freeze(self) -> None:
+        """Keep the joints' measured angles now, at the end of the run's own ticks: the report's
+        distance is where the run left the arm (its end-of-run stop and the 2 s watched after it
+        are in ``final_stop``)."""
+        theta = self.measure()
+        self._frozen = None if theta is None else np.asarray(theta, float).copy()
 
     def summary(self) -> dict[str, Any]:
-        """Outcome for the run report: protocol state, commands followed, distance to target."""
-        theta = self.measure()
+        """Outcome for the run report: protocol state, commands followed, distance to target
+        (at the run's end: :meth:`freeze`; else now)."""
+        theta = self._frozen if self._frozen is not None else self.measure()
         out = {"robot_state": self.client.state.name,
                "end_reason": getattr(self.client.end_reason, "name", None),
                "commands": self.commands, "final_distance_mm": None}
