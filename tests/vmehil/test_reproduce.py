@@ -156,3 +156,10 @@ def test_reproduce_rerun_on_a_fresh_state_is_in_the_papers_bands(tmp_path, monke
     assert [s["exit_status"] for s in data["steps"]] == [0, 0, 0, 0]
     assert all(f["in_band"] for f in data["figures"])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]
+
+
+def test_the_band_column_names_the_ripple_beside_the_mean() -> None:
+    # the running torque's two bands read "19–29 oz-in at 3–7 oz-in", as if a frequency
+    rows = _rows(MEASURED)
+    assert rp.bands_text(rows["running_torque"].figure.bands) == "19–29 oz-in, ripple 3–7 oz-in"
+    assert rp.bands_text(rows["limit_cycle"].figure.bands) == "0.5–1° at 1–3 Hz"

@@ -139,6 +139,14 @@ FIGURES: tuple[Figure, ...] = (
 )
 
 
+def bands_text(bands: tuple[Band, ...]) -> str:
+    """The band column: an amplitude *at* a frequency; two figures of one unit named, e.g. the
+    running torque's mean and ripple (``19–29 oz-in, ripple 3–7 oz-in``)."""
+    if len(bands) == 2 and bands[1].unit == "Hz":
+        return " at ".join(b.text() for b in bands)
+    return ", ".join(b.text() if i == 0 else f"{b.quantity.split()[0]} {b.text()}" for i, b in enumerate(bands))
+
+
 @dataclass
 class Row:
     figure: Figure
@@ -177,7 +185,7 @@ def evaluate(measured: dict[str, dict[str, Any] | None]) -> list[Row]:
 def table(rows: list[Row], commands: dict[str, str]) -> str:
     """paper / ours / band / command side by side, one line per figure, and the derived note."""
     head = ("figure", "paper", "ours", "band", "in band", "command")
-    body = [(r.figure.what, r.figure.paper, r.ours, " at ".join(b.text() for b in r.figure.bands),
+    body = [(r.figure.what, r.figure.paper, r.ours, bands_text(r.figure.bands),
              "yes" if r.in_band else "NO", commands[r.figure.step]) for r in rows]
     widths = [max(len(x[c]) for x in (head, *body)) for c in range(len(head))]
     lines = ["  ".join(c.ljust(w) for c, w in zip(x, widths, strict=True)).rstrip() for x in (head, *body)]
