@@ -113,7 +113,8 @@ class ServoSettings:
     ``torque_limit_nm``, ``max_velocity_rad_s`` (planning limit), ``following_error_rad``
     (watchdog) one value per joint; ``chain`` the normalizing chain from the nominal figures;
     ``watchdog`` the cross-checks' limits; ``position_source`` (``"pot"``/``"encoder"``) and
-    ``velocity_source`` (``"tach"``/``"encoder"``) per joint; ``gains_given`` per joint, which
+    ``velocity_source`` (``"tach"``/``"encoder"``) per joint, ``velocity_source_given`` whether the
+    rig stated it; ``gains_given`` per joint, which
     tables gave its gains (``"joint"``, ``"rig"``, ``"joint+rig"``, or ``""``: the paper's defaults);
     ``source`` names the rig file in errors."""
 
@@ -130,6 +131,8 @@ class ServoSettings:
     watchdog: WatchdogSettings
     position_source: tuple[str, ...]
     velocity_source: tuple[str, ...]
+    #: whether each joint's ``[joint.servo] velocity`` was stated (False: the default, the tach)
+    velocity_source_given: tuple[bool, ...]
     gains_given: tuple[str, ...]
     source: str
 
@@ -232,6 +235,7 @@ def servo_settings(rig: RigSpec) -> ServoSettings:
         following_error_rad=tuple(ferr), chain=nominal_chain(nominal), watchdog=_watchdog(rig, nominal),
         position_source=tuple(j.servo.get_str("position", "pot", choices=("pot", "encoder")) for j in rig.joints),
         velocity_source=tuple(j.servo.get_str("velocity", "tach", choices=("tach", "encoder")) for j in rig.joints),
+        velocity_source_given=tuple("velocity" in j.servo for j in rig.joints),
         stop=_stop_settings(rig, top),
         gains_given=tuple("+".join(w for w, t in (("joint", j.servo), ("rig", top)) if "gains" in t)
                           for j in rig.joints),

@@ -249,7 +249,7 @@ def load_joint(rig: str | Path | RigSpec | None, joint: int = 1, gains: str | di
     # get_str has checked the choices: narrow the str to the literal type LoopConfig takes
     velocity = cast(VelocitySource, settings.velocity_source[j])
     position = settings.position_source[j]
-    if "velocity" not in js.servo.data:
+    if not settings.velocity_source_given[j]:
         notes.append("[joint.servo] velocity not in the rig: the servo's default, the tachometer")
     deadband = None
     vel_filter = None
