@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from servo.boundary import PlantBoundary, PlantBoundaryError
-from servo.interrupts import INTERRUPTS, interrupt_name
+from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_name
 from servo.loop import ServoLoop
 from servo.rt import RealtimeSettings, apply_realtime, check_rt_priority, involuntary_switches, wait_until
 
@@ -148,8 +148,17 @@ class LockstepRunner:
         self.ended_by: BaseException | None = None
         self._exchanged = False
         self._completed = 0
+        #: while :meth:`run` runs (main thread): SIGINT/SIGTERM/SIGHUP are held and raised at the
+        #: next tick's start, never inside one
+        self._signals: SignalsDeferred | None = None
 
     def tick(self) -> None:
+        signals = self._signals
+        if signals is not None and signals.held:
+            # a signal that came during the last tick, acted on here, between two ticks: raised in
+            # the middle of a driver's cycles it left a board mid-scan, and the stop it started
+            # then found the ADC busy (driver_error instead of the signal, under load)
+            raise signals.held.pop(0)
         plant = self.plant
         k = self.loop.tick_count
         self._exchanged = False
@@ -179,14 +188,25 @@ class LockstepRunner:
         each tick (True ends the run there, without a fault)."""
         self.ended_by = None
         self._completed = 0
+        outer, self._signals = self._signals, SignalsDeferred().begin()
         try:
-            return self._run(n_ticks, progress, stop)
-        except INTERRUPTS as e:
-            self.loop.note_interruption(e, "run")
-            self.stop_by_category("interrupted", f"{interrupt_name(e)} received", e)
-        except Exception as e:
-            self.stop_now("exception", f"{type(e).__name__}: {e}", e)
-        return self._completed
+            try:
+                return self._run(n_ticks, progress, stop)
+            except INTERRUPTS as e:
+                self.loop.note_interruption(e, "run")
+                self.stop_by_category("interrupted", f"{interrupt_name(e)} received", e)
+            except Exception as e:
+                self.stop_now("exception", f"{type(e).__name__}: {e}", e)
+            return self._completed
+        finally:
+            section, self._signals = self._signals, outer
+            section.end()
+            if section.held:  # came with the run's last tick: an interruption all the same
+                late = section.held.pop(0)
+                self.loop.note_interruption(late, "run")
+                if self.ended_by is None and self.loop.enabled and self.loop.fault is None:
+                    self.stop_by_category("interrupted", f"{interrupt_name(late)} received", late)
+                self.ended_by = self.ended_by or late
 
     def stop_by_category(self, cause: str, detail: str, exc: BaseException | None = None) -> None:
         """Stop by ``cause``'s category (:mod:`servo.stops`): a category-1 stop is ticked through
