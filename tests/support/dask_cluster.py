@@ -50,7 +50,7 @@ def _stop(proc: subprocess.Popen) -> None:
 @contextmanager
 def cli_cluster(folder: Path, n_workers: int = 2) -> Iterator[CliCluster]:
     """A scheduler and ``n_workers`` single-threaded workers (no nanny: the worker process is the
-    one started here, so killing it kills the worker), all on 127.0.0.1 without dashboards; every
+    one started here, so killing it kills the worker), every socket on 127.0.0.1; every
     process is ended and waited for on the way out."""
     folder.mkdir(parents=True, exist_ok=True)
     sfile = folder / "scheduler.json"
@@ -59,7 +59,10 @@ def cli_cluster(folder: Path, n_workers: int = 2) -> Iterator[CliCluster]:
     procs: list[subprocess.Popen] = []
     log = (folder / "cluster.log").open("w")
     try:
-        sched = subprocess.Popen([*dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+        # `--no-dashboard` alone still listens on 0.0.0.0 (a second port of the scheduler's and of
+        # each worker's): a dashboard on loopback port 0 keeps every socket on 127.0.0.1
+        sched = subprocess.Popen([*dask, "scheduler", "--host", "127.0.0.1", "--port", "0",
+                                  "--dashboard-address", "127.0.0.1:0",
                                   "--scheduler-file", str(sfile)], env=env, stdout=log, stderr=log, cwd=folder)
         procs.append(sched)
         wait_for(lambda: (sfile.exists() and sfile.stat().st_size > 0) or sched.poll() is not None,
@@ -70,7 +73,8 @@ def cli_cluster(folder: Path, n_workers: int = 2) -> Iterator[CliCluster]:
         cluster = CliCluster(address, sched)
         for i in range(n_workers):
             w = subprocess.Popen([*dask, "worker", "--scheduler-file", str(sfile), "--host", "127.0.0.1",
-                                  "--nthreads", "1", "--no-nanny", "--no-dashboard", "--name", f"w{i}",
+                                  "--nthreads", "1", "--no-nanny", "--dashboard-address", "127.0.0.1:0",
+                                  "--name", f"w{i}",
                                   "--local-directory", str(folder / f"w{i}")], env=env, stdout=log, stderr=log,
                                  cwd=folder)
             procs.append(w)

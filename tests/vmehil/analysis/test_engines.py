@@ -57,6 +57,7 @@ def test_local_cluster_gives_the_rows_of_the_local_pool(local_rows) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.filterwarnings("error::vmehil.analysis.dask_engine.ExposedClusterWarning")  # loopback only
 def test_cli_cluster_worker_killed_mid_point_gives_every_row_once(tmp_path: Path, local_rows) -> None:
     """Scheduler and two workers from `dask scheduler`/`dask worker` on 127.0.0.1; the worker that
     starts point 0 is SIGKILLed while it runs it: Dask re-runs the point on the other worker, and
