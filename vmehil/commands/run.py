@@ -18,7 +18,7 @@ from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_exit_status
 from vmehil.commands import console_port_needs_serial, refuse_without, run_units
 from vmehil.commands.calibration_file import calibrated
 from vmehil.commands.run_options import RunOptions
-from vmehil.commands.run_results import finish_run, run_exit_status
+from vmehil.commands.run_results import finish_run
 from vmehil.console import extension as console_extension
 from vmehil.errors import CliError
 from vmehil.exit_status import EXIT_FAULT
@@ -125,7 +125,7 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
             return 2
     if opts.bus != "emulated":
         from vmehil.commands.run_real import run_on_real_bus
-        return run_on_real_bus(opts, rig, settings, exit_status=run_exit_status)
+        return run_on_real_bus(opts, rig, settings)
     from servo.motion import NO_MOTION, default_demo_motion, hold_motion, load_motion
     from servo.runner import LockstepRunner, RealtimeRunner
     from vmehil.rig_setup.session import build_loop

@@ -17,7 +17,6 @@ built for a real crate yet are refused in one line before the bus is opened
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -43,12 +42,11 @@ def refused_on_a_real_bus(opts: RunOptions) -> list[str]:
     return out
 
 
-def run_on_real_bus(opts: RunOptions, rig, settings: ServoSettings, *,
-                    exit_status: Callable[[Any, BaseException | None], int], **bus_options: Any) -> int:
+def run_on_real_bus(opts: RunOptions, rig, settings: ServoSettings, **bus_options: Any) -> int:
     """``settings``: the rig's servo settings with the command line's override applied
-    (:meth:`servo.settings.ServoSettings.overridden`). ``exit_status``:
-    ``vmehil.commands.run.run_exit_status`` (kept for callers; the results' writer uses the same);
-    ``bus_options`` go to :class:`hal.vme.vme_user.VmeUserBus` (tests inject a clock)."""
+    (:meth:`servo.settings.ServoSettings.overridden`); the exit status is the results' writer's
+    (:func:`vmehil.commands.run_results.finish_run`, as the emulated run's); ``bus_options`` go
+    to :class:`hal.vme.vme_user.VmeUserBus` (tests inject a clock)."""
     from servo.interrupts import INTERRUPTS, SignalsDeferred
     from servo.motion import default_demo_motion, load_motion
     from servo.runner import RealtimeRunner

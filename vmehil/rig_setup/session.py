@@ -13,7 +13,6 @@ from typing import Protocol
 
 from servo import assembly
 from servo.boundary import PlantBoundary
-from servo.control.objects import Controller
 from servo.io import JointIO
 from servo.loop import ServoLoop
 from servo.motion import Motion
@@ -21,7 +20,7 @@ from servo.rig import RigSpec
 from servo.settings import MIN_VELOCITY_DEG_S, ServoSettings, servo_settings
 from servo.trajectory.sequencer import PlanContext, Sequencer
 
-__all__ = ["MIN_VELOCITY_DEG_S", "AssembledRig", "ServoSettings", "build_controller_for", "build_loop",
+__all__ = ["MIN_VELOCITY_DEG_S", "AssembledRig", "ServoSettings", "build_loop",
            "plan_context_of", "servo_settings"]
 
 
@@ -34,11 +33,6 @@ class AssembledRig(PlantBoundary, Protocol):
 
     @property
     def io(self) -> JointIO: ...
-
-
-def build_controller_for(rig: RigSpec, settings: ServoSettings | None = None) -> Controller:
-    """The rig's controller for ``settings`` (default: the rig's own)."""
-    return assembly.build_controller(settings if settings is not None else servo_settings(rig))
 
 
 def build_loop(system: AssembledRig, *, motion: Motion | None = None, gains: Mapping[str, float] | None = None,

@@ -15,7 +15,6 @@ from hal.vme import AddressSpace, Width
 from servo.settings import servo_settings
 from tests.support.vme_fuse import MountedVmeUser, fuse_unavailable
 from vmehil.cli import build_parser, main
-from vmehil.commands.run import run_exit_status
 from vmehil.commands.run_real import run_on_real_bus
 from vmehil.rig_setup.system import EmulatedRig, build_emulated_rig
 
@@ -79,7 +78,7 @@ def test_run_with_the_flag_runs_the_loop_and_ends_safe(rig_on_fuse, capsys) -> N
     in the boards' time), the pacing the wall clock's."""
     system, bus = rig_on_fuse
     args = build_parser().parse_args(["run", "--bus", bus, "--enable-amplifiers", "--duration", "0.1"])
-    code = run_on_real_bus(args.options(args), system.rig, servo_settings(system.rig), exit_status=run_exit_status,
+    code = run_on_real_bus(args.options(args), system.rig, servo_settings(system.rig),
                            clock=system.crate.now,
                            sleep=system.crate.delay)
     err = capsys.readouterr().err
@@ -124,7 +123,7 @@ def test_a_real_bus_run_writes_the_same_json_and_report_as_the_emulated_run(rig_
     out, rep = tmp_path / "run.json", tmp_path / "report"
     args = build_parser().parse_args(["run", "--bus", bus, "--enable-amplifiers", "--duration", "0.1",
                                       "--json", str(out), "--report", str(rep)])
-    code = run_on_real_bus(args.options(args), system.rig, servo_settings(system.rig), exit_status=run_exit_status,
+    code = run_on_real_bus(args.options(args), system.rig, servo_settings(system.rig),
                            clock=system.crate.now, sleep=system.crate.delay)
     assert code in (0, 1)  # the plant does not move here (no harness steps): a fault stop is allowed
     summary = json.loads(out.read_text())
