@@ -1,5 +1,9 @@
 """The board types crate files can name (``type = "adc"``): the built-in table, plus the entry
-points of group ``vmehil.board_types`` that installed distributions declare (docs/architecture.md)."""
+points of group ``vmehil.board_types`` that installed distributions declare (docs/architecture.md).
+
+The emulator factories only: the driver side's table of the same names (role, vendor, model,
+document, driver and probe) is ``hal.board_types.BOARD_TYPES``; tests/test_board_types.py checks
+that the two name the same types. ``ram`` is in both, though no driver drives it (memory)."""
 
 from __future__ import annotations
 

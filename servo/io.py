@@ -34,6 +34,7 @@ from hal.adc_dac.calibration import Calibration
 from hal.adc_dac.conversions import DAC_LSB_V, DAC_V_MAX, DAC_V_MIN, adc_lsb
 from hal.adc_dac.dac import DacDriver
 from hal.amplifiers import duty_for_current
+from hal.board_types import BOARD_TYPES, board_role
 from hal.pio.pio import PioDriver, PwmRangeError
 from hal.quadrature.quad import QuadratureDriver
 from hal.vme.bus import VmeBus
@@ -189,10 +190,12 @@ class JointIO:
         self.quad: dict[str, QuadratureDriver] = {}
         pio_lines: dict[str, dict[str, str]] = {}
         quad_cpr: dict[str, dict[int, float]] = {}
+        #: each board's role (hal.board_types): a board type of role "adc" is wired as an ADC
+        self._roles = {name: board_role(kind) for name, kind in self._types.items()}
         for j in rig.joints:
             for sig, pin in j.wiring.items():
-                kind = self._types.get(pin.board)
-                if kind is None:
+                kind = self._roles.get(pin.board)
+                if pin.board not in self._types:
                     loc(pin.board)
                 if kind == "pio":
                     pio_lines.setdefault(pin.board, {})[j.net(sig)] = str(pin.channel)
@@ -201,23 +204,28 @@ class JointIO:
         wd = rig.watchdog
         if wd is not None:
             pio_lines.setdefault(wd.line.board, {})[WATCHDOG_NET] = str(wd.line.channel)
-        for name, kind in self._types.items():
+        for name, type_name in self._types.items():
             base, space = loc(name)
             used = any(p.board == name for j in rig.joints for p in j.wiring.values()) or (
                 wd is not None and wd.line.board == name)
             if not used:
                 continue
+            kind = self._roles[name]
+            if kind not in ("adc", "dac", "pio", "quad"):
+                continue  # wired boards are of these roles (servo.rig checks the wiring)
+            # the board type's driver, by its role's factory signature (hal.board_types)
+            factory = BOARD_TYPES[type_name].load_driver()
             if kind == "adc":
-                self.adc[name] = AdcDriver(bus, base, space=space)
+                self.adc[name] = factory(bus, base, space=space)
             elif kind == "dac":
-                self.dac[name] = DacDriver(bus, base, space=space, clamp=True)
+                self.dac[name] = factory(bus, base, space=space, clamp=True)
             elif kind == "pio":
                 lines = {k: v for k, v in pio_lines.get(name, {}).items() if v != "PWM"}
-                self.pio[name] = PioDriver(bus, base, space=space, lines=lines)
-            elif kind == "quad":
+                self.pio[name] = factory(bus, base, space=space, lines=lines)
+            else:
                 cpr = quad_cpr[name]
-                self.quad[name] = QuadratureDriver(bus, base, space=space, counts_per_rev=cpr,
-                                                   channels=sorted(cpr), errors="report")
+                self.quad[name] = factory(bus, base, space=space, counts_per_rev=cpr,
+                                          channels=sorted(cpr), errors="report")
         # Configure PIO output lines (enables, resets, direction, brakes, watchdog) low = safe
         # (a holding brake's line low: the brake holds).
         for pname, drv in self.pio.items():

@@ -69,11 +69,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from hal.adc_dac.adc_regs import ADC_CHANNELS
-from hal.adc_dac.dac_regs import DAC_CHANNELS
+from hal.board_types import BOARD_TYPES, board_role
 from hal.config import ConfigError, ConfigTable, load_toml
 from hal.pio.pio_regs import ALL_LINES, parse_line
-from hal.quadrature.quad_regs import CHANNELS as QUAD_CHANNELS
 from servo.errors import ServoError
 
 ANALOG_INPUTS = ("pot", "tach", "imon")
@@ -218,10 +216,16 @@ def rig_from_table(table: ConfigTable, path: str | Path) -> RigSpec:
 
 
 # --- wiring checks: refuse a rig that would move the wrong joint, before anything moves ----------
-#: which board type each wired signal must be on, and how its pin is named
+#: which board role (hal.board_types) each wired signal must be on, and how its pin is named
 _SIGNAL_BOARD = {"amp_command": "dac", "pot": "adc", "tach": "adc", "imon": "adc", "encoder": "quad",
                  "pwm": "pio", **{k: "pio" for k in (*DIGITAL_OUTPUTS, *DIGITAL_INPUTS)}}
-_CHANNELS = {"adc": ADC_CHANNELS, "dac": DAC_CHANNELS, "quad": QUAD_CHANNELS}
+#: the roles whose pins are numbered channels (the count is the board type's driver's ``CHANNELS``)
+_CHANNEL_ROLES = ("adc", "dac", "quad")
+
+
+def _board_roles(table: ConfigTable) -> dict[str, str | None]:
+    """``[crate]``'s boards: name → role of its type (None: a type the driver side does not know)."""
+    return {b.get_str("name"): board_role(b.get_str("type")) for b in table.table("crate", {}).tables("board", [])}
 
 
 def _check_boards(table: ConfigTable) -> None:
@@ -246,6 +250,7 @@ def _check_wiring(spec: RigSpec) -> None:
     board has, and no pin carries two signals (j2's pot on j1's ADC pin would servo j1 on j2's
     angle)."""
     types = {b.get_str("name"): b.get_str("type") for b in spec.table.table("crate", {}).tables("board", [])}
+    roles = _board_roles(spec.table)
     used: dict[tuple[str, int | str], str] = {}
     for j in spec.joints:
         wt = j.table.table("wiring", {})
@@ -254,11 +259,12 @@ def _check_wiring(spec: RigSpec) -> None:
             got = types.get(pin.board)
             if got is None:
                 raise wt.error(sig, f"a pin of a board in [crate] (no board named {pin.board!r})", str(pin))
-            if got != want:
+            if roles[pin.board] != want:
                 raise wt.error(sig, f"a pin of a {want} board ({pin.board!r} is a {got} board)", str(pin))
-            if want in _CHANNELS:
-                if not isinstance(pin.channel, int) or not 0 <= pin.channel < _CHANNELS[want]:
-                    raise wt.error(sig, f"a {want} channel 0..{_CHANNELS[want] - 1}", str(pin))
+            if want in _CHANNEL_ROLES:
+                n = BOARD_TYPES[got].channels() or 0
+                if not isinstance(pin.channel, int) or not 0 <= pin.channel < n:
+                    raise wt.error(sig, f"a {want} channel 0..{n - 1}", str(pin))
             elif sig == "pwm":
                 if pin.channel != "PWM":
                     raise wt.error(sig, f'the PIO\'s PWM output ("{pin.board}:PWM")', str(pin))
@@ -286,7 +292,7 @@ def loopback_net(dac_pin: Pin) -> str:
 
 
 def _parse_calibration_wiring(spec: RigSpec, rig: ConfigTable) -> None:
-    types = {b.get_str("name"): b.get_str("type") for b in spec.table.table("crate", {}).tables("board", [])}
+    types = _board_roles(spec.table)
     used = {(p.board, p.channel): f"{j.name}.{sig}" for j in spec.joints for sig, p in j.wiring.items()}
 
     def pin(cfg: ConfigTable, key: str, text: str, kind: str) -> Pin:
@@ -312,7 +318,7 @@ def _parse_watchdog(spec: RigSpec, rig: ConfigTable) -> WatchdogSpec | None:
         return None
     wd = rig.table("watchdog")
     wd.check_unknown({"line", "timeout_s"})
-    types = {b.get_str("name"): b.get_str("type") for b in spec.table.table("crate", {}).tables("board", [])}
+    types = _board_roles(spec.table)
     text = wd.get_str("line")
     line = parse_pin(wd, "line")
     if types.get(line.board) != "pio" or line.channel not in ALL_LINES:

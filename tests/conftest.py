@@ -50,10 +50,11 @@ def install_distribution(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Ite
     ``{group: {name: "module:attr"}}`` on ``sys.path``. The plug-in tables read it on their next
     look-up; it is gone after the test."""
     from emulators.board_types import BOARD_TYPES
+    from hal.board_types import BOARD_TYPES as DRIVER_BOARD_TYPES
     from servo.control.objects import CONTROL_OBJECTS
     from vmehil.calibration.procedures import PROCEDURES
 
-    tables = (BOARD_TYPES, CONTROL_OBJECTS, PROCEDURES)
+    tables = (BOARD_TYPES, DRIVER_BOARD_TYPES, CONTROL_OBJECTS, PROCEDURES)
     modules_added: list[str] = []
 
     def install(dist: str, modules: Mapping[str, str], entry_points: Mapping[str, Mapping[str, str]]) -> Path:

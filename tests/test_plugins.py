@@ -3,6 +3,8 @@ calibration procedure through entry points, without editing our code; unknown na
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -213,3 +215,64 @@ def test_no_procedure_may_be_called_all(install_distribution):
     """}, {"vmehil.calibration_procedures": {"all": "acme_cal:ALL"}})
     with pytest.raises(PluginError, match="'all' means every procedure"):
         PROCEDURES["all"]
+
+
+# ---- board types on the driver side (hal) and the emulators' under the same name -----------------------
+ACME_ADC = """
+    from emulators.adc import adc_factory
+    from hal.board_types import BoardType
+
+    # a commercial ADC of role "adc" (for the test, its driver and emulator are the reference ones)
+    ACME_ADC = BoardType("adc", "Acme Corp", "ACME-3113", "acme-3113.pdf",
+                         driver="hal.adc_dac.adc:AdcDriver", probe="hal.adc_dac.adc_regs:ADC_REGMAP")
+    NOT_A_BOARD_TYPE = {"role": "adc"}
+
+    def acme_emulator(name, cfg, ctx):
+        return adc_factory(name, cfg, ctx)
+"""
+
+
+def _acme(install_distribution, drivers: dict[str, str] | None = None) -> None:
+    install_distribution("acme-boards", {"acme_boards": ACME_ADC}, {
+        "vmehil.board_drivers": drivers or {"acme-adc": "acme_boards:ACME_ADC"},
+        "vmehil.board_types": {"acme-adc": "acme_boards:acme_emulator"}})
+
+
+def test_a_board_type_from_an_installed_package_is_in_both_tables(install_distribution) -> None:
+    from hal.board_types import BOARD_TYPES as DRIVER_BOARD_TYPES
+
+    _acme(install_distribution)
+    assert "acme-adc" in DRIVER_BOARD_TYPES.names() and "acme-adc" in BOARD_TYPES.names()
+    assert DRIVER_BOARD_TYPES["acme-adc"].metadata() == {"vendor": "Acme Corp", "model": "ACME-3113",
+                                                         "document": "acme-3113.pdf"}
+    assert callable(BOARD_TYPES["acme-adc"])
+
+
+def test_a_driver_side_entry_point_that_is_not_a_board_type_is_refused(install_distribution) -> None:
+    from hal.board_types import BOARD_TYPES as DRIVER_BOARD_TYPES
+
+    _acme(install_distribution, {"acme-adc": "acme_boards:NOT_A_BOARD_TYPE"})
+    with pytest.raises(PluginError, match=r"board type 'acme-adc' .*not dict"):
+        DRIVER_BOARD_TYPES["acme-adc"]
+
+
+def test_an_installed_adc_board_type_is_wired_like_the_reference_adc(install_distribution, tmp_path, capsys) -> None:
+    """jpl-arm with adc0 an ``acme-adc``: the rig's checks, the emulated crate and the joint I/O
+    take it by its role, and `crate list` names its vendor, model and document."""
+    from emulators.presets import resolve_rig
+    from vmehil.rig_setup.system import build_emulated_rig
+
+    _acme(install_distribution)
+    text = resolve_rig("jpl-arm").read_text()
+    head, sep, tail = text.partition('type = "adc"\nname = "adc0"')
+    assert sep, "jpl-arm.toml's adc0 entry moved"
+    rig_file = tmp_path / "jpl-arm.toml"
+    rig_file.write_text(head + 'type = "acme-adc"\nname = "adc0"' + tail)
+    system = build_emulated_rig(rig_file, seed=1, calibration=None)
+    assert type(system.io.adc["adc0"]).__name__ == "AdcDriver"  # ACME_ADC's driver
+    assert type(system.crate.board("adc0")).__name__ == "AdcBoard"
+    system.io.read()  # the pots and tachs on adc0 are read through it
+    assert main(["crate", "--rig", str(rig_file), "--json", "list"]) == 0
+    rows = {r["name"]: r for r in json.loads(capsys.readouterr().out)}
+    assert (rows["adc0"]["vendor"], rows["adc0"]["model"], rows["adc0"]["document"]) == (
+        "Acme Corp", "ACME-3113", "acme-3113.pdf")

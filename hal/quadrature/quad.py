@@ -169,6 +169,9 @@ class QuadratureDriver:
     does not change modes, presets or the index arm.
     """
 
+    #: the board's channel count (hal.board_types: a board of role "quad" says how many it has)
+    CHANNELS = CHANNELS
+
     def __init__(
         self,
         bus: VmeBus,

@@ -23,6 +23,7 @@ from emulators.board_types import BOARD_TYPES
 from emulators.crate import Crate
 from emulators.crate_file import load_crate
 from emulators.presets import resolve_rig
+from hal.board_types import BOARD_TYPES as HAL_BOARD_TYPES
 from hal.vme.errors import BusError, VmeError
 from hal.vme.types import AddressSpace, Width
 from vmehil.errors import CliError
@@ -108,12 +109,13 @@ class CrateOptions:
 def run(opts: CrateOptions) -> int:
     if opts.bus != "emulated":
         return _run_real(opts)
-    crate = _load(resolve_rig(opts.rig))
+    path = resolve_rig(opts.rig)
+    crate = _load(path)
     cmd = opts.action
     if cmd == "types":
         _emit(opts, BOARD_TYPES.names(), lambda v: "\n".join(v))
     elif cmd == "list":
-        _emit(opts, crate.describe(), _table)
+        _emit(opts, with_board_metadata(crate.describe(), _file_types(path)), _table)
     elif cmd in ("demo", "counters"):
         probes = probe_all(crate)
         if cmd == "demo":
@@ -175,6 +177,29 @@ def _load(path) -> Crate:
     from vmehil.rig_setup.system import wired_crate_table
 
     return build_crate(wired_crate_table(load_rig(path)))
+
+
+def _file_types(path) -> dict[str, str]:
+    """The crate file's boards: name → the board type it names (an emulator's own ``TYPE`` may be
+    another's: a plug-in type built on a reference board's emulator)."""
+    from hal.config import load_toml
+
+    return {b.get_str("name"): b.get_str("type") for b in load_toml(path).table("crate").tables("board", [])}
+
+
+def with_board_metadata(rows: list[dict[str, Any]], types: dict[str, str]) -> list[dict[str, Any]]:
+    """Each board's ``vendor``, ``model`` and ``document`` from its type's entry in
+    :data:`hal.board_types.BOARD_TYPES` (``types``: board name → type; a card's window,
+    ``bit3-window``, is its card's); None for a type only the emulators know."""
+    out = []
+    for r in rows:
+        owner = r["card"] if "card" in r else r["name"]
+        bt = HAL_BOARD_TYPES.get(types.get(owner, r["type"]))
+        meta: dict[str, str | None] = {"vendor": None, "model": None, "document": None}
+        if bt is not None:
+            meta.update(bt.metadata())
+        out.append({**r, **meta})
+    return out
 
 
 def probe_all(crate: Crate) -> list[dict[str, Any]]:
@@ -243,8 +268,8 @@ def _emit(opts: CrateOptions, data: Any, text) -> None:
     print(json.dumps(data, indent=2) if opts.json else text(data))
 
 
-_TEXT_COLUMNS = ("slot", "name", "space", "base", "end", "type", "id", "wired", "ok", "detail",
-                 "window", "layout", "am", "setting")
+_TEXT_COLUMNS = ("slot", "name", "space", "base", "end", "type", "vendor", "model", "document", "id", "wired",
+                 "ok", "detail", "window", "layout", "am", "setting")
 
 
 def _table(rows: list[dict[str, Any]]) -> str:

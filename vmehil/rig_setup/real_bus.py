@@ -2,10 +2,11 @@
 
 Before anything can enable an amplifier on a real crate:
 
-1. :func:`dry_pass` reads every board of the rig file's ``[crate]`` — its ID register against
-   the value the board type's register map declares, and its first status/control register —
-   and refuses the rig if any read fails or any ID differs (wrong base, wrong space, board
-   missing or another board there);
+1. :func:`dry_pass` reads every board of the rig file's ``[crate]`` through its board type's
+   probe (:mod:`hal.board_types`) — its ID register against the ID the type declares, and its
+   first status/control register — and refuses the rig if any read fails or any ID differs
+   (wrong base, wrong space, board missing or another board there: named, with the one the rig
+   file names);
 2. :func:`exercise_safe_stop` runs the safe stop once (enables low, DACs 0 V, PWM off) and
    reads it back (:meth:`servo.io.JointIO.safe_stop`): anything unconfirmed refuses the rig;
 3. only with ``--enable-amplifiers`` does ``vmehil run`` go on to the loop; without it the run
@@ -21,15 +22,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from hal.adc_dac import ADC_REGMAP, DAC_REGMAP
-from hal.bit3 import BIT3_CSR
+from hal.board_types import BOARD_TYPES, BoardType, types_answering
 from hal.config import ConfigError
 from hal.errors import HalError
-from hal.pio import PIO_REGS
-from hal.quadrature import QUAD_REGS
+from hal.plugins import UnknownPluginError
 from hal.vme.bus import VmeBus
 from hal.vme.errors import VmeError
-from hal.vme.registers import RegisterMap
 from hal.vme.types import AddressSpace, Width
 from hal.vme.vme_user import VmeUserBus, parse_bus_spec
 from servo.boundary import WallClockPlant
@@ -37,11 +35,6 @@ from servo.io import JointIO
 from servo.nominal import nominal_scaling, rig_nominal
 from servo.rig import RigSpec
 from vmehil.errors import VmehilError
-
-#: register maps of the board types a rig file names (the drivers' own declarations)
-REGMAPS: dict[str, RegisterMap] = {"adc": ADC_REGMAP, "dac": DAC_REGMAP, "pio": PIO_REGS, "quad": QUAD_REGS,
-                                   "bit3": BIT3_CSR}
-_STATUS_NAMES = ("CSR", "STATUS", "CTRL", "CONTROL")
 
 
 class RealBusRefused(VmehilError, RuntimeError):
@@ -71,44 +64,59 @@ class BoardCheck:
     base: int
     ok: bool
     detail: str
+    #: the rig's board type's entry (None: a type the driver-side table does not know)
+    board_type: BoardType | None = None
 
     def as_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "type": self.type, "space": self.space, "base": f"0x{self.base:X}",
+        meta: dict[str, str | None] = {"vendor": None, "model": None, "document": None}
+        if self.board_type is not None:
+            meta.update(self.board_type.metadata())
+        return {"name": self.name, "type": self.type, **meta, "space": self.space, "base": f"0x{self.base:X}",
                 "ok": self.ok, "detail": self.detail}
 
 
 def dry_pass(bus: VmeBus, rig: RigSpec) -> list[BoardCheck]:
-    """Read every board's ID and status (reads only; nothing is written)."""
+    """Identify every board by its type's probe (``hal.board_types``: the ID register and the
+    first status register; reads only, nothing is written). A wrong ID names both boards: the one
+    the rig file names and, where the ID read is another known type's, the one in the slot."""
     checks = []
     for b in rig_boards(rig):
-        regmap = REGMAPS.get(b["type"])
+        name, type_name, base = b["name"], b["type"], b["base"]
         space = AddressSpace.parse(b["space"])
-        if regmap is None:  # e.g. RAM: no ID register; it must answer at its base
-            try:
-                v = bus.read(b["base"], space=space, width=Width.D16)
-                checks.append(BoardCheck(b["name"], b["type"], b["space"], b["base"], True,
-                                         f"no ID register ({b['type']}); answers at its base: 0x{v:X}"))
-            except VmeError as e:
-                checks.append(BoardCheck(b["name"], b["type"], b["space"], b["base"], False, str(e)))
-            continue
-        parts, ok = [], True
         try:
-            ident = regmap["ID"]
-            got = bus.read(b["base"] + ident.offset, space=space, width=ident.width)
-            if got != ident.reset:
-                ok = False
-                parts.append(f"ID reads 0x{got:X}, the rig's {b['type']} has 0x{ident.reset:X}")
-            else:
-                parts.append(f"ID 0x{got:X}")
-            status = next((r for r in regmap.registers if r.name in _STATUS_NAMES and r.access.readable), None)
-            if status is not None:
-                v = bus.read(b["base"] + status.offset, space=space, width=status.width)
-                parts.append(f"{status.name} 0x{v:X}")
-        except (VmeError, KeyError) as e:
-            ok = False
-            parts.append(f"{type(e).__name__}: {e}")
-        checks.append(BoardCheck(b["name"], b["type"], b["space"], b["base"], ok, "; ".join(parts)))
+            board_type = BOARD_TYPES[type_name]
+        except UnknownPluginError as e:
+            checks.append(BoardCheck(name, type_name, b["space"], base, False, str(e)))
+            continue
+        probe = board_type.load_probe()
+        if probe is None:  # e.g. RAM: no ID register; it must answer at its base
+            try:
+                v = bus.read(base, space=space, width=Width.D16)
+                checks.append(BoardCheck(name, type_name, b["space"], base, True,
+                                         f"no ID register ({type_name}); answers at its base: 0x{v:X}",
+                                         board_type))
+            except VmeError as e:
+                checks.append(BoardCheck(name, type_name, b["space"], base, False, str(e), board_type))
+            continue
+        reading = probe(bus, base, space)
+        detail = reading.detail
+        if reading.id_read is not None and reading.id_expected is not None and reading.id_read != reading.id_expected:
+            detail = _wrong_board(type_name, board_type, reading.id_expected, reading.id_read)
+        checks.append(BoardCheck(name, type_name, b["space"], base, reading.ok, detail, board_type))
     return checks
+
+
+def _wrong_board(type_name: str, expected: BoardType, id_expected: int, id_read: int) -> str:
+    """``ID reads 0xDA08, the rig's adc has 0xAD16: the rig file names type adc (ADC16-REF ...);
+    the slot holds type dac (DAC8-REF ...)`` — both boards, so the operator knows which card to move."""
+    text = f"ID reads 0x{id_read:X}, the rig's {type_name} has 0x{id_expected:X}"
+    want = f"the rig file names type {type_name} ({expected.describe()}, ID 0x{id_expected:X})"
+    reg = expected.id_register()
+    held = types_answering(reg.offset, reg.width, id_read) if reg is not None else []
+    if held:
+        got = " or ".join(f"type {t} ({BOARD_TYPES[t].describe()}, ID 0x{id_read:X})" for t in held)
+        return f"{text}: {want}; the slot holds {got}"
+    return f"{text}: {want}; the slot holds a board of no known type (ID 0x{id_read:X})"
 
 
 def exercise_safe_stop(io: JointIO) -> list[str]:

@@ -18,6 +18,7 @@ from emulators.crate_file import build_crate
 from emulators.harness import Harness, InProcessLink, JointNets, PlantLink, PlantLinkError
 from emulators.plant import JointParams, Plant, plant_params_from_config
 from emulators.presets import resolve_rig
+from hal.board_types import board_role
 from hal.config import ConfigTable
 from servo.boundary import PlantBoundaryError
 from servo.io import JointIO
@@ -43,12 +44,14 @@ def wired_crate_table(rig: RigSpec) -> ConfigTable:
             b = boards.get(pin.board)
             if b is None:
                 raise j.table.table("wiring").error(sig, f"a board of [crate] (no board named {pin.board!r})")
-            if b["type"] == "pio" and pin.channel == "PWM":
+            # by the board's role (hal.board_types): the emulator of a role takes its nets so
+            role = board_role(b["type"])
+            if role == "pio" and pin.channel == "PWM":
                 b["pwm_net"] = j.net(sig)
                 continue
-            if b["type"] == "pio":
+            if role == "pio":
                 b.setdefault("lines", {})[str(pin.channel)] = j.net(sig)
-            elif b["type"] == "quad":
+            elif role == "quad":
                 chans = b.setdefault("channels", [])
                 chans.extend([""] * (pin.index + 1 - len(chans)))
                 chans[pin.index] = j.net(sig)

@@ -52,3 +52,19 @@ def test_a_vme_name_or_value_that_is_not_one_is_bad_input(capsys) -> None:
     for argv, text in cases.items():
         assert main(list(argv)) == 2, argv
         assert capsys.readouterr().err.strip().splitlines()[-1] == f"vmehil crate: error: {text}"
+
+
+def test_crate_list_json_gives_each_boards_vendor_model_and_document(capsys) -> None:
+    assert main(["crate", "--json", "list"]) == 0
+    boards = {b["name"]: b for b in json.loads(capsys.readouterr().out)}
+    assert all({"vendor", "model", "document"} <= b.keys() for b in boards.values())
+    # the reference boards' docs (docs/boards/*.md); the existing keys stay
+    assert {k: boards["adc0"][k] for k in ("type", "id", "vendor", "model", "document")} == {
+        "type": "adc", "id": "0xAD16", "vendor": "vmehil (reference design)", "model": "ADC16-REF",
+        "document": "docs/boards/adc.md"}
+    assert (boards["dac0"]["model"], boards["dac0"]["document"]) == ("DAC8-REF", "docs/boards/dac.md")
+    assert (boards["quad0"]["model"], boards["quad0"]["document"]) == ("QUAD4-REF", "docs/boards/quadrature.md")
+    assert boards["bit3.window"]["model"] == "BIT3-REF"  # the card's window is the card's
+    assert main(["crate", "list"]) == 0
+    text = capsys.readouterr().out
+    assert "vendor" in text.splitlines()[0] and "ADC16-REF" in text and "docs/boards/pio.md" in text

@@ -45,6 +45,22 @@ def test_crate_list_on_the_wrong_rig_fails(rig_on_fuse, capsys) -> None:
     assert "adc0" in capsys.readouterr().out
 
 
+def test_crate_list_refuses_a_wrong_board_in_a_slot_naming_both(rig_on_fuse, tmp_path, capsys) -> None:
+    from tests.vmehil.test_dry_pass_identifies_boards import swapped_adc0_dac0
+
+    _, bus = rig_on_fuse
+    rig_file = swapped_adc0_dac0(tmp_path)  # the rig file has adc0 and dac0 the other way round
+    assert main(["crate", "--bus", bus, "--rig", str(rig_file), "--json", "list"]) == 1
+    boards = {b["name"]: b for b in json.loads(capsys.readouterr().out)["boards"]}
+    assert not boards["adc0"]["ok"] and (boards["adc0"]["vendor"], boards["adc0"]["model"]) == (
+        "vmehil (reference design)", "ADC16-REF")
+    assert ("the rig file names type adc (ADC16-REF" in boards["adc0"]["detail"]
+            and "the slot holds type dac (DAC8-REF" in boards["adc0"]["detail"])
+    assert main(["run", "--bus", bus, "--rig", str(rig_file)]) == 1
+    err = capsys.readouterr().err
+    assert "dry pass failed" in err and "ID reads 0xDA08" in err and "the slot holds type dac" in err
+
+
 def test_crate_read_write_and_shell(rig_on_fuse, capsys, monkeypatch) -> None:
     system, bus = rig_on_fuse
     assert main(["crate", "--bus", bus, "write", "A24", "0x200000", "0xBEEF"]) == 0
