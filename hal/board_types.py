@@ -178,6 +178,9 @@ BUILTIN_BOARD_TYPES: dict[str, BoardType] = {
                       driver="hal.quadrature.quad:QuadratureDriver", probe="hal.quadrature.quad_regs:QUAD_REGS"),
     "bit3": BoardType("bit3", _REFERENCE, "BIT3-REF", "docs/boards/bit3.md",
                       driver="hal.bit3.driver:Bit3Driver", probe="hal.bit3.regs:BIT3_CSR"),
+    "vmivme-4116": BoardType("dac", "VMIC", "VMIVME-4116", "docs/boards/vmivme4116.md",
+                             driver="hal.adc_dac.vmivme4116:VmiVme4116Driver",
+                             probe="hal.adc_dac.vmivme4116:probe_vmivme4116"),  # no ID register: reads the CSR
     # RAM has no driver and no ID register: memory, read and written as bytes (the emulator's
     # RamBoard is the bus's test memory and the BIT3's dual-port memory). It is here so that
     # both tables name the same types and `crate list` can say what a RAM slot is.

@@ -30,7 +30,9 @@ from typing import Literal
 from hal.adc_dac.calibration import Calibration
 from hal.adc_dac.dac import DacRangeError, DacWriteResult
 from hal.adc_dac.vmivme4116_regs import VMI4116_CHANNELS, VMI4116_REGMAP
+from hal.board_types import ProbeReading
 from hal.vme.bus import SpaceLike, VmeBus
+from hal.vme.errors import VmeError
 from hal.vme.window import BoardWindow
 
 Coding = Literal["offset_binary", "twos_complement"]
@@ -89,10 +91,15 @@ def vmi4116_code_to_volts(code: int, coding: Coding = "offset_binary") -> float:
     return VMI4116_V_MIN + code * VMI4116_LSB_V
 
 
-def probe_vmivme4116(bus: VmeBus, base: int, space: SpaceLike = "A16") -> int:
-    """Read the CSR of a VMIVME-4116 at ``base`` and return it; nothing is written. The board has
-    no ID register: this proves only that something answers there (a ``BusError`` if nothing)."""
-    return BoardWindow(bus, base, VMI4116_REGMAP, space).read("CSR")
+def probe_vmivme4116(bus: VmeBus, base: int, space: SpaceLike = "A16") -> ProbeReading:
+    """The board type's probe (``hal.board_types``): read the CSR of a VMIVME-4116 at ``base``;
+    nothing is written. The board has no ID register, so this proves only that something answers
+    a D16 read at +0x10 (``ok`` False, with the bus error, if nothing does)."""
+    try:
+        csr = BoardWindow(bus, base, VMI4116_REGMAP, space).read("CSR")
+    except VmeError as e:
+        return ProbeReading(False, f"{type(e).__name__}: {e}")
+    return ProbeReading(True, f"no ID register (VMIVME-4116); CSR 0x{csr:04X}")
 
 
 class VmiVme4116Driver:

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from emulators.adc import AdcBoard
-from emulators.board_types import BUILTIN_BOARD_TYPES
+from emulators.board_types import BUILTIN_BOARD_TYPES as EMULATOR_TYPES
 from emulators.crate import Crate
 from emulators.crate_file import load_crate
 from emulators.vmivme4116 import VmiVme4116Board, vmivme4116_factory
@@ -26,6 +26,7 @@ from hal.adc_dac import (
     probe_vmivme4116,
 )
 from hal.adc_dac.vmivme4116 import vmi4116_code_to_volts, vmi4116_volts_to_code
+from hal.board_types import BOARD_TYPES
 from hal.vme import BusError, BusErrorCause, Width
 from tests.support.board_spec import doc_registers, doc_rows, map_differences
 
@@ -276,11 +277,20 @@ def test_a_board_that_stops_answering_cannot_be_read_back() -> None:
         dac.read_back_counts(0)
 
 
-def test_probe_reads_the_csr_and_a_missing_board_raises() -> None:
+def test_probe_reads_the_csr_and_a_missing_board_is_refused() -> None:
     c, _ = make()
-    assert probe_vmivme4116(c, BASE) == 0x0000
+    assert probe_vmivme4116(c, BASE).detail == "no ID register (VMIVME-4116); CSR 0x0000"
+    assert not probe_vmivme4116(c, 0x7100).ok
     with pytest.raises(BusError):
         VmiVme4116Driver(c, 0x7100)
+
+
+def test_both_board_type_tables_name_the_4116_as_a_dac() -> None:
+    bt = BOARD_TYPES["vmivme-4116"]
+    assert (bt.role, bt.vendor, bt.model, bt.document) == ("dac", "VMIC", "VMIVME-4116", "docs/boards/vmivme4116.md")
+    assert bt.load_driver() is VmiVme4116Driver and bt.channels() == 8
+    assert bt.load_probe() is probe_vmivme4116 and bt.id_register() is None  # no ID register
+    assert EMULATOR_TYPES["vmivme-4116"] is vmivme4116_factory
 
 
 # --- fault ------------------------------------------------------------------------------------------
@@ -322,8 +332,7 @@ gain_error = [0.001, -0.002, 0.0015, 0.0, -0.001, 0.002, 0.003, -0.002]
 """
 
 
-def test_the_preset_snippet_builds_a_crate_the_driver_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setitem(BUILTIN_BOARD_TYPES, "vmivme-4116", vmivme4116_factory)  # until the board table has it
+def test_the_preset_snippet_builds_a_crate_the_driver_runs(tmp_path: Path) -> None:
     p = tmp_path / "rig.toml"
     p.write_text(PRESET_SNIPPET)
     c = load_crate(p)

@@ -13,7 +13,6 @@ import pytest
 from emulators.crate import Crate
 from emulators.vmivme4116 import VmiVme4116Board
 from hal.adc_dac import DacRangeError, VmiVme4116Driver, probe_vmivme4116
-from hal.vme import BusError
 from tests.support.bus_trace import RecordingBus
 
 BASE = 0x7000
@@ -34,10 +33,13 @@ def opened(**kw) -> tuple[RecordingBus, VmiVme4116Driver]:
 
 def test_probe_reads_the_csr_and_writes_nothing() -> None:
     bus = RecordingBus(answers={("A16", 0x7010): 0x4100})
-    assert probe_vmivme4116(bus, BASE) == 0x4100
+    reading = probe_vmivme4116(bus, BASE)
+    assert reading.ok and reading.detail == "no ID register (VMIVME-4116); CSR 0x4100"
+    assert (reading.id_expected, reading.id_read) == (None, None)
     assert bus.trace() == ["R A16 0x7010 D16 0x4100"]
-    with pytest.raises(BusError):
-        probe_vmivme4116(RecordingBus(answers={}), BASE)
+    nothing = RecordingBus(answers={})
+    assert not probe_vmivme4116(nothing, BASE).ok
+    assert nothing.trace() == []  # the refused read is no completed cycle
 
 
 def test_opening_zeroes_and_strobes_off_p3_waits_the_settling_time_then_connects() -> None:
