@@ -13,7 +13,9 @@ import pytest
 from emulators.presets import resolve_rig
 from emulators.vmivme4116 import VmiVme4116Board
 from hal.adc_dac import VmiVme4116Driver
+from servo.rig import load_rig
 from servo.runner import LockstepRunner
+from vmehil.rig_setup.real_bus import dry_pass
 from vmehil.rig_setup.session import build_loop
 from vmehil.rig_setup.system import EmulatedRig, build_emulated_rig
 
@@ -70,3 +72,13 @@ def test_the_safe_stop_leaves_every_amplifier_command_at_zero_volts(ran) -> None
     # the plant's side: each joint's command net holds the 0 V code's output, the board's offset
     cmd = system.harness.collect().amp_command_v
     np.testing.assert_array_equal(cmd, np.array([*OFFSETS_V, 0.0]))  # the hand: an H-bridge, no DAC command
+
+
+def test_the_dry_pass_finds_the_4116_by_its_csr_having_no_id_register(tmp_path: Path) -> None:
+    spec = load_rig(rig_file(tmp_path))
+    system = build_emulated_rig(spec, seed=SEED)
+    check = next(c for c in dry_pass(system.crate, spec) if c.name == "dac0")
+    assert check.ok and check.detail == "no ID register (VMIVME-4116); CSR 0x4100"  # opened: LED off, on P3
+    system.crate.boards["dac0"].inject("removed")
+    check = next(c for c in dry_pass(system.crate, spec) if c.name == "dac0")
+    assert not check.ok and "BusError" in check.detail
