@@ -22,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 from hal.pio.pio import LineDirectionError, LineStuckError, PioBoardIdError, UnknownLineError
-from hal.pio.vmivme2536_regs import CSR_RUN, LINES_PER_PORT, PORTS, VMI2536_REGS, parse_line
+from hal.pio.vmivme2536_regs import LINES_PER_PORT, PORTS, VMI2536_REGS, parse_line
 from hal.vme.bus import SpaceLike, VmeBus
 from hal.vme.window import BoardWindow
 
@@ -148,7 +148,8 @@ class Vmi2536Driver:
                 raise LineDirectionError(f"initial level given for {name!r}, which is not in outputs")
             latch |= int(bool(level)) << bit
         self.win.write("OUTPUT", latch)
-        self.win.write("CSR", CSR_RUN)
+        # fail LED off, outputs and inputs active: what the EPICS support writes (drvVmi2536.c:91)
+        self.win.write_fields("CSR", led_off=1, outputs_on=1, inputs_on=1)
         self._latch = latch
 
     def is_output(self, name: str) -> bool:

@@ -17,8 +17,6 @@ import re
 from hal.vme.registers import Access, Field, Register, RegisterMap
 from hal.vme.types import AddressSpace, Width
 
-#: CSR value that turns the fail LED off and activates outputs and inputs (drvVmi2536.c:91)
-CSR_RUN = 0xE000
 #: the ports a line belongs to: index 0 = the inputs (INPUT), 1 = the outputs (OUTPUT)
 PORTS = ("IN", "OUT")
 LINES_PER_PORT = 32
