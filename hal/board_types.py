@@ -181,6 +181,11 @@ BUILTIN_BOARD_TYPES: dict[str, BoardType] = {
     "vmivme-4116": BoardType("dac", "VMIC", "VMIVME-4116", "docs/boards/vmivme4116.md",
                              driver="hal.adc_dac.vmivme4116:VmiVme4116Driver",
                              probe="hal.adc_dac.vmivme4116:probe_vmivme4116"),  # no ID register: reads the CSR
+    # VMIC VMIVME-2536, 32 optically coupled inputs and outputs: a PIO without PWM; its BID value
+    # is not published, so the probe checks that the registers answer (docs/boards/vmivme2536.md)
+    "vmivme-2536": BoardType("pio", "VMIC", "VMIVME-2536", "docs/boards/vmivme2536.md",
+                             driver="hal.pio.vmivme2536:Vmi2536Driver",
+                             probe="hal.pio.vmivme2536:probe_vmivme2536"),
     # RAM has no driver and no ID register: memory, read and written as bytes (the emulator's
     # RamBoard is the bus's test memory and the BIT3's dual-port memory). It is here so that
     # both tables name the same types and `crate list` can say what a RAM slot is.

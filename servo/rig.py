@@ -71,7 +71,7 @@ from pathlib import Path
 
 from hal.board_types import BOARD_TYPES, board_role
 from hal.config import ConfigError, ConfigTable, load_toml
-from hal.pio.pio_regs import ALL_LINES, parse_line
+from hal.pio.pio_regs import ALL_LINES
 from servo.errors import ServoError
 
 ANALOG_INPUTS = ("pot", "tach", "imon")
@@ -228,6 +228,24 @@ def _board_roles(table: ConfigTable) -> dict[str, str | None]:
     return {b.get_str("name"): board_role(b.get_str("type")) for b in table.table("crate", {}).tables("board", [])}
 
 
+def _pio_lines(type_name: str) -> tuple[str, ...]:
+    """The pin names of a board of role ``pio``: its driver's ``LINES`` (the reference PIO's
+    PA0..PC7 when it declares none)."""
+    lines = getattr(BOARD_TYPES[type_name].load_driver(), "LINES", ALL_LINES)
+    return tuple(lines)
+
+
+def _pio_lines_text(type_name: str) -> str:
+    """What a wiring error expects of a line of this board (the reference PIO's text as shipped)."""
+    lines = _pio_lines(type_name)
+    if lines == tuple(ALL_LINES):
+        return "a PIO line PA0..PC7"
+    groups: dict[str, list[str]] = {}
+    for name in lines:
+        groups.setdefault(name.rstrip("0123456789"), []).append(name)
+    return f"a line of the {type_name} board (" + ", ".join(f"{g[0]}..{g[-1]}" for g in groups.values()) + ")"
+
+
 def _check_boards(table: ConfigTable) -> None:
     """Board names and slots of ``[crate]`` are unique (the crate itself refuses overlapping
     windows when it is built)."""
@@ -268,11 +286,10 @@ def _check_wiring(spec: RigSpec) -> None:
             elif sig == "pwm":
                 if pin.channel != "PWM":
                     raise wt.error(sig, f'the PIO\'s PWM output ("{pin.board}:PWM")', str(pin))
-            else:
-                try:
-                    parse_line(str(pin.channel))
-                except ValueError:
-                    raise wt.error(sig, "a PIO line PA0..PC7", str(pin)) from None
+                if not hasattr(BOARD_TYPES[got].load_driver(), "set_pwm"):  # e.g. the VMIVME-2536
+                    raise wt.error(sig, f"the PWM output of a PIO board with a PWM timer ({got} has none)", str(pin))
+            elif str(pin.channel) not in _pio_lines(got):
+                raise wt.error(sig, _pio_lines_text(got), str(pin))
             where = f"{j.name}.{sig}"
             key = (pin.board, pin.channel)
             if key in used:
@@ -321,7 +338,8 @@ def _parse_watchdog(spec: RigSpec, rig: ConfigTable) -> WatchdogSpec | None:
     types = _board_roles(spec.table)
     text = wd.get_str("line")
     line = parse_pin(wd, "line")
-    if types.get(line.board) != "pio" or line.channel not in ALL_LINES:
+    kinds = {b.get_str("name"): b.get_str("type") for b in spec.table.table("crate", {}).tables("board", [])}
+    if types.get(line.board) != "pio" or str(line.channel) not in _pio_lines(kinds[line.board]):
         raise wd.error("line", 'a PIO line "board:PA0".."board:PC7" of a pio board in [crate]', text)
     for j in spec.joints:
         for sig, p in j.wiring.items():

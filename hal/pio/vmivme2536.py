@@ -21,9 +21,12 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
+from hal.board_types import ProbeReading
 from hal.pio.pio import LineDirectionError, LineStuckError, PioBoardIdError, UnknownLineError
-from hal.pio.vmivme2536_regs import LINES_PER_PORT, PORTS, VMI2536_REGS, parse_line
+from hal.pio.vmivme2536_regs import ALL_LINES, LINES_PER_PORT, PORTS, VMI2536_REGS, parse_line
 from hal.vme.bus import SpaceLike, VmeBus
+from hal.vme.errors import VmeError
+from hal.vme.types import AddressSpace
 from hal.vme.window import BoardWindow
 
 _IN, _OUT = 0, 1
@@ -37,6 +40,8 @@ class Vmi2536BoardIdError(PioBoardIdError):
 class Vmi2536Driver:
     """VMIVME-2536 driver.
 
+    ``LINES``: every pin name the board has (the rig file's wiring checks read it).
+
     Args:
         bus: the VME bus.
         base: board base address (the card's jumpers; the EPICS support's default is 0xFF00).
@@ -49,6 +54,8 @@ class Vmi2536Driver:
         settle_s: wait before reading a looped-back input after a write (optocoupler switching
             time; the sources give none, so 0).
     """
+
+    LINES = ALL_LINES
 
     def __init__(
         self,
@@ -228,3 +235,21 @@ class Vmi2536Driver:
         if self.settle_s > 0.0:
             self.bus.delay(self.settle_s)
         return self.win.read("INPUT")
+
+
+def probe_vmivme2536(bus: VmeBus, base: int, space: AddressSpace) -> ProbeReading:
+    """The dry pass's probe (``hal.board_types``; reads only): every register answers at the width
+    the sources use (``BID``, ``CSR`` D16; ``INPUT``, ``OUTPUT`` D32). ``BID``'s value is not
+    published, so it is reported, not compared: a board that is not there, or one whose registers
+    are not at these widths (the reference PIO at the same base: its 0x02 is D8 only), fails."""
+    parts: list[str] = []
+    bid: int | None = None
+    for reg in VMI2536_REGS.registers:
+        try:
+            value = bus.read(base + reg.offset, space=space, width=reg.width)
+        except VmeError as e:
+            return ProbeReading(False, "; ".join([*parts, f"{reg.name}: {type(e).__name__}: {e}"]), None, bid)
+        if reg.name == "BID":
+            bid = value
+        parts.append(f"{reg.name} 0x{value:0{2 * int(reg.width)}X}")
+    return ProbeReading(True, "; ".join(parts) + " (BID not published: not compared)", None, bid)

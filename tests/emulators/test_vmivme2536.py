@@ -171,14 +171,14 @@ ARM_SNIPPET = """
 [[crate.board]]
 type = "vmivme-2536"
 name = "dio0"                    # OUT0-5 enables j1-j6, OUT6-11 fault resets, OUT12-15 holding brakes,
-slot = 5                         # OUT16 watchdog; IN0-5 amplifier faults; IN16-21 enables looped back
+slot = 10                        # OUT16 watchdog; IN0-5 amplifier faults; IN16-21 enables looped back
 space = "A16"
 base = 0xFF00
 
 [[crate.board]]
 type = "pio"
 name = "pio0"                    # reference PIO, kept for the hand's H-bridge (PWM timer)
-slot = 10
+slot = 5
 space = "A16"
 base = 0x4000
 """

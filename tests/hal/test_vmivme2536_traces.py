@@ -12,8 +12,11 @@ from __future__ import annotations
 import pytest
 
 from emulators.crate import Crate
+from emulators.pio import PioBoard
 from emulators.vmivme2536 import Vmi2536Board
+from hal.board_types import BOARD_TYPES
 from hal.pio import LineDirectionError, LineStuckError, UnknownLineError, Vmi2536BoardIdError, Vmi2536Driver
+from hal.vme import AddressSpace
 from hal.vme.types import AddressModifier, Width
 from tests.support.bus_trace import Answer, RecordingBus
 
@@ -228,3 +231,26 @@ def test_on_the_board_reset_drops_every_output() -> None:
     assert not c.signals.get_digital("j1.en") and not c.signals.get_digital("wd")
     c.signals.set_digital("j1.fault", True)
     assert d.get_line("IN0") is False  # inputs off after reset: INPUT reads 0
+
+
+# --- the dry pass's probe (hal.board_types "vmivme-2536"): reads only ------------------------
+def test_the_dry_pass_probe_reads_every_register_at_its_width_and_writes_nothing() -> None:
+    bus = _scripted({BASE + 0x02: 0xE000, BASE + 0x04: 0x0000_0009, BASE + 0x08: 0x0001_0000})
+    probe = BOARD_TYPES["vmivme-2536"].load_probe()
+    assert probe is not None
+    reading = probe(bus, BASE, AddressSpace.A16)
+    assert bus.trace() == ["R A16 0xFF00 D16 0x2536", "R A16 0xFF02 D16 0xE000", "R A16 0xFF04 D32 0x00000009",
+                           "R A16 0xFF08 D32 0x00010000"]
+    assert reading.ok and reading.id_read == 0x2536 and reading.id_expected is None
+    assert "BID not published" in reading.detail
+
+
+def test_the_dry_pass_probe_refuses_an_empty_slot_and_the_reference_pio() -> None:
+    probe = BOARD_TYPES["vmivme-2536"].load_probe()
+    assert probe is not None
+    empty = Crate("empty")
+    assert not probe(empty, BASE, AddressSpace.A16).ok
+    c = Crate("pio")
+    c.install(PioBoard("pio0"), base=BASE, space="A16", slot=5)
+    reading = probe(c, BASE, AddressSpace.A16)  # ID 0x5001 answers at D16; DDR_A (0x02) is D8 only
+    assert not reading.ok and "CSR: BusError" in reading.detail and reading.id_read == 0x5001
