@@ -221,7 +221,10 @@ class JointIO:
                 self.dac[name] = factory(bus, base, space=space, clamp=True)
             elif kind == "pio":
                 lines = {k: v for k, v in pio_lines.get(name, {}).items() if v != "PWM"}
-                self.pio[name] = factory(bus, base, space=space, lines=lines)
+                # [rig.readback]: outputs wired back into inputs (only boards whose driver takes it)
+                readback = {str(o.channel): str(i.channel) for o, i in rig.readback.items() if o.board == name}
+                extra = {"loopback": readback} if readback else {}
+                self.pio[name] = factory(bus, base, space=space, lines=lines, **extra)
             else:
                 cpr = quad_cpr[name]
                 self.quad[name] = factory(bus, base, space=space, counts_per_rev=cpr,

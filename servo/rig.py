@@ -48,6 +48,15 @@ joints and PIO boards there are. The line carries the net ``rig.watchdog``
 (:data:`WATCHDOG_NET`); ``timeout_s`` is the amplifiers' (read by the plant too) and must
 exceed one servo period.
 
+Rig-level digital read-back (optional; for a PIO board that cannot read its outputs' wires, the
+VMIVME-2536: docs/boards/vmivme2536.md)::
+
+    [rig.readback]             # an output line wired back into a free input of the same board
+    "dio0:OUT0" = "dio0:IN16"
+
+The input then carries the output's net, and the board's driver (``loopback=``) reads the wire
+there: a stop's read-back of a stuck-high enable sees it high.
+
 ``[joint.servo]``: ``position = "pot" | "encoder"``, ``velocity = "tach" | "encoder"``,
 ``gains = {kp, kpi, kv, kvi}``, ``switch_off = {...}``, ``max_velocity_deg_s``,
 ``torque_limit_nm`` (default: the nominal current limit · Kt · N), ``following_error_limit_deg``,
@@ -66,6 +75,7 @@ The plant reads the same ``[[joint]]`` tables and is told which keys are the ser
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -145,6 +155,7 @@ class RigSpec:
     references: dict[Pin, float] = field(default_factory=dict)  #: ADC pin → reference volts
     loopback: dict[Pin, Pin] = field(default_factory=dict)  #: DAC pin → ADC pin it is wired to
     watchdog: WatchdogSpec | None = None  #: the amplifiers' enable watchdog (None: not wired)
+    readback: dict[Pin, Pin] = field(default_factory=dict)  #: PIO output line → input it is wired back to
 
     @property
     def period_s(self) -> float:
@@ -212,6 +223,7 @@ def rig_from_table(table: ConfigTable, path: str | Path) -> RigSpec:
     _check_wiring(spec)
     _parse_calibration_wiring(spec, rig)
     spec.watchdog = _parse_watchdog(spec, rig)
+    spec.readback = _parse_readback(spec, rig)
     return spec
 
 
@@ -350,3 +362,32 @@ def _parse_watchdog(spec: RigSpec, rig: ConfigTable) -> WatchdogSpec | None:
         raise wd.error("timeout_s", f"more than one servo period ({spec.period_s:g} s): the line has one "
                                     "edge per tick", timeout)
     return WatchdogSpec(line, timeout)
+
+
+def _parse_readback(spec: RigSpec, rig: ConfigTable) -> dict[Pin, Pin]:
+    """``[rig.readback]``: each wired output line of a PIO board whose driver takes ``loopback``
+    → a free input line of the same board."""
+    if "readback" not in rig:
+        return {}
+    rb = rig.table("readback")
+    kinds = {b.get_str("name"): b.get_str("type") for b in spec.table.table("crate", {}).tables("board", [])}
+    outputs = {p: f"{j.name}.{sig}" for j in spec.joints for sig, p in j.wiring.items() if sig in DIGITAL_OUTPUTS}
+    if spec.watchdog is not None:
+        outputs[spec.watchdog.line] = WATCHDOG_NET
+    used = {p for j in spec.joints for p in j.wiring.values()} | set(outputs)
+    out: dict[Pin, Pin] = {}
+    for key in rb.keys():
+        src = parse_pin(ConfigTable({"k": key}, rb.source, rb.prefix), "k")
+        dst = parse_pin(rb, key)
+        if src not in outputs:
+            raise rb.error(key, "a PIO output line that carries a joint's digital output or the watchdog", key)
+        kind = kinds[src.board]
+        if "loopback" not in inspect.signature(BOARD_TYPES[kind].load_driver()).parameters:
+            raise rb.error(key, f"a line of a board that reads back through an input ({kind} does not)", key)
+        if dst.board != src.board or str(dst.channel) not in _pio_lines(kind):
+            raise rb.error(key, f"a line of {src.board} ({_pio_lines_text(kind)})", str(dst))
+        if dst in used:
+            raise rb.error(key, f"a free line ({dst} is in use)", str(dst))
+        used.add(dst)
+        out[src] = dst
+    return out

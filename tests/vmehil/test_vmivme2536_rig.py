@@ -31,6 +31,15 @@ base = 0xFF00          # the EPICS support's default base (jumpers)
 [rig.watchdog]
 line = "dio0:OUT16"
 
+[rig.readback]         # each enable and the watchdog wired back into a spare input: the 2536
+"dio0:OUT0" = "dio0:IN16"    # cannot read its outputs' wires (OUTPUT reads the latch)
+"dio0:OUT1" = "dio0:IN17"
+"dio0:OUT2" = "dio0:IN18"
+"dio0:OUT3" = "dio0:IN19"
+"dio0:OUT4" = "dio0:IN20"
+"dio0:OUT5" = "dio0:IN21"
+"dio0:OUT16" = "dio0:IN22"
+
 [wiring.j1]
 amp_enable = "dio0:OUT0"
 amp_fault = "dio0:IN0"
@@ -69,6 +78,7 @@ def _vmic_rig_data() -> dict:
     data = copy.deepcopy(data)
     data["crate"]["board"] = [b for b in data["crate"]["board"] if b["name"] != "pio1"] + snippet["crate"]["board"]
     data["rig"]["watchdog"]["line"] = snippet["rig"]["watchdog"]["line"]
+    data["rig"]["readback"] = snippet["rig"]["readback"]
     for j in data["joint"]:
         j["wiring"].update(snippet["wiring"].get(j["name"], {}))
     return data
@@ -105,6 +115,40 @@ def test_enable_drives_the_2536_lines_and_a_stop_leaves_them_low(system) -> None
     assert not any(s.get_digital(f"j{i}.holding_brake") for i in (2, 3, 4, 6))
     assert not s.get_digital(WATCHDOG_NET)
     assert_boards_safe(system)
+
+
+def test_the_readback_inputs_sit_on_the_enables_nets_and_reach_the_driver(system) -> None:
+    lines = system.crate.boards["dio0"].describe()["lines"]
+    assert (lines["IN16"], lines["IN21"], lines["IN22"]) == ("j1.amp_enable", "j6.amp_enable", WATCHDOG_NET)
+    drv = system.io.pio["dio0"]
+    assert drv.read_pins("OUT") & 0x3F == 0  # every enable's wire low (through IN16..IN21)
+
+
+def test_a_stop_reports_a_stuck_high_enable_seen_through_its_readback_input() -> None:
+    s = build_emulated_rig(_spec(_vmic_rig_data()), seed=0)
+    try:
+        s.crate.boards["dio0"].inject("line_stuck", line="OUT2", level=True)  # j3's enable
+        failures = s.io.safe_stop()
+        assert s.crate.signals.get_digital("j3.amp_enable") is True  # the wire really is high
+        # the enable write's own check and the stop's read-back both see the wire (through IN18)
+        assert failures == [
+            "j3: output line(s) do not follow their latch: j3.amp_enable (latch 0, pin 1); the line is stuck or "
+            "shorted — check the wiring and the load before re-enabling",
+            "j3: amplifier enable dio0:OUT2 still reads high",
+        ]
+    finally:
+        s.close()
+
+
+def test_the_readback_refuses_an_input_in_use_and_a_board_that_cannot_take_it() -> None:
+    data = _vmic_rig_data()
+    data["rig"]["readback"] = {"dio0:OUT0": "dio0:IN3"}  # j4's fault input
+    with pytest.raises(ConfigError, match=r"a free line \(dio0:IN3 is in use\)"):
+        _spec(data)
+    data = _vmic_rig_data()
+    data["rig"]["readback"] = {"pio0:PC7": "pio0:PB7"}  # the reference PIO reads its pins itself
+    with pytest.raises(ConfigError, match="a board that reads back through an input"):
+        _spec(data)
 
 
 def test_an_amplifier_fault_line_on_the_2536_reads_as_the_joints_fault(system) -> None:
