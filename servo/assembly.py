@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from hal.config import ConfigTable
+from servo.blackbox import BlackBox
 from servo.boundary import PlantBoundary
 from servo.control.law import PidLaw
 from servo.control.objects import CONTROL_OBJECTS, BaseControlObject, Controller, PidObject, TorqueLimit
@@ -70,7 +71,8 @@ def build_loop(plant: PlantBoundary, io: JointIO, settings: ServoSettings, *, mo
     ``motion`` (default: the demo motion) is planned from the joints' angles read now;
     ``sequencer``: the motion already planned (a unit controller's segments of the global plan,
     :class:`servo.joint_groups.UnitSegments`) — the joints are then not read here. ``n_ticks`` > 0 adds a
-    recorder of that many ticks; ``watchdog=False`` disables the watchdog's stops."""
+    recorder of that many ticks; ``watchdog=False`` disables the watchdog's stops. The loop always
+    keeps a black box of the last ``settings.blackbox_s`` seconds (:mod:`servo.blackbox`)."""
     controller = build_controller(settings)
     ctx = plan_context(settings)
     if sequencer is None:
@@ -81,6 +83,8 @@ def build_loop(plant: PlantBoundary, io: JointIO, settings: ServoSettings, *, mo
     loop = ServoLoop(io, controller, sequencer, wd, recorder=recorder, names=list(settings.joint_names),
                      plan_context=plan_context(settings))
     loop.stop_settings = settings.stop
+    # always kept: the last seconds before any stop (servo.blackbox; no bus access of its own)
+    loop.blackbox = BlackBox(settings.n, settings.period_s, settings.joint_names, seconds=settings.blackbox_s)
     # an emulated rig's free-running plant: its answers may skip or repeat plant steps
     loop.sample_clock = plant.sample_clock
     return loop

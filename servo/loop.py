@@ -32,6 +32,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from servo.blackbox import HOLDING, RUNNING, STOPPED, STOPPING, BlackBox
 from servo.control.objects import ControlContext, Controller, SwitchableController
 from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_name
 from servo.io import JointIO, Measurement
@@ -189,6 +190,9 @@ class ServoLoop:
         self._stop_origin: dict[str, np.ndarray] = {}
         #: per joint the largest movement from the angles at the stop, true and measured (rad)
         self.stop_excursion: dict[str, np.ndarray] = {}
+        #: the last seconds of every joint's signals and lines (servo.blackbox; set by
+        #: servo.assembly.build_loop; ``None``: not kept)
+        self.blackbox: BlackBox | None = None
 
     # --- live interface ------------------------------------------------------------------------
     def submit(self, command: LiveCommand,
@@ -662,5 +666,24 @@ class ServoLoop:
         if self.stop_tick is not None:
             self._track_excursion(row.get("theta_true"), row.get("theta"))
         self.last = {**row, "tick": k, "fault": self.fault.as_dict() if self.fault else None}
+        if self.blackbox is not None:
+            self._to_blackbox(self.blackbox, k, t, row, m, law)
         if rec is not None:
             rec.put(k, compute_s=time.perf_counter() - t0, **row)
+
+    def _to_blackbox(self, box: BlackBox, k: int, t: float, row: dict[str, Any], m: Measurement | None,
+                     law: Any) -> None:
+        """This tick's row into the black box: values the tick already has, no bus access."""
+        if not self.enabled:
+            state = STOPPED
+        elif self.stopping is not None:
+            state = STOPPING
+        elif self.stop_category == StopCategory.HOLDING and self.stop_tick is not None:
+            state = HOLDING
+        else:
+            state = RUNNING
+        lstate = law.state if law is not None else None
+        box.put(k, t, row, state, integrator_e=lstate.ie if lstate is not None else None,
+                integrator_v=lstate.iv if lstate is not None else None, enabled=self.enabled,
+                brake_released=getattr(self.io, "brake_released", None),  # (test fakes of JointIO have none)
+                amp_fault=m.fault if m is not None else None, stop_tick=self.stop_tick)

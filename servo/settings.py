@@ -8,6 +8,7 @@ Rig-level ``[servo]`` gives defaults; each ``[joint.servo]`` may override them::
     switch_off = { enabled = true, inner_band_deg = 0.3, outer_band_deg = 1.5, kp_boost = 2.0 }
     max_velocity_deg_s = 30.0                  # trajectory planning limit
     following_error_limit_deg = 10.0           # watchdog
+    blackbox_s = 5.0                           # seconds the black box keeps before a stop (servo.blackbox)
 
     [joint.servo]
     position = "pot"                           # or "encoder"
@@ -62,6 +63,7 @@ from typing import Any
 import numpy as np
 
 from hal.config import ConfigTable
+from servo.blackbox import DEFAULT_SECONDS as DEFAULT_BLACKBOX_S
 from servo.control.errors import ControlError
 from servo.control.gains import DEFAULT_GAINS, GAIN_NAMES, Gains
 from servo.control.law import SwitchOffConfig
@@ -77,6 +79,9 @@ __all__ = ["MIN_VELOCITY_DEG_S", "ServoSettings", "WatchdogSettings", "servo_set
 
 #: the smallest planning speed limit a rig file may set (deg/s; 0 would plan endless moves)
 MIN_VELOCITY_DEG_S = 1e-3
+
+#: the longest black box a rig file may ask for (s): 120 s of 16 joints is ~27 MB
+MAX_BLACKBOX_S = 120.0
 
 #: per-joint keys of [servo.watchdog] / [joint.servo.watchdog]: rig-file key → (WatchdogConfig field, to SI)
 WATCHDOG_JOINT_KEYS: dict[str, tuple[str, float]] = {
@@ -147,6 +152,8 @@ class ServoSettings:
 
     #: how a controlled (category-1) stop runs, and the rig file's stricter categories (servo.stops)
     stop: StopSettings = dataclasses.field(default_factory=lambda: StopSettings(decel_rad_s2=()))
+    #: seconds of every joint's signals the black box keeps before a stop (:mod:`servo.blackbox`)
+    blackbox_s: float = DEFAULT_BLACKBOX_S
 
     def overridden(self, gains: Mapping[str, float] | None = None, switch_off: bool | None = None) -> ServoSettings:
         """These settings with ``gains`` (name → value) applied to every joint and the switch-off
@@ -237,6 +244,7 @@ def servo_settings(rig: RigSpec) -> ServoSettings:
         velocity_source=tuple(j.servo.get_str("velocity", "tach", choices=("tach", "encoder")) for j in rig.joints),
         velocity_source_given=tuple("velocity" in j.servo for j in rig.joints),
         stop=_stop_settings(rig, top),
+        blackbox_s=top.get_float("blackbox_s", DEFAULT_BLACKBOX_S, min=rig.period_s, max=MAX_BLACKBOX_S),
         gains_given=tuple("+".join(w for w, t in (("joint", j.servo), ("rig", top)) if "gains" in t)
                           for j in rig.joints),
         source=str(rig.path))

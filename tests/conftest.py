@@ -29,6 +29,12 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "deterministic"))
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
+# Every `vmehil run` writes its black box when it stops (docs/scope.md, "Black box"): with no
+# report directory into ./vmehil-blackbox of the working directory. The suite's runs (in-process
+# and the processes they start, which inherit this) write none unless a test asks with --blackbox;
+# the box is still kept on every tick (servo.blackbox).
+os.environ.setdefault("VMEHIL_BLACKBOX", "off")
+
 
 @pytest.fixture
 def crate() -> Crate:

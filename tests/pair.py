@@ -36,6 +36,7 @@ NETWORK_GROUP = (
     "tests/vmehil/test_can_first_hour.py",
     "tests/vmehil/test_can_system.py",
     "tests/vmehil/test_gain_guard_entry_points.py",
+    "tests/vmehil/test_live.py",
     "tests/vmehil/test_units_options.py",
     "tests/vmehil/test_units_plant_node.py",
     "tests/vmehil/test_units_processes.py",

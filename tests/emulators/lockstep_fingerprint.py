@@ -63,7 +63,13 @@ def _scrub(x: Any) -> Any:
 
 
 def fingerprint(argv: list[str]) -> dict[str, Any]:
+    import os
+
     import vmehil.reports.run_report as run_report
+
+    # the black box is kept on every tick all the same; its files (and their path, with the UTC
+    # time, in final_stop) are not the behaviour compared here
+    os.environ.setdefault("VMEHIL_BLACKBOX", "off")
     from vmehil.cli import main
 
     captured: dict[str, Any] = {}

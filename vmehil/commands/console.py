@@ -30,6 +30,7 @@ from vmehil.console.extension import ConsoleOptions
 from vmehil.errors import CliError
 from vmehil.option_groups.cli_types import duration_s
 from vmehil.option_groups.realtime_options import RealtimeOptions, add_overrun_args, add_pacing_args
+from vmehil.option_groups.scope_options import ScopeOptions, add_scope_arguments
 from vmehil.reports.run_report import excursion_text
 from vmehil.writers.files import write_json
 
@@ -54,6 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(default: calibration/<rig>.toml or $VMEHIL_CALIBRATION_DIR/<rig>.toml)")
     p.add_argument("--json", default=None, metavar="PATH",
                    help="write the session's summary here at exit (ticks, commands, how it stopped)")
+    add_scope_arguments(p)
     p.set_defaults(func=run_console, options=ConsoleCommandOptions.from_args)
 
 
@@ -71,12 +73,14 @@ class ConsoleCommandOptions:
     duration: float | None = None
     calibration: str | None = None
     json: str | None = None
+    scope: ScopeOptions = field(default_factory=ScopeOptions)
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> ConsoleCommandOptions:
         return cls(console=ConsoleOptions.from_args(args), rig=args.rig, seed=args.seed, motion=args.motion,
                    gains=parse_gains(args.gains, what="--gains"), pacing=RealtimeOptions.from_args(args, default=True),
-                   duration=args.duration, calibration=args.calibration, json=args.json)
+                   duration=args.duration, calibration=args.calibration, json=args.json,
+                   scope=ScopeOptions.from_args(args))
 
 
 def run_console(opts: ConsoleCommandOptions) -> int:
@@ -86,11 +90,16 @@ def run_console(opts: ConsoleCommandOptions) -> int:
     assert port is not None  # the parser's default: a new pty
     if console_port_needs_serial(port) and refuse_without("vmehil console --console " + port, "console"):
         return 2
+    if opts.scope.live is not None and refuse_without("vmehil console --live", "trace"):
+        return 2
+    opts.scope.live_address()  # a bad or non-loopback --live: one line, exit 2, before anything is built
     from servo.motion import NO_MOTION, hold_motion, load_motion
     from servo.rig import load_rig
     from servo.runner import LockstepRunner, RealtimeRunner
     from vmehil.calibration.store import CalibrationMissingWarning, default_store_path
     from vmehil.console.extension import start_console
+    from vmehil.live import open_live
+    from vmehil.reports.blackbox import save_blackbox
     from vmehil.rig_setup.session import build_loop
     from vmehil.rig_setup.system import build_emulated_rig
 
@@ -114,9 +123,14 @@ def run_console(opts: ConsoleCommandOptions) -> int:
     motion = (load_motion(opts.motion, n) if opts.motion and opts.motion != NO_MOTION
               else hold_motion("<console>"))
     loop = build_loop(system, motion=motion, gains=gains, n_ticks=0)
-    loop.start()
     paced = opts.pacing.realtime
     runner = RealtimeRunner(system, loop, **opts.pacing.runner_options()) if paced else LockstepRunner(system, loop)
+    try:
+        live = open_live(opts.scope, loop, runner)  # before the amplifiers are enabled: a port in use stops nothing
+    except BaseException:
+        system.close()
+        raise
+    loop.start()
     done = threading.Event()
     # calibrate jobs run here between runner chunks (not inside a tick hook), so a wall-clock
     # runner restarts its deadlines after a calibration instead of catching up on them
@@ -158,22 +172,27 @@ def run_console(opts: ConsoleCommandOptions) -> int:
                 loop.safe_stop("session_end", "vmehil console ended")
             console.announce_stop()
         fault = loop.fault
+        if live is not None:
+            live.close(loop)
         console.close()
         system.close()
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
     final = loop.stop_summary()
+    # the session's last seconds before its stop, named in the JSON (docs/scope.md, "Black box")
+    save_blackbox(loop, rig=system.rig.name, choice=opts.scope.blackbox, report=None, final_stop=final)
     print(f"vmehil console: {loop.tick_count} ticks ({loop.tick_count * loop.period_s:.3f} s), "
           f"{console.stats.handled} commands, stopped: {fault.cause if fault else '-'}")
     print(f"final stop: {final['cause'] or '-'} (category {final['category']}); "
           f"{excursion_text(final['excursion_deg'])}")
     if opts.json:
-        write_json(opts.json, summary(loop, console, system.rig.name, paced=paced, fault=fault))
+        write_json(opts.json, summary(loop, console, system.rig.name, paced=paced, fault=fault, final_stop=final))
     return 0
 
 
-def summary(loop, console, rig: str, *, paced: bool, fault) -> dict:
-    """The ``--json`` summary of a console session: what ran, what was asked, how it stopped."""
+def summary(loop, console, rig: str, *, paced: bool, fault, final_stop: dict | None = None) -> dict:
+    """The ``--json`` summary of a console session: what ran, what was asked, how it stopped
+    (``final_stop``: the last stop's summary as reported, with its ``blackbox``; default: the loop's)."""
     s = console.stats
     return {
         "rig": rig, "mode": "realtime" if paced else "lockstep", "ticks": loop.tick_count,
@@ -181,5 +200,5 @@ def summary(loop, console, rig: str, *, paced: bool, fault) -> dict:
         "long": s.long, "binary": s.binary, "dropped_out": s.dropped_out,
         "stopped": None if fault is None else {"cause": fault.cause, "detail": fault.detail, "tick": fault.tick},
         "stop_incomplete": bool(getattr(loop, "stop_incomplete", False)),
-        "final_stop": loop.stop_summary(),
+        "final_stop": final_stop if final_stop is not None else loop.stop_summary(),
     }

@@ -15,6 +15,7 @@ from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_exit_status
+from vmehil import live as live_extension
 from vmehil.commands import console_port_needs_serial, refuse_without, run_units
 from vmehil.commands.calibration_file import calibrated
 from vmehil.commands.run_options import RunOptions
@@ -48,6 +49,7 @@ RUN_EXTENSIONS: tuple[ModuleType, ...] = (
     can_options,
     console_extension,
     fault_options,  # after vision_options: a vision fault needs the attached vision system
+    live_extension,  # --live (and --blackbox): last, so it sees every tick as the others left it
 )
 
 
@@ -90,9 +92,11 @@ def run(opts: RunOptions) -> int:
     console = opts.console.port
     for option, extra, used in (("--report", "plots", bool(opts.report)),
                                 ("--mavlink", "mavlink", bool(opts.mavlink.url)),
-                                ("--console", "console", bool(console and console_port_needs_serial(console)))):
+                                ("--console", "console", bool(console and console_port_needs_serial(console))),
+                                ("--live", "trace", opts.scope.live is not None)):
         if used and refuse_without(f"vmehil run {option}", extra):
             return 2
+    opts.scope.live_address()  # a bad or non-loopback --live: one line, exit 2, before anything is built
     from emulators.presets import resolve_rig
     from servo.rig import load_rig
     from servo.settings import servo_settings

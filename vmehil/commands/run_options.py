@@ -15,6 +15,7 @@ from vmehil.fault_scenarios.options import FaultOptions
 from vmehil.mavlink.extension import MavlinkOptions
 from vmehil.option_groups.can_options import CanPlantOptions
 from vmehil.option_groups.realtime_options import RealtimeOptions
+from vmehil.option_groups.scope_options import ScopeOptions
 from vmehil.option_groups.vision_options import VisionOptions
 from vmehil.unit_controllers.hub import UNIT_TIMEOUT_S
 
@@ -25,7 +26,8 @@ class RunOptions:
 
     ``gains``: ``--gains`` parsed (names and numbers; the guard's checks are the run's);
     ``integrator_switch_off``: False with ``--no-integrator-switch-off``, else None (the rig's);
-    ``pacing.realtime``: ``--realtime``/``--lockstep``, by default real time with ``--console``.
+    ``pacing.realtime``: ``--realtime``/``--lockstep``, by default real time with ``--console`` or
+    ``--live``; ``scope``: ``--blackbox``, ``--live`` (docs/scope.md).
     """
 
     rig: str | None = None
@@ -48,20 +50,23 @@ class RunOptions:
     plant: CanPlantOptions | None = None
     console: ConsoleOptions = field(default_factory=ConsoleOptions)
     faults: FaultOptions = field(default_factory=FaultOptions)
+    scope: ScopeOptions = field(default_factory=ScopeOptions)
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> RunOptions:
         console = ConsoleOptions.from_args(args)
-        # a person at the console needs the loop at the wall clock's pace (a lockstep run would be
-        # over before they typed); --lockstep still wins
+        scope = ScopeOptions.from_args(args)
+        # a person at the console, or watching the live view, needs the loop at the wall clock's
+        # pace (a lockstep run would be over before they typed or looked); --lockstep still wins
         return cls(rig=args.rig, seed=args.seed, motion=args.motion, duration=args.duration,
-                   pacing=RealtimeOptions.from_args(args, default=bool(console.port)),
+                   pacing=RealtimeOptions.from_args(args, default=bool(console.port) or scope.live is not None),
                    integrator_switch_off=False if args.no_integrator_switch_off else None,
                    gains=parse_gains(args.gains, what="--gains"), json=args.json, report=args.report,
                    calibration=args.calibration, quiet=args.quiet, bus=args.bus,
                    enable_amplifiers=args.enable_amplifiers, units=args.units, unit_timeout_s=args.unit_timeout,
                    mavlink=MavlinkOptions.from_args(args), vision=VisionOptions.from_args(args),
-                   plant=CanPlantOptions.from_args(args), console=console, faults=FaultOptions.from_args(args))
+                   plant=CanPlantOptions.from_args(args), console=console, faults=FaultOptions.from_args(args),
+                   scope=scope)
 
     @property
     def realtime(self) -> bool:

@@ -18,6 +18,7 @@ if TYPE_CHECKING:
 def finish_run(opts: RunOptions, system, loop, runner, rig, attached: list, ended_by: BaseException | None) -> int:
     """Summary, table, JSON and report of a run that has ended; its exit status."""
     from servo.runner import RealtimeRunner
+    from vmehil.reports.blackbox import save_blackbox
     from vmehil.reports.run_report import excursion_text, summarize, table, write_report
 
     timing = runner.timing.summary(system.rig.period_s) if isinstance(runner, RealtimeRunner) else None
@@ -27,6 +28,9 @@ def finish_run(opts: RunOptions, system, loop, runner, rig, attached: list, ende
         add = getattr(a, "add_to_summary", None)
         if add is not None:
             add(summary)
+    # every stop (fault, exception, signal, end) ends here: the last seconds before it, named in the JSON
+    save_blackbox(loop, rig=system.rig.name, choice=opts.scope.blackbox, report=opts.report,
+                  final_stop=summary.get("final_stop"))
     rt_settings = realtime_settings_summary(runner)
     if rt_settings is not None:
         summary["realtime_settings"] = rt_settings

@@ -31,6 +31,8 @@ _NOT_WITH_UNITS: tuple[tuple[Callable[[RunOptions], object], str, str], ...] = (
      "gains to every unit with --gains"),
     (lambda o: o.console.port, "--console",
      "the operator console drives one servo loop (its motions, calibration, stops); use it with --units single"),
+    (lambda o: o.scope.live, "--live",
+     "the live view serves one servo loop's channels; watch a unit's joints with --units single --live"),
     (lambda o: o.vision.mode, "--vision",
      "the visual servo commands one loop's joints over one BIT3 window; run it with --units single"),
 )

@@ -1,0 +1,134 @@
+"""``--live [HOST:PORT]``: the loop's channels served live over the Foxglove WebSocket protocol.
+
+The same channels as the black box's MCAP (:mod:`vmehil.reports.blackbox`: ``/j1`` and ``/drv/j1``
+per joint, JSON with JSON Schemas, named as the trace files name them), served by foxglove-sdk's
+WebSocket server (the ``trace`` extra), so Foxglove opens ``ws://HOST:PORT`` and plots them while
+the loop runs
+(docs/scope.md, "Live view"). The rows come from the loop's black box after each tick
+(``runner.after_tick``): the live view adds no bus access, and nothing is encoded while no
+client is subscribed.
+
+Decimated to :data:`LIVE_RATE_HZ` of loop time (every 5th tick at 125 Hz): what a plot panel
+draws smoothly; a tick whose stop state changed (a stop beginning, the power going off) is always
+sent, and the last row when the live view closes. Loopback only unless ``--live-allow-remote``.
+
+A RUN_EXTENSIONS module of ``vmehil run`` (``add_arguments`` also adds ``--blackbox``, the
+same option group); ``vmehil console`` opens it with :func:`open_live`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from typing import Any, Protocol
+
+from vmehil.option_groups.scope_options import ScopeOptions, add_scope_arguments
+from vmehil.reports.blackbox import MessageMaker, channel_schemas
+
+__all__ = ["LIVE_RATE_HZ", "LiveView", "add_arguments", "attach", "open_live"]
+
+#: messages per second of loop time on each channel (plus every change of the stop state)
+LIVE_RATE_HZ = 25.0
+#: seconds the server stays up after the last row when a client is subscribed (the run has ended)
+LINGER_S = 0.2
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_scope_arguments(p)
+
+
+class RunNeeds(Protocol):
+    """What of ``vmehil run``'s options the live view reads."""
+
+    @property
+    def scope(self) -> ScopeOptions: ...
+
+
+class LiveView:
+    """A foxglove-sdk WebSocket server with the loop's channels; :meth:`after_tick` publishes."""
+
+    def __init__(self, host: str, port: int, names: list[str] | tuple[str, ...], period_s: float,
+                 rate_hz: float = LIVE_RATE_HZ) -> None:
+        import foxglove
+
+        self._ctx = foxglove.Context()  # its own: two views in one process do not share channels
+        self.names = tuple(names)
+        self._channels = {topic: foxglove.Channel(topic, schema=schema, context=self._ctx)
+                          for topic, schema in channel_schemas(self.names).items()}
+        self._maker = MessageMaker(self.names, period_s)
+        self._server = foxglove.start_server(name="vmehil", host=host, port=port, context=self._ctx)
+        self.host = host
+        self.port = int(self._server.port)
+        self.every = max(1, round(1.0 / (rate_hz * period_s)))
+        self.rate_hz = 1.0 / (self.every * period_s)
+        self.period_ns = round(period_s * 1e9)
+        self._last_tick = -1
+        self._last_state = -1
+        self.sent = 0  #: rows published (each on every channel)
+
+    @property
+    def url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"ws://{host}:{self.port}"
+
+    def after_tick(self, loop: Any) -> None:
+        box = loop.blackbox
+        row = box.latest() if box is not None else None
+        if row is None:
+            return
+        tick, t, state, values = row
+        if tick == self._last_tick:  # the box froze after the stop: nothing new
+            return
+        if tick % self.every == 0 or state != self._last_state:
+            self._publish(tick, t, state, values)
+
+    def _publish(self, tick: int, t: float, state: int, values: Any) -> None:
+        self._last_tick, self._last_state = tick, state
+        if not any(ch.has_sinks() for ch in self._channels.values()):  # nobody subscribed: nothing to encode
+            return
+        ns = tick * self.period_ns
+        for topic, msg in self._maker.messages(tick, state, values):
+            ch = self._channels[topic]
+            if ch.has_sinks():
+                ch.log(msg, log_time=ns)
+        self.sent += 1
+
+    def close(self, loop: Any = None) -> None:
+        """Publish the last row (when not yet sent), then stop the server — :data:`LINGER_S` later
+        when a client is subscribed, so that the row leaves (the server sends from its own threads)."""
+        if loop is not None and loop.blackbox is not None:
+            row = loop.blackbox.latest()
+            if row is not None and row[0] != self._last_tick:
+                self._publish(*row)
+        if any(ch.has_sinks() for ch in self._channels.values()):
+            time.sleep(LINGER_S)
+        self._server.stop()
+
+
+class _Attached:
+    """The live view of a run: closed (its last row sent) after the run."""
+
+    def __init__(self, view: LiveView, loop: Any) -> None:
+        self.view, self.loop = view, loop
+
+    def close(self) -> None:
+        self.view.close(self.loop)
+
+
+def open_live(scope: ScopeOptions, loop: Any, runner: Any) -> LiveView | None:
+    """Start the live view ``--live`` asks for and hook it to ``runner.after_tick``; ``None``
+    without ``--live``. The address is printed on stderr (port 0: the one chosen)."""
+    address = scope.live_address()
+    if address is None:
+        return None
+    view = LiveView(address[0], address[1], loop.names, loop.period_s)
+    runner.after_tick.append(view.after_tick)
+    print(f"live: {view.url} (Foxglove WebSocket; {view.rate_hz:g} Hz of loop time per channel)",
+          file=sys.stderr, flush=True)
+    return view
+
+
+def attach(run: RunNeeds, system: Any, loop: Any, runner: Any, prepared: None = None) -> _Attached | None:
+    view = open_live(run.scope, loop, runner)
+    return None if view is None else _Attached(view, loop)

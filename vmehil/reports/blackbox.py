@@ -1,0 +1,254 @@
+"""Writing the servo loop's black box (:mod:`servo.blackbox`) when a run stops.
+
+On every stop — fault, exception, signal, end — the command writes the box into the report
+directory, or with none into ``./vmehil-blackbox/<rig>-<UTC time>/`` (``--blackbox DIR`` or
+``$VMEHIL_BLACKBOX``: another folder; ``off``: nothing): ``blackbox.mcap`` (with the ``trace``
+extra; else ``blackbox.npz``, said in one line) and ``blackbox.png``, the seconds around the stop
+(with matplotlib). The run JSON names the data file as ``final_stop.blackbox``.
+
+The MCAP layout (:func:`write_mcap`, the one place that writes it) is a trace file's (docs/scope.md):
+one channel per signal group — ``/j1`` (the controller's view of joint j1: target, position,
+velocity, error, torque and current commands, integrators, Kp_eff, switch-off and stop state) and
+``/drv/j1`` (its lines: amplifier enable, holding brake, amplifier fault) per joint — JSON messages
+``{"tick", "t_s", <leaf>: value, ...}`` with JSON Schemas, log times on the loop's clock (tick ×
+period, ns); the stop (tick, cause) in the file's metadata ``blackbox``. The live view
+(:mod:`vmehil.live`) serves the same channels.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import sys
+from collections.abc import Iterator, Mapping
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from servo.blackbox import JOINT_SIGNALS, STOP_STATES, BlackBoxSnapshot
+from vmehil.writers.files import save_figure, write_atomic
+
+__all__ = ["BLACKBOX_ENV", "DEFAULT_DIR", "MessageMaker", "blackbox_folder", "box_groups", "channel_schemas",
+           "save_blackbox", "signal_names", "topic_of", "write_blackbox", "write_mcap"]
+
+#: where a run with no report directory writes its black box (a folder per run inside)
+DEFAULT_DIR = "vmehil-blackbox"
+#: environment variable: the black box's folder (instead of ./vmehil-blackbox), or ``off``
+BLACKBOX_ENV = "VMEHIL_BLACKBOX"
+#: seconds of the box shown before the stop in the PNG (all of it when shorter)
+PNG_BEFORE_S = 3.0
+
+
+def blackbox_folder(choice: str | None, report: str | None, rig: str, now: datetime | None = None) -> Path | None:
+    """Where this run's box goes: ``choice`` (``--blackbox``; else ``$VMEHIL_BLACKBOX``): ``off``
+    → ``None``; a folder → ``<folder>/<rig>-<UTC time>``; none given: the report directory, or
+    ``./vmehil-blackbox/<rig>-<UTC time>``."""
+    choice = choice if choice is not None else os.environ.get(BLACKBOX_ENV) or None
+    if choice == "off":
+        return None
+    if choice is None and report:
+        return Path(report)
+    stamp = (now or datetime.now(UTC)).strftime("%Y%m%dT%H%M%SZ")
+    return Path(choice or DEFAULT_DIR) / f"{rig}-{stamp}"
+
+
+def save_blackbox(loop: Any, *, rig: str, choice: str | None, report: str | None,
+                  final_stop: dict[str, Any] | None, folder: Path | None = None) -> Path | None:
+    """The end of a run: write ``loop``'s black box where :func:`blackbox_folder` says (``folder``:
+    there instead) and name it in ``final_stop`` as ``blackbox``. A box that cannot be written is
+    one line on stderr, never the run's failure (its stop is done, its JSON still to write)."""
+    box = getattr(loop, "blackbox", None)
+    if box is None:
+        return None
+    folder = folder if folder is not None else blackbox_folder(choice, report, rig)
+    if folder is None:
+        return None
+    try:
+        path = write_blackbox(box.snapshot(), folder, rig=rig, stop=final_stop)
+    except (OSError, ValueError) as e:
+        print(f"black box: not written to {folder}: {type(e).__name__}: {e}", file=sys.stderr)
+        return None
+    if final_stop is not None:
+        final_stop["blackbox"] = str(path)
+    note = " (.npz: MCAP needs the 'trace' extra: pip install 'vmehil[trace]')" if path.suffix == ".npz" else ""
+    print(f"black box: {path}{note}", file=sys.stderr)
+    return path
+
+
+_JSON_TYPE = {"f": "number", "i": "integer", "b": "boolean"}
+#: the joints' stop state, a field of each joint's own group (the catalog's ``J.stop_state``)
+STOP_STATE = ("stop_state", "i", "", "0 servoing, 1 decelerating (category-1 stop), 2 holding (category 2), "
+                                     "3 stopped (power off)")
+
+
+def topic_of(group: str) -> str:
+    """The MCAP (and live) topic of a signal group, as the trace files name it: ``drv.j1`` → ``/drv/j1``."""
+    return "/" + group.replace(".", "/")
+
+
+def box_groups(names: tuple[str, ...] | list[str]) -> dict[str, list[tuple[str, str, str, str, int]]]:
+    """The box's signals by group (catalog names: ``j1`` and ``drv.j1`` per joint): group → (leaf,
+    kind, unit, what, row index in :data:`JOINT_SIGNALS`; -1: the stop state)."""
+    out: dict[str, list[tuple[str, str, str, str, int]]] = {}
+    for j in names:
+        ctrl = [(leaf, kind, unit, what, i) for i, (leaf, g, kind, unit, what) in enumerate(JOINT_SIGNALS)
+                if g == "ctrl"]
+        out[j] = [*ctrl, (*STOP_STATE, -1)]
+        out[f"drv.{j}"] = [(leaf, kind, unit, what, i) for i, (leaf, g, kind, unit, what) in enumerate(JOINT_SIGNALS)
+                           if g == "drv"]
+    return out
+
+
+def signal_names(names: tuple[str, ...] | list[str]) -> list[str]:
+    """Every signal the box holds, by its dotted name (``j1.target_rad``, ``drv.j1.amp_fault``)."""
+    return [f"{g}.{leaf}" for g, fields in box_groups(names).items() for leaf, *_ in fields]
+
+
+def channel_schemas(names: tuple[str, ...] | list[str]) -> dict[str, dict[str, Any]]:
+    """Topic → the JSON Schema of its messages (every field present; a value may be ``null``)."""
+    out = {}
+    for group, fields in box_groups(names).items():
+        props: dict[str, Any] = {"tick": {"type": "integer", "description": "servo tick"},
+                                 "t_s": {"type": "number", "description": "tick × period, s"}}
+        for leaf, kind, unit, what, _ in fields:
+            props[leaf] = {"type": [_JSON_TYPE[kind], "null"], "description": f"{what} [{unit}]" if unit else what}
+        out[topic_of(group)] = {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": f"vmehil.{group}",
+                                "type": "object", "properties": props, "required": list(props),
+                                "additionalProperties": False}
+    return out
+
+
+class MessageMaker:
+    """One tick's row of the box → (topic, JSON message) per group: the MCAP's and the live view's."""
+
+    def __init__(self, names: tuple[str, ...] | list[str], period_s: float) -> None:
+        self.period_s = period_s
+        groups = box_groups(names)
+        self._plan = [(topic_of(g), j, groups[g]) for j, name in enumerate(names) for g in (name, f"drv.{name}")]
+
+    def messages(self, tick: int, state: int, values: np.ndarray) -> Iterator[tuple[str, dict[str, Any]]]:
+        """``values``: signals × joints (NaN → ``null``; levels as booleans)."""
+        rows = values.T.tolist()
+        t_s = tick * self.period_s
+        for topic, j, fields in self._plan:
+            row = rows[j]
+            msg: dict[str, Any] = {"tick": tick, "t_s": t_s}
+            for leaf, kind, _, _, i in fields:
+                if i < 0:
+                    msg[leaf] = state
+                    continue
+                v = row[i]
+                msg[leaf] = None if v != v else (bool(v) if kind == "b" else v)
+            yield topic, msg
+
+
+def _messages(snap: BlackBoxSnapshot) -> Iterator[tuple[str, int, dict[str, Any]]]:
+    """(topic, log time ns, message) for every row, in time order."""
+    maker = MessageMaker(snap.names, snap.period_s)
+    period_ns = round(snap.period_s * 1e9)
+    for r in range(snap.t.size):
+        k = int(snap.tick[r])
+        for topic, msg in maker.messages(k, int(snap.stop_state[r]), snap.joints[r]):
+            yield topic, k * period_ns, msg
+
+
+def _meta(snap: BlackBoxSnapshot, rig: str, stop: Mapping[str, Any] | None) -> dict[str, str]:
+    stop = stop or {}
+    return {"rig": rig, "period_s": repr(snap.period_s),
+            "stop_tick": "" if snap.stop_tick is None else str(snap.stop_tick),
+            "stop_reason": str(stop.get("reason") or ""), "stop_cause": str(stop.get("cause") or ""),
+            "signals": ",".join(signal_names(snap.names))}
+
+
+def write_mcap(path: Path, snap: BlackBoxSnapshot, meta: Mapping[str, str]) -> Path:
+    """The box as MCAP (``mcap`` library; JSON messages with JSON Schemas), written atomically."""
+    from mcap.writer import Writer
+
+    buf = io.BytesIO()
+    w = Writer(buf)
+    w.start(profile="", library="vmehil black box")
+    ids: dict[str, int] = {}
+    for topic, schema in channel_schemas(snap.names).items():
+        sid = w.register_schema(name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode())
+        ids[topic] = w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
+    for topic, ns, msg in _messages(snap):
+        w.add_message(channel_id=ids[topic], log_time=ns, publish_time=ns, sequence=msg["tick"] & 0xFFFFFFFF,
+                      data=json.dumps(msg, allow_nan=False, separators=(",", ":")).encode())
+    w.add_metadata("blackbox", dict(meta))
+    w.finish()
+    return write_atomic(path, buf.getvalue())
+
+
+def _write_npz(path: Path, snap: BlackBoxSnapshot, meta: Mapping[str, str]) -> Path:
+    buf = io.BytesIO()
+    np.savez_compressed(buf, t=snap.t, tick=snap.tick, stop_state=snap.stop_state, joints=snap.joints,
+                        names=np.array(snap.names), signals=np.array([leaf for leaf, *_ in JOINT_SIGNALS]),
+                        meta=np.array(json.dumps(dict(meta))))
+    return write_atomic(path, buf.getvalue())
+
+
+def _have(module: str) -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec(module) is not None
+
+
+def write_blackbox(snap: BlackBoxSnapshot, folder: Path, *, rig: str, stop: Mapping[str, Any] | None) -> Path:
+    """Write the box into ``folder``: MCAP (or ``.npz`` without the ``trace`` extra) and a PNG
+    around the stop (with matplotlib). Returns the data file."""
+    folder.mkdir(parents=True, exist_ok=True)
+    meta = _meta(snap, rig, stop)
+    if _have("mcap"):
+        data = write_mcap(folder / "blackbox.mcap", snap, meta)
+    else:
+        data = _write_npz(folder / "blackbox.npz", snap, meta)
+    if _have("matplotlib"):
+        write_png(folder / "blackbox", snap, rig=rig, stop=stop)
+    return data
+
+
+def write_png(path: Path, snap: BlackBoxSnapshot, *, rig: str, stop: Mapping[str, Any] | None) -> Path:
+    """The seconds around the stop: per joint the error, velocity and torque command; the lines
+    (enables, brakes released, amplifier faults) and the stop state. ``path`` without suffix."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = snap.t
+    t_stop = snap.stop_tick * snap.period_s if snap.stop_tick is not None else None
+    keep = t >= (t_stop - PNG_BEFORE_S) if t_stop is not None else np.ones(t.shape, bool)
+    t = t[keep]
+    fig, ax = plt.subplots(4, 1, figsize=(9, 9), sharex=True)
+    for j, name in enumerate(snap.names):
+        ax[0].plot(t, np.degrees(snap.signal("error_rad")[keep, j]), lw=0.9, label=name)
+        ax[1].plot(t, np.degrees(snap.signal("velocity_rad_s")[keep, j]), lw=0.9)
+        ax[2].plot(t, snap.signal("torque_nm")[keep, j], lw=0.9)
+    ax[0].set_ylabel("error θd−θ (°)")
+    ax[1].set_ylabel("velocity (°/s)")
+    ax[2].set_ylabel("torque cmd (N·m)")
+    ax[0].legend(loc="best", fontsize=7, ncol=4)
+    lines = ax[3]
+    lines.step(t, np.nanmean(snap.signal("amp_enable")[keep], axis=1), where="post", label="enables (fraction high)")
+    lines.step(t, np.nanmean(snap.signal("brake_released")[keep], axis=1), where="post",
+               label="brakes released (fraction)")
+    lines.step(t, np.nanmax(np.nan_to_num(snap.signal("amp_fault")[keep]), axis=1, initial=0.0), where="post",
+               label="any amplifier fault")
+    lines.step(t, snap.stop_state[keep] / (len(STOP_STATES) - 1), where="post", ls="--",
+               label="stop state (0 running … 1 stopped)")
+    lines.set_ylabel("lines")
+    lines.set_xlabel("loop time (s)")
+    lines.legend(loc="best", fontsize=7)
+    for a in ax:
+        if t_stop is not None:
+            a.axvline(t_stop, color="r", lw=0.8)
+        a.grid(True, alpha=0.3)
+    s = stop or {}
+    why = s.get("cause") or s.get("reason") or "no stop"
+    fig.suptitle(f"{rig} black box: {why}" + (f" at {t_stop:.3f} s" if t_stop is not None else ""))
+    out = save_figure(fig, path)[0]
+    plt.close(fig)
+    return out
