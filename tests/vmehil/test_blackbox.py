@@ -181,3 +181,29 @@ def test_a_console_session_writes_its_box_when_it_ends(tmp_path):
     assert [rows[0]["stop_state"], rows[-1]["stop_state"]] == [0, 3] and any(r["stop_state"] == 1 for r in rows)
     # the power went off at the end of the stop's last tick; the 2 s watched after it, every tick kept
     assert sum(r["stop_state"] == 3 for r in rows) == AFTER_TICKS
+
+
+def test_parallel_units_each_write_their_box_and_the_run_names_the_stopped_units(tmp_path, monkeypatch):
+    import vmehil.reports.blackbox as writer
+
+    have = writer._have  # no PNGs here (five of them): the MCAP is what is checked
+    monkeypatch.setattr(writer, "_have", lambda module: False if module == "matplotlib" else have(module))
+    out = tmp_path / "run.json"
+    status = cli.main(["run", "--rig", "melmalec-16", "--units", "parallel", "--duration", "1.2", "--quiet",
+                       "--fault", "amp_fault@1:joint=leg2_knee", "--json", str(out), "--blackbox", str(tmp_path)])
+    assert status == 1
+    summary = json.loads(out.read_text())
+    leg2 = summary["units"]["leg2"]
+    fault = leg2["faults"][0]
+    assert fault["cause"] == "amplifier_fault" and fault["joint"] == "leg2_knee"
+    assert summary["final_stop"]["unit"] == "leg2"
+    assert summary["final_stop"]["blackbox"] == leg2["final_stop"]["blackbox"]
+    path = Path(leg2["final_stop"]["blackbox"])
+    assert path.parent.name == "leg2" and path.name == "blackbox.mcap"
+    assert {Path(u["final_stop"]["blackbox"]).parent.name for u in summary["units"].values()} == set(summary["units"])
+    msgs, _, meta = _read_mcap(path)
+    assert {t for t in msgs if not t.startswith("/drv/")} == {f"/{j['name']}" for j in leg2["joints"]}
+    assert int(meta["stop_tick"]) == fault["tick"]
+    knee = {m["tick"]: m for m in msgs["/drv/leg2_knee"]}
+    assert knee[fault["tick"]]["amp_fault"] is True and knee[fault["tick"] - 1]["amp_fault"] is False
+    assert (fault["tick"] - min(knee)) * PERIOD_S >= 1.0

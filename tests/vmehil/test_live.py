@@ -1,8 +1,8 @@
 """`vmehil run --live`: the loop's channels over the Foxglove WebSocket protocol (docs/scope.md,
 "Live view").
 
-The client here is written from the protocol's published spec (foxglove/ws-protocol,
-docs/spec.md), with the `websockets` library, not with foxglove-sdk: it offers the subprotocol
+The client here is written from the protocol's published spec (the spec document of the
+foxglove/ws-protocol repository), with the `websockets` library, not with foxglove-sdk: it offers the subprotocol
 (``foxglove.websocket.v1``, and its current name ``foxglove.sdk.v1``, which foxglove-sdk ≥ 0.x
 servers require — the same protocol renamed), reads the server's ``serverInfo`` and ``advertise``
 (JSON text), sends ``subscribe`` and decodes the binary *message data* frames (opcode 0x01,

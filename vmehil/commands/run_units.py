@@ -131,6 +131,7 @@ def run_parallel(opts: RunOptions, rig: Any, gains: dict[str, float], motion: An
                     "stop": stop,
                     "hub_events": [{"exchange": e.exchange, "unit": e.unit, "what": e.what} for e in run.hub.events],
                     "units": units})
+    _save_blackboxes(opts, rig.name, run, units, summary)
     print(table(summary) if merged is not None else "\n".join(units_section(summary)))
     if opts.json:
         write_json(opts.json, summary)
@@ -139,3 +140,24 @@ def run_parallel(opts: RunOptions, rig: Any, gains: dict[str, float], motion: An
         print(f"report: {len(files)} files in {opts.report}")
     run.close()
     return status
+
+
+def _save_blackboxes(opts: RunOptions, rig: str, run: Any, units: dict[str, Any], summary: dict[str, Any]) -> None:
+    """Each unit's black box into ``<folder>/<unit>/`` (docs/scope.md, "Black box"), named in its
+    ``units.<unit>.final_stop.blackbox``; the run's ``final_stop.blackbox`` is the box of the unit
+    whose stop the run reports (``final_stop.unit``)."""
+    from vmehil.reports.blackbox import blackbox_folder, save_blackbox
+
+    folder = blackbox_folder(opts.scope.blackbox, opts.report, rig)
+    if folder is None:
+        return
+    boxes = {}
+    for u in run.units:
+        if u.loop is None:
+            continue
+        stop = units.get(u.unit.name, {}).get("final_stop")
+        boxes[u.unit.name] = save_blackbox(u.loop, rig=f"{rig} unit {u.unit.name}", choice=None, report=None,
+                                           final_stop=stop, folder=folder / u.unit.name)
+    top = summary.get("final_stop")
+    if isinstance(top, dict) and boxes.get(top.get("unit")) is not None:
+        top["blackbox"] = str(boxes[top["unit"]])
