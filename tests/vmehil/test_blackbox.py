@@ -207,3 +207,20 @@ def test_parallel_units_each_write_their_box_and_the_run_names_the_stopped_units
     knee = {m["tick"]: m for m in msgs["/drv/leg2_knee"]}
     assert knee[fault["tick"]]["amp_fault"] is True and knee[fault["tick"] - 1]["amp_fault"] is False
     assert (fault["tick"] - min(knee)) * PERIOD_S >= 1.0
+
+
+def test_an_error_outside_the_ticks_still_leaves_the_box(tmp_path, monkeypatch, capsys):
+    from servo.runner import LockstepRunner
+
+    def broken(self, *args, **kwargs):
+        raise RuntimeError("the end of the run failed")
+
+    monkeypatch.setattr(LockstepRunner, "end_run", broken)
+    assert cli.main(["run", "--motion", "none", "--duration", "0.4", "--quiet", "--blackbox", str(tmp_path)]) == 3
+    err = capsys.readouterr().err
+    line = next(line for line in err.splitlines() if line.startswith("black box: "))
+    msgs, _, meta = _read_mcap(Path(line.removeprefix("black box: ")))
+    assert meta["stop_reason"] == "exception" and "failed" not in meta["stop_cause"]
+    # stopped between ticks, after the last one the box holds (still servoing then)
+    assert int(meta["stop_tick"]) == msgs["/j1"][-1]["tick"] + 1 == 50  # 0.4 s at 125 Hz: ticks 0..49
+    assert msgs["/j1"][-1]["stop_state"] == 0 and msgs["/drv/j1"][-1]["amp_enable"] is True

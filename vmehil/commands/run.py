@@ -209,6 +209,14 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
         if len(after.held) > noted and status in (0, EXIT_FAULT):  # a signal while the results were written
             status = interrupt_exit_status(after.held[noted])
         return status
+    except Exception:
+        # an error outside the ticks (they stop on their own and end in finish_run): the loop is
+        # stopped (armed()); no JSON follows, but the box of the seconds before the stop does
+        if loop.final_stop is not None and "blackbox" not in loop.final_stop:
+            from vmehil.reports.blackbox import save_blackbox
+            save_blackbox(loop, rig=rig.name, choice=opts.scope.blackbox, report=opts.report,
+                          final_stop=loop.final_stop)
+        raise
     finally:
         after.end()
 

@@ -17,6 +17,7 @@ period, ns); the stop (tick, cause) in the file's metadata ``blackbox``. The liv
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import os
@@ -66,8 +67,12 @@ def save_blackbox(loop: Any, *, rig: str, choice: str | None, report: str | None
     folder = folder if folder is not None else blackbox_folder(choice, report, rig)
     if folder is None:
         return None
+    snap = box.snapshot()
+    stop_tick = getattr(loop, "stop_tick", None)
+    if stop_tick is not None and stop_tick != snap.stop_tick:  # a stop after the last tick the box saw
+        snap = dataclasses.replace(snap, stop_tick=int(stop_tick))
     try:
-        path = write_blackbox(box.snapshot(), folder, rig=rig, stop=final_stop)
+        path = write_blackbox(snap, folder, rig=rig, stop=final_stop)
     except (OSError, ValueError) as e:
         print(f"black box: not written to {folder}: {type(e).__name__}: {e}", file=sys.stderr)
         return None
