@@ -13,7 +13,8 @@ draws smoothly; a tick whose stop state changed (a stop beginning, the power goi
 sent, and the last row when the live view closes. Loopback only unless ``--live-allow-remote``.
 
 A RUN_EXTENSIONS module of ``vmehil run`` (``add_arguments`` also adds ``--blackbox``, the
-same option group); ``vmehil console`` opens it with :func:`open_live`.
+same option group; ``prepare`` starts the server before the rig is built, ``attach`` hooks it to
+the runner); ``vmehil console`` opens it with :func:`open_live`.
 """
 
 from __future__ import annotations
@@ -23,10 +24,11 @@ import sys
 import time
 from typing import Any, Protocol
 
+from vmehil.errors import CliError
 from vmehil.option_groups.scope_options import ScopeOptions, add_scope_arguments
 from vmehil.reports.blackbox import MessageMaker, channel_schemas
 
-__all__ = ["LIVE_RATE_HZ", "LiveView", "add_arguments", "attach", "open_live"]
+__all__ = ["LIVE_RATE_HZ", "LiveView", "add_arguments", "attach", "open_live", "prepare"]
 
 #: messages per second of loop time on each channel (plus every change of the stop state)
 LIVE_RATE_HZ = 25.0
@@ -57,7 +59,10 @@ class LiveView:
         self._channels = {topic: foxglove.Channel(topic, schema=schema, context=self._ctx)
                           for topic, schema in channel_schemas(self.names).items()}
         self._maker = MessageMaker(self.names, period_s)
-        self._server = foxglove.start_server(name="vmehil", host=host, port=port, context=self._ctx)
+        try:
+            self._server = foxglove.start_server(name="vmehil", host=host, port=port, context=self._ctx)
+        except RuntimeError as e:  # foxglove-sdk's FoxgloveError: the port is taken, the host not ours
+            raise CliError(f"--live {host}:{port}: {e}") from None
         self.host = host
         self.port = int(self._server.port)
         self.every = max(1, round(1.0 / (rate_hz * period_s)))
@@ -94,41 +99,66 @@ class LiveView:
                 ch.log(msg, log_time=ns)
         self.sent += 1
 
-    def close(self, loop: Any = None) -> None:
-        """Publish the last row (when not yet sent), then stop the server — :data:`LINGER_S` later
-        when a client is subscribed, so that the row leaves (the server sends from its own threads)."""
-        if loop is not None and loop.blackbox is not None:
-            row = loop.blackbox.latest()
-            if row is not None and row[0] != self._last_tick:
-                self._publish(*row)
+    def finish(self, loop: Any) -> None:
+        """The run has ended: publish its last row (when not yet sent) — and, when a client is
+        subscribed, give it :data:`LINGER_S` to leave (the server sends from its own threads)."""
+        box = loop.blackbox
+        row = box.latest() if box is not None else None
+        if row is not None and row[0] != self._last_tick:
+            self._publish(*row)
         if any(ch.has_sinks() for ch in self._channels.values()):
             time.sleep(LINGER_S)
+
+    def close(self) -> None:
+        """Stop the server (its clients see the connection close)."""
         self._server.stop()
+
+    def announce(self) -> None:
+        print(f"live: {self.url} (Foxglove WebSocket; {self.rate_hz:g} Hz of loop time per channel)",
+              file=sys.stderr, flush=True)
 
 
 class _Attached:
-    """The live view of a run: closed (its last row sent) after the run."""
+    """The live view of a run: its last row sent after the run (the server is the preparation's)."""
 
     def __init__(self, view: LiveView, loop: Any) -> None:
         self.view, self.loop = view, loop
 
     def close(self) -> None:
-        self.view.close(self.loop)
+        self.view.finish(self.loop)
 
 
-def open_live(scope: ScopeOptions, loop: Any, runner: Any) -> LiveView | None:
-    """Start the live view ``--live`` asks for and hook it to ``runner.after_tick``; ``None``
-    without ``--live``. The address is printed on stderr (port 0: the one chosen)."""
+def open_live(scope: ScopeOptions, names: list[str] | tuple[str, ...], period_s: float) -> LiveView | None:
+    """Start the live view ``--live`` asks for (``None`` without it): the server is up and its
+    address printed on stderr (port 0: the one chosen) before the amplifiers are enabled; a port
+    that cannot be had is a :class:`~vmehil.errors.CliError` (exit 2). Hook :meth:`LiveView.after_tick`
+    to the runner; :meth:`LiveView.finish` after the run, then :meth:`LiveView.close`."""
     address = scope.live_address()
     if address is None:
         return None
-    view = LiveView(address[0], address[1], loop.names, loop.period_s)
-    runner.after_tick.append(view.after_tick)
-    print(f"live: {view.url} (Foxglove WebSocket; {view.rate_hz:g} Hz of loop time per channel)",
-          file=sys.stderr, flush=True)
+    view = LiveView(address[0], address[1], names, period_s)
+    view.announce()
     return view
 
 
-def attach(run: RunNeeds, system: Any, loop: Any, runner: Any, prepared: None = None) -> _Attached | None:
-    view = open_live(run.scope, loop, runner)
-    return None if view is None else _Attached(view, loop)
+class _Prepared:
+    """``vmehil run``'s preparation: the server, started before the rig is built."""
+
+    def __init__(self, view: LiveView) -> None:
+        self.view = view
+        self.defaults: dict[str, Any] = {}
+
+    def close(self) -> None:
+        self.view.close()
+
+
+def prepare(run: RunNeeds, rig: Any) -> _Prepared | None:
+    view = open_live(run.scope, [j.name for j in rig.joints], rig.period_s)
+    return None if view is None else _Prepared(view)
+
+
+def attach(run: RunNeeds, system: Any, loop: Any, runner: Any, prepared: _Prepared | None = None) -> _Attached | None:
+    if prepared is None:
+        return None
+    runner.after_tick.append(prepared.view.after_tick)
+    return _Attached(prepared.view, loop)

@@ -147,3 +147,18 @@ def test_a_non_loopback_live_address_is_refused_in_one_line(capsys, command):
     err = captured.err.strip().splitlines()
     assert len(err) == 1 and "not a loopback address" in err[0] and "--live-allow-remote" in err[0], err
     assert captured.out == ""  # refused before anything was built: no run, no table
+
+
+def test_a_live_port_in_use_is_refused_in_one_line_before_anything_runs(capsys):
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert cli.main(["run", "--live", f"127.0.0.1:{port}", "--duration", "1"]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and "in use" in err[0], err
+    assert err[0].startswith(f"vmehil run: error: --live 127.0.0.1:{port}: ")
+    assert captured.out == ""

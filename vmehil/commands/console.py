@@ -126,10 +126,12 @@ def run_console(opts: ConsoleCommandOptions) -> int:
     paced = opts.pacing.realtime
     runner = RealtimeRunner(system, loop, **opts.pacing.runner_options()) if paced else LockstepRunner(system, loop)
     try:
-        live = open_live(opts.scope, loop, runner)  # before the amplifiers are enabled: a port in use stops nothing
+        live = open_live(opts.scope, loop.names, loop.period_s)  # before the amplifiers are enabled
     except BaseException:
         system.close()
         raise
+    if live is not None:
+        runner.after_tick.append(live.after_tick)
     loop.start()
     done = threading.Event()
     # calibrate jobs run here between runner chunks (not inside a tick hook), so a wall-clock
@@ -173,7 +175,8 @@ def run_console(opts: ConsoleCommandOptions) -> int:
             console.announce_stop()
         fault = loop.fault
         if live is not None:
-            live.close(loop)
+            live.finish(loop)
+            live.close()
         console.close()
         system.close()
         if previous is not None:

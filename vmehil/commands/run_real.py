@@ -37,6 +37,8 @@ def refused_on_a_real_bus(opts: RunOptions) -> list[str]:
         out.append("--mavlink: not offered on a real bus yet (live gain changes on a real arm)")
     if opts.console.port is not None:
         out.append("--console: not offered on a real bus yet")
+    if opts.scope.live is not None:
+        out.append("--live: not offered on a real bus yet (the black box is written all the same)")
     if opts.units != "single":
         out.append("--units parallel: the unit controllers run on emulated crates")
     return out
