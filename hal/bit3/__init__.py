@@ -1,8 +1,10 @@
-"""BIT3 VME-to-VME link: register map, driver, and the vision-servo protocol over its memory."""
+"""BIT3 vision link: the reference card and the SBS (Bit 3) Model 617, and the vision-servo protocol over their memory."""
 
 from hal.bit3.driver import Bit3Driver, Bit3Status, Bit3WindowMemory
 from hal.bit3.errors import Bit3Error, LinkDownError, ProtocolError, RemoteBusError
 from hal.bit3.regs import BIT3_CSR, CARD_ID
+from hal.bit3.sbs617 import Sbs617Driver, Sbs617Status, Sbs617WindowMemory
+from hal.bit3.sbs617_regs import SBS617_MAP_ENTRY, SBS617_NODE
 from hal.shm import BufferMemory, Memory
 
 __all__ = [
@@ -17,4 +19,9 @@ __all__ = [
     "Memory",
     "ProtocolError",
     "RemoteBusError",
+    "SBS617_MAP_ENTRY",
+    "SBS617_NODE",
+    "Sbs617Driver",
+    "Sbs617Status",
+    "Sbs617WindowMemory",
 ]
