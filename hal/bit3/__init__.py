@@ -1,4 +1,4 @@
-"""BIT3 vision link: the reference card and the SBS (Bit 3) Model 617, and the vision-servo protocol over their memory."""
+"""BIT3 vision link: the reference card, the SBS (Bit 3) Model 617, the vision-servo protocol over their memory."""
 
 from hal.bit3.driver import Bit3Driver, Bit3Status, Bit3WindowMemory
 from hal.bit3.errors import Bit3Error, LinkDownError, ProtocolError, RemoteBusError
@@ -10,6 +10,8 @@ from hal.shm import BufferMemory, Memory
 __all__ = [
     "BIT3_CSR",
     "CARD_ID",
+    "SBS617_MAP_ENTRY",
+    "SBS617_NODE",
     "Bit3Driver",
     "Bit3Error",
     "Bit3Status",
@@ -19,8 +21,6 @@ __all__ = [
     "Memory",
     "ProtocolError",
     "RemoteBusError",
-    "SBS617_MAP_ENTRY",
-    "SBS617_NODE",
     "Sbs617Driver",
     "Sbs617Status",
     "Sbs617WindowMemory",
