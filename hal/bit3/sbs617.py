@@ -27,8 +27,9 @@ from hal.bit3.sbs617_regs import (
     SBS617_NODE,
     WINDOW_SIZE,
 )
+from hal.board_types import ProbeReading
 from hal.vme.bus import SpaceLike, VmeBus
-from hal.vme.errors import BusError
+from hal.vme.errors import BusError, VmeError
 from hal.vme.types import AddressSpace, Width, resolve_am
 from hal.vme.window import BoardWindow
 
@@ -302,3 +303,20 @@ class Sbs617WindowMemory:
 
     def write(self, offset: int, data: bytes) -> None:
         self.driver.write_bytes(self.base + offset, data)
+
+
+def probe_sbs617(bus: VmeBus, base: int, space: AddressSpace) -> ProbeReading:
+    """The dry pass's look at a 617 (reads only). The card has no ID register in its BARs (its PCI
+    IDs are in configuration space), so this reads what the doc says must read 0 — LOC_STATUS bit
+    3 and LOC_INT_CTRL bits 4:3 — and says whether the remote crate answers (NO_CONNECT)."""
+    lsr_reg, ctrl_reg = SBS617_NODE["LOC_STATUS"], SBS617_NODE["LOC_INT_CTRL"]
+    try:
+        lsr = bus.read(base + lsr_reg.offset, space=space, width=lsr_reg.width)
+        ctrl = bus.read(base + ctrl_reg.offset, space=space, width=ctrl_reg.width)
+    except VmeError as e:
+        return ProbeReading(False, f"{type(e).__name__}: {e}")
+    if lsr & 0x08 or ctrl & 0x18:
+        return ProbeReading(False, f"LOC_STATUS 0x{lsr:02X}, LOC_INT_CTRL 0x{ctrl:02X}: "
+                                   "bits the 617 reads as 0 are set")
+    remote = "remote crate off or cable out" if lsr & _LSR.field("NO_CONNECT").mask else "remote connected"
+    return ProbeReading(True, f"LOC_STATUS 0x{lsr:02X} ({remote}), LOC_INT_CTRL 0x{ctrl:02X}; no ID register")
