@@ -175,7 +175,7 @@ class Sbs617Card(RegisterBoard):
         self.remote_space = space
         self.remote_base = int(remote_base)
         self.irq_level, self.irq_vector = irq_level, irq_vector
-        self.map_ram = Sbs617MapRam(f"{name}.map")
+        self.map_ram = Sbs617MapRam(f"{name}.map", name)
         self.window = Sbs617Window(f"{name}.window", self)
         self.map_base, self.window_base = int(map_base), int(window_base)
         self.poll_period_ns = None if poll_period_s is None else max(1, round(poll_period_s * 1e9))
@@ -357,8 +357,9 @@ class Sbs617MapRam(Board):
 
     TYPE = "sbs617-map"
 
-    def __init__(self, name: str) -> None:
+    def __init__(self, name: str, card: str) -> None:
         super().__init__(name, 4 * ENTRIES)
+        self.card = card
         self.entries = [ENTRY_INVALID] * ENTRIES
 
     def reset(self) -> None:
@@ -376,6 +377,9 @@ class Sbs617MapRam(Board):
 
     def bus_write(self, offset: int, width: Width, value: int) -> None:
         self.entries[self._index(offset, width)] = value & 0xFFFFFFFF
+
+    def describe(self) -> dict[str, Any]:
+        return {"type": self.TYPE, "card": self.card, "size": self.size}
 
 
 class Sbs617Window(Board):

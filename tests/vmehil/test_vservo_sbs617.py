@@ -53,3 +53,14 @@ def test_link_down_on_the_617_ends_the_task_with_link_error(tmp_path: Path) -> N
                  "--duration", "6", "--fault", "bit3_link_down@4", "--json", str(out)]) == 0
     v = json.loads(out.read_text())["vision"]
     assert (v["robot_state"], v["end_reason"], v["commands"]) == ("IDLE", "LINK_ERROR", 0)
+
+
+def test_crate_list_names_the_617_and_its_bars(tmp_path: Path, capsys) -> None:
+    assert main(["crate", "list", "--rig", str(_rig_with_the_617(tmp_path)), "--json"]) == 0
+    rows = {r["name"]: r for r in json.loads(capsys.readouterr().out)}
+    for name, base in (("vision-link", 0x80000000), ("vision-link.map", 0x80010000),
+                       ("vision-link.window", 0x82000000)):
+        row = rows[name]
+        assert (row["vendor"], row["model"], row["document"]) == (
+            "SBS Technologies (Bit 3)", "Model 617 PCI-to-VME adaptor", "docs/boards/sbs617.md"), name
+        assert row["space"] == "A32" and int(str(row["base"]), 0) == base, name
