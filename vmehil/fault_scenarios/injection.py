@@ -104,8 +104,6 @@ class FaultContext:
         return runner.node
 
     def board_of_type(self, kind: str, what: str) -> Any:
-        from hal.board_types import board_role
-
         # a role names every board type of it (the vision link: "bit3" and "sbs617")
         boards = [b for b in self.rig.table.table("crate", {}).tables("board", [])
                   if b.get_str("type") == kind or board_role(b.get_str("type")) == kind]
