@@ -51,7 +51,9 @@ def test_link_down_on_the_617_ends_the_task_with_link_error(tmp_path: Path) -> N
     out = tmp_path / "vs.json"
     assert main(["run", "--rig", str(_rig_with_the_617(tmp_path)), "--vision", "inprocess", "--quiet",
                  "--duration", "6", "--fault", "bit3_link_down@4", "--json", str(out)]) == 0
-    v = json.loads(out.read_text())["vision"]
+    report = json.loads(out.read_text())
+    assert [(f["target"], f["emulator_fault"]) for f in report["injected_faults"]] == [("vision-link", "link_down")]
+    v = report["vision"]
     assert (v["robot_state"], v["end_reason"], v["commands"]) == ("IDLE", "LINK_ERROR", 0)
 
 
