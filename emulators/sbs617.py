@@ -104,7 +104,9 @@ PAGE = 0x1000
 ENTRIES = 0x10000 // 4  # the whole mapping RAM, D32 entries; the first 8192 are PCI->VME
 WINDOW_BYTES = 8192 * PAGE  # 32 MiB
 ENTRY_INVALID = 0x00000001
-FUNCTION_RAM = 2
+# functions that reach the remote VMEbus: 1 remote bus I/O (vmedrv maps every page so), 2 remote
+# bus RAM (NetBSD's); 3, the remote card's dual-port RAM, is not fitted on the emulated remote card
+REMOTE_BUS_FUNCTIONS = (1, 2)
 # The address size an AM code selects (VMEbus AM table): A24 0x38-0x3F, A32 0x08-0x0F.
 _AM_SPACE = {**{am: AddressSpace.A24 for am in range(0x38, 0x40)}, **{am: AddressSpace.A32 for am in range(0x08, 0x10)}}
 _REMOTE_REGS = ("REM_CMD1_STATUS", "REM_CMD2", "REM_PAGE_LO", "REM_PAGE_HI", "REM_CARD_ID", "REM_AMOD",
@@ -336,7 +338,7 @@ class Sbs617Card(RegisterBoard):
                 return fail
         function = (entry >> 4) & 0x3
         am = (entry >> 6) & 0x3F
-        if (function != FUNCTION_RAM or _AM_SPACE.get(am) is not self.remote_space
+        if (function not in REMOTE_BUS_FUNCTIONS or _AM_SPACE.get(am) is not self.remote_space
                 or not 0 <= rel <= self.link.mem_size - n):
             self._latch(REMBUS)  # nothing answers on the remote bus: its bus timer ends it in BERR
             return fail

@@ -177,13 +177,22 @@ def test_parity_fault_counts_down() -> None:
 
 
 def test_wrong_function_am_or_address_is_a_remote_bus_error() -> None:
-    for entry in (0x00400E50,  # function 1: remote bus I/O (not fitted)
+    for entry in (0x00400E70,  # function 3: the remote card's dual-port RAM (not fitted)
+                  0x00400E40,  # function 0: none
                   0x00400260,  # AM 0x09: A32, the memory is A24
                   0x00500E60):  # 0x500000: beyond the 4 KiB memory at 0x400000
         crate, _card, _port = _crate()
         _wb(crate, MAPS, entry, Width.D32)
         assert _rb(crate, WIN, Width.D8) == 0xFF, hex(entry)
         assert _rb(crate, LOC_STATUS) == 0x40, hex(entry)
+
+
+def test_function_1_remote_bus_io_reaches_the_remote_memory_as_vmedrv_maps_it() -> None:
+    crate, card, _port = _crate()
+    _wb(crate, MAPS, 0x00400E50, Width.D32)  # vmedrv_config_table: A24 data AM, fcREMOTE_BUS_IO
+    card.link.mem[4:6] = bytes([0xBE, 0xEF])
+    assert _rb(crate, WIN + 4, Width.D16) == 0xBEEF
+    assert _rb(crate, LOC_STATUS) == 0x00
 
 
 def test_second_page_goes_through_entry_one() -> None:
