@@ -211,12 +211,8 @@ def attach(run: RunNeeds, system, loop, runner, prepared: VisionPreparation | No
         timeouts = Timeouts()
     else:
         shm = prepared.shm
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "servo", "vision", "--shm", shm.shm_name, "--target",
-             ",".join(f"{x:.6f}" for x in target), "--rate-hz", str(opts.rate_hz),
-             "--latency-ms", str(opts.latency_ms), "--peer-timeout-ms", "1000",
-             "--tolerance-mm", str(opts.tolerance_mm)],
-            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        proc = subprocess.Popen(vision_process_argv(shm.shm_name, target, opts),
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         t0 = time.monotonic()
         while not drv.status().link_up:  # the vision process formats the memory and powers on
             if proc.poll() is not None:
@@ -234,6 +230,15 @@ def attach(run: RunNeeds, system, loop, runner, prepared: VisionPreparation | No
     print(f"vision: {opts.mode}, target {np.round(target, 4).tolist()} m")
     # the shared memory itself is unlinked by `vmehil run` at exit
     return _Attachment(proc, card if opts.mode == "process" else None)
+
+
+def vision_process_argv(shm_name: str, target: np.ndarray, opts: VisionOptions) -> list[str]:
+    """The command line of ``--vision process``'s vision system: ``vmehil vision`` (its own
+    process, attached to the robot side's shared memory by name)."""
+    return [sys.executable, "-m", "vmehil", "vision", "--shm", shm_name, "--target",
+            ",".join(f"{x:.6f}" for x in target), "--rate-hz", str(opts.rate_hz),
+            "--latency-ms", str(opts.latency_ms), "--peer-timeout-ms", "1000",
+            "--tolerance-mm", str(opts.tolerance_mm)]
 
 
 def _target(text: str | None, arm, theta0: np.ndarray) -> np.ndarray:
