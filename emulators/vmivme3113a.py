@@ -205,8 +205,16 @@ class Vmivme3113aBoard(RegisterBoard):
         self._run = None
 
     def _fold(self) -> None:
-        """Count the current run's ended conversions and scans before it is replaced."""
+        """Before the current run is replaced: store the codes of its ended conversions that no
+        read has made yet (the words must hold them, not a later net value), and count its
+        conversions and scans."""
+        if self._run is not None:
+            self._materialize()
         self._done_before = self._ended()
+
+    def _materialize(self) -> None:
+        for channel in range(CHANNELS):
+            self._read_channel(channel)
 
     def _completed(self, run: _Run | None, now: int) -> int:
         """Conversions of ``run`` ended by ``now``."""
@@ -326,7 +334,12 @@ class Vmivme3113aBoard(RegisterBoard):
         self.crate.clock.schedule(end, lambda: self._end_of_scan(ident))
 
     def _end_of_scan(self, ident: int) -> None:
-        if self._run is None or self._run.ident != ident or self.mode != MODE_SCAN_IRQ:
+        """The end of a scanning-mode scan: its 64 codes are made now, so a later read returns
+        them and not the nets' values at that read; then MODE 4's interrupt."""
+        if self._run is None or self._run.ident != ident:
+            return
+        self._materialize()
+        if self.mode != MODE_SCAN_IRQ:
             return
         icr = self.regs["ICR"]
         level = icr & _ICR_LEVEL
