@@ -39,7 +39,7 @@ from hal.vme.registers import Access, Field, Register, RegisterMap
 from hal.vme.types import AddressSpace, Width
 
 # --- the board, as docs/boards/vmivme-3113a.md states it -----------------------------------------
-BOARD_ID = 0x1100  #: BID
+BOARD_ID = 0x1100  #: the ID register (the source's `bid`)
 CHANNELS = 64
 CODE_MAX = 0xFFF
 DATA_BASE = 0x80  #: CH0; CHk at 0x80 + 2·k
@@ -48,7 +48,7 @@ _EXT = ("EXT", 15, 12)
 _CODE = ("CODE", 11, 0)
 #: the doc's register table, row by row: (offset, name, access, reset, fields as (name, msb, lsb))
 _TABLE: tuple[tuple[int, str, Access, int, tuple[tuple[str, int, int], ...]], ...] = (
-    (0x00, "BID", Access.RO, 0x1100, ()),
+    (0x00, "ID", Access.RO, 0x1100, ()),
     (0x02, "CSR", Access.RW, 0x0000, (
         ("NEW_DATA_READY", 15, 15), ("FAIL_LED_OFF", 14, 14), ("END_OF_SCAN", 13, 13),
         ("TWOS_COMPLEMENT", 12, 12), ("EN_EXTERNAL_START", 11, 11), ("TIMER_START", 10, 10),

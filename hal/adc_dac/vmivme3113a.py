@@ -88,7 +88,7 @@ class Vmivme3113aDriver:
             first scan it may take before :class:`AdcTimeoutError`.
 
     Raises:
-        BoardIdError: BID does not read 0x1100 (wrong base address or board).
+        BoardIdError: ID does not read 0x1100 (wrong base address or board).
     """
 
     CHANNELS = VMI3113A_CHANNELS
@@ -113,7 +113,7 @@ class Vmivme3113aDriver:
                              "use offset_binary")
         self.bus = bus
         self.win = BoardWindow(bus, base, VMI3113A_REGMAP, space)
-        self.win.check_id(VMI3113A_BOARD_ID, "VMIVME-3113A", reg="BID", error=BoardIdError)
+        self.win.check_id(VMI3113A_BOARD_ID, "VMIVME-3113A", error=BoardIdError)
         self.calibration = calibration or Calibration.identity(VMI3113A_CHANNELS)
         if self.calibration.channels != VMI3113A_CHANNELS:
             raise ValueError(f"VMIVME-3113A calibration has {self.calibration.channels} channels, "

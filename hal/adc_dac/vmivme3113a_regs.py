@@ -19,7 +19,7 @@ from __future__ import annotations
 from hal.vme.registers import Access, Field, Register, RegisterMap
 from hal.vme.types import AddressSpace, Width
 
-VMI3113A_BOARD_ID = 0x1100  #: BID
+VMI3113A_BOARD_ID = 0x1100  #: the ID register (the source's `bid`)
 VMI3113A_CHANNELS = 64
 VMI3113A_DATA_OFFSET = 0x80  #: CH0; CHk at 0x80 + 2·k
 VMI3113A_WINDOW = 0x100
@@ -52,7 +52,7 @@ VMI3113A_REGMAP = RegisterMap(
     VMI3113A_WINDOW,
     AddressSpace.A16,
     (
-        Register("BID", 0x00, Width.D16, Access.RO, reset=VMI3113A_BOARD_ID, doc="board ID, 0x1100"),
+        Register("ID", 0x00, Width.D16, Access.RO, reset=VMI3113A_BOARD_ID, doc="board ID, 0x1100"),
         Register("CSR", 0x02, Width.D16, Access.RW, _CSR_FIELDS, doc="control and status"),
         Register("CFR", 0x04, Width.D16, Access.RW, doc="configuration control (bits not public)"),
         Register("ICR", 0x0A, Width.D16, Access.RW,

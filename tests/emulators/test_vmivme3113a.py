@@ -1,7 +1,7 @@
 """The VMIVME-3113A emulator against docs/boards/vmivme-3113a.md, through raw bus cycles only (no
 driver): the registers' offsets, bits and reset values are the doc's, written here as literals.
 
-Board at 0x8500 (A16). From the doc: BID +0x00 = 0x1100; CSR +0x02 (NEW_DATA_READY 15 / GAIN_DELAY,
+Board at 0x8500 (A16). From the doc: ID +0x00 = 0x1100; CSR +0x02 (NEW_DATA_READY 15 / GAIN_DELAY,
 FAIL_LED_OFF 14, END_OF_SCAN 13 / START_CONVERT, TWOS_COMPLEMENT 12, SOFTWARE_RESET 9, MODE 8:6);
 CFR +0x04; ICR +0x0A (FLAG 7, FLAG_AUTO_CLEAR 6, INTERRUPT_ENABLE 4, INTR_AUTO_CLEAR 3, LEVEL 2:0);
 IVR +0x12 (reset 0x0F); TM0..TM2 +0x20..+0x24; TMC +0x26 (write-only); CH0..CH63 at +0x80 + 2·k.
@@ -44,7 +44,7 @@ def wr(c: Crate, address: int, value: int) -> None:
 
 # --- identification, reset state, bad accesses ----------------------------------------------------
 
-def test_bid_reads_0x1100_and_registers_hold_their_reset_values() -> None:
+def test_id_reads_0x1100_and_registers_hold_their_reset_values() -> None:
     c, _ = make()
     assert rd(c, BASE) == 0x1100
     assert rd(c, CSR) == 0x0000  # autoscanning, LED on, offset binary; nothing ended at t = 0
@@ -64,7 +64,7 @@ def test_bid_reads_0x1100_and_registers_hold_their_reset_values() -> None:
     (0x02, Width.D8, False, BusErrorCause.UNSUPPORTED_WIDTH),  # D16 only
     (0x81, Width.D8, False, BusErrorCause.UNSUPPORTED_WIDTH),
     (0x80, Width.D32, False, BusErrorCause.UNSUPPORTED_WIDTH),
-    (0x00, Width.D16, True, BusErrorCause.ACCESS),  # BID read-only
+    (0x00, Width.D16, True, BusErrorCause.ACCESS),  # ID read-only
     (0x80, Width.D16, True, BusErrorCause.ACCESS),  # CH0 read-only
     (0xFE, Width.D16, True, BusErrorCause.ACCESS),  # CH63
     (0x26, Width.D16, False, BusErrorCause.ACCESS),  # TMC write-only

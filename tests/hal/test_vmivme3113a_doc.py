@@ -46,7 +46,7 @@ def test_the_emulator_register_map_is_the_docs_register_table() -> None:
 def test_the_doc_states_64_channel_words_from_0x80() -> None:
     regs = doc_registers(DOC)
     assert [regs[f"CH{k}"].offset for k in range(64)] == [0x80 + 2 * k for k in range(64)]
-    assert regs["BID"].reset == 0x1100
+    assert regs["ID"].reset == 0x1100
 
 
 def test_the_driver_decodes_the_docs_worked_examples() -> None:

@@ -1,7 +1,7 @@
 """Golden bus traces of the VMIVME-3113A driver, written by hand from docs/boards/vmivme-3113a.md
 (register table and "Driver API" cycles), never captured from the driver.
 
-Board at 0x8500 (A16). From the doc: BID +0x00 (0x1100); CSR +0x02 (FAIL_LED_OFF bit 14,
+Board at 0x8500 (A16). From the doc: ID +0x00 (0x1100); CSR +0x02 (FAIL_LED_OFF bit 14,
 END_OF_SCAN bit 13 on read, TWOS_COMPLEMENT bit 12, SOFTWARE_RESET bit 9, MODE bits 8:6, 0 =
 autoscanning); CH0..CH63 at +0x80 + 2·k; a 64-channel scan takes 64 × 10 µs.
 """
@@ -19,7 +19,7 @@ from hal.vme import BusError
 from tests.support.bus_trace import Answer, RecordingBus
 
 BASE = 0x8500
-PROBE = "R A16 0x8500 D16 0x1100"  # BID
+PROBE = "R A16 0x8500 D16 0x1100"  # ID
 RESET = "W A16 0x8502 D16 0x0200"  # CSR.SOFTWARE_RESET
 AUTOSCAN = "W A16 0x8502 D16 0x4000"  # CSR: FAIL_LED_OFF, MODE 0 (autoscanning), offset binary
 AUTOSCAN_TC = "W A16 0x8502 D16 0x5000"  # + TWOS_COMPLEMENT
@@ -58,7 +58,7 @@ def test_opening_in_twos_complement_sets_the_format_bit() -> None:
 
 def test_a_board_with_another_id_is_refused_after_the_one_id_read() -> None:
     bus = RecordingBus(answers={("A16", 0x8500): 0xAD16})  # the reference ADC there
-    with pytest.raises(BoardIdError, match="0x8500.*BID register reads 0xAD16, expected 0x1100"):
+    with pytest.raises(BoardIdError, match="0x8500.*ID register reads 0xAD16, expected 0x1100"):
         Vmivme3113aDriver(bus, BASE)
     assert bus.trace() == ["R A16 0x8500 D16 0xAD16"]
 
