@@ -10,26 +10,27 @@ import pytest
 
 from emulators.board_factory import BuildContext
 from emulators.crate import Crate
-from emulators.signals import Signals
 from emulators.vmivme3113a import vmivme3113a_factory
 from hal.adc_dac.vmivme3113a import Vmivme3113aDriver
 from hal.config import ConfigTable
 
 #: the preset's entry, as the report hands it to the lead (the rig adds the wiring table from
 #: [joint.wiring], [rig.references] and [rig.loopback])
-PRESET_BOARD = """
+_OFFSETS = ", ".join(["0.006"] * 64)
+_GAINS = ", ".join(["0.002"] * 64)
+PRESET_BOARD = f"""
 [[crate.board]]
 type = "vmivme-3113a"
-name = "adc0"                    # VMIC VMIVME-3113A: pots 0..6, tachs 8..13, current monitors 16..22, refs 28/29, DAC loopback 30/31
+name = "adc0"                    # pots 0..6, tachs 8..13, current monitors 16..22, refs 28/29, loopback 30/31
 slot = 2
 space = "A16"
 base = 0x8500                    # DFELL_EPICS card 0 jumpers (J9 A08-A15), supervisory short I/O
 input_range = "bipolar_10v"      # the range jumpers
 conversion_time_us = 10          # [assumed] not in the public sources
 noise_rms_v = 0.001
-offset_v = [%s]                  # [assumed] one converter: the board's offset error on every channel
-gain_error = [%s]
-""" % (", ".join(["0.006"] * 64), ", ".join(["0.002"] * 64))
+offset_v = [{_OFFSETS}]          # [assumed] one converter: the board's offset error on every channel
+gain_error = [{_GAINS}]
+"""
 
 #: channel → net, as vmehil.rig_setup.system.wired_crate_table adds it from the rig's pins
 ARM_WIRING = {
