@@ -194,6 +194,10 @@ BUILTIN_BOARD_TYPES: dict[str, BoardType] = {
     # RamBoard is the bus's test memory and the BIT3's dual-port memory). It is here so that
     # both tables name the same types and `crate list` can say what a RAM slot is.
     "ram": BoardType("ram", _REFERENCE, "RAM", "docs/vme.md"),
+    # documented commercial boards (#31)
+    "vmivme-3113a": BoardType("adc", "VMIC", "VMIVME-3113A", "docs/boards/vmivme-3113a.md",
+                              driver="hal.adc_dac.vmivme3113a:Vmivme3113aDriver",
+                              probe="hal.adc_dac.vmivme3113a_regs:VMI3113A_REGMAP"),
 }
 
 

@@ -13,35 +13,12 @@ from emulators.crate import Crate
 from emulators.vmivme3113a import vmivme3113a_factory
 from hal.adc_dac.vmivme3113a import Vmivme3113aDriver
 from hal.config import ConfigTable
-
-#: the preset's entry, as the report hands it to the lead (the rig adds the wiring table from
-#: [joint.wiring], [rig.references] and [rig.loopback])
-_OFFSETS = ", ".join(["0.006"] * 64)
-_GAINS = ", ".join(["0.002"] * 64)
-PRESET_BOARD = f"""
-[[crate.board]]
-type = "vmivme-3113a"
-name = "adc0"                    # pots 0..6, tachs 8..13, current monitors 16..22, refs 28/29, loopback 30/31
-slot = 2
-space = "A16"
-base = 0x8500                    # DFELL_EPICS card 0 jumpers (J9 A08-A15), supervisory short I/O
-input_range = "bipolar_10v"      # the range jumpers
-conversion_time_us = 10          # [assumed] not in the public sources
-noise_rms_v = 0.001
-offset_v = [{_OFFSETS}]          # [assumed] one converter: the board's offset error on every channel
-gain_error = [{_GAINS}]
-"""
-
-#: channel → net, as vmehil.rig_setup.system.wired_crate_table adds it from the rig's pins
-ARM_WIRING = {
-    **{str(i): f"j{i + 1}.pot" for i in range(6)}, "6": "hand.pot",
-    **{str(8 + i): f"j{i + 1}.tach" for i in range(6)},
-    **{str(16 + i): f"j{i + 1}.imon" for i in range(6)}, "22": "hand.imon",
-    "28": "ref.adc0.28", "29": "ref.adc0.29", "30": "loop.dac0.6", "31": "loop.dac0.7",
-}
+from tests.support.vmivme3113a_preset import ARM_WIRING, PRESET_BOARD
 
 
 def arm_crate() -> tuple[Crate, dict]:
+    """A crate holding the preset's entry, its wiring table as the rig adds it from [joint.wiring],
+    [rig.references] and [rig.loopback]."""
     entry = tomllib.loads(PRESET_BOARD)["crate"]["board"][0]
     entry = {**entry, "wiring": ARM_WIRING}
     name, slot, space, base = entry.pop("name"), entry.pop("slot"), entry.pop("space"), entry.pop("base")
@@ -74,3 +51,18 @@ def test_a_tick_of_the_arm_is_32_reads_and_no_wait() -> None:
     adc.scan(31)
     assert sum(c.counter_snapshot().values()) - before_cycles == 32
     assert c.clock.now_ns - before_ns == 32 * 300  # 300 ns a D16 cycle at this board: 9.6 µs
+
+
+def test_both_board_tables_name_the_3113a_with_its_role_driver_probe_and_document() -> None:
+    from emulators.board_types import BOARD_TYPES as EMULATOR_TYPES
+    from hal.board_types import BOARD_TYPES, types_answering
+    from hal.vme import Width
+
+    bt = BOARD_TYPES["vmivme-3113a"]
+    assert bt.role == "adc"
+    assert bt.metadata() == {"vendor": "VMIC", "model": "VMIVME-3113A", "document": "docs/boards/vmivme-3113a.md"}
+    assert bt.load_driver() is Vmivme3113aDriver and bt.channels() == 64
+    reg = bt.id_register()
+    assert reg is not None and (reg.offset, reg.width, reg.reset) == (0x00, Width.D16, 0x1100)  # the doc's ID
+    assert types_answering(0x00, Width.D16, 0x1100) == ["vmivme-3113a"]
+    assert EMULATOR_TYPES["vmivme-3113a"] is vmivme3113a_factory
