@@ -12,8 +12,10 @@ import pytest
 
 from emulators.presets import resolve_rig
 from hal.adc_dac.vmivme3113a import Vmivme3113aDriver
+from servo.rig import load_rig
 from tests.support.vmivme3113a_preset import jpl_arm_on_the_3113a
 from vmehil.cli import main
+from vmehil.rig_setup.real_bus import dry_pass
 from vmehil.rig_setup.system import build_emulated_rig
 
 
@@ -67,3 +69,24 @@ def test_adc_noise_on_a_pot_of_the_3113a_is_caught_by_the_watchdog(rig_file: Pat
     assert [(f["cause"], f["joint"]) for f in report["faults"]] == [("position_mismatch", "j1")]
     assert report["faults"][0]["time_s"] >= 0.2
     assert report["final_stop"]["verified"]
+
+
+def test_the_dry_pass_identifies_the_3113a_by_its_id_register(rig_file: Path) -> None:
+    system = build_emulated_rig(rig_file, seed=1, calibration=None)
+    checks = {c.name: c for c in dry_pass(system.crate, system.rig)}
+    assert all(c.ok for c in checks.values()), [c.detail for c in checks.values() if not c.ok]
+    assert checks["adc0"].detail.startswith("ID 0x1100")  # docs/boards/vmivme-3113a.md
+
+
+def test_a_reference_adc_where_the_rig_names_a_3113a_is_refused_naming_both(tmp_path: Path) -> None:
+    system = build_emulated_rig(None, seed=1)  # jpl-arm: the reference ADC at 0x6000
+    text = resolve_rig("jpl-arm").read_text().replace('type = "adc"\nname = "adc0"',
+                                                      'type = "vmivme-3113a"\nname = "adc0"')
+    path = tmp_path / "wrong.toml"
+    path.write_text(text)
+    checks = {c.name: c for c in dry_pass(system.crate, load_rig(path))}
+    assert not checks["adc0"].ok
+    assert "ID reads 0xAD16" in checks["adc0"].detail
+    assert "the rig file names type vmivme-3113a (VMIVME-3113A by VMIC, docs/boards/vmivme-3113a.md, ID 0x1100)" \
+        in checks["adc0"].detail
+    assert "the slot holds type adc (ADC16-REF" in checks["adc0"].detail
