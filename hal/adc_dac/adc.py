@@ -142,6 +142,9 @@ class AdcDriver:
     """
 
     CHANNELS = ADC_CHANNELS
+    #: how long after a change at an input a read is sure to show it (every read converts after
+    #: its call here; an autoscanning board's driver names its scan time)
+    fresh_after_s = 0.0
 
     def __init__(
         self,

@@ -157,14 +157,24 @@ class Vmivme3113aDriver:
             self.bus.delay(self.poll_interval_s)
 
     # --- reads ------------------------------------------------------------------------------
+    @property
+    def fresh_after_s(self) -> float:
+        """How long after a change at an input a read is sure to show it: the sequencer's phase
+        is unknown, so one scan and one conversion (65 conversion times, 650 µs). A procedure
+        that sets a level and reads it back (a reference, a DAC loopback), or averages
+        independent conversions, waits this long first; the servo's tick takes the latest codes
+        (the reference ADC converts after each call: 0 there)."""
+        return (VMI3113A_CHANNELS + 1) * self.conversion_time_s
+
     def read_counts(self, channel: int, gain: int = 1) -> int:
-        """Channel ``channel``'s latest code (offset binary 0..0xFFF, whatever the data format)."""
+        """Channel ``channel``'s latest code (offset binary 0..0xFFF, whatever the data format):
+        one read, up to one scan old (see :attr:`fresh_after_s`)."""
         self._check(channel, gain)
         word = self.win.read_offset(VMI3113A_DATA_OFFSET + 2 * channel, Width.D16)
         return code_from_word(word, self.data_format)
 
     def read_volts(self, channel: int, gain: int = 1) -> float:
-        """Channel ``channel``'s latest reading, calibrated input volts."""
+        """Channel ``channel``'s latest reading (see :meth:`read_counts`), calibrated input volts."""
         code = self.read_counts(channel, gain)
         return self.calibration.correct(channel, volts_from_code(code, self.input_range))
 

@@ -116,6 +116,12 @@ def test_read_counts_is_one_read_of_the_channels_word() -> None:
     bus, drv = opened({("A16", 0x858A): 0x0971})
     assert drv.read_counts(5) == 0x971
     assert bus.trace() == ["R A16 0x858A D16 0x0971"]
+    assert bus.delays == []
+
+
+def test_a_read_is_sure_to_show_an_input_change_after_one_scan_and_one_conversion() -> None:
+    _, drv = opened()
+    assert drv.fresh_after_s == pytest.approx(65 * 10e-6)  # doc: 64 channels + 1 at 10 µs each
 
 
 def test_calibration_is_applied_per_channel_in_scan_and_read_volts() -> None:
@@ -154,3 +160,14 @@ def test_the_driver_reads_the_emulated_board_through_a_crate() -> None:
     volts = drv.scan(31)
     assert volts[0] == 5.0 and volts[31] == -2.5
     assert np.all(volts[1:31] == 0.0)
+
+
+def test_through_the_crate_a_read_shows_an_input_step_only_after_fresh_after_s() -> None:
+    c = Crate("t")
+    c.install(Vmivme3113aBoard("adc0", wiring={0: "p0"}), base=BASE, space="A16")
+    drv = Vmivme3113aDriver(c, BASE)
+    assert drv.read_counts(0) == 0x800  # 0 V
+    c.signals.set_analog("p0", 5.0)
+    assert drv.read_counts(0) == 0x800  # the same conversion: the board has not converted channel 0 again
+    c.delay(drv.fresh_after_s)
+    assert drv.read_counts(0) == 0xC00  # +5 V on ±10 V

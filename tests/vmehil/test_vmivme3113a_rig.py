@@ -90,3 +90,19 @@ def test_a_reference_adc_where_the_rig_names_a_3113a_is_refused_naming_both(tmp_
     assert "the rig file names type vmivme-3113a (VMIVME-3113A by VMIC, docs/boards/vmivme-3113a.md, ID 0x1100)" \
         in checks["adc0"].detail
     assert "the slot holds type adc (ADC16-REF" in checks["adc0"].detail
+
+
+def test_calibrate_adc_fits_the_3113a_from_its_references_and_the_store_loads_back(
+        rig_file: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from vmehil.calibration.store import load_store
+
+    monkeypatch.setenv("VMEHIL_CALIBRATION_DIR", str(tmp_path / "cal"))
+    assert main(["calibrate", "adc", "--rig", str(rig_file)]) == 0
+    path = tmp_path / "cal" / "jpl-arm.toml"
+    system = build_emulated_rig(rig_file, seed=1, calibration=None)
+    store = load_store(path, system.io.rig, bus=system.crate)  # checks the ID register: 0x1100
+    cal = store.board_calibration("adc0")
+    assert cal is not None and cal.channels == 64
+    # the preset's board error: 6 mV offset, +0.2 % gain (within noise and quantization)
+    assert cal.offset_v[0] == pytest.approx(0.006, abs=0.002)
+    assert cal.gain[0] == pytest.approx(1.002, abs=0.001)
