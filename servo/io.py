@@ -31,7 +31,7 @@ import numpy as np
 
 from hal.adc_dac.adc import AdcDriver
 from hal.adc_dac.calibration import Calibration
-from hal.adc_dac.conversions import DAC_LSB_V, DAC_V_MAX, DAC_V_MIN, adc_lsb
+from hal.adc_dac.conversions import DAC_LSB_V, DAC_V_MAX, DAC_V_MIN
 from hal.adc_dac.dac import DacDriver
 from hal.amplifiers import duty_for_current
 from hal.board_types import BOARD_TYPES, board_role
@@ -413,7 +413,7 @@ class JointIO:
         linear = np.array([j.amplifier == "linear" for j in self.rig.joints])
 
         def lsb_v(pin) -> float:
-            return adc_lsb(self.adc[pin.board].range)
+            return self.adc[pin.board].lsb_v  # the driver's named conversion (its board's range)
 
         for j in self.rig.joints:
             i, s, w = j.index, self.scaling[j.index], j.wiring

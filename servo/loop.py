@@ -17,7 +17,9 @@ Watchdog → safe stop (amplifiers disabled, DAC outputs 0 V, the reason recorde
 * cross-checks (:mod:`servo.watchdog`): encoder against pot, tachometer against the position
   derivative, current monitor against the commanded current, and a position reading that
   stays put while its target moves on;
-* a following error beyond the joint's limit.
+* a following error beyond the joint's limit;
+* a measured position past a soft limit by more than the margin: a category-1 stop (cause
+  ``soft_limit``, :mod:`servo.stops`), the joints decelerated from where they are.
 """
 
 from __future__ import annotations
@@ -37,6 +39,8 @@ from servo.control.objects import ControlContext, Controller, SwitchableControll
 from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_name
 from servo.io import JointIO, Measurement
 from servo.stops import NOT_FAULTS, ControlledStop, Deceleration, StopCategory, StopSettings
+from servo.trajectory.base import Sample
+from servo.trajectory.bounds import MotionRefused
 from servo.trajectory.sequencer import PlanContext, Sequencer
 from servo.watchdog import CrossChecks, WatchdogConfig
 
@@ -190,6 +194,10 @@ class ServoLoop:
         self._stop_origin: dict[str, np.ndarray] = {}
         #: per joint the largest movement from the angles at the stop, true and measured (rad)
         self.stop_excursion: dict[str, np.ndarray] = {}
+        #: moves refused when they were to start (planned only then: after an open vservo move)
+        self.refusals: list[MotionRefused] = []
+        #: per joint how far past its soft limit it may be (``None``: the margin; see _soft_allowance)
+        self._soft_allow: np.ndarray | None = None
         #: the last seconds of every joint's signals and lines (servo.blackbox; set by
         #: servo.assembly.build_loop; ``None``: not kept)
         self.blackbox: BlackBox | None = None
@@ -364,6 +372,10 @@ class ServoLoop:
             theta = np.asarray(self.io.read().theta, float).copy()
             if not np.all(np.isfinite(theta)):
                 raise ValueError("a joint position reads as not finite; check the sensors before resuming")
+        if theta is not None:  # a joint a soft-limit stop left past its limit may come back from there
+            past = self.watchdog.past_soft_limit(theta)
+            margin = self.watchdog.soft_limit_margin_rad
+            self._soft_allow = np.maximum(margin, past + margin) if np.any(past > 0.0) else None
         self.fault = None
         self.stopping = None
         self.stop_tick = None  # the excursion of the last stop is kept, no longer tracked
@@ -574,11 +586,22 @@ class ServoLoop:
             self._record(k, t, None, None, None, truth, t0)
             self.tick_count += 1
             return
+        if self.stopping is None and self.watchdog.enabled:
+            past = self.watchdog.beyond_soft_limit(m.theta, self._soft_allowance(m.theta))
+            if past is not None:  # a controlled stop (category 1): the sensors are sane
+                j, pos, lim, side = past
+                self.stop("soft_limit", f"position {np.degrees(pos):+.2f}° past the soft limit {side}_deg = "
+                          f"{np.degrees(lim):+.2f}° by more than {np.degrees(self.watchdog.soft_limit_margin_rad):g}°",
+                          j)
+                if not self.enabled:  # it became a category-0 stop: nothing more to command
+                    self._record(k, t, m, None, None, truth, t0)
+                    self.tick_count += 1
+                    return
         st = self.stopping
         if st is not None:
             sample = st.trajectory.sample((k - st.tick0) * self.period_s)
         else:
-            sample = self.sequencer.sample(max(0.0, t - self._t_motion0))
+            sample = self._next_sample(t)
         if self._check(m, sample):
             self._record(k, t, m, sample, None, truth, t0)
             self.tick_count += 1
@@ -593,6 +616,32 @@ class ServoLoop:
         self.tick_count += 1
         if self.stopping is not None and self.fault is None:
             self._advance_stop(k)
+
+    def _soft_allowance(self, theta: np.ndarray) -> np.ndarray | None:
+        """How far past its soft limit each joint may be before the watchdog stops the loop: the
+        margin, or for a joint a stop left further out (:meth:`resume`), where it was then plus the
+        margin — shrinking as it comes back, so it may return but never go further out."""
+        if self._soft_allow is None:
+            return None
+        margin = self.watchdog.soft_limit_margin_rad
+        past = self.watchdog.past_soft_limit(theta)
+        self._soft_allow = np.maximum(margin, np.fmin(self._soft_allow, past + margin))
+        if np.all(self._soft_allow <= margin):
+            self._soft_allow = None  # every joint back within the margin: the plain check again
+        return self._soft_allow
+
+    def _next_sample(self, t: float) -> Sample:
+        """The motion's sample at ``t``. A move planned only when it starts (after an open
+        ``vservo`` move) that the bounds refuse is not started: the joints hold where the previous
+        move ended, and the refusal is noted (:attr:`refusals`)."""
+        try:
+            return self.sequencer.sample(max(0.0, t - self._t_motion0))
+        except MotionRefused as e:
+            self.refusals.append(e)
+            self.note("servo", str(e))
+            hold = np.asarray(self.sequencer.current.end, float).copy()
+            self.set_motion(Sequencer([], hold, self.plan_context or self.sequencer.ctx))
+            return self.sequencer.sample(0.0)
 
     def _context(self, k: int, t: float, m: Measurement, sample):
         ctrl = self.controller.active

@@ -22,7 +22,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def test_the_driver_and_the_emulator_tables_name_the_same_board_types() -> None:
-    expected = {"adc", "dac", "pio", "quad", "bit3", "ram", "vmivme-4116", "vmivme-2536"}
+    expected = {"adc", "dac", "pio", "quad", "bit3", "ram", "vmivme-4116", "vmivme-2536", "sbs617", "vmivme-3113a"}
     assert set(BUILTIN_BOARD_TYPES) == expected
     assert set(EMULATOR_TYPES) == expected
 

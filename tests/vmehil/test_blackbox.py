@@ -43,6 +43,7 @@ def _read_mcap(path: Path) -> tuple[dict[str, list[dict]], dict[str, dict], dict
     return msgs, schemas, meta["blackbox"]
 
 
+@pytest.mark.slow  # over 1.5 s at rest (a run of seconds of loop time)
 def test_a_fault_runs_black_box_holds_the_seconds_before_the_stop_and_its_lines_match_the_json(tmp_path):
     out = tmp_path / "run.json"
     box_dir = tmp_path / "box"
@@ -168,6 +169,7 @@ def test_the_black_box_adds_no_bus_cycle():
     assert counts[0] == counts[1]
 
 
+@pytest.mark.slow  # over 1.5 s at rest (a run of seconds of loop time)
 def test_a_console_session_writes_its_box_when_it_ends(tmp_path):
     out = tmp_path / "console.json"
     assert cli.main(["console", "--console", f"pty:{tmp_path / 'con'}", "--lockstep", "--duration", "0.5",
@@ -183,6 +185,7 @@ def test_a_console_session_writes_its_box_when_it_ends(tmp_path):
     assert sum(r["stop_state"] == 3 for r in rows) == AFTER_TICKS
 
 
+@pytest.mark.slow  # over 1.5 s at rest (a run of seconds of loop time)
 def test_parallel_units_each_write_their_box_and_the_run_names_the_stopped_units(tmp_path, monkeypatch):
     import vmehil.reports.blackbox as writer
 

@@ -80,6 +80,7 @@ async def _client(port: int, on_enough, enough: int) -> tuple[dict, list[tuple[s
     return channels, got
 
 
+@pytest.mark.slow  # over 1.5 s at rest (a run of seconds of loop time)
 def test_a_client_speaking_the_foxglove_protocol_receives_the_loops_channels_matching_the_runs_json(tmp_path):
     out = tmp_path / "run.json"
     cmd = [sys.executable, "-m", "vmehil", "run", "--motion", "none", "--duration", "600", "--overrun", "warn",

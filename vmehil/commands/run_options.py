@@ -50,6 +50,8 @@ class RunOptions:
     plant: CanPlantOptions | None = None
     console: ConsoleOptions = field(default_factory=ConsoleOptions)
     faults: FaultOptions = field(default_factory=FaultOptions)
+    #: ``--scene``: a scene file, ``none``, or ``None`` (the rig's own scene when it has one)
+    scene: str | None = None
     scope: ScopeOptions = field(default_factory=ScopeOptions)
 
     @classmethod
@@ -66,7 +68,7 @@ class RunOptions:
                    enable_amplifiers=args.enable_amplifiers, units=args.units, unit_timeout_s=args.unit_timeout,
                    mavlink=MavlinkOptions.from_args(args), vision=VisionOptions.from_args(args),
                    plant=CanPlantOptions.from_args(args), console=console, faults=FaultOptions.from_args(args),
-                   scope=scope)
+                   scene=args.scene, scope=scope)
 
     @property
     def realtime(self) -> bool:

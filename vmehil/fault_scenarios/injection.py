@@ -104,7 +104,9 @@ class FaultContext:
         return runner.node
 
     def board_of_type(self, kind: str, what: str) -> Any:
-        boards = [b for b in self.rig.table.table("crate", {}).tables("board", []) if b.get_str("type") == kind]
+        # a role names every board type of it (the vision link: "bit3" and "sbs617")
+        boards = [b for b in self.rig.table.table("crate", {}).tables("board", [])
+                  if b.get_str("type") == kind or board_role(b.get_str("type")) == kind]
         if not boards:
             raise CliError(f"{what}: rig {self.rig.name} has no {kind} board")
         return self.system.crate.board(boards[0].get_str("name"))
