@@ -1,0 +1,141 @@
+"""`vmehil run --trace '*'` into all four formats, each read back with a reader no one here wrote:
+the `mcap` reader (every message against its channel's JSON Schema: jsonschema), vcdvcd for the
+VCD, pandas for Parquet and CSV; the values against the run's own JSON. Then `vmehil trace show`
+on each. One short run (0.5 s of loop, its end-of-run stop and the 2 s watched after it)."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from collections import Counter
+
+import pytest
+
+from vmehil.cli import main
+
+mcap_reader = pytest.importorskip("mcap.reader")
+vcdvcd = pytest.importorskip("vcdvcd")
+pd = pytest.importorskip("pandas")
+
+PERIOD_NS = 8_000_000  #: jpl-arm's servo_rate_hz = 125 (emulators/presets/jpl-arm.toml)
+RUN_TICKS = 62  #: --duration 0.5 at 125 Hz: round(0.5 × 125)
+
+
+@pytest.fixture(scope="module")
+def traced(tmp_path_factory):
+    d = tmp_path_factory.mktemp("traced")
+    status = main(["run", "--motion", "none", "--duration", "0.5", "--quiet", "--trace", "*",
+                   "--trace-out", str(d / "t.mcap"), "--trace-out", str(d / "t.vcd"),
+                   "--trace-out", str(d / "t.parquet"), "--trace-out", str(d / "t.csv"),
+                   "--json", str(d / "run.json")])
+    assert status == 0
+    return d, json.loads((d / "run.json").read_text())
+
+
+def test_every_mcap_message_decodes_against_its_channels_schema_and_each_group_has_every_tick(traced) -> None:
+    d, run = traced
+    ticks = run["final_stop"]["tick"]  # every tick the loop ran, its end-of-run stop's included
+    assert ticks > RUN_TICKS
+    try:
+        from jsonschema import Draft202012Validator
+    except ImportError:  # pragma: no cover - the test extra brings it
+        Draft202012Validator = None
+    per_topic: Counter[str] = Counter()
+    seen_ticks: dict[str, list[int]] = {}
+    validators: dict[int, object] = {}
+    with (d / "t.mcap").open("rb") as f:
+        for schema, channel, message in mcap_reader.make_reader(f).iter_messages():
+            assert schema.encoding == "jsonschema" and channel.message_encoding == "json"
+            doc = json.loads(schema.data)
+            msg = json.loads(message.data)
+            if Draft202012Validator is not None:
+                v = validators.setdefault(schema.id, Draft202012Validator(doc))
+                v.validate(msg)  # type: ignore[attr-defined]
+            else:  # the schema read literally: every key declared, every value of its type or null
+                assert set(msg) == set(doc["properties"])
+            per_topic[channel.topic] += 1
+            if channel.topic != "/bus":
+                assert message.log_time == msg["tick"] * PERIOD_NS
+                seen_ticks.setdefault(channel.topic, []).append(msg["tick"])
+    tick_topics = [t for t in per_topic if t != "/bus"]
+    assert {"/j1", "/hand", "/drv/j1", "/truth/j1", "/net/j1", "/net/j1/encoder", "/irq"} <= set(tick_topics)
+    for topic in tick_topics:
+        assert per_topic[topic] == ticks, topic
+        assert seen_ticks[topic] == list(range(ticks)), topic
+    mcap_file = next(f for f in run["trace"]["files"] if f["format"] == "mcap")
+    assert per_topic["/bus"] == mcap_file["bus_cycles"] > 50 * RUN_TICKS  # ~60-130 cycles a running tick
+
+
+def test_the_traced_values_agree_with_the_runs_json(traced) -> None:
+    d, run = traced
+    df = pd.read_parquet(d / "t.parquet")
+    assert len(df) == run["final_stop"]["tick"]
+    last = df[df["tick"] == RUN_TICKS - 1].iloc[0]  # the run's last tick, before its end-of-run stop
+    for j in run["joints"]:
+        name = j["name"]
+        err_deg = math.degrees(last[f"{name}.target_rad"] - last[f"truth.{name}.theta_rad"])
+        assert abs(abs(err_deg) - abs(j["final_error_deg"])) < 1e-9, name
+        assert bool(last[f"{name}.integrating"]) == j["final_integrating"], name
+    end = df.iloc[-1]
+    assert end["j1.stop_state"] == 3  # stopped: power off
+    assert not end["net.j1.amp_enable"]  # the enable net is low after the stop
+    assert df["net.j1.amp_enable"].iloc[5]  # and high while the loop ran
+
+
+def test_the_csv_holds_the_same_rows_as_the_parquet(traced) -> None:
+    d, _run = traced
+    a = pd.read_parquet(d / "t.parquet")
+    b = pd.read_csv(d / "t.csv", comment="#")
+    assert list(a.columns) == list(b.columns)
+    for col in ("j2.position_rad", "truth.j2.theta_rad", "drv.j2.enc_counts", "net.j2.pot"):
+        assert (a[col].astype(float) - b[col].astype(float)).abs().max() < 1e-12, col
+    bus_a = pd.read_parquet(d / "t.bus.parquet")
+    bus_b = pd.read_csv(d / "t.bus.csv", comment="#")
+    assert len(bus_a) == len(bus_b) and (bus_a["address"] == bus_b["address"]).all()
+    assert set(bus_a["space"]) <= {16, 24, 32} and set(bus_a["width"]) <= {8, 16, 32}
+
+
+def test_the_vcd_holds_the_lines_and_every_bus_cycle(traced) -> None:
+    d, run = traced
+    vcd = vcdvcd.VCDVCD(str(d / "t.vcd"))
+    enable = vcd["vmehil.net.j1.amp_enable"].tv
+    assert [v for _t, v in enable][-1] == "0"  # low after the stop
+    assert any(v == "1" for _t, v in enable)  # high while the loop ran
+    vcd_file = next(f for f in run["trace"]["files"] if f["format"] == "vcd")
+    cycles = vcd["vmehil.bus.cycle"].tv
+    assert int(cycles[-1][1], 2) == vcd_file["bus_cycles"] - 1  # one change per cycle, numbered from 0
+    assert all(t2 >= t1 for (t1, _), (t2, _) in itertools.pairwise(cycles))
+    # numbers with a fraction stay out of a VCD (volts, radians): the lines and counts only
+    assert "vmehil.j1.position_rad" not in vcd.references_to_ids
+    assert "vmehil.j1.integrating" in vcd.references_to_ids
+
+
+@pytest.mark.parametrize("name", ["t.mcap", "t.parquet", "t.csv"])
+def test_trace_show_plots_each_format(traced, name, capsys) -> None:
+    d, _run = traced
+    out = d / f"{name}.png"
+    assert main(["trace", "show", str(d / name), "--signals", "j1.position_rad,truth.j1.theta_rad",
+                 "--out", str(out)]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "2 signals" in capsys.readouterr().err
+
+
+def test_trace_show_refuses_a_signal_the_file_does_not_hold(traced, capsys) -> None:
+    d, _run = traced
+    assert main(["trace", "show", str(d / "t.mcap"), "--signals", "j1.positon_rad"]) == 2
+    assert "nearest: j1.position_rad" in capsys.readouterr().err
+
+
+def test_the_console_traces_its_session(tmp_path) -> None:
+    out = tmp_path / "console.csv"
+    status = main(["console", "--port", f"pty:{tmp_path / 'console'}", "--lockstep", "--duration", "0.2",
+                   "--trace", "j1.*,net.j1.amp_enable", "--trace-out", str(out), "--json", str(tmp_path / "c.json")])
+    assert status == 0
+    session = json.loads((tmp_path / "c.json").read_text())
+    rows = pd.read_csv(out, comment="#")
+    assert len(rows) == session["ticks"] == session["trace"]["files"][0]["ticks"]
+    assert list(rows.columns) == ["tick", "t_s", *[f"j1.{leaf}" for leaf in (
+        "target_rad", "target_rad_s", "position_rad", "velocity_rad_s", "error_rad", "torque_nm", "current_cmd_a",
+        "current_a", "integral_e", "integral_edot_rad", "kp_eff", "integrating", "stop_state")], "net.j1.amp_enable"]
+    assert rows["j1.stop_state"].iloc[-1] == 3
