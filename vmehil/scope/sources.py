@@ -33,7 +33,7 @@ Row = dict[str, Any]
 class BusCycle(NamedTuple):
     """One bus cycle as the trace records it (the ``bus`` group's fields)."""
 
-    tick: int  #: the tick in which it ran (-1: before the first)
+    tick: int  #: the tick in which it ran (before the first: the first's)
     t_ns: int  #: simulated time at its end
     space: int  #: 16, 24 or 32
     address: int
@@ -94,7 +94,7 @@ class Sampler:
     _cycles: list[BusCycle] | None = None
     #: called once by :meth:`close` (the observation undone: a tap removed)
     on_close: Callable[[], None] | None = None
-    _tick: int = -1
+    _tick: int = 0
 
     @property
     def per_tick(self) -> tuple[Signal, ...]:
@@ -135,6 +135,7 @@ def sampler_for(signals: Sequence[Signal], system: Any, loop: Any) -> Sampler:
     names = list(loop.names)
     index = {n: i for i, n in enumerate(names)}
     sampler = Sampler(chosen, round(loop.period_s * 1e9))
+    sampler._tick = loop.tick_count  # a cycle belongs to the tick it runs in (or the next to come)
     readers: list[Callable[[Any, Row], None]] = []
     by_group: dict[str, list[Signal]] = {}
     for s in chosen:
@@ -165,6 +166,7 @@ def sampler_for(signals: Sequence[Signal], system: Any, loop: Any) -> Sampler:
 
 def _controller_reader(joints: list[tuple[int, list[Signal]]]) -> Callable[[Any, Row], None]:
     leaves = {s.leaf for _i, sigs in joints for s in sigs}
+    flat = [(s.name, s.leaf, s.kind, i) for i, sigs in joints for s in sigs]
     record = {"target_rad": "theta_d", "target_rad_s": "omega_d", "position_rad": "theta",
               "velocity_rad_s": "omega", "torque_nm": "torque", "current_cmd_a": "current_cmd",
               "current_a": "current", "kp_eff": "kp_eff"}
@@ -187,13 +189,12 @@ def _controller_reader(joints: list[tuple[int, list[Signal]]]) -> Callable[[Any,
             elif leaf == "integrating":
                 cols[leaf] = None if state is None else state.integrating
         stop = _stop_state(loop)
-        for i, sigs in joints:
-            for s in sigs:
-                if s.leaf == "stop_state":
-                    out[s.name] = stop
-                    continue
-                col = cols.get(s.leaf)
-                out[s.name] = None if col is None else _scalar(s.kind, col[i])
+        for name, leaf, kind, i in flat:
+            if leaf == "stop_state":
+                out[name] = stop
+                continue
+            col = cols.get(leaf)
+            out[name] = None if col is None else _scalar(kind, col[i])
 
     return read
 
@@ -201,31 +202,31 @@ def _controller_reader(joints: list[tuple[int, list[Signal]]]) -> Callable[[Any,
 def _driver_reader(joints: list[tuple[int, list[Signal]]], io: Any) -> Callable[[Any, Row], None]:
     fields = {"pot_v": "pot_v", "enc_counts": "encoder_counts", "enc_illegal": "encoder_illegal",
               "amp_fault": "fault"}
+    flat = [(s.name, s.leaf, s.kind, i) for i, sigs in joints for s in sigs]
 
     def read(loop: Any, out: Row) -> None:
         m = loop.last.get("measurement")
-        for i, sigs in joints:
-            for s in sigs:
-                if s.leaf in fields:
-                    col = None if m is None else getattr(m, fields[s.leaf])
-                    out[s.name] = None if col is None or len(col) <= i else _scalar(s.kind, col[i])
-                elif s.leaf == "dac_v":
-                    out[s.name] = _scalar("f", io.last_dac_volts[i])
-                elif s.leaf == "brake_released":
-                    out[s.name] = bool(io.brake_released[i])
+        for name, leaf, kind, i in flat:
+            if leaf in fields:
+                col = None if m is None else getattr(m, fields[leaf])
+                out[name] = None if col is None or len(col) <= i else _scalar(kind, col[i])
+            elif leaf == "dac_v":
+                out[name] = _scalar("f", io.last_dac_volts[i])
+            elif leaf == "brake_released":
+                out[name] = bool(io.brake_released[i])
 
     return read
 
 
 def _truth_reader(joints: list[tuple[int, list[Signal]]], system: Any) -> Callable[[Any, Row], None]:
     keys = {leaf: key for leaf, key, *_ in TRUTH}
+    flat = [(s.name, keys[s.leaf], s.kind, i) for i, sigs in joints for s in sigs]
 
     def read(loop: Any, out: Row) -> None:
         truth = system.truth() or {}
-        for i, sigs in joints:
-            for s in sigs:
-                col = truth.get(keys[s.leaf])
-                out[s.name] = None if col is None else _scalar(s.kind, col[i])
+        for name, key, kind, i in flat:
+            col = truth.get(key)
+            out[name] = None if col is None else _scalar(kind, col[i])
 
     return read
 
@@ -305,7 +306,9 @@ def plant_catalog(rig: Any) -> Catalog:
     commands and sensor values carry them, and the plant's truth."""
     from vmehil.rig_setup.system import joint_nets
 
-    analog, digital, quad = [], [], []
+    analog: list[str] = []
+    digital: list[str] = []
+    quad: list[str] = []
     for j in joint_nets(rig):
         for _field, net, kind in (*_COMMAND_NETS, *_SENSOR_NETS):
             name = getattr(j, net)

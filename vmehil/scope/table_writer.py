@@ -13,7 +13,7 @@ from __future__ import annotations
 import csv
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from vmehil.scope.catalog import Signal
 from vmehil.scope.sources import BusCycle
@@ -22,7 +22,7 @@ __all__ = ["MARK", "ROWS_PER_GROUP", "TableTraceWriter", "bus_path"]
 
 MARK = "written_by=vmehil"  #: in the Parquet footer's metadata / the CSV's first line
 ROWS_PER_GROUP = 1024
-_BUS_COLUMNS = ("tick", "t_ns", *BusCycle._fields[2:])
+_BUS_COLUMNS = BusCycle._fields
 _BUS_KINDS = {"tick": "i", "t_ns": "i", "space": "i", "address": "i", "width": "i", "write": "b", "value": "i",
               "block": "b", "berr": "b", "cycle": "i"}
 
@@ -39,8 +39,9 @@ class _Sink:
         self.path = path
         self.columns = columns
         self.rows = 0
-        self._f = path.open("wb") if path.suffix == ".parquet" else path.open("w", newline="", encoding="utf-8")
+        self._f: IO[Any]
         if path.suffix == ".parquet":
+            self._f = path.open("wb")
             import pyarrow as pa
             import pyarrow.parquet as pq
 
@@ -49,31 +50,40 @@ class _Sink:
             self._schema = pa.schema([(c, types[k]) for c, k in columns.items()],
                                      metadata={"vmehil": MARK, **{f"vmehil.{k}": v for k, v in meta.items()}})
             self._pq = pq.ParquetWriter(self._f, self._schema, compression="zstd")
-            self._cols: dict[str, list[Any]] = {c: [] for c in columns}
+            self._rows: list[Sequence[Any]] = []
+            self._row_bytes = 2.0 * len(columns)  # compressed, before the first row group says
             self._csv = None
         else:
-            self._f.write(f"# {MARK} " + " ".join(f"{k}={v}" for k, v in meta.items()) + "\n")
-            self._csv = csv.writer(self._f)
+            text = path.open("w", newline="", encoding="utf-8")
+            self._f = text
+            text.write(f"# {MARK} " + " ".join(f"{k}={v}" for k, v in meta.items()) + "\n")
+            self._csv = csv.writer(text)
             self._csv.writerow(list(columns))
 
-    def add(self, row: dict[str, Any]) -> None:
+    def add(self, values: Sequence[Any]) -> None:
+        """One row, its values in the order of ``columns`` (``None``: no value)."""
         self.rows += 1
         if self._csv is not None:
-            self._csv.writerow(["" if (v := row.get(c)) is None else (int(v) if isinstance(v, bool) else v)
-                                for c in self.columns])
+            self._csv.writerow(values)  # None is written empty, a level True/False
             return
-        for c, col in self._cols.items():
-            col.append(row.get(c))
-        if len(self._cols["tick"]) >= ROWS_PER_GROUP:
+        self._rows.append(values)
+        if len(self._rows) >= ROWS_PER_GROUP:
             self._flush()
 
     def _flush(self) -> None:
-        if self._csv is None and self._cols["tick"]:
-            self._pq.write_table(self._pa.Table.from_pydict(self._cols, schema=self._schema))
-            self._cols = {c: [] for c in self.columns}
+        if self._csv is None and self._rows:
+            at = self._f.tell()
+            cols = dict(zip(self.columns, (list(c) for c in zip(*self._rows, strict=True)), strict=True))
+            self._pq.write_table(self._pa.Table.from_pydict(cols, schema=self._schema))
+            self._row_bytes = (self._f.tell() - at) / len(self._rows)
+            self._rows = []
 
     def size_bytes(self) -> int:
-        return self._f.tell()
+        """CSV: the bytes written. Parquet: those, the rows not yet out at the last row group's
+        bytes a row, and the footer the close adds (its schema: about 100 bytes a column)."""
+        if self._csv is not None:
+            return self._f.tell()
+        return self._f.tell() + round(len(self._rows) * self._row_bytes) + 100 * len(self.columns)
 
     def close(self) -> None:
         if self._f.closed:
@@ -92,6 +102,7 @@ class TableTraceWriter:
     def __init__(self, path: str | Path, signals: Sequence[Signal], meta: dict[str, str], version: str) -> None:
         self.path = Path(path)
         self.format = self.path.suffix[1:]
+        self._names = [s.name for s in signals if s.per_tick]
         columns = {"tick": "i", "t_s": "f", **{s.name: s.kind for s in signals if s.per_tick}}
         self._ticks = _Sink(self.path, columns, {**meta, "version": version})
         self._bus = (_Sink(bus_path(self.path), {c: _BUS_KINDS[c] for c in _BUS_COLUMNS}, {**meta, "version": version})
@@ -102,12 +113,13 @@ class TableTraceWriter:
         return [self.path] + ([self._bus.path] if self._bus is not None else [])
 
     def write_tick(self, tick: int, t_ns: int, row: dict[str, Any]) -> None:
-        self._ticks.add({"tick": tick, "t_s": t_ns * 1e-9, **row})
+        get = row.get
+        self._ticks.add([tick, t_ns * 1e-9, *[get(n) for n in self._names]])
 
     def write_cycles(self, cycles: Sequence[BusCycle]) -> None:
         if self._bus is not None:
             for c in cycles:
-                self._bus.add(c._asdict())
+                self._bus.add(c)  # its fields are the bus table's columns, in order
 
     def size_bytes(self) -> int:
         return self._ticks.size_bytes() + (self._bus.size_bytes() if self._bus is not None else 0)

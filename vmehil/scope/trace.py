@@ -50,12 +50,13 @@ def format_of(path: str | Path, flag: str = "--trace-out") -> str:
     return FORMATS[suffix]
 
 
-def open_writer(path: Path, signals: Sequence[Signal], meta: dict[str, str], version: str) -> TraceWriter:
+def open_writer(path: Path, signals: Sequence[Signal], meta: dict[str, str], version: str,
+                period_ns: int) -> TraceWriter:
     """The writer of ``path``'s format (imported here: the 'trace' extra's libraries)."""
     fmt = format_of(path)
     if fmt == "mcap":
         from vmehil.scope.mcap_writer import McapTraceWriter
-        return McapTraceWriter(path, signals, meta, version)
+        return McapTraceWriter(path, signals, meta, version, period_ns)
     if fmt == "vcd":
         from vmehil.scope.vcd_writer import VcdTraceWriter
         return VcdTraceWriter(path, signals, meta, version)
@@ -84,7 +85,7 @@ class Trace:
         self.files: list[_File] = []
         try:
             for p in paths:
-                self.files.append(_File(open_writer(Path(p), sampler.signals, meta, version)))
+                self.files.append(_File(open_writer(Path(p), sampler.signals, meta, version, sampler.period_ns)))
         except BaseException:
             self.close()
             raise

@@ -52,6 +52,8 @@ class VcdTraceWriter:
         #: the chosen signals a VCD does not carry (numbers with a fraction)
         self.left_out = tuple(s.name for s in signals if s.per_tick and not s.digital)
         self._t = 0
+        self._last: dict[str, Any] = {}
+        self._bus_last: list[Any] = [None] * len(BusCycle._fields)
         self.changes = 0
 
     def _time(self, t_ns: int) -> int:
@@ -63,22 +65,26 @@ class VcdTraceWriter:
         if not self._vars:
             return
         t = self._time(t_ns)
-        change = self._w.change
+        change, last = self._w.change, self._last
         for name, var in self._vars:
             v = row.get(name)
-            if v is not None:
+            if v is not None and last.get(name) != v:  # most lines hold: no call for them
+                last[name] = v
                 change(var, t, int(v) & 0xFFFFFFFF if not isinstance(v, bool) else v)
         self.changes += 1
 
     def write_cycles(self, cycles: Sequence[BusCycle]) -> None:
         if not self._bus:
             return
-        change = self._w.change
+        change, last = self._w.change, self._bus_last
+        fields = [(BusCycle._fields.index(leaf), var) for leaf, var in self._bus]
         for c in cycles:
             t = self._time(c.t_ns)
-            full = c._asdict()
-            for leaf, var in self._bus:
-                change(var, t, full[leaf])
+            for i, var in fields:
+                v = c[i]
+                if last[i] != v:  # the fields a cycle shares with the one before: no call
+                    last[i] = v
+                    change(var, t, v)
         self.changes += len(cycles)
 
     def size_bytes(self) -> int:
