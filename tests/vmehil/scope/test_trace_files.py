@@ -184,3 +184,27 @@ def test_the_console_traces_its_session(tmp_path) -> None:
         "target_rad", "target_rad_s", "position_rad", "velocity_rad_s", "error_rad", "torque_nm", "current_cmd_a",
         "current_a", "integral_e", "integral_edot_rad", "kp_eff", "integrating", "stop_state")], "net.j1.amp_enable"]
     assert rows["j1.stop_state"].iloc[-1] == 3
+
+
+@pytest.mark.parametrize("name", ["t.mcap", "t.vcd", "t.parquet", "t.csv", "t.bus.parquet"])
+def test_a_trace_file_of_ours_may_be_written_again(traced, name) -> None:
+    from vmehil.writers.output_paths import check_output_file
+
+    d, _run = traced
+    assert check_output_file(d / name, "--trace-out") == d / name  # no refusal: vmehil wrote it
+
+
+def test_a_file_vmehil_did_not_write_is_not_overwritten_by_a_trace(tmp_path, capsys) -> None:
+    theirs = tmp_path / "theirs.mcap"
+    theirs.write_bytes(b"\x89MCAP0\r\nsomeone else's recording")
+    status = main(["run", "--motion", "none", "--duration", "0.1", "--trace", "j1.*", "--trace-out", str(theirs)])
+    assert status == 2
+    assert "was not written by vmehil" in capsys.readouterr().err
+    assert theirs.read_bytes() == b"\x89MCAP0\r\nsomeone else's recording"
+
+
+def test_a_trace_out_with_an_unknown_suffix_is_refused_before_the_run(tmp_path, capsys) -> None:
+    status = main(["run", "--motion", "none", "--duration", "0.1", "--trace", "j1.*",
+                   "--trace-out", str(tmp_path / "t.json")])
+    assert status == 2
+    assert "--trace-out" in capsys.readouterr().err and not list(tmp_path.iterdir())
