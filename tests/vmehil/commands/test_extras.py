@@ -58,8 +58,6 @@ def test_the_default_run_needs_no_extra(tmp_path) -> None:
     (["console", "--port", "loop://"],
      "vmehil console --console loop:// needs the 'console' extra: pip install 'vmehil[console]'"),
     (["run", "--trace", "*"], "vmehil run --trace needs the 'trace' extra: pip install 'vmehil[trace]'"),
-    (["console", "--port", "pty", "--trace", "j1.*", "--trace-out", "t.csv"],
-     "vmehil console --trace needs the 'trace' extra: pip install 'vmehil[trace]'"),
     (["coordinate", "--trace", "*"], "vmehil coordinate --trace needs the 'trace' extra: pip install 'vmehil[trace]'"),
     (["trace", "show", "t.mcap"], "vmehil trace show needs the 'plots' extra: pip install 'vmehil[plots]'"),
 ], ids=lambda v: " ".join(v) if isinstance(v, list) else None)

@@ -67,6 +67,7 @@ def traced(tmp_path_factory):
     return d, json.loads((d / "run.json").read_text())
 
 
+@pytest.mark.slow  # the traced run (module fixture) or a session: over 1.5 s
 def test_every_mcap_message_decodes_against_its_channels_schema_and_each_group_has_every_tick(traced) -> None:
     d, run = traced
     ticks = run["final_stop"]["tick"]  # every tick the loop ran, its end-of-run stop's included
@@ -112,6 +113,7 @@ def test_every_mcap_message_decodes_against_its_channels_schema_and_each_group_h
     assert seen_ticks["/bus"] == list(range(ticks + 1))
 
 
+@pytest.mark.slow  # the traced run (module fixture) or a session: over 1.5 s
 def test_the_traced_values_agree_with_the_runs_json(traced) -> None:
     d, run = traced
     df = pd.read_parquet(d / "t.parquet")
@@ -128,6 +130,7 @@ def test_the_traced_values_agree_with_the_runs_json(traced) -> None:
     assert df["net.j1.amp_enable"].iloc[5]  # and high while the loop ran
 
 
+@pytest.mark.slow  # the traced run (module fixture) or a session: over 1.5 s
 def test_the_csv_holds_the_same_rows_as_the_parquet(traced) -> None:
     d, _run = traced
     a = pd.read_parquet(d / "t.parquet")
@@ -141,6 +144,7 @@ def test_the_csv_holds_the_same_rows_as_the_parquet(traced) -> None:
     assert set(bus_a["space"]) <= {16, 24, 32} and set(bus_a["width"]) <= {8, 16, 32}
 
 
+@pytest.mark.slow  # the traced run (module fixture) or a session: over 1.5 s
 def test_the_vcd_holds_the_lines_and_every_bus_cycle(traced) -> None:
     d, run = traced
     vcd = vcdvcd.VCDVCD(str(d / "t.vcd"))
@@ -156,6 +160,7 @@ def test_the_vcd_holds_the_lines_and_every_bus_cycle(traced) -> None:
     assert "vmehil.j1.integrating" in vcd.references_to_ids
 
 
+@pytest.mark.slow  # the traced run (module fixture) or a session: over 1.5 s
 @pytest.mark.parametrize("name", ["t.mcap", "t.parquet", "t.csv"])
 def test_trace_show_plots_each_format(traced, name, capsys) -> None:
     d, _run = traced
@@ -166,12 +171,14 @@ def test_trace_show_plots_each_format(traced, name, capsys) -> None:
     assert "2 signals" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # the traced run (module fixture) or a session: over 1.5 s
 def test_trace_show_refuses_a_signal_the_file_does_not_hold(traced, capsys) -> None:
     d, _run = traced
     assert main(["trace", "show", str(d / "t.mcap"), "--signals", "j1.positon_rad"]) == 2
     assert "nearest: j1.position_rad" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # the traced run (module fixture) or a session: over 1.5 s
 def test_the_console_traces_its_session(tmp_path) -> None:
     out = tmp_path / "console.csv"
     status = main(["console", "--port", f"pty:{tmp_path / 'console'}", "--lockstep", "--duration", "0.2",
@@ -186,6 +193,7 @@ def test_the_console_traces_its_session(tmp_path) -> None:
     assert rows["j1.stop_state"].iloc[-1] == 3
 
 
+@pytest.mark.slow  # the traced run (module fixture) or a session: over 1.5 s
 @pytest.mark.parametrize("name", ["t.mcap", "t.vcd", "t.parquet", "t.csv", "t.bus.parquet"])
 def test_a_trace_file_of_ours_may_be_written_again(traced, name) -> None:
     from vmehil.writers.output_paths import check_output_file

@@ -83,6 +83,7 @@ def test_a_file_at_its_size_bound_stops_readable_and_the_loop_runs_on(tmp_path) 
 _channels = itertools.count()
 
 
+@pytest.mark.slow  # five unit controllers and a coordinator (threads): over 1.5 s
 def test_a_unit_traces_its_loop_and_the_coordinator_its_plant_steps(tmp_path) -> None:
     from tests.vmehil.test_units_remote import UNITS, start_units
     from vmehil.unit_controllers.coordinator import plant_link_for
@@ -126,3 +127,24 @@ def test_a_unit_traces_its_loop_and_the_coordinator_its_plant_steps(tmp_path) ->
     served = steps["truth.leg1_knee.theta_rad"].to_numpy(float)[1:50]
     assert np.allclose(served, rec["theta_true"][:49, knee], rtol=0, atol=1e-6)
     assert steps["net.leg1_knee.amp_enable"].astype(bool).iloc[5]
+
+
+def test_on_a_rig_without_an_emulated_crate_a_trace_has_the_controller_and_the_drivers(tmp_path) -> None:
+    """A real bus (`vmehil run --bus vme_user --trace '*'`): no nets, no bus cycles, no truth to
+    observe; '*' is the controller's and the drivers' signals."""
+    from types import SimpleNamespace
+
+    system = build_emulated_rig("jpl-arm", seed=1)
+    loop = build_loop(system, motion=hold_motion(), n_ticks=10)
+    runner = LockstepRunner(system, loop)
+    real = SimpleNamespace(rig=system.rig)  # what the trace sees of a real rig: no crate, no plant
+    with loop.armed():
+        trace = TraceOptions("*", (tmp_path / "real.csv",)).start(real, loop, runner, rig="jpl-arm")
+        runner.run(10)
+    trace.close()
+    system.close()
+    rows = pd.read_csv(tmp_path / "real.csv", comment="#")
+    assert len(rows) == 10
+    groups = {c.rpartition(".")[0] for c in rows.columns if "." in c}
+    assert groups == {*loop.names, *(f"drv.{n}" for n in loop.names)}
+    assert rows["drv.j1.pot_v"].notna().all() and rows["j1.position_rad"].notna().all()
