@@ -366,8 +366,8 @@ def run_coordinator_command(opts: CoordinatorOptions) -> int:
         if link is not None:
             link.close()
         raise
-    if link is not None:
-        iface, chan = plant.resolved()  # type: ignore[union-attr]
+    if plant is not None:  # (a link of its own is also made here for a trace of the in-process plant)
+        iface, chan = plant.resolved()
         print(f"coordinate: the plant node on {iface} {chan}", file=sys.stderr)
     try:
         out = run_coordinator(spec, bus, seed=opts.seed, n_ticks=n_ticks, timeout_s=opts.bus.unit_timeout_s,

@@ -148,3 +148,39 @@ def test_on_a_rig_without_an_emulated_crate_a_trace_has_the_controller_and_the_d
     groups = {c.rpartition(".")[0] for c in rows.columns if "." in c}
     assert groups == {*loop.names, *(f"drv.{n}" for n in loop.names)}
     assert rows["drv.j1.pot_v"].notna().all() and rows["j1.position_rad"].notna().all()
+
+
+@pytest.mark.slow  # five unit controllers and a coordinator: over 1.5 s
+def test_vmehil_unit_and_vmehil_coordinate_take_trace_and_say_so_in_their_json(tmp_path) -> None:
+    """The commands themselves (threads on the `virtual` unit bus stand in for the processes):
+    `vmehil unit --trace` beside its faults' hook, `vmehil coordinate --trace` on the plant it
+    makes; each JSON names its file and the ticks in it."""
+    import threading
+
+    from tests.vmehil.test_units_remote import start_units
+    from vmehil.cli import main
+
+    rig = load_rig(resolve_rig("melmalec-16"))
+    channel = f"unit-trace-cli-{next(_channels)}"
+    status: dict[str, int] = {}
+    leg1 = threading.Thread(target=lambda: status.__setitem__("leg1", main([
+        "unit", "--rig", "melmalec-16", "--unit", "leg1", "--interface", "virtual", "--channel", channel,
+        "--trace", "leg1_knee.*", "--trace-out", str(tmp_path / "leg1.csv"), "--json", str(tmp_path / "leg1.json")])),
+        daemon=True)
+    leg1.start()
+    _results, threads = start_units(rig, channel, names=("leg2", "leg3", "leg4", "arm"))
+    status["coordinate"] = main(["coordinate", "--rig", "melmalec-16", "--duration", "0.4", "--interface", "virtual",
+                                 "--channel", channel, "--trace", "truth.leg1_knee.*",
+                                 "--trace-out", str(tmp_path / "plant.parquet"),
+                                 "--json", str(tmp_path / "coordinate.json")])
+    for t in (leg1, *threads):
+        t.join(timeout=60)
+    assert status == {"leg1": 0, "coordinate": 0}
+    unit = json.loads((tmp_path / "leg1.json").read_text())
+    assert unit["trace"]["files"][0]["ticks"] == len(pd.read_csv(tmp_path / "leg1.csv", comment="#")) == 50  # 0.4 s
+    coordinate = json.loads((tmp_path / "coordinate.json").read_text())
+    steps = pd.read_parquet(tmp_path / "plant.parquet")
+    assert coordinate["trace"]["files"][0]["ticks"] == len(steps) >= 50
+    assert list(steps.columns) == ["tick", "t_s", *[f"truth.leg1_knee.{leaf}" for leaf in (
+        "theta_rad", "omega_rad_s", "theta_motor_rad", "omega_motor_rad_s", "current_a", "motor_torque_nm",
+        "friction_torque_nm", "encoder_x4", "stuck", "at_stop", "amp_enabled", "brake_engaged")]]
