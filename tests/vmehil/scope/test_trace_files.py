@@ -216,3 +216,27 @@ def test_a_trace_out_with_an_unknown_suffix_is_refused_before_the_run(tmp_path, 
                    "--trace-out", str(tmp_path / "t.json")])
     assert status == 2
     assert "--trace-out" in capsys.readouterr().err and not list(tmp_path.iterdir())
+
+
+@pytest.mark.slow  # builds the rig (its plant kernel): over 1.5 s
+def test_trace_list_prints_every_name_of_the_rig(capsys) -> None:
+    assert main(["run", "--trace", "list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    names = [line.split()[0] for line in lines]
+    # jpl-arm: 7 joints × (13 controller + 6 driver + 12 truth), its nets, 7 IRQ levels, 8 bus fields
+    assert names[:2] == ["j1.target_rad", "j1.target_rad_s"]
+    assert {"drv.hand.enc_counts", "net.j2.holding_brake", "net.rig.watchdog", "net.j1.encoder.index",
+            "truth.j6.brake_engaged", "irq.IRQ7", "bus.berr"} <= set(names)
+    assert len(names) == len(set(names)) == 7 * (13 + 6 + 12) + 7 + 8 + len([n for n in names if n.startswith("net.")])
+
+
+def test_a_spec_the_rig_cannot_meet_is_refused_before_the_loop_is_armed(capsys) -> None:
+    assert main(["run", "--motion", "none", "--duration", "0.1", "--trace", "j9.*"]) == 2
+    err = capsys.readouterr().err
+    assert "'j9.*' matches no signal; nearest:" in err
+    assert "amplifiers enabled" not in err  # refused before the run began
+
+
+def test_trace_out_without_trace_is_refused(capsys) -> None:
+    assert main(["run", "--trace-out", "t.mcap"]) == 2
+    assert "--trace-out: give --trace SPEC too" in capsys.readouterr().err
