@@ -26,7 +26,7 @@ from typing import Any, Protocol
 
 from vmehil.errors import CliError
 from vmehil.option_groups.scope_options import ScopeOptions, add_scope_arguments
-from vmehil.reports.blackbox import MessageMaker, channel_schemas
+from vmehil.reports.blackbox import BoxRows
 
 __all__ = ["LIVE_RATE_HZ", "LiveView", "add_arguments", "attach", "open_live", "prepare"]
 
@@ -54,11 +54,14 @@ class LiveView:
                  rate_hz: float = LIVE_RATE_HZ) -> None:
         import foxglove
 
+        from vmehil.scope.mcap_writer import group_schema, topic_of
+
         self._ctx = foxglove.Context()  # its own: two views in one process do not share channels
         self.names = tuple(names)
-        self._channels = {topic: foxglove.Channel(topic, schema=schema, context=self._ctx)
-                          for topic, schema in channel_schemas(self.names).items()}
-        self._maker = MessageMaker(self.names, period_s)
+        self._rows = BoxRows(self.names, period_s)
+        # (channel, its leaves and their signal names), as the trace files' writer lays them out
+        self._channels = [(foxglove.Channel(topic_of(group), schema=group_schema(group, sigs), context=self._ctx),
+                           tuple((s.leaf, s.name) for s in sigs)) for group, sigs in self._rows.groups.items()]
         try:
             self._server = foxglove.start_server(name="vmehil", host=host, port=port, context=self._ctx)
         except RuntimeError as e:  # foxglove-sdk's FoxgloveError: the port is taken, the host not ours
@@ -90,13 +93,14 @@ class LiveView:
 
     def _publish(self, tick: int, t: float, state: int, values: Any) -> None:
         self._last_tick, self._last_state = tick, state
-        if not any(ch.has_sinks() for ch in self._channels.values()):  # nobody subscribed: nothing to encode
+        if not any(ch.has_sinks() for ch, _ in self._channels):  # nobody subscribed: nothing to encode
             return
         ns = tick * self.period_ns
-        for topic, msg in self._maker.messages(tick, state, values):
-            ch = self._channels[topic]
+        row = self._rows.row(state, values)
+        t_s = ns * 1e-9
+        for ch, fields in self._channels:
             if ch.has_sinks():
-                ch.log(msg, log_time=ns)
+                ch.log({"tick": tick, "t_s": t_s, **{leaf: row[name] for leaf, name in fields}}, log_time=ns)
         self.sent += 1
 
     def finish(self, loop: Any) -> None:
@@ -106,7 +110,7 @@ class LiveView:
         row = box.latest() if box is not None else None
         if row is not None and row[0] != self._last_tick:
             self._publish(*row)
-        if any(ch.has_sinks() for ch in self._channels.values()):
+        if any(ch.has_sinks() for ch, _ in self._channels):
             time.sleep(LINGER_S)
 
     def close(self) -> None:

@@ -23,7 +23,7 @@ AFTER_TICKS = 250  # 2 s kept after the power went off
 
 
 def _read_mcap(path: Path) -> tuple[dict[str, list[dict]], dict[str, dict], dict[str, str]]:
-    """topic → messages (decoded JSON, in log-time order), topic → schema, the metadata ``blackbox``."""
+    """topic → messages (decoded JSON, in log-time order), topic → schema, the metadata ``vmehil``."""
     from mcap.reader import make_reader
 
     msgs: dict[str, list[dict]] = {}
@@ -40,7 +40,7 @@ def _read_mcap(path: Path) -> tuple[dict[str, list[dict]], dict[str, dict], dict
             msgs.setdefault(channel.topic, []).append(body)
         f.seek(0)
         meta = {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
-    return msgs, schemas, meta["blackbox"]
+    return msgs, schemas, meta["vmehil"]
 
 
 @pytest.mark.slow  # over 1.5 s at rest (a run of seconds of loop time)

@@ -22,7 +22,7 @@ EXTRA_MODULES: dict[str, tuple[str, ...]] = {
     "mavlink": ("pymavlink",),
     "console": ("serial",),
     "dask": ("dask", "distributed"),
-    "trace": ("mcap", "foxglove"),
+    "trace": ("mcap", "vcd", "pyarrow", "foxglove"),
 }
 
 

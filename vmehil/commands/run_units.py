@@ -35,6 +35,8 @@ _NOT_WITH_UNITS: tuple[tuple[Callable[[RunOptions], object], str, str], ...] = (
      "the live view serves one servo loop's channels; watch a unit's joints with --units single --live"),
     (lambda o: o.vision.mode, "--vision",
      "the visual servo commands one loop's joints over one BIT3 window; run it with --units single"),
+    (lambda o: o.trace.wanted, "--trace",
+     "a trace follows one loop; trace a unit with `vmehil unit --trace`, or run with --units single"),
 )
 
 

@@ -6,13 +6,14 @@ directory, or with none into ``./vmehil-blackbox/<rig>-<UTC time>/`` (``--blackb
 extra; else ``blackbox.npz``, said in one line) and ``blackbox.png``, the seconds around the stop
 (with matplotlib). The run JSON names the data file as ``final_stop.blackbox``.
 
-The MCAP layout (:func:`write_mcap`, the one place that writes it) is a trace file's (docs/scope.md):
-one channel per signal group — ``/j1`` (the controller's view of joint j1: target, position,
-velocity, error, torque and current commands, integrators, Kp_eff, switch-off and stop state) and
-``/drv/j1`` (its lines: amplifier enable, holding brake, amplifier fault) per joint — JSON messages
-``{"tick", "t_s", <leaf>: value, ...}`` with JSON Schemas, log times on the loop's clock (tick ×
-period, ns); the stop (tick, cause) in the file's metadata ``blackbox``. The live view
-(:mod:`vmehil.live`) serves the same channels.
+The signals are the signal catalog's (:mod:`vmehil.scope.catalog`) and the MCAP is written by the
+trace files' writer (:func:`write_mcap`): one channel per group — ``/j1`` (the controller's view of
+joint j1: target, position, velocity, error, torque and current commands, integrators, Kp_eff,
+switch-off and stop state) and ``/drv/j1`` (its lines: amplifier enable, holding brake, amplifier
+fault) per joint — JSON messages ``{"tick", "t_s", <leaf>: value, ...}`` with JSON Schemas, log
+times on the loop's clock (tick × period, ns); the stop (tick, reason, cause) in the file's
+``vmehil`` metadata record (``blackbox = 1``). The live view (:mod:`vmehil.live`) serves the same
+channels.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import io
 import json
 import os
 import sys
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -30,10 +31,11 @@ from typing import Any
 import numpy as np
 
 from servo.blackbox import JOINT_SIGNALS, STOP_STATES, BlackBoxSnapshot
+from vmehil.scope.catalog import Signal, build_catalog
 from vmehil.writers.files import save_figure, write_atomic
 
-__all__ = ["BLACKBOX_ENV", "DEFAULT_DIR", "MessageMaker", "blackbox_folder", "box_groups", "channel_schemas",
-           "save_blackbox", "signal_names", "topic_of", "write_blackbox", "write_mcap"]
+__all__ = ["BLACKBOX_ENV", "DEFAULT_DIR", "BoxRows", "blackbox_folder", "box_signals", "save_blackbox",
+           "write_blackbox", "write_mcap"]
 
 #: where a run with no report directory writes its black box (a folder per run inside)
 DEFAULT_DIR = "vmehil-blackbox"
@@ -83,108 +85,70 @@ def save_blackbox(loop: Any, *, rig: str, choice: str | None, report: str | None
     return path
 
 
-_JSON_TYPE = {"f": "number", "i": "integer", "b": "boolean"}
-#: the joints' stop state, a field of each joint's own group (the catalog's ``J.stop_state``)
-STOP_STATE = ("stop_state", "i", "", "0 servoing, 1 decelerating (category-1 stop), 2 holding (category 2), "
-                                     "3 stopped (power off)")
-
-
-def topic_of(group: str) -> str:
-    """The MCAP (and live) topic of a signal group, as the trace files name it: ``drv.j1`` → ``/drv/j1``."""
-    return "/" + group.replace(".", "/")
-
-
-def box_groups(names: tuple[str, ...] | list[str]) -> dict[str, list[tuple[str, str, str, str, int]]]:
-    """The box's signals by group (catalog names: ``j1`` and ``drv.j1`` per joint): group → (leaf,
-    kind, unit, what, row index in :data:`JOINT_SIGNALS`; -1: the stop state)."""
-    out: dict[str, list[tuple[str, str, str, str, int]]] = {}
+def box_signals(names: tuple[str, ...] | list[str]) -> list[Signal]:
+    """The box's signals, from the one signal catalog (:mod:`vmehil.scope.catalog`): per joint its
+    own group (``j1.target_rad`` … ``j1.stop_state``) and its lines (``drv.j1.amp_enable``, …)."""
+    catalog = build_catalog(list(names))
+    out = []
     for j in names:
-        ctrl = [(leaf, kind, unit, what, i) for i, (leaf, g, kind, unit, what) in enumerate(JOINT_SIGNALS)
-                if g == "ctrl"]
-        out[j] = [*ctrl, (*STOP_STATE, -1)]
-        out[f"drv.{j}"] = [(leaf, kind, unit, what, i) for i, (leaf, g, kind, unit, what) in enumerate(JOINT_SIGNALS)
-                           if g == "drv"]
+        out += [catalog.by_name[f"{j}.{leaf}"] for leaf, g, *_ in JOINT_SIGNALS if g == "ctrl"]
+        out.append(catalog.by_name[f"{j}.stop_state"])
+        out += [catalog.by_name[f"drv.{j}.{leaf}"] for leaf, g, *_ in JOINT_SIGNALS if g == "drv"]
     return out
 
 
-def signal_names(names: tuple[str, ...] | list[str]) -> list[str]:
-    """Every signal the box holds, by its dotted name (``j1.target_rad``, ``drv.j1.amp_fault``)."""
-    return [f"{g}.{leaf}" for g, fields in box_groups(names).items() for leaf, *_ in fields]
-
-
-def channel_schemas(names: tuple[str, ...] | list[str]) -> dict[str, dict[str, Any]]:
-    """Topic → the JSON Schema of its messages (every field present; a value may be ``null``)."""
-    out = {}
-    for group, fields in box_groups(names).items():
-        props: dict[str, Any] = {"tick": {"type": "integer", "description": "servo tick"},
-                                 "t_s": {"type": "number", "description": "tick × period, s"}}
-        for leaf, kind, unit, what, _ in fields:
-            props[leaf] = {"type": [_JSON_TYPE[kind], "null"], "description": f"{what} [{unit}]" if unit else what}
-        out[topic_of(group)] = {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": f"vmehil.{group}",
-                                "type": "object", "properties": props, "required": list(props),
-                                "additionalProperties": False}
-    return out
-
-
-class MessageMaker:
-    """One tick's row of the box → (topic, JSON message) per group: the MCAP's and the live view's."""
+class BoxRows:
+    """The box's rows as the trace writers take them: ``{signal name: value}`` (NaN → ``None``,
+    levels as booleans, the stop state as an integer), and by group for the live view."""
 
     def __init__(self, names: tuple[str, ...] | list[str], period_s: float) -> None:
         self.period_s = period_s
-        groups = box_groups(names)
-        self._plan = [(topic_of(g), j, groups[g]) for j, name in enumerate(names) for g in (name, f"drv.{name}")]
+        self.signals = box_signals(names)
+        index = {leaf: i for i, (leaf, *_rest) in enumerate(JOINT_SIGNALS)}
+        joint = {name: j for j, name in enumerate(names)}
+        self._plan = [(s.name, s.kind, -1 if s.leaf == "stop_state" else index[s.leaf],
+                       joint[s.group.removeprefix("drv.")]) for s in self.signals]
+        groups: dict[str, list[Signal]] = {}
+        for sig in self.signals:
+            groups.setdefault(sig.group, []).append(sig)
+        self.groups = groups
 
-    def messages(self, tick: int, state: int, values: np.ndarray) -> Iterator[tuple[str, dict[str, Any]]]:
-        """``values``: signals × joints (NaN → ``null``; levels as booleans)."""
-        rows = values.T.tolist()
-        t_s = tick * self.period_s
-        for topic, j, fields in self._plan:
-            row = rows[j]
-            msg: dict[str, Any] = {"tick": tick, "t_s": t_s}
-            for leaf, kind, _, _, i in fields:
-                if i < 0:
-                    msg[leaf] = state
-                    continue
-                v = row[i]
-                msg[leaf] = None if v != v else (bool(v) if kind == "b" else v)
-            yield topic, msg
-
-
-def _messages(snap: BlackBoxSnapshot) -> Iterator[tuple[str, int, dict[str, Any]]]:
-    """(topic, log time ns, message) for every row, in time order."""
-    maker = MessageMaker(snap.names, snap.period_s)
-    period_ns = round(snap.period_s * 1e9)
-    for r in range(snap.t.size):
-        k = int(snap.tick[r])
-        for topic, msg in maker.messages(k, int(snap.stop_state[r]), snap.joints[r]):
-            yield topic, k * period_ns, msg
+    def row(self, state: int, values: np.ndarray) -> dict[str, Any]:
+        """One tick's row (``values``: signals × joints, :data:`servo.blackbox.JOINT_SIGNALS`)."""
+        cols = values.T.tolist()
+        out: dict[str, Any] = {}
+        for name, kind, i, j in self._plan:
+            if i < 0:
+                out[name] = state
+                continue
+            v = cols[j][i]
+            out[name] = None if v != v else (bool(v) if kind == "b" else v)
+        return out
 
 
 def _meta(snap: BlackBoxSnapshot, rig: str, stop: Mapping[str, Any] | None) -> dict[str, str]:
     stop = stop or {}
-    return {"rig": rig, "period_s": repr(snap.period_s),
+    return {"blackbox": "1", "rig": rig, "period_s": repr(snap.period_s),
             "stop_tick": "" if snap.stop_tick is None else str(snap.stop_tick),
-            "stop_reason": str(stop.get("reason") or ""), "stop_cause": str(stop.get("cause") or ""),
-            "signals": ",".join(signal_names(snap.names))}
+            "stop_reason": str(stop.get("reason") or ""), "stop_cause": str(stop.get("cause") or "")}
 
 
 def write_mcap(path: Path, snap: BlackBoxSnapshot, meta: Mapping[str, str]) -> Path:
-    """The box as MCAP (``mcap`` library; JSON messages with JSON Schemas), written atomically."""
-    from mcap.writer import Writer
+    """The box as MCAP through the trace files' writer (:class:`vmehil.scope.mcap_writer.McapTraceWriter`:
+    a channel per group, JSON Schemas; ``meta`` in its ``vmehil`` metadata record)."""
+    from vmehil.option_groups.trace_options import package_version
+    from vmehil.scope.mcap_writer import McapTraceWriter
 
-    buf = io.BytesIO()
-    w = Writer(buf)
-    w.start(profile="", library="vmehil black box")
-    ids: dict[str, int] = {}
-    for topic, schema in channel_schemas(snap.names).items():
-        sid = w.register_schema(name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode())
-        ids[topic] = w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
-    for topic, ns, msg in _messages(snap):
-        w.add_message(channel_id=ids[topic], log_time=ns, publish_time=ns, sequence=msg["tick"] & 0xFFFFFFFF,
-                      data=json.dumps(msg, allow_nan=False, separators=(",", ":")).encode())
-    w.add_metadata("blackbox", dict(meta))
-    w.finish()
-    return write_atomic(path, buf.getvalue())
+    rows = BoxRows(snap.names, snap.period_s)
+    period_ns = round(snap.period_s * 1e9)
+    w = McapTraceWriter(path, rows.signals, dict(meta), package_version(), period_ns)
+    try:
+        for r in range(snap.t.size):
+            k = int(snap.tick[r])
+            w.write_tick(k, k * period_ns, rows.row(int(snap.stop_state[r]), snap.joints[r]))
+    finally:
+        w.close()
+    return path
 
 
 def _write_npz(path: Path, snap: BlackBoxSnapshot, meta: Mapping[str, str]) -> Path:
