@@ -47,7 +47,7 @@ def _read_mcap(path: Path) -> tuple[dict[str, list[dict]], dict[str, dict], dict
 def test_a_fault_runs_black_box_holds_the_seconds_before_the_stop_and_its_lines_match_the_json(tmp_path):
     out = tmp_path / "run.json"
     box_dir = tmp_path / "box"
-    status = cli.main(["run", "--duration", "3", "--fault", "amp_fault@1.5:joint=j2", "--quiet",
+    status = cli.main(["run", "--duration", "1.6", "--fault", "amp_fault@1.5:joint=j2", "--quiet",
                        "--json", str(out), "--blackbox", str(box_dir)])
     assert status == 1
     summary = json.loads(out.read_text())
@@ -65,7 +65,7 @@ def test_a_fault_runs_black_box_holds_the_seconds_before_the_stop_and_its_lines_
     assert all([m["tick"] for m in msgs[j]] == ticks for j in msgs)
     # at least 1 s before the stop (the run was 1.5 s long then: all of it, from tick 0)
     assert ticks[0] == 0 and (fault["tick"] - ticks[0]) * PERIOD_S >= 1.0
-    # and 2 s after the power went off, then frozen (the run ticked on to 3 s + 2 s)
+    # and 2 s after the power went off, then frozen (the run ticked on to 1.6 s + 2 s)
     assert ticks[-1] == fault["tick"] + AFTER_TICKS
     by_tick = {topic: {m["tick"]: m for m in msgs[topic]} for topic in msgs}
     f = fault["tick"]

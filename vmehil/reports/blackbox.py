@@ -182,16 +182,18 @@ def write_blackbox(snap: BlackBoxSnapshot, folder: Path, *, rig: str, stop: Mapp
 def write_png(path: Path, snap: BlackBoxSnapshot, *, rig: str, stop: Mapping[str, Any] | None) -> Path:
     """The seconds around the stop: per joint the error, velocity and torque command; the lines
     (enables, brakes released, amplifier faults) and the stop state. ``path`` without suffix."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    # the figure without pyplot, legends placed, no tight bounding box: the PNG is written on every
+    # stop, so what it adds to the end of a run is kept small (pyplot's import, "best" legends and
+    # a tight box's second draw cost more than the drawing itself)
+    from matplotlib.figure import Figure
 
     t = snap.t
     t_stop = snap.stop_tick * snap.period_s if snap.stop_tick is not None else None
     keep = t >= (t_stop - PNG_BEFORE_S) if t_stop is not None else np.ones(t.shape, bool)
     t = t[keep]
-    fig, ax = plt.subplots(4, 1, figsize=(9, 9), sharex=True)
+    fig = Figure(figsize=(9, 9))
+    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.06, top=0.94, hspace=0.12)
+    ax = fig.subplots(4, 1, sharex=True)
     for j, name in enumerate(snap.names):
         ax[0].plot(t, np.degrees(snap.signal("error_rad")[keep, j]), lw=0.9, label=name)
         ax[1].plot(t, np.degrees(snap.signal("velocity_rad_s")[keep, j]), lw=0.9)
@@ -199,7 +201,7 @@ def write_png(path: Path, snap: BlackBoxSnapshot, *, rig: str, stop: Mapping[str
     ax[0].set_ylabel("error θd−θ (°)")
     ax[1].set_ylabel("velocity (°/s)")
     ax[2].set_ylabel("torque cmd (N·m)")
-    ax[0].legend(loc="best", fontsize=7, ncol=4)
+    ax[0].legend(loc="upper left", fontsize=7, ncol=4)
     lines = ax[3]
     lines.step(t, np.nanmean(snap.signal("amp_enable")[keep], axis=1), where="post", label="enables (fraction high)")
     lines.step(t, np.nanmean(snap.signal("brake_released")[keep], axis=1), where="post",
@@ -210,7 +212,7 @@ def write_png(path: Path, snap: BlackBoxSnapshot, *, rig: str, stop: Mapping[str
                label="stop state (0 running … 1 stopped)")
     lines.set_ylabel("lines")
     lines.set_xlabel("loop time (s)")
-    lines.legend(loc="best", fontsize=7)
+    lines.legend(loc="center left", fontsize=7)
     for a in ax:
         if t_stop is not None:
             a.axvline(t_stop, color="r", lw=0.8)
@@ -218,6 +220,4 @@ def write_png(path: Path, snap: BlackBoxSnapshot, *, rig: str, stop: Mapping[str
     s = stop or {}
     why = s.get("cause") or s.get("reason") or "no stop"
     fig.suptitle(f"{rig} black box: {why}" + (f" at {t_stop:.3f} s" if t_stop is not None else ""))
-    out = save_figure(fig, path)[0]
-    plt.close(fig)
-    return out
+    return save_figure(fig, path, dpi=90, tight=False)[0]

@@ -218,12 +218,14 @@ def _json_key(k: Any) -> Any:
     return k if k is None or isinstance(k, str | int | float) else str(k)
 
 
-def save_figure(fig: Any, path: str | Path, formats: tuple[str, ...] = ("png",), *, dpi: int = 110) -> list[Path]:
+def save_figure(fig: Any, path: str | Path, formats: tuple[str, ...] = ("png",), *, dpi: int = 110,
+                tight: bool = True) -> list[Path]:
     """Save a matplotlib figure atomically once per format, as ``<path>.<format>`` (``path``
-    without suffix); returns the files in the order of ``formats``."""
+    without suffix); returns the files in the order of ``formats``. ``tight=False``: the figure's
+    own box (no second draw to measure a tight one)."""
     out = []
     for fmt in formats:
         buf = io.BytesIO()
-        fig.savefig(buf, format=fmt, dpi=dpi, bbox_inches="tight")
+        fig.savefig(buf, format=fmt, dpi=dpi, bbox_inches="tight" if tight else None)
         out.append(write_atomic(Path(f"{path}.{fmt}"), buf.getvalue()))
     return out
