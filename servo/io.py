@@ -274,6 +274,13 @@ class JointIO:
                 if need not in j.wiring:
                     raise j.servo.error("position" if sig == "pot" else "velocity",
                                         f"a sensor wired in [joint.wiring] ('{need}' is not wired)", src)
+        #: per joint: it can be homed to its encoder's index (a pot to choose the index, an encoder,
+        #: and the loop closed on the pot; docs/motion-safety.md, "Homing"). The others — a
+        #: continuous joint (no pot: melmalec's crawler) — are exempt
+        self.homeable = np.array(["pot" in j.wiring and "encoder" in j.wiring and self.position_source[j.index] == "pot"
+                                  for j in rig.joints], dtype=bool)
+        #: per joint: its encoder is homed (its position is the joint's absolute angle) this session
+        self.homed = np.zeros(self.n, dtype=bool)
         self.last_dac_volts = np.zeros(self.n)
         #: the current (A) the drivers last commanded per joint (what the current monitor should read)
         self.last_current_a = np.zeros(self.n)
@@ -394,6 +401,33 @@ class JointIO:
                 s.amp_offset_a = float(amp.values["offset_a"])
         self.calibration = store
         self.calibration_generation += 1
+
+    # --- homing ----------------------------------------------------------------------------
+    def encoder_channel(self, joint: int) -> tuple[QuadratureDriver, int]:
+        """The decoder driver the loop reads joint ``joint``'s encoder with, and its channel."""
+        j = self.rig.joints[joint]
+        if "encoder" not in j.wiring:
+            raise ValueError(f"{j.name} has no encoder wired")
+        pin = j.wiring["encoder"]
+        return self.quad[pin.board], pin.index
+
+    def home_encoder(self, joint: int, index_angle_rad: float) -> int:
+        """Home joint ``joint``'s encoder: the index its decoder captured (armed with
+        ``arm_index``) is at joint angle ``index_angle_rad``, so its position reads the joint's
+        absolute angle from now on (:attr:`homed`). Returns the index count. The watchdog's
+        encoder/pot cross-check then compares the two absolutely (it re-references on the
+        generation bump)."""
+        drv, ch = self.encoder_channel(joint)
+        idx = drv.home_at_index(ch, index_angle_rad)
+        self.homed[joint] = True
+        self.calibration_generation += 1
+        return idx
+
+    def clear_home(self, joint: int) -> None:
+        """Forget joint ``joint``'s home (its encoder reads relative again)."""
+        if self.homed[joint]:
+            self.homed[joint] = False
+            self.calibration_generation += 1
 
     def set_pot_calibration(self, joint: int, cal: PotCalibration | None) -> None:
         if cal is None:
