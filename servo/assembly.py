@@ -81,6 +81,7 @@ def build_loop(plant: PlantBoundary, io: JointIO, settings: ServoSettings, *, mo
     loop = ServoLoop(io, controller, sequencer, wd, recorder=recorder, names=list(settings.joint_names),
                      plan_context=plan_context(settings))
     loop.stop_settings = settings.stop
+    loop.require_homing = settings.require_homing
     # an emulated rig's free-running plant: its answers may skip or repeat plant steps
     loop.sample_clock = plant.sample_clock
     return loop

@@ -189,6 +189,9 @@ class ServoLoop:
         self._stop_origin: dict[str, np.ndarray] = {}
         #: per joint the largest movement from the angles at the stop, true and measured (rad)
         self.stop_excursion: dict[str, np.ndarray] = {}
+        #: moves wait until every homeable joint's encoder is homed (``io.homed``; set from the
+        #: settings by servo.assembly); the loop itself does not refuse them, its hosts do
+        self.require_homing = False
 
     # --- live interface ------------------------------------------------------------------------
     def submit(self, command: LiveCommand,

@@ -8,6 +8,7 @@ Rig-level ``[servo]`` gives defaults; each ``[joint.servo]`` may override them::
     switch_off = { enabled = true, inner_band_deg = 0.3, outer_band_deg = 1.5, kp_boost = 2.0 }
     max_velocity_deg_s = 30.0                  # trajectory planning limit
     following_error_limit_deg = 10.0           # watchdog
+    require_homing = false                     # true: no move before the encoders are homed
 
     [joint.servo]
     position = "pot"                           # or "encoder"
@@ -147,6 +148,9 @@ class ServoSettings:
 
     #: how a controlled (category-1) stop runs, and the rig file's stricter categories (servo.stops)
     stop: StopSettings = dataclasses.field(default_factory=lambda: StopSettings(decel_rad_s2=()))
+    #: moves (console, MAVLink) are refused until every homeable joint is homed (``[servo]
+    #: require_homing``; docs/motion-safety.md, "Homing"); jogs are not
+    require_homing: bool = False
 
     def overridden(self, gains: Mapping[str, float] | None = None, switch_off: bool | None = None) -> ServoSettings:
         """These settings with ``gains`` (name → value) applied to every joint and the switch-off
@@ -237,6 +241,7 @@ def servo_settings(rig: RigSpec) -> ServoSettings:
         velocity_source=tuple(j.servo.get_str("velocity", "tach", choices=("tach", "encoder")) for j in rig.joints),
         velocity_source_given=tuple("velocity" in j.servo for j in rig.joints),
         stop=_stop_settings(rig, top),
+        require_homing=top.get_bool("require_homing", False),
         gains_given=tuple("+".join(w for w, t in (("joint", j.servo), ("rig", top)) if "gains" in t)
                           for j in rig.joints),
         source=str(rig.path))

@@ -29,6 +29,7 @@ from vmehil.console.protocol import (
     FILE,
     GAIN,
     INTERNAL,
+    NOT_HOMED,
     STATE,
     UNAVAILABLE,
     VALUE,
@@ -133,7 +134,8 @@ class Session:
     library: Mapping[str, CompoundCommand] | None = None
     executor: CompoundRunner | None = None
     shutdown: Callable[[], None] | None = None
-    calibrate: Callable[[Session, list[Arg]], Outcome] | None = None
+    #: ``calibrate(session, args, command="calibrate")`` (``home J`` passes ``command="home"``)
+    calibrate: Callable[..., Outcome] | None = None
     source: str = "console"
     #: run ``job(send)`` between two ticks, in the thread that owns the rig (set by the console);
     #: ``send(lines)`` writes reply lines. At most one job waits at a time.
@@ -321,6 +323,30 @@ def _require_idle(loop: Any) -> None:
                                   "hold the present target first")
 
 
+def homed_word(loop: Any, joint: int) -> str:
+    """``yes``/``no`` for a joint that can be homed, ``exempt`` for one that needs none (a continuous
+    joint: no pot to choose the index); ``-`` for a loop whose drivers do not say."""
+    io = loop.io
+    homeable, homed = getattr(io, "homeable", None), getattr(io, "homed", None)
+    if homeable is None or homed is None:
+        return "-"
+    return "exempt" if not homeable[joint] else ("yes" if homed[joint] else "no")
+
+
+def not_homed(loop: Any) -> list[str]:
+    """The joints a rig that requires homing (``[servo] require_homing``) still waits for."""
+    if not getattr(loop, "require_homing", False):
+        return []
+    return [loop.names[i] for i in range(loop.n) if homed_word(loop, i) == "no"]
+
+
+def _require_homed(loop: Any) -> None:
+    missing = not_homed(loop)
+    if missing:
+        raise ConsoleError(NOT_HOMED, f"the rig requires homing before moves and {', '.join(missing)} "
+                                      f"{'is' if len(missing) == 1 else 'are'} not homed: home all (or home J) first")
+
+
 def _dry_run(moves: list[Any], start: np.ndarray, ctx: Any) -> float:
     """Plan every move on a throw-away sequencer (errors now, not inside a tick); total duration s."""
     from servo.trajectory import Sequencer, TrajectoryError
@@ -372,6 +398,7 @@ def start_motion(s: Session, moves: list[Any], what: str, planned: Any = None) -
     loop = s.loop
     _require_running(loop)
     _require_idle(loop)
+    _require_homed(loop)
     start = hold_position(loop)
     ctx = _plan_context(loop)
     if (planned is not None and (planned.ctx is ctx or not (planned.ctx.extras or ctx.extras))
@@ -444,14 +471,18 @@ def _status(s: Session, a: dict[str, Any]) -> Outcome:
         return np.asarray(v, float) if v is not None else nan
 
     theta, theta_d, current, omega = col("theta"), col("theta_d"), col("current"), col("omega")
+    theta_enc = col("theta_enc")
     integrating = col("integrating")
     law = loop.law
     kp_eff = np.asarray(law.kp_eff(), float) if law is not None else nan
     seq = loop.sequencer
     motion = "idle" if seq.finished else "running"
     active = s.executor.active_ids() if s.executor is not None else []
+    homed = [homed_word(loop, i) for i in range(n)]
     lines = [kv("DATA", "loop", tick=int(loop.tick_count), t_s=loop.tick_count * loop.period_s,
-                state=loop_state(loop), motion=motion, compounds=len(active))]
+                state=loop_state(loop), motion=motion, compounds=len(active),
+                homed="no" if "no" in homed else "yes",
+                homing="required" if getattr(loop, "require_homing", False) else "optional")]
     fault = loop.fault
     for i, name in enumerate(loop.names):
         err = theta_d[i] - theta[i]
@@ -461,7 +492,8 @@ def _status(s: Session, a: dict[str, Any]) -> Outcome:
         # measured, flagged as stopped; the target and error have no meaning then
         lines.append(kv("DATA", "joint", joint=name, pos_deg=_deg(theta[i]), target_deg=_deg(theta_d[i]),
                         err_deg=_deg(err), vel_deg_s=_deg(omega[i]), current_a=float(current[i]),
-                        integrators=integ, kp_eff=float(kp_eff[i]), fault=jf, stopped=int(not loop.enabled)))
+                        integrators=integ, kp_eff=float(kp_eff[i]), fault=jf, stopped=int(not loop.enabled),
+                        homed=homed[i], enc_deg=_deg(theta_enc[i])))
     if fault is not None:
         lines.append(kv("DATA", "fault", cause=fault.cause, joint=fault.joint or "-", tick=fault.tick,
                         t_s=fault.time_s, detail=fault.detail))
@@ -498,6 +530,7 @@ def _move_joint(s: Session, a: dict[str, Any]) -> Outcome:
         raise ConsoleError(VALUE, f"target must be a finite angle in degrees, within ±{MAX_ANGLE_DEG:g}")
     _require_running(s.loop)
     _require_idle(s.loop)
+    _require_homed(s.loop)
     target = hold_position(s.loop)
     target[j] = float(deg_to_rad(a["target"]))
     return start_motion(s, [QuinticMove(target, None, _speed(a["speed"]))],
@@ -675,6 +708,22 @@ def _calibrate(s: Session, a: dict[str, Any]) -> Outcome:
     return s.calibrate(s, a.get("args", []))
 
 
+@atom("home", (Param("joint", JOINT),), "home JOINT's encoder (or all) to the motor index its calibrated pot "
+      "chooses: calibrate home --joint JOINT, as vmehil calibrate home; stop aborts", in_files=False)
+def _home(s: Session, a: dict[str, Any]) -> Outcome:
+    if s.calibrate is None:
+        raise ConsoleError(UNAVAILABLE, "home: not available here: this console's host has no rig for it "
+                                        "(vmehil console and vmehil run --console on an emulated rig offer it)")
+    from vmehil.console.protocol import Arg
+
+    joint = a["joint"]
+    which = "all" if joint is None else s.loop.names[joint]
+    if joint is not None and homed_word(s.loop, joint) == "exempt":
+        raise ConsoleError(VALUE, f"home: {which} is exempt: it has no pot to choose an index by (a continuous "
+                                  "joint, its loop closes on the encoder)")
+    return s.calibrate(s, [Arg(None, "home"), Arg("joint", which)], command="home")
+
+
 @atom("log", (Param("count", INT, 20),), "the last COUNT entries of the loop's change log (time, source, message)")
 def _log(s: Session, a: dict[str, Any]) -> Outcome:
     count = a["count"]
@@ -752,8 +801,8 @@ def _shutdown(s: Session, a: dict[str, Any]) -> Outcome:
 
 #: The atomic commands by name, in the order of ``help``.
 ATOMS: dict[str, Atom] = {a.name: a for a in (
-    _help, _status, _move, _move_rel, _move_joint, _stay, _gains, _mode, _stop, _estop, _enable, _run, _calibrate, _log,
-    _commands, _load, _cancel, _pause, _echo, _shutdown,
+    _help, _status, _move, _move_rel, _move_joint, _stay, _gains, _mode, _stop, _estop, _enable, _run, _calibrate,
+    _home, _log, _commands, _load, _cancel, _pause, _echo, _shutdown,
 )}
 
 

@@ -10,38 +10,20 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 
 from vmehil.calibration.base import CalibrationAbort, CalibrationContext
 from vmehil.calibration.home import HomeProcedure
-from vmehil.calibration.store import CalibrationStore, JointCal
+from tests.support.homing import plant_pot_store
+from vmehil.calibration.store import CalibrationStore
 from vmehil.rig_setup.emulated_calibration import EmulatedPositioner
 from vmehil.rig_setup.system import EmulatedRig, build_emulated_rig
-
-
-def _pot_store(system: EmulatedRig, joints: list[int]) -> CalibrationStore:
-    """A pot table per joint from the plant's own (noise-free) pot model at nine angles — what a
-    perfect `calibrate pot --auto` would measure, without its 30 s of moves."""
-    store = CalibrationStore.empty(system.rig)
-    assert system.plant is not None
-    pot = system.plant.pot
-    for i in joints:
-        p = system.params[i]
-        lo, hi = p.link.lower_stop_rad + 0.05, p.link.upper_stop_rad - 0.05
-        angles = np.linspace(lo, hi, 9)
-        full = np.zeros((9, system.rig.n_joints))
-        full[:, i] = angles
-        volts = [float(pot.volts(row)[i]) for row in full]
-        store.set_joint(system.rig.joints[i].name, JointCal("pot", 1, "2026-01-01T00:00:00Z",
-                                                            {"volts": volts, "angles_rad": angles.tolist()}))
-    return store
 
 
 def _home(rig: str | None, initial_deg: list[float], joint: int, approach_deg: float):
     """Power up at ``initial_deg``, move ``joint`` to ``approach_deg`` with the loop, home it."""
     system = build_emulated_rig(rig, seed=0, initial_deg=initial_deg)
-    store = _pot_store(system, [joint])
+    store = plant_pot_store(system, [joint])
     ctx = CalibrationContext(rig=system.rig, bus=system.crate, store=store,
                              positioner_factory=lambda st: EmulatedPositioner(system, st), joints=[joint],
                              say=lambda _t: None)
@@ -87,15 +69,15 @@ def test_homing_finds_the_same_index_from_above_and_below_with_the_same_recorded
 def test_homing_on_melmalec_homes_a_leg_and_exempts_the_crawler():
     # leg1_swing: N = 120 (an index every 3°), powered up at −4.25° → x4 −2833.3 (state −2834); nearest
     # index −3° (x4 −2000): the count there is −2000 + 2834 = 834
-    from servo.rig import load_rig
     from emulators.presets import resolve_rig
+    from servo.rig import load_rig
 
     rig = load_rig(resolve_rig("melmalec-16"))
     initial = [0.0] * rig.n_joints
     initial[0] = -4.25
     crawler = [j.name for j in rig.joints].index("crawler")
     system = build_emulated_rig(rig, seed=0, initial_deg=initial)
-    store = _pot_store(system, [0])
+    store = plant_pot_store(system, [0])
     ctx = CalibrationContext(rig=system.rig, bus=system.crate, store=store,
                              positioner_factory=lambda st: EmulatedPositioner(system, st), joints=[0, crawler],
                              say=lambda _t: None)
