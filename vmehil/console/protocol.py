@@ -49,7 +49,11 @@ BINARY = "BINARY"  # the line held bytes that are not text
 FILE = "FILE"  # a file could not be read or parsed
 UNAVAILABLE = "UNAVAILABLE"  # the feature is not in this build / not offered by this host
 INTERNAL = "INTERNAL"  # a bug: the command raised an unexpected exception
-ERROR_CODES = (SYNTAX, UNKNOWN, ARGS, VALUE, GAIN, STATE, BUSY, LONG, BINARY, FILE, UNAVAILABLE, INTERNAL)
+LIMIT = "LIMIT"  # a move's target past a joint's soft limit (docs/motion-safety.md)
+COLLISION = "COLLISION"  # a move's path through an obstacle of the scene
+REACH = "REACH"  # a point the arm cannot reach
+ERROR_CODES = (SYNTAX, UNKNOWN, ARGS, VALUE, GAIN, STATE, BUSY, LONG, BINARY, FILE, UNAVAILABLE, INTERNAL, LIMIT,
+               COLLISION, REACH)
 
 Vector = tuple[float, ...]
 Value = Union[str, int, float, Vector]  # noqa: UP007 - a runtime alias
