@@ -1,4 +1,4 @@
-"""The arm's kinematics: today a 3-DOF (waist, shoulder, elbow) position model.
+"""The arm's kinematics: one model of the whole arm (waist, shoulder, elbow, the three-axis wrist).
 
 One model of the arm, outside the driver packages so that both the robot side and the
 emulators may use it: the emulated vision system (where is the camera?) and the ``vservo``
@@ -19,18 +19,80 @@ along the forearm (the camera's optical axis, the approach direction), ``y_e`` h
 the left, ``z_e = x_e × y_e``; i.e. ``R = Rz(q1)·Ry(−(q2 + q3))``.
 
 Default lengths give the jpl-arm reach at full extension a2 + a3 = 1.15 m (design §9).
+
+The whole arm (the wrist joints ``q4, q5, q6`` = ``theta[wrist_joints[0..2]]``) — the points the
+links join at, the links as line segments (the JPL paper's collision check: "each of these is
+represented as a line P = B + λ(F − B)") and the tool point's Jacobian::
+
+    shoulder S = (0, 0, d1)
+    elbow    E = S + a2·u(q2)                   u(φ) = (cos φ·cos q1, cos φ·sin q1, sin φ)
+    wrist    W = E + a3·u(q2 + q3)              (= position(): the camera, the forearm's end)
+    R_w = Rz(q1)·Ry(−(q2 + q3 + q4))·Rx(q5)      q4 wrist pitch, q5 wrist roll about the hand's axis
+    yaw      Y = W + a5·R_w·x̂                   the wrist yaw axis (R_w·ẑ) sits a5 beyond the wrist
+    tool     T = Y + a6·R_w·Rz(q6)·x̂            q6 wrist yaw; T the fingertips
+
+    links: upper_arm S→E, forearm E→W, wrist W→Y, hand Y→T
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TypeAlias
+from typing import Any, TypeAlias
 
 import numpy as np
 
+from hal.config import ConfigTable
+
 #: A vector of floats: a sequence, or a 1-D numpy array (what the callers mostly pass).
 FloatVector: TypeAlias = Sequence[float] | np.ndarray
+
+#: the links as line segments, each from the point named first to the second (:meth:`ArmModel.segments`)
+LINKS: tuple[tuple[str, str, str], ...] = (
+    ("upper_arm", "shoulder", "elbow"),
+    ("forearm", "elbow", "wrist"),
+    ("wrist", "wrist", "yaw"),
+    ("hand", "yaw", "tool"),
+)
+
+
+def _rz(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _ry(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def _rx(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def segment_box_span(p0: FloatVector, p1: FloatVector, lo: FloatVector, hi: FloatVector) -> tuple[float, float] | None:
+    """The part of the segment ``P = p0 + λ(p1 − p0)``, λ ∈ [0, 1], inside the axis-aligned box
+    ``lo ≤ P ≤ hi`` (closed), as its ``(λ_in, λ_out)``; ``None`` when the segment misses the box.
+
+    The JPL paper's test, dimension by dimension: each axis limits λ to the values that put that
+    coordinate inside the box; the segment collides when some λ in [0, 1] satisfies all three."""
+    a = np.asarray(p0, float)
+    d = np.asarray(p1, float) - a
+    lam_in, lam_out = 0.0, 1.0
+    for j in range(3):
+        lo_j, hi_j = float(lo[j]), float(hi[j])
+        if d[j] == 0.0:
+            if not lo_j <= a[j] <= hi_j:
+                return None
+            continue
+        t0, t1 = (lo_j - a[j]) / d[j], (hi_j - a[j]) / d[j]
+        if t0 > t1:
+            t0, t1 = t1, t0
+        lam_in, lam_out = max(lam_in, float(t0)), min(lam_out, float(t1))
+        if lam_in > lam_out:
+            return None
+    return lam_in, lam_out
 
 
 @dataclass(frozen=True)
@@ -41,20 +103,35 @@ class ArmModel:
     a2: float = 0.60  #: upper arm, shoulder to elbow (m)
     a3: float = 0.55  #: forearm, elbow to the camera/end effector (m)
     joints: tuple[int, int, int] = (0, 1, 2)
+    a5: float = 0.10  #: wrist, the pitch/roll centre to the yaw axis (m)
+    a6: float = 0.15  #: hand, the yaw axis to the fingertips (m)
+    wrist_joints: tuple[int, int, int] = (3, 4, 5)  #: wrist pitch, roll, yaw
 
     @classmethod
-    def from_table(cls, table: Mapping[str, object]) -> ArmModel:
-        """Build from a parameter table (e.g. a rig file's ``[arm]``): keys d1, a2, a3, joints."""
-        known = {"d1", "a2", "a3", "joints"}
-        unknown = set(table) - known
-        if unknown:
-            raise ValueError(f"unknown arm parameters {sorted(unknown)}; expected {sorted(known)}")
-        kw: dict[str, object] = {k: float(table[k]) for k in ("d1", "a2", "a3") if k in table}  # type: ignore[arg-type]
-        if "joints" in table:
-            kw["joints"] = tuple(int(j) for j in table["joints"])  # type: ignore[attr-defined]
-        arm = cls(**kw)  # type: ignore[arg-type]
-        if arm.a2 <= 0 or arm.a3 <= 0:
-            raise ValueError(f"arm link lengths must be > 0 (a2={arm.a2}, a3={arm.a3})")
+    def from_table(cls, table: Mapping[str, object] | ConfigTable, source: str = "[arm]") -> ArmModel:
+        """Build from a parameter table (a rig file's ``[arm]``): keys d1, a2, a3, a5, a6 (m),
+        joints, wrist_joints (0-based joint indices). Errors are :class:`hal.config.ConfigError`
+        (a ``ValueError``) naming the key."""
+        cfg = table if isinstance(table, ConfigTable) else ConfigTable(dict(table), source, "arm")
+        cfg.check_unknown({"d1", "a2", "a3", "a5", "a6", "joints", "wrist_joints"})
+        kw: dict[str, Any] = {}
+        for k in ("d1", "a2", "a3", "a5", "a6"):
+            if k in cfg:
+                kw[k] = cfg.get_float(k, min=0.0 if k in ("d1", "a5", "a6") else 1e-6)
+        for k in ("joints", "wrist_joints"):
+            if k in cfg:
+                raw = cfg.raw(k)
+                if (not isinstance(raw, list) or len(raw) != 3
+                        or not all(isinstance(j, int) and not isinstance(j, bool) and 0 <= j < 64 for j in raw)):
+                    raise cfg.error(k, "three 0-based joint indices", raw)
+                kw[k] = tuple(raw)
+        if "joints" in kw and "wrist_joints" not in kw:  # the wrist follows the elbow
+            last = kw["joints"][2]
+            kw["wrist_joints"] = (last + 1, last + 2, last + 3)
+        arm = cls(**kw)
+        if len({*arm.joints, *arm.wrist_joints}) != 6:
+            raise cfg.error("wrist_joints", f"joints other than joints = {list(arm.joints)}, each once",
+                            list(arm.wrist_joints))
         return arm
 
     @property
@@ -79,6 +156,58 @@ class ArmModel:
         x = np.array([c23 * c1, c23 * s1, s23])
         y = np.array([-s1, c1, 0.0])
         return np.column_stack([x, y, np.cross(x, y)])
+
+    def _wrist_q(self, theta: FloatVector) -> tuple[float, float, float]:
+        w = self.wrist_joints
+        return (float(theta[w[0]]), float(theta[w[1]]), float(theta[w[2]]))
+
+    def wrist_rotation(self, theta: FloatVector) -> np.ndarray:
+        """``R_w = Rz(q1)·Ry(−(q2 + q3 + q4))·Rx(q5)``: the hand's frame before the yaw (x̂ its axis)."""
+        q1, q2, q3 = self._q(theta)
+        q4, q5, _ = self._wrist_q(theta)
+        return _rz(q1) @ _ry(-(q2 + q3 + q4)) @ _rx(q5)
+
+    def points(self, theta: FloatVector) -> dict[str, np.ndarray]:
+        """The points the links join at, in the base frame (m): shoulder, elbow, wrist, yaw, tool."""
+        q1, q2, q3 = self._q(theta)
+        q6 = self._wrist_q(theta)[2]
+
+        def u(phi: float) -> np.ndarray:
+            return np.array([np.cos(phi) * np.cos(q1), np.cos(phi) * np.sin(q1), np.sin(phi)])
+
+        s = np.array([0.0, 0.0, self.d1])
+        e = s + self.a2 * u(q2)
+        w = e + self.a3 * u(q2 + q3)
+        rw = self.wrist_rotation(theta)
+        y = w + self.a5 * rw[:, 0]
+        t = y + self.a6 * (rw @ _rz(q6))[:, 0]
+        return {"shoulder": s, "elbow": e, "wrist": w, "yaw": y, "tool": t}
+
+    def segments(self, theta: FloatVector) -> list[tuple[str, np.ndarray, np.ndarray]]:
+        """The links as line segments ``(name, from, to)`` (m, base frame), in :data:`LINKS` order."""
+        p = self.points(theta)
+        return [(name, p[a], p[b]) for name, a, b in LINKS]
+
+    def tool_position(self, theta: FloatVector) -> np.ndarray:
+        """The fingertips' position in the base frame (m)."""
+        return self.points(theta)["tool"]
+
+    def tool_jacobian(self, theta: FloatVector) -> np.ndarray:
+        """3×len(theta) position Jacobian of the tool point ∂T/∂θ (m/rad); columns of joints the
+        model does not hold (the hand's fingers) are 0. Each revolute joint's column is its axis ×
+        (T − a point on the axis)."""
+        p = self.points(theta)
+        q1 = self._q(theta)[0]
+        rw = self.wrist_rotation(theta)
+        pitch = _rz(q1) @ np.array([0.0, -1.0, 0.0])  # q2..q4 raise the arm: about −y of the waist frame
+        axes = ((self.joints[0], np.array([0.0, 0.0, 1.0]), np.zeros(3)),
+                (self.joints[1], pitch, p["shoulder"]), (self.joints[2], pitch, p["elbow"]),
+                (self.wrist_joints[0], pitch, p["wrist"]), (self.wrist_joints[1], rw[:, 0], p["wrist"]),
+                (self.wrist_joints[2], rw[:, 2], p["yaw"]))
+        out = np.zeros((3, len(theta)))
+        for j, axis, at in axes:
+            out[:, j] = np.cross(axis, p["tool"] - at)
+        return out
 
     def pose(self, theta: FloatVector) -> tuple[np.ndarray, np.ndarray]:
         """(position, rotation) of the end effector."""

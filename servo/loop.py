@@ -17,7 +17,9 @@ Watchdog → safe stop (amplifiers disabled, DAC outputs 0 V, the reason recorde
 * cross-checks (:mod:`servo.watchdog`): encoder against pot, tachometer against the position
   derivative, current monitor against the commanded current, and a position reading that
   stays put while its target moves on;
-* a following error beyond the joint's limit.
+* a following error beyond the joint's limit;
+* a measured position past a soft limit by more than the margin: a category-1 stop (cause
+  ``soft_limit``, :mod:`servo.stops`), the joints decelerated from where they are.
 """
 
 from __future__ import annotations
@@ -36,6 +38,8 @@ from servo.control.objects import ControlContext, Controller, SwitchableControll
 from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_name
 from servo.io import JointIO, Measurement
 from servo.stops import NOT_FAULTS, ControlledStop, Deceleration, StopCategory, StopSettings
+from servo.trajectory.base import Sample
+from servo.trajectory.bounds import MotionRefused
 from servo.trajectory.sequencer import PlanContext, Sequencer
 from servo.watchdog import CrossChecks, WatchdogConfig
 
@@ -189,6 +193,8 @@ class ServoLoop:
         self._stop_origin: dict[str, np.ndarray] = {}
         #: per joint the largest movement from the angles at the stop, true and measured (rad)
         self.stop_excursion: dict[str, np.ndarray] = {}
+        #: moves refused when they were to start (planned only then: after an open vservo move)
+        self.refusals: list[MotionRefused] = []
         #: moves wait until every homeable joint's encoder is homed (``io.homed``; set from the
         #: settings by servo.assembly); the loop itself does not refuse them, its hosts do
         self.require_homing = False
@@ -573,11 +579,22 @@ class ServoLoop:
             self._record(k, t, None, None, None, truth, t0)
             self.tick_count += 1
             return
+        if self.stopping is None and self.watchdog.enabled:
+            past = self.watchdog.beyond_soft_limit(m.theta)
+            if past is not None:  # a controlled stop (category 1): the sensors are sane
+                j, pos, lim, side = past
+                self.stop("soft_limit", f"position {np.degrees(pos):+.2f}° past the soft limit {side}_deg = "
+                          f"{np.degrees(lim):+.2f}° by more than {np.degrees(self.watchdog.soft_limit_margin_rad):g}°",
+                          j)
+                if not self.enabled:  # it became a category-0 stop: nothing more to command
+                    self._record(k, t, m, None, None, truth, t0)
+                    self.tick_count += 1
+                    return
         st = self.stopping
         if st is not None:
             sample = st.trajectory.sample((k - st.tick0) * self.period_s)
         else:
-            sample = self.sequencer.sample(max(0.0, t - self._t_motion0))
+            sample = self._next_sample(t)
         if self._check(m, sample):
             self._record(k, t, m, sample, None, truth, t0)
             self.tick_count += 1
@@ -592,6 +609,19 @@ class ServoLoop:
         self.tick_count += 1
         if self.stopping is not None and self.fault is None:
             self._advance_stop(k)
+
+    def _next_sample(self, t: float) -> Sample:
+        """The motion's sample at ``t``. A move planned only when it starts (after an open
+        ``vservo`` move) that the bounds refuse is not started: the joints hold where the previous
+        move ended, and the refusal is noted (:attr:`refusals`)."""
+        try:
+            return self.sequencer.sample(max(0.0, t - self._t_motion0))
+        except MotionRefused as e:
+            self.refusals.append(e)
+            self.note("servo", str(e))
+            hold = np.asarray(self.sequencer.current.end, float).copy()
+            self.set_motion(Sequencer([], hold, self.plan_context or self.sequencer.ctx))
+            return self.sequencer.sample(0.0)
 
     def _context(self, k: int, t: float, m: Measurement, sample):
         ctrl = self.controller.active

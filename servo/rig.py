@@ -53,6 +53,8 @@ exceed one servo period.
 ``torque_limit_nm`` (default: the nominal current limit · Kt · N), ``following_error_limit_deg``,
 ``controller = {objects = [...]}``.
 
+``[joint.limits]``: the joint's soft limits, ``min_deg`` / ``max_deg`` (:mod:`servo.settings`).
+
 ``[joint.servo.nominal]``: the controller's own datasheet/nominal figures of the joint — sensor
 gradients and zeros, encoder counts per joint revolution, gear ratio, Kt, amplifier gain, current
 monitor and limit, H-bridge supply/R/Ke/PWM period, inertia at the joint (SI; the keys and which
@@ -80,7 +82,7 @@ DIGITAL_INPUTS = ("amp_fault",)
 WIRING_KEYS = ("amp_command", "encoder", "pwm", *ANALOG_INPUTS, *DIGITAL_OUTPUTS, *DIGITAL_INPUTS)
 #: The keys of a ``[[joint]]`` table that only the servo side reads (``name`` and ``amplifier`` are
 #: shared with the plant, whose subtables sit beside these).
-SERVO_JOINT_KEYS = ("wiring", "servo")
+SERVO_JOINT_KEYS = ("wiring", "servo", "limits")
 
 
 class NoSuchJointError(ServoError, ValueError):

@@ -46,6 +46,20 @@ drop / gradient; never the plant's table)::
     current_tolerance_fraction = 0.05
     stale_travel_deg = 1.5
 
+Soft limits (docs/motion-safety.md): each joint's ``[joint.limits]`` (inside its hard stops; a
+continuous joint states none); moves are refused at plan time beyond them and the watchdog
+stops the loop (cause ``soft_limit``, category 1) once a measured position passes one by the
+margin::
+
+    [servo]
+    soft_limit_margin_deg = 0.5
+    collision_check_points = 20        # instants of each planned move checked against the scene
+    [joint.limits]
+    min_deg = -163.0
+    max_deg = 163.0
+
+``[arm]`` is the arm's kinematics (:class:`hal.kinematics.ArmModel`), parsed here once.
+
 Use::
 
     settings = servo_settings(rig)                       # parse (and guard) once
@@ -63,6 +77,7 @@ from typing import Any
 import numpy as np
 
 from hal.config import ConfigTable
+from hal.kinematics import ArmModel
 from servo.control.errors import ControlError
 from servo.control.gains import DEFAULT_GAINS, GAIN_NAMES, Gains
 from servo.control.law import SwitchOffConfig
@@ -148,6 +163,17 @@ class ServoSettings:
 
     #: how a controlled (category-1) stop runs, and the rig file's stricter categories (servo.stops)
     stop: StopSettings = dataclasses.field(default_factory=lambda: StopSettings(decel_rad_s2=()))
+    #: the soft limits per joint (rad; ``[joint.limits] min_deg / max_deg``): −inf / +inf where a
+    #: joint has none (a continuous joint)
+    soft_min_rad: tuple[float, ...] = ()
+    soft_max_rad: tuple[float, ...] = ()
+    #: how far beyond a soft limit a measured position may go before the watchdog stops the loop
+    #: (cause ``soft_limit``; ``[servo] soft_limit_margin_deg``)
+    soft_limit_margin_rad: float = float(np.radians(0.5))
+    #: the arm's kinematics (``[arm]``; ``None``: the rig states none, no collision check)
+    arm: ArmModel | None = None
+    #: the instants of each planned move checked against the scene (``[servo] collision_check_points``)
+    collision_points: int = 20
     #: moves (console, MAVLink) are refused until every homeable joint is homed (``[servo]
     #: require_homing``; docs/motion-safety.md, "Homing"); jogs are not
     require_homing: bool = False
@@ -241,6 +267,8 @@ def servo_settings(rig: RigSpec) -> ServoSettings:
         velocity_source=tuple(j.servo.get_str("velocity", "tach", choices=("tach", "encoder")) for j in rig.joints),
         velocity_source_given=tuple("velocity" in j.servo for j in rig.joints),
         stop=_stop_settings(rig, top),
+        **_soft_limits(rig, top),
+        arm=ArmModel.from_table(rig.table.table("arm")) if "arm" in rig.table else None,
         require_homing=top.get_bool("require_homing", False),
         gains_given=tuple("+".join(w for w, t in (("joint", j.servo), ("rig", top)) if "gains" in t)
                           for j in rig.joints),
@@ -284,6 +312,43 @@ def _stop_settings(rig: RigSpec, top: ConfigTable) -> StopSettings:
         stricter[cause] = value
     return StopSettings(decel_rad_s2=decel, brake_engage_s=max(engage, default=0.0), time_bound_s=bound,
                         stricter=stricter)
+
+
+#: the watchdog's margin beyond a soft limit unless the rig file says (deg): the presets' soft
+#: limits sit 2° inside the hard stops, and a category-1 stop from 20°/s at 400°/s² runs 0.5° on
+DEFAULT_SOFT_LIMIT_MARGIN_DEG = 0.5
+
+
+def _soft_limits(rig: RigSpec, top: ConfigTable) -> dict[str, Any]:
+    """``[joint.limits] min_deg / max_deg`` per joint (either may be absent: no limit that way), and
+    ``[servo] soft_limit_margin_deg``. A limit must lie inside the joint's hard stops where the rig
+    file's ``[joint.link]`` states them (``lower_stop_rad`` / ``upper_stop_rad``): a soft limit at
+    or past a hard stop would never be reached before the joint hits the stop."""
+    lo: list[float] = []
+    hi: list[float] = []
+    for j in rig.joints:
+        lim = j.table.table("limits", {})
+        lim.check_unknown({"min_deg", "max_deg"})
+        mn = float(np.radians(lim.get_float("min_deg"))) if "min_deg" in lim else -np.inf
+        mx = float(np.radians(lim.get_float("max_deg"))) if "max_deg" in lim else np.inf
+        if not mn < mx:
+            raise lim.error("max_deg", f"a limit above min_deg ({np.degrees(mn):g})", lim.raw("max_deg"))
+        link = j.table.raw("link", None)
+        if isinstance(link, dict):  # the hard stops, where this joint's table states them
+            stops = j.table.table("link")
+            for key, value, stop_key, inside in (("min_deg", mn, "lower_stop_rad", lambda v, s: v > s),
+                                                 ("max_deg", mx, "upper_stop_rad", lambda v, s: v < s)):
+                if key in lim and stop_key in stops:
+                    stop = stops.get_float(stop_key)
+                    if not inside(value, stop):
+                        raise lim.error(key, f"a limit inside the hard stop {stop_key} = {stop:g} rad "
+                                             f"({np.degrees(stop):.2f}°)", lim.raw(key))
+        lo.append(mn)
+        hi.append(mx)
+    margin = top.get_float("soft_limit_margin_deg", DEFAULT_SOFT_LIMIT_MARGIN_DEG, min=0.0)
+    points = top.get_int("collision_check_points", 20, min=2, max=10_000)
+    return {"soft_min_rad": tuple(lo), "soft_max_rad": tuple(hi), "soft_limit_margin_rad": float(np.radians(margin)),
+            "collision_points": points}
 
 
 def _check_objects(cfg: ConfigTable, names: list[Any]) -> tuple[str, ...]:

@@ -5,9 +5,12 @@ commands, which arrive over the BIT3 VME-to-VME link (``hal.bit3``): each tick t
 publishes the measured joint angles, runs its protocol state machine and, when a complete new
 command arrived, turns the end-effector increment into joint increments with the arm model's
 damped-least-squares Jacobian (``hal.kinematics.ArmModel.ee_delta_to_joint_delta``) and adds them
-to the joint targets. Whenever the protocol says *hold* (requested, ending, idle, peer dead) the
-targets stay where they are. The move ends when the task ends (either side, or a dead peer) or
-after ``timeout_s``; the sequencer then goes on from where the arm is held.
+to the joint targets — each new target checked first against the soft limits and the scene
+(:class:`servo.trajectory.bounds.MotionBounds`): one they refuse is not used, the arm holds and
+the refusal is counted (the report's ``refused_targets``). Whenever the protocol says *hold*
+(requested, ending, idle, peer dead) the targets stay where they are. The move ends when the
+task ends (either side, or a dead peer) or after ``timeout_s``; the sequencer then goes on from
+where the arm is held.
 
 Motion file::
 
@@ -32,6 +35,7 @@ from hal.bit3.protocol import RobotState, VisionServoClient
 from hal.config import ConfigTable
 from hal.kinematics import ArmModel
 from servo.trajectory.base import Sample, TrajectoryError
+from servo.trajectory.bounds import MotionBounds
 from servo.trajectory.sequencer import PlanContext
 
 
@@ -57,6 +61,9 @@ class VisionLink:
         self.n = n_joints
         self.vision = vision
         self.commands = 0
+        #: commands whose joint targets the soft limits or the scene refused (the arm held instead)
+        self.refused = 0
+        self.last_refusal: str | None = None
         self._frozen: np.ndarray | None = None
 
     def freeze(self) -> None:
@@ -73,6 +80,9 @@ class VisionLink:
         out = {"robot_state": self.client.state.name,
                "end_reason": getattr(self.client.end_reason, "name", None),
                "commands": self.commands, "final_distance_mm": None}
+        if self.refused:
+            out["refused_targets"] = self.refused
+            out["last_refusal"] = self.last_refusal
         if self.vision is not None and theta is not None:
             ee = np.asarray(self.arm.position(np.asarray(theta, float)[:6]))
             out["final_distance_mm"] = float(np.linalg.norm(ee - np.asarray(self.vision.target)) * 1e3)
@@ -106,10 +116,12 @@ class VisionLink:
 class VisualServoTrajectory:
     """Targets that follow the vision commands; ``duration`` is open until the task ends."""
 
-    def __init__(self, start: np.ndarray, link: VisionLink, timeout_s: float) -> None:
+    def __init__(self, start: np.ndarray, link: VisionLink, timeout_s: float,
+                 bounds: MotionBounds | None = None) -> None:
         self.start = np.asarray(start, float).copy()  # where the move began (Trajectory.start)
         self.target = self.start.copy()
         self.link = link
+        self.bounds = bounds
         self.timeout_s = float(timeout_s)
         self._t_end: float | None = None
         self._requested = False
@@ -133,7 +145,12 @@ class VisualServoTrajectory:
         if self._t_end is None:
             target = self.link.step(self.target)
             if target is not None:
-                self.target = target
+                refusals = self.bounds.check_pose(target) if self.bounds is not None else []
+                if refusals:  # known only now: checked before it is used; the arm holds where it was
+                    self.link.refused += 1
+                    self.link.last_refusal = refusals[0].detail
+                else:
+                    self.target = target
             if t >= self.timeout_s and client.state is not RobotState.IDLE:
                 client.end(self.link.clock())
             if client.state is RobotState.IDLE and t > 0.0:
@@ -152,7 +169,7 @@ class VservoMove:
         link = ctx.extras.get("vision")
         if link is None:
             raise TrajectoryError("a vservo move needs the vision link: run with --vision inprocess|process")
-        return VisualServoTrajectory(start, link, self.timeout_s)
+        return VisualServoTrajectory(start, link, self.timeout_s, ctx.bounds)
 
 
 def parse_vservo(cfg: ConfigTable, n_joints: int) -> VservoMove:

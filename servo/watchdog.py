@@ -102,6 +102,30 @@ class WatchdogConfig:
     #: that stop the loop (cause ``encoder_illegal``; a healthy encoder never sets it, see above)
     encoder_illegal_ticks: int = 3
     encoder_illegal_window_ticks: int = 125
+    #: the soft limits per joint (rad; ±inf or ``None``: none) and the margin a measured position
+    #: may pass one by before the loop stops with cause ``soft_limit`` (category 1)
+    soft_min_rad: np.ndarray | None = None
+    soft_max_rad: np.ndarray | None = None
+    soft_limit_margin_rad: float = float(np.radians(0.5))
+
+    def beyond_soft_limit(self, theta: np.ndarray) -> tuple[int, float, float, str] | None:
+        """The joint furthest past a soft limit by more than the margin: ``(joint, position,
+        limit, "min"|"max")`` (rad), or ``None``. Non-finite readings are the sensor checks' to judge."""
+        if self.soft_min_rad is None and self.soft_max_rad is None:
+            return None
+        th = np.asarray(theta, float)
+        lo = np.full(th.shape, -np.inf) if self.soft_min_rad is None else np.asarray(self.soft_min_rad, float)
+        hi = np.full(th.shape, np.inf) if self.soft_max_rad is None else np.asarray(self.soft_max_rad, float)
+        with np.errstate(invalid="ignore"):
+            below = np.where(np.isfinite(th), lo - th, -np.inf)
+            above = np.where(np.isfinite(th), th - hi, -np.inf)
+        past = np.maximum(below, above)
+        i = int(np.argmax(past))
+        if not past[i] > self.soft_limit_margin_rad:
+            return None
+        if below[i] >= above[i]:
+            return i, float(th[i]), float(lo[i]), "min"
+        return i, float(th[i]), float(hi[i]), "max"
 
 
 @dataclass

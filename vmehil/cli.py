@@ -32,7 +32,7 @@ from servo.interrupts import (  # noqa: E402
     stop_signals_raise,
 )
 from vmehil import cli_style  # noqa: E402
-from vmehil.commands import calibrate, console, crate, plant_node, reproduce, run, tune, vision  # noqa: E402
+from vmehil.commands import calibrate, console, crate, plan, plant_node, reproduce, run, tune, vision  # noqa: E402
 from vmehil.commands import unit_coordinate as units  # noqa: E402
 from vmehil.commands.errors import CliError  # noqa: E402
 from vmehil.errors import VmehilError  # noqa: E402
@@ -51,6 +51,7 @@ ROOTS = (HalError, EmulatorError, ServoError, VmehilError)
 COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
     crate.register,
     run.register,
+    plan.register,
     tune.register,
     vision.register,
     plant_node.register,

@@ -1,4 +1,5 @@
-"""Shipped rig presets (TOML). A rig is named (``jpl-arm``) or given by path."""
+"""Shipped rig presets (TOML) and their scenes (``<rig>.scene.toml``, servo.scene). A rig is named
+(``jpl-arm``) or given by path."""
 
 from __future__ import annotations
 
@@ -6,13 +7,15 @@ from importlib import resources
 from pathlib import Path
 
 DEFAULT_RIG = "jpl-arm"
+#: a rig's scene file beside it (servo.scene): not a preset of its own
+SCENE_SUFFIX = ".scene.toml"
 
 
 def preset_names() -> list[str]:
     return sorted(
         p.name[: -len(".toml")]
         for p in resources.files(__package__).iterdir()
-        if p.name.endswith(".toml")
+        if p.name.endswith(".toml") and not p.name.endswith(SCENE_SUFFIX)
     )
 
 

@@ -11,6 +11,11 @@ not in the tick that starts them: a plan takes time (an LSPB path of thousands o
 second) that a tick does not have. Planning ahead stops at a move whose end is not known until it
 has run (a ``vservo`` move: open duration) and at a move that cannot be planned now (its error is
 then raised when it starts, as before); the moves after such a one are planned when they start.
+
+Each move is checked as it is planned against the context's :class:`~servo.trajectory.bounds.MotionBounds`
+(soft limits, the scene): a move they refuse raises :class:`~servo.trajectory.bounds.MotionRefused`
+(kept in :attr:`Sequencer.plan_error` when planning ahead, so that the caller refuses the motion
+before it starts).
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from servo.trajectory.base import JointLimits, Sample, Trajectory
+from servo.trajectory.bounds import MotionBounds, MotionRefused
 from servo.trajectory.stay import Stay
 
 
@@ -32,6 +38,8 @@ class PlanContext:
 
     limits: JointLimits
     extras: dict[str, Any] = field(default_factory=dict)
+    #: what each planned move must stay within (soft limits, the scene); ``None``: not checked
+    bounds: MotionBounds | None = None
 
 
 class MoveSpec(Protocol):
@@ -75,9 +83,9 @@ class Sequencer:
 
     def _plan_ahead(self, start: np.ndarray) -> None:
         position = start
-        for move in self.moves:
+        for i, move in enumerate(self.moves):
             try:
-                trajectory = move.build(position, self.ctx)
+                trajectory = self._build(move, position, i)
             except Exception as e:  # raised again when the move starts (the loop's fault path, as before)
                 self.plan_error = e
                 return
@@ -85,6 +93,17 @@ class Sequencer:
             if not math.isfinite(trajectory.duration):  # open (vservo): its end is not known yet
                 return
             position = trajectory.end
+
+    def _build(self, move: MoveSpec, start: np.ndarray, index: int) -> Trajectory:
+        """Plan ``move`` from ``start`` and check it against the context's bounds
+        (:class:`MotionRefused` for a move they refuse, before it starts)."""
+        trajectory = move.build(start, self.ctx)
+        bounds = self.ctx.bounds
+        if bounds is not None:
+            refusals = bounds.check_trajectory(trajectory, move=index)
+            if refusals:
+                raise MotionRefused(refusals)
+        return trajectory
 
     @property
     def current(self) -> Trajectory:
@@ -99,7 +118,7 @@ class Sequencer:
             return
         move = self.moves[self.index]
         planned = self.planned[self.index] if self.index < len(self.planned) else None
-        self._current = planned if planned is not None else move.build(start, self.ctx)
+        self._current = planned if planned is not None else self._build(move, start, self.index)
         self._t0 = t_start
         self.motion_id += 1
         self.records.append(MoveRecord(self.index, move.kind, t_start, float(self._current.duration)))

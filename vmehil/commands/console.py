@@ -1,6 +1,6 @@
 """``vmehil console``: run the servo loop on a rig and serve the operator console on PORT.
 
-    vmehil console [--console PORT] [--rig NAME|PATH] [--seed N] [--motion FILE|none]
+    vmehil console [--console PORT] [--rig NAME|PATH] [--seed N] [--motion FILE|none] [--scene PATH|none]
                    [--console-commands FILE] [--console-prompt/--console-echo auto|on|off]
                    [--gains kp=..,..] [--realtime|--lockstep] [--duration S] [--json PATH]
 
@@ -30,6 +30,7 @@ from vmehil.console.extension import ConsoleOptions
 from vmehil.errors import CliError
 from vmehil.option_groups.cli_types import duration_s
 from vmehil.option_groups.realtime_options import RealtimeOptions, add_overrun_args, add_pacing_args
+from vmehil.option_groups.scene_options import add_scene_argument
 from vmehil.reports.run_report import excursion_text
 from vmehil.writers.files import write_json
 
@@ -43,6 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_rig_args(p)
     p.add_argument("--motion", default=None, metavar="PATH|none",
                    help="motion file to play at start (default, and none: hold the joints)")
+    add_scene_argument(p)
     p.add_argument("--gains", default=None, metavar="kp=..,kpi=..,kv=..,kvi=..",
                    help="override every joint's gains: kp=..,kpi=..,kv=..,kvi=..")
     add_pacing_args(p, default="the default")
@@ -71,12 +73,13 @@ class ConsoleCommandOptions:
     duration: float | None = None
     calibration: str | None = None
     json: str | None = None
+    scene: str | None = None
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> ConsoleCommandOptions:
         return cls(console=ConsoleOptions.from_args(args), rig=args.rig, seed=args.seed, motion=args.motion,
                    gains=parse_gains(args.gains, what="--gains"), pacing=RealtimeOptions.from_args(args, default=True),
-                   duration=args.duration, calibration=args.calibration, json=args.json)
+                   duration=args.duration, calibration=args.calibration, json=args.json, scene=args.scene)
 
 
 def run_console(opts: ConsoleCommandOptions) -> int:
@@ -113,7 +116,16 @@ def run_console(opts: ConsoleCommandOptions) -> int:
     n = system.rig.n_joints
     motion = (load_motion(opts.motion, n) if opts.motion and opts.motion != NO_MOTION
               else hold_motion("<console>"))
-    loop = build_loop(system, motion=motion, gains=gains, n_ticks=0)
+    from servo.settings import servo_settings
+    from vmehil.option_groups.scene_options import resolve_scene
+
+    settings = servo_settings(rig)
+    try:  # a --motion the soft limits or the scene refuse: refused before anything is enabled
+        loop = build_loop(system, motion=motion, gains=gains, n_ticks=0, settings=settings,
+                          scene=resolve_scene(opts.scene, rig, settings))
+    except BaseException:
+        system.close()
+        raise
     loop.start()
     paced = opts.pacing.realtime
     runner = RealtimeRunner(system, loop, **opts.pacing.runner_options()) if paced else LockstepRunner(system, loop)

@@ -1,6 +1,7 @@
 """``vmehil run``: the main job — the servo loop moving emulated joints through the full stack.
 
-    vmehil run [--rig NAME|PATH] [--motion PATH|none] [--duration S] [--realtime|--lockstep] [--seed N]
+    vmehil run [--rig NAME|PATH] [--motion PATH|none] [--duration S] [--scene PATH|none]
+               [--realtime|--lockstep] [--seed N]
                [--no-integrator-switch-off] [--gains kp=..,kpi=..,kv=..,kvi=..]
                [--json PATH] [--report DIR] [--quiet] [--fault NAME[@T][:k=v,...]]... [--faults FILE]
 
@@ -27,6 +28,7 @@ from vmehil.mavlink import extension as mavlink_extension
 from vmehil.option_groups import can_options, vision_options
 from vmehil.option_groups.cli_types import duration_s, seed
 from vmehil.option_groups.realtime_options import add_overrun_args, add_pacing_args
+from vmehil.option_groups.scene_options import add_scene_argument, resolve_scene
 
 if TYPE_CHECKING:
     from servo.settings import ServoSettings
@@ -64,6 +66,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "default: a coordinated demo move + 10 s hold")
     p.add_argument("--duration", metavar="S", type=duration_s, default=None,
                    help="seconds to run (default: the motion, +1 s)")
+    add_scene_argument(p)
     add_pacing_args(p, default="the default with --console; otherwise --lockstep is")
     add_overrun_args(p)
     p.add_argument("--no-integrator-switch-off", action="store_true", help="keep the integrators fed at rest")
@@ -140,6 +143,7 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
             prepared[ext] = prep
             defaults.update(prep.defaults)
     n = rig.n_joints
+    scene = resolve_scene(opts.scene, rig, settings)
     if opts.motion == NO_MOTION:
         if opts.duration is None and "duration" not in defaults:
             raise CliError(f"--motion {NO_MOTION} holds the joints: give --duration S (how long to run)")
@@ -152,8 +156,11 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
         duration = defaults["duration"]
     else:
         probe_system = build_emulated_rig(rig, seed=opts.seed)
-        duration = _planned_duration(build_loop(probe_system, motion=motion, n_ticks=1, settings=settings)) + 1.0
-        probe_system.close()
+        try:  # a motion the soft limits or the scene refuse stops here (MotionRefused: exit 2)
+            duration = _planned_duration(build_loop(probe_system, motion=motion, n_ticks=1, settings=settings,
+                                                    scene=scene)) + 1.0
+        finally:
+            probe_system.close()
     if not duration > 0:
         raise CliError("--duration must be > 0")
     n_ticks = round(duration * rig.servo_rate_hz)
@@ -168,7 +175,11 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
         return run_units.run_parallel(opts, rig, gains, motion, n_ticks, lambda: _make_link(opts, rig),
                                       calibration=store, faults=list(faults.faults) if faults is not None else [])
     system = _build_calibrated(opts, rig, build_emulated_rig)
-    loop = build_loop(system, motion=motion, n_ticks=n_ticks, settings=settings)
+    try:  # refused moves raise here, before armed() enables anything
+        loop = build_loop(system, motion=motion, n_ticks=n_ticks, settings=settings, scene=scene)
+    except BaseException:
+        system.close()
+        raise
     runner = (RealtimeRunner(system, loop, **opts.pacing.runner_options()) if opts.realtime
               else LockstepRunner(system, loop))
     progress = TickProgress("run", quiet=opts.quiet)

@@ -48,6 +48,8 @@ class RunOptions:
     plant: CanPlantOptions | None = None
     console: ConsoleOptions = field(default_factory=ConsoleOptions)
     faults: FaultOptions = field(default_factory=FaultOptions)
+    #: ``--scene``: a scene file, ``none``, or ``None`` (the rig's own scene when it has one)
+    scene: str | None = None
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> RunOptions:
@@ -61,7 +63,8 @@ class RunOptions:
                    calibration=args.calibration, quiet=args.quiet, bus=args.bus,
                    enable_amplifiers=args.enable_amplifiers, units=args.units, unit_timeout_s=args.unit_timeout,
                    mavlink=MavlinkOptions.from_args(args), vision=VisionOptions.from_args(args),
-                   plant=CanPlantOptions.from_args(args), console=console, faults=FaultOptions.from_args(args))
+                   plant=CanPlantOptions.from_args(args), console=console, faults=FaultOptions.from_args(args),
+                   scene=args.scene)
 
     @property
     def realtime(self) -> bool:

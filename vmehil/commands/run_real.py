@@ -65,6 +65,9 @@ def run_on_real_bus(opts: RunOptions, rig, settings: ServoSettings, **bus_option
     n = rig.n_joints
     # everything read from files first: a bad motion file or calibration stops here, bus untouched
     motion = load_motion(opts.motion, n) if opts.motion else default_demo_motion(n)
+    from vmehil.option_groups.scene_options import resolve_scene
+
+    scene = resolve_scene(opts.scene, rig, settings)
     bus = open_bus(opts.bus, **bus_options)
     try:
         # the drivers' calibration, loaded and checked as the emulated run does (a file for another
@@ -86,7 +89,7 @@ def run_on_real_bus(opts: RunOptions, rig, settings: ServoSettings, **bus_option
             return 0
         duration = opts.duration if opts.duration is not None else 10.0
         n_ticks = round(duration * rig.servo_rate_hz)
-        loop = build_loop(system, motion=motion, n_ticks=n_ticks, settings=settings)
+        loop = build_loop(system, motion=motion, n_ticks=n_ticks, settings=settings, scene=scene)
         runner = RealtimeRunner(system, loop, **opts.pacing.runner_options())
         interrupted: BaseException | None = None
         after = SignalsDeferred()  # a second Ctrl-C must not lose the JSON or the report

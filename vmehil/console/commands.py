@@ -347,9 +347,15 @@ def _require_homed(loop: Any) -> None:
                                       f"{'is' if len(missing) == 1 else 'are'} not homed: home all (or home J) first")
 
 
+def _refused(e: Any) -> ConsoleError:
+    """A move the soft limits or the scene refuse (:class:`servo.trajectory.MotionRefused`) as the
+    console says it: ``ERR LIMIT|COLLISION|REACH`` and the first refusal (``and N more``)."""
+    return ConsoleError(e.code, str(e))
+
+
 def _dry_run(moves: list[Any], start: np.ndarray, ctx: Any) -> float:
     """Plan every move on a throw-away sequencer (errors now, not inside a tick); total duration s."""
-    from servo.trajectory import Sequencer, TrajectoryError
+    from servo.trajectory import MotionRefused, Sequencer, TrajectoryError
 
     seq = Sequencer(list(moves), start, ctx)
     t = 0.0
@@ -360,6 +366,8 @@ def _dry_run(moves: list[Any], start: np.ndarray, ctx: Any) -> float:
             t += max(seq.current.duration, 1e-3)
             seq.sample(t)
             guard += 1
+    except MotionRefused as e:
+        raise _refused(e) from None
     except (TrajectoryError, ValueError) as e:
         raise ConsoleError(VALUE, f"cannot plan the motion: {e}") from None
     if not seq.finished:
@@ -393,7 +401,7 @@ def start_motion(s: Session, moves: list[Any], what: str, planned: Any = None) -
     """Start ``moves`` from the present target at this tick; complete when they have all ended.
     ``planned``: the same moves planned off the loop (:func:`plan_off_loop`), used when it started
     where the loop holds now."""
-    from servo.trajectory import Sequencer
+    from servo.trajectory import MotionRefused, Sequencer
 
     loop = s.loop
     _require_running(loop)
@@ -401,11 +409,23 @@ def start_motion(s: Session, moves: list[Any], what: str, planned: Any = None) -
     _require_homed(loop)
     start = hold_position(loop)
     ctx = _plan_context(loop)
+
     if (planned is not None and (planned.ctx is ctx or not (planned.ctx.extras or ctx.extras))
             and np.array_equal(planned.current.start, start) and _same_limits(planned.ctx.limits, ctx.limits)):
         seq = planned
     else:
         seq = Sequencer(list(moves), start, ctx)  # plans every move ahead, once (servo.trajectory.sequencer)
+    refused = seq.plan_error if isinstance(seq.plan_error, MotionRefused) else None
+    if refused is None and seq is planned and ctx.bounds is not None:
+        # planned off the loop: the scene may have changed since (obstacle add): checked again here
+        for i, traj in enumerate(seq.planned):
+            found = ctx.bounds.check_trajectory(traj, move=i)
+            if found:
+                refused = MotionRefused(found)
+                break
+    if refused is not None:  # the soft limits or the scene: refused before it starts
+        loop.note(s.source, f"{what}: {refused}")
+        raise _refused(refused)
     planned = [float(t.duration) for t in seq.planned]
     if seq.plan_error is None and len(planned) == len(moves) and all(map(math.isfinite, planned)):
         duration = float(sum(planned))
@@ -546,6 +566,67 @@ def _stay(s: Session, a: dict[str, Any]) -> Outcome:
     loop.set_motion(Sequencer([], hold, _plan_context(loop)))
     loop.note(s.source, "stay")
     return Outcome(ok=kv(target_deg=tuple(round(_deg(x), 6) for x in hold)))
+
+
+def _scene_of(loop: Any) -> Any:
+    """The scene the loop's moves are checked against (:mod:`servo.scene`)."""
+    bounds = getattr(_plan_context(loop), "bounds", None)
+    if bounds is None or bounds.arm is None or bounds.scene is None:
+        raise ConsoleError(UNAVAILABLE, "obstacle: this rig's file states no [arm]: there are no links to check "
+                                        "obstacles against")
+    return bounds.scene
+
+
+def _box_text(v: Sequence[float]) -> tuple[float, ...]:
+    return tuple(round(float(x), 6) for x in v)
+
+
+@atom("obstacle", (Param("action", STRING), Param("name", STRING, None),
+                   *(Param(k, FLOAT, None) for k in ("x0", "y0", "z0", "x1", "y1", "z1"))),
+      "the scene's obstacles (metres, the arm's base frame): add NAME X0 Y0 Z0 X1 Y1 Z1 (a box from one corner "
+      "to the opposite one), remove NAME, list; later moves are checked against them")
+def _obstacle(s: Session, a: dict[str, Any]) -> Outcome:
+    from servo.scene import Obstacle, SceneError
+
+    loop = s.loop
+    scene = _scene_of(loop)
+    action = str(a["action"]).lower()
+    corners = [a[k] for k in ("x0", "y0", "z0", "x1", "y1", "z1")]
+    if action == "list":
+        if a["name"] is not None or any(c is not None for c in corners):
+            raise ConsoleError(ARGS, "obstacle list takes no more arguments")
+        lines = [kv("DATA", "obstacle", name=ob.name, min_m=_box_text(ob.min_m), max_m=_box_text(ob.max_m))
+                 for ob in scene.obstacles]
+        return Outcome(lines, kv(obstacles=len(scene), scene=scene.source))
+    if a["name"] is None:
+        raise ConsoleError(ARGS, f"obstacle {action}: give the obstacle's NAME")
+    name = str(a["name"])
+    try:
+        if action == "remove":
+            if any(c is not None for c in corners):
+                raise ConsoleError(ARGS, "obstacle remove takes only the NAME")
+            scene.remove(name)
+            loop.note(s.source, f"obstacle {name} removed")
+            return Outcome(ok=kv(name=name, obstacles=len(scene)))
+        if action != "add":
+            raise ConsoleError(VALUE, f"obstacle {action!r}: use add, remove or list")
+        if any(c is None for c in corners):
+            raise ConsoleError(ARGS, "obstacle add NAME X0 Y0 Z0 X1 Y1 Z1: six coordinates in metres")
+        lo = [min(corners[i], corners[i + 3]) for i in range(3)]
+        hi = [max(corners[i], corners[i + 3]) for i in range(3)]
+        ob = Obstacle.make(name, lo, hi)
+        scene.add(ob)
+    except SceneError as e:
+        raise ConsoleError(VALUE, str(e)) from None
+    loop.note(s.source, f"obstacle {name} added: {list(ob.min_m)} .. {list(ob.max_m)} m")
+    lines = []
+    bounds = _plan_context(loop).bounds
+    here = hold_position(loop)
+    touching = [link for link, other in bounds.collisions_at(here) if other == name]
+    if touching:  # the arm's own target is in it: every move from here is refused until it goes
+        lines.append(kv("INFO", f"the arm's present target puts link {touching[0]} in {name}: moves from here are "
+                                "refused until it is removed"))
+    return Outcome(lines, kv(name=name, min_m=_box_text(ob.min_m), max_m=_box_text(ob.max_m), obstacles=len(scene)))
 
 
 def _gain_lines(loop: Any) -> list[str]:
@@ -802,7 +883,7 @@ def _shutdown(s: Session, a: dict[str, Any]) -> Outcome:
 #: The atomic commands by name, in the order of ``help``.
 ATOMS: dict[str, Atom] = {a.name: a for a in (
     _help, _status, _move, _move_rel, _move_joint, _stay, _gains, _mode, _stop, _estop, _enable, _run, _calibrate,
-    _home, _log, _commands, _load, _cancel, _pause, _echo, _shutdown,
+    _home, _log, _commands, _load, _cancel, _pause, _echo, _shutdown, _obstacle,
 )}
 
 

@@ -17,6 +17,7 @@ from servo.io import JointIO
 from servo.loop import ServoLoop
 from servo.motion import Motion
 from servo.rig import RigSpec
+from servo.scene import Scene
 from servo.settings import MIN_VELOCITY_DEG_S, ServoSettings, servo_settings
 from servo.trajectory.sequencer import PlanContext, Sequencer
 
@@ -37,19 +38,22 @@ class AssembledRig(PlantBoundary, Protocol):
 
 def build_loop(system: AssembledRig, *, motion: Motion | None = None, gains: Mapping[str, float] | None = None,
                switch_off: bool | None = None, n_ticks: int = 0, watchdog: bool = True,
-               sequencer: Sequencer | None = None, settings: ServoSettings | None = None) -> ServoLoop:
+               sequencer: Sequencer | None = None, settings: ServoSettings | None = None,
+               scene: Scene | None = None) -> ServoLoop:
     """A ready-to-start :class:`ServoLoop` for ``system``: ``settings`` (default: parsed from the
     rig file), with optional gain overrides applied to every joint and the switch-off forced on
     or off (:meth:`~servo.settings.ServoSettings.overridden`: a set the gain guard refuses raises
     :class:`~servo.gain_guard.GainRejected` and no loop is built).
 
     ``sequencer``: the motion already planned (a unit controller's segments of the global plan,
-    :class:`servo.joint_groups.UnitSegments`); the joints are then not read here."""
+    :class:`servo.joint_groups.UnitSegments`); the joints are then not read here. ``scene``: the
+    obstacles every move is checked against (:mod:`servo.scene`); a motion the soft limits or the
+    scene refuse raises :class:`~servo.trajectory.bounds.MotionRefused` before anything is enabled."""
     base = settings if settings is not None else servo_settings(system.rig)
     if gains or switch_off is not None:
         base = base.overridden(gains, switch_off)
     return assembly.build_loop(system, system.io, base, motion=motion, n_ticks=n_ticks, watchdog=watchdog,
-                               sequencer=sequencer)
+                               sequencer=sequencer, scene=scene)
 
 
 def plan_context_of(loop: ServoLoop) -> PlanContext:

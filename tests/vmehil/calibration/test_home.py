@@ -12,9 +12,9 @@ import math
 
 import pytest
 
+from tests.support.homing import plant_pot_store
 from vmehil.calibration.base import CalibrationAbort, CalibrationContext
 from vmehil.calibration.home import HomeProcedure
-from tests.support.homing import plant_pot_store
 from vmehil.calibration.store import CalibrationStore
 from vmehil.rig_setup.emulated_calibration import EmulatedPositioner
 from vmehil.rig_setup.system import EmulatedRig, build_emulated_rig

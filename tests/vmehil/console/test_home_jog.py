@@ -42,7 +42,7 @@ def _joint_line(reply: list[str], name: str) -> dict[str, str]:
 
 
 def test_home_on_the_console_homes_the_live_encoder_and_a_rig_that_requires_it_refuses_moves_before(rig):
-    system, loop, runner, drv, out = rig
+    system, loop, _runner, drv, out = rig
     loop.require_homing = True  # [servo] require_homing = true (parsed in servo.settings)
     status = drv.ask("status")
     assert "homed=no" in status[0] and "homing=required" in status[0]
