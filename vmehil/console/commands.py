@@ -557,6 +557,39 @@ def _move_joint(s: Session, a: dict[str, Any]) -> Outcome:
                         f"move {s.loop.names[j]} to {a['target']:g} deg")
 
 
+#: the largest jog speed the console takes (°/s): a sanity bound on the command; the joint's
+#: velocity limit then clamps it
+MAX_JOG_DEG_S = 3600.0
+
+
+@atom("jog", (Param("joint", JOINT), Param("speed_deg_s", FLOAT)),
+      "jog JOINT at SPEED_DEG_S (°/s, signed; 0 stops): a velocity move with a deadman - it stops unless "
+      "renewed within 0.5 s - bounded by the soft limits and the velocity limit", in_files=False)
+def _jog(s: Session, a: dict[str, Any]) -> Outcome:
+    from servo.jog import DEADMAN_S, jog, running_jog
+    from servo.trajectory import TrajectoryError
+
+    loop = s.loop
+    j = a["joint"]
+    if j is None:
+        raise ConsoleError(VALUE, "jog moves one joint (not all): jog J SPEED_DEG_S")
+    speed = a["speed_deg_s"]
+    if not math.isfinite(speed) or abs(speed) > MAX_JOG_DEG_S:
+        raise ConsoleError(VALUE, f"speed_deg_s must be a finite speed in °/s, within ±{MAX_JOG_DEG_S:g}")
+    _require_running(loop)
+    if running_jog(loop) is None:
+        _require_idle(loop)  # a planned motion runs: it is not the jog's to interrupt
+    try:
+        speeds, started = jog(loop, {j: float(deg_to_rad(speed))}, hold_position(loop))
+    except TrajectoryError as e:
+        raise ConsoleError(VALUE, f"cannot jog: {e}") from None
+    got = _deg(speeds[j])
+    if started:  # renewals (a handset sends them at 10 Hz) are not each logged
+        loop.note(s.source, f"jog {loop.names[j]} at {speed:g} deg/s")
+    return Outcome(ok=kv(joint=loop.names[j], speed_deg_s=round(got, 6), limited=int(abs(got - speed) > 1e-9),
+                         deadman_s=DEADMAN_S, started=int(started)))
+
+
 @atom("stay", (), "stop the motion: hold the present target (the amplifiers stay on)")
 def _stay(s: Session, a: dict[str, Any]) -> Outcome:
     from servo.trajectory import Sequencer
@@ -883,7 +916,7 @@ def _shutdown(s: Session, a: dict[str, Any]) -> Outcome:
 #: The atomic commands by name, in the order of ``help``.
 ATOMS: dict[str, Atom] = {a.name: a for a in (
     _help, _status, _move, _move_rel, _move_joint, _stay, _gains, _mode, _stop, _estop, _enable, _run, _calibrate,
-    _home, _log, _commands, _load, _cancel, _pause, _echo, _shutdown, _obstacle,
+    _home, _jog, _log, _commands, _load, _cancel, _pause, _echo, _shutdown, _obstacle,
 )}
 
 

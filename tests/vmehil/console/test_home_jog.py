@@ -66,3 +66,62 @@ def test_home_on_the_console_homes_the_live_encoder_and_a_rig_that_requires_it_r
     assert drv.ask("move_joint j1 12")[-1].startswith("ERR NOT_HOMED")
     loop.require_homing = False
     assert drv.ask("move_joint j1 12")[-1].startswith("OK move_joint")
+
+
+@pytest.fixture
+def arm(tmp_path):
+    """jpl-arm powered up with j1 at 150° (its soft limit max_deg = 163°, the hard stop 165°)."""
+    system = build_emulated_rig(None, seed=0, initial_deg=[150.0, 0, 0, 0, 0, 0, 34.377])
+    loop = build_loop(system, motion=Motion((WaitMove(0.0),), "hold", "<test>"), n_ticks=0)
+    loop.start()
+    runner = LockstepRunner(system, loop)
+    console = start_console("loop://", loop, runner=runner, calibration=tmp_path / "cal.toml",
+                            announce=lambda _: None)
+    drv = Driver(loop, console, console.transport.write, tap_poll(console), step=runner.tick)
+    runner.run(25)
+    yield system, loop, runner, drv
+    console.close()
+    system.close()
+
+
+def _true_deg(system, j: int = 0) -> float:
+    return math.degrees(float(system.truth()["theta_joint"][j]))
+
+
+def test_the_jog_deadman_stops_the_joint_unless_renewed(arm):
+    system, loop, runner, drv = arm
+    t = loop.period_s
+    start = _true_deg(system)
+    reply = drv.ask("jog j1 -10")
+    assert reply[-1].startswith("OK jog joint=j1 speed_deg_s=-10 limited=0 deadman_s=0.5 started=1"), reply
+    runner.run(round(1.5 / t))  # not renewed: 0.5 s at -10°/s (5°), then to rest
+    moved = _true_deg(system) - start
+    assert -6.0 < moved < -4.0, moved
+    rest = _true_deg(system)
+    runner.run(round(0.5 / t))
+    assert abs(_true_deg(system) - rest) < 0.05  # the plant is at rest: the jog stopped
+    assert loop.sequencer.finished and loop.fault is None
+    # renewed every 0.25 s it goes on: 2 s at -10°/s
+    start = _true_deg(system)
+    for _ in range(8):
+        assert drv.ask("jog j1 -10")[-1].startswith("OK jog")
+        runner.run(round(0.25 / t))
+    assert _true_deg(system) - start < -15.0
+
+
+def test_a_jog_toward_a_soft_limit_stops_before_it(arm):
+    system, loop, runner, drv = arm
+    t = loop.period_s
+    reply = drv.ask("jog j1 50")  # beyond the 20°/s limit: clamped
+    assert "speed_deg_s=20 limited=1" in reply[-1], reply
+    peak = -math.inf
+    for _ in range(16):  # 4 s of renewed jogging into the limit (13° away)
+        drv.ask("jog j1 50")
+        for _ in range(round(0.25 / t)):
+            runner.tick()
+            peak = max(peak, _true_deg(system))
+    # the soft limit is max_deg = 163.01° (jpl-arm.toml): the joint never reached it; its target
+    # rests 1° inside (servo.jog.LIMIT_ALLOWANCE_DEG), the joint within the loop's hold band of that
+    assert peak < 163.01, peak
+    assert 161.0 < _true_deg(system) < 163.01
+    assert loop.fault is None  # no soft_limit stop
