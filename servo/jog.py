@@ -173,6 +173,7 @@ def jog(loop: Any, speeds: dict[int, float], hold: np.ndarray) -> tuple[dict[int
             raise seq.plan_error
         seq.sample(0.0)  # the jog starts now: its time runs from this tick
         loop.set_motion(seq)
-        cur = seq.current
-        assert isinstance(cur, JogTrajectory)
+        first = seq.current
+        assert isinstance(first, JogTrajectory)
+        cur = first
     return cur.command(speeds), started
