@@ -101,3 +101,14 @@ def test_homing_refuses_a_joint_whose_pot_is_not_calibrated():
         HomeProcedure().run(ctx)
     assert not system.io.homed.any()
     system.close()
+
+
+def test_a_procedures_move_past_a_soft_limit_is_refused_at_once_not_waited_for():
+    # (before: the loop refused the move and held, and the positioner waited 10**6 ticks for it)
+    system = build_emulated_rig(None, seed=0)
+    pos = EmulatedPositioner(system)
+    k0 = pos.loop.tick_count
+    with pytest.raises(CalibrationAbort, match="soft limit"):
+        pos.move_to({0: math.radians(200.0)})
+    assert pos.loop.tick_count == k0
+    system.close()
