@@ -16,6 +16,10 @@ from emulators.dac import dac_factory
 from emulators.pio import pio_from_config
 from emulators.quadrature import quad_from_config
 from emulators.ram import RamBoard
+from emulators.sbs617 import sbs617_factory
+from emulators.vmivme2536 import vmivme2536_from_config
+from emulators.vmivme3113a import vmivme3113a_factory
+from emulators.vmivme4116 import vmivme4116_factory
 from hal.config import ConfigTable
 from hal.plugins import PluginTable
 
@@ -31,6 +35,10 @@ BUILTIN_BOARD_TYPES: dict[str, BoardFactory] = {
     "pio": pio_from_config,
     "quad": quad_from_config,
     "bit3": bit3_factory,
+    "vmivme-4116": vmivme4116_factory,
+    "vmivme-2536": vmivme2536_from_config,
+    "sbs617": sbs617_factory,
+    "vmivme-3113a": vmivme3113a_factory,
 }
 
 

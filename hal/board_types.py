@@ -178,6 +178,22 @@ BUILTIN_BOARD_TYPES: dict[str, BoardType] = {
                       driver="hal.quadrature.quad:QuadratureDriver", probe="hal.quadrature.quad_regs:QUAD_REGS"),
     "bit3": BoardType("bit3", _REFERENCE, "BIT3-REF", "docs/boards/bit3.md",
                       driver="hal.bit3.driver:Bit3Driver", probe="hal.bit3.regs:BIT3_CSR"),
+    "vmivme-4116": BoardType("dac", "VMIC", "VMIVME-4116", "docs/boards/vmivme4116.md",
+                             driver="hal.adc_dac.vmivme4116:VmiVme4116Driver",
+                             probe="hal.adc_dac.vmivme4116:probe_vmivme4116"),  # no ID register: reads the CSR
+    # VMIC VMIVME-2536, 32 optically coupled inputs and outputs: a PIO without PWM; its BID value
+    # is not published, so the probe checks that the registers answer (docs/boards/vmivme2536.md)
+    "vmivme-2536": BoardType("pio", "VMIC", "VMIVME-2536", "docs/boards/vmivme2536.md",
+                             driver="hal.pio.vmivme2536:Vmi2536Driver",
+                             probe="hal.pio.vmivme2536:probe_vmivme2536"),
+    # SBS (Bit 3) Model 617 PCI-to-VME adaptor, the vision link: no ID register in its PCI BARs,
+    # so the probe reads what must read 0 (docs/boards/sbs617.md)
+    "sbs617": BoardType("bit3", "SBS Technologies (Bit 3)", "Model 617 PCI-to-VME adaptor", "docs/boards/sbs617.md",
+                        driver="hal.bit3.sbs617:Sbs617Driver", probe="hal.bit3.sbs617:probe_sbs617"),
+    # VMIC VMIVME-3113A, 64-channel scanning 12-bit ADC: ID 0x1100 (docs/boards/vmivme-3113a.md)
+    "vmivme-3113a": BoardType("adc", "VMIC", "VMIVME-3113A", "docs/boards/vmivme-3113a.md",
+                              driver="hal.adc_dac.vmivme3113a:Vmivme3113aDriver",
+                              probe="hal.adc_dac.vmivme3113a_regs:VMI3113A_REGMAP"),
     # RAM has no driver and no ID register: memory, read and written as bytes (the emulator's
     # RamBoard is the bus's test memory and the BIT3's dual-port memory). It is here so that
     # both tables name the same types and `crate list` can say what a RAM slot is.

@@ -47,6 +47,9 @@ from hal.config import ConfigTable
 #: A vector of floats: a sequence, or a 1-D numpy array (what the callers mostly pass).
 FloatVector: TypeAlias = Sequence[float] | np.ndarray
 
+#: no link is longer than this (m): a sanity bound on the rig file, not a design limit
+MAX_LENGTH_M = 100.0
+
 #: the links as line segments, each from the point named first to the second (:meth:`ArmModel.segments`)
 LINKS: tuple[tuple[str, str, str], ...] = (
     ("upper_arm", "shoulder", "elbow"),
@@ -117,7 +120,7 @@ class ArmModel:
         kw: dict[str, Any] = {}
         for k in ("d1", "a2", "a3", "a5", "a6"):
             if k in cfg:
-                kw[k] = cfg.get_float(k, min=0.0 if k in ("d1", "a5", "a6") else 1e-6)
+                kw[k] = cfg.get_float(k, min=0.0 if k in ("d1", "a5", "a6") else 1e-6, max=MAX_LENGTH_M)
         for k in ("joints", "wrist_joints"):
             if k in cfg:
                 raw = cfg.raw(k)

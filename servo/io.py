@@ -31,7 +31,7 @@ import numpy as np
 
 from hal.adc_dac.adc import AdcDriver
 from hal.adc_dac.calibration import Calibration
-from hal.adc_dac.conversions import DAC_LSB_V, DAC_V_MAX, DAC_V_MIN, adc_lsb
+from hal.adc_dac.conversions import DAC_LSB_V, DAC_V_MAX, DAC_V_MIN
 from hal.adc_dac.dac import DacDriver
 from hal.amplifiers import duty_for_current
 from hal.board_types import BOARD_TYPES, board_role
@@ -221,7 +221,10 @@ class JointIO:
                 self.dac[name] = factory(bus, base, space=space, clamp=True)
             elif kind == "pio":
                 lines = {k: v for k, v in pio_lines.get(name, {}).items() if v != "PWM"}
-                self.pio[name] = factory(bus, base, space=space, lines=lines)
+                # [rig.readback]: outputs wired back into inputs (only boards whose driver takes it)
+                readback = {str(o.channel): str(i.channel) for o, i in rig.readback.items() if o.board == name}
+                extra = {"loopback": readback} if readback else {}
+                self.pio[name] = factory(bus, base, space=space, lines=lines, **extra)
             else:
                 cpr = quad_cpr[name]
                 self.quad[name] = factory(bus, base, space=space, counts_per_rev=cpr,
@@ -444,7 +447,7 @@ class JointIO:
         linear = np.array([j.amplifier == "linear" for j in self.rig.joints])
 
         def lsb_v(pin) -> float:
-            return adc_lsb(self.adc[pin.board].range)
+            return self.adc[pin.board].lsb_v  # the driver's named conversion (its board's range)
 
         for j in self.rig.joints:
             i, s, w = j.index, self.scaling[j.index], j.wiring

@@ -134,6 +134,8 @@ def unit_rig(spec: RigSpec, unit: UnitSpec) -> RigSpec:
         rig["references"] = {k: v for k, v in rig["references"].items() if on_mine(k)}
     if isinstance(rig.get("loopback"), dict):  # a DAC → ADC pair across two units' boards is dropped
         rig["loopback"] = {k: v for k, v in rig["loopback"].items() if on_mine(k) and on_mine(v)}
+    if isinstance(rig.get("readback"), dict):  # digital read-back stays on one board
+        rig["readback"] = {k: v for k, v in rig["readback"].items() if on_mine(k)}
     return rig_from_table(ConfigTable(data, spec.table.source), spec.path)
 
 

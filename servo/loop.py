@@ -198,6 +198,8 @@ class ServoLoop:
         #: moves wait until every homeable joint's encoder is homed (``io.homed``; set from the
         #: settings by servo.assembly); the loop itself does not refuse them, its hosts do
         self.require_homing = False
+        #: per joint how far past its soft limit it may be (``None``: the margin; see _soft_allowance)
+        self._soft_allow: np.ndarray | None = None
 
     # --- live interface ------------------------------------------------------------------------
     def submit(self, command: LiveCommand,
@@ -369,6 +371,10 @@ class ServoLoop:
             theta = np.asarray(self.io.read().theta, float).copy()
             if not np.all(np.isfinite(theta)):
                 raise ValueError("a joint position reads as not finite; check the sensors before resuming")
+        if theta is not None:  # a joint a soft-limit stop left past its limit may come back from there
+            past = self.watchdog.past_soft_limit(theta)
+            margin = self.watchdog.soft_limit_margin_rad
+            self._soft_allow = np.maximum(margin, past + margin) if np.any(past > 0.0) else None
         self.fault = None
         self.stopping = None
         self.stop_tick = None  # the excursion of the last stop is kept, no longer tracked
@@ -580,7 +586,7 @@ class ServoLoop:
             self.tick_count += 1
             return
         if self.stopping is None and self.watchdog.enabled:
-            past = self.watchdog.beyond_soft_limit(m.theta)
+            past = self.watchdog.beyond_soft_limit(m.theta, self._soft_allowance(m.theta))
             if past is not None:  # a controlled stop (category 1): the sensors are sane
                 j, pos, lim, side = past
                 self.stop("soft_limit", f"position {np.degrees(pos):+.2f}° past the soft limit {side}_deg = "
@@ -609,6 +615,19 @@ class ServoLoop:
         self.tick_count += 1
         if self.stopping is not None and self.fault is None:
             self._advance_stop(k)
+
+    def _soft_allowance(self, theta: np.ndarray) -> np.ndarray | None:
+        """How far past its soft limit each joint may be before the watchdog stops the loop: the
+        margin, or for a joint a stop left further out (:meth:`resume`), where it was then plus the
+        margin — shrinking as it comes back, so it may return but never go further out."""
+        if self._soft_allow is None:
+            return None
+        margin = self.watchdog.soft_limit_margin_rad
+        past = self.watchdog.past_soft_limit(theta)
+        self._soft_allow = np.maximum(margin, np.fmin(self._soft_allow, past + margin))
+        if np.all(self._soft_allow <= margin):
+            self._soft_allow = None  # every joint back within the margin: the plain check again
+        return self._soft_allow
 
     def _next_sample(self, t: float) -> Sample:
         """The motion's sample at ``t``. A move planned only when it starts (after an open

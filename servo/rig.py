@@ -48,6 +48,15 @@ joints and PIO boards there are. The line carries the net ``rig.watchdog``
 (:data:`WATCHDOG_NET`); ``timeout_s`` is the amplifiers' (read by the plant too) and must
 exceed one servo period.
 
+Rig-level digital read-back (optional; for a PIO board that cannot read its outputs' wires, the
+VMIVME-2536: docs/boards/vmivme2536.md)::
+
+    [rig.readback]             # an output line wired back into a free input of the same board
+    "dio0:OUT0" = "dio0:IN16"
+
+The input then carries the output's net, and the board's driver (``loopback=``) reads the wire
+there: a stop's read-back of a stuck-high enable sees it high.
+
 ``[joint.servo]``: ``position = "pot" | "encoder"``, ``velocity = "tach" | "encoder"``,
 ``gains = {kp, kpi, kv, kvi}``, ``switch_off = {...}``, ``max_velocity_deg_s``,
 ``torque_limit_nm`` (default: the nominal current limit · Kt · N), ``following_error_limit_deg``,
@@ -68,12 +77,13 @@ The plant reads the same ``[[joint]]`` tables and is told which keys are the ser
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from hal.board_types import BOARD_TYPES, board_role
 from hal.config import ConfigError, ConfigTable, load_toml
-from hal.pio.pio_regs import ALL_LINES, parse_line
+from hal.pio.pio_regs import ALL_LINES
 from servo.errors import ServoError
 
 ANALOG_INPUTS = ("pot", "tach", "imon")
@@ -147,6 +157,7 @@ class RigSpec:
     references: dict[Pin, float] = field(default_factory=dict)  #: ADC pin → reference volts
     loopback: dict[Pin, Pin] = field(default_factory=dict)  #: DAC pin → ADC pin it is wired to
     watchdog: WatchdogSpec | None = None  #: the amplifiers' enable watchdog (None: not wired)
+    readback: dict[Pin, Pin] = field(default_factory=dict)  #: PIO output line → input it is wired back to
 
     @property
     def period_s(self) -> float:
@@ -214,6 +225,7 @@ def rig_from_table(table: ConfigTable, path: str | Path) -> RigSpec:
     _check_wiring(spec)
     _parse_calibration_wiring(spec, rig)
     spec.watchdog = _parse_watchdog(spec, rig)
+    spec.readback = _parse_readback(spec, rig)
     return spec
 
 
@@ -228,6 +240,24 @@ _CHANNEL_ROLES = ("adc", "dac", "quad")
 def _board_roles(table: ConfigTable) -> dict[str, str | None]:
     """``[crate]``'s boards: name → role of its type (None: a type the driver side does not know)."""
     return {b.get_str("name"): board_role(b.get_str("type")) for b in table.table("crate", {}).tables("board", [])}
+
+
+def _pio_lines(type_name: str) -> tuple[str, ...]:
+    """The pin names of a board of role ``pio``: its driver's ``LINES`` (the reference PIO's
+    PA0..PC7 when it declares none)."""
+    lines = getattr(BOARD_TYPES[type_name].load_driver(), "LINES", ALL_LINES)
+    return tuple(lines)
+
+
+def _pio_lines_text(type_name: str) -> str:
+    """What a wiring error expects of a line of this board (the reference PIO's text as shipped)."""
+    lines = _pio_lines(type_name)
+    if lines == tuple(ALL_LINES):
+        return "a PIO line PA0..PC7"
+    groups: dict[str, list[str]] = {}
+    for name in lines:
+        groups.setdefault(name.rstrip("0123456789"), []).append(name)
+    return f"a line of the {type_name} board (" + ", ".join(f"{g[0]}..{g[-1]}" for g in groups.values()) + ")"
 
 
 def _check_boards(table: ConfigTable) -> None:
@@ -270,11 +300,10 @@ def _check_wiring(spec: RigSpec) -> None:
             elif sig == "pwm":
                 if pin.channel != "PWM":
                     raise wt.error(sig, f'the PIO\'s PWM output ("{pin.board}:PWM")', str(pin))
-            else:
-                try:
-                    parse_line(str(pin.channel))
-                except ValueError:
-                    raise wt.error(sig, "a PIO line PA0..PC7", str(pin)) from None
+                if not hasattr(BOARD_TYPES[got].load_driver(), "set_pwm"):  # e.g. the VMIVME-2536
+                    raise wt.error(sig, f"the PWM output of a PIO board with a PWM timer ({got} has none)", str(pin))
+            elif str(pin.channel) not in _pio_lines(got):
+                raise wt.error(sig, _pio_lines_text(got), str(pin))
             where = f"{j.name}.{sig}"
             key = (pin.board, pin.channel)
             if key in used:
@@ -323,7 +352,8 @@ def _parse_watchdog(spec: RigSpec, rig: ConfigTable) -> WatchdogSpec | None:
     types = _board_roles(spec.table)
     text = wd.get_str("line")
     line = parse_pin(wd, "line")
-    if types.get(line.board) != "pio" or line.channel not in ALL_LINES:
+    kinds = {b.get_str("name"): b.get_str("type") for b in spec.table.table("crate", {}).tables("board", [])}
+    if types.get(line.board) != "pio" or str(line.channel) not in _pio_lines(kinds[line.board]):
         raise wd.error("line", 'a PIO line "board:PA0".."board:PC7" of a pio board in [crate]', text)
     for j in spec.joints:
         for sig, p in j.wiring.items():
@@ -334,3 +364,32 @@ def _parse_watchdog(spec: RigSpec, rig: ConfigTable) -> WatchdogSpec | None:
         raise wd.error("timeout_s", f"more than one servo period ({spec.period_s:g} s): the line has one "
                                     "edge per tick", timeout)
     return WatchdogSpec(line, timeout)
+
+
+def _parse_readback(spec: RigSpec, rig: ConfigTable) -> dict[Pin, Pin]:
+    """``[rig.readback]``: each wired output line of a PIO board whose driver takes ``loopback``
+    → a free input line of the same board."""
+    if "readback" not in rig:
+        return {}
+    rb = rig.table("readback")
+    kinds = {b.get_str("name"): b.get_str("type") for b in spec.table.table("crate", {}).tables("board", [])}
+    outputs = {p: f"{j.name}.{sig}" for j in spec.joints for sig, p in j.wiring.items() if sig in DIGITAL_OUTPUTS}
+    if spec.watchdog is not None:
+        outputs[spec.watchdog.line] = WATCHDOG_NET
+    used = {p for j in spec.joints for p in j.wiring.values()} | set(outputs)
+    out: dict[Pin, Pin] = {}
+    for key in rb.keys():
+        src = parse_pin(ConfigTable({"k": key}, rb.source, rb.prefix), "k")
+        dst = parse_pin(rb, key)
+        if src not in outputs:
+            raise rb.error(key, "a PIO output line that carries a joint's digital output or the watchdog", key)
+        kind = kinds[src.board]
+        if "loopback" not in inspect.signature(BOARD_TYPES[kind].load_driver()).parameters:
+            raise rb.error(key, f"a line of a board that reads back through an input ({kind} does not)", key)
+        if dst.board != src.board or str(dst.channel) not in _pio_lines(kind):
+            raise rb.error(key, f"a line of {src.board} ({_pio_lines_text(kind)})", str(dst))
+        if dst in used:
+            raise rb.error(key, f"a free line ({dst} is in use)", str(dst))
+        used.add(dst)
+        out[src] = dst
+    return out

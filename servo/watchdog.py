@@ -108,22 +108,35 @@ class WatchdogConfig:
     soft_max_rad: np.ndarray | None = None
     soft_limit_margin_rad: float = float(np.radians(0.5))
 
-    def beyond_soft_limit(self, theta: np.ndarray) -> tuple[int, float, float, str] | None:
-        """The joint furthest past a soft limit by more than the margin: ``(joint, position,
-        limit, "min"|"max")`` (rad), or ``None``. Non-finite readings are the sensor checks' to judge."""
+    def _soft_bounds(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        lo = np.full(n, -np.inf) if self.soft_min_rad is None else np.asarray(self.soft_min_rad, float)
+        hi = np.full(n, np.inf) if self.soft_max_rad is None else np.asarray(self.soft_max_rad, float)
+        return lo, hi
+
+    def past_soft_limit(self, theta: np.ndarray) -> np.ndarray:
+        """Per joint how far past its soft limit ``theta`` is (rad; ≤ 0 inside, −inf: no limit
+        or no reading)."""
+        th = np.asarray(theta, float)
+        lo, hi = self._soft_bounds(th.shape[0])
+        with np.errstate(invalid="ignore"):
+            return np.where(np.isfinite(th), np.maximum(lo - th, th - hi), -np.inf)
+
+    def beyond_soft_limit(self, theta: np.ndarray,
+                          allow_rad: np.ndarray | None = None) -> tuple[int, float, float, str] | None:
+        """The joint furthest past a soft limit by more than the margin (or, per joint, by more
+        than ``allow_rad``: a joint a stop left past its limit may come back, not go further):
+        ``(joint, position, limit, "min"|"max")`` (rad), or ``None``. Non-finite readings are the
+        sensor checks' to judge."""
         if self.soft_min_rad is None and self.soft_max_rad is None:
             return None
         th = np.asarray(theta, float)
-        lo = np.full(th.shape, -np.inf) if self.soft_min_rad is None else np.asarray(self.soft_min_rad, float)
-        hi = np.full(th.shape, np.inf) if self.soft_max_rad is None else np.asarray(self.soft_max_rad, float)
-        with np.errstate(invalid="ignore"):
-            below = np.where(np.isfinite(th), lo - th, -np.inf)
-            above = np.where(np.isfinite(th), th - hi, -np.inf)
-        past = np.maximum(below, above)
-        i = int(np.argmax(past))
-        if not past[i] > self.soft_limit_margin_rad:
+        allow = np.full(th.shape, self.soft_limit_margin_rad) if allow_rad is None else np.asarray(allow_rad, float)
+        over = self.past_soft_limit(th) - allow
+        i = int(np.argmax(over))
+        if not over[i] > 0.0:
             return None
-        if below[i] >= above[i]:
+        lo, hi = self._soft_bounds(th.shape[0])
+        if th[i] < lo[i]:
             return i, float(th[i]), float(lo[i]), "min"
         return i, float(th[i]), float(hi[i]), "max"
 

@@ -121,8 +121,9 @@ def test_an_unknown_board_type_lists_the_known_ones(install_distribution):
     with pytest.raises(ConfigError) as ei:
         build_crate(_crate_table("scrach"))
     assert ei.value.key == "crate.board[0].type"
-    assert "adc, bit3, dac, pio, quad, ram, scratch" in str(ei.value)
-    assert BOARD_TYPES.names() == ["adc", "bit3", "dac", "pio", "quad", "ram", "scratch"]
+    assert "adc, bit3, dac, pio, quad, ram, sbs617, scratch, vmivme-2536, vmivme-3113a, vmivme-4116" in str(ei.value)
+    assert BOARD_TYPES.names() == ["adc", "bit3", "dac", "pio", "quad", "ram", "sbs617", "scratch", "vmivme-2536",
+                                   "vmivme-3113a", "vmivme-4116"]
 
 
 def test_a_broken_board_type_is_a_one_line_command_line_error(install_distribution, tmp_path, capsys):

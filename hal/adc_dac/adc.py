@@ -37,6 +37,7 @@ from hal.adc_dac.conversions import (
     AdcRange,
     BoardIdError,
     adc_code_to_volts,
+    adc_lsb,
     check_gain,
     gain_code,
 )
@@ -141,6 +142,9 @@ class AdcDriver:
     """
 
     CHANNELS = ADC_CHANNELS
+    #: how long after a change at an input a read is sure to show it (every read converts after
+    #: its call here; an autoscanning board's driver names its scan time)
+    fresh_after_s = 0.0
 
     def __init__(
         self,
@@ -176,6 +180,12 @@ class AdcDriver:
     # --- configuration --------------------------------------------------------------------
     def _write_config(self) -> None:
         self.win.write("CSR", self._config & CSR_CONFIG_MASK)
+
+    @property
+    def lsb_v(self) -> float:
+        """Volts of one code in the programmed range at gain 1 (what the servo's resolution
+        figures use: every ADC driver of the role names it so)."""
+        return adc_lsb(self.range)
 
     def set_range(self, rng: AdcRange | str) -> None:
         """Program the input range (affects the next conversion)."""

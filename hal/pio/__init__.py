@@ -1,4 +1,5 @@
-"""Parallel I/O board: register map (:mod:`hal.pio.pio_regs`) and driver (:mod:`hal.pio.pio`)."""
+"""Parallel I/O boards: the reference PIO (register map :mod:`hal.pio.pio_regs`, driver :mod:`hal.pio.pio`)
+and the VMIC VMIVME-2536 (:mod:`hal.pio.vmivme2536_regs`, :mod:`hal.pio.vmivme2536`)."""
 
 from hal.pio.pio import (
     LineDirectionError,
@@ -10,10 +11,13 @@ from hal.pio.pio import (
     UnknownLineError,
 )
 from hal.pio.pio_regs import PIO_REGS, PWM_CLOCK_HZ
+from hal.pio.vmivme2536 import Vmi2536BoardIdError, Vmi2536Driver
+from hal.pio.vmivme2536_regs import VMI2536_REGS
 
 __all__ = [
     "PIO_REGS",
     "PWM_CLOCK_HZ",
+    "VMI2536_REGS",
     "LineDirectionError",
     "LineStuckError",
     "PioBoardIdError",
@@ -21,4 +25,6 @@ __all__ = [
     "PioError",
     "PwmRangeError",
     "UnknownLineError",
+    "Vmi2536BoardIdError",
+    "Vmi2536Driver",
 ]

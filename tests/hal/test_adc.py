@@ -457,6 +457,14 @@ def test_unipolar_range_and_clipping_at_the_rails() -> None:
     assert adc.read_counts(2, gain=2) == CODE_MAX
 
 
+def test_the_driver_names_the_volts_of_one_code_of_its_range() -> None:
+    # docs/boards/adc.md gain table, gain 1: ±10 V 4.8828125 mV, 0..10 V 2.44140625 mV
+    _, _, adc = make()
+    assert adc.lsb_v == 0.0048828125
+    adc.set_range("unipolar")
+    assert adc.lsb_v == 0.00244140625
+
+
 def test_unwired_channel_reads_zero_volts() -> None:
     c = Crate()
     c.install(AdcBoard("a", wiring={0: "x"}), base=BASE, space="A16")

@@ -196,3 +196,53 @@ def test_the_jpl_arm_ships_the_papers_twelve_obstacles_beside_its_rig_file() -> 
     assert bounds.collisions_at(_deg(20.0, -15.0, 10.0, -10.0, 15.0, -20.0)) == []
     # pointing straight down from the shoulder (1.1 m below it) the tool is in the ground
     assert ("hand", "ground") in bounds.collisions_at(_deg(0.0, -90.0))
+
+
+# --- a target known only at run time: visual servoing ------------------------------------------------------
+class _Client:
+    """The robot side of the vision protocol as the trajectory sees it: servoing once requested."""
+
+    def __init__(self) -> None:
+        from hal.bit3.protocol import RobotState
+
+        self.state = RobotState.IDLE
+        self.holding = False
+
+    def request(self, now: float) -> None:
+        from hal.bit3.protocol import RobotState
+
+        self.state = RobotState.SERVOING
+
+    def end(self, now: float) -> None:
+        from hal.bit3.protocol import RobotState
+
+        self.state = RobotState.IDLE
+
+
+class _Link:
+    """A vision link whose commands ask for the targets given, one per tick."""
+
+    def __init__(self, targets: list[np.ndarray]) -> None:
+        self.client = _Client()
+        self.targets = list(targets)
+        self.refused = 0
+        self.last_refusal: str | None = None
+
+    def clock(self) -> float:
+        return 0.0
+
+    def step(self, fallback: np.ndarray) -> np.ndarray | None:
+        return self.targets.pop(0) if self.targets else None
+
+
+def test_a_visual_servoing_target_past_a_limit_or_into_an_obstacle_is_not_used() -> None:
+    from servo.vservo import VservoMove
+
+    link = _Link([_deg(30.0, 10.0), _deg(30.0, 170.0), _deg(0.0), _deg(35.0, 12.0)])
+    ctx = _ctx(_bounds(Scene([BOX])))
+    ctx.extras["vision"] = link
+    traj = VservoMove(timeout_s=10.0).build(_deg(30.0), ctx)
+    seen = [math.degrees(traj.sample(k * 0.008).theta_d[1]) for k in range(4)]
+    # 10° used; 170° (past the 160° limit) refused: held at 10°; q1 = 0 (the arm in BOX) refused: held
+    assert seen == pytest.approx([10.0, 10.0, 10.0, 12.0])
+    assert link.refused == 2 and "hits obstacle box" in (link.last_refusal or "")

@@ -43,3 +43,21 @@ def test_vservo_without_vision_is_a_clear_error(tmp_path: Path, capsys) -> None:
 def test_vision_process_mode_requires_realtime(capsys) -> None:
     assert main(["run", "--vision", "process", "--quiet"]) == 2
     assert "--realtime" in capsys.readouterr().err
+
+
+def test_the_vision_process_command_line_is_one_vmehil_accepts():
+    """`--vision process` starts its vision system as `python -m vmehil vision …`; it once named
+    `python -m servo vision`, a module with no __main__, and every process-mode run failed."""
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    from vmehil.option_groups.vision_options import VisionOptions, vision_process_argv
+
+    argv = vision_process_argv("vmehil-test-none", np.array([0.8, 0.2, 0.5]), VisionOptions(mode="process"))
+    assert argv[:4] == [sys.executable, "-m", "vmehil", "vision"]
+    # every option it passes is one `vmehil vision` parses (--help after them: parse, print, exit 0)
+    done = subprocess.run([*argv, "--help"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "--shm" in done.stdout

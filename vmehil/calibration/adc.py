@@ -31,8 +31,17 @@ LSB_V = adc_lsb(AdcRange.BIPOLAR_10V, 1)  #: 4.8828 mV, ±10 V range at PGA gain
 
 
 def average_volts(adc, channel: int, samples: int) -> float:
-    """Mean of ``samples`` conversions of ``channel`` (volts, the driver's calibration applied)."""
-    return float(np.mean([adc.read_volts(channel) for _ in range(samples)]))
+    """Mean of ``samples`` conversions of ``channel`` (volts, the driver's calibration applied),
+    each made after the call: every read waits the driver's ``fresh_after_s`` first (0 for a board
+    that converts on each read; an autoscanning board's scan, whose reads would otherwise show a
+    code from before a DAC step, or one code again and again)."""
+    wait = adc.fresh_after_s
+    values = []
+    for _ in range(samples):
+        if wait > 0:
+            adc.bus.delay(wait)
+        values.append(adc.read_volts(channel))
+    return float(np.mean(values))
 
 
 class AdcProcedure:

@@ -26,6 +26,7 @@ from typing import Any, Protocol
 
 from hal.adc_dac.adc import AdcDriver
 from hal.adc_dac.dac import DacDriver
+from hal.board_types import BOARD_TYPES, board_role
 from hal.vme.bus import VmeBus
 from servo.io import JointIO
 from servo.rig import RigSpec
@@ -151,24 +152,27 @@ class CalibrationContext:
 
     # --- boards -----------------------------------------------------------------------------
     def boards_of(self, kind: str) -> list[str]:
-        return [b.name for b in rig_boards(self.rig).values() if b.type == kind]
+        """The boards of role ``kind`` (hal.board_types: ``"adc"`` is every ADC, whatever its type)."""
+        return [b.name for b in rig_boards(self.rig).values() if board_role(b.type) == kind]
 
-    def _loc(self, board: str, kind: str) -> tuple[int, str]:
+    def _driver(self, board: str, kind: str, calibrated: bool) -> Any:
+        """The driver of ``board``'s own type (which must be of role ``kind``), opened on the bus
+        with the calibration in force or raw (identity)."""
         ident = rig_boards(self.rig).get(board)
-        if ident is None or ident.type != kind:
+        if ident is None or board_role(ident.type) != kind:
             raise CalibrationAbort(f"rig {self.rig.name}: no {kind} board named {board!r} in [crate]")
-        return ident.base, ident.space
+        cal = self.store.board_calibration(board) if calibrated else None
+        factory = BOARD_TYPES[ident.type].load_driver()
+        return factory(self.bus, ident.base, space=ident.space, calibration=cal)
 
     def adc(self, board: str, *, calibrated: bool = True) -> AdcDriver:
-        """An ADC driver on ``board``: with the calibration in force, or raw (identity)."""
-        base, space = self._loc(board, "adc")
-        cal = self.store.board_calibration(board) if calibrated else None
-        return AdcDriver(self.bus, base, space=space, calibration=cal)
+        """An ADC driver on ``board`` (its type's: the reference ``AdcDriver`` or another of the
+        role's, with the same reading interface): with the calibration in force, or raw (identity)."""
+        return self._driver(board, "adc", calibrated)  # type: ignore[no-any-return]
 
     def dac(self, board: str, *, calibrated: bool = True) -> DacDriver:
-        base, space = self._loc(board, "dac")
-        cal = self.store.board_calibration(board) if calibrated else None
-        return DacDriver(self.bus, base, space=space, calibration=cal)
+        """A DAC driver on ``board`` (its type's), as :meth:`adc`."""
+        return self._driver(board, "dac", calibrated)  # type: ignore[no-any-return]
 
     # --- joints -----------------------------------------------------------------------------
     def selected_joints(self) -> list[int]:

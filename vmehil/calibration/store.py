@@ -51,10 +51,10 @@ from typing import Any
 
 import tomli_w
 
-from hal.adc_dac.adc_regs import ADC_BOARD_ID, ADC_CHANNELS
 from hal.adc_dac.calibration import Calibration, CalibrationError
-from hal.adc_dac.dac_regs import DAC_BOARD_ID, DAC_CHANNELS
+from hal.board_types import BOARD_TYPES
 from hal.config import ConfigError, read_limited
+from hal.vme.registers import Register
 from servo.rig import RigSpec
 from vmehil.errors import VmehilError
 from vmehil.writers.files import PREVIOUS_SUFFIX, write_atomic_keeping_previous
@@ -63,9 +63,22 @@ FORMAT = "vmehil-calibration"
 FORMAT_VERSION = 1
 ENV_DIR = "VMEHIL_CALIBRATION_DIR"
 
-#: ID register value of each board type that has one (checked on load when a bus is given).
-BOARD_IDS = {"adc": ADC_BOARD_ID, "dac": DAC_BOARD_ID}
-BOARD_CHANNELS = {"adc": ADC_CHANNELS, "dac": DAC_CHANNELS}
+#: the roles (hal.board_types) whose boards carry a per-channel offset/gain calibration
+CALIBRATED_ROLES = ("adc", "dac")
+
+
+def board_channels(board_type: str) -> int | None:
+    """The channel count of a board type of a calibrated role (its driver's ``CHANNELS``); None
+    for any other type."""
+    bt = BOARD_TYPES.get(board_type)
+    return bt.channels() if bt is not None and bt.role in CALIBRATED_ROLES else None
+
+
+def board_id_register(board_type: str) -> Register | None:
+    """The ID register of a board type of a calibrated role (its reset value is the ID, checked
+    on load when a bus is given); None when the type has none."""
+    bt = BOARD_TYPES.get(board_type)
+    return bt.id_register() if bt is not None and bt.role in CALIBRATED_ROLES else None
 _BOARD_COEFF_KEYS = {"offset_v", "gain"}
 _META_KEYS = {"procedure", "procedure_version", "date"}
 
@@ -117,7 +130,8 @@ class BoardIdentity:
 
     @property
     def board_id(self) -> int | None:
-        return BOARD_IDS.get(self.type)
+        reg = board_id_register(self.type)
+        return reg.reset if reg is not None else None
 
 
 def rig_boards(rig: RigSpec) -> dict[str, BoardIdentity]:
@@ -405,22 +419,23 @@ def _load_board(p: Path, name: str, entry: Any, idents: dict[str, BoardIdentity]
             raise CalibrationFileError(
                 p, f"{where} {key} = {shown(got)} but the rig's {name} has {key} {shown(want)}: this calibration is "
                    "for another board; re-calibrate the board")
-    if ident.type not in BOARD_CHANNELS:
+    channels = board_channels(ident.type)
+    if channels is None:
         raise CalibrationFileError(p, f"{where}: boards of type {ident.type!r} carry no per-channel calibration")
+    id_reg = board_id_register(ident.type)
     if entry.get("board_id") != ident.board_id:
+        expected = "no board_id (the type has no ID register)" if id_reg is None else f"0x{id_reg.reset:04X}"
         raise CalibrationFileError(
-            p, f"{where} board_id = {entry.get('board_id')!r}, expected 0x{ident.board_id:04X} for a {ident.type}")
-    if bus is not None:
-        from hal.vme.types import Width
-
-        read = bus.read(ident.base, space=ident.space, width=Width.D16)  # ID register at offset 0
-        if read != ident.board_id:
+            p, f"{where} board_id = {entry.get('board_id')!r}, expected {expected} for a {ident.type}")
+    if bus is not None and id_reg is not None:
+        read = bus.read(ident.base + id_reg.offset, space=ident.space, width=id_reg.width)
+        if read != id_reg.reset:
             raise CalibrationFileError(
-                p, f"{where}: the board at 0x{ident.base:X} answers ID 0x{read:04X}, not 0x{ident.board_id:04X}")
+                p, f"{where}: the board at 0x{ident.base:X} answers ID 0x{read:04X}, not 0x{id_reg.reset:04X}")
     meta = _meta(p, f"board.{name}", entry)
     coeffs = {k: entry[k] for k in _BOARD_COEFF_KEYS if k in entry}
     try:
-        cal = Calibration.from_dict(coeffs, channels=BOARD_CHANNELS[ident.type])
+        cal = Calibration.from_dict(coeffs, channels=channels)
     except CalibrationError as e:
         raise CalibrationFileError(p, f"{where}: {e}") from None
     for ch, (off, gain) in enumerate(zip(cal.offset_v, cal.gain, strict=True)):

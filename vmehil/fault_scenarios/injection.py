@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from hal.board_types import board_role
 from hal.config import ConfigError, load_toml
 from servo.rig import RigSpec
 from vmehil.errors import CliError, VmehilError
@@ -103,7 +104,9 @@ class FaultContext:
         return runner.node
 
     def board_of_type(self, kind: str, what: str) -> Any:
-        boards = [b for b in self.rig.table.table("crate", {}).tables("board", []) if b.get_str("type") == kind]
+        # a role names every board type of it (the vision link: "bit3" and "sbs617")
+        boards = [b for b in self.rig.table.table("crate", {}).tables("board", [])
+                  if b.get_str("type") == kind or board_role(b.get_str("type")) == kind]
         if not boards:
             raise CliError(f"{what}: rig {self.rig.name} has no {kind} board")
         return self.system.crate.board(boards[0].get_str("name"))
@@ -405,7 +408,9 @@ def check_rig(faults: list[ScheduledFault], rig: RigSpec) -> None:
         if board and board not in types:
             raise CliError(f"{f.source}: rig {rig.name} has no board {board!r} (boards: {', '.join(types)})")
         target = board or (rig.joints[joints.index(joint)].wiring[signal].board if joint and signal else None)
-        if f.kind.board_type is not None and target is not None and types.get(target) != f.kind.board_type:
+        # by role (hal.board_types): a VMIVME-2536 takes the PIO's line faults as the reference PIO does
+        if f.kind.board_type is not None and target is not None and \
+                board_role(types.get(target, "")) != f.kind.board_type:
             what = f"{joint}'s {signal} is on" if not board else "it names"
             raise CliError(f"{f.source}: {f.kind.name} acts on a board of type {f.kind.board_type!r}; {what} "
                            f"{target} (type {types.get(target)!r})")

@@ -101,7 +101,7 @@ def prepare(run: RunNeeds, rig: RigSpec) -> VisionPreparation | None:
             raise CliError("--vision process runs the vision system on the wall clock: add --realtime")
         from emulators.bit3 import Bit3Link
 
-        shm = Bit3Link.create_shared(int(board.get("window_size", 0x10000)))
+        shm = Bit3Link.create_shared(int(board.get("window_size", board.get("mem_size", 0x10000))))
         board["shm"] = shm.shm_name
         board["poll_period_us"] = 100.0
     prepared = VisionPreparation(shm=shm)  # closes the shared memory if what follows fails
@@ -129,10 +129,31 @@ def prepare(run: RunNeeds, rig: RigSpec) -> VisionPreparation | None:
 
 
 def _bit3_board(rig: RigSpec) -> dict[str, Any]:
-    boards = [b for b in rig.table.data.get("crate", {}).get("board", []) if b.get("type") == "bit3"]
+    from hal.board_types import board_role
+
+    boards = [b for b in rig.table.data.get("crate", {}).get("board", []) if board_role(str(b.get("type"))) == "bit3"]
     if not boards:
         raise CliError(f"rig {rig.name} has no BIT3 card (a [[crate.board]] with type = \"bit3\")")
     return boards[0]
+
+
+def _link_driver(crate: Any, board: dict[str, Any]) -> tuple[Any, Any]:
+    """The vision link's driver for the rig's card, and what to call once the link is up (the
+    reference card: reset the link; the SBS 617: its reset sequence, then map the window)."""
+    if board["type"] == "sbs617":
+        from hal.bit3 import Sbs617Driver
+
+        drv617 = Sbs617Driver(crate, int(board["base"]), int(board["map_base"]), int(board["window_base"]),
+                              remote_base=int(board["remote_base"]), remote_space=board.get("remote_space", "A24"),
+                              mem_size=int(board.get("mem_size", 0x1000)), bar_space=board.get("space", "A32"),
+                              irq_level=int(board.get("irq_level", 3)), irq_vector=int(board.get("irq_vector", 0xB3)))
+        return drv617, drv617.setup
+    from hal.bit3 import Bit3Driver
+
+    drv = Bit3Driver(crate, int(board["base"]), int(board["window_base"]),
+                     csr_space=board.get("space", "A16"), window_space=board.get("window_space", "A24"),
+                     window_size=int(board.get("window_size", 0x10000)))
+    return drv, drv.reset_link
 
 
 class _Attachment:
@@ -161,7 +182,6 @@ def attach(run: RunNeeds, system, loop, runner, prepared: VisionPreparation | No
     prepared = prepared or VisionPreparation()
     from emulators.vision import VisionParams, VisionSystem
     from emulators.vision_protocol import VisionServer
-    from hal.bit3 import Bit3Driver
     from hal.bit3.protocol import Timeouts, VisionServoClient, format_layout
     from hal.kinematics import ArmModel
     from servo.vservo import VisionLink
@@ -169,9 +189,7 @@ def attach(run: RunNeeds, system, loop, runner, prepared: VisionPreparation | No
     rig = system.rig
     board = _bit3_board(rig)
     card = system.crate.board(board["name"])
-    drv = Bit3Driver(system.crate, int(board["base"]), int(board["window_base"]),
-                     csr_space=board.get("space", "A16"), window_space=board.get("window_space", "A24"),
-                     window_size=int(board.get("window_size", 0x10000)))
+    drv, link_up = _link_driver(system.crate, board)
     arm = ArmModel.from_table(rig.table.data.get("arm", {}))
     theta0 = system.io.read().theta + prepared.ready_delta  # where vservo will start
     target = _target(opts.target, arm, theta0)
@@ -184,6 +202,8 @@ def attach(run: RunNeeds, system, loop, runner, prepared: VisionPreparation | No
 
         remote = Bit3RemotePort(card.link)
         remote.power_on()
+        if board["type"] != "bit3":
+            link_up()  # the reference card's window works from reset; the 617's must be mapped
         format_layout(drv.memory())
         server = VisionServer(remote.memory, ring=remote.ring)
         remote.on_doorbell(server.notify)
@@ -191,12 +211,8 @@ def attach(run: RunNeeds, system, loop, runner, prepared: VisionPreparation | No
         timeouts = Timeouts()
     else:
         shm = prepared.shm
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "servo", "vision", "--shm", shm.shm_name, "--target",
-             ",".join(f"{x:.6f}" for x in target), "--rate-hz", str(opts.rate_hz),
-             "--latency-ms", str(opts.latency_ms), "--peer-timeout-ms", "1000",
-             "--tolerance-mm", str(opts.tolerance_mm)],
-            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        proc = subprocess.Popen(vision_process_argv(shm.shm_name, target, opts),
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         t0 = time.monotonic()
         while not drv.status().link_up:  # the vision process formats the memory and powers on
             if proc.poll() is not None:
@@ -204,7 +220,7 @@ def attach(run: RunNeeds, system, loop, runner, prepared: VisionPreparation | No
             if time.monotonic() - t0 > 15:
                 raise RuntimeError("vision process did not bring the BIT3 link up within 15 s")
             time.sleep(0.01)
-        drv.reset_link()
+        link_up()
         timeouts = Timeouts(peer_timeout_s=1.0, accept_timeout_s=3.0, ending_timeout_s=0.5)
     client = VisionServoClient(drv.memory(), timeouts, ring=drv.ring_doorbell)
     drv.on_doorbell(client.notify)
@@ -214,6 +230,15 @@ def attach(run: RunNeeds, system, loop, runner, prepared: VisionPreparation | No
     print(f"vision: {opts.mode}, target {np.round(target, 4).tolist()} m")
     # the shared memory itself is unlinked by `vmehil run` at exit
     return _Attachment(proc, card if opts.mode == "process" else None)
+
+
+def vision_process_argv(shm_name: str, target: np.ndarray, opts: VisionOptions) -> list[str]:
+    """The command line of ``--vision process``'s vision system: ``vmehil vision`` (its own
+    process, attached to the robot side's shared memory by name)."""
+    return [sys.executable, "-m", "vmehil", "vision", "--shm", shm_name, "--target",
+            ",".join(f"{x:.6f}" for x in target), "--rate-hz", str(opts.rate_hz),
+            "--latency-ms", str(opts.latency_ms), "--peer-timeout-ms", "1000",
+            "--tolerance-mm", str(opts.tolerance_mm)]
 
 
 def _target(text: str | None, arm, theta0: np.ndarray) -> np.ndarray:

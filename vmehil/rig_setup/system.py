@@ -61,6 +61,9 @@ def wired_crate_table(rig: RigSpec) -> ConfigTable:
     if rig.watchdog is not None:
         pin = rig.watchdog.line
         boards[pin.board].setdefault("lines", {})[str(pin.channel)] = WATCHDOG_NET
+    for out, inp in rig.readback.items():  # the input sits on the output's net: it reads the wire
+        lines = boards[out.board]["lines"]
+        lines[str(inp.channel)] = lines[str(out.channel)]
     return ConfigTable(data, rig.table.source)
 
 

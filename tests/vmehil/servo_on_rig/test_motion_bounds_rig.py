@@ -80,6 +80,16 @@ def test_a_runtime_overshoot_past_a_soft_limit_stops_the_loop_with_soft_limit(tm
         # decelerated from ≈ 3.5° at ≤ 20°/s, 400°/s²: ≤ 0.5° on; far from the 10° target and the stop
         assert 3.0 < math.degrees(truth["theta_joint"][0]) < 5.5
         assert abs(truth["omega_joint"][0]) < math.radians(0.5)
+        # enabled again where the stop left it (past the limit): it may come back, not go further
+        loop.submit(lambda lp: lp.resume())
+        runner.run(30)
+        assert loop.fault is None and system.crate.signals.get_digital("j1.amp_enable")
+        here = np.asarray(loop.sequencer.current.end, float)
+        back = here.copy()
+        back[0] = 0.0
+        loop.submit(lambda lp: lp.set_motion(Sequencer([QuinticMove(back, None)], here, lp.plan_context)))
+        runner.run(150)
+        assert loop.fault is None and abs(math.degrees(system.truth()["theta_joint"][0])) < 1.5
     finally:
         system.close()
 

@@ -1,0 +1,195 @@
+"""Golden bus traces of the SBS 617 driver, written by hand from docs/boards/sbs617.md.
+
+The doc's example placement ("Driver sequences"): node registers at A32 0x80000000 (LOC_CMD1 +0x00,
+LOC_INT_CTRL +0x01, LOC_STATUS +0x02, REM_CMD1_STATUS +0x08), mapping RAM at A32 0x80010000, the
+window at A32 0x82000000, the remote memory at remote A24 0x400000. The scripted bus answers as
+the doc says the card would; the forwarding bus runs the driver on a crate with the emulated card
+(its own reading of the doc).
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from emulators.bit3 import Bit3RemotePort
+from emulators.crate import Crate
+from emulators.sbs617 import Sbs617Card
+from hal.bit3 import Bit3Error, LinkDownError, RemoteBusError, Sbs617Driver
+from hal.vme import Width
+from tests.support.bus_trace import Answer, RecordingBus
+
+NODE, MAPS, WIN = 0x80000000, 0x80010000, 0x82000000
+LSR_OK = "R A32 0x80000002 D8 0x00"
+CLEAR_ERRORS = "W A32 0x80000000 D8 0x80"
+
+
+def _scripted(mem_size: int = 0x1000, **answers: Answer) -> tuple[RecordingBus, Sbs617Driver]:
+    """A driver on a scripted bus; ``answers`` by register name or ``window_<hex offset>``."""
+    offsets = {"LOC_CMD1": 0x0, "LOC_INT_CTRL": 0x1, "LOC_STATUS": 0x2, "REM_STATUS": 0x8}
+    table: dict[tuple[str, int], Answer] = {}
+    for name, answer in answers.items():
+        if name.startswith("window_"):
+            table[("A32", WIN + int(name.removeprefix("window_"), 16))] = answer
+        else:
+            table[("A32", NODE + offsets[name])] = answer
+    bus = RecordingBus(answers=table)
+    return bus, Sbs617Driver(bus, NODE, MAPS, WIN, remote_base=0x400000, mem_size=mem_size)
+
+
+# --- probe, reset, status ----------------------------------------------------------------
+def test_probe_is_the_reset_sequence_of_chapter_5_2() -> None:
+    bus, drv = _scripted(LOC_STATUS=[0x00, 0x00], REM_STATUS=0x90)
+    assert drv.probe().usable
+    assert bus.trace() == [LSR_OK, "R A32 0x80000008 D8 0x90", CLEAR_ERRORS, LSR_OK]
+
+
+def test_probe_with_the_remote_crate_off_stops_after_one_read() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x01)
+    with pytest.raises(LinkDownError, match="not connected"):
+        drv.probe()
+    assert bus.trace() == ["R A32 0x80000002 D8 0x01"]
+
+
+def test_probe_fails_when_clearing_leaves_an_error_bit() -> None:
+    bus, drv = _scripted(LOC_STATUS=[0x00, 0x40], REM_STATUS=0x10)
+    with pytest.raises(Bit3Error, match="0x40"):
+        drv.probe()
+    assert bus.trace()[-1] == "R A32 0x80000002 D8 0x40"
+
+
+def test_setup_maps_one_entry_per_4k_page_as_the_worked_entries() -> None:
+    bus, drv = _scripted(mem_size=0x1800, LOC_STATUS=0x00, REM_STATUS=0x10)
+    drv.setup()
+    assert bus.trace()[4:] == ["W A32 0x80010000 D32 0x00400E60", "W A32 0x80010004 D32 0x00401E60"]
+
+
+def test_setup_of_an_a32_remote_memory_uses_the_a32_data_am() -> None:
+    bus = RecordingBus(answers={("A32", NODE + 2): 0x00, ("A32", NODE + 8): 0x10})
+    drv = Sbs617Driver(bus, NODE, MAPS, WIN, remote_base=0x08000000, remote_space="A32", mem_size=0x100)
+    drv.setup()
+    assert bus.trace()[-1] == "W A32 0x80010000 D32 0x08000260"
+
+
+def test_status_decodes_each_loc_status_bit() -> None:
+    for raw, name in ((0x80, "parity"), (0x40, "remote_berr"), (0x20, "doorbell"), (0x04, "timeout"),
+                      (0x02, "lrc")):
+        _bus, drv = _scripted(LOC_STATUS=raw)
+        st = drv.status()
+        assert [f for f in ("parity", "remote_berr", "doorbell", "timeout", "lrc") if getattr(st, f)] == [name]
+        assert st.link_up
+    _bus, drv = _scripted(LOC_STATUS=0x01)
+    assert not drv.status().link_up and not drv.status().usable
+
+
+# --- window transfers --------------------------------------------------------------------
+def test_read_bytes_uses_d8_ends_d32_words_then_checks_loc_status() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x00, window_3=0xAA, window_4=0x11223344, window_8=0x55, window_9=0x66)
+    assert drv.read_bytes(3, 7) == bytes([0xAA, 0x11, 0x22, 0x33, 0x44, 0x55, 0x66])
+    assert bus.trace() == ["R A32 0x82000003 D8 0xAA", "R A32 0x82000004 D32 0x11223344",
+                           "R A32 0x82000008 D8 0x55", "R A32 0x82000009 D8 0x66", LSR_OK]
+
+
+def test_write_bytes_then_one_status_read() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x00)
+    drv.write_bytes(0x20, bytes([0xCA, 0xFE, 0xBA, 0xBE, 0x01]))
+    assert bus.trace() == ["W A32 0x82000020 D32 0xCAFEBABE", "W A32 0x82000024 D8 0x01", LSR_OK]
+
+
+def test_a_timed_out_read_clears_the_error_and_raises_link_down() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x05, window_0=0xFFFFFFFF)
+    with pytest.raises(LinkDownError) as e:
+        drv.read(0)
+    assert e.value.status == 0x05
+    assert bus.trace() == ["R A32 0x82000000 D32 0xFFFFFFFF", "R A32 0x80000002 D8 0x05", CLEAR_ERRORS]
+    assert drv.errors == 1
+
+
+def test_a_remote_bus_error_clears_and_raises_remote_bus_error() -> None:
+    for raw in (0x40, 0x80, 0x02):
+        bus, drv = _scripted(LOC_STATUS=raw)
+        with pytest.raises(RemoteBusError):
+            drv.write(4, 0x1234, Width.D16)
+        assert bus.trace() == ["W A32 0x82000004 D16 0x1234", f"R A32 0x80000002 D8 0x{raw:02X}", CLEAR_ERRORS]
+
+
+def test_no_connect_alone_raises_without_a_clear_write() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x01, window_0=0x00)
+    with pytest.raises(LinkDownError):
+        drv.read(0, Width.D8)
+    assert bus.trace() == ["R A32 0x82000000 D8 0x00", "R A32 0x80000002 D8 0x01"]
+
+
+# --- programmed interrupts ---------------------------------------------------------------
+def test_ring_sends_pr_through_remote_command_1_then_checks() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x00)
+    drv.ring_doorbell(2)
+    assert bus.trace() == ["W A32 0x80000008 D8 0x20", LSR_OK]
+
+
+def test_ring_with_the_link_down_raises() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x05)
+    with pytest.raises(LinkDownError):
+        drv.ring_doorbell()
+    assert bus.trace() == ["W A32 0x80000008 D8 0x20", "R A32 0x80000002 D8 0x05", CLEAR_ERRORS]
+
+
+def test_doorbell_interrupt_on_handler_and_off() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x20)
+    got: list[int] = []
+    drv.on_doorbell(got.append)
+    assert bus.trace() == ["W A32 0x80000001 D8 0x40"]
+    bus.clear()
+    handler = bus.irq_handler(0xB3)
+    assert handler is not None
+    handler(0xB3)
+    assert bus.trace() == ["R A32 0x80000002 D8 0x20", "W A32 0x80000000 D8 0x40"]
+    assert got == [0]
+    bus.clear()
+    drv.disable_doorbell_irq()
+    assert bus.trace() == ["W A32 0x80000001 D8 0x00"]
+    assert bus.irq_handler(0xB3) is None
+
+
+def test_poll_doorbell_acknowledges_only_when_pr_is_set() -> None:
+    bus, drv = _scripted(LOC_STATUS=[0x00, 0x20])
+    assert drv.read_doorbell() is None
+    assert drv.read_doorbell() == 0
+    assert bus.trace() == [LSR_OK, "R A32 0x80000002 D8 0x20", "W A32 0x80000000 D8 0x40"]
+
+
+# --- the same driver on the emulated card ------------------------------------------------
+def _on_crate() -> tuple[RecordingBus, Sbs617Driver, Sbs617Card]:
+    crate = Crate()
+    card = Sbs617Card("vision-link", map_base=MAPS, window_base=WIN, remote_base=0x400000)
+    crate.install(card, base=NODE, space="A32")
+    bus = RecordingBus(crate)
+    return bus, Sbs617Driver(bus, NODE, MAPS, WIN, remote_base=0x400000, mem_size=0x1000), card
+
+
+def test_setup_on_the_emulated_card_reads_was_reset_then_clears() -> None:
+    bus, drv, _card = _on_crate()
+    drv.setup()
+    assert bus.trace() == [LSR_OK, "R A32 0x80000008 D8 0x90", CLEAR_ERRORS, LSR_OK,
+                           "W A32 0x80010000 D32 0x00400E60"]
+
+
+def test_worked_example_through_the_emulated_card() -> None:
+    bus, drv, card = _on_crate()
+    drv.setup()
+    card.link.mem[0x10:0x14] = bytes([0x11, 0x22, 0x33, 0x44])
+    bus.clear()
+    assert drv.read(0x10) == 0x11223344
+    assert drv.read(0x12, Width.D16) == 0x3344
+    assert drv.read(0x13, Width.D8) == 0x44
+    assert bus.trace() == ["R A32 0x82000010 D32 0x11223344", LSR_OK, "R A32 0x82000012 D16 0x3344", LSR_OK,
+                           "R A32 0x82000013 D8 0x44", LSR_OK]
+
+
+def test_remote_power_off_on_the_emulated_card_reads_all_ones_and_0x05() -> None:
+    bus, drv, card = _on_crate()
+    drv.setup()
+    Bit3RemotePort(card.link).power_off()
+    bus.clear()
+    with pytest.raises(LinkDownError):
+        drv.read(0x10)
+    assert bus.trace() == ["R A32 0x82000010 D32 0xFFFFFFFF", "R A32 0x80000002 D8 0x05", CLEAR_ERRORS]

@@ -1,0 +1,256 @@
+"""Golden bus traces of the VMIVME-2536 driver (hal.pio.Vmi2536Driver), written by hand from
+docs/boards/vmivme2536.md: the register table (BID 0x00 and CSR 0x02 D16, INPUT 0x04 and OUTPUT
+0x08 D32) and the driver's cycle table ("The driver").
+
+The board sits at 0xFF00 in A16 (the EPICS support's default), so CSR is ``0xFF02``, INPUT
+``0xFF04`` and OUTPUT ``0xFF08``. Most tests run the driver on a scripted bus; the last ones
+forward to an emulated crate with the board installed and read the nets.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from emulators.crate import Crate
+from emulators.pio import PioBoard
+from emulators.vmivme2536 import Vmi2536Board
+from hal.board_types import BOARD_TYPES
+from hal.pio import LineDirectionError, LineStuckError, UnknownLineError, Vmi2536BoardIdError, Vmi2536Driver
+from hal.vme import AddressSpace
+from hal.vme.types import AddressModifier, Width
+from tests.support.bus_trace import Answer, RecordingBus
+
+BASE = 0xFF00
+WIRING = {"j1.amp_enable": "OUT0", "j2.amp_enable": "OUT1", "watchdog": "OUT16", "j1.amp_fault": "IN0",
+          "j2.amp_fault": "IN5"}
+ADOPT = ["R A16 0xFF08 D32 0x00000000"]  #: the constructor adopts the latch (doc)
+
+
+class _LatchBus(RecordingBus):
+    """A scripted bus whose OUTPUT reads back what was last written there (a healthy latch)."""
+
+    def __init__(self, answers: dict[tuple[str, int], Answer]) -> None:
+        super().__init__(answers=answers)
+        self.latch = 0
+
+    def _write(self, am: AddressModifier, address: int, width: Width, value: int) -> None:
+        super()._write(am, address, width, value)
+        if address == BASE + 0x08:
+            self.latch = value
+
+
+def _scripted(answers: dict[int, Answer] | None = None, *, latch: bool = True) -> _LatchBus:
+    box: list[_LatchBus] = []
+    script: dict[int, Answer] = {BASE: 0x2536, BASE + 0x02: 0x0000, BASE + 0x04: 0x0000_0000}
+    script[BASE + 0x08] = (lambda _n: box[0].latch) if latch else 0
+    script.update(answers or {})
+    bus = _LatchBus({("A16", a): v for a, v in script.items()})
+    box.append(bus)
+    return bus
+
+
+def _driver(bus: _LatchBus, **kw) -> Vmi2536Driver:
+    d = Vmi2536Driver(bus, BASE, lines=WIRING, **kw)
+    bus.clear()
+    return d
+
+
+def test_the_constructor_only_reads_the_output_latch() -> None:
+    bus = _scripted({BASE + 0x08: 0x0001_0002})
+    d = Vmi2536Driver(bus, BASE, lines=WIRING)
+    assert bus.trace() == ["R A16 0xFF08 D32 0x00010002"]
+    # it adopted the latch: the next write keeps OUT1 and OUT16 as they were
+    bus.clear()
+    d.set_line("j1.amp_enable", True, verify=False)
+    assert bus.trace() == ["W A16 0xFF08 D32 0x00010003"]
+
+
+def test_probe_reads_bid_once() -> None:
+    bus = _scripted()
+    assert _driver(bus).probe() == 0x2536
+    assert bus.trace() == ["R A16 0xFF00 D16 0x2536"]
+
+
+def test_probe_with_a_stated_board_id_refuses_another_naming_both() -> None:
+    bus = _scripted({BASE: 0x5001})
+    with pytest.raises(Vmi2536BoardIdError, match=r"BID 0x2536 at 0xFF00: BID reads 0x5001"):
+        _driver(bus, board_id=0x2536).probe()
+    assert bus.trace() == ["R A16 0xFF00 D16 0x5001"]
+
+
+def test_reset_clears_the_latch_then_deactivates() -> None:
+    bus = _scripted()
+    _driver(bus).reset()
+    assert bus.trace() == ["W A16 0xFF08 D32 0x00000000", "W A16 0xFF02 D16 0x0000"]
+
+
+def test_configure_loads_the_latch_before_activating_outputs_and_inputs() -> None:
+    bus = _scripted()
+    d = _driver(bus)
+    d.configure(outputs=["j1.amp_enable", "j2.amp_enable", "watchdog"], initial={"j2.amp_enable": True,
+                                                                                  "watchdog": True})
+    # OUT1 and OUT16 high: 0x00010002; then LED off | outputs on | inputs on = 0xE000
+    assert bus.trace() == ["W A16 0xFF08 D32 0x00010002", "W A16 0xFF02 D16 0xE000"]
+
+
+def test_configure_refuses_an_input_as_an_output_before_any_cycle() -> None:
+    bus = _scripted()
+    with pytest.raises(LineDirectionError, match="j1.amp_fault"):
+        _driver(bus).configure(outputs=["j1.amp_fault"])
+    with pytest.raises(LineDirectionError, match="not in outputs"):
+        _driver(bus).configure(outputs=["j1.amp_enable"], initial={"j2.amp_enable": True})
+    assert bus.trace() == []
+
+
+def test_set_line_writes_the_whole_latch_from_the_copy_then_reads_it_back() -> None:
+    bus = _scripted()
+    d = _driver(bus)
+    d.set_line("watchdog", True)
+    d.set_line("OUT31", True)
+    d.set_line("watchdog", False)
+    assert bus.trace() == [
+        "W A16 0xFF08 D32 0x00010000", "R A16 0xFF08 D32 0x00010000",
+        "W A16 0xFF08 D32 0x80010000", "R A16 0xFF08 D32 0x80010000",
+        "W A16 0xFF08 D32 0x80000000", "R A16 0xFF08 D32 0x80000000",
+    ]
+
+
+def test_set_line_without_verify_is_one_write() -> None:
+    bus = _scripted()
+    _driver(bus).set_line("j2.amp_enable", True, verify=False)
+    assert bus.trace() == ["W A16 0xFF08 D32 0x00000002"]
+
+
+def test_a_latch_that_does_not_read_back_raises_line_stuck() -> None:
+    bus = _scripted(latch=False)  # OUTPUT always reads 0
+    with pytest.raises(LineStuckError, match=r"j1.amp_enable \(latch 1, pin 0\)"):
+        _driver(bus).set_line("j1.amp_enable", True)
+    assert bus.trace() == ["W A16 0xFF08 D32 0x00000001", "R A16 0xFF08 D32 0x00000000"]
+
+
+def test_a_looped_back_output_is_verified_on_its_input() -> None:
+    bus = _scripted({BASE + 0x04: 0x0000_0000})  # IN20 stays low: the wire did not follow
+    d = _driver(bus, loopback={"j1.amp_enable": "IN20"})
+    with pytest.raises(LineStuckError, match="j1.amp_enable"):
+        d.set_line("j1.amp_enable", True)
+    assert bus.trace() == ["W A16 0xFF08 D32 0x00000001", "R A16 0xFF08 D32 0x00000001",
+                           "R A16 0xFF04 D32 0x00000000"]
+
+
+def test_the_loopback_read_waits_settle_s_first() -> None:
+    bus = _scripted({BASE + 0x04: 0x0010_0000})  # IN20 high
+    d = _driver(bus, loopback={"OUT0": "IN20"}, settle_s=50e-6)
+    d.set_line("j1.amp_enable", True)
+    assert bus.delays == [50e-6]
+    assert bus.trace()[-1] == "R A16 0xFF04 D32 0x00100000"
+
+
+def test_get_line_reads_input_for_an_input_and_output_for_an_output() -> None:
+    bus = _scripted({BASE + 0x04: 0x0000_0020})  # IN5 high
+    d = _driver(bus)
+    assert d.get_line("j2.amp_fault") is True
+    assert d.get_line("j1.amp_fault") is False
+    assert d.get_line("j1.amp_enable") is False
+    assert bus.trace() == ["R A16 0xFF04 D32 0x00000020", "R A16 0xFF04 D32 0x00000020",
+                           "R A16 0xFF08 D32 0x00000000"]
+
+
+def test_ports_are_in_0_and_out_1() -> None:
+    bus = _scripted({BASE + 0x04: 0x1234_5678})
+    d = _driver(bus)
+    assert d.resolve("j2.amp_fault") == (0, 5) and d.resolve("watchdog") == (1, 16)
+    assert d.read_port(0) == 0x1234_5678 and d.read_port("in") == 0x1234_5678
+    assert d.read_pins("OUT") == 0
+    assert bus.trace() == ["R A16 0xFF04 D32 0x12345678", "R A16 0xFF04 D32 0x12345678",
+                           "R A16 0xFF08 D32 0x00000000"]
+
+
+def test_read_pins_of_the_outputs_takes_looped_back_bits_from_their_inputs() -> None:
+    bus = _scripted({BASE + 0x04: 0x0001_0000})  # IN16 high, the loopback of OUT0
+    d = _driver(bus, loopback={"OUT0": "IN16", "OUT1": "IN17"})
+    d.write_port("OUT", 0x0000_0002)  # latch: OUT1 high, OUT0 low
+    assert d.read_pins("OUT") == 0x0000_0001  # the wires: OUT0 high (stuck), OUT1 low
+    assert bus.trace() == ["W A16 0xFF08 D32 0x00000002", "R A16 0xFF08 D32 0x00000002",
+                           "R A16 0xFF04 D32 0x00010000"]
+
+
+def test_verify_outputs_reads_the_latch_then_the_loopback_inputs() -> None:
+    bus = _scripted({BASE + 0x04: 0x0001_0000})
+    d = _driver(bus, loopback={"OUT0": "IN16", "OUT1": "IN17"})
+    d.write_port("OUT", 0x0000_0003)
+    bus.clear()
+    with pytest.raises(LineStuckError) as ei:
+        d.verify_outputs()
+    assert ei.value.lines == {"j2.amp_enable": False}
+    assert bus.trace() == ["R A16 0xFF08 D32 0x00000003", "R A16 0xFF04 D32 0x00010000"]
+
+
+def test_errors_before_any_cycle() -> None:
+    bus = _scripted()
+    d = _driver(bus)
+    with pytest.raises(LineDirectionError):
+        d.set_line("j1.amp_fault", True)
+    with pytest.raises(LineDirectionError):
+        d.write_port("IN", 1)
+    with pytest.raises(UnknownLineError):
+        d.resolve("OUT32")
+    with pytest.raises(UnknownLineError):
+        d.resolve("PA0")
+    with pytest.raises(UnknownLineError):
+        Vmi2536Driver(bus, BASE, lines={"x": "IN32"})
+    with pytest.raises(LineDirectionError):
+        Vmi2536Driver(bus, BASE, loopback={"IN0": "OUT0"})
+    d.close()
+    assert bus.trace() == []
+
+
+# --- on the emulated board ------------------------------------------------------------------
+def _crate() -> tuple[Crate, RecordingBus]:
+    c = Crate("t")
+    c.install(Vmi2536Board("dio0", lines={"OUT0": "j1.en", "OUT16": "wd", "IN0": "j1.fault"}), base=BASE,
+              space="A16", slot=5)
+    return c, RecordingBus(c)
+
+
+def test_on_the_board_configure_then_set_line_drives_the_net_with_the_docs_cycles() -> None:
+    c, bus = _crate()
+    d = Vmi2536Driver(bus, BASE, lines={"j1.en": "OUT0", "wd": "OUT16"})
+    d.configure(outputs=["j1.en", "wd"])
+    d.set_line("j1.en", True)
+    assert bus.trace() == [*ADOPT, "W A16 0xFF08 D32 0x00000000", "W A16 0xFF02 D16 0xE000",
+                           "W A16 0xFF08 D32 0x00000001", "R A16 0xFF08 D32 0x00000001"]
+    assert c.signals.get_digital("j1.en") is True and c.signals.get_digital("wd") is False
+
+
+def test_on_the_board_reset_drops_every_output() -> None:
+    c, bus = _crate()
+    d = Vmi2536Driver(bus, BASE)
+    d.configure(outputs=["OUT0", "OUT16"], initial={"OUT0": True, "OUT16": True})
+    assert c.signals.get_digital("j1.en") and c.signals.get_digital("wd")
+    d.reset()
+    assert not c.signals.get_digital("j1.en") and not c.signals.get_digital("wd")
+    c.signals.set_digital("j1.fault", True)
+    assert d.get_line("IN0") is False  # inputs off after reset: INPUT reads 0
+
+
+# --- the dry pass's probe (hal.board_types "vmivme-2536"): reads only ------------------------
+def test_the_dry_pass_probe_reads_every_register_at_its_width_and_writes_nothing() -> None:
+    bus = _scripted({BASE + 0x02: 0xE000, BASE + 0x04: 0x0000_0009, BASE + 0x08: 0x0001_0000})
+    probe = BOARD_TYPES["vmivme-2536"].load_probe()
+    assert probe is not None
+    reading = probe(bus, BASE, AddressSpace.A16)
+    assert bus.trace() == ["R A16 0xFF00 D16 0x2536", "R A16 0xFF02 D16 0xE000", "R A16 0xFF04 D32 0x00000009",
+                           "R A16 0xFF08 D32 0x00010000"]
+    assert reading.ok and reading.id_read == 0x2536 and reading.id_expected is None
+    assert "BID not published" in reading.detail
+
+
+def test_the_dry_pass_probe_refuses_an_empty_slot_and_the_reference_pio() -> None:
+    probe = BOARD_TYPES["vmivme-2536"].load_probe()
+    assert probe is not None
+    empty = Crate("empty")
+    assert not probe(empty, BASE, AddressSpace.A16).ok
+    c = Crate("pio")
+    c.install(PioBoard("pio0"), base=BASE, space="A16", slot=5)
+    reading = probe(c, BASE, AddressSpace.A16)  # ID 0x5001 answers at D16; DDR_A (0x02) is D8 only
+    assert not reading.ok and "CSR: BusError" in reading.detail and reading.id_read == 0x5001
