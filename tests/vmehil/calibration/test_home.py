@@ -42,6 +42,7 @@ def _assert_homed_on_the_truth(system: EmulatedRig, pos: EmulatedPositioner, joi
     assert system.io.homed[joint]
 
 
+@pytest.mark.slow
 def test_homing_finds_the_same_index_from_above_and_below_with_the_same_recorded_offset():
     # j1 powers up at 10.7°: x4 = 10.7/360 · 200000 = 5944.4 → the decoder's 0 is x4 state 5944.
     # The pot chooses the index at 10.8° (3 motor turns: x4 6000) from 11.7° and from 9.9° alike.
@@ -66,6 +67,7 @@ def test_homing_finds_the_same_index_from_above_and_below_with_the_same_recorded
         system.close()
 
 
+@pytest.mark.slow
 def test_homing_on_melmalec_homes_a_leg_and_exempts_the_crawler():
     # leg1_swing: N = 120 (an index every 3°), powered up at −4.25° → x4 −2833.3 (state −2834); nearest
     # index −3° (x4 −2000): the count there is −2000 + 2834 = 834
