@@ -36,7 +36,7 @@ from hal.adc_dac.dac import DacDriver
 from hal.amplifiers import duty_for_current
 from hal.board_types import BOARD_TYPES, board_role
 from hal.pio.pio import PioDriver, PwmRangeError
-from hal.quadrature.quad import QuadratureDriver
+from hal.quadrature.quad import QuadratureDriver, QuadratureError
 from hal.vme.bus import VmeBus
 from servo.interrupts import INTERRUPTS, SignalsDeferred
 from servo.rig import DIGITAL_OUTPUTS, WATCHDOG_NET, RigSpec
@@ -426,6 +426,13 @@ class JointIO:
         self.calibration_generation += 1
         return idx
 
+    def _lose_home(self, board: str, channel: int) -> None:
+        """The joint on decoder ``board``'s ``channel`` loses its home (its count is wrong)."""
+        for j in self.rig.joints:
+            pin = j.wiring.get("encoder")
+            if pin is not None and pin.board == board and pin.index == channel:
+                self.clear_home(j.index)
+
     def clear_home(self, joint: int) -> None:
         """Forget joint ``joint``'s home (its encoder reads relative again)."""
         if self.homed[joint]:
@@ -479,7 +486,13 @@ class JointIO:
         theta_pot, theta_enc, omega_tach, omega_enc, current, pot_v = block
         fault = np.zeros(n, bool)
         volts = {name: drv.scan(self._adc_last[name]) for name, drv in self.adc.items()}
-        readings = {name: drv.update(self.period_s) for name, drv in self.quad.items()}
+        readings = {}
+        for name, drv in self.quad.items():
+            try:
+                readings[name] = drv.update(self.period_s)
+            except QuadratureError as e:  # lost track or jumped: the count, and so any home, is wrong
+                self._lose_home(name, e.channel)
+                raise
         for board, js, chs in self._pot_plan:
             pot_v[js] = volts[board][chs]
         theta_pot[self._has_pot] = (pot_v[self._has_pot] - self._pot_zero_v[self._has_pot]) / \
@@ -501,6 +514,8 @@ class JointIO:
                 if x.status.illegal:  # sticky in the decoder: cleared, so that each read tells anew
                     illegal[i] = True
                     self.quad[board].clear_illegal(x.channel)
+                    if self.homed[i]:  # counts were lost: the home no longer holds
+                        self.clear_home(int(i))
         for board, port, js, bits in self._fault_plan:
             value = self.pio[board].read_port(port)  # DATA_x, as get_line reads
             fault[js] = (value >> bits) & 1

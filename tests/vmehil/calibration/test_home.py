@@ -114,3 +114,18 @@ def test_a_procedures_move_past_a_soft_limit_is_refused_at_once_not_waited_for()
         pos.move_to({0: math.radians(200.0)})
     assert pos.loop.tick_count == k0
     system.close()
+
+
+def test_a_decoder_that_loses_counts_drops_the_home():
+    # quadrature.md: ILLEGAL means counts were lost ("re-home"); a tracking loss or a jump too
+    system = build_emulated_rig(None, seed=0)
+    io = system.io
+    io.homed[:2] = True
+    quad0 = system.crate.board("quad0")
+    quad0.inject("glitch", channel=0, illegal=1)  # j1's encoder
+    system.harness.step(system.rig.period_s, system.rig.computation_delay_s)
+    system.harness.publish()
+    m = io.read()
+    assert m.encoder_illegal[0]
+    assert not io.homed[0] and io.homed[1]
+    system.close()
