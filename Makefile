@@ -53,9 +53,10 @@ run: $(STAMP)
 	@echo "  $(VENV)/bin/vmehil --help                  every command"
 
 # The README's "What it reproduces" table, re-run in a temporary directory and compared with the
-# paper's bands (exit 1 when a figure leaves its band): docs/jpl-figures.md.
+# paper's bands (exit 1 when a figure leaves its band): docs/jpl-figures.md. RIG=NAME|PATH runs
+# it on another rig (make reproduce RIG=jpl-arm-vmic); a slow check, not part of make test.
 reproduce: $(STAMP)
-	$(VENV)/bin/vmehil reproduce
+	$(VENV)/bin/vmehil reproduce $(if $(RIG),--rig $(RIG))
 
 lint: $(STAMP)
 	$(PY) -m ruff check .

@@ -24,6 +24,11 @@ from hal.vme.types import AddressModifier, AddressSpace, VmeValueError, Width
 
 DEFAULT_BUS_TIMEOUT_NS = 64_000  #: VMEbus BTO(64): the usual system-controller timer
 
+#: An observer of every bus cycle (a trace: vmehil.scope), called once the cycle has ended:
+#: ``(t_ns, am, address, width, write, value, error)`` -- the simulated time at its end, what the
+#: driver asked, the value read or written (0 for a cycle that ended in BERR) and whether it did.
+CycleTap = Callable[[int, AddressModifier, int, Width, bool, int, bool], None]
+
 
 @dataclass(frozen=True)
 class Slot:
@@ -68,6 +73,7 @@ class Crate(VmeBus):
         self._writes: dict[tuple[int, Any, Width], Callable[[int], None]] = {}
         self._blocks: dict[tuple[int, int, Any, Width], tuple[Callable[[], int], ...]] = {}
         self._generation = 0
+        self._tap: CycleTap | None = None
         self.irq = IrqController(self.irq_handler, on_iack=self._count_iack)
 
     # --- configuration -------------------------------------------------------------------
@@ -218,7 +224,52 @@ class Crate(VmeBus):
         self._writes.clear()
         self._blocks.clear()
 
+    def set_cycle_tap(self, tap: CycleTap | None) -> None:
+        """Call ``tap`` after every cycle from now on (``None``: stop). It observes only: no cycle
+        is added, none is timed differently. Without a tap the resolved cycles are the untapped
+        ones, so a crate nobody traces pays nothing for it."""
+        self._tap = tap
+        self.invalidate()
+
     def _resolve_cycle(self, am: AddressModifier, address: int, width: Width, write: bool) -> Any:
+        cycle = self._resolve_untapped(am, address, width, write)
+        tap = self._tap
+        return cycle if tap is None else self._tapped(cycle, tap, am, address, width, write)
+
+    def _tapped(self, cycle: Any, tap: CycleTap, am: AddressModifier, address: int, width: Width,
+                write: bool) -> Any:
+        """``cycle`` reporting to ``tap`` (a cycle resolved before the layout changed resolves
+        again, as the untapped ones do, so no cycle is reported twice)."""
+        clock, generation = self.clock, self._generation
+
+        if write:
+            def write_tapped(value: int) -> None:
+                if self._generation != generation:
+                    return self._cycle_for(am, address, width, True)(value)  # type: ignore[no-any-return]
+                try:
+                    cycle(value)
+                except BusError:
+                    tap(clock.now_ns, am, address, width, True, value, True)
+                    raise
+                tap(clock.now_ns, am, address, width, True, value, False)
+                return None
+
+            return write_tapped
+
+        def read_tapped() -> int:
+            if self._generation != generation:
+                return self._cycle_for(am, address, width, False)()  # type: ignore[no-any-return]
+            try:
+                value = cycle()
+            except BusError:
+                tap(clock.now_ns, am, address, width, False, 0, True)
+                raise
+            tap(clock.now_ns, am, address, width, False, value, False)
+            return value  # type: ignore[no-any-return]
+
+        return read_tapped
+
+    def _resolve_untapped(self, am: AddressModifier, address: int, width: Width, write: bool) -> Any:
         ck = (write, am.code, width)
         key = self._counter_keys.get(ck)
         if key is None:

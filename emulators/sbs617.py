@@ -187,8 +187,9 @@ class Sbs617Card(RegisterBoard):
     # --- crate hooks ---------------------------------------------------------------------
     def attach(self, crate: Any) -> None:
         super().attach(crate)
-        crate.install(self.map_ram, base=self.map_base, space=self.space)
-        crate.install(self.window, base=self.window_base, space=self.space)
+        # the BARs are the card's: in its slot (the crate's next free one would name another card's)
+        crate.install(self.map_ram, base=self.map_base, space=self.space, slot=self.slot)
+        crate.install(self.window, base=self.window_base, space=self.space, slot=self.slot)
         if self.poll_period_ns is not None:
             crate.clock.schedule_in(self.poll_period_ns, self._poll_event)
 

@@ -45,6 +45,8 @@ from hal.vme.types import AddressSpace, Width
 
 #: what a board can be to the servo's joint I/O (see the module's docstring)
 ROLES = ("adc", "dac", "pio", "quad", "bit3", "ram")
+#: where a board sits (:attr:`BoardType.bus`)
+BUSES = ("vme", "pci")
 
 DriverFactory = Callable[..., Any]
 """A driver factory: ``(bus, base, *, space, **role options) -> driver`` (a driver class is one)."""
@@ -120,10 +122,15 @@ class BoardType:
     driver: str | None = None
     #: ``"module:attr"`` of a RegisterMap with an ``ID`` register, or of a :data:`Probe`; None: no ID
     probe: str | None = None
+    #: where the board sits: ``"vme"`` (a VME slot), or ``"pci"`` (a card in the robot's host: its
+    #: registers are PCI BARs, in the emulated crate's A32 space only — a VME bus cannot reach them)
+    bus: str = "vme"
 
     def __post_init__(self) -> None:
         if self.role not in ROLES:
             raise ValueError(f"board role {self.role!r} is not one of {', '.join(ROLES)}")
+        if self.bus not in BUSES:
+            raise ValueError(f"board bus {self.bus!r} is not one of {', '.join(BUSES)}")
 
     def metadata(self) -> dict[str, str]:
         """``vendor``, ``model``, ``document``: what ``vmehil crate list`` shows per board."""
@@ -189,7 +196,7 @@ BUILTIN_BOARD_TYPES: dict[str, BoardType] = {
     # SBS (Bit 3) Model 617 PCI-to-VME adaptor, the vision link: no ID register in its PCI BARs,
     # so the probe reads what must read 0 (docs/boards/sbs617.md)
     "sbs617": BoardType("bit3", "SBS Technologies (Bit 3)", "Model 617 PCI-to-VME adaptor", "docs/boards/sbs617.md",
-                        driver="hal.bit3.sbs617:Sbs617Driver", probe="hal.bit3.sbs617:probe_sbs617"),
+                        driver="hal.bit3.sbs617:Sbs617Driver", probe="hal.bit3.sbs617:probe_sbs617", bus="pci"),
     # VMIC VMIVME-3113A, 64-channel scanning 12-bit ADC: ID 0x1100 (docs/boards/vmivme-3113a.md)
     "vmivme-3113a": BoardType("adc", "VMIC", "VMIVME-3113A", "docs/boards/vmivme-3113a.md",
                               driver="hal.adc_dac.vmivme3113a:Vmivme3113aDriver",

@@ -119,6 +119,8 @@ class Measurement:
     #: per joint: its decoder flagged an illegal transition (A and B changed in one decoder
     #: sample: counts were lost) since the previous read; the flag is cleared after each read
     encoder_illegal: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    #: per joint: the decoder's unwrapped count as the driver read it (NaN where not wired)
+    encoder_counts: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 @dataclass(frozen=True)
@@ -505,9 +507,11 @@ class JointIO:
         for board, js, chs in self._imon_plan:
             current[js] = volts[board][chs] / self._monitor_v_per_a[js]
         illegal = np.zeros(n, bool)
+        counts = np.full(n, np.nan)
         for board, js, chans in self._enc_plan:
             r = readings[board]
             got = [r[c] for c in chans]
+            counts[js] = [x.counts for x in got]
             theta_enc[js] = [x.position_rad for x in got]
             omega_enc[js] = [x.velocity_rad_s for x in got]
             for i, x in zip(js, got, strict=True):
@@ -519,7 +523,8 @@ class JointIO:
         for board, port, js, bits in self._fault_plan:
             value = self.pio[board].read_port(port)  # DATA_x, as get_line reads
             fault[js] = (value >> bits) & 1
-        m = Measurement(theta_pot, theta_enc, omega_tach, omega_enc, current, pot_v, fault, encoder_illegal=illegal)
+        m = Measurement(theta_pot, theta_enc, omega_tach, omega_enc, current, pot_v, fault, encoder_illegal=illegal,
+                        encoder_counts=counts)
         m.theta = np.where(self._position_from_pot, theta_pot, theta_enc)
         m.omega = np.where(self._velocity_from_tach, omega_tach, omega_enc)
         return m

@@ -713,6 +713,7 @@ class ServoLoop:
         row = {k2: v for k2, v in row.items() if v is not None}
         if self.stop_tick is not None:
             self._track_excursion(row.get("theta_true"), row.get("theta"))
-        self.last = {**row, "tick": k, "fault": self.fault.as_dict() if self.fault else None}
+        # the tick's readings as the drivers gave them (a trace's driver values: vmehil.scope)
+        self.last = {**row, "tick": k, "fault": self.fault.as_dict() if self.fault else None, "measurement": m}
         if rec is not None:
             rec.put(k, compute_s=time.perf_counter() - t0, **row)

@@ -83,3 +83,24 @@ def test_the_table_imports_no_driver_package_until_an_entry_is_used() -> None:
             "'hal.amplifiers', 'hal.bit3'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO)
     assert out.stdout.strip() == "[]"
+
+
+def test_the_board_index_lists_every_board_type_as_the_table_has_it() -> None:
+    # docs/boards/README.md: type | vendor | model | document | role | reference or commercial | dry pass | arm
+    rows = {}
+    for line in (REPO / "docs" / "boards" / "README.md").read_text().splitlines():
+        if line.startswith("| `"):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            rows[cells[0].strip("`")] = cells
+    assert set(rows) == set(BOARD_TYPES.names())
+    for name, (_, vendor, model, document, role, kind, dry_pass, _arm) in rows.items():
+        bt = BOARD_TYPES[name]
+        link = document.split("](")[1].rstrip(")")
+        assert (vendor, model, role) == (bt.vendor, bt.model, bt.role), name
+        assert (REPO / "docs" / "boards" / link).resolve() == (REPO / bt.document).resolve(), name
+        assert kind == ("reference" if bt.vendor == "vmehil (reference design)" else "commercial"), name
+        reg = bt.id_register()
+        assert (reg is not None) == dry_pass.startswith("ID 0x"), name
+        if reg is not None:
+            assert dry_pass == f"ID 0x{reg.reset:X}", name
+        assert ("PCI card" in dry_pass) == (bt.bus == "pci"), name

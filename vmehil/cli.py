@@ -32,7 +32,7 @@ from servo.interrupts import (  # noqa: E402
     stop_signals_raise,
 )
 from vmehil import cli_style  # noqa: E402
-from vmehil.commands import calibrate, console, crate, plan, plant_node, reproduce, run, tune, vision  # noqa: E402
+from vmehil.commands import calibrate, console, crate, plan, plant_node, reproduce, run, trace, tune, vision  # noqa: E402
 from vmehil.commands import unit_coordinate as units  # noqa: E402
 from vmehil.commands.errors import CliError  # noqa: E402
 from vmehil.errors import VmehilError  # noqa: E402
@@ -59,6 +59,7 @@ COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
     console.register,
     calibrate.register,
     reproduce.register,
+    trace.register,
 )
 
 

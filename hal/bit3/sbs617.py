@@ -314,8 +314,8 @@ def probe_sbs617(bus: VmeBus, base: int, space: AddressSpace) -> ProbeReading:
         lsr = bus.read(base + lsr_reg.offset, space=space, width=lsr_reg.width)
         ctrl = bus.read(base + ctrl_reg.offset, space=space, width=ctrl_reg.width)
     except VmeError as e:
-        # on a real VME bus (vme_user) this is the expected answer: the 617's BARs are PCI memory,
-        # which vmehil has no backend for yet (docs/boards/sbs617.md, "In the emulated crate")
+        # the card is gone (or its BARs are not where the rig file says); the real-bus dry pass
+        # never gets here: it refuses the card unread (its BARs are PCI memory, docs/vme-user.md)
         return ProbeReading(False, f"{type(e).__name__}: {e} (the SBS 617 is a PCI card: its registers are "
                                    "the host's PCI BARs, not VME addresses)")
     if lsr & 0x08 or ctrl & 0x18:

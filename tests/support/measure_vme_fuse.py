@@ -1,12 +1,15 @@
 """Time the 2 s lockstep run in-process and through the FUSE stand-in for /dev/bus/vme, and one D16
-read through it (docs/vme-user.md): ``.venv/bin/python -m tests.support.measure_vme_fuse``."""
+read through it (docs/vme-user.md): ``.venv/bin/python -m tests.support.measure_vme_fuse [RIG]`` (default
+jpl-arm; e.g. ``jpl-arm-vmic``)."""
 
 from __future__ import annotations
 
 import pathlib
+import sys
 import tempfile
 import time
 
+from emulators.presets import resolve_rig
 from hal.vme.vme_user import VmeUserBus
 from servo.io import JointIO
 from servo.nominal import nominal_scaling, rig_nominal
@@ -27,19 +30,21 @@ def _run(system, bus):
     return time.perf_counter() - t, loop
 
 
-def main() -> None:
-    ref = build_emulated_rig(None, seed=11)
+def main(rig: str = "jpl-arm") -> None:
+    ref = build_emulated_rig(resolve_rig(rig), seed=11)
     t_ref, l_ref = _run(ref, ref.crate)
-    s = build_emulated_rig(None, seed=11)
+    s = build_emulated_rig(resolve_rig(rig), seed=11)
+    adc0 = s.crate.boards["adc0"].base  # its ID register (jpl-arm: 0x6000; jpl-arm-vmic: 0x8500)
     with tempfile.TemporaryDirectory() as d, MountedVmeUser(s.crate, pathlib.Path(d)) as fs:
         with VmeUserBus(fs.dir, clock=s.crate.now, sleep=s.crate.delay) as bus:
             t_fuse, loop = _run(s, bus)
             calls = dict(fs.ops.calls)
             t = time.perf_counter()
             for _ in range(5000):
-                bus.read(0x6000, space="A16", width=16)
+                bus.read(adc0, space="A16", width=16)
             per = (time.perf_counter() - t) / 5000
     rec, rr = loop.recorder.trimmed(), l_ref.recorder.trimmed()
+    print(f"rig {rig}")
     print(f"servo run through FUSE: {calls['read'] / TICKS:.1f} reads, {calls['write'] / TICKS:.1f} writes per tick")
     print(f"in-process {TICKS} ticks {t_ref:.2f} s; through FUSE {t_fuse:.2f} s; one D16 read through FUSE "
           f"{per * 1e6:.1f} us")
@@ -47,4 +52,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    main(*sys.argv[1:2])

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import copy
 import json
+import shutil
+import subprocess
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -163,3 +165,60 @@ def test_the_band_column_names_the_ripple_beside_the_mean() -> None:
     rows = _rows(MEASURED)
     assert rp.bands_text(rows["running_torque"].figure.bands) == "19–29 oz-in, ripple 3–7 oz-in"
     assert rp.bands_text(rows["limit_cycle"].figure.bands) == "0.5–1° at 1–3 Hz"
+
+
+def test_rig_runs_every_step_on_that_rig_and_says_so(tmp_path, monkeypatch, capsys) -> None:
+    seen: list = []
+    _stub_steps(monkeypatch, MEASURED, seen)
+    monkeypatch.chdir(tmp_path)
+    assert main(["reproduce", "--rig", "jpl-arm-vmic", "--json", "r.json"]) == 0
+    assert [c for c, *_ in seen] == [
+        "vmehil run --no-integrator-switch-off --rig jpl-arm-vmic", "vmehil run --rig jpl-arm-vmic",
+        "vmehil calibrate friction --joint 1 --rig jpl-arm-vmic", "vmehil calibrate pot --auto --rig jpl-arm-vmic"]
+    out = capsys.readouterr().out
+    assert next(x for x in out.splitlines() if x.startswith("limit cycle")).endswith(
+        "vmehil run --no-integrator-switch-off --rig jpl-arm-vmic")
+    data = json.loads((tmp_path / "r.json").read_text())
+    assert data["rig"] == "jpl-arm-vmic"
+    # the bands are the paper's on every rig
+    assert [f["bands"] for f in data["figures"]] == [r.as_dict("")["bands"] for r in rp.evaluate(MEASURED)]
+
+
+def test_a_rig_file_reaches_the_steps_as_an_absolute_path(tmp_path, monkeypatch) -> None:
+    seen: list = []
+    _stub_steps(monkeypatch, MEASURED, seen)
+    (tmp_path / "rigs").mkdir()
+    (tmp_path / "rigs" / "mine.toml").write_text("")  # never loaded here: the steps are stubbed
+    monkeypatch.chdir(tmp_path)
+    assert main(["reproduce", "--rig", "rigs/mine.toml"]) == 0
+    want = str(tmp_path / "rigs" / "mine.toml")
+    assert all(c.endswith(f"--rig {want}") for c, *_ in seen)  # the steps run in a temporary directory
+
+
+def test_an_unknown_rig_is_refused_before_any_step(monkeypatch, capsys) -> None:
+    seen: list = []
+    _stub_steps(monkeypatch, MEASURED, seen)
+    assert main(["reproduce", "--rig", "no-such-rig"]) == 2
+    assert seen == []
+    assert "no rig preset named 'no-such-rig'" in capsys.readouterr().err
+
+
+def test_without_rig_the_steps_are_the_readmes_commands_and_the_json_names_jpl_arm(tmp_path, monkeypatch) -> None:
+    seen: list = []
+    _stub_steps(monkeypatch, MEASURED, seen)
+    monkeypatch.chdir(tmp_path)
+    assert main(["reproduce", "--json", "r.json"]) == 0
+    assert not any("--rig" in c for c, *_ in seen)
+    assert json.loads((tmp_path / "r.json").read_text())["rig"] == "jpl-arm"
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="no make on this machine")
+def test_make_reproduce_passes_rig_on() -> None:
+    root = Path(__file__).resolve().parents[2]
+
+    def recipe(*variables: str) -> str:  # -n: print the recipe; STAMP= : without building the venv
+        return subprocess.run(["make", "-s", "-n", "-C", str(root), "reproduce", "STAMP=", *variables],
+                              capture_output=True, text=True, check=True).stdout.strip()
+
+    assert recipe("RIG=jpl-arm-vmic") == ".venv/bin/vmehil reproduce --rig jpl-arm-vmic"
+    assert recipe() == ".venv/bin/vmehil reproduce"

@@ -15,6 +15,10 @@ the steps start with **no calibration file**, as on a fresh clone:
 
 A figure is in the paper's band (:data:`BANDS`) or the command exits 1. The output breakout is
 derived (N × the measured input breakout), not measured at the output: said in its row.
+
+The rig is ``jpl-arm`` (every step's default) unless one is given (``vmehil reproduce --rig
+jpl-arm-vmic``): then every step names it (:meth:`Step.on_rig`). The bands are the paper's,
+whatever the rig: a rig reproduces the paper or it does not.
 """
 
 from __future__ import annotations
@@ -30,6 +34,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from emulators.presets import DEFAULT_RIG
+
 
 @dataclass(frozen=True)
 class Step:
@@ -42,6 +48,13 @@ class Step:
     @property
     def command(self) -> str:
         return "vmehil " + " ".join(self.argv)
+
+    def on_rig(self, rig: str | None) -> Step:
+        """This step on ``rig`` (a preset name, or a file path made absolute: the steps run in a
+        temporary directory); None: the default rig, the step as it is."""
+        if rig is None:
+            return self
+        return Step(self.name, (*self.argv, "--rig", rig), self.json_name)
 
 
 STEPS: tuple[Step, ...] = (
@@ -222,16 +235,18 @@ def run_step(step: Step, workdir: Path, *, seed: int, env: dict[str, str]) -> St
     return StepRun(step, proc.returncode, wall, data, tail)
 
 
-def reproduce(*, seed: int = 0, say: Callable[[str], None] = print,
+def reproduce(*, seed: int = 0, rig: str | None = None, say: Callable[[str], None] = print,
               advance: Callable[[], None] = lambda: None) -> dict[str, Any]:
-    """Run :data:`STEPS` in a temporary directory (removed afterwards) and evaluate the figures.
-    ``say`` gets a line per step; ``advance`` is called after each step (a progress bar)."""
+    """Run :data:`STEPS` (on ``rig``: :meth:`Step.on_rig`) in a temporary directory (removed
+    afterwards) and evaluate the figures. ``say`` gets a line per step; ``advance`` is called
+    after each step (a progress bar)."""
     runs: list[StepRun] = []
+    steps = tuple(s.on_rig(rig) for s in STEPS)
     with tempfile.TemporaryDirectory(prefix="vmehil-reproduce-") as tmp:
         work = Path(tmp)
         env = {**os.environ, "VMEHIL_CALIBRATION_DIR": str(work / "calibration")}
-        for k, step in enumerate(STEPS):
-            say(f"[{k + 1}/{len(STEPS)}] {step.command} …")
+        for k, step in enumerate(steps):
+            say(f"[{k + 1}/{len(steps)}] {step.command} …")
             r = run_step(step, work, seed=seed, env=env)
             runs.append(r)
             status = "ok" if r.returncode == 0 else f"exit status {r.returncode}"
@@ -240,9 +255,10 @@ def reproduce(*, seed: int = 0, say: Callable[[str], None] = print,
             advance()
     measured = {r.step.name: r.data for r in runs}
     rows = evaluate(measured)
-    commands = {s.name: s.command for s in STEPS}
+    commands = {s.name: s.command for s in steps}
     return {
         "seed": seed,
+        "rig": rig or DEFAULT_RIG,
         "state": "no calibration file (a fresh clone), every step in one temporary directory, in this order",
         "steps": [{"name": r.step.name, "command": r.step.command, "exit_status": r.returncode,
                    "wall_s": round(r.wall_s, 2)} for r in runs],

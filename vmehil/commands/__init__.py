@@ -22,6 +22,7 @@ EXTRA_MODULES: dict[str, tuple[str, ...]] = {
     "mavlink": ("pymavlink",),
     "console": ("serial",),
     "dask": ("dask", "distributed"),
+    "trace": ("mcap", "vcd", "pyarrow", "foxglove"),
 }
 
 

@@ -28,9 +28,11 @@ from servo.control.gains import parse_gains
 from servo.interrupts import Terminated, interrupt_name
 from vmehil.console.extension import ConsoleOptions
 from vmehil.errors import CliError
+from vmehil.option_groups import trace_options
 from vmehil.option_groups.cli_types import duration_s
 from vmehil.option_groups.realtime_options import RealtimeOptions, add_overrun_args, add_pacing_args
 from vmehil.option_groups.scene_options import add_scene_argument
+from vmehil.option_groups.trace_options import TraceOptions
 from vmehil.reports.run_report import excursion_text
 from vmehil.writers.files import write_json
 
@@ -56,6 +58,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(default: calibration/<rig>.toml or $VMEHIL_CALIBRATION_DIR/<rig>.toml)")
     p.add_argument("--json", default=None, metavar="PATH",
                    help="write the session's summary here at exit (ticks, commands, how it stopped)")
+    trace_options.add_arguments(p)
     p.set_defaults(func=run_console, options=ConsoleCommandOptions.from_args)
 
 
@@ -74,12 +77,14 @@ class ConsoleCommandOptions:
     calibration: str | None = None
     json: str | None = None
     scene: str | None = None
+    trace: TraceOptions = field(default_factory=TraceOptions)
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> ConsoleCommandOptions:
         return cls(console=ConsoleOptions.from_args(args), rig=args.rig, seed=args.seed, motion=args.motion,
                    gains=parse_gains(args.gains, what="--gains"), pacing=RealtimeOptions.from_args(args, default=True),
-                   duration=args.duration, calibration=args.calibration, json=args.json, scene=args.scene)
+                   duration=args.duration, calibration=args.calibration, json=args.json, scene=args.scene,
+                   trace=TraceOptions.from_args(args))
 
 
 def run_console(opts: ConsoleCommandOptions) -> int:
@@ -88,6 +93,8 @@ def run_console(opts: ConsoleCommandOptions) -> int:
     port = opts.console.port
     assert port is not None  # the parser's default: a new pty
     if console_port_needs_serial(port) and refuse_without("vmehil console --console " + port, "console"):
+        return 2
+    if opts.trace.wanted and refuse_without("vmehil console --trace", "trace"):
         return 2
     from servo.motion import NO_MOTION, hold_motion, load_motion
     from servo.rig import load_rig
@@ -103,6 +110,12 @@ def run_console(opts: ConsoleCommandOptions) -> int:
     from emulators.presets import resolve_rig
 
     rig = load_rig(resolve_rig(opts.rig))
+    if opts.trace.wants_list:
+        listed = build_emulated_rig(rig, seed=opts.seed)
+        try:
+            return trace_options.list_signals(listed, [j.name for j in rig.joints])
+        finally:
+            listed.close()
     calibration = opts.calibration or str(default_store_path(rig))
     if opts.calibration and not Path(opts.calibration).exists():
         raise FileNotFoundError(f"--calibration {opts.calibration}: no such file")
@@ -113,6 +126,11 @@ def run_console(opts: ConsoleCommandOptions) -> int:
         print(f"warning: {w.message}", file=sys.stderr)
     if not caught:
         print(f"calibration: {calibration}", file=sys.stderr)
+    try:
+        opts.trace.check(system, [j.name for j in rig.joints])  # a SPEC the rig cannot meet: before arming
+    except BaseException:
+        system.close()
+        raise
     n = system.rig.n_joints
     motion = (load_motion(opts.motion, n) if opts.motion and opts.motion != NO_MOTION
               else hold_motion("<console>"))
@@ -129,6 +147,12 @@ def run_console(opts: ConsoleCommandOptions) -> int:
     loop.start()
     paced = opts.pacing.realtime
     runner = RealtimeRunner(system, loop, **opts.pacing.runner_options()) if paced else LockstepRunner(system, loop)
+    try:
+        trace = opts.trace.start(system, loop, runner, rig=rig.name, seed=opts.seed)
+    except BaseException:
+        loop.safe_stop("exception", "the trace could not start")
+        system.close()
+        raise
     done = threading.Event()
     # calibrate jobs run here between runner chunks (not inside a tick hook), so a wall-clock
     # runner restarts its deadlines after a calibration instead of catching up on them
@@ -171,6 +195,8 @@ def run_console(opts: ConsoleCommandOptions) -> int:
             console.announce_stop()
         fault = loop.fault
         console.close()
+        if trace is not None:
+            trace.close()
         system.close()
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
@@ -180,7 +206,10 @@ def run_console(opts: ConsoleCommandOptions) -> int:
     print(f"final stop: {final['cause'] or '-'} (category {final['category']}); "
           f"{excursion_text(final['excursion_deg'])}")
     if opts.json:
-        write_json(opts.json, summary(loop, console, system.rig.name, paced=paced, fault=fault))
+        out = summary(loop, console, system.rig.name, paced=paced, fault=fault)
+        if trace is not None:
+            out["trace"] = trace.summary()
+        write_json(opts.json, out)
     return 0
 
 

@@ -25,7 +25,7 @@ from vmehil.errors import CliError
 from vmehil.exit_status import EXIT_FAULT
 from vmehil.fault_scenarios import options as fault_options
 from vmehil.mavlink import extension as mavlink_extension
-from vmehil.option_groups import can_options, vision_options
+from vmehil.option_groups import can_options, trace_options, vision_options
 from vmehil.option_groups.cli_types import duration_s, seed
 from vmehil.option_groups.realtime_options import add_overrun_args, add_pacing_args
 from vmehil.option_groups.scene_options import add_scene_argument, resolve_scene
@@ -50,6 +50,7 @@ RUN_EXTENSIONS: tuple[ModuleType, ...] = (
     can_options,
     console_extension,
     fault_options,  # after vision_options: a vision fault needs the attached vision system
+    trace_options,  # last: it traces the loop the others have set up
 )
 
 
@@ -93,7 +94,8 @@ def run(opts: RunOptions) -> int:
     console = opts.console.port
     for option, extra, used in (("--report", "plots", bool(opts.report)),
                                 ("--mavlink", "mavlink", bool(opts.mavlink.url)),
-                                ("--console", "console", bool(console and console_port_needs_serial(console)))):
+                                ("--console", "console", bool(console and console_port_needs_serial(console))),
+                                ("--trace", "trace", opts.trace.wanted)):
         if used and refuse_without(f"vmehil run {option}", extra):
             return 2
     from emulators.presets import resolve_rig
@@ -102,6 +104,14 @@ def run(opts: RunOptions) -> int:
     if opts.faults.wants_list:
         return fault_options.list_faults()
     rig = load_rig(resolve_rig(opts.rig))
+    if opts.trace.wants_list:
+        from vmehil.rig_setup.system import build_emulated_rig
+
+        system = build_emulated_rig(rig, seed=opts.seed)
+        try:
+            return trace_options.list_signals(system, [j.name for j in rig.joints])
+        finally:
+            system.close()
     # the servo's settings, parsed once; the command line's override applied and guarded here, once
     settings = servo_settings(rig).overridden(opts.gains, opts.integrator_switch_off)
     prepared: dict[ModuleType, Any] = {}  # the extensions' preparations, filled by _run
@@ -175,7 +185,8 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
         return run_units.run_parallel(opts, rig, gains, motion, n_ticks, lambda: _make_link(opts, rig),
                                       calibration=store, faults=list(faults.faults) if faults is not None else [])
     system = _build_calibrated(opts, rig, build_emulated_rig)
-    try:  # refused moves raise here, before armed() enables anything
+    try:  # refused moves, and a trace SPEC the rig cannot meet, raise here: before armed() enables anything
+        opts.trace.check(system, [j.name for j in rig.joints])
         loop = build_loop(system, motion=motion, n_ticks=n_ticks, settings=settings, scene=scene)
     except BaseException:
         system.close()

@@ -15,6 +15,7 @@ from vmehil.fault_scenarios.options import FaultOptions
 from vmehil.mavlink.extension import MavlinkOptions
 from vmehil.option_groups.can_options import CanPlantOptions
 from vmehil.option_groups.realtime_options import RealtimeOptions
+from vmehil.option_groups.trace_options import TraceOptions
 from vmehil.option_groups.vision_options import VisionOptions
 from vmehil.unit_controllers.hub import UNIT_TIMEOUT_S
 
@@ -50,6 +51,7 @@ class RunOptions:
     faults: FaultOptions = field(default_factory=FaultOptions)
     #: ``--scene``: a scene file, ``none``, or ``None`` (the rig's own scene when it has one)
     scene: str | None = None
+    trace: TraceOptions = field(default_factory=TraceOptions)
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> RunOptions:
@@ -64,7 +66,8 @@ class RunOptions:
                    enable_amplifiers=args.enable_amplifiers, units=args.units, unit_timeout_s=args.unit_timeout,
                    mavlink=MavlinkOptions.from_args(args), vision=VisionOptions.from_args(args),
                    plant=CanPlantOptions.from_args(args), console=console, faults=FaultOptions.from_args(args),
-                   scene=args.scene)
+                   scene=args.scene,
+                   trace=TraceOptions.from_args(args, report_dir=args.report))
 
     @property
     def realtime(self) -> bool:

@@ -53,6 +53,7 @@ def run_on_real_bus(opts: RunOptions, rig, settings: ServoSettings, **bus_option
     from vmehil.calibration.store import load_store_or_nominal
     from vmehil.commands.calibration_file import calibrated
     from vmehil.commands.run_results import finish_run
+    from vmehil.option_groups.trace_options import Attached
     from vmehil.rig_setup.real_bus import RealBusRefused, open_bus, prepare_real_rig
     from vmehil.rig_setup.session import build_loop
     from vmehil.writers.files import write_json
@@ -92,21 +93,28 @@ def run_on_real_bus(opts: RunOptions, rig, settings: ServoSettings, **bus_option
         loop = build_loop(system, motion=motion, n_ticks=n_ticks, settings=settings, scene=scene)
         runner = RealtimeRunner(system, loop, **opts.pacing.runner_options())
         interrupted: BaseException | None = None
+        attached: list[Attached] = []
         after = SignalsDeferred()  # a second Ctrl-C must not lose the JSON or the report
         try:
             try:
                 with loop.armed(then=after):
                     print(f"run: {n_ticks} ticks ({duration:g} s) on {rig.name} over {opts.bus}, amplifiers "
                           "enabled", file=sys.stderr)
+                    # a trace here has the controller's and the drivers' signals (no nets, bus or truth)
+                    trace = opts.trace.start(system, loop, runner, rig=rig.name)
+                    if trace is not None:
+                        attached.append(Attached(trace))
                     runner.run(n_ticks)
                     runner.end_run()  # a category-1 stop, then 2 s reading the sensors
             except INTERRUPTS as e:
                 interrupted = e
             finally:
                 after.begin()
+                for a in attached:
+                    a.close()
             for late in list(after.held):
                 loop.note_interruption(late, "after")
-            return finish_run(opts, system, loop, runner, rig, [],
+            return finish_run(opts, system, loop, runner, rig, attached,
                               interrupted or runner.ended_by or loop.interrupted_by)
         finally:
             after.end()

@@ -33,6 +33,8 @@ _NOT_WITH_UNITS: tuple[tuple[Callable[[RunOptions], object], str, str], ...] = (
      "the operator console drives one servo loop (its motions, calibration, stops); use it with --units single"),
     (lambda o: o.vision.mode, "--vision",
      "the visual servo commands one loop's joints over one BIT3 window; run it with --units single"),
+    (lambda o: o.trace.wanted, "--trace",
+     "a trace follows one loop; trace a unit with `vmehil unit --trace`, or run with --units single"),
 )
 
 

@@ -24,7 +24,9 @@ from vmehil.errors import CliError
 from vmehil.exit_status import EXIT_FAULT, EXIT_STOP_INCOMPLETE, EXIT_USAGE
 from vmehil.fault_scenarios import options as fault_options
 from vmehil.fault_scenarios.options import FaultOptions
+from vmehil.option_groups import trace_options
 from vmehil.option_groups.cli_types import bounded_float, bounded_int, duration_s
+from vmehil.option_groups.trace_options import TraceOptions
 from vmehil.writers.files import write_json
 
 EXIT_REFUSED = 2
@@ -46,6 +48,7 @@ def _bus_args(p: argparse.ArgumentParser) -> None:
                    help=f"wall seconds to wait for the run to start ({START_TIMEOUT_S:g})")
     p.add_argument("--motion", default=None, help="motion file (the same on every unit and the coordinator)")
     p.add_argument("--json", default=None, help="write the summary here")
+    trace_options.add_arguments(p)
 
 
 def _plant_args(p: argparse.ArgumentParser) -> None:
@@ -85,12 +88,13 @@ class UnitBusOptions:
     start_timeout_s: float
     motion: str | None
     json: str | None
+    trace: TraceOptions = dataclasses.field(default_factory=TraceOptions)
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> UnitBusOptions:
         return cls(interface=args.interface, channel=args.channel, can_log=args.can_log,
                    unit_timeout_s=args.unit_timeout, start_timeout_s=args.start_timeout, motion=args.motion,
-                   json=args.json)
+                   json=args.json, trace=TraceOptions.from_args(args))
 
 
 @dataclass(frozen=True)
@@ -195,6 +199,7 @@ def run_unit_command(opts: UnitOptions) -> int:
     from emulators.plant_link import PlantLinkError
     from servo.runner import RealtimeRunner
     from vmehil.calibration.store import load_store_or_nominal
+    from vmehil.commands import refuse_without
     from vmehil.commands.calibration_file import calibrated
     from vmehil.fault_scenarios.injection import first_joint, first_tick, stop_report
     from vmehil.reports.run_report import summarize
@@ -203,12 +208,25 @@ def run_unit_command(opts: UnitOptions) -> int:
 
     if opts.faults.wants_list:
         return fault_options.list_faults()
+    if opts.bus.trace.wanted and refuse_without(f"vmehil unit --unit {opts.unit} --trace", "trace"):
+        return EXIT_USAGE
     spec = _load(opts.rig)
+    if opts.bus.trace.wants_list:
+        return _list_unit_signals(spec, opts.unit)
     try:  # before joining the run: a fault this unit cannot take costs no run
-        before_run, faults = unit_faults(opts.unit, opts.faults, spec)
+        faults_before_run, faults = unit_faults(opts.unit, opts.faults, spec)
     except ValueError as e:
         print(f"vmehil unit {opts.unit}: {e}", file=sys.stderr)
         return EXIT_USAGE
+    traces: list[Any] = []
+
+    def before_run(run: Any) -> None:
+        if faults_before_run is not None:
+            faults_before_run(run)
+        # the unit's loop and its boards; the plant (and its truth) is the coordinator's
+        trace = opts.bus.trace.start(run.system, run.loop, run.runner, rig=f"{spec.name}:{opts.unit}", seed=run.seed)
+        if trace is not None:
+            traces.append(trace)
     store = calibrated(opts.calibration, spec, lambda cal: load_store_or_nominal(cal, spec))
     bus = unit_bus(opts.bus.interface, opts.bus.channel, opts.bus.can_log)
     try:
@@ -227,6 +245,8 @@ def run_unit_command(opts: UnitOptions) -> int:
         return EXIT_FAULT
     finally:
         bus.close()
+        for trace in traces:
+            trace.close()
     loop, runner = out.loop, out.runner
     assert loop is not None and runner is not None
     realtime = isinstance(runner, RealtimeRunner)  # --realtime, or a free-running run
@@ -240,6 +260,8 @@ def run_unit_command(opts: UnitOptions) -> int:
     if faults:
         summary["injected_faults"] = [f.as_dict() for f in faults]
         summary["stop"] = stop_report(loop, first_tick(faults), first_joint(faults))
+    for trace in traces:
+        summary["trace"] = trace.summary()
     fault = loop.fault
     print(f"unit {opts.unit}: {out.completed} ticks; " + ("ran to the end" if fault is None else
           f"stopped: {fault.cause} at tick {fault.tick}: {fault.detail}") +
@@ -256,6 +278,20 @@ def run_unit_command(opts: UnitOptions) -> int:
     if loop.stop_incomplete:
         return EXIT_STOP_INCOMPLETE
     return EXIT_FAULT if fault is not None else 0
+
+
+def _list_unit_signals(spec: Any, unit: str) -> int:
+    """``vmehil unit --trace list``: the unit's own joints and boards (no truth: the plant is the
+    coordinator's)."""
+    from servo.joint_groups import rig_units, unit_named, unit_rig
+    from vmehil.rig_setup.system import build_emulated_rig
+
+    sub = unit_rig(spec, unit_named(rig_units(spec), unit, str(spec.path)))
+    system = build_emulated_rig(sub)
+    try:
+        return trace_options.list_signals(system, [j.name for j in sub.joints], truth=False)
+    finally:
+        system.close()
 
 
 def unit_faults(unit: str, options: FaultOptions, spec) -> tuple[Any, list]:
@@ -301,23 +337,37 @@ def timing_line(t: dict) -> str:
 
 def run_coordinator_command(opts: CoordinatorOptions) -> int:
     from servo.gain_guard import check_values
+    from vmehil.commands import refuse_without
+    from vmehil.scope.sources import plant_catalog
+    from vmehil.unit_controllers.coordinator import plant_link_for
     from vmehil.unit_controllers.processes import run_coordinator
     from vmehil.unit_controllers.remote import FREE_STALE_TICKS, UnitRefused, unit_bus
 
+    if opts.bus.trace.wanted and refuse_without("vmehil coordinate --trace", "trace"):
+        return EXIT_USAGE
     spec = _load(opts.rig)
+    if opts.bus.trace.wants_list:
+        print(plant_catalog(spec).listing())
+        return 0
     gains = check_values(opts.gains)
     n_ticks = round(opts.duration_s * spec.servo_rate_hz)
     plant = plant_options(opts)
     # the plant node first: no node (or another rig, or mode) is an error before any unit waits
     link = plant.open_link(spec, opts.seed) if plant is not None else None
+    trace = None
     try:
+        if opts.bus.trace.wanted:  # the plant's exchanges, traced: the link made here to tap it
+            link = link if link is not None else plant_link_for(spec, opts.seed)
+            trace = trace_options.start_on_plant(opts.bus.trace, link, spec, seed=opts.seed)
         bus = unit_bus(opts.bus.interface, opts.bus.channel, opts.bus.can_log)
     except BaseException:
+        if trace is not None:
+            trace.close()
         if link is not None:
             link.close()
         raise
-    if link is not None:
-        iface, chan = plant.resolved()  # type: ignore[union-attr]
+    if plant is not None:  # (a link of its own is also made here for a trace of the in-process plant)
+        iface, chan = plant.resolved()
         print(f"coordinate: the plant node on {iface} {chan}", file=sys.stderr)
     try:
         out = run_coordinator(spec, bus, seed=opts.seed, n_ticks=n_ticks, timeout_s=opts.bus.unit_timeout_s,
@@ -330,6 +380,8 @@ def run_coordinator_command(opts: CoordinatorOptions) -> int:
         return EXIT_REFUSED
     finally:
         bus.close()
+        if trace is not None:
+            trace.close()
     stop = out.stop
     print(f"coordinate: {out.exchanges} plant steps; " +
           ("every unit ran to the end" if stop is None else f"stop: unit {stop.unit} at exchange {stop.exchange}: "
@@ -355,5 +407,6 @@ def run_coordinator_command(opts: CoordinatorOptions) -> int:
             "other_session": out.other_session,
             "timing": figures, "units": out.unit_timing,
             # --plant can: the link's counts (answers, stale, incomplete…), as the plant node's own
-            "plant_link": dataclasses.asdict(link.counters) if link is not None else None})
+            "plant_link": dataclasses.asdict(link.counters) if plant is not None and link is not None else None,
+            **({"trace": trace.summary()} if trace is not None else {})})
     return 0 if stop is None else EXIT_FAULT

@@ -6,7 +6,7 @@ Before anything can enable an amplifier on a real crate:
    probe (:mod:`hal.board_types`) — its ID register against the ID the type declares, and its
    first status/control register — and refuses the rig if any read fails or any ID differs
    (wrong base, wrong space, board missing or another board there: named, with the one the rig
-   file names);
+   file names), or if it names a PCI card (the SBS 617: not on the VME bus, never read);
 2. :func:`exercise_safe_stop` runs the safe stop once (enables low, DACs 0 V, PWM off) and
    reads it back (:meth:`servo.io.JointIO.safe_stop`): anything unconfirmed refuses the rig;
 3. only with ``--enable-amplifiers`` does ``vmehil run`` go on to the loop; without it the run
@@ -88,6 +88,10 @@ def dry_pass(bus: VmeBus, rig: RigSpec) -> list[BoardCheck]:
         except UnknownPluginError as e:
             checks.append(BoardCheck(name, type_name, b["space"], base, False, str(e)))
             continue
+        if board_type.bus != "vme":
+            checks.append(BoardCheck(name, type_name, b["space"], base, False, not_on_the_vme_bus(board_type),
+                                     board_type))
+            continue
         probe = board_type.load_probe()
         if probe is None:  # e.g. RAM: no ID register; it must answer at its base
             try:
@@ -104,6 +108,16 @@ def dry_pass(bus: VmeBus, rig: RigSpec) -> list[BoardCheck]:
             detail = _wrong_board(type_name, board_type, reading.id_expected, reading.id_read)
         checks.append(BoardCheck(name, type_name, b["space"], base, reading.ok, detail, board_type))
     return checks
+
+
+def not_on_the_vme_bus(board_type: BoardType) -> str:
+    """Why the dry pass refuses a PCI card without a bus cycle: its BARs stand in the emulated
+    crate's A32 space, but on a VME bus those addresses are other boards' (docs/vme-user.md,
+    "Rigs with a PCI card")."""
+    return (f"a {board_type.bus.upper()} card in the host, not a VME board ({board_type.describe()}): its "
+            "registers are the host's PCI BARs, which vme_user cannot reach (vmehil has no PCI-BAR backend "
+            "yet); to run on this bus, use a rig file without it (nothing uses it there: --vision needs the "
+            "emulated rig)")
 
 
 def _wrong_board(type_name: str, expected: BoardType, id_expected: int, id_read: int) -> str:

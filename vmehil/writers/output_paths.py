@@ -21,7 +21,9 @@ from vmehil.writers.files import WRITTEN_BY
 MARKER = ".vmehil-output"  #: the file that marks a directory as vmehil's (report, sweep output)
 
 #: the attributes of a parsed command line that name output files and output directories
-FILE_OPTIONS = {"json": "--json", "json_path": "--json", "can_log": "--can-log"}
+FILE_OPTIONS = {"json": "--json", "json_path": "--json", "can_log": "--can-log", "trace_out": "--trace-out"}
+#: what a binary or text output of ours carries near its start or its end (a trace file: vmehil.scope)
+MARK = b"written_by=vmehil"
 DIR_OPTIONS = {"report": "--report", "out": "--out", "resume": "--resume"}
 
 
@@ -33,6 +35,12 @@ def _is_ours(p: Path) -> bool:
     try:
         with p.open("rb") as f:
             head = f.read(1 << 20)
+            if MARK in head[:4096]:
+                return True
+            size = f.seek(0, os.SEEK_END)
+            f.seek(max(0, size - (1 << 16)))
+            if MARK in f.read():  # a footer's metadata (Parquet, MCAP)
+                return True
         data = json.loads(head)
     except (OSError, ValueError):
         return False
@@ -89,8 +97,9 @@ class OutputPaths:
             out = []
             for attr, flag in options.items():
                 value = None if attr == skip else getattr(args, attr, None)
-                if isinstance(value, str | Path):
-                    out.append((flag, Path(value)))
+                for v in value if isinstance(value, list | tuple) else [value]:  # a repeatable flag
+                    if isinstance(v, str | Path):
+                        out.append((flag, Path(v)))
             return tuple(out)
 
         return cls(files=named(FILE_OPTIONS),

@@ -57,6 +57,9 @@ def test_the_default_run_needs_no_extra(tmp_path) -> None:
     (["run", "--console", "loop://"], "vmehil run --console needs the 'console' extra: pip install 'vmehil[console]'"),
     (["console", "--port", "loop://"],
      "vmehil console --console loop:// needs the 'console' extra: pip install 'vmehil[console]'"),
+    (["run", "--trace", "*"], "vmehil run --trace needs the 'trace' extra: pip install 'vmehil[trace]'"),
+    (["coordinate", "--trace", "*"], "vmehil coordinate --trace needs the 'trace' extra: pip install 'vmehil[trace]'"),
+    (["trace", "show", "t.mcap"], "vmehil trace show needs the 'plots' extra: pip install 'vmehil[plots]'"),
 ], ids=lambda v: " ".join(v) if isinstance(v, list) else None)
 def test_a_command_that_needs_a_missing_extra_says_which_in_one_line(tmp_path, argv, line) -> None:
     r = vmehil_without(EVERY_EXTRA, *argv, cwd=tmp_path)

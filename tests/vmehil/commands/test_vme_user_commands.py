@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from hal.vme import AddressSpace, Width
+from servo.rig import load_rig
 from servo.settings import servo_settings
 from tests.support.vme_fuse import MountedVmeUser, fuse_unavailable
 from vmehil.cli import build_parser, main
@@ -146,3 +147,86 @@ def test_a_real_bus_run_writes_the_same_json_and_report_as_the_emulated_run(rig_
     assert summary["rig"] == system.rig.name and summary["final_stop"]["verified"] is True
     assert [j["name"] for j in summary["joints"]] == [j.name for j in system.rig.joints]
     assert (rep / "summary.md").exists() and any(rep.glob("*.png"))
+
+
+# ---- jpl-arm-vmic: the VMIC boards on the vme_user path --------------------------------------
+
+def _without_the_vision_link(tmp_path: Path) -> Path:
+    """jpl-arm-vmic without its SBS 617 entry: what a user runs on a real bus (the 617 is a PCI
+    card vme_user cannot reach; nothing on a real bus uses the vision link)."""
+    from emulators.presets import resolve_rig
+
+    text = resolve_rig("jpl-arm-vmic").read_text()
+    start = text.index('[[crate.board]]\ntype = "sbs617"')
+    end = text.index("[[crate.board]]", start + 1)
+    path = tmp_path / "jpl-arm-vmic-no-link.toml"
+    path.write_text(text[:start] + text[end:])
+    return path
+
+
+@pytest.fixture
+def vmic_on_fuse(tmp_path: Path) -> Iterator[tuple[EmulatedRig, str]]:
+    from emulators.presets import resolve_rig
+
+    why = fuse_unavailable()
+    if why:
+        pytest.skip(f"FUSE stand-in cannot be mounted: {why}")
+    system = build_emulated_rig(resolve_rig("jpl-arm-vmic"), seed=1, calibration=None)
+    with MountedVmeUser(system.crate, tmp_path / "fs") as fs:
+        yield system, f"vme_user:{fs.dir}"
+
+
+def test_crate_list_on_the_vmic_rig_identifies_each_vme_board_and_refuses_the_pci_card(vmic_on_fuse,
+                                                                                        capsys) -> None:
+    _, bus = vmic_on_fuse
+    assert main(["crate", "--bus", bus, "--rig", "jpl-arm-vmic", "--json", "list"]) == 1
+    boards = {b["name"]: b for b in json.loads(capsys.readouterr().out)["boards"]}
+    assert [n for n, b in boards.items() if not b["ok"]] == ["vision-link"]
+    assert boards["adc0"]["detail"].startswith("ID 0x1100") and boards["adc0"]["model"] == "VMIVME-3113A"
+    assert boards["dac0"]["detail"].startswith("no ID register (VMIVME-4116); CSR 0x")
+    assert boards["dio0"]["detail"].startswith("BID 0x2536") and boards["dio0"]["vendor"] == "VMIC"
+    assert boards["vision-link"]["detail"].startswith("a PCI card in the host, not a VME board")
+
+
+def test_run_on_the_vmic_rig_refuses_the_pci_card_in_one_line(vmic_on_fuse, capsys) -> None:
+    system, bus = vmic_on_fuse
+    assert main(["run", "--bus", bus, "--rig", "jpl-arm-vmic", "--enable-amplifiers"]) == 1
+    refusals = [x for x in capsys.readouterr().err.splitlines() if "dry pass failed" in x]
+    assert len(refusals) == 1
+    assert refusals[0].startswith("run: dry pass failed, nothing enabled: vision-link (sbs617 A32 0x80000000): "
+                                  "a PCI card in the host")
+    assert "use a rig file without it" in refusals[0] and "adc0" not in refusals[0]
+    assert not any(system.crate.signals.get_digital(j.net("amp_enable")) for j in system.rig.joints)
+
+
+def test_the_vmic_rig_without_the_vision_link_dry_runs_on_vme_user(vmic_on_fuse, tmp_path, capsys) -> None:
+    system, bus = vmic_on_fuse
+    rig = _without_the_vision_link(tmp_path)
+    assert main(["crate", "--bus", bus, "--rig", str(rig), "list"]) == 0
+    # the bus on the crate's clock: the 3113A's first autoscan, which its driver waits for when it
+    # opens, ends in the boards' time, which passes in the stand-in only when the bus waits on it
+    args = build_parser().parse_args(["run", "--bus", bus, "--rig", str(rig)])
+    spec = load_rig(rig)
+    assert run_on_real_bus(args.options(args), spec, servo_settings(spec), clock=system.crate.now,
+                           sleep=system.crate.delay) == 0
+    err = capsys.readouterr().err
+    assert "dry pass: adc0     vmivme-3113a A16 0x8500: ID 0x1100" in err and "dry run only" in err
+    s = system.crate.signals
+    assert not any(s.get_digital(j.net("amp_enable")) for j in system.rig.joints)
+    assert system.crate.boards["dac0"].converter == [0x8000] * 8  # the start-up stop: every DAC code 0 V
+
+
+def test_a_reference_adc_where_the_rig_names_a_3113a_is_refused_on_vme_user_naming_both(rig_on_fuse, tmp_path,
+                                                                                       capsys) -> None:
+    from emulators.presets import resolve_rig
+
+    _, bus = rig_on_fuse  # jpl-arm's crate: the reference ADC at A16 0x6000
+    rig = tmp_path / "wrong.toml"
+    rig.write_text(resolve_rig("jpl-arm").read_text().replace('type = "adc"\nname = "adc0"',
+                                                             'type = "vmivme-3113a"\nname = "adc0"'))
+    assert main(["crate", "--bus", bus, "--rig", str(rig), "--json", "list"]) == 1
+    adc0 = next(b for b in json.loads(capsys.readouterr().out)["boards"] if b["name"] == "adc0")
+    assert not adc0["ok"] and adc0["detail"] == (
+        "ID reads 0xAD16, the rig's vmivme-3113a has 0x1100: the rig file names type vmivme-3113a (VMIVME-3113A by "
+        "VMIC, docs/boards/vmivme-3113a.md, ID 0x1100); the slot holds type adc (ADC16-REF by vmehil (reference "
+        "design), docs/boards/adc.md, ID 0xAD16)")
