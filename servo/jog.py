@@ -15,7 +15,11 @@ watchdog and the stops treat it as they treat a planned move:
   brakes at the ramp's rate down to a creep speed (:data:`CREEP_DEG_S` over the last
   :data:`CREEP_DEG`) and its target comes to rest :data:`LIMIT_ALLOWANCE_DEG` inside the limit,
   so the joint, which runs on past a target that stops, stays inside too (a target known only at
-  run time, checked before each is used: docs/motion-safety.md).
+  run time, checked before each is used: docs/motion-safety.md);
+* **the scene** — where the rig has an arm model and obstacles: each tick, the pose where the
+  target would come to rest if it braked now is checked, further on by the creep distance and
+  the allowance (a link in an obstacle there: the jog creeps) and by the allowance alone (then it
+  stops: :attr:`JogTrajectory.refusal` names the link and the obstacle).
 
 :func:`jog` is the one entry point: called at a tick boundary (inside a live command), it renews
 the running jog or starts one from where the loop holds.
@@ -30,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from servo.trajectory.base import Sample, TrajectoryError
+from servo.trajectory.bounds import MotionBounds
 from servo.trajectory.sequencer import PlanContext, Sequencer
 
 #: toward a soft limit the jog's target stops this far inside it (°): the loop's joint runs ahead of
@@ -51,7 +56,7 @@ class JogTrajectory:
     until the jog has come to rest after its deadman ran out (or a command of all zeros)."""
 
     def __init__(self, start: np.ndarray, v_max: np.ndarray, accel: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                 deadman_s: float = DEADMAN_S) -> None:
+                 deadman_s: float = DEADMAN_S, bounds: MotionBounds | None = None) -> None:
         self.start = np.asarray(start, float).copy()
         self.theta = self.start.copy()
         n = self.start.shape[0]
@@ -72,6 +77,10 @@ class JogTrajectory:
         self._t_end: float | None = None
         #: the jog ran out of its deadman (not stopped by a command of zeros)
         self.expired = False
+        #: the scene the targets are checked against as they are made (``None``: none)
+        self.bounds = bounds if bounds is not None and bounds.checks_collisions else None
+        #: why the jog stopped short of an obstacle (``None``: it did not)
+        self.refusal: str | None = None
 
     @property
     def duration(self) -> float:
@@ -89,6 +98,8 @@ class JogTrajectory:
     def command(self, speeds: dict[int, float]) -> dict[int, float]:
         """Renew the deadman and set joint speeds (rad/s, joint index → speed; others keep theirs);
         returns the speeds in force, clamped to the velocity limits."""
+        if self.refusal is not None:
+            raise TrajectoryError(self.refusal)
         if not self.running:
             raise TrajectoryError("the jog has ended: start a new one")
         out = {}
@@ -98,6 +109,11 @@ class JogTrajectory:
             self.v_cmd[j] = float(np.clip(v, -self.v_max[j], self.v_max[j]))
             out[j] = float(self.v_cmd[j])
         self._renewed = self._t
+        if self.bounds is not None and not self.v.any() and self.v_cmd.any():
+            # from rest, toward an obstacle already within the allowance: refused at once
+            self._stop_if_hit(self.theta + np.sign(self.v_cmd) * math.radians(LIMIT_ALLOWANCE_DEG))
+            if self.refusal is not None:
+                raise TrajectoryError(self.refusal)
         return out
 
     def _approach(self, room: np.ndarray) -> np.ndarray:
@@ -109,6 +125,30 @@ class JogTrajectory:
             creep = np.fmin(self.creep_rad_s, np.sqrt(2.0 * self.accel * room))
         return np.fmax(brake, creep)
 
+    def _look_ahead(self) -> None:
+        """Where the target would come to rest if it braked now, plus the creep distance and the
+        allowance: a link in an obstacle there slows the jog to the creep speed; plus the allowance
+        alone: it stops the jog now (a target known only at run time, checked before it is used),
+        as at a soft limit. A jog that starts in an obstacle's envelope is not held there."""
+        assert self.bounds is not None
+        brake = self.v * np.abs(self.v) / (2.0 * self.accel)
+        way = np.sign(self.v)
+        allowance = math.radians(LIMIT_ALLOWANCE_DEG)
+        if not self.bounds.collisions_at(self.theta + brake + way * (allowance + self.creep_rad)):
+            return
+        self.v_cmd = np.clip(self.v_cmd, -self.creep_rad_s, self.creep_rad_s)  # near an obstacle: creep
+        self._stop_if_hit(self.theta + brake + way * allowance)
+
+    def _stop_if_hit(self, pose: np.ndarray) -> None:
+        """A link in an obstacle at ``pose`` (and not where the target is now): stop the jog."""
+        assert self.bounds is not None
+        hits = self.bounds.collisions_at(pose)
+        if hits and not self.bounds.collisions_at(self.theta):
+            link, obstacle = hits[0]
+            self.refusal = (f"jog stopped: link {link} would hit obstacle {obstacle} "
+                            f"(joints {', '.join(f'{math.degrees(x):.2f}' for x in self.theta)} deg)")
+            self.v_cmd[:] = 0.0
+
     def sample(self, t: float) -> Sample:
         dt = max(0.0, t - self._t)
         self._t = t
@@ -116,6 +156,8 @@ class JogTrajectory:
             self.v_cmd[:] = 0.0  # the deadman ran out: come to rest
             self.expired = True
         v0 = self.v.copy()
+        if self.bounds is not None and self.refusal is None and self.v.any():
+            self._look_ahead()
         if dt > 0.0:
             step = self.accel * dt
             v = np.clip(self.v_cmd, self.v - step, self.v + step)
@@ -145,7 +187,8 @@ class JogMove:
         bounds = ctx.bounds
         lo = np.full(n, -np.inf) if bounds is None else np.asarray(bounds.min_rad, float)
         hi = np.full(n, np.inf) if bounds is None else np.asarray(bounds.max_rad, float)
-        return JogTrajectory(start, ctx.limits.v_max, np.asarray(self.accel_rad_s2, float), lo, hi, self.deadman_s)
+        return JogTrajectory(start, ctx.limits.v_max, np.asarray(self.accel_rad_s2, float), lo, hi, self.deadman_s,
+                             bounds)
 
 
 def running_jog(loop: Any) -> JogTrajectory | None:

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from servo.jog import LIMIT_ALLOWANCE_DEG, JogTrajectory
+from servo.trajectory import TrajectoryError
 
 INF = np.array([np.inf])
 
@@ -61,3 +62,27 @@ def test_the_target_stops_inside_the_soft_limit_and_comes_back_from_beyond_it():
     assert all(j.sample(k * 0.01).theta_d[0] == 0.2 for k in range(1, 20))
     j.command({0: -0.5})
     assert j.sample(0.2).theta_d[0] < 0.2
+
+
+def test_a_jog_toward_an_obstacle_stops_before_a_link_reaches_it():
+    # the arm's default geometry (hal.kinematics): at j1 = φ, the links run radially from the
+    # shoulder (0, 0, 0.30 m) out to 1.15 m. A box x 0.5..1.0, y 0.4..0.8, z 0.2..0.4: the arm first
+    # touches its corner (1.0, 0.4) at φ = atan(0.4/1.0) = 21.80° (r = 1.077 m < 1.15 m)
+    from hal.kinematics import ArmModel
+    from servo.scene import Obstacle, Scene
+    from servo.trajectory import MotionBounds
+
+    box = Obstacle.make("box", (0.5, 0.4, 0.2), (1.0, 0.8, 0.4))
+    bounds = MotionBounds(("j1", "j2", "j3", "j4", "j5", "j6", "hand"), np.full(7, -3.0), np.full(7, 3.0),
+                          ArmModel(), Scene([box]))
+    j = JogTrajectory(np.zeros(7), np.full(7, math.radians(20.0)), np.full(7, math.radians(400.0)),
+                      np.full(7, -np.inf), np.full(7, np.inf), bounds=bounds)
+    for k in range(1, 250):  # 2 s at 20°/s, renewed: it would reach 40°
+        if k % 25 == 1 and j.refusal is None:
+            j.command({0: math.radians(20.0)})
+        theta = j.sample(k * 0.008).theta_d
+        assert not bounds.collisions_at(theta), math.degrees(theta[0])
+    assert j.refusal is not None and "obstacle box" in j.refusal
+    assert 19.0 < math.degrees(j.theta[0]) < 21.80
+    with pytest.raises(TrajectoryError, match="obstacle box"):
+        j.command({0: math.radians(20.0)})

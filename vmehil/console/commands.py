@@ -26,6 +26,7 @@ from servo.control.gains import GAIN_NAMES
 from servo.gain_guard import GainRejected, check_gain_change
 from vmehil.console.protocol import (
     ARGS,
+    COLLISION,
     FILE,
     GAIN,
     INTERNAL,
@@ -582,6 +583,9 @@ def _jog(s: Session, a: dict[str, Any]) -> Outcome:
     try:
         speeds, started = jog(loop, {j: float(deg_to_rad(speed))}, hold_position(loop))
     except TrajectoryError as e:
+        cur = running_jog(loop)
+        if cur is not None and cur.refusal is not None:  # it stopped short of an obstacle
+            raise ConsoleError(COLLISION, str(e)) from None
         raise ConsoleError(VALUE, f"cannot jog: {e}") from None
     got = _deg(speeds[j])
     if started:  # renewals (a handset sends them at 10 Hz) are not each logged

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 import pytest
 
 from servo.motion import Motion, WaitMove
@@ -125,3 +127,21 @@ def test_a_jog_toward_a_soft_limit_stops_before_it(arm):
     assert peak < 163.01, peak
     assert 161.0 < _true_deg(system) < 163.01
     assert loop.fault is None  # no soft_limit stop
+
+
+def test_a_jog_toward_an_obstacle_stops_short_of_it_and_the_next_jog_says_why(arm):
+    system, loop, runner, drv = arm
+    t = loop.period_s
+    # a box beside the arm, which stands at j1 = 150° (links radial at the shoulder's 0.30 m)
+    assert drv.ask("obstacle add shelf -0.9 0.65 0.2 -0.5 0.9 0.4")[-1].startswith("OK obstacle")
+    bounds = loop.plan_context.bounds
+    replies = []
+    for _ in range(12):  # 3 s at -10°/s, renewed: it would turn j1 through 30°
+        replies.append(drv.ask("jog j1 -10")[-1])
+        for _ in range(round(0.25 / t)):
+            runner.tick()
+            truth = np.asarray(system.truth()["theta_joint"], float)
+            assert not bounds.collisions_at(truth), np.degrees(truth)
+    refused = [r for r in replies if r.startswith("ERR")]
+    assert refused and refused[0].startswith("ERR COLLISION jog stopped: link") and "obstacle shelf" in refused[0]
+    assert 140.0 < _true_deg(system) < 150.0 and loop.fault is None
