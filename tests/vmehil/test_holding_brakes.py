@@ -112,6 +112,39 @@ def test_a_re_enable_moves_no_joint_more_than_a_tenth_of_a_degree(arm):
     assert np.all(np.degrees(worst) < 0.1), np.degrees(worst)
 
 
+@pytest.mark.parametrize(("rig", "braked"), [
+    ("jpl-arm", BRAKED),
+    ("melmalec-16", tuple(f"leg{i}_{j}" for i in range(1, 5) for j in ("lift", "knee")))])
+def test_a_re_enable_after_a_category_0_stop_in_mid_move_moves_no_joint_more_than_a_tenth_of_a_degree(rig, braked):
+    # the default demo is moving its joints at up to 20°/s at 2 s; the torque commanded then
+    # carries the move's friction and acceleration, not only the load the brake takes over
+    system = build_emulated_rig(rig, seed=0)
+    try:
+        loop = build_loop(system, n_ticks=1000)
+        runner = LockstepRunner(system, loop)
+        idx = [i for i, j in enumerate(system.rig.joints) if j.name in braked]
+        loop.start()
+        for _ in range(250):
+            runner.tick()
+        assert np.degrees(np.abs(system.truth()["omega_joint"][idx])).max() > 5.0  # moving
+        loop.safe_stop("estop", "amplifiers off at once")
+        for _ in range(250):  # 2 s: the brakes hold the joints
+            runner.tick()
+        assert system.truth()["brake_engaged"][idx].all()
+        before = _theta(system)
+        loop.resume(hold_measured=True)
+        worst = np.zeros(len(before))
+        for _ in range(125):  # release (60 ms after the first torque) and 1 s of holding
+            runner.tick()
+            worst = np.maximum(worst, np.abs(_theta(system) - before))
+        assert loop.fault is None
+        assert not system.truth()["brake_engaged"][idx].any()
+        assert _nets(system, "holding_brake", braked) == [True] * len(braked)
+        assert np.all(np.degrees(worst) < 0.1), np.degrees(worst)  # every joint, braked or not
+    finally:
+        system.close()
+
+
 def test_the_read_back_names_a_brake_line_that_still_reads_high(arm):
     system, loop, runner = arm
     loop.start()
