@@ -54,6 +54,12 @@ CATEGORIES: Mapping[str, tuple[StopCategory, str]] = {
     "stale_sensor": (StopCategory.UNCONTROLLED, "the sensor data are old, or a reading no longer follows the joint"),
     "plant_restarted": (StopCategory.UNCONTROLLED, "the sensors' state was lost"),
     "estop": (StopCategory.UNCONTROLLED, "the operator's emergency stop: power off now"),
+    # the unit controllers' (vmehil.unit_controllers): every unit's power off in the tick the
+    # first stop reached the plant (docs/melmalec.md)
+    "unit_stop": (StopCategory.UNCONTROLLED, "another unit controller stopped: every unit's power off in that tick"),
+    "unit_lost": (StopCategory.UNCONTROLLED, "a unit controller fell silent: its joints are unpowered"),
+    "coordinator_lost": (StopCategory.UNCONTROLLED, "no answer from the coordinator: no sensor data arrive"),
+    "answer_incomplete": (StopCategory.UNCONTROLLED, "an answer lacks this unit's sensor data"),
     "operator_stop": (StopCategory.CONTROLLED, "the operator's stop: sensors and drivers sane"),
     "operator_shutdown": (StopCategory.CONTROLLED, "the operator's shutdown: sensors and drivers sane"),
     "session_end": (StopCategory.CONTROLLED, "a console session ended: sensors and drivers sane"),

@@ -251,3 +251,38 @@ def test_a_controlled_stop_over_can_holds_the_arm_and_the_node_sees_power_off():
         assert worst.max() < 1.0, worst
     finally:
         system.close()
+
+
+def test_a_signal_during_the_window_after_the_stop_ends_it_at_once():
+    """SIGINT (a real one, Python's own handler) 0.4 s into the 2 s watched after a run's
+    category-1 end: the window ends in that tick, the stop already done (boards safe, brakes
+    holding), the signal raised for the command's exit status (130)."""
+    import signal
+
+    system = build_emulated_rig("jpl-arm", seed=0)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        loop = build_loop(system, n_ticks=300)
+        runner = LockstepRunner(system, loop)
+        loop.start()
+        runner.run(250)
+        at: dict[str, int] = {}
+
+        def sigint_in_the_window(lp) -> None:
+            if not lp.enabled and lp.stopping is None and "off" not in at:
+                at["off"] = lp.tick_count  # the stop is done: the window begins
+            if "off" in at and lp.tick_count == at["off"] + 50 and "sent" not in at:
+                at["sent"] = lp.tick_count
+                signal.raise_signal(signal.SIGINT)
+
+        runner.after_tick.append(sigint_in_the_window)
+        with pytest.raises(KeyboardInterrupt):
+            runner.end_run()
+        assert loop.tick_count == at["sent"]  # no tick after the signal's
+        assert loop.stop_summary()["category"] == 1 and loop.stop_summary()["cause"] == "end"
+        assert_boards_safe(system)
+        assert not any(_net(system, j, "holding_brake") for j in BRAKED)
+        assert system.truth()["brake_engaged"][[1, 2, 3, 5]].all()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        system.close()
