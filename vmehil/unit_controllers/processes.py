@@ -115,8 +115,11 @@ def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, s
             # a stopped unit's run ends: the others stop in the same exchange (module remote)
             out.completed = runner.run(n_ticks, stop=lambda: loop.fault is not None)
             # the single run's end (servo.runner.LockstepRunner.end_run): a category-1 stop, then
-            # 2 s watching the joints; the coordinator serves the plant until every unit has left
-            runner.end_run()
+            # 2 s watching the joints; the coordinator serves the plant until every unit has left.
+            # A link that is dead (the coordinator gone, or no fresh answer: the loop stopped for
+            # it) has only held values to give: nothing to watch
+            if not link.dead:
+                runner.end_run()
         out.free_running, out.stale, out.incomplete = link.free_running, link.stale, link.incomplete
         if runner.ended_by is not None:
             out.ended = f"{type(runner.ended_by).__name__}: {runner.ended_by}"

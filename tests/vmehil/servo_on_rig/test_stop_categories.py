@@ -286,3 +286,39 @@ def test_a_signal_during_the_window_after_the_stop_ends_it_at_once():
     finally:
         signal.signal(signal.SIGINT, previous)
         system.close()
+
+
+def test_a_plant_lost_in_the_window_after_the_stop_ends_it_without_a_fault():
+    """The run ended by its category-1 stop; 0.2 s into the 2 s watched after it the plant stops
+    answering (a CAN node gone): nothing is left to watch, the window ends in that tick, and the
+    run stays fault-free — its stop was done (brake lines low, boards safe)."""
+    from servo.boundary import PlantBoundaryError
+
+    system = build_emulated_rig("jpl-arm", seed=0)
+    try:
+        loop = build_loop(system, n_ticks=300)
+        runner = LockstepRunner(system, loop)
+        loop.start()
+        runner.run(250)
+        exchange = system.exchange
+        at: dict[str, int] = {}
+
+        def lost_in_the_window(k: int):
+            if not loop.enabled and loop.stopping is None:
+                at.setdefault("off", k)
+                if k >= at["off"] + 25:
+                    at["lost"] = k
+                    raise PlantBoundaryError("plant_lost", "test: the plant node is gone")
+            return exchange(k)
+
+        system.exchange = lost_in_the_window  # type: ignore[method-assign]
+        runner.end_run()
+        assert loop.tick_count == at["lost"] + 1  # the window ended with the tick that lost the plant
+        assert loop.fault is None and loop.faults == []
+        assert isinstance(runner.window_ended_by, PlantBoundaryError)
+        assert loop.stop_summary()["category"] == 1
+        assert not any(_net(system, j, "holding_brake") for j in BRAKED)
+        assert not any(_net(system, j, "amp_enable") for j in JOINTS[:6])
+        assert any("the watch after the stop ended: plant_lost" in msg for _, _, msg in loop.log)
+    finally:
+        system.close()
