@@ -239,6 +239,8 @@ def test_an_abort_stops_every_unit_from_its_next_tick_by_category_1() -> None:
             off = probe.first_off(name)
             assert loop.tick_count - off >= 250  # then 2 s watched (the run's 1500 ticks are not run)
             assert loop.tick_count < 1500
+        # each unit's own end: no unit told the others to stop, none cut another's window short
+        assert run.hub.stop is None
     finally:
         run.close()
 

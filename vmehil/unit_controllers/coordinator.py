@@ -233,7 +233,10 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
                     runner.end_run(cause=INTERRUPT_CAUSE, detail=INTERRUPT_DETAIL)
                 else:
                     runner.end_run()
-            why = None if ur.completed == n_ticks else f"its run ended after {ur.completed} ticks"
+            # an abort ends every unit's run early, each with its own end: leaving then is no
+            # news for the others (the hub would cut their windows short)
+            why = (None if ur.completed == n_ticks or ending == [INTERRUPT_CAUSE]
+                   else f"its run ended after {ur.completed} ticks")
             if runner.ended_by is not None:
                 why = f"{type(runner.ended_by).__name__}: {runner.ended_by}"
         except (Exception, KeyboardInterrupt, Terminated) as e:
