@@ -222,6 +222,16 @@ def write_report(loop: ServoLoop, summary: dict[str, Any], out_dir: str | Path) 
     return files
 
 
+def final_stop_line(stop: dict[str, Any] | None) -> str | None:
+    """The terminal's line for a run's final stop: "final stop: end (category 1); moved after the
+    stop …" (``None``: the stop has no category, an older loop's)."""
+    stop = stop or {}
+    if stop.get("category") is None:
+        return None
+    return (f"final stop: {stop.get('cause') or stop.get('reason')} (category {stop['category']}); "
+            f"{excursion_text(stop.get('excursion_deg'))}")
+
+
 def excursion_text(excursion_deg: dict[str, float | None] | None) -> str:
     """A stop's excursion for the terminal: "moved after the stop (deg): j1 0.012, j2 0.150, …"."""
     if not excursion_deg:
