@@ -385,6 +385,22 @@ class ArmModel:
             name = ""
         return name, manip, wrist
 
+    def crosses_singularity(self, theta_a: FloatVector, theta_b: FloatVector) -> str:
+        """The singularity a move from ``theta_a`` to the nearby ``theta_b`` passes through (its
+        name; ``""``: none): the elbow's sin q3, the wrist's distance from the waist axis r (signed)
+        or the wrist's cos q5 changing sign between them — a crossing that samples on either side
+        of a singularity, each outside its band, would miss."""
+        qa, qb = self._q(theta_a), self._q(theta_b)
+        ra = self.a2 * math.cos(qa[1]) + self.a3 * math.cos(qa[1] + qa[2])
+        rb = self.a2 * math.cos(qb[1]) + self.a3 * math.cos(qb[1] + qb[2])
+        if math.sin(qa[2]) * math.sin(qb[2]) < 0.0:
+            return "the elbow straight (the edge of the workspace)" if math.cos(qa[2]) > 0 else "the elbow folded"
+        if ra * rb < 0.0:
+            return "the wrist on the waist axis"
+        if math.cos(self._wrist_q(theta_a)[1]) * math.cos(self._wrist_q(theta_b)[1]) < 0.0:
+            return "the wrist roll at ±90° (the yaw axis parallel to the pitch axis)"
+        return ""
+
     def ik_candidates(self, position: FloatVector, rotation: np.ndarray) -> tuple[list[tuple[float, ...]], float]:
         """Every closed-form solution ``(q1, …, q6)`` putting the tool at ``position`` with the hand's
         frame ``rotation`` (see the module docstring), and the wrist point's smallest distance from
