@@ -524,6 +524,30 @@ def _move_joint(s: Session, a: dict[str, Any]) -> Outcome:
                         f"move {s.loop.names[j]} to {a['target']:g} deg")
 
 
+@atom("move_to", (*(Param(k, FLOAT) for k in ("x", "y", "z")),
+                   *(Param(k, FLOAT, None) for k in ("roll", "pitch", "yaw")),
+                   Param("approach", FLOAT, 0.0), Param("speed", FLOAT, 1.0)),
+      "the tool to X Y Z (metres, the arm's base frame) with the hand at ROLL PITCH YAW (degrees; all three or "
+      "none: the default, level and pointing outward); approach=M: straight in over the last M metres")
+def _move_to(s: Session, a: dict[str, Any]) -> Outcome:
+    from servo.cartesian import MAX_COORDINATE_M, CartesianMove, CartesianTarget
+
+    xyz = [a["x"], a["y"], a["z"]]
+    rpy = [a["roll"], a["pitch"], a["yaw"]]
+    if not all(math.isfinite(v) and abs(v) <= MAX_COORDINATE_M for v in xyz):
+        raise ConsoleError(VALUE, f"move_to: X Y Z must be finite, within ±{MAX_COORDINATE_M:g} m")
+    if any(v is None for v in rpy) and not all(v is None for v in rpy):
+        raise ConsoleError(ARGS, "move_to X Y Z [ROLL PITCH YAW]: the hand's orientation needs all three angles")
+    if rpy[0] is not None:
+        _angles(tuple(rpy), "roll, pitch, yaw")  # finite, within a turn
+    approach = a["approach"]
+    if not (math.isfinite(approach) and 0.0 <= approach <= MAX_COORDINATE_M):
+        raise ConsoleError(VALUE, f"move_to: approach must be a distance in [0, {MAX_COORDINATE_M:g}] m")
+    target = CartesianTarget.make(xyz, None if rpy[0] is None else rpy)
+    what = f"move_to {xyz}" + ("" if rpy[0] is None else f" rpy {rpy}")
+    return start_motion(s, [CartesianMove(target, approach, _speed(a["speed"]))], what)
+
+
 @atom("stay", (), "stop the motion: hold the present target (the amplifiers stay on)")
 def _stay(s: Session, a: dict[str, Any]) -> Outcome:
     from servo.trajectory import Sequencer
@@ -833,8 +857,8 @@ def _shutdown(s: Session, a: dict[str, Any]) -> Outcome:
 
 #: The atomic commands by name, in the order of ``help``.
 ATOMS: dict[str, Atom] = {a.name: a for a in (
-    _help, _status, _move, _move_rel, _move_joint, _stay, _gains, _mode, _stop, _estop, _enable, _run, _calibrate, _log,
-    _commands, _load, _cancel, _pause, _echo, _shutdown, _obstacle,
+    _help, _status, _move, _move_rel, _move_joint, _move_to, _stay, _gains, _mode, _stop, _estop, _enable, _run,
+    _calibrate, _log, _commands, _load, _cancel, _pause, _echo, _shutdown, _obstacle,
 )}
 
 
