@@ -101,8 +101,8 @@ class CartesianPath:
         if name:
             raise reach_refusal(f"the straight path starts at a singularity ({name}): move the arm off it "
                                 "with a joint or cartesian move first", point_index=0, t_s=0.0, theta=theta[0])
-        omega = np.gradient(theta, tau, axis=0)
-        alpha = np.gradient(omega, tau, axis=0)
+        omega = np.asarray(np.gradient(theta, tau, axis=0), float)
+        alpha = np.asarray(np.gradient(omega, tau, axis=0), float)
         k = max(1.0, float(np.max(np.abs(omega) / (s * limits.v_max))))
         if limits.a_max is not None:
             k = max(k, math.sqrt(float(np.max(np.abs(alpha) / (s * s * limits.a_max)))))

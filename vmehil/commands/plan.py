@@ -114,8 +114,9 @@ def plan_motion(moves: list[Any], start: np.ndarray, ctx: Any) -> tuple[list[Any
             try:  # unchecked (a Cartesian move keeps the arm, not the limits): to go on from its end
                 traj = move.build(position, PlanContext(ctx.limits, ctx.extras, _unchecked(ctx.bounds)))
             except MotionRefused:  # out of reach: no end to go on from
-                notes.append(f"move {i + 1} cannot be planned at all: the moves after it are planned from "
-                             "where it would start")
+                if i + 1 < len(moves):
+                    notes.append(f"move {i + 1} cannot be planned at all: the moves after it are planned from "
+                                 "where it would start")
                 continue
         elif err is not None:
             raise err

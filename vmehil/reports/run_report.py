@@ -112,7 +112,8 @@ def tool_summary(loop: ServoLoop, rec: dict[str, np.ndarray]) -> dict[str, Any] 
     """Where the tool ended against the target of the motion's last move when that is a Cartesian
     one (docs/cartesian.md): ``final_error_mm`` from the emulated truth (the plant's true joint
     angles through the arm's forward kinematics) at the run's last recorded tick, and
-    ``measured_error_mm`` from the drivers' angles (what the servo believed); ``None`` when the last
+    ``measured_error_mm`` from the drivers' angles (what the servo believed: its own static error),
+    ``sensor_error_mm`` between the two (the pots' and calibration's part); ``None`` when the last
     move that ran is not Cartesian, or there is no arm model or no truth."""
     ctx = getattr(loop, "plan_context", None)
     arm = ctx.bounds.arm if ctx is not None and ctx.bounds is not None else None
@@ -133,6 +134,8 @@ def tool_summary(loop: ServoLoop, rec: dict[str, np.ndarray]) -> dict[str, Any] 
             "final_position_m": [round(float(x), 6) for x in where],
             "final_error_mm": float(np.linalg.norm(where - target) * 1e3),
             "measured_error_mm": float(np.linalg.norm(measured - target) * 1e3),
+            # the sensing part of the error: where the drivers' angles put the tool against the truth
+            "sensor_error_mm": float(np.linalg.norm(measured - where) * 1e3),
             "source": "true joint angles through the arm's forward kinematics"}
 
 

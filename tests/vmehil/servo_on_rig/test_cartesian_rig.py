@@ -8,7 +8,7 @@ of a calibrated run (measured in docs/cartesian.md with its command): the nomina
 ~1° off each (docs/motion-safety.md: the start reads 0.94° high), at the tool's lever arms (waist
 and shoulder ~1.1 m, elbow ~0.6 m, wrist pitch 0.25 m here) ≈ 54 mm at worst if every error adds;
 the servo's own static error within the integrator switch-off's 0.3° inner band adds at most
-~16 mm more. Measured 23–37 mm on five targets (docs/cartesian.md)."""
+~16 mm more. Measured 21–45 mm on six targets (docs/cartesian.md)."""
 
 from __future__ import annotations
 
