@@ -530,6 +530,16 @@ def _move_joint(s: Session, a: dict[str, Any]) -> Outcome:
       "the tool to X Y Z (metres, the arm's base frame) with the hand at ROLL PITCH YAW (degrees; all three or "
       "none: the default, level and pointing outward); approach=M: straight in over the last M metres")
 def _move_to(s: Session, a: dict[str, Any]) -> Outcome:
+    moves = a.get("moves")
+    if moves is None:  # not prepared off the loop thread (direct API use)
+        moves = _move_to_moves(a)
+    rpy = [a["roll"], a["pitch"], a["yaw"]]
+    what = f"move_to {[a['x'], a['y'], a['z']]}" + ("" if rpy[0] is None else f" rpy {rpy}")
+    return start_motion(s, moves, what, a.get("planned"))
+
+
+def _move_to_moves(a: dict[str, Any]) -> list[Any]:
+    """``move_to``'s one Cartesian move, its arguments checked."""
     from servo.cartesian import MAX_COORDINATE_M, CartesianMove, CartesianTarget
 
     xyz = [a["x"], a["y"], a["z"]]
@@ -544,8 +554,7 @@ def _move_to(s: Session, a: dict[str, Any]) -> Outcome:
     if not (math.isfinite(approach) and 0.0 <= approach <= MAX_COORDINATE_M):
         raise ConsoleError(VALUE, f"move_to: approach must be a distance in [0, {MAX_COORDINATE_M:g}] m")
     target = CartesianTarget.make(xyz, None if rpy[0] is None else rpy)
-    what = f"move_to {xyz}" + ("" if rpy[0] is None else f" rpy {rpy}")
-    return start_motion(s, [CartesianMove(target, approach, _speed(a["speed"]))], what)
+    return [CartesianMove(target, approach, _speed(a["speed"]))]
 
 
 @atom("stay", (), "stop the motion: hold the present target (the amplifiers stay on)")
@@ -863,13 +872,19 @@ ATOMS: dict[str, Atom] = {a.name: a for a in (
 
 
 def prepare(name: str, bound: dict[str, Any], n_joints: int, names: list[str], loop: Any = None) -> dict[str, Any]:
-    """The off-loop phase of an atom that reads a motion file (``run``); returns the arguments to
-    run with (with ``loop``, the motion planned off the loop too: :func:`plan_off_loop`). ``load``
+    """The off-loop phase of an atom that reads a motion file (``run``) or plans a Cartesian move
+    (``move_to``); returns the arguments to run with (with ``loop``, the motion planned off the
+    loop too: :func:`plan_off_loop`). ``load``
     reads its file in :func:`vmehil.console.compound.prepare`, which wraps this."""
     if name == "run":
         out = _prepare_run(bound, n_joints)
         if loop is not None:
             out["planned"] = plan_off_loop(list(out["motion"].moves), loop)
+        return out
+    if name == "move_to":  # a straight approach is a tabulated path (tens of ms): planned off the loop too
+        out = {**bound, "moves": _move_to_moves(bound)}
+        if loop is not None:
+            out["planned"] = plan_off_loop(out["moves"], loop)
         return out
     return bound
 
