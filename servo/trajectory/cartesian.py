@@ -86,6 +86,10 @@ class CartesianPath:
         frac = run / run[-1] if run[-1] > 0.0 else tau / tau[-1]
         theta = np.empty((m, n))
         theta[0] = np.asarray(start, float)
+        name = arm.singularity(theta[0])[0]
+        if name:
+            raise reach_refusal(f"the straight path starts at a singularity ({name}): move the arm off it "
+                                "with a joint or cartesian move first", point_index=0, t_s=0.0, theta=theta[0])
         for i in range(1, m):
             res = arm.solve(xyz[i], slerp(r_start, r_end, float(frac[i])), theta0=theta[i - 1])
             where = f"point {i + 1} of {m} of the path, {_fmt_m(xyz[i])} (t = {tau[i] / s:.3f} s nominal)"
@@ -97,10 +101,6 @@ class CartesianPath:
                 raise reach_refusal(f"the straight path passes through a singularity at {where}: "
                                     f"{crossed}", point_index=i, t_s=float(tau[i]), theta=res.theta)
             theta[i] = res.theta
-        name = arm.singularity(theta[0])[0]
-        if name:
-            raise reach_refusal(f"the straight path starts at a singularity ({name}): move the arm off it "
-                                "with a joint or cartesian move first", point_index=0, t_s=0.0, theta=theta[0])
         omega = np.asarray(np.gradient(theta, tau, axis=0), float)
         alpha = np.asarray(np.gradient(omega, tau, axis=0), float)
         k = max(1.0, float(np.max(np.abs(omega) / (s * limits.v_max))))

@@ -133,13 +133,22 @@ def test_a_straight_path_turning_the_wrist_roll_through_90_degrees_is_refused() 
     assert "the wrist roll at ±90°" in str(err)
 
 
+def test_a_straight_path_from_a_singular_start_is_refused_saying_so() -> None:
+    # every joint at 0: the elbow straight
+    seq = _plan('[[move]]\ntype = "blendx"\nposition_m = [1.2, 0.1, 0.3]\n', start=np.zeros(7))
+    err = seq.plan_error
+    assert isinstance(err, MotionRefused) and err.code == "REACH"
+    assert "move 1: the straight path starts at a singularity (the elbow straight" in str(err)
+
+
 def test_a_straight_path_out_of_the_workspace_is_refused_naming_the_point() -> None:
     # from (0.8, 0, 0.3) up to 1.5 m: the wrist leaves the 1.15 m sphere about the shoulder on the way
     seq = _plan('[[move]]\ntype = "cartesian"\nposition_m = [0.8, 0.0, 0.3]\n'
                 '[[move]]\ntype = "blendx"\nvia_m = [[0.8, 0.0, 1.5]]\nposition_m = [0.8, 0.0, 0.6]\n')
     err = seq.plan_error
     assert isinstance(err, MotionRefused) and err.code == "REACH"
-    assert "move 2: the straight path" in str(err)
+    assert "move 2: the straight path leaves the workspace at point" in str(err)
+    assert "beyond reach: the wrist 1.15" in str(err)
 
 
 def test_a_cartesian_move_through_an_obstacle_is_refused_by_the_collision_check() -> None:
