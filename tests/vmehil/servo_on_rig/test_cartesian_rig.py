@@ -13,6 +13,7 @@ the servo's own static error within the integrator switch-off's 0.3° inner band
 from __future__ import annotations
 
 import json
+
 import numpy as np
 import pytest
 
