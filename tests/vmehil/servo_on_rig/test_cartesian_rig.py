@@ -7,8 +7,8 @@ this file's share of the test time), so its bound is the uncalibrated error budg
 of a calibrated run (measured in docs/cartesian.md with its command): the nominal pots read up to
 ~1° off each (docs/motion-safety.md: the start reads 0.94° high), at the tool's lever arms (waist
 and shoulder ~1.1 m, elbow ~0.6 m, wrist pitch 0.25 m here) ≈ 54 mm at worst if every error adds;
-the servo's own static error within the integrator switch-off's 0.3° inner band adds at most
-~16 mm more. Measured 21–45 mm on six targets (docs/cartesian.md)."""
+the servo's own static error under the integrator switch-off (measured up to 0.3° a joint,
+docs/cartesian.md) adds ~16 mm more at those levers. Measured 21–45 mm on six targets (docs/cartesian.md)."""
 
 from __future__ import annotations
 
@@ -19,6 +19,7 @@ import pytest
 
 from hal.kinematics import ArmModel
 from vmehil.cli import main
+from vmehil.rig_setup import system as rig_system
 
 ARM = ArmModel()  # jpl-arm's [arm] is the model's defaults (docs/motion-safety.md)
 
@@ -28,10 +29,25 @@ def _no_calibration(tmp_path, monkeypatch):
     monkeypatch.setenv("VMEHIL_CALIBRATION_DIR", str(tmp_path / "calibration"))  # nominal values: none there
 
 
-def test_an_unreachable_cartesian_target_is_refused_with_exit_2(tmp_path, capsys) -> None:
+def test_an_unreachable_cartesian_target_is_refused_with_exit_2_before_any_enable(tmp_path, monkeypatch,
+                                                                                  capsys) -> None:
     motion = tmp_path / "far.toml"
     motion.write_text('[[move]]\ntype = "cartesian"\nposition_m = [1.6, 0.0, 0.3]\n', encoding="utf-8")
+    built, raised = [], []
+    real_build = rig_system.build_emulated_rig
+
+    def watched(*args, **kwargs):  # every rig the run builds: its enable nets watched from the start
+        system = real_build(*args, **kwargs)
+        for j in system.rig.joints:
+            if "amp_enable" in j.wiring:
+                system.crate.signals.subscribe(j.net("amp_enable"),
+                                               lambda v, name=j.name: raised.append(name) if v else None)
+        built.append(system)
+        return system
+
+    monkeypatch.setattr(rig_system, "build_emulated_rig", watched)
     assert main(["run", "--motion", str(motion), "--quiet"]) == 2
+    assert built and raised == []  # the rig was built (the joints read), no enable line ever rose
     err = capsys.readouterr().err
     assert ("move refused: move 1: target [1.600, 0.000, 0.300] m cannot be reached: beyond reach: "
             "the wrist 1.350 m from the shoulder, the arm reaches 1.150 m") in err
