@@ -129,13 +129,16 @@ def tool_summary(loop: ServoLoop, rec: dict[str, np.ndarray]) -> dict[str, Any] 
     last = int(rows[-1])
     where = arm.tool_position(truth[last])
     measured = arm.tool_position(rec["theta"][last])
+    measured_mm = float(np.linalg.norm(measured - target) * 1e3)
+    sensor_mm = float(np.linalg.norm(measured - where) * 1e3)
     return {"move": ran[-1].index + 1, "kind": move.kind,
             "target_m": [round(float(x), 6) for x in target],
             "final_position_m": [round(float(x), 6) for x in where],
             "final_error_mm": float(np.linalg.norm(where - target) * 1e3),
-            "measured_error_mm": float(np.linalg.norm(measured - target) * 1e3),
+            # None when a sensor no longer answered at that tick
+            "measured_error_mm": measured_mm if np.isfinite(measured_mm) else None,
             # the sensing part of the error: where the drivers' angles put the tool against the truth
-            "sensor_error_mm": float(np.linalg.norm(measured - where) * 1e3),
+            "sensor_error_mm": sensor_mm if np.isfinite(sensor_mm) else None,
             "source": "true joint angles through the arm's forward kinematics"}
 
 
@@ -163,7 +166,7 @@ def table(summary: dict[str, Any]) -> str:
     tool = summary.get("tool")
     if tool is not None:
         vis.append(f"tool: {tool['final_error_mm']:.2f} mm from the target of move {tool['move']} ({tool['kind']}; "
-                   f"the drivers' angles say {tool['measured_error_mm']:.2f} mm)")
+                   f"the drivers' angles say {_f(tool['measured_error_mm'], 2)} mm)")
     tail = [*vis] + [f"fault: {f['cause']} at {f['time_s']:.3f} s"
                      + (f" ({f['joint']})" if f["joint"] is not None else "") + f": {f['detail']}"
                      for f in summary["faults"]]
