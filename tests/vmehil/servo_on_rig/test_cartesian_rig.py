@@ -7,7 +7,7 @@ this file's share of the test time), so its bound is the uncalibrated error budg
 of a calibrated run (measured in docs/cartesian.md with its command): the nominal pots read up to
 ~1° off each (docs/motion-safety.md: the start reads 0.94° high), at the tool's lever arms (waist
 and shoulder ~1.1 m, elbow ~0.6 m, wrist pitch 0.25 m here) ≈ 54 mm at worst if every error adds;
-the servo's own static error under the integrator switch-off (measured up to 0.3° a joint,
+the servo's own static error under the integrator switch-off (measured up to 0.33° a joint,
 docs/cartesian.md) adds ~16 mm more at those levers. Measured 21–45 mm on six targets (docs/cartesian.md)."""
 
 from __future__ import annotations
