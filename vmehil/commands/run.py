@@ -165,12 +165,7 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
     elif "duration" in defaults:
         duration = defaults["duration"]
     else:
-        probe_system = build_emulated_rig(rig, seed=opts.seed)
-        try:  # a motion the soft limits or the scene refuse stops here (MotionRefused: exit 2)
-            duration = _planned_duration(build_loop(probe_system, motion=motion, n_ticks=1, settings=settings,
-                                                    scene=scene)) + 1.0
-        finally:
-            probe_system.close()
+        duration = _plan_checked(rig, opts.seed, motion, settings, scene) + 1.0
     if not duration > 0:
         raise CliError("--duration must be > 0")
     n_ticks = round(duration * rig.servo_rate_hz)
@@ -178,6 +173,10 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
         raise CliError(f"--duration {duration:g} s is shorter than one servo period ({rig.period_s * 1e3:g} ms)")
     if parallel:
         from vmehil.calibration.store import load_store_or_nominal
+
+        if opts.duration is not None or "duration" in defaults:
+            # the units plan their own segments; the whole motion is checked here all the same
+            _plan_checked(rig, opts.seed, motion, settings, scene)
 
         # one file, the single run's loader and checks; each unit applies its own entries
         store = calibrated(opts.calibration, rig, lambda cal: load_store_or_nominal(cal, rig))
@@ -245,6 +244,19 @@ def _make_link(opts: RunOptions, rig):
         if link is not None:
             return link
     return None
+
+
+def _plan_checked(rig: Any, seed: int, motion: Any, settings: Any, scene: Any) -> float:
+    """Plan ``motion`` on a probe of the rig (nothing enabled) and return its planned length (s):
+    a move the soft limits or the scene refuse raises here (MotionRefused: exit 2)."""
+    from vmehil.rig_setup.session import build_loop
+    from vmehil.rig_setup.system import build_emulated_rig
+
+    probe_system = build_emulated_rig(rig, seed=seed)
+    try:
+        return _planned_duration(build_loop(probe_system, motion=motion, n_ticks=1, settings=settings, scene=scene))
+    finally:
+        probe_system.close()
 
 
 def _planned_duration(loop) -> float:

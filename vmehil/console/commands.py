@@ -558,6 +558,39 @@ def _move_joint(s: Session, a: dict[str, Any]) -> Outcome:
                         f"move {s.loop.names[j]} to {a['target']:g} deg")
 
 
+@atom("move_to", (*(Param(k, FLOAT) for k in ("x", "y", "z")),
+                   *(Param(k, FLOAT, None) for k in ("roll", "pitch", "yaw")),
+                   Param("approach", FLOAT, 0.0), Param("speed", FLOAT, 1.0)),
+      "the tool to X Y Z (metres, the arm's base frame) with the hand at ROLL PITCH YAW (degrees; all three or "
+      "none: the default, level and pointing outward); approach=M: straight in over the last M metres")
+def _move_to(s: Session, a: dict[str, Any]) -> Outcome:
+    moves = a.get("moves")
+    if moves is None:  # not prepared off the loop thread (direct API use)
+        moves = _move_to_moves(a)
+    rpy = [a["roll"], a["pitch"], a["yaw"]]
+    what = f"move_to {[a['x'], a['y'], a['z']]}" + ("" if rpy[0] is None else f" rpy {rpy}")
+    return start_motion(s, moves, what, a.get("planned"))
+
+
+def _move_to_moves(a: dict[str, Any]) -> list[Any]:
+    """``move_to``'s one Cartesian move, its arguments checked."""
+    from servo.cartesian import MAX_COORDINATE_M, CartesianMove, CartesianTarget
+
+    xyz = [a["x"], a["y"], a["z"]]
+    rpy = [a["roll"], a["pitch"], a["yaw"]]
+    if not all(math.isfinite(v) and abs(v) <= MAX_COORDINATE_M for v in xyz):
+        raise ConsoleError(VALUE, f"move_to: X Y Z must be finite, within ±{MAX_COORDINATE_M:g} m")
+    if any(v is None for v in rpy) and not all(v is None for v in rpy):
+        raise ConsoleError(ARGS, "move_to X Y Z [ROLL PITCH YAW]: the hand's orientation needs all three angles")
+    if rpy[0] is not None:
+        _angles(tuple(rpy), "roll, pitch, yaw")  # finite, within a turn
+    approach = a["approach"]
+    if not (math.isfinite(approach) and 0.0 <= approach <= MAX_COORDINATE_M):
+        raise ConsoleError(VALUE, f"move_to: approach must be a distance in [0, {MAX_COORDINATE_M:g}] m")
+    target = CartesianTarget.make(xyz, None if rpy[0] is None else rpy)
+    return [CartesianMove(target, approach, _speed(a["speed"]))]
+
+
 #: the largest jog speed the console takes (°/s): a sanity bound on the command; the joint's
 #: velocity limit then clamps it
 MAX_JOG_DEG_S = 3600.0
@@ -919,19 +952,25 @@ def _shutdown(s: Session, a: dict[str, Any]) -> Outcome:
 
 #: The atomic commands by name, in the order of ``help``.
 ATOMS: dict[str, Atom] = {a.name: a for a in (
-    _help, _status, _move, _move_rel, _move_joint, _stay, _gains, _mode, _stop, _estop, _enable, _run, _calibrate,
-    _home, _jog, _log, _commands, _load, _cancel, _pause, _echo, _shutdown, _obstacle,
+    _help, _status, _move, _move_rel, _move_joint, _move_to, _stay, _gains, _mode, _stop, _estop, _enable, _run,
+    _calibrate, _home, _jog, _log, _commands, _load, _cancel, _pause, _echo, _shutdown, _obstacle,
 )}
 
 
 def prepare(name: str, bound: dict[str, Any], n_joints: int, names: list[str], loop: Any = None) -> dict[str, Any]:
-    """The off-loop phase of an atom that reads a motion file (``run``); returns the arguments to
-    run with (with ``loop``, the motion planned off the loop too: :func:`plan_off_loop`). ``load``
+    """The off-loop phase of an atom that reads a motion file (``run``) or plans a Cartesian move
+    (``move_to``); returns the arguments to run with (with ``loop``, the motion planned off the
+    loop too: :func:`plan_off_loop`). ``load``
     reads its file in :func:`vmehil.console.compound.prepare`, which wraps this."""
     if name == "run":
         out = _prepare_run(bound, n_joints)
         if loop is not None:
             out["planned"] = plan_off_loop(list(out["motion"].moves), loop)
+        return out
+    if name == "move_to":  # a straight approach is a tabulated path (tens of ms): planned off the loop too
+        out = {**bound, "moves": _move_to_moves(bound)}
+        if loop is not None:
+            out["planned"] = plan_off_loop(out["moves"], loop)
         return out
     return bound
 

@@ -131,3 +131,21 @@ def test_vmehil_plan_reports_the_collision_at_its_point_and_passes_the_route_aro
     assert main(["plan", str(far), "--scene", "none", f"--start-deg={START}", "--json", str(out), "--force"]) == 2
     (limit,) = json.loads(out.read_text(encoding="utf-8"))["refusals"]
     assert (limit["kind"], limit["joint"], limit["link"], limit["obstacle"]) == ("limit", "j2", None, None)
+
+
+def test_a_parallel_run_with_a_duration_is_refused_past_a_soft_limit_before_any_unit_runs(
+        tmp_path, monkeypatch, capsys) -> None:
+    """`--units parallel --duration S` plans no probe for the run's length; the motion is checked
+    all the same (it once went to the units unchecked, guarded by their watchdogs only)."""
+    from vmehil.commands import run_units
+
+    motion = tmp_path / "far.toml"
+    targets = [0.0] * 16
+    targets[0] = 80.0  # leg1_swing: soft limits ±43.83° (melmalec-16.toml: 2° inside ±0.8 rad)
+    motion.write_text(f"[[move]]\ntargets_deg = {targets}\n", encoding="utf-8")
+    started: list[object] = []
+    monkeypatch.setattr(run_units, "run_parallel", lambda *a, **k: started.append(a) or 0)
+    assert main(["run", "--rig", "melmalec-16", "--units", "parallel", "--duration", "2",
+                 "--motion", str(motion), "--quiet"]) == 2
+    assert "joint leg1_swing target 80.00° is past its soft limit max_deg = 43.83°" in capsys.readouterr().err
+    assert started == []
