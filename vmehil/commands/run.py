@@ -124,6 +124,8 @@ def run(opts: RunOptions) -> int:
 
 def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings,
          prepared: dict[ModuleType, Any]) -> int:
+    from servo.motion import NO_MOTION
+
     parallel = opts.units == "parallel"
     if parallel:
         refused = run_units.refused_options(opts)
@@ -136,10 +138,16 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
             print(f"vmehil run --units parallel: rig {rig.name} ({rig.path}) declares no [[rig.unit]] tables",
                   file=sys.stderr)
             return 2
+    if settings.require_homing and opts.motion != NO_MOTION:
+        # an incremental encoder loses its count at power-off: every session homes, and a run does not
+        print(f"vmehil run: rig {rig.name} requires homing before moves ([servo] require_homing; "
+              "docs/motion-safety.md, \"Homing\"): `vmehil run` does not home; home and move on the console "
+              f"(`home all`), or hold with --motion {NO_MOTION}", file=sys.stderr)
+        return 2
     if opts.bus != "emulated":
         from vmehil.commands.run_real import run_on_real_bus
         return run_on_real_bus(opts, rig, settings)
-    from servo.motion import NO_MOTION, default_demo_motion, hold_motion, load_motion
+    from servo.motion import default_demo_motion, hold_motion, load_motion
     from servo.runner import LockstepRunner, RealtimeRunner
     from vmehil.rig_setup.session import build_loop
     from vmehil.rig_setup.system import build_emulated_rig

@@ -167,3 +167,15 @@ def test_a_short_move_to_a_soft_limit_overshoots_it_without_a_stop(tmp_path) -> 
     result = json.loads(out.read_text())
     assert result["faults"] == []
     assert result["final_stop"]["cause"] != "soft_limit"
+
+
+def test_a_rig_that_requires_homing_refuses_a_run_with_moves_and_holds_without(tmp_path, capsys) -> None:
+    """`[servo] require_homing = true`: `vmehil run` does not home, so it refuses to move (exit 2,
+    nothing enabled) and says where to home; a hold (--motion none) still runs."""
+    text = resolve_rig("jpl-arm").read_text(encoding="utf-8")
+    path = tmp_path / "homed.toml"
+    path.write_text(text.replace("[servo]\n", "[servo]\nrequire_homing = true\n", 1), encoding="utf-8")
+    assert main(["run", "--rig", str(path), "--quiet", "--scene", "none"]) == 2
+    assert "requires homing before moves" in capsys.readouterr().err
+    assert main(["run", "--rig", str(path), "--quiet", "--scene", "none", "--motion", "none",
+                 "--duration", "0.2"]) == 0
