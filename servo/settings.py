@@ -324,6 +324,14 @@ def _stop_settings(rig: RigSpec, top: ConfigTable, nominal: list[JointNominal]) 
 DEFAULT_SOFT_LIMIT_MARGIN_DEG = 0.5
 
 
+def soft_limits_rad(rig: RigSpec) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Each joint's soft limits ``(min_rad, max_rad)`` (−inf / +inf where it has none), parsed and
+    checked as :func:`servo_settings` does, for a tool that needs only them (the pot calibration
+    on a bench rig that states no controller)."""
+    parsed = _soft_limits(rig, rig.table.table("servo", {}))
+    return parsed["soft_min_rad"], parsed["soft_max_rad"]
+
+
 def _soft_limits(rig: RigSpec, top: ConfigTable) -> dict[str, Any]:
     """``[joint.limits] min_deg / max_deg`` per joint (either may be absent: no limit that way), and
     ``[servo] soft_limit_margin_deg``. A limit must lie inside the joint's hard stops where the rig

@@ -30,7 +30,7 @@ import math
 import numpy as np
 
 from servo.io import PotCalibration
-from servo.settings import servo_settings
+from servo.settings import soft_limits_rad
 from vmehil.calibration.base import CalibrationAbort, CalibrationContext, Check, ProcedureResult
 from vmehil.calibration.store import CalibrationStore, JointCal, utc_now
 
@@ -102,10 +102,9 @@ class PotProcedure:
         pos = ctx.positioner()
         # Per joint: calibration targets and the stops (targets + verification points between).
         plan: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        settings = servo_settings(ctx.rig)
+        soft_min, soft_max = soft_limits_rad(ctx.rig)
         for j in joints:
-            soft = (settings.soft_min_rad[j.index], settings.soft_max_rad[j.index]) if settings.soft_min_rad \
-                else (-math.inf, math.inf)
+            soft = (soft_min[j.index], soft_max[j.index])
             targets = pot_targets(*pot_travel(j, soft_rad=soft), self.points, self.spacing)
             fr = np.arange(self.verify + 1) / (self.verify + 1)
             stops = np.concatenate([targets[k] + fr * (targets[k + 1] - targets[k]) for k in range(len(targets) - 1)]

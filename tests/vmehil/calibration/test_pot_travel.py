@@ -8,15 +8,14 @@ import pytest
 
 from emulators.presets import resolve_rig
 from servo.rig import load_rig
-from servo.settings import servo_settings
+from servo.settings import soft_limits_rad
 from vmehil.calibration.pot import pot_travel
 
 
 def _travels_deg(rig_name: str) -> dict[str, tuple[float, float]]:
     rig = load_rig(resolve_rig(rig_name))
-    s = servo_settings(rig)
-    return {j.name: tuple(math.degrees(v) for v in pot_travel(j, soft_rad=(s.soft_min_rad[j.index],
-                                                                           s.soft_max_rad[j.index])))
+    lo, hi = soft_limits_rad(rig)
+    return {j.name: tuple(math.degrees(v) for v in pot_travel(j, soft_rad=(lo[j.index], hi[j.index])))
             for j in rig.joints if "pot" in j.wiring}
 
 
