@@ -182,7 +182,9 @@ class SimRun:
     objects and calls in the same order either way, so a run's numbers do not depend on who ticks it."""
 
     def __init__(self, jp: JointParams, switch_off: bool | None = False, settings: SimSettings | None = None, *,
-                 step_deg: float | None = None, link_factory: LinkFactory | None = None) -> None:
+                 step_deg: float | None = None, link_factory: LinkFactory | None = None,
+                 faults: tuple[str, ...] = ()) -> None:
+        """``faults``: ``--fault`` specs (docs/faults.md) injected into this run alone, at their times."""
         from servo.runner import LockstepRunner
         from vmehil.rig_setup.session import build_loop
         from vmehil.rig_setup.system import build_emulated_rig
@@ -208,6 +210,12 @@ class SimRun:
             self.theta_start = float(loop.sequencer.current.end[j])  # the target before the first move
             loop.law.set_gains(**jp.cfg.gains.as_dict(), joint=j)
             self.runner = LockstepRunner(system, loop)
+            if faults:
+                from vmehil.fault_scenarios.injection import FaultContext, FaultSchedule, check_rig, parse_fault_spec
+
+                scheduled = [parse_fault_spec(f) for f in faults]
+                check_rig(scheduled, system.rig)
+                FaultSchedule(scheduled, FaultContext(system, loop, s.seed)).attach(self.runner)
         except BaseException:
             system.close()
             raise

@@ -23,12 +23,20 @@ SIM = SimSettings(move_deg=10, hold_s=0.5, allow_short=True, seed=3)
 TRIP_DROP_V = 0.2  #: tach brush drop of the tripping instance (nominal 0.12 V: docs/sweeps.md)
 
 
+#: the fourth instance's own faults (docs/faults.md): noise on its pot's ADC input, counts its decoder misses
+FAULTS = ("adc_noise@0.1:joint=j1,rms_v=0.02", "encoder_missed@0.2:joint=j1,counts=30")
+
+
 def _instances():
     text = rig_text("jpl-arm")
     nominal = task_rig(text, "jpl-arm", 1)
     tripping = task_rig(text, "jpl-arm", 1, {"tach_brush_drop": TRIP_DROP_V})
     return [load_joint(nominal, 1, gains={"kp": 80.0}), load_joint(nominal, 1, gains={"kp": 120.0, "kvi": 700.0}),
             load_joint(tripping, 1), load_joint(nominal, 1, gains={"kv": 40.0})]
+
+
+def _run(i: int, jp) -> SimRun:
+    return SimRun(jp, False, SIM, faults=FAULTS if i == 3 else ())
 
 
 def _fingerprint(run: SimRun) -> dict:
@@ -45,8 +53,8 @@ def _fingerprint(run: SimRun) -> dict:
     return out
 
 
-def _scalar(jp) -> SimRun:
-    run = SimRun(jp, False, SIM)
+def _scalar(i: int, jp) -> SimRun:
+    run = _run(i, jp)
     with run.loop.armed():
         run.runner.run(run.n_ticks, stop=run.halt_when(None))
     return run
@@ -68,7 +76,7 @@ def _assert_safe_stopped(run: SimRun, *, plant: bool = True) -> None:
 
 def test_each_instance_of_a_batch_of_four_equals_its_scalar_run_and_a_trip_stops_only_its_own() -> None:
     jps = _instances()
-    batch = [SimRun(jp, False, SIM) for jp in jps]
+    batch = [_run(i, jp) for i, jp in enumerate(jps)]
     try:
         ticks = run_lockstep(batch)
         got = [_fingerprint(r) for r in batch]
@@ -80,10 +88,12 @@ def test_each_instance_of_a_batch_of_four_equals_its_scalar_run_and_a_trip_stops
         for r in batch:
             r.close()
     assert got[2]["fault"]["cause"] == "velocity_mismatch"
-    for i in (0, 1, 3):
+    for i in (0, 1):
         assert got[i]["fault"] is None
+    assert "injected adc_noise" in got[3]["log"] and "injected encoder_missed" in got[3]["log"]
+    assert "injected" not in got[0]["log"]  # the faults are the fourth instance's alone
     for i, jp in enumerate(jps):
-        ref = _scalar(jp)
+        ref = _scalar(i, jp)
         try:
             assert got[i] == _fingerprint(ref), f"instance {i} differs from its scalar run"
         finally:
