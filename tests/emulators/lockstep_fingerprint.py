@@ -148,7 +148,7 @@ def batch_fingerprints() -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
 
     batch = [make(*case[1:]) for case in BATCH_CASES]
     try:
-        run_lockstep(batch)
+        run_lockstep(batch, window=1)  # every tick interleaved: the strictest order
         together = [_instance_digest(r) for r in batch]
     finally:
         for r in batch:

@@ -36,8 +36,13 @@ from vmehil.errors import CliError
 #: resident memory one jpl-arm instance adds to a batch (MiB; measured, docs/benchmarks.md,
 #: "Batched lockstep": its rig, loop and recorder of a 10 s run)
 INSTANCE_MIB = 6.0
-#: the most instances ``--batch auto`` puts in one batch
-AUTO_MAX = 64
+#: the most instances ``--batch auto`` puts in one batch: small, as a batch of scalar instances is
+#: no faster per point (docs/benchmarks.md, "Batched lockstep") and a sweep's progress and its
+#: Ctrl-C move by whole batches
+AUTO_MAX = 8
+#: ticks an instance runs before the next one's turn (0.2 s at 125 Hz): instances meet at every
+#: window's end; its own working set stays warm in the CPU's caches meanwhile
+WINDOW_TICKS = 25
 
 
 class BatchError(CliError):
@@ -116,21 +121,25 @@ class BatchTicks:
 
 
 def run_lockstep(runs: Sequence[Any], *, stop: Callable[[], bool] | None = None,
-                 progress: Callable[[int, int], None] | None = None) -> BatchTicks:
+                 progress: Callable[[int, int], None] | None = None, window: int = WINDOW_TICKS) -> BatchTicks:
     """Tick ``runs`` (:class:`~vmehil.analysis.simulate.SimRun`) in lockstep, each inside its own
     ``loop.armed()``, until every one has run its ticks or halted (its fault, or ``stop()``).
 
-    Each instance's tick is its runner's ``run(1, stop=halt)``: the scalar run's tick with its
-    exception handling (an error stops that instance), so nothing of the scalar path is copied.
-    A signal that one instance's runner caught (it safe-stopped that instance) is raised here:
-    leaving the ``armed()`` blocks safe-stops every other instance with the cause
-    ``interrupted``. ``progress(k, n)`` after each batch tick."""
+    The instances meet at every ``window`` ticks: each runs its next ``window`` ticks as its
+    runner's ``run(window, stop=halt)`` — the scalar run's ticks with its exception handling (an
+    error stops that instance), so nothing of the scalar path is copied — then the next instance.
+    ``window=1`` interleaves every tick (what a vector-register batch must do); it gives the same
+    numbers and costs ≈40 % more CPU per instance-tick here (each instance's working set is cold
+    again at its next tick: docs/benchmarks.md, "Batched lockstep"). A signal that one instance's
+    runner caught (it safe-stopped that instance) ends every other through its own category stop
+    and is raised. ``progress(k, n)`` after each window (k: ticks of the batch so far)."""
+    window = max(1, int(window))
     n = max((r.n_ticks for r in runs), default=0)
     halts = [r.halt_when(stop) for r in runs]
     live = list(range(len(runs)))
     ran = [0] * len(runs)
     k = 0
-    # one section for the whole batch: the runners' own sections nest in it (no handler swaps per tick)
+    # one section for the whole batch: the runners' own sections nest in it (no handler swaps per window)
     with contextlib.ExitStack() as stack, SignalsDeferred() as held:
         for r in runs:
             stack.enter_context(r.loop.armed())
@@ -138,20 +147,20 @@ def run_lockstep(runs: Sequence[Any], *, stop: Callable[[], bool] | None = None,
             still = []
             for i in live:
                 r = runs[i]
-                if ran[i] >= r.n_ticks:
+                want = min(window, r.n_ticks - ran[i])
+                if want <= 0:
                     continue
-                done = r.runner.run(1, stop=halts[i])
+                done = r.runner.run(want, stop=halts[i])
+                ran[i] += done
                 ended = r.runner.ended_by
                 signal = ended if isinstance(ended, INTERRUPTS) else held.pop(0) if held else None
                 if signal is not None:
                     _stop_all(runs, signal)
                     raise signal
-                if done == 0:  # halted before its tick: its fault, or stop()
-                    continue
-                ran[i] += 1
-                still.append(i)
+                if done == want and ran[i] < r.n_ticks:  # fewer: it halted (its fault, or stop())
+                    still.append(i)
             live = still
-            k += 1
+            k = min(n, k + window)
             if progress is not None:
                 progress(k, n)
     return BatchTicks(k, ran)
@@ -168,11 +177,12 @@ def _stop_all(runs: Sequence[Any], signal: BaseException) -> None:
 
 
 def simulate_batch(runs: Sequence[Any], *, traces: bool = False, stop: Callable[[], bool] | None = None,
-                   progress: Callable[[int, int], None] | None = None) -> list[dict[str, Any]]:
+                   progress: Callable[[int, int], None] | None = None,
+                   window: int = WINDOW_TICKS) -> list[dict[str, Any]]:
     """:func:`~vmehil.analysis.simulate.simulate`'s result for each of ``runs``, run in lockstep
     (:func:`run_lockstep`); every run is closed however this ends."""
     try:
-        run_lockstep(runs, stop=stop, progress=progress)
+        run_lockstep(runs, stop=stop, progress=progress, window=window)
         summaries = [r.summarize() for r in runs]
     finally:
         for r in runs:

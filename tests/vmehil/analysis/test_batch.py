@@ -78,7 +78,7 @@ def test_each_instance_of_a_batch_of_four_equals_its_scalar_run_and_a_trip_stops
     jps = _instances()
     batch = [_run(i, jp) for i, jp in enumerate(jps)]
     try:
-        ticks = run_lockstep(batch)
+        ticks = run_lockstep(batch, window=1)  # every tick interleaved: the strictest order
         got = [_fingerprint(r) for r in batch]
         # the tripping instance is safe-stopped (its boards and its plant), the others ran every tick
         _assert_safe_stopped(batch[2])
@@ -126,15 +126,17 @@ def test_ctrl_c_during_a_batch_safe_stops_every_instance_and_is_raised() -> None
 def test_a_stop_request_ends_every_instance_through_its_safe_stop() -> None:
     jps = _instances()[:2]
     batch = [SimRun(jp, False, SIM) for jp in jps]
-    ticks = {"n": 0}
+    windows: list[int] = []
 
-    def progress(k: int, n: int) -> None:
-        ticks["n"] = k
+    def stop() -> bool:  # once every instance has run 15 ticks
+        return min(r.loop.tick_count for r in batch) >= 15
 
-    figures = simulate_batch(batch, stop=lambda: ticks["n"] >= 15, progress=progress)
+    figures = simulate_batch(batch, stop=stop, progress=lambda k, n: windows.append(k), window=25)
     assert len(figures) == 2
+    # instance 0 ran its first window of 25 ticks; instance 1 stopped at 15, then instance 0 at once
+    assert [r.loop.tick_count for r in batch] == [25, 15]
+    assert windows == [25, 50]
     for r in batch:
-        assert r.loop.tick_count == 15
         # as a scalar run told to stop: the loop's shutdown leaves the boards safe; no exchange follows
         _assert_safe_stopped(r, plant=False)
 
