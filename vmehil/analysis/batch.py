@@ -33,9 +33,9 @@ from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_name
 from servo.rig import RigSpec
 from vmehil.errors import CliError
 
-#: resident memory one jpl-arm instance adds to a batch (MiB; measured, docs/benchmarks.md,
-#: "Batched lockstep": its rig, loop and recorder of a 10 s run)
-INSTANCE_MIB = 6.0
+#: resident memory one jpl-arm instance adds to a batch (MiB): 1.6 measured for a 10 s hold (its rig,
+#: loop and recorder; docs/benchmarks.md, "Batched lockstep"), with a margin for longer runs
+INSTANCE_MIB = 2.0
 #: the most instances ``--batch auto`` puts in one batch: small, as a batch of scalar instances is
 #: no faster per point (docs/benchmarks.md, "Batched lockstep") and a sweep's progress and its
 #: Ctrl-C move by whole batches

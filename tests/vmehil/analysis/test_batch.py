@@ -167,8 +167,8 @@ def test_batch_size_parsing_and_auto_choice() -> None:
     assert choose_batch(None, 400, 2, rig, memory_mib=64_000) == (batch_mod.AUTO_MAX, None)
     # 10 points on 2 workers: 5 each keeps both busy
     assert choose_batch(None, 10, 2, rig, memory_mib=64_000) == (5, None)
-    # 120 MiB free: half of it at 6 MiB an instance, over 2 workers = 5
-    assert choose_batch(None, 400, 2, rig, memory_mib=120) == (5, None)
+    # 40 MiB free: half of it at 2 MiB an instance, over 2 workers = 5
+    assert choose_batch(None, 400, 2, rig, memory_mib=40) == (5, None)
     assert choose_batch(7, 400, 2, rig) == (7, None)
 
 
