@@ -168,6 +168,11 @@ def batch_figures(say: Any, d: Path, grid: str, points: int, quick: bool) -> Non
     record(Goal(f"peak memory at B = 400{'' if b == 400 else ' (scaled ×10)'}", mem, BATCH_MEMORY_GOAL_MIB, "MiB",
                 "at_most"))
     say(f"  single run (simulate, jpl-arm joint 1, 10 s hold, in-process): {x_rt:.2f}× real time (of its CPU time)")
+    proc = subprocess.run([sys.executable, "-m", "benchmarks.bench_tools", "--interleave"], cwd=REPO, env=_env(),
+                          capture_output=True, text=True, check=True)
+    alone, w1, w25 = (float(v) for v in proc.stdout.split())
+    say(f"  CPU per instance-tick (jpl-arm, 2 s hold): alone {alone:.3f} ms; B = 8 interleaved every tick "
+        f"{w1:.3f} ms, in windows of 25 ticks {w25:.3f} ms")
 
 
 def _peak(b: int) -> None:
@@ -195,8 +200,35 @@ def _peak(b: int) -> None:
     print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, base, x_rt)
 
 
+def _interleave() -> None:
+    """Print the thread CPU per instance-tick (ms) of one run alone, of a batch of 8 interleaved
+    every tick, and of a batch of 8 in windows of 25 ticks (jpl-arm joint 1, a 2 s hold)."""
+    import time as _time
+
+    from vmehil.analysis.batch import run_lockstep
+    from vmehil.analysis.rigparams import load_joint
+    from vmehil.analysis.simulate import SimRun, SimSettings
+
+    jp = load_joint("jpl-arm", 1)
+    sim = SimSettings(move_deg=2, hold_s=2.0, allow_short=True)
+
+    def per_tick(b: int, window: int) -> float:
+        runs = [SimRun(jp, False, sim) for _ in range(b)]
+        t0 = _time.thread_time()
+        run_lockstep(runs, window=window)
+        cpu = _time.thread_time() - t0
+        for r in runs:
+            r.close()
+        return cpu / sum(r.n_ticks for r in runs) * 1e3
+
+    per_tick(1, 1)  # warm: the kernel loaded, the DBC read
+    print(per_tick(1, 10_000), per_tick(8, 1), per_tick(8, 25))
+
+
 if __name__ == "__main__":  # pragma: no cover
-    if "--peak" in sys.argv:
+    if "--interleave" in sys.argv:
+        _interleave()
+    elif "--peak" in sys.argv:
         _peak(int(sys.argv[sys.argv.index("--peak") + 1]))
     else:
         main(quick="--quick" in sys.argv)

@@ -107,18 +107,26 @@ def fingerprint(argv: list[str]) -> dict[str, Any]:
     return out
 
 
-# (label, gains, tolerance plant values, seed, faults) of the batch's instances (jpl-arm joint 1,
-# a 10° move and a 1 s hold): gains differ; the third's tach brush drop trips the velocity
+# (label, rig, gains, tolerance plant values, seed, faults) of the batch's instances (joint 1, a
+# 10° move and a 1 s hold): gains differ; the third's tach brush drop trips the velocity
 # cross-check (docs/sweeps.md); the fourth has its own sensor faults, the sixth a pulled board
-# (BERR: a driver-error stop); the fifth another seed and +15 % Coulomb friction (0.0388 N·m nominal).
-BATCH_CASES: list[tuple[str, dict[str, float], dict[str, float], int, tuple[str, ...]]] = [
-    ("kp 80", {"kp": 80.0}, {}, 0, ()),
-    ("kp 120 kvi 700", {"kp": 120.0, "kvi": 700.0}, {}, 0, ()),
-    ("brush drop 0.2 V (trips)", {}, {"tach_brush_drop": 0.2}, 0, ()),
-    ("faults", {"kv": 40.0}, {}, 0, ("adc_noise@0.3:joint=j1,rms_v=0.02", "encoder_missed@0.6:joint=j1,counts=30")),
-    ("seed 3, coulomb +15 %", {}, {"coulomb": 0.04462}, 3, ()),
-    ("board pulled", {}, {}, 1, ("board_removed@0.5:board=quad0",)),
+# (BERR: a driver-error stop); the fifth another seed and +15 % Coulomb friction (0.0388 N·m
+# nominal); the seventh runs the arm on a VMIVME-4116 as its DAC, the eighth is another rig.
+BATCH_CASES: list[tuple[str, str, dict[str, float], dict[str, float], int, tuple[str, ...]]] = [
+    ("kp 80", "jpl-arm", {"kp": 80.0}, {}, 0, ()),
+    ("kp 120 kvi 700", "jpl-arm", {"kp": 120.0, "kvi": 700.0}, {}, 0, ()),
+    ("brush drop 0.2 V (trips)", "jpl-arm", {}, {"tach_brush_drop": 0.2}, 0, ()),
+    ("faults", "jpl-arm", {"kv": 40.0}, {}, 0,
+     ("adc_noise@0.3:joint=j1,rms_v=0.02", "encoder_missed@0.6:joint=j1,counts=30")),
+    ("seed 3, coulomb +15 %", "jpl-arm", {}, {"coulomb": 0.04462}, 3, ()),
+    ("board pulled", "jpl-arm", {}, {}, 1, ("board_removed@0.5:board=quad0",)),
+    ("VMIVME-4116 DAC", "jpl-arm/vmivme-4116", {"kp": 90.0}, {}, 5, ()),
+    ("melmalec-16", "melmalec-16", {}, {}, 2, ()),
 ]
+#: the jpl-arm preset's reference DAC, and the crate entry that makes it a VMIVME-4116 (as
+#: tests/vmehil/test_vmivme4116_rig.py does)
+_REFERENCE_DAC = 'type = "dac"\nname = "dac0"'
+_VMIVME_4116 = 'type = "vmivme-4116"\nupdate = "synchronized"\ncoding = "offset_binary"\nname = "dac0"'
 
 
 def _instance_digest(run: Any) -> dict[str, Any]:
@@ -140,10 +148,14 @@ def batch_fingerprints() -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
     from vmehil.analysis.simulate import SimRun, SimSettings
     from vmehil.analysis.sweep import rig_text, task_rig
 
-    text = rig_text("jpl-arm")
+    texts = {"jpl-arm": rig_text("jpl-arm"), "melmalec-16": rig_text("melmalec-16")}
+    texts["jpl-arm/vmivme-4116"] = texts["jpl-arm"].replace(_REFERENCE_DAC, _VMIVME_4116)
+    if _VMIVME_4116 not in texts["jpl-arm/vmivme-4116"]:
+        raise RuntimeError("the jpl-arm preset's dac0 entry changed: update _REFERENCE_DAC")
 
-    def make(gains: dict[str, float], plant: dict[str, float], seed: int, faults: tuple[str, ...]) -> Any:
-        jp = load_joint(task_rig(text, "jpl-arm", 1, plant), 1, gains=gains)
+    def make(rig: str, gains: dict[str, float], plant: dict[str, float], seed: int, faults: tuple[str, ...]) -> Any:
+        path = rig.split("/")[0]
+        jp = load_joint(task_rig(texts[rig], path, 1, plant), 1, gains=gains)
         return SimRun(jp, False, SimSettings(seed=seed, move_deg=10, hold_s=1.0, allow_short=True), faults=faults)
 
     batch = [make(*case[1:]) for case in BATCH_CASES]
