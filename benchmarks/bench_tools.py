@@ -152,8 +152,10 @@ def batch_figures(say: Any, d: Path, grid: str, points: int, quick: bool) -> Non
     samples = 4 if quick else 40
     mc = ["tune", "sweep", *MC_VARY, "--samples", str(samples), "--quiet"]
     mb_s, _ = timed([*mc, "--batch", "auto", "--out", str(d / "mcb")], cwd=d)
+    mb_cpu = last_cpu_s()
     ms_s, _ = timed([*mc, "--batch", "1", "--out", str(d / "mcs")], cwd=d)
-    say(f"  Monte Carlo, 10 s hold, {samples} samples: --batch auto {mb_s:.2f} s, --batch 1 {ms_s:.2f} s "
+    say(f"  Monte Carlo, 10 s hold, {samples} samples: --batch auto {mb_s:.2f} s (CPU {mb_cpu:.1f} s), "
+        f"--batch 1 {ms_s:.2f} s (CPU {last_cpu_s():.1f} s) "
         f"(×{10_000 / samples:g} → {mb_s * 10_000 / samples / 60:.0f} / {ms_s * 10_000 / samples / 60:.0f} min "
         "for 10 000)")
     record(Goal(f"Monte Carlo 10 000 samples of a 10 s hold (scaled ×{10_000 / samples:g})",
