@@ -129,7 +129,7 @@ def run_lockstep(runs: Sequence[Any], *, stop: Callable[[], bool] | None = None,
     runner's ``run(window, stop=halt)`` — the scalar run's ticks with its exception handling (an
     error stops that instance), so nothing of the scalar path is copied — then the next instance.
     ``window=1`` interleaves every tick (what a vector-register batch must do); it gives the same
-    numbers and costs ≈30–45 % more CPU per instance-tick here (each instance's working set is cold
+    numbers and costs ≈28–45 % more CPU per instance-tick here (each instance's working set is cold
     again at its next tick: docs/benchmarks.md, "Batched lockstep"). A signal that one instance's
     runner caught (it safe-stopped that instance) ends every other through its own category stop
     and is raised. ``progress(k, n)`` after each window (k: ticks of the batch so far)."""
