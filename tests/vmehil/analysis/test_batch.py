@@ -74,6 +74,7 @@ def _assert_safe_stopped(run: SimRun, *, plant: bool = True) -> None:
     assert latest is not None and not latest.truth["amp_enabled"].any()
 
 
+@pytest.mark.slow  # over 1.5 s (8 runs): make test (CI) runs it, make test-fast leaves it out
 def test_each_instance_of_a_batch_of_four_equals_its_scalar_run_and_a_trip_stops_only_its_own() -> None:
     jps = _instances()
     batch = [_run(i, jp) for i, jp in enumerate(jps)]
@@ -141,6 +142,7 @@ def test_a_stop_request_ends_every_instance_through_its_safe_stop() -> None:
         _assert_safe_stopped(r, plant=False)
 
 
+@pytest.mark.slow
 def test_batched_sweep_rows_equal_the_scalar_rows_but_wall_time() -> None:
     text = rig_text("jpl-arm")
     rig = task_rig(text, "jpl-arm", 1)
