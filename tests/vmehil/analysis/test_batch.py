@@ -142,7 +142,6 @@ def test_a_stop_request_ends_every_instance_through_its_safe_stop() -> None:
         _assert_safe_stopped(r, plant=False)
 
 
-@pytest.mark.slow
 def test_batched_sweep_rows_equal_the_scalar_rows_but_wall_time() -> None:
     text = rig_text("jpl-arm")
     rig = task_rig(text, "jpl-arm", 1)
