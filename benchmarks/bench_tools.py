@@ -9,6 +9,12 @@ the default rig jpl-arm, seed 0, ``--quiet``, outputs in a temporary folder), as
 * ``tune limit-cycle`` (prediction and both full-stack runs, side by side) — and ``--jobs 1``
   (the runs one after the other in one process) next to it;
 * ``calibrate all --auto`` (adc, dac, encoder, amplifier, pot; reference fixture);
+* batched lockstep (issue 34, ``--batch``): the same sweep with ``--batch auto`` beside
+  ``--batch 1``; a Monte Carlo of a 10 s hold (``--vary coulomb=±20%``, 40 samples, 4 with
+  ``--quick``; scaled to 10 000 samples) both ways; the peak resident memory of one process holding
+  B = 400 instances (40 with ``--quick``, scaled ×10), built and run for one window of ticks; and a
+  single run's speed (``simulate``, jpl-arm, 10 s hold, in this process: simulated seconds per CPU
+  second);
 * ``run --duration 0.008``: launch to the end of a one-tick run — an upper bound of the time to
   the first tick (it adds the tick, the summary and the teardown); and ``run --help`` with the
   interpreter's import time (``-X importtime``) of ``vmehil run --help``.
@@ -31,6 +37,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from benchmarks.goals import Goal, record
 
@@ -39,6 +46,10 @@ SWEEP_GRID = "kp=80:140:20,kvi=600:1400:20"  #: the issue's 400 points
 QUICK_GRID = "kp=80:140:2,kvi=600:1400:2"  #: 4 points over the same ranges
 SWEEP_GOAL_S = 60.0
 LIMIT_CYCLE_GOAL_S = 3.0
+BATCH_SWEEP_GOAL_S = 30.0  #: issue 34: a 400-point sweep on 2 cores
+MONTE_CARLO_GOAL_S = 600.0  #: issue 34: 10 000 samples of a 10 s hold on 2 cores
+BATCH_MEMORY_GOAL_MIB = 2048.0  #: issue 34: peak memory at B = 400
+MC_VARY = ["--vary", "coulomb=±20%", "--hold", "10", "--move-deg", "2", "--seed", "1"]
 CALIBRATE_GOAL_S = 60.0
 FIRST_TICK_GOAL_S = 3.0
 
@@ -119,6 +130,8 @@ def main(quick: bool = False) -> list[str]:
                         sw_s * 400 / points, SWEEP_GOAL_S, "s", "at_most"))
         else:
             record(Goal("tune sweep, 400 points", sw_s, SWEEP_GOAL_S, "s", "at_most"))
+        # --- batched lockstep (issue 34) --------------------------------------------------------
+        batch_figures(say, d, grid, points, quick)
         # --- calibration ----------------------------------------------------------------------
         cal_s, _ = timed(["calibrate", "all", "--auto", "--out", str(d / "cal.toml"), "--quiet"], cwd=d)
         say(f"  calibrate all --auto: {cal_s:.2f} s, CPU {last_cpu_s():.2f} s")
@@ -126,5 +139,98 @@ def main(quick: bool = False) -> list[str]:
     return lines
 
 
+def batch_figures(say: Any, d: Path, grid: str, points: int, quick: bool) -> None:
+    """Issue 34's four figures, each beside its baseline of this run (module docstring)."""
+    b_s, _ = timed(["tune", "sweep", "--grid", grid, "--batch", "auto", "--out", str(d / "sweepb"), "--quiet"], cwd=d)
+    b_cpu = last_cpu_s()
+    s_s, _ = timed(["tune", "sweep", "--grid", grid, "--batch", "1", "--out", str(d / "sweeps"), "--quiet"], cwd=d)
+    say(f"  tune sweep --grid {grid} --batch auto: {b_s:.2f} s, CPU {b_cpu:.1f} s; --batch 1: {s_s:.2f} s, "
+        f"CPU {last_cpu_s():.1f} s")
+    scale = 400 / points
+    record(Goal(f"tune sweep --batch auto, 400 points{'' if scale == 1 else f' (scaled ×{scale:g})'}", b_s * scale,
+                BATCH_SWEEP_GOAL_S, "s", "at_most"))
+    samples = 4 if quick else 40
+    mc = ["tune", "sweep", *MC_VARY, "--samples", str(samples), "--quiet"]
+    mb_s, _ = timed([*mc, "--batch", "auto", "--out", str(d / "mcb")], cwd=d)
+    mb_cpu = last_cpu_s()
+    ms_s, _ = timed([*mc, "--batch", "1", "--out", str(d / "mcs")], cwd=d)
+    say(f"  Monte Carlo, 10 s hold, {samples} samples: --batch auto {mb_s:.2f} s (CPU {mb_cpu:.1f} s), "
+        f"--batch 1 {ms_s:.2f} s (CPU {last_cpu_s():.1f} s) "
+        f"(×{10_000 / samples:g} → {mb_s * 10_000 / samples / 60:.0f} / {ms_s * 10_000 / samples / 60:.0f} min "
+        "for 10 000)")
+    record(Goal(f"Monte Carlo 10 000 samples of a 10 s hold (scaled ×{10_000 / samples:g})",
+                mb_s * 10_000 / samples, MONTE_CARLO_GOAL_S, "s", "at_most"))
+    b = 40 if quick else 400
+    proc = subprocess.run([sys.executable, "-m", "benchmarks.bench_tools", "--peak", str(b)], cwd=REPO, env=_env(),
+                          capture_output=True, text=True, check=True)
+    peak, base, x_rt = (float(v) for v in proc.stdout.split())
+    mem = base + (peak - base) * 400 / b
+    say(f"  peak memory, B = {b} instances (10 s hold) in one process: {peak:.0f} MiB ({(peak - base) / b:.2f} MiB "
+        f"each over {base:.0f} MiB){'' if b == 400 else f'; at B = 400: {mem:.0f} MiB (scaled)'}")
+    record(Goal(f"peak memory at B = 400{'' if b == 400 else ' (scaled ×10)'}", mem, BATCH_MEMORY_GOAL_MIB, "MiB",
+                "at_most"))
+    say(f"  single run (simulate, jpl-arm joint 1, 10 s hold, in-process): {x_rt:.2f}× real time (of its CPU time)")
+    proc = subprocess.run([sys.executable, "-m", "benchmarks.bench_tools", "--interleave"], cwd=REPO, env=_env(),
+                          capture_output=True, text=True, check=True)
+    alone, w1, w25 = (float(v) for v in proc.stdout.split())
+    say(f"  CPU per instance-tick (jpl-arm, 2 s hold): alone {alone:.3f} ms; B = 8 interleaved every tick "
+        f"{w1:.3f} ms, in windows of 25 ticks {w25:.3f} ms")
+
+
+def _peak(b: int) -> None:
+    """Print the peak RSS (MiB) of this process after building ``b`` instances (10 s hold) and
+    running them one window of ticks, the RSS before (MiB), and one single run's × real time."""
+    import time as _time
+
+    from vmehil.analysis.batch import WINDOW_TICKS, run_lockstep
+    from vmehil.analysis.rigparams import load_joint
+    from vmehil.analysis.simulate import SimRun, SimSettings
+
+    jp = load_joint("jpl-arm", 1)
+    sim = SimSettings(move_deg=2, hold_s=10.0)
+    one = SimRun(jp, False, sim)  # warm: the kernel loaded, the DBC read
+    t0 = _time.process_time()  # CPU time: other jobs on a shared machine change it less than the wall time
+    with one.loop.armed():
+        one.runner.run(one.n_ticks)
+    x_rt = one.n_ticks * one.system.period_s / (_time.process_time() - t0)
+    one.close()
+    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    runs = [SimRun(jp, False, sim) for _ in range(b)]
+    run_lockstep(runs, stop=lambda: min(r.loop.tick_count for r in runs) >= WINDOW_TICKS)
+    for r in runs:
+        r.close()
+    print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, base, x_rt)
+
+
+def _interleave() -> None:
+    """Print the thread CPU per instance-tick (ms) of one run alone, of a batch of 8 interleaved
+    every tick, and of a batch of 8 in windows of 25 ticks (jpl-arm joint 1, a 2 s hold)."""
+    import time as _time
+
+    from vmehil.analysis.batch import run_lockstep
+    from vmehil.analysis.rigparams import load_joint
+    from vmehil.analysis.simulate import SimRun, SimSettings
+
+    jp = load_joint("jpl-arm", 1)
+    sim = SimSettings(move_deg=2, hold_s=2.0, allow_short=True)
+
+    def per_tick(b: int, window: int) -> float:
+        runs = [SimRun(jp, False, sim) for _ in range(b)]
+        t0 = _time.thread_time()
+        run_lockstep(runs, window=window)
+        cpu = _time.thread_time() - t0
+        for r in runs:
+            r.close()
+        return cpu / sum(r.n_ticks for r in runs) * 1e3
+
+    per_tick(1, 1)  # warm: the kernel loaded, the DBC read
+    print(per_tick(1, 10_000), per_tick(8, 1), per_tick(8, 25))
+
+
 if __name__ == "__main__":  # pragma: no cover
-    main(quick="--quick" in sys.argv)
+    if "--interleave" in sys.argv:
+        _interleave()
+    elif "--peak" in sys.argv:
+        _peak(int(sys.argv[sys.argv.index("--peak") + 1]))
+    else:
+        main(quick="--quick" in sys.argv)

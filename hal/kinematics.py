@@ -32,10 +32,22 @@ represented as a line P = B + λ(F − B)") and the tool point's Jacobian::
     tool     T = Y + a6·R_w·Rz(q6)·x̂            q6 wrist yaw; T the fingertips
 
     links: upper_arm S→E, forearm E→W, wrist W→Y, hand Y→T
+
+Inverse kinematics of the tool point and the hand's orientation (:meth:`ArmModel.solve`), in closed
+form: the hand's frame ``R_h = R_w·Rz(q6) = Rz(q1)·Ry(−φ)·Rx(q5)·Rz(q6)`` with ``φ = q2 + q3 + q4``,
+and ``R_w·x̂ = Rz(q1)·Ry(−φ)·x̂`` (the roll does not move the hand's axis), so the yaw point
+``Y = T − a6·R_h·x̂`` lies in the waist's vertical plane: ``q1 = atan2(Y_y, Y_x)`` (or that + π);
+``Rz(−q1)·R_h = Ry(−φ)·Rx(q5)·Rz(q6)`` gives φ, q5, q6 (two branches, cos q5 ≷ 0);
+``W = Y − a5·u(φ)`` and the planar two-link solution gives q2, q3 (elbow up/down); q4 = φ − q2 − q3.
+Up to eight solutions; :meth:`ArmModel.solve` takes the one within the soft limits nearest the start.
+Singular where the arm loses a direction: the elbow straight or folded (q3 = 0, ±180°: the edge of
+the workspace), the wrist on the waist axis (r = 0), the wrist roll at ±90° (the yaw axis parallel
+to the pitch axis).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeAlias
@@ -72,6 +84,81 @@ def _ry(a: float) -> np.ndarray:
 def _rx(a: float) -> np.ndarray:
     c, s = np.cos(a), np.sin(a)
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rotation_rpy(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:
+    """The rotation ``Rz(yaw)·Ry(pitch)·Rx(roll)`` (URDF's roll-pitch-yaw about the fixed base axes).
+    For the hand: x̂ its approach vector; pitch +90° points it straight down, yaw turns it about z."""
+    return _rz(yaw_rad) @ _ry(pitch_rad) @ _rx(roll_rad)
+
+
+def rpy_of(rotation: np.ndarray) -> tuple[float, float, float]:
+    """``(roll, pitch, yaw)`` (rad) of a rotation, the inverse of :func:`rotation_rpy`
+    (pitch in [−90°, 90°])."""
+    r = np.asarray(rotation, float)
+    pitch = math.asin(max(-1.0, min(1.0, -float(r[2, 0]))))
+    if abs(math.cos(pitch)) < 1e-9:  # gimbal lock: roll and yaw share an axis; all in yaw
+        return 0.0, pitch, math.atan2(-float(r[0, 1]), float(r[1, 1]))
+    return math.atan2(float(r[2, 1]), float(r[2, 2])), pitch, math.atan2(float(r[1, 0]), float(r[0, 0]))
+
+
+def rotation_angle(r0: np.ndarray, r1: np.ndarray) -> float:
+    """The angle (rad) of the rotation taking ``r0`` to ``r1``."""
+    c = (float(np.trace(np.asarray(r0, float).T @ np.asarray(r1, float))) - 1.0) / 2.0
+    return math.acos(max(-1.0, min(1.0, c)))
+
+
+def slerp(r0: np.ndarray, r1: np.ndarray, s: float) -> np.ndarray:
+    """The rotation a fraction ``s`` of the way from ``r0`` to ``r1`` about one fixed axis (the
+    shortest way): ``r0·exp(s·log(r0ᵀ·r1))``."""
+    a, b = np.asarray(r0, float), np.asarray(r1, float)
+    rel = a.T @ b
+    angle = rotation_angle(a, b)
+    if angle < 1e-12:
+        return a.copy()
+    if math.pi - angle < 1e-6:  # half a turn: the axis from the symmetric part
+        m = (rel + np.eye(3)) / 2.0
+        axis = m[:, int(np.argmax(np.diag(m)))]
+    else:
+        axis = np.array([rel[2, 1] - rel[1, 2], rel[0, 2] - rel[2, 0], rel[1, 0] - rel[0, 1]])
+    axis = axis / np.linalg.norm(axis)
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    th = s * angle
+    return a @ (np.eye(3) + math.sin(th) * k + (1.0 - math.cos(th)) * (k @ k))
+
+
+def _wrap_near(q: float, ref: float) -> float:
+    """``q + 2πk`` nearest ``ref``."""
+    return q + 2.0 * math.pi * round((ref - q) / (2.0 * math.pi))
+
+
+#: a configuration this close (rad) to a singular one is singular: the elbow straight or folded, the
+#: wrist roll at ±90° (near one, a Cartesian path needs joint speeds without bound)
+SINGULAR_ANGLE_RAD = math.radians(2.0)
+#: the wrist point this close (m) to the waist axis is singular (the waist's turn moves it not at all)
+SINGULAR_RADIUS_M = 0.02
+#: a closed-form solution is checked through the forward kinematics to this (m, rad)
+IK_CHECK_TOLERANCE = 1e-7
+
+
+@dataclass(frozen=True)
+class IkResult:
+    """What :meth:`ArmModel.solve` found. ``reachable``: a solution within the soft limits exists
+    (``theta``, the whole joint vector, rad); else ``reason`` says why (``"beyond reach: …"``,
+    ``"inside the arm's inner reach: …"``, ``"past the soft limits: …"``, ``limit_joint`` then the
+    index of the joint that stops the nearest solution). ``singular`` and ``singularity`` (its name),
+    ``manipulability`` (m³: |det| of the Jacobian of the three joints nearest the base, the (DM)²
+    measure, ``a2·a3·|sin q3|·r``) and ``wrist_manipulability`` (``|cos q5|``, 0 at the wrist's
+    singularity) describe the solution (0 when there is none)."""
+
+    reachable: bool
+    theta: np.ndarray | None
+    reason: str = ""
+    singular: bool = False
+    singularity: str = ""
+    manipulability: float = 0.0
+    wrist_manipulability: float = 0.0
+    limit_joint: int | None = None
 
 
 def segment_box_span(p0: FloatVector, p1: FloatVector, lo: FloatVector, hi: FloatVector) -> tuple[float, float] | None:
@@ -265,3 +352,136 @@ class ArmModel:
                 return theta
             theta += self.ee_delta_to_joint_delta(theta, err, frame="base", damping=1e-3)
         raise ValueError(f"point {target.tolist()} not reached (reach {self.reach:.3f} m from the shoulder)")
+
+    # --- inverse kinematics (the tool point and the hand's orientation) ---------------------------
+    def hand_rotation(self, theta: FloatVector) -> np.ndarray:
+        """The hand's frame ``R_w·Rz(q6)`` in the base frame: x̂ the approach vector (the yaw axis
+        to the fingertips), ẑ the yaw axis."""
+        return self.wrist_rotation(theta) @ _rz(self._wrist_q(theta)[2])
+
+    @staticmethod
+    def default_hand_rotation(position: FloatVector) -> np.ndarray:
+        """The default hand orientation (our choice: the JPL paper names a default, not which): the
+        hand level, pointing away from the waist axis through the target (roll 0, pitch 0, yaw =
+        the target's azimuth; yaw 0 on the axis)."""
+        x, y = float(position[0]), float(position[1])
+        return rotation_rpy(0.0, 0.0, math.atan2(y, x) if math.hypot(x, y) > 1e-12 else 0.0)
+
+    def singularity(self, theta: FloatVector) -> tuple[str, float, float]:
+        """``(name, manipulability, wrist_manipulability)`` at ``theta``: the name of the singularity
+        it is within :data:`SINGULAR_ANGLE_RAD` / :data:`SINGULAR_RADIUS_M` of (``""``: none)."""
+        _, q2, q3 = self._q(theta)
+        q5 = self._wrist_q(theta)[1]
+        r = self.a2 * math.cos(q2) + self.a3 * math.cos(q2 + q3)
+        manip = self.a2 * self.a3 * abs(math.sin(q3)) * abs(r)
+        wrist = abs(math.cos(q5))
+        if abs(math.sin(q3)) < math.sin(SINGULAR_ANGLE_RAD):
+            name = "the elbow straight (the edge of the workspace)" if math.cos(q3) > 0 else "the elbow folded"
+        elif abs(r) < SINGULAR_RADIUS_M:
+            name = "the wrist on the waist axis"
+        elif wrist < math.sin(SINGULAR_ANGLE_RAD):
+            name = "the wrist roll at ±90° (the yaw axis parallel to the pitch axis)"
+        else:
+            name = ""
+        return name, manip, wrist
+
+    def crosses_singularity(self, theta_a: FloatVector, theta_b: FloatVector) -> str:
+        """The singularity a move from ``theta_a`` to the nearby ``theta_b`` passes through (its
+        name; ``""``: none): the elbow's sin q3, the wrist's distance from the waist axis r (signed)
+        or the wrist's cos q5 changing sign between them — a crossing that samples on either side
+        of a singularity, each outside its band, would miss."""
+        qa, qb = self._q(theta_a), self._q(theta_b)
+        ra = self.a2 * math.cos(qa[1]) + self.a3 * math.cos(qa[1] + qa[2])
+        rb = self.a2 * math.cos(qb[1]) + self.a3 * math.cos(qb[1] + qb[2])
+        if math.sin(qa[2]) * math.sin(qb[2]) < 0.0:
+            return "the elbow straight (the edge of the workspace)" if math.cos(qa[2]) > 0 else "the elbow folded"
+        if ra * rb < 0.0:
+            return "the wrist on the waist axis"
+        if math.cos(self._wrist_q(theta_a)[1]) * math.cos(self._wrist_q(theta_b)[1]) < 0.0:
+            return "the wrist roll at ±90° (the yaw axis parallel to the pitch axis)"
+        return ""
+
+    def ik_candidates(self, position: FloatVector, rotation: np.ndarray) -> tuple[list[tuple[float, ...]], float]:
+        """Every closed-form solution ``(q1, …, q6)`` putting the tool at ``position`` with the hand's
+        frame ``rotation`` (see the module docstring), and the wrist point's smallest distance from
+        the shoulder among the candidates out of reach (0 when none is)."""
+        p = np.asarray(position, float).reshape(3)
+        rot = np.asarray(rotation, float)
+        yp = p - self.a6 * rot[:, 0]
+        base = math.atan2(float(yp[1]), float(yp[0])) if math.hypot(float(yp[0]), float(yp[1])) > 1e-12 else 0.0
+        out: list[tuple[float, ...]] = []
+        far = math.inf
+        for q1 in (base, base + math.pi):
+            m = _rz(-q1) @ rot  # = Ry(−φ)·Rx(q5)·Rz(q6)
+            c5 = math.asin(max(-1.0, min(1.0, -float(m[1, 2]))))
+            for q5, sgn in ((c5, 1.0), (math.pi - c5, -1.0)):
+                b = math.atan2(sgn * float(m[0, 2]), sgn * float(m[2, 2]))
+                q6 = math.atan2(sgn * float(m[1, 0]), sgn * float(m[1, 1]))
+                phi = -b
+                c1, s1 = math.cos(q1), math.sin(q1)
+                w = yp - self.a5 * np.array([math.cos(phi) * c1, math.cos(phi) * s1, math.sin(phi)])
+                r = float(w[0]) * c1 + float(w[1]) * s1
+                h = float(w[2]) - self.d1
+                d = (r * r + h * h - self.a2 ** 2 - self.a3 ** 2) / (2.0 * self.a2 * self.a3)
+                if abs(d) > 1.0 + 1e-12:
+                    far = min(far, math.hypot(r, h))
+                    continue
+                d = max(-1.0, min(1.0, d))
+                for q3 in {math.acos(d), -math.acos(d)}:
+                    q2 = math.atan2(h, r) - math.atan2(self.a3 * math.sin(q3), self.a2 + self.a3 * math.cos(q3))
+                    out.append((q1, q2, q3, phi - q2 - q3, q5, q6))
+        return out, (0.0 if math.isinf(far) else far)
+
+    def solve(self, position: FloatVector, rotation: np.ndarray | None = None, *, theta0: FloatVector,
+              min_rad: FloatVector | None = None, max_rad: FloatVector | None = None) -> IkResult:
+        """Joint angles putting the tool point at ``position`` (m, base frame) with the hand's frame
+        ``rotation`` (``None``: :meth:`default_hand_rotation`), within ``min_rad``..``max_rad`` (the
+        soft limits, whole joint vectors; ``None``: none); of the solutions, the one nearest
+        ``theta0`` (the start: its other joints, the hand's, are kept). See :class:`IkResult`."""
+        p = np.asarray(position, float).reshape(3)
+        rot = self.default_hand_rotation(p) if rotation is None else np.asarray(rotation, float)
+        th0 = np.asarray(theta0, float)
+        n = len(th0)
+        lo = np.full(n, -np.inf) if min_rad is None else np.asarray(min_rad, float)
+        hi = np.full(n, np.inf) if max_rad is None else np.asarray(max_rad, float)
+        idx = (*self.joints, *self.wrist_joints)
+        cands, far = self.ik_candidates(p, rot)
+        best: tuple[float, np.ndarray] | None = None
+        nearest_bad: tuple[int, float, int] | None = None  # (joints past a limit, excess, the worst joint)
+        for cand in cands:
+            theta = th0.copy()
+            for j, q in zip(idx, cand, strict=True):
+                q = _wrap_near(q, float(th0[j]))
+                if q > hi[j]:
+                    q -= 2.0 * math.pi * math.ceil((q - hi[j]) / (2.0 * math.pi))
+                elif q < lo[j]:
+                    q += 2.0 * math.pi * math.ceil((lo[j] - q) / (2.0 * math.pi))
+                theta[j] = q
+            if (np.linalg.norm(self.tool_position(theta) - p) > IK_CHECK_TOLERANCE
+                    or rotation_angle(self.hand_rotation(theta), rot) > IK_CHECK_TOLERANCE):
+                continue  # a branch at a numerical edge: not a solution
+            excess = np.zeros(n)  # the joints the solution sets (the hand's stay as they are)
+            excess[list(idx)] = (np.maximum(lo - theta, 0.0) + np.maximum(theta - hi, 0.0))[list(idx)]
+            if np.any(excess > 1e-9):
+                bad = (int(np.count_nonzero(excess > 1e-9)), float(np.sum(excess)), int(np.argmax(excess)))
+                if nearest_bad is None or bad[:2] < nearest_bad[:2]:
+                    nearest_bad = bad
+                continue
+            dist = float(np.sum((theta - th0) ** 2))
+            if best is None or dist < best[0]:
+                best = (dist, theta)
+        if best is None:
+            if nearest_bad is not None:
+                j = nearest_bad[2]
+                why = " (the orientation is outside the wrist's range)" if j in self.wrist_joints else ""
+                return IkResult(False, None, f"past the soft limits: every solution puts a joint past its limit, "
+                                             f"the nearest joint index {j}{why}", limit_joint=j)
+            dist = far if far > 0.0 else float("nan")
+            if dist >= self.reach:
+                return IkResult(False, None, f"beyond reach: the wrist {dist:.3f} m from the shoulder, the arm "
+                                             f"reaches {self.reach:.3f} m")
+            return IkResult(False, None, f"inside the arm's inner reach: the wrist {dist:.3f} m from the shoulder, "
+                                         f"nearer than {abs(self.a2 - self.a3):.3f} m")
+        theta = best[1]
+        name, manip, wrist = self.singularity(theta)
+        return IkResult(True, theta, "", bool(name), name, manip, wrist)

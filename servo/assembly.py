@@ -112,6 +112,7 @@ def build_loop(plant: PlantBoundary, io: JointIO, settings: ServoSettings, *, mo
     loop = ServoLoop(io, controller, sequencer, wd, recorder=recorder, names=list(settings.joint_names),
                      plan_context=plan_context(settings, bounds=bounds))
     loop.stop_settings = settings.stop
+    loop.require_homing = settings.require_homing
     # always kept: the last seconds before any stop (servo.blackbox; no bus access of its own)
     loop.blackbox = BlackBox(settings.n, settings.period_s, settings.joint_names, seconds=settings.blackbox_s)
     # an emulated rig's free-running plant: its answers may skip or repeat plant steps

@@ -36,7 +36,7 @@ from hal.adc_dac.dac import DacDriver
 from hal.amplifiers import duty_for_current
 from hal.board_types import BOARD_TYPES, board_role
 from hal.pio.pio import PioDriver, PwmRangeError
-from hal.quadrature.quad import QuadratureDriver
+from hal.quadrature.quad import QuadratureDriver, QuadratureError
 from hal.vme.bus import VmeBus
 from servo.interrupts import INTERRUPTS, SignalsDeferred
 from servo.rig import DIGITAL_OUTPUTS, WATCHDOG_NET, RigSpec
@@ -279,6 +279,13 @@ class JointIO:
                 if need not in j.wiring:
                     raise j.servo.error("position" if sig == "pot" else "velocity",
                                         f"a sensor wired in [joint.wiring] ('{need}' is not wired)", src)
+        #: per joint: it can be homed to its encoder's index (a pot to choose the index, an encoder,
+        #: and the loop closed on the pot; docs/motion-safety.md, "Homing"). The others — a
+        #: continuous joint (no pot: melmalec's crawler) — are exempt
+        self.homeable = np.array(["pot" in j.wiring and "encoder" in j.wiring and self.position_source[j.index] == "pot"
+                                  for j in rig.joints], dtype=bool)
+        #: per joint: its encoder is homed (its position is the joint's absolute angle) this session
+        self.homed = np.zeros(self.n, dtype=bool)
         self.last_dac_volts = np.zeros(self.n)
         #: the current (A) the drivers last commanded per joint (what the current monitor should read)
         self.last_current_a = np.zeros(self.n)
@@ -400,6 +407,40 @@ class JointIO:
         self.calibration = store
         self.calibration_generation += 1
 
+    # --- homing ----------------------------------------------------------------------------
+    def encoder_channel(self, joint: int) -> tuple[QuadratureDriver, int]:
+        """The decoder driver the loop reads joint ``joint``'s encoder with, and its channel."""
+        j = self.rig.joints[joint]
+        if "encoder" not in j.wiring:
+            raise ValueError(f"{j.name} has no encoder wired")
+        pin = j.wiring["encoder"]
+        return self.quad[pin.board], pin.index
+
+    def home_encoder(self, joint: int, index_angle_rad: float) -> int:
+        """Home joint ``joint``'s encoder: the index its decoder captured (armed with
+        ``arm_index``) is at joint angle ``index_angle_rad``, so its position reads the joint's
+        absolute angle from now on (:attr:`homed`). Returns the index count. The watchdog's
+        encoder/pot cross-check then compares the two absolutely (it re-references on the
+        generation bump)."""
+        drv, ch = self.encoder_channel(joint)
+        idx = drv.home_at_index(ch, index_angle_rad)
+        self.homed[joint] = True
+        self.calibration_generation += 1
+        return idx
+
+    def _lose_home(self, board: str, channel: int) -> None:
+        """The joint on decoder ``board``'s ``channel`` loses its home (its count is wrong)."""
+        for j in self.rig.joints:
+            pin = j.wiring.get("encoder")
+            if pin is not None and pin.board == board and pin.index == channel:
+                self.clear_home(j.index)
+
+    def clear_home(self, joint: int) -> None:
+        """Forget joint ``joint``'s home (its encoder reads relative again)."""
+        if self.homed[joint]:
+            self.homed[joint] = False
+            self.calibration_generation += 1
+
     def set_pot_calibration(self, joint: int, cal: PotCalibration | None) -> None:
         if cal is None:
             self.pot_cal.pop(joint, None)
@@ -447,7 +488,13 @@ class JointIO:
         theta_pot, theta_enc, omega_tach, omega_enc, current, pot_v = block
         fault = np.zeros(n, bool)
         volts = {name: drv.scan(self._adc_last[name]) for name, drv in self.adc.items()}
-        readings = {name: drv.update(self.period_s) for name, drv in self.quad.items()}
+        readings = {}
+        for name, drv in self.quad.items():
+            try:
+                readings[name] = drv.update(self.period_s)
+            except QuadratureError as e:  # lost track or jumped: the count, and so any home, is wrong
+                self._lose_home(name, e.channel)
+                raise
         for board, js, chs in self._pot_plan:
             pot_v[js] = volts[board][chs]
         theta_pot[self._has_pot] = (pot_v[self._has_pot] - self._pot_zero_v[self._has_pot]) / \
@@ -471,6 +518,8 @@ class JointIO:
                 if x.status.illegal:  # sticky in the decoder: cleared, so that each read tells anew
                     illegal[i] = True
                     self.quad[board].clear_illegal(x.channel)
+                    if self.homed[i]:  # counts were lost: the home no longer holds
+                        self.clear_home(int(i))
         for board, port, js, bits in self._fault_plan:
             value = self.pio[board].read_port(port)  # DATA_x, as get_line reads
             fault[js] = (value >> bits) & 1

@@ -196,6 +196,9 @@ class ServoLoop:
         self.stop_excursion: dict[str, np.ndarray] = {}
         #: moves refused when they were to start (planned only then: after an open vservo move)
         self.refusals: list[MotionRefused] = []
+        #: moves wait until every homeable joint's encoder is homed (``io.homed``; set from the
+        #: settings by servo.assembly); the loop itself does not refuse them, its hosts do
+        self.require_homing = False
         #: per joint how far past its soft limit it may be (``None``: the margin; see _soft_allowance)
         self._soft_allow: np.ndarray | None = None
         #: the last seconds of every joint's signals and lines (servo.blackbox; set by
@@ -356,11 +359,11 @@ class ServoLoop:
     def resume(self, hold_measured: bool = True) -> np.ndarray | None:
         """Leave a safe stop (or a stop) and servo again: clear the fault, forget the watchdog's
         memory of positions from before the stop (the joints may have moved meanwhile), reset the
-        control objects' state (pid integrators, switch-off) — with ``hold_measured``, a joint its
-        holding brake kept where it stopped starts with the torque that held it then
-        (``preload_torque``), so the amplifier
-        carries its load when the brake releases (:class:`servo.io.JointIO`) — then :meth:`start`
-        (clear amplifier faults, zero the outputs, enable).
+        control objects' state (pid integrators, switch-off) — with ``hold_measured``, each joint's
+        law starts with the torque that holds it where it is (:meth:`_holding_torque`,
+        ``preload_torque``), so the amplifier carries its load when the brake releases
+        (:class:`servo.io.JointIO`: one release delay after the first torque write) — then
+        :meth:`start` (clear amplifier faults, zero the outputs, enable).
 
         ``hold_measured``: read the joints first and hold them where they are (a new, empty
         motion from the measured position, rad) — returned. A read error or a non-finite position
@@ -384,22 +387,35 @@ class ServoLoop:
         if theta is not None:
             ctx = self.plan_context or self.sequencer.ctx
             self.set_motion(Sequencer([], theta, ctx))
-        # The torque that held each braked joint when it stopped (before start() zeroes the outputs)
-        held = getattr(self.io, "torque_at_stop_nm", None)  # (test fakes of JointIO have none)
-        # (only when the hold is where the joints are: a kept target's error would add to it)
-        held = None if held is None or not hold_measured else np.asarray(held, float).copy()
+        preload = self._holding_torque(theta)
         for obj in self.controller.active.objects:
             obj.reset()
-            if held is not None and held.any():
-                # Its brake kept the joint where it stopped: the law starts with that torque, so the
-                # amplifier carries the load before the brake lets go (servo.io.JointIO).
-                obj.preload_torque(held, self.controller.active.chain)
+            if preload is not None and preload.any():
+                # the law starts with the torque that holds each joint where it is, so the
+                # amplifier carries the load before the brake lets go (servo.io.JointIO)
+                obj.preload_torque(preload, self.controller.active.chain)
         try:
             self.start()
         except Exception as e:
             self.safe_stop("driver_error", f"resume failed: {type(e).__name__}: {e}")
             raise
         return theta
+
+    def _holding_torque(self, theta: np.ndarray | None) -> np.ndarray | None:
+        """The torque a resume holding ``theta`` (the measured angles) starts each joint's law
+        with: its holding load there (:class:`servo.stops.HoldingLoad`, the joint's nominal
+        gravity) where the rig states it; else, for a joint its holding brake kept, the torque
+        commanded when it stopped (its load if it was at rest then; a moving joint's also carried
+        its friction and acceleration); else 0. ``None`` without ``theta``: a kept target's error
+        would add to it."""
+        if theta is None:
+            return None
+        held = getattr(self.io, "torque_at_stop_nm", None)  # (test fakes of JointIO have none)
+        at_stop = np.zeros(self.n) if held is None else np.asarray(held, float).copy()
+        if self.stop_settings is None:
+            return at_stop
+        load = self.stop_settings.load.torque_nm(theta)
+        return np.where(np.isfinite(load), load, at_stop)
 
     def category_of(self, cause: str) -> StopCategory:
         """The stop category for ``cause`` (servo.stops; 0 for a loop without stop settings)."""

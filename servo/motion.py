@@ -15,6 +15,15 @@ Format (angles in degrees at this edge, or radians with the ``_rad`` keys)::
     type = "lspb"
     via_deg = [[0, 10, 0, 0, 0, 0], [20, 0, 10, 0, 0, 0]]   # the last via is the target
     speed = 1.0
+    [[move]]
+    type = "cartesian"                 # the tool to a point (m, the arm's base frame): servo.cartesian
+    position_m = [0.8, 0.0, 0.3]
+    orientation_deg = [0, 30, 0]       # optional: the hand's roll, pitch, yaw (default: level, outward)
+    approach_m = 0.05                  # optional: straight in over the last 5 cm along the hand's axis
+    [[move]]
+    type = "blendx"                    # straight lines with parabolic blends through via_m
+    via_m = [[0.7, 0.2, 0.3]]
+    position_m = [0.7, 0.3, 0.1]
 
 Limits (docs/control.md): a file of at most :data:`MAX_MOTION_FILE_BYTES`, at most
 :data:`MAX_MOVES` moves, an LSPB move of at most :data:`servo.trajectory.lspb.MAX_VIA_POINTS`
@@ -38,6 +47,7 @@ import numpy as np
 
 from hal.config import ConfigError, ConfigTable, load_toml
 from hal.si import deg_to_rad
+from servo.cartesian import parse_blendx, parse_cartesian
 from servo.trajectory import Lspb, MoveSpec, PlanContext, Quintic, Sequencer, Stay, Trajectory
 from servo.trajectory.lspb import MAX_VIA_POINTS
 from servo.vservo import parse_vservo
@@ -148,7 +158,8 @@ def parse_wait(cfg: ConfigTable, n: int) -> MoveSpec:
 
 
 MOVE_TYPES: dict[str, MoveParser] = {"quintic": parse_quintic, "lspb": parse_lspb, "wait": parse_wait,
-                                     "stay": parse_wait, "vservo": parse_vservo}
+                                     "stay": parse_wait, "vservo": parse_vservo,
+                                     "cartesian": parse_cartesian, "blendx": parse_blendx}
 
 
 # ---- files --------------------------------------------------------------------------------------------

@@ -19,11 +19,16 @@ itself. Each joint states them in ``[joint.servo.nominal]`` (SI units)::
     resistance_ohm = 3.0             #   (the voltage command V = R·i + Ke·ω_motor)
     ke_v_s_per_rad = 0.01
     pwm_period_s = 5.0e-5            #   PWM period programmed into the PIO timer
+    gravity_torque_nm = 9.0          # optional: the joint's gravity load m·g·l (N·m at the joint)
+    gravity_phase_rad = 0.0          #   optional: the load is gravity_torque_nm · cos(θ + phase)
 
 Which keys a joint must give follows from the joint itself: ``ratio``, ``kt_nm_per_a``,
 ``current_limit_a`` and ``inertia_kg_m2`` always; ``amp_gain_a_per_v`` for a linear amplifier;
 ``supply_v``, ``resistance_ohm``, ``ke_v_s_per_rad`` and ``pwm_period_s`` for an H-bridge; the
-sensor keys for each sensor in ``[joint.wiring]``. A missing one is an error naming the key:
+sensor keys for each sensor in ``[joint.wiring]``. ``gravity_torque_nm`` and ``gravity_phase_rad``
+are optional (the link's mass properties, as a datasheet or CAD gives them): a joint that states
+them lets a re-enable take up its load at the angle its holding brake kept it at
+(:class:`servo.stops.HoldingLoad`). A missing required key is an error naming the key:
 there is no fallback, because the only other source would be the plant, which the controller
 must not see. Keys a joint does not need may be given and are carried along unused.
 
@@ -84,6 +89,8 @@ class JointNominal:
     resistance_ohm: float | None = None
     ke_v_s_per_rad: float | None = None
     pwm_period_s: float | None = None
+    gravity_torque_nm: float | None = None
+    gravity_phase_rad: float | None = None
 
     @property
     def torque_limit_nm(self) -> float:
@@ -105,7 +112,8 @@ class JointNominal:
 
 
 NOMINAL_KEYS = tuple(f.name for f in fields(JointNominal) if f.name not in ("name", "amplifier"))
-SCALING_KEYS = tuple(k for k in NOMINAL_KEYS if k not in ("inertia_kg_m2", "tach_dead_band_rad_s"))
+SCALING_KEYS = tuple(k for k in NOMINAL_KEYS
+                     if k not in ("inertia_kg_m2", "tach_dead_band_rad_s", "gravity_torque_nm", "gravity_phase_rad"))
 
 
 def required_keys(joint: JointSpec) -> tuple[str, ...]:

@@ -151,6 +151,9 @@ class LockstepRunner:
         #: while :meth:`run` runs (main thread): SIGINT/SIGTERM/SIGHUP are held and raised at the
         #: next tick's start, never inside one
         self._signals: SignalsDeferred | None = None
+        #: the plant boundary error that ended the last window after a stop early (``None``: none)
+        self.window_ended_by: PlantBoundaryError | None = None
+        self._watching = False
 
     def tick(self) -> None:
         signals = self._signals
@@ -176,9 +179,16 @@ class LockstepRunner:
         try:
             plant.exchange(k)
         except PlantBoundaryError as e:
-            # A remote plant (CAN node) gave no fresh data, vanished or restarted: the watchdog's
-            # answer is a safe stop in this tick; the link then returns held values without waiting.
-            self.loop.safe_stop(e.cause, str(e))
+            loop = self.loop
+            if self._watching and not loop.enabled and loop.stopping is None:
+                # the window after a completed stop only watches: a plant that is lost or stale
+                # ends it (nothing left to watch); the stop was done, so it adds no fault
+                self.window_ended_by = e
+                loop.note("servo", f"the watch after the stop ended: {e.cause}: {e}")
+            else:
+                # A remote plant (CAN node) gave no fresh data, vanished or restarted: the watchdog's
+                # answer is a safe stop in this tick; the link then returns held values without waiting.
+                loop.safe_stop(e.cause, str(e))
         self.last_split = (t2 - t1, (t1 - t0) + (clock() - t2))
         for cb in self.after_tick:
             cb(self.loop)
@@ -270,11 +280,20 @@ class LockstepRunner:
     def watch_after_stop(self, seconds: float = 2.0) -> int:
         """After a stop: keep ticking (the loop reads its sensors, the plant keeps stepping with the
         amplifiers as the stop left them) for ``seconds``, so the run can say how far the joints
-        moved (:meth:`servo.loop.ServoLoop.stop_summary`). A signal ends it at once (raised)."""
+        moved (:meth:`servo.loop.ServoLoop.stop_summary`); returns the ticks it took. A signal ends
+        it at once (raised); a lost or stale plant ends it too (:attr:`window_ended_by`, a note in
+        the loop's log; no fault: the stop was done)."""
         n = round(seconds / self.period_s)
-        for i in range(n):
-            self._pace(i)
-            self.tick()
+        self.window_ended_by = None
+        self._watching = True
+        try:
+            for i in range(n):
+                self._pace(i)
+                self.tick()
+                if self.window_ended_by is not None:
+                    return i + 1
+        finally:
+            self._watching = False
         return n
 
     def _run(self, n_ticks: int, progress: Progress | None, stop: Callable[[], bool] | None) -> int:

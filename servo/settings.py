@@ -8,6 +8,7 @@ Rig-level ``[servo]`` gives defaults; each ``[joint.servo]`` may override them::
     switch_off = { enabled = true, inner_band_deg = 0.3, outer_band_deg = 1.5, kp_boost = 2.0 }
     max_velocity_deg_s = 30.0                  # trajectory planning limit
     following_error_limit_deg = 10.0           # watchdog
+    require_homing = false                     # true: no move before the encoders are homed
     blackbox_s = 5.0                           # seconds the black box keeps before a stop (servo.blackbox)
 
     [joint.servo]
@@ -70,6 +71,7 @@ Use::
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -86,9 +88,9 @@ from servo.control.linear import delay_periods
 from servo.control.normalize import NormalizingChain
 from servo.control.objects import CONTROL_OBJECTS, cfg_per_joint, parse_switch_off
 from servo.gain_guard import GainRejected, check_gain_set, check_values
-from servo.nominal import nominal_chain, rig_nominal
+from servo.nominal import JointNominal, nominal_chain, rig_nominal
 from servo.rig import RigSpec
-from servo.stops import CATEGORIES, StopSettings
+from servo.stops import CATEGORIES, HoldingLoad, StopSettings
 
 __all__ = ["MIN_VELOCITY_DEG_S", "ServoSettings", "WatchdogSettings", "servo_settings"]
 
@@ -178,6 +180,9 @@ class ServoSettings:
     arm: ArmModel | None = None
     #: the instants of each planned move checked against the scene (``[servo] collision_check_points``)
     collision_points: int = 20
+    #: moves (console, MAVLink) are refused until every homeable joint is homed (``[servo]
+    #: require_homing``; docs/motion-safety.md, "Homing"); jogs are not
+    require_homing: bool = False
     #: seconds of every joint's signals the black box keeps before a stop (:mod:`servo.blackbox`)
     blackbox_s: float = DEFAULT_BLACKBOX_S
 
@@ -269,9 +274,10 @@ def servo_settings(rig: RigSpec) -> ServoSettings:
         position_source=tuple(j.servo.get_str("position", "pot", choices=("pot", "encoder")) for j in rig.joints),
         velocity_source=tuple(j.servo.get_str("velocity", "tach", choices=("tach", "encoder")) for j in rig.joints),
         velocity_source_given=tuple("velocity" in j.servo for j in rig.joints),
-        stop=_stop_settings(rig, top),
+        stop=_stop_settings(rig, top, nominal),
         **_soft_limits(rig, top),
         arm=ArmModel.from_table(rig.table.table("arm")) if "arm" in rig.table else None,
+        require_homing=top.get_bool("require_homing", False),
         blackbox_s=top.get_float("blackbox_s", DEFAULT_BLACKBOX_S, min=rig.period_s, max=MAX_BLACKBOX_S),
         gains_given=tuple("+".join(w for w, t in (("joint", j.servo), ("rig", top)) if "gains" in t)
                           for j in rig.joints),
@@ -288,10 +294,11 @@ DEFAULT_STOP_DECEL_DEG_S2 = 400.0
 DEFAULT_BRAKE_ENGAGE_S = 0.06
 
 
-def _stop_settings(rig: RigSpec, top: ConfigTable) -> StopSettings:
+def _stop_settings(rig: RigSpec, top: ConfigTable, nominal: list[JointNominal]) -> StopSettings:
     """``[servo] stop_deceleration_deg_s2`` (per joint in ``[joint.servo]``), ``stop_time_bound_s``,
     ``[servo.stop_categories]`` (cause = 0, 1 or 2: only as strict as the table or stricter), and
-    the longest holding-brake engage delay (``[joint.holding_brake] engage_delay_s``)."""
+    the longest holding-brake engage delay (``[joint.holding_brake] engage_delay_s``), and each
+    joint's holding load from its nominal gravity figures (NaN where it states none)."""
     base = top.get_float("stop_deceleration_deg_s2", DEFAULT_STOP_DECEL_DEG_S2, min=1.0)
     decel = tuple(float(np.radians(j.servo.get_float("stop_deceleration_deg_s2", base, min=1.0))) for j in rig.joints)
     # the brakes' engage delay as the plant's table states it where the joint has one; else the
@@ -313,13 +320,24 @@ def _stop_settings(rig: RigSpec, top: ConfigTable) -> StopSettings:
             raise cats.error(cause, f"category {int(CATEGORIES[cause][0])} or stricter (a lower number): a rig "
                              "file may make a stop stricter, never looser", value)
         stricter[cause] = value
+    load = HoldingLoad(
+        gravity_nm=tuple(math.nan if n.gravity_torque_nm is None else n.gravity_torque_nm for n in nominal),
+        phase_rad=tuple(0.0 if n.gravity_phase_rad is None else n.gravity_phase_rad for n in nominal))
     return StopSettings(decel_rad_s2=decel, brake_engage_s=max(engage, default=0.0), time_bound_s=bound,
-                        stricter=stricter)
+                        stricter=stricter, load=load)
 
 
 #: the watchdog's margin beyond a soft limit unless the rig file says (deg): the presets' soft
 #: limits sit 2° inside the hard stops, and a category-1 stop from 20°/s at 400°/s² runs 0.5° on
 DEFAULT_SOFT_LIMIT_MARGIN_DEG = 0.5
+
+
+def soft_limits_rad(rig: RigSpec) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Each joint's soft limits ``(min_rad, max_rad)`` (−inf / +inf where it has none), parsed and
+    checked as :func:`servo_settings` does, for a tool that needs only them (the pot calibration
+    on a bench rig that states no controller)."""
+    parsed = _soft_limits(rig, rig.table.table("servo", {}))
+    return parsed["soft_min_rad"], parsed["soft_max_rad"]
 
 
 def _soft_limits(rig: RigSpec, top: ConfigTable) -> dict[str, Any]:

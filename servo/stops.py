@@ -27,7 +27,8 @@ import numpy as np
 
 from servo.trajectory.base import Sample
 
-__all__ = ["CATEGORIES", "NOT_FAULTS", "ControlledStop", "Deceleration", "StopCategory", "StopSettings", "category_for"]
+__all__ = ["CATEGORIES", "NOT_FAULTS", "ControlledStop", "Deceleration", "HoldingLoad", "StopCategory", "StopSettings",
+           "category_for"]
 
 
 class StopCategory(IntEnum):
@@ -53,6 +54,12 @@ CATEGORIES: Mapping[str, tuple[StopCategory, str]] = {
     "stale_sensor": (StopCategory.UNCONTROLLED, "the sensor data are old, or a reading no longer follows the joint"),
     "plant_restarted": (StopCategory.UNCONTROLLED, "the sensors' state was lost"),
     "estop": (StopCategory.UNCONTROLLED, "the operator's emergency stop: power off now"),
+    # the unit controllers' (vmehil.unit_controllers): every unit's power off in the tick the
+    # first stop reached the plant (docs/melmalec.md)
+    "unit_stop": (StopCategory.UNCONTROLLED, "another unit controller stopped: every unit's power off in that tick"),
+    "unit_lost": (StopCategory.UNCONTROLLED, "a unit controller fell silent: its joints are unpowered"),
+    "coordinator_lost": (StopCategory.UNCONTROLLED, "no answer from the coordinator: no sensor data arrive"),
+    "answer_incomplete": (StopCategory.UNCONTROLLED, "an answer lacks this unit's sensor data"),
     "operator_stop": (StopCategory.CONTROLLED, "the operator's stop: sensors and drivers sane"),
     "operator_shutdown": (StopCategory.CONTROLLED, "the operator's shutdown: sensors and drivers sane"),
     "session_end": (StopCategory.CONTROLLED, "a console session ended: sensors and drivers sane"),
@@ -77,18 +84,49 @@ def category_for(cause: str, stricter: Mapping[str, int] | None = None) -> StopC
 
 
 @dataclass(frozen=True)
+class HoldingLoad:
+    """What holds each joint still: its gravity load ``gravity_nm · cos(θ + phase_rad)`` (N·m at
+    the joint), from the controller's own figures (``[joint.servo.nominal] gravity_torque_nm``,
+    ``gravity_phase_rad``; NaN: the joint states none).
+
+    A joint at rest needs only this: friction holds in either direction and takes nothing, and
+    the torque commanded when a stop came (its move's friction and acceleration, the loop's
+    reaction to sensor noise) is no measure of it — j6 of jpl-arm, stopped while moving at
+    10°/s, was commanding −0.002 N·m against a 0.29 N·m load. A re-enable starts the law at
+    this torque at the angle the brake kept (:meth:`servo.loop.ServoLoop.resume`)."""
+
+    gravity_nm: tuple[float, ...] = ()
+    phase_rad: tuple[float, ...] = ()
+
+    def known(self, n: int) -> np.ndarray:
+        """Per joint (of ``n``): whether it states its load."""
+        g = np.asarray(self.gravity_nm, float)
+        return np.isfinite(g) if g.size == n else np.zeros(n, dtype=bool)
+
+    def torque_nm(self, theta_rad: np.ndarray) -> np.ndarray:
+        """The torque that holds each joint at ``theta_rad`` (N·m; NaN where the load is unknown)."""
+        th = np.asarray(theta_rad, float)
+        g = np.asarray(self.gravity_nm, float)
+        if g.size != th.size:
+            return np.full(th.shape, np.nan)
+        return g * np.cos(th + np.asarray(self.phase_rad, float))
+
+
+@dataclass(frozen=True)
 class StopSettings:
     """How a controlled stop runs (SI). ``decel_rad_s2`` per joint: the deceleration it plans with;
     ``settle_s``: held at rest before the brakes engage; ``brake_engage_s``: the longest holding
     brake engage delay of the rig (0: no brakes), held with the amplifiers on; ``time_bound_s``: a
     category-1 stop not done by then falls to category 0; ``stricter``: cause → category from the
-    rig file (never looser than :data:`CATEGORIES`)."""
+    rig file (never looser than :data:`CATEGORIES`); ``load``: what holds each joint still, the
+    torque a re-enable starts from."""
 
     decel_rad_s2: tuple[float, ...]
     settle_s: float = 0.1
     brake_engage_s: float = 0.0
     time_bound_s: float = 1.5
     stricter: Mapping[str, int] = field(default_factory=dict)
+    load: HoldingLoad = field(default_factory=HoldingLoad)
 
     def category(self, cause: str) -> StopCategory:
         return category_for(cause, self.stricter)

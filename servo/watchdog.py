@@ -8,7 +8,8 @@ then shows as a disagreement within a few ticks, long before the following error
 * **position** — encoder against pot (joints with both): their travel since the last
   reference must agree within ``position_tolerance_rad + position_tolerance_fraction·travel``
   (the fraction covers an uncalibrated pot's non-linearity; a calibration applied at run time
-  re-references).
+  re-references). A homed encoder (``io.homed``) reads the absolute angle: it is compared with
+  the pot absolutely (its reference is the pot's own at the reference tick).
 * **velocity** — tachometer against the position derivative (the encoder where wired, else the
   pot), both integrated over the same window of ``velocity_window_ticks``: the tach's mean may
   differ from the mean speed by at most its dead band (it reads ``ω − dead band·sign ω`` above
@@ -273,7 +274,11 @@ class CrossChecks:
         if generation != self._generation:  # a new calibration: readings convert differently now
             self._generation = generation
             self._pot0 = np.where(self.both, m.theta_pot, np.nan)
-            self._enc0 = np.where(self.both, m.theta_enc, np.nan)
+            # a homed encoder reads the joint's absolute angle: its reference is the pot's, so
+            # the two are compared absolutely (docs/motion-safety.md, "Homing")
+            homed = getattr(self.io, "homed", None)
+            enc0 = m.theta_enc if homed is None else np.where(homed, m.theta_pot, m.theta_enc)
+            self._enc0 = np.where(self.both, enc0, np.nan)
             self._filled = 0
         self.limit("stale_travel_rad")  # the limits in force, resolved once for this tick's checks
         stale = self._stale(m, np.asarray(theta_d, float), np.asarray(omega_d, float))

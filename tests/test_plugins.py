@@ -205,7 +205,7 @@ def test_a_procedure_from_an_installed_package_can_be_calibrated_by_name(install
 
 def test_an_unknown_procedure_lists_the_known_ones():
     with pytest.raises(ValueError, match=r"unknown calibration procedure 'frobnicate'; choose from all, adc, "
-                                         r"amplifier, dac, encoder, friction, pot$"):
+                                         r"amplifier, dac, encoder, friction, home, pot$"):
         resolve_procedure_names("frobnicate")
 
 

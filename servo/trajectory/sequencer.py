@@ -21,7 +21,7 @@ before it starts).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -97,7 +97,11 @@ class Sequencer:
     def _build(self, move: MoveSpec, start: np.ndarray, index: int) -> Trajectory:
         """Plan ``move`` from ``start`` and check it against the context's bounds
         (:class:`MotionRefused` for a move they refuse, before it starts)."""
-        trajectory = move.build(start, self.ctx)
+        try:
+            trajectory = move.build(start, self.ctx)
+        except MotionRefused as e:  # refused by the move itself (a Cartesian target out of reach): name the move
+            raise MotionRefused([replace(r, move=index, detail=f"move {index + 1}: {r.detail}") if r.move is None
+                                 else r for r in e.refusals]) from None
         bounds = self.ctx.bounds
         if bounds is not None:
             refusals = bounds.check_trajectory(trajectory, move=index)

@@ -6,6 +6,12 @@ tree before and after the change and compare the two outputs (``diff``)::
 
     cd /path/to/tree && python -m tests.emulators.lockstep_fingerprint > after.txt
 
+``--batch`` (instead of the cases above) fingerprints batched lockstep (vmehil.analysis.batch):
+each instance of :data:`BATCH_CASES` — different gains, plant values, seeds and faults, one
+tripping its watchdog — run in one batch and again alone (the scalar run), and prints every
+instance's digests with ``batch == scalar: yes`` (exit 1 on any ``no``). The output of the default
+cases does not change with it.
+
 It drives the real CLI (``vmehil.cli.main(["run", ...])``) and captures the loop it built when
 the run is summarized, so what it fingerprints is exactly what ``vmehil run`` computed. Not a
 test module (no ``test_`` prefix): a test that pinned these hashes would break on every
@@ -107,7 +113,95 @@ def fingerprint(argv: list[str]) -> dict[str, Any]:
     return out
 
 
+# (label, rig, gains, tolerance plant values, seed, faults) of the batch's instances (joint 1, a
+# 10° move and a 1 s hold): gains differ; the third's tach brush drop trips the velocity
+# cross-check (docs/sweeps.md); the fourth has its own sensor faults, the sixth a pulled board
+# (BERR: a driver-error stop); the fifth another seed and +15 % Coulomb friction (0.0388 N·m
+# nominal); the seventh runs the arm on a VMIVME-4116 as its DAC, the eighth is another rig.
+BATCH_CASES: list[tuple[str, str, dict[str, float], dict[str, float], int, tuple[str, ...]]] = [
+    ("kp 80", "jpl-arm", {"kp": 80.0}, {}, 0, ()),
+    ("kp 120 kvi 700", "jpl-arm", {"kp": 120.0, "kvi": 700.0}, {}, 0, ()),
+    ("brush drop 0.2 V (trips)", "jpl-arm", {}, {"tach_brush_drop": 0.2}, 0, ()),
+    ("faults", "jpl-arm", {"kv": 40.0}, {}, 0,
+     ("adc_noise@0.3:joint=j1,rms_v=0.02", "encoder_missed@0.6:joint=j1,counts=30")),
+    ("seed 3, coulomb +15 %", "jpl-arm", {}, {"coulomb": 0.04462}, 3, ()),
+    ("board pulled", "jpl-arm", {}, {}, 1, ("board_removed@0.5:board=quad0",)),
+    ("VMIVME-4116 DAC", "jpl-arm/vmivme-4116", {"kp": 90.0}, {}, 5, ()),
+    ("melmalec-16", "melmalec-16", {}, {}, 2, ()),
+]
+#: the jpl-arm preset's reference DAC, and the crate entry that makes it a VMIVME-4116 (as
+#: tests/vmehil/test_vmivme4116_rig.py does)
+_REFERENCE_DAC = 'type = "dac"\nname = "dac0"'
+_VMIVME_4116 = 'type = "vmivme-4116"\nupdate = "synchronized"\ncoding = "offset_binary"\nname = "dac0"'
+
+
+def _instance_digest(run: Any) -> dict[str, Any]:
+    loop = run.loop
+    rec = loop.recorder.trimmed()
+    out: dict[str, Any] = {"arrays": {k: _digest(v) for k, v in sorted(rec.items()) if k != "compute_s"}}
+    out["ticks"] = int(loop.tick_count)
+    out["fault"] = None if loop.fault is None else loop.fault.as_dict()
+    out["log"] = hashlib.sha256(repr([(t, s, m) for t, s, m in loop.log]).encode()).hexdigest()[:20]
+    out["counters"] = run.system.crate.counter_snapshot()
+    out["clock_ns"] = run.system.crate.clock.now_ns
+    return out
+
+
+def batch_fingerprints() -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
+    """Per instance of :data:`BATCH_CASES`: (label, digests in the batch, digests alone)."""
+    from vmehil.analysis.batch import run_lockstep
+    from vmehil.analysis.rigparams import load_joint
+    from vmehil.analysis.simulate import SimRun, SimSettings
+    from vmehil.analysis.sweep import rig_text, task_rig
+
+    texts = {"jpl-arm": rig_text("jpl-arm"), "melmalec-16": rig_text("melmalec-16")}
+    texts["jpl-arm/vmivme-4116"] = texts["jpl-arm"].replace(_REFERENCE_DAC, _VMIVME_4116)
+    if _VMIVME_4116 not in texts["jpl-arm/vmivme-4116"]:
+        raise RuntimeError("the jpl-arm preset's dac0 entry changed: update _REFERENCE_DAC")
+
+    def make(rig: str, gains: dict[str, float], plant: dict[str, float], seed: int, faults: tuple[str, ...]) -> Any:
+        path = rig.split("/")[0]
+        jp = load_joint(task_rig(texts[rig], path, 1, plant), 1, gains=gains)
+        return SimRun(jp, False, SimSettings(seed=seed, move_deg=10, hold_s=1.0, allow_short=True), faults=faults)
+
+    batch = [make(*case[1:]) for case in BATCH_CASES]
+    try:
+        run_lockstep(batch, window=1)  # every tick interleaved: the strictest order
+        together = [_instance_digest(r) for r in batch]
+    finally:
+        for r in batch:
+            r.close()
+    out = []
+    for case, got in zip(BATCH_CASES, together, strict=True):
+        alone = make(*case[1:])
+        try:
+            with alone.loop.armed():
+                alone.runner.run(alone.n_ticks, stop=alone.halt_when(None))
+            out.append((case[0], got, _instance_digest(alone)))
+        finally:
+            alone.close()
+    return out
+
+
+def main_batch() -> int:
+    same_all = True
+    for label, got, alone in batch_fingerprints():
+        same = got == alone
+        same_all &= same
+        print(f"== batch instance {label}: batch == scalar: {'yes' if same else 'no'}")
+        for k, v in got.items():
+            if k == "arrays":
+                for name, h in v.items():
+                    print(f"  array {name:12s} {h}")
+            else:
+                print(f"  {k}: {json.dumps(v, sort_keys=True, default=str)}")
+        sys.stdout.flush()
+    return 0 if same_all else 1
+
+
 def main(labels: list[str]) -> int:
+    if labels == ["--batch"]:
+        return main_batch()
     for label, argv in CASES:
         if labels and label not in labels:
             continue

@@ -3,9 +3,12 @@ watchdog's memory and the integrators of before the stop forgotten."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
+from servo.stops import HoldingLoad, StopSettings
 from servo.trajectory import JointLimits, PlanContext, Sequencer
 from tests.support.fakes import make_loop, tick
 
@@ -83,3 +86,17 @@ def test_resume_plans_with_the_loops_plan_context_else_the_sequencers():
     loop.safe_stop("operator_stop", "test")
     loop.resume()
     assert loop.sequencer.ctx is slow  # the sequencer's own, carried on
+
+
+def test_resume_starts_each_joint_at_its_stated_holding_load_where_it_is_held():
+    # joint 0 states a gravity load of 9 N·m (cos θ); held at 60° it needs 9·cos 60° = 4.5 N·m.
+    # Joint 1 states none and (a fake JointIO) has no torque from the stop: it starts at 0.
+    loop = make_loop(2)
+    loop.stop_settings = StopSettings(decel_rad_s2=(1.0, 1.0),
+                                      load=HoldingLoad(gravity_nm=(9.0, math.nan), phase_rad=(0.0, 0.0)))
+    tick(loop, n=5)
+    loop.safe_stop("estop", "test")
+    loop.io.theta = np.array([math.radians(60.0), 0.2])  # where the brakes held the joints
+    loop.resume()
+    loop.tick()  # zero error, at rest: the law's output is its preload alone
+    np.testing.assert_allclose(loop.io.torque, [4.5, 0.0], atol=1e-9)

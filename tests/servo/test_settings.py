@@ -73,3 +73,13 @@ def test_an_override_is_checked_once_and_leaves_the_rigs_settings_alone() -> Non
     assert new.gains.joint(3) == Gains(kp=120.0, kpi=5000.0, kv=50.0, kvi=1000.0)
     assert not new.switch_off.enabled.any() and st.switch_off.enabled.all()
     assert st.gains.joint(3).kp == 100.0  # the rig's settings are unchanged
+
+
+def test_require_homing_is_a_rig_setting_off_by_default_and_typed(tmp_path: Path) -> None:
+    assert servo_settings(load_rig(resolve_rig("jpl-arm"))).require_homing is False
+    on = _rig_with(tmp_path, "max_velocity_deg_s = 20.0", "max_velocity_deg_s = 20.0\nrequire_homing = true")
+    assert servo_settings(load_rig(on)).require_homing is True
+    bad = _rig_with(tmp_path, "max_velocity_deg_s = 20.0", 'max_velocity_deg_s = 20.0\nrequire_homing = "yes"')
+    with pytest.raises(ConfigError) as e:
+        servo_settings(load_rig(bad))
+    assert e.value.key == "servo.require_homing"

@@ -21,6 +21,7 @@ from emulators.crate_file import load_crate
 from emulators.presets import preset_names, resolve_rig
 from hal.board_types import BOARD_TYPES
 from servo.rig import load_rig
+from servo.scene import default_scene_path, load_scene
 from tests.support.boards import assert_boards_safe
 from tests.support.vmivme3113a_preset import PRESET_BOARD as VMIVME_3113A_BOARD
 from tests.vmehil.test_vmivme2536_rig import SNIPPET as VMIVME_2536_SNIPPET
@@ -81,6 +82,16 @@ def test_the_plant_and_servo_sections_equal_jpl_arms(vmic, arm) -> None:
     drifted["joint"][0]["friction"]["breakout_nm"] = 0.05
     assert drifted["joint"][0] != {**arm["joint"][0], "wiring": drifted["joint"][0]["wiring"]}
 
+
+
+def test_the_scene_is_jpl_arms() -> None:
+    """Same arm, same setting: the preset's own scene file (used by default, as jpl-arm's is) holds
+    the same obstacles as jpl-arm's, so a move refused on one is refused on the other."""
+    vmic_scene = default_scene_path(resolve_rig(PRESET))
+    arm_scene = default_scene_path(resolve_rig("jpl-arm"))
+    assert vmic_scene.is_file()
+    assert tomllib.loads(vmic_scene.read_text()) == tomllib.loads(arm_scene.read_text())
+    assert len(load_scene(vmic_scene).obstacles) == 12  # the paper's twelve (docs/motion-safety.md)
 
 # ---- the boards: the entries the boards' tests and docs give ---------------------------------
 

@@ -13,6 +13,7 @@ from servo.runner import LockstepRunner
 from vmehil.rig_setup.session import build_loop
 from vmehil.rig_setup.system import build_emulated_rig
 from vmehil.unit_controllers.coordinator import run_units
+from vmehil.unit_controllers.options import MergedUnits
 
 N_TICKS = 250
 
@@ -41,7 +42,10 @@ def test_parallel_units_in_lockstep_equal_the_single_controller_bit_for_bit() ->
             assert np.array_equal(ref[key], got[key], equal_nan=True), key
         moved = np.degrees(np.abs(got["theta_true"][-1] - got["theta_true"][0]))
         assert np.all(moved > 1.0)  # every joint really moved: the check compares motion, not rest
-        assert run.hub.exchanges == N_TICKS + 1  # power-up + one per tick, each with every unit in
+        assert all(u.loop.run_ticks == N_TICKS for u in run.units)
+        # power-up + one per tick, each with every unit in; then each unit's end (its category-1
+        # stop and the 2 s after it) while the longest still ticks
+        assert run.hub.exchanges == 1 + max(u.loop.tick_count for u in run.units)
     finally:
         run.close()
 
@@ -166,12 +170,10 @@ def test_a_unit_that_dies_with_an_exception_stops_every_unit_within_one_tick() -
                 assert probe.first_off(u.unit.name) == 81, u.unit.name
                 assert u.loop.fault.cause == "unit_stop"
         assert all(x == 0 for x in run.hub.amps_on[83:])  # the plant: all off within 2 exchanges
-        # the merged record (the report's) runs to the longest unit's end; leg4's columns end early
-        got, rows = run.recorded(), max(u.loop.recorder.count for u in run.units)
-        leg4_rows = leg4.loop.recorder.count
-        assert rows > leg4_rows and got["theta"].shape[0] == rows
-        cols = list(leg4.unit.indices)
-        assert np.isnan(got["theta"][leg4_rows:, cols]).all() and np.isfinite(got["theta"][:leg4_rows, cols]).all()
+        # as the single run after an exception: the dead unit's loop still reads its joints for
+        # 2 s after its stop (its excursion), its amplifiers off
+        assert leg4.loop.tick_count >= 81 + 250 and leg4.loop.final_stop["category"] == 0
+        assert set(leg4.loop.final_stop["excursion_deg"]) == set(leg4.unit.joints)
     finally:
         run.close()
 
@@ -210,9 +212,10 @@ def test_a_rig_without_units_is_refused_for_parallel_runs() -> None:
         run_units("jpl-arm", n_ticks=10)
 
 
-def test_an_abort_stops_every_unit_at_its_next_tick() -> None:
+def test_an_abort_stops_every_unit_from_its_next_tick_by_category_1() -> None:
     """What Ctrl-C / SIGTERM to the coordinator does (it sets the abort event): every unit
-    safe-stops at its next tick boundary; its boards read off."""
+    begins a category-1 stop at its next tick boundary (as the single run does for a signal),
+    its brakes hold and its boards read off; then it watches its joints for 2 s."""
     import threading
 
     probe = BoardProbe()
@@ -226,11 +229,18 @@ def test_an_abort_stops_every_unit_at_its_next_tick() -> None:
     try:
         for u in run.units:
             name, loop = u.unit.name, u.loop
-            assert loop.fault is not None and loop.fault.cause in ("interrupted", "unit_stop"), name
-            assert loop.final_stop["verified"], name
+            assert loop.fault is not None and loop.fault.cause == "interrupted", name
+            stop = loop.final_stop
+            assert stop["verified"] and stop["category"] == 1 and stop["fell_to_0"] is None, name
             probe(name, u.system, loop)  # the boards as the unit left them
             assert probe.off[name][loop.tick_count - 1] is True, name
-            assert loop.tick_count <= 62  # stopped within a tick or two of the abort, not at the end
+            assert 60 <= loop.run_ticks <= 62  # its stop began within a tick or two of the abort
+            assert probe.off[name][loop.run_ticks] is False  # decelerating: powered
+            off = probe.first_off(name)
+            assert loop.tick_count - off >= 250  # then 2 s watched (the run's 1500 ticks are not run)
+            assert loop.tick_count < 1500
+        # each unit's own end: no unit told the others to stop, none cut another's window short
+        assert run.hub.stop is None
     finally:
         run.close()
 
@@ -263,3 +273,127 @@ def test_ctrl_c_to_the_coordinator_leaves_every_unit_safe_stopped_and_goes_on() 
         assert probe.off[name][loop.tick_count - 1] is True, name
     for system, _ in seen.values():
         system.close()
+
+
+class EndProbe:
+    """After every tick of every unit, from its own boards and the plant's truth: whether any
+    amplifier enable is high, whether any holding-brake line is high, the true joint angles."""
+
+    def __init__(self) -> None:
+        self.enabled: dict[str, list[bool]] = {}
+        self.released: dict[str, list[bool]] = {}
+        self.theta: dict[str, list[np.ndarray]] = {}
+
+    def __call__(self, name: str, system, loop) -> None:
+        s = system.crate.signals
+        joints = system.rig.joints
+        self.enabled.setdefault(name, []).append(any(s.get_digital(j.net("amp_enable")) for j in joints
+                                                     if "amp_enable" in j.wiring))
+        self.released.setdefault(name, []).append(any(s.get_digital(j.net("holding_brake")) for j in joints
+                                                      if "holding_brake" in j.wiring))
+        self.theta.setdefault(name, []).append(system.truth()["theta_joint"].copy())
+
+
+@pytest.mark.slow
+def test_every_unit_ends_the_run_as_the_single_run_does_category_1_then_2_s_watched() -> None:
+    """The run's end (issue #29): each unit decelerates, drops its brake lines with its
+    amplifiers still on, powers off one engage delay (40 ms) later, then keeps reading for 2 s;
+    the merged final stop reports category 1 and every joint's excursion, as the single
+    controller's end does (its figures: an independent run of the same seed)."""
+    from tests.support.boards import assert_boards_safe
+
+    n, period = 250, 1 / 125
+    probe = EndProbe()
+    run = run_units("melmalec-16", seed=3, n_ticks=n, after_tick=probe)
+    try:
+        for u in run.units:
+            name, loop = u.unit.name, u.loop
+            assert u.error is None and loop.fault is None and loop.run_ticks == n, name
+            stop = loop.final_stop
+            assert stop["category"] == 1 and stop["cause"] == "end" and stop["verified"], name
+            on = probe.enabled[name]  # index k: after tick k
+            off = next(k for k in range(n, len(on)) if not on[k])
+            assert all(on[:off]), name  # powered until then: decelerating, at rest, brakes engaging
+            assert (len(on) - 1 - off) * period >= 2.0 - 1e-9, name  # then 2 s watched
+            if name.startswith("leg"):  # the legs' lifts and knees have holding brakes
+                rel = probe.released[name]
+                brakes = next(k for k in range(n, len(rel)) if not rel[k])
+                assert (brakes - n) * period >= 0.1  # after decelerating and 0.1 s at rest
+                assert (off - brakes) * period >= 0.04 - 1e-9  # amplifiers on through the engage delay
+                assert u.system.truth()["brake_engaged"][[1, 2]].all()
+            assert_boards_safe(u.system)
+            # the excursion reported is the truth's movement from the stop's beginning
+            th = np.asarray(probe.theta[name])
+            moved = np.degrees(np.abs(th[n - 1:] - th[n - 1]).max(axis=0))
+            got = [stop["excursion_deg"][j] for j in u.unit.joints]
+            np.testing.assert_allclose(got, moved, atol=0.05)
+        merged = MergedUnits(run)
+        final = merged.final_stop
+        assert final["category"] == 1 and final["cause"] == "end" and merged.run_ticks == n
+        assert list(final["excursion_deg"]) == [j.name for j in run.rig.joints]
+        assert list(final["excursion_sensor_deg"]) == [j.name for j in run.rig.joints]
+    finally:
+        run.close()
+    # the single controller of every joint, the same seed, the same end
+    system = build_emulated_rig("melmalec-16", seed=3)
+    try:
+        loop = build_loop(system, n_ticks=n)
+        runner = LockstepRunner(system, loop)
+        with loop.armed():
+            runner.run(n)
+            runner.end_run()
+        single = loop.final_stop["excursion_deg"]
+    finally:
+        system.close()
+    # the legs' stops are timed alike; the arm's unit brings its own joints to rest sooner
+    for j in run.rig.joints:
+        assert final["excursion_deg"][j.name] == pytest.approx(single[j.name], abs=0.05), j.name
+
+
+def test_a_second_interrupt_during_the_units_end_makes_their_stops_category_0_and_ends_the_window() -> None:
+    """Ctrl-C twice at the coordinator (with Python's own SIGINT handler): the first begins every
+    unit's category-1 stop, the second — while they decelerate — removes power at once (category
+    0, as the single run's second signal) and ends the 2 s window; run_units re-raises. (leg1's
+    hook waits until the main thread has taken each interrupt: lockstep holds every unit there.)"""
+    import _thread
+    import signal
+    import threading
+
+    seen: dict = {}
+    probe = BoardProbe()
+    abort, cut = threading.Event(), threading.Event()
+    sent: list[int] = []
+
+    def hook(name, system, loop):
+        seen[name] = (system, loop)
+        if name != "leg1":
+            return
+        if loop.tick_count == 60:
+            sent.append(loop.tick_count)
+            _thread.interrupt_main()
+            assert abort.wait(10.0)
+        elif loop.stopping is not None and not cut.is_set() and len(sent) == 1:
+            sent.append(loop.tick_count)  # decelerating, powered: the second interrupt
+            assert system.crate.signals.get_digital(system.rig.joints[1].net("amp_enable"))
+            _thread.interrupt_main()
+            assert cut.wait(10.0)
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_units("melmalec-16", seed=1, n_ticks=1500, after_tick=chain(probe, hook), abort=abort,
+                      cut_short=cut)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    try:
+        assert sent[0] == 60 and len(sent) == 2
+        for name, (system, loop) in seen.items():
+            stop = loop.final_stop
+            assert stop is not None and stop["verified"] and stop["category"] == 0, name
+            assert stop["fell_to_0"] is not None, name
+            probe(name, system, loop)
+            assert probe.off[name][loop.tick_count - 1] is True, name
+            assert loop.tick_count <= sent[1] + 3  # no 2 s window (250 ticks) after the second interrupt
+    finally:
+        for system, _ in seen.values():
+            system.close()

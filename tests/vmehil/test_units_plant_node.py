@@ -42,8 +42,10 @@ def test_units_with_the_coordinator_on_the_plant_node_equal_the_single_controlle
         bus.close()
     for t in threads:
         t.join(timeout=60)
-    assert out.stop is None and out.exchanges == n + 1
-    assert node.counters.steps == n + 2  # every exchange, and the last one with every amplifier off
+    # power-up + one per tick, each with every unit in; then each unit's end (a category-1 stop
+    # and 2 s watched) while the longest still ticks
+    assert out.stop is None and out.exchanges == 1 + max(r.loop.tick_count for r in results.values())
+    assert node.counters.steps == out.exchanges + 1  # every exchange, and the last one with every amplifier off
     assert all(r.completed == n and r.loop.fault is None for r in results.values()), results
     ref = single_run(5, n)
     for key in ("theta_true", "omega_true", "theta", "omega", "torque", "current_cmd", "current", "theta_d"):

@@ -62,6 +62,22 @@ def assert_recorded_equal_single(tmp_path, seed: int, n_ticks: int) -> None:
         assert np.array_equal(ref[key], got, equal_nan=True), key
 
 
+def assert_units_ended_by_category_1(tmp_path, n_ticks: int) -> None:
+    """Every unit's JSON (--json): its run's ticks, then the single run's end — a category-1
+    stop for the run's end, verified, each of its joints' excursion over it and the 2 s after."""
+    spec = load_rig(resolve_rig("melmalec-16"))
+    for u in rig_units(spec):
+        summary = json.loads((tmp_path / f"{u.name}.json").read_text())
+        stop = summary["final_stop"]
+        assert summary["ticks"] == n_ticks and summary["faults"] == [], u.name
+        assert stop["category"] == 1 and stop["cause"] == "end" and stop["verified"], u.name
+        assert stop["tick"] >= n_ticks + 250  # the stop, then 2 s watched
+        for key in ("excursion_deg", "excursion_sensor_deg"):
+            assert list(stop[key]) == list(u.joints), u.name
+        braked = [j for j in u.joints if j.endswith(("_lift", "_knee"))]
+        assert all(stop["excursion_deg"][j] < 1.0 for j in braked), stop["excursion_deg"]
+
+
 def kill_leg3_at(exchange: int, coord: subprocess.Popen, units: dict[str, subprocess.Popen]) -> dict[str, int]:
     """SIGKILL leg3 once the coordinator has answered ``exchange``; every process's exit code."""
     try:
@@ -102,8 +118,10 @@ def test_unit_processes_in_lockstep_equal_the_single_controller_bit_for_bit(tmp_
     assert coord.returncode == 0, coord.stderr
     assert set(wait_all(units).values()) == {0}
     summary = json.loads((tmp_path / "coordinator.json").read_text())
-    assert summary["stop"] is None and summary["plant_steps"] == 126
+    # the run's 125 ticks and the power-up, then each unit's end (a category-1 stop, 2 s watched)
+    assert summary["stop"] is None and summary["plant_steps"] >= 126 + 250
     assert_recorded_equal_single(tmp_path, 3, 125)
+    assert_units_ended_by_category_1(tmp_path, 125)
 
 
 @pytest.mark.slow
@@ -181,11 +199,15 @@ def test_unit_processes_with_the_coordinator_on_the_plant_node_equal_the_single_
             if p.poll() is None:
                 p.kill()
     summary = json.loads((tmp_path / "coordinator.json").read_text())
-    assert summary["stop"] is None and summary["plant_steps"] == 101 and summary["plant"] == "can"
-    assert summary["timing"]["steps"] == 101 and summary["timing"]["plant_p50_ms"] > 0.0  # the node's round trip
+    steps = summary["plant_steps"]  # the run's 100 ticks and the power-up, then the units' ends
+    assert summary["stop"] is None and steps >= 101 + 250 and summary["plant"] == "can"
+    assert summary["timing"]["steps"] == steps and summary["timing"]["plant_p50_ms"] > 0.0  # the node's round trip
     assert {name: fig["ticks"] for name, fig in summary["units"].items()} == dict.fromkeys(UNITS, 100)
-    assert json.loads((tmp_path / "node.json").read_text())["steps"] == 102  # and the last, all off
+    ticks = {name: json.loads((tmp_path / f"{name}.json").read_text())["final_stop"]["tick"] for name in UNITS}
+    assert steps == 1 + max(ticks.values())
+    assert json.loads((tmp_path / "node.json").read_text())["steps"] == steps + 1  # and the last, all off
     assert_recorded_equal_single(tmp_path, 7, 100)
+    assert_units_ended_by_category_1(tmp_path, 100)
 
 
 @pytest.mark.slow

@@ -164,39 +164,90 @@ def simulate(jp: JointParams, switch_off: bool | None = False, settings: SimSett
     ``traces`` the per-tick ``t_s``, ``theta_deg`` (true), ``theta_meas_deg``, ``theta_d_deg``,
     ``omega_d_deg_s``.
     """
-    from servo.runner import LockstepRunner
-    from vmehil.reports.run_report import SETTLE_S, summarize
-    from vmehil.rig_setup.session import build_loop
-    from vmehil.rig_setup.system import build_emulated_rig
+    run = SimRun(jp, switch_off, settings, step_deg=step_deg, link_factory=link_factory)
+    try:
+        with run.loop.armed():  # every way out of the simulation ends with the amplifiers off
+            run.runner.run(run.n_ticks, progress=progress, stop=run.halt_when(stop))
+        summary = run.summarize()
+    finally:
+        run.close()
+    return run.figures(summary, traces=traces)
 
-    s = settings or SimSettings()
-    rig = jp.spec if jp.spec is not None else jp.rig_path
-    link = None if link_factory is None else link_factory(rig, s.seed)
-    try:
-        system = build_emulated_rig(rig, seed=s.seed, link=link, calibration=s.calibration)
-    except BaseException:
-        if link is not None:
-            link.close()
-        raise
-    try:
-        j = jp.joint - 1
-        motion = _motion(system, jp, s, step_deg)
-        duration = _planned_s(system, motion, jp.servo)
-        n_ticks = max(2, round(duration * system.rig.servo_rate_hz))
-        loop = build_loop(system, motion=motion, switch_off=switch_off, n_ticks=n_ticks, settings=jp.servo)
-        law = loop.law
-        theta_start = float(loop.sequencer.current.end[j])  # the target before the first move
-        law.set_gains(**jp.cfg.gains.as_dict(), joint=j)
-        runner = LockstepRunner(system, loop)
+
+class SimRun:
+    """One :func:`simulate` run in its steps — built here (rig, loop with the joint's gains,
+    lockstep runner), ticked by the caller inside ``loop.armed()`` (:func:`simulate` runs every
+    tick in one :meth:`~servo.runner.LockstepRunner.run`; :mod:`vmehil.analysis.batch` ticks
+    several runs in lockstep), then :meth:`summarize`, :meth:`close` and :meth:`figures`. The same
+    objects and calls in the same order either way, so a run's numbers do not depend on who ticks it."""
+
+    def __init__(self, jp: JointParams, switch_off: bool | None = False, settings: SimSettings | None = None, *,
+                 step_deg: float | None = None, link_factory: LinkFactory | None = None,
+                 faults: tuple[str, ...] = ()) -> None:
+        """``faults``: ``--fault`` specs (docs/faults.md) injected into this run alone, at their times."""
+        from servo.runner import LockstepRunner
+        from vmehil.rig_setup.session import build_loop
+        from vmehil.rig_setup.system import build_emulated_rig
+
+        s = settings or SimSettings()
+        self.jp, self.switch_off, self.settings, self.step_deg = jp, switch_off, s, step_deg
+        rig = jp.spec if jp.spec is not None else jp.rig_path
+        link = None if link_factory is None else link_factory(rig, s.seed)
+        try:
+            system = build_emulated_rig(rig, seed=s.seed, link=link, calibration=s.calibration)
+        except BaseException:
+            if link is not None:
+                link.close()
+            raise
+        self.system = system
+        try:
+            j = jp.joint - 1
+            motion = _motion(system, jp, s, step_deg)
+            duration = _planned_s(system, motion, jp.servo)
+            self.n_ticks = max(2, round(duration * system.rig.servo_rate_hz))
+            loop = build_loop(system, motion=motion, switch_off=switch_off, n_ticks=self.n_ticks, settings=jp.servo)
+            self.loop = loop
+            self.theta_start = float(loop.sequencer.current.end[j])  # the target before the first move
+            loop.law.set_gains(**jp.cfg.gains.as_dict(), joint=j)
+            self.runner = LockstepRunner(system, loop)
+            if faults:
+                from vmehil.fault_scenarios.injection import FaultContext, FaultSchedule, check_rig, parse_fault_spec
+
+                scheduled = [parse_fault_spec(f) for f in faults]
+                check_rig(scheduled, system.rig)
+                FaultSchedule(scheduled, FaultContext(system, loop, s.seed)).attach(self.runner)
+        except BaseException:
+            system.close()
+            raise
+
+    def halt_when(self, stop: Callable[[], bool] | None) -> Callable[[], bool]:
+        """The runner's ``stop``: the loop faulted (its watchdog stopped it), or ``stop()``."""
+        loop = self.loop
 
         def halt() -> bool:
             return loop.fault is not None or (stop is not None and stop())
+        return halt
 
-        with loop.armed():  # every way out of the simulation ends with the amplifiers off
-            runner.run(n_ticks, progress=progress, stop=halt)
-        summary = summarize(loop, rig=system.rig.name, seed=s.seed, realtime=False, overruns=0)
-    finally:
-        system.close()
+    def summarize(self) -> dict[str, Any]:
+        from vmehil.reports.run_report import summarize
+
+        return summarize(self.loop, rig=self.system.rig.name, seed=self.settings.seed, realtime=False, overruns=0)
+
+    def close(self) -> None:
+        self.system.close()
+
+    def figures(self, summary: dict[str, Any], *, traces: bool = True) -> dict[str, Any]:
+        """:func:`simulate`'s result from the ended run and its ``summary``."""
+        return _figures(self.jp, self.settings, self.step_deg, self.loop, self.switch_off, self.theta_start,
+                        summary, traces)
+
+
+def _figures(jp: JointParams, s: SimSettings, step_deg: float | None, loop: Any, switch_off: bool | None,
+             theta_start: float, summary: dict[str, Any], traces: bool) -> dict[str, Any]:
+    from vmehil.reports.run_report import SETTLE_S
+
+    j = jp.joint - 1
+    law = loop.law
     js = summary["joints"][j]
     if loop.recorder is None:
         raise RuntimeError("simulate: the servo loop was built without a recorder")

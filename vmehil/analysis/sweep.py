@@ -274,12 +274,28 @@ def evaluate_point(task: SweepTask) -> dict[str, Any]:
 
 
 def _evaluate(task: SweepTask) -> dict[str, Any]:
-    from vmehil.analysis.rigparams import load_joint
+    row, jp = _prepare(task)
+    if jp is None:
+        return _columns(row, task)
     from vmehil.analysis.simulate import simulate
+
+    stop = stop_requested()
+    r = simulate(jp, switch_off=task.switch_off, settings=task.sim, traces=False, stop=stop,
+                 link_factory=task.link_factory)
+    return _complete(row, task, r, stop is not None and stop())
+
+
+def _columns(row: dict[str, Any], task: SweepTask) -> dict[str, Any]:
+    return {k: row.get(k) for k in task_columns(task)}
+
+
+def _prepare(task: SweepTask) -> tuple[dict[str, Any], Any]:
+    """A point's row before its run: gains, margins, the guard's verdict; and the joint to simulate
+    (``None``: not simulated, the row's ``status`` says why)."""
+    from vmehil.analysis.rigparams import load_joint
     from vmehil.analysis.tolerance import PARAMETERS
     from vmehil.analysis.tuning import margins_summary
 
-    columns = task_columns(task)
     row: dict[str, Any] = {"index": task.index, **{k: float(task.gains[k]) for k in GAIN_NAMES},
                            "switch_off": task.switch_off, "sample": task.sample,
                            **{PARAMETERS[k].column: float(v) for k, v in task.plant.items()}}
@@ -293,10 +309,7 @@ def _evaluate(task: SweepTask) -> dict[str, Any]:
                 "sampled_stable": bool(s["stable"]), "phase_margin_deg": s["phase_margin_deg"],
                 "gain_margin_db": s["gain_margin_db"], "crossover_hz": s["crossover_hz"],
                 "bandwidth_hz": s["bandwidth_hz"], "continuous_phase_margin_deg": c["phase_margin_deg"]})
-    sim_keys = ("lc_amplitude_deg", "lc_frequency_hz", "lc_amplitude_pot_deg", "rms_tracking_error_deg",
-                "max_tracking_error_deg",
-                "max_tracking_error_true_deg", "settling_time_s", "final_error_deg")
-    row.update(dict.fromkeys(sim_keys))
+    row.update(dict.fromkeys(_SIM_KEYS))
     row["fault"] = None
     if not verdict.ok:
         row["status"] = f"{verdict.kind} (servo.gain_guard): not simulated"
@@ -305,24 +318,70 @@ def _evaluate(task: SweepTask) -> dict[str, Any]:
     elif not task.simulate:
         row["status"] = "margins only"
     else:
-        stop = stop_requested()
-        r = simulate(jp, switch_off=task.switch_off, settings=task.sim, traces=False, stop=stop,
-                     link_factory=task.link_factory)
-        if stop is not None and stop():
-            row["status"] = "interrupted"
-            return {k: row.get(k) for k in columns}
-        row.update({"lc_amplitude_deg": r["amplitude_deg"], "lc_frequency_hz": r["frequency_hz"],
-                    "lc_amplitude_pot_deg": r["amplitude_pot_deg"],
-                    "rms_tracking_error_deg": r["rms_tracking_error_servo_deg"],
-                    "max_tracking_error_deg": r["max_tracking_error_servo_deg"],
-                    "max_tracking_error_true_deg": r["max_tracking_error_deg"],
-                    "settling_time_s": r["settling_time_s"], "final_error_deg": r["final_error_deg"]})
-        if r["fault"]:
-            row["fault"] = f"{r['fault']['cause']} at {r['fault']['time_s']:.2f} s"
-            row["status"] = "fault"
-        else:
-            row["status"] = "ok"
-    return {k: row.get(k) for k in columns}
+        return row, jp
+    return row, None
+
+
+_SIM_KEYS = ("lc_amplitude_deg", "lc_frequency_hz", "lc_amplitude_pot_deg", "rms_tracking_error_deg",
+             "max_tracking_error_deg", "max_tracking_error_true_deg", "settling_time_s", "final_error_deg")
+
+
+def _complete(row: dict[str, Any], task: SweepTask, r: dict[str, Any], interrupted: bool) -> dict[str, Any]:
+    """The row of a simulated point from its run's figures ``r``."""
+    if interrupted:
+        row["status"] = "interrupted"
+        return _columns(row, task)
+    row.update({"lc_amplitude_deg": r["amplitude_deg"], "lc_frequency_hz": r["frequency_hz"],
+                "lc_amplitude_pot_deg": r["amplitude_pot_deg"],
+                "rms_tracking_error_deg": r["rms_tracking_error_servo_deg"],
+                "max_tracking_error_deg": r["max_tracking_error_servo_deg"],
+                "max_tracking_error_true_deg": r["max_tracking_error_deg"],
+                "settling_time_s": r["settling_time_s"], "final_error_deg": r["final_error_deg"]})
+    if r["fault"]:
+        row["fault"] = f"{r['fault']['cause']} at {r['fault']['time_s']:.2f} s"
+        row["status"] = "fault"
+    else:
+        row["status"] = "ok"
+    return _columns(row, task)
+
+
+def evaluate_batch(tasks: list[SweepTask]) -> list[dict[str, Any]]:
+    """:func:`evaluate_point` for every task, the full-stack runs in lockstep in this process
+    (:mod:`vmehil.analysis.batch`): each row equals the one :func:`evaluate_point` makes, ``wall_s``
+    aside (the batch's wall time shared equally among its points)."""
+    from vmehil.analysis.batch import simulate_batch
+    from vmehil.analysis.simulate import SimRun
+
+    t0 = time.perf_counter()
+    for task in tasks:
+        if task.plant and task.rig is None:
+            raise ValueError("a sweep task with plant values carries its rig (task_rig)")
+        if task.link_factory is not None:
+            raise ValueError("a batched sweep runs its plants in-process (no --plant can)")
+    prepared = [_prepare(task) for task in tasks]
+    rows: list[dict[str, Any] | None] = [None if jp is not None else _columns(row, task)
+                                         for (row, jp), task in zip(prepared, tasks, strict=True)]
+    todo = [i for i, (_row, jp) in enumerate(prepared) if jp is not None]
+    stop = stop_requested()
+    runs: list[Any] = []
+    try:
+        for i in todo:
+            runs.append(SimRun(prepared[i][1], tasks[i].switch_off, tasks[i].sim))
+    except BaseException:
+        for r in runs:
+            r.close()
+        raise
+    figures = simulate_batch(runs, stop=stop)
+    interrupted = stop is not None and stop()
+    for i, r in zip(todo, figures, strict=True):
+        rows[i] = _complete(prepared[i][0], tasks[i], r, interrupted)
+    wall = (time.perf_counter() - t0) / max(1, len(tasks))
+    out = []
+    for row in rows:
+        assert row is not None
+        row["wall_s"] = wall
+        out.append(row)
+    return out
 
 
 # ------------------------------------------------------------------------ its result
@@ -393,8 +452,11 @@ def _short(v: Any) -> str:
 def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None, jobs: int | None = None,
                     engine: Engine | None = None, done: Iterable[dict[str, Any]] = (),
                     on_result: Callable[[dict[str, Any], list[dict[str, Any]]], None] | None = None,
-                    on_idle: Callable[[], None] | None = None) -> list[dict[str, Any]]:
+                    on_idle: Callable[[], None] | None = None, batch: int = 1) -> list[dict[str, Any]]:
     """Evaluate ``tasks`` in parallel (:func:`run_parallel`); returns the rows sorted by index.
+
+    ``batch``: points per engine task; above 1 each task is :func:`evaluate_batch` of up to that
+    many points (their runs in lockstep in one worker; the same rows), 1 is one point per task.
 
     ``engine``: where (:mod:`vmehil.analysis.parallel`; default a process pool of ``jobs`` workers,
     or over ``executor``, any :class:`concurrent.futures.Executor` the caller owns). ``done``: rows
@@ -421,8 +483,25 @@ def evaluate_points(tasks: list[SweepTask], *, executor: Executor | None = None,
             on_result(row, rows())
 
     try:
-        run_parallel(evaluate_point, todo, executor=executor, jobs=jobs, engine=engine, on_result=got,
-                     finished=_finished, on_idle=on_idle)
+        if batch <= 1:
+            run_parallel(evaluate_point, todo, executor=executor, jobs=jobs, engine=engine, on_result=got,
+                         finished=_finished, on_idle=on_idle)
+        else:
+            from vmehil.analysis.batch import split
+
+            batches = split(range(len(todo)), batch)
+
+            def got_batch(position: int, result: Any) -> None:
+                first = batches[position]
+                if not isinstance(result, list) or len(result) != len(first):
+                    raise SweepResultError(f"the result for batch {position + 1} is not a list of "
+                                           f"{len(first)} rows")
+                for i, row in zip(first, result, strict=True):
+                    if _finished(row):  # a point the interruption cut short is left for --resume
+                        got(i, row)
+
+            run_parallel(evaluate_batch, [[todo[i] for i in b] for b in batches], executor=executor, jobs=jobs,
+                         engine=engine, on_result=got_batch, finished=lambda r: r is not None, on_idle=on_idle)
     except ParallelInterrupted:
         raise SweepInterrupted(rows()) from None
     return rows()

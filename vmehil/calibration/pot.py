@@ -30,21 +30,35 @@ import math
 import numpy as np
 
 from servo.io import PotCalibration
+from servo.settings import soft_limits_rad
 from vmehil.calibration.base import CalibrationAbort, CalibrationContext, Check, ProcedureResult
 from vmehil.calibration.store import CalibrationStore, JointCal, utc_now
 
 ARCMIN_PER_RAD = 180.0 * 60.0 / math.pi
 
 
-def pot_travel(joint, margin_deg: float = 3.0) -> tuple[float, float]:
-    """Travel (rad) to calibrate over, from the rig file."""
+#: how far inside a soft limit the pot calibration stays (the presets' soft limits are 2° inside the
+#: hard stops, so this is the stops less 3°, as before soft limits existed)
+SOFT_LIMIT_CLEARANCE_DEG = 1.0
+
+
+def pot_travel(joint, margin_deg: float = 3.0,
+               soft_rad: tuple[float, float] = (-math.inf, math.inf)) -> tuple[float, float]:
+    """Travel (rad) to calibrate over: ``[joint.calibration] pot_travel_deg`` when the rig states
+    it, else the joint's hard stops (``[joint.link]``) less ``margin_deg`` and never closer than
+    :data:`SOFT_LIMIT_CLEARANCE_DEG` to its soft limits ``soft_rad`` — a joint whose stops its
+    plant template states (melmalec's legs) has no ``[joint.link]`` of its own, and without the soft
+    limits its travel was ±177°, past the stops."""
     cal = joint.table.table("calibration", {})
     if "pot_travel_deg" in cal:
         lo, hi = cal.floats("pot_travel_deg", length=2)
         return math.radians(lo), math.radians(hi)
     link = joint.table.table("link", {})
     m = math.radians(margin_deg)
-    return link.get_float("lower_stop_rad", -math.pi) + m, link.get_float("upper_stop_rad", math.pi) - m
+    c = math.radians(SOFT_LIMIT_CLEARANCE_DEG)
+    lo = max(link.get_float("lower_stop_rad", -math.pi) + m, soft_rad[0] + c)
+    hi = min(link.get_float("upper_stop_rad", math.pi) - m, soft_rad[1] - c)
+    return lo, hi
 
 
 def pot_targets(lo: float, hi: float, points: int = 9, spacing_rad: float = math.radians(45.0)) -> np.ndarray:
@@ -88,8 +102,10 @@ class PotProcedure:
         pos = ctx.positioner()
         # Per joint: calibration targets and the stops (targets + verification points between).
         plan: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        soft_min, soft_max = soft_limits_rad(ctx.rig)
         for j in joints:
-            targets = pot_targets(*pot_travel(j), self.points, self.spacing)
+            soft = (soft_min[j.index], soft_max[j.index])
+            targets = pot_targets(*pot_travel(j, soft_rad=soft), self.points, self.spacing)
             fr = np.arange(self.verify + 1) / (self.verify + 1)
             stops = np.concatenate([targets[k] + fr * (targets[k + 1] - targets[k]) for k in range(len(targets) - 1)]
                                    + [targets[-1:]])

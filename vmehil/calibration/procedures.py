@@ -23,6 +23,7 @@ from vmehil.calibration.base import (
 )
 from vmehil.calibration.dac import DacProcedure
 from vmehil.calibration.encoder import EncoderProcedure
+from vmehil.calibration.home import HomeProcedure
 from vmehil.calibration.pot import PotProcedure
 from vmehil.calibration.store import (
     CalibrationFileError,
@@ -44,6 +45,10 @@ BUILTIN_PROCEDURES: dict[str, ProcedureSpec] = {spec.name: spec for spec in (
                   help="amplifier transconductance and offset from the current monitor, current limit"),
     ProcedureSpec("pot", PotProcedure, order=50, help="potentiometers: nine points 45° apart, eight segments",
                   asks_operator=True),
+    # not in `all`: homing references the encoders for this session only (the record is written,
+    # never put in force at start), and it needs the pots calibrated first
+    ProcedureSpec("home", HomeProcedure, order=60, help="home the encoders to the motor index the calibrated pot "
+                  "chooses (this session; recorded)", in_all=False),
 )}
 
 
@@ -84,6 +89,7 @@ __all__ = [
     "Check",
     "DacProcedure",
     "EncoderProcedure",
+    "HomeProcedure",
     "PotProcedure",
     "ProcedureResult",
     "default_store_path",

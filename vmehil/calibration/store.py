@@ -343,7 +343,7 @@ POT_VOLTS_LIMIT_V = 10.5  #: an ADC input range and a little
 
 #: the keys each procedure's joint entry must have (the ones the drivers apply)
 JOINT_KEYS = {"pot": ("volts", "angles_rad"), "encoder": ("counts_per_joint_rev",),
-              "amplifier": ("gain_a_per_v", "offset_a")}
+              "amplifier": ("gain_a_per_v", "offset_a"), "home": ("index_angle_rad", "offset_counts")}
 
 
 def _number(p: Path, where: str, key: str, v: Any, lo: float, hi: float, *, absolute: bool = False) -> float:
@@ -379,6 +379,9 @@ def _check_joint_values(p: Path, where: str, proc: str, values: Mapping[str, Any
     elif proc == "encoder":
         _number(p, where, "counts_per_joint_rev", values["counts_per_joint_rev"], *ENCODER_COUNTS_RANGE,
                 absolute=True)
+    elif proc == "home":  # a record (never applied at start): finite, a joint angle within two turns
+        _number(p, where, "index_angle_rad", values["index_angle_rad"], 0.0, 4 * math.pi, absolute=True)
+        _number(p, where, "offset_counts", values["offset_counts"], 0.0, 1e15, absolute=True)
     elif proc == "amplifier":
         _number(p, where, "gain_a_per_v", values["gain_a_per_v"], *AMP_GAIN_RANGE_A_PER_V, absolute=True)
         _number(p, where, "offset_a", values["offset_a"], 0.0, AMP_OFFSET_LIMIT_A, absolute=True)

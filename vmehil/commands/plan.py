@@ -111,7 +111,13 @@ def plan_motion(moves: list[Any], start: np.ndarray, ctx: Any) -> tuple[list[Any
         err = seq.plan_error
         if isinstance(err, MotionRefused):
             refusals.extend(_renumbered(r, i) for r in err.refusals)
-            traj = move.build(position, PlanContext(ctx.limits, ctx.extras))  # unchecked: to go on from its end
+            try:  # unchecked (a Cartesian move keeps the arm, not the limits): to go on from its end
+                traj = move.build(position, PlanContext(ctx.limits, ctx.extras, _unchecked(ctx.bounds)))
+            except MotionRefused:  # out of reach: no end to go on from
+                if i + 1 < len(moves):
+                    notes.append(f"move {i + 1} cannot be planned at all: the moves after it are planned from "
+                                 "where it would start")
+                continue
         elif err is not None:
             raise err
         else:
@@ -119,6 +125,16 @@ def plan_motion(moves: list[Any], start: np.ndarray, ctx: Any) -> tuple[list[Any
         total += float(traj.duration)
         position = np.asarray(traj.end, float)
     return refusals, notes, total
+
+
+def _unchecked(bounds: Any) -> Any:
+    """``bounds`` without soft limits or scene: the arm model alone (a Cartesian move needs it)."""
+    import dataclasses
+
+    if bounds is None:
+        return None
+    n = len(bounds.names)
+    return dataclasses.replace(bounds, min_rad=np.full(n, -np.inf), max_rad=np.full(n, np.inf), scene=None)
 
 
 def _renumbered(refusal: Any, index: int) -> Any:

@@ -128,6 +128,8 @@ def run(opts: RunOptions) -> int:
 
 def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings,
          prepared: dict[ModuleType, Any]) -> int:
+    from servo.motion import NO_MOTION
+
     parallel = opts.units == "parallel"
     if parallel:
         refused = run_units.refused_options(opts)
@@ -140,10 +142,16 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
             print(f"vmehil run --units parallel: rig {rig.name} ({rig.path}) declares no [[rig.unit]] tables",
                   file=sys.stderr)
             return 2
+    if settings.require_homing and opts.motion != NO_MOTION:
+        # an incremental encoder loses its count at power-off: every session homes, and a run does not
+        print(f"vmehil run: rig {rig.name} requires homing before moves ([servo] require_homing; "
+              "docs/motion-safety.md, \"Homing\"): `vmehil run` does not home; home and move on the console "
+              f"(`home all`), or hold with --motion {NO_MOTION}", file=sys.stderr)
+        return 2
     if opts.bus != "emulated":
         from vmehil.commands.run_real import run_on_real_bus
         return run_on_real_bus(opts, rig, settings)
-    from servo.motion import NO_MOTION, default_demo_motion, hold_motion, load_motion
+    from servo.motion import default_demo_motion, hold_motion, load_motion
     from servo.runner import LockstepRunner, RealtimeRunner
     from vmehil.rig_setup.session import build_loop
     from vmehil.rig_setup.system import build_emulated_rig
@@ -169,12 +177,7 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
     elif "duration" in defaults:
         duration = defaults["duration"]
     else:
-        probe_system = build_emulated_rig(rig, seed=opts.seed)
-        try:  # a motion the soft limits or the scene refuse stops here (MotionRefused: exit 2)
-            duration = _planned_duration(build_loop(probe_system, motion=motion, n_ticks=1, settings=settings,
-                                                    scene=scene)) + 1.0
-        finally:
-            probe_system.close()
+        duration = _plan_checked(rig, opts.seed, motion, settings, scene) + 1.0
     if not duration > 0:
         raise CliError("--duration must be > 0")
     n_ticks = round(duration * rig.servo_rate_hz)
@@ -182,6 +185,10 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
         raise CliError(f"--duration {duration:g} s is shorter than one servo period ({rig.period_s * 1e3:g} ms)")
     if parallel:
         from vmehil.calibration.store import load_store_or_nominal
+
+        if opts.duration is not None or "duration" in defaults:
+            # the units plan their own segments; the whole motion is checked here all the same
+            _plan_checked(rig, opts.seed, motion, settings, scene)
 
         # one file, the single run's loader and checks; each unit applies its own entries
         store = calibrated(opts.calibration, rig, lambda cal: load_store_or_nominal(cal, rig))
@@ -257,6 +264,19 @@ def _make_link(opts: RunOptions, rig):
         if link is not None:
             return link
     return None
+
+
+def _plan_checked(rig: Any, seed: int, motion: Any, settings: Any, scene: Any) -> float:
+    """Plan ``motion`` on a probe of the rig (nothing enabled) and return its planned length (s):
+    a move the soft limits or the scene refuse raises here (MotionRefused: exit 2)."""
+    from vmehil.rig_setup.session import build_loop
+    from vmehil.rig_setup.system import build_emulated_rig
+
+    probe_system = build_emulated_rig(rig, seed=seed)
+    try:
+        return _planned_duration(build_loop(probe_system, motion=motion, n_ticks=1, settings=settings, scene=scene))
+    finally:
+        probe_system.close()
 
 
 def _planned_duration(loop) -> float:

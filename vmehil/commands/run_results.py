@@ -19,7 +19,7 @@ def finish_run(opts: RunOptions, system, loop, runner, rig, attached: list, ende
     """Summary, table, JSON and report of a run that has ended; its exit status."""
     from servo.runner import RealtimeRunner
     from vmehil.reports.blackbox import save_blackbox
-    from vmehil.reports.run_report import excursion_text, summarize, table, write_report
+    from vmehil.reports.run_report import final_stop_line, summarize, table, write_report
 
     timing = runner.timing.summary(system.rig.period_s) if isinstance(runner, RealtimeRunner) else None
     summary = summarize(loop, rig=system.rig.name, seed=opts.seed, realtime=opts.realtime,
@@ -36,10 +36,9 @@ def finish_run(opts: RunOptions, system, loop, runner, rig, attached: list, ende
         summary["realtime_settings"] = rt_settings
         print(f"real-time settings: {rt_settings['described']}", file=sys.stderr)
     print(table(summary))
-    stop = loop.final_stop or {}
-    if stop.get("category") is not None:
-        print(f"final stop: {stop.get('cause') or stop.get('reason')} (category {stop['category']}); "
-              f"{excursion_text(stop.get('excursion_deg'))}")
+    stop_line = final_stop_line(loop.final_stop)
+    if stop_line is not None:
+        print(stop_line)
     if timing:
         print(f"timing: compute p50 {timing['compute_p50_ms']:.3f} ms, p99 {timing['compute_p99_ms']:.3f} ms; "
               f"lateness p99 {timing['lateness_p99_ms']:.3f} ms, max {timing['lateness_max_ms']:.3f} ms")

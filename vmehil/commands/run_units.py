@@ -73,7 +73,7 @@ def run_parallel(opts: RunOptions, rig: Any, gains: dict[str, float], motion: An
     from servo.joint_groups import rig_units
     from servo.loop import ServoLoop
     from vmehil.fault_scenarios.injection import announcement, first_joint, first_tick, stop_report
-    from vmehil.reports.run_report import summarize, table, units_section, write_report
+    from vmehil.reports.run_report import final_stop_line, summarize, table, units_section, write_report
     from vmehil.unit_controllers.coordinator import plant_link_for, run_units
     from vmehil.unit_controllers.options import MergedUnits, fault_hook, route_faults
 
@@ -135,6 +135,9 @@ def run_parallel(opts: RunOptions, rig: Any, gains: dict[str, float], motion: An
                     "units": units})
     _save_blackboxes(opts, rig.name, run, units, summary)
     print(table(summary) if merged is not None else "\n".join(units_section(summary)))
+    stop_line = final_stop_line(summary.get("final_stop"))
+    if stop_line is not None:  # each unit's category-1 end and the 2 s after it, as the single run's
+        print(stop_line)
     if opts.json:
         write_json(opts.json, summary)
     if opts.report and merged is not None:

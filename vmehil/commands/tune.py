@@ -138,6 +138,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     sw.add_argument("--out", default=None, metavar="DIR",
                     help="write sweep.csv and sweep.json here (default: the --report folder, else ./sweep-out)")
     sw.add_argument("--margins-only", action="store_true", help="no simulations: margins only (fast)")
+    sw.add_argument("--batch", default="1", metavar="N|auto",
+                    help="points per worker task, their full-stack runs stepped in lockstep in one process "
+                         "(bit-identical rows); auto: sized by the points, workers and free memory; 1 (default): "
+                         "one point per task (docs/sweeps.md, \"Batched lockstep\")")
     _sim_args(sw, 8.0, 0.1)
     sw.set_defaults(func=run_sweep, options=TuneOptions.from_args)
     st = tsub.add_parser("step", parents=[common],
@@ -188,6 +192,7 @@ class TuneOptions:
     y: str | None = None
     out: str | None = None
     margins_only: bool = False
+    batch: str = "1"
     # sweep (off|on|both) and step (rig|on|off)
     switch_off: str = "off"
     # step
@@ -208,7 +213,7 @@ class TuneOptions:
                    grid=tuple(given("grid") or ()), gains_file=given("gains_file"), engine=given("engine"),
                    scheduler=given("scheduler"), resume=given("resume"), vary=tuple(given("vary") or ()),
                    samples=given("samples"), threshold=tuple(given("threshold") or ()), x=given("x"), y=given("y"),
-                   out=given("out"), margins_only=given("margins_only", False),
+                   out=given("out"), margins_only=given("margins_only", False), batch=given("batch", "1"),
                    switch_off=given("switch_off", "off"), step_deg=given("step_deg", 2.0))
 
 
@@ -568,6 +573,11 @@ def run_sweep(opts: TuneOptions) -> int:
                              "one run at a time; use --jobs 1, or --interface virtual (each worker then runs its "
                              "own in-process plant node)")
         jobs = 1
+    from vmehil.analysis.batch import parse_batch
+
+    batch_req = parse_batch(opts.batch)
+    if batch_req is not None and batch_req > 1 and links is not None:
+        raise CliError(f"--batch {batch_req} with --plant can: a batch runs its plants in-process; use --batch 1")
     x = opts.x or (axes_names[0] if axes_names else "kp")
     y = opts.y or (axes_names[1] if len(axes_names) > 1 else next(k for k in GAIN_NAMES if k != x))
     for name, v in (("--x", x), ("--y", y)):
@@ -596,6 +606,14 @@ def run_sweep(opts: TuneOptions) -> int:
                 tasks.append(SweepTask(i, jp.rig_path, jp.joint, g, settings, simulate=not opts.margins_only,
                                        link_factory=_tagged(links, f"p{i}"), rig=rigs[k], servo=jp.servo,
                                        switch_off=so, plant=plant, sample=k if spreads else None))
+    # --batch: refused here, before any file is written, for a rig with a board type that cannot batch
+    batch_size, batch_note = 1, None
+    if not opts.margins_only and links is None:
+        from vmehil.analysis.batch import choose_batch, cpu_workers
+
+        batch_size, batch_note = choose_batch(batch_req, len(tasks), cpu_workers(jobs), rigs[0])
+    if batch_note:
+        print(f"note: {batch_note}", file=sys.stderr)
     out_dir = Path(opts.resume or opts.out or opts.report or "sweep-out")
     csv_path, json_path = out_dir / "sweep.csv", Path(opts.json_path) if opts.json_path else out_dir / "sweep.json"
     # What makes two runs the same sweep (checked by --resume): the points, the rig's content, the
@@ -637,6 +655,8 @@ def run_sweep(opts: TuneOptions) -> int:
     else:
         where = f"{jobs or 'all'} worker(s)"
     todo = len(tasks) - len(done_rows)
+    if batch_size > 1:
+        where += f", batches of {batch_size} in lockstep"
     what = f"{len(points)} gain sets" + (f" × {n_samples} samples" if spreads else "") + \
         (" × switch-off on/off" if len(modes) > 1 else "")
     print(f"vmehil tune sweep — {jp.rig} joint {jp.joint} ({jp.name}): {what} = {len(tasks)} points"
@@ -654,7 +674,7 @@ def run_sweep(opts: TuneOptions) -> int:
                 bar.update(1)
 
             rows = evaluate_points(tasks, jobs=jobs, engine=engine, done=done_rows, on_result=on_result,
-                                   on_idle=batch.idle)
+                                   on_idle=batch.idle, batch=batch_size)
     except SweepInterrupted as e:
         write(e.rows, False, interrupted=True)
         print(f"vmehil tune sweep: interrupted; {len(e.rows)} of {len(tasks)} points kept in {csv_path} and "

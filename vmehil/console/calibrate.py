@@ -27,8 +27,9 @@ loop's inbox), safe-stops it and so aborts the procedure; the loop then stays st
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -62,6 +63,8 @@ class CalibrationRequest:
     names: tuple[str, ...]
     joints: tuple[int, ...] | None
     auto: bool
+    #: the console command whose reply this is (``calibrate``; ``home`` for ``home J``)
+    command: str = "calibrate"
 
 
 def parse_request(args: list[Arg], names: list[str]) -> CalibrationRequest:
@@ -208,9 +211,11 @@ class ConsoleCalibrator:
         self.running = False
 
     # ---- in the pump (a tick boundary) ----------------------------------------------------------
-    def __call__(self, s: Session, args: list[Arg]) -> Outcome:
+    def __call__(self, s: Session, args: list[Arg], command: str = "calibrate") -> Outcome:
+        """``calibrate ARGS``; ``command``: the console command the reply is named after (``home J``
+        runs ``calibrate home --joint J`` and answers ``OK home …``)."""
         loop = s.loop
-        req = parse_request(list(args), list(loop.names))
+        req = replace(parse_request(list(args), list(loop.names)), command=command)
         if self.running:
             raise ConsoleError(STATE, "a calibration is already running; wait for its OK/ERR line")
         if s.defer is None:
@@ -297,6 +302,12 @@ class ConsoleCalibrator:
                 loop.set_motion(Sequencer([], hold_position(loop), _plan_context(loop)))
         lines = []
         for r in outcome.results:
+            if r.procedure == "home":  # what homing found, per joint (docs/console.md, "home")
+                for name, v in r.data.get("joints", {}).items():
+                    lines.append(kv("DATA", "home", joint=name, index_deg=round(math.degrees(v["index_angle_rad"]), 6),
+                                    index_counts=v["index_counts"], offset_counts=v["offset_counts"],
+                                    pot_minus_index_deg=round(math.degrees(v["pot_minus_index_rad"]), 4),
+                                    homed="yes" if system.io.homed[loop.names.index(name)] else "no"))
             for c in r.checks:
                 lines.append(kv("DATA", "calibration", procedure=r.procedure, item=c.item,
                                 value=float(c.value),
@@ -310,20 +321,21 @@ class ConsoleCalibrator:
         if outcome.error is not None:
             f = loop.fault
             where = f" (the loop stopped: {f.cause})" if f is not None else ""
-            lines.append(f"ERR {STATE} calibrate {req.procedure}: {outcome.error}{where}; {self.path} left unchanged"
-                         + (", enable to servo again" if f is not None else ""))
+            lines.append(f"ERR {STATE} {req.command} {req.procedure}: {outcome.error}{where}; "
+                         f"{self.path} left unchanged" + (", enable to servo again" if f is not None else ""))
         elif outcome.unchanged:
             # every check passed and no entry changed (friction writes none): nothing to write is
             # success, not a failed check
-            lines.append(kv("OK", "calibrate", procedures=",".join(req.names),
+            lines.append(kv("OK", req.command, procedures=",".join(req.names),
                             checks=sum(len(r.checks) for r in outcome.results), written="unchanged",
                             loop_s=round(seconds, 3),
                             state="running" if loop.fault is None and loop.enabled else "stopped"))
         elif outcome.written is None:
-            lines.append(f"ERR {VALUE} calibrate {req.procedure}: {failed} check(s) failed; {self.path} left unchanged")
+            lines.append(f"ERR {VALUE} {req.command} {req.procedure}: {failed} check(s) failed; "
+                         f"{self.path} left unchanged")
         else:
             checks = sum(len(r.checks) for r in outcome.results)
-            lines.append(kv("OK", "calibrate", procedures=",".join(req.names), checks=checks,
+            lines.append(kv("OK", req.command, procedures=",".join(req.names), checks=checks,
                             written=str(outcome.written), loop_s=round(seconds, 3),
                             state="running" if loop.fault is None and loop.enabled else "stopped"))
         send(lines)

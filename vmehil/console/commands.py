@@ -26,9 +26,11 @@ from servo.control.gains import GAIN_NAMES
 from servo.gain_guard import GainRejected, check_gain_change
 from vmehil.console.protocol import (
     ARGS,
+    COLLISION,
     FILE,
     GAIN,
     INTERNAL,
+    NOT_HOMED,
     STATE,
     UNAVAILABLE,
     VALUE,
@@ -133,7 +135,8 @@ class Session:
     library: Mapping[str, CompoundCommand] | None = None
     executor: CompoundRunner | None = None
     shutdown: Callable[[], None] | None = None
-    calibrate: Callable[[Session, list[Arg]], Outcome] | None = None
+    #: ``calibrate(session, args, command="calibrate")`` (``home J`` passes ``command="home"``)
+    calibrate: Callable[..., Outcome] | None = None
     source: str = "console"
     #: run ``job(send)`` between two ticks, in the thread that owns the rig (set by the console);
     #: ``send(lines)`` writes reply lines. At most one job waits at a time.
@@ -321,6 +324,30 @@ def _require_idle(loop: Any) -> None:
                                   "hold the present target first")
 
 
+def homed_word(loop: Any, joint: int) -> str:
+    """``yes``/``no`` for a joint that can be homed, ``exempt`` for one that needs none (a continuous
+    joint: no pot to choose the index); ``-`` for a loop whose drivers do not say."""
+    io = loop.io
+    homeable, homed = getattr(io, "homeable", None), getattr(io, "homed", None)
+    if homeable is None or homed is None:
+        return "-"
+    return "exempt" if not homeable[joint] else ("yes" if homed[joint] else "no")
+
+
+def not_homed(loop: Any) -> list[str]:
+    """The joints a rig that requires homing (``[servo] require_homing``) still waits for."""
+    if not getattr(loop, "require_homing", False):
+        return []
+    return [loop.names[i] for i in range(loop.n) if homed_word(loop, i) == "no"]
+
+
+def _require_homed(loop: Any) -> None:
+    missing = not_homed(loop)
+    if missing:
+        raise ConsoleError(NOT_HOMED, f"the rig requires homing before moves and {', '.join(missing)} "
+                                      f"{'is' if len(missing) == 1 else 'are'} not homed: home all (or home J) first")
+
+
 def _refused(e: Any) -> ConsoleError:
     """A move the soft limits or the scene refuse (:class:`servo.trajectory.MotionRefused`) as the
     console says it: ``ERR LIMIT|COLLISION|REACH`` and the first refusal (``and N more``)."""
@@ -380,6 +407,7 @@ def start_motion(s: Session, moves: list[Any], what: str, planned: Any = None) -
     loop = s.loop
     _require_running(loop)
     _require_idle(loop)
+    _require_homed(loop)
     start = hold_position(loop)
     ctx = _plan_context(loop)
 
@@ -464,14 +492,18 @@ def _status(s: Session, a: dict[str, Any]) -> Outcome:
         return np.asarray(v, float) if v is not None else nan
 
     theta, theta_d, current, omega = col("theta"), col("theta_d"), col("current"), col("omega")
+    theta_enc = col("theta_enc")
     integrating = col("integrating")
     law = loop.law
     kp_eff = np.asarray(law.kp_eff(), float) if law is not None else nan
     seq = loop.sequencer
     motion = "idle" if seq.finished else "running"
     active = s.executor.active_ids() if s.executor is not None else []
+    homed = [homed_word(loop, i) for i in range(n)]
     lines = [kv("DATA", "loop", tick=int(loop.tick_count), t_s=loop.tick_count * loop.period_s,
-                state=loop_state(loop), motion=motion, compounds=len(active))]
+                state=loop_state(loop), motion=motion, compounds=len(active),
+                homed="no" if "no" in homed else "yes",
+                homing="required" if getattr(loop, "require_homing", False) else "optional")]
     fault = loop.fault
     for i, name in enumerate(loop.names):
         err = theta_d[i] - theta[i]
@@ -481,7 +513,8 @@ def _status(s: Session, a: dict[str, Any]) -> Outcome:
         # measured, flagged as stopped; the target and error have no meaning then
         lines.append(kv("DATA", "joint", joint=name, pos_deg=_deg(theta[i]), target_deg=_deg(theta_d[i]),
                         err_deg=_deg(err), vel_deg_s=_deg(omega[i]), current_a=float(current[i]),
-                        integrators=integ, kp_eff=float(kp_eff[i]), fault=jf, stopped=int(not loop.enabled)))
+                        integrators=integ, kp_eff=float(kp_eff[i]), fault=jf, stopped=int(not loop.enabled),
+                        homed=homed[i], enc_deg=_deg(theta_enc[i])))
     if fault is not None:
         lines.append(kv("DATA", "fault", cause=fault.cause, joint=fault.joint or "-", tick=fault.tick,
                         t_s=fault.time_s, detail=fault.detail))
@@ -518,10 +551,80 @@ def _move_joint(s: Session, a: dict[str, Any]) -> Outcome:
         raise ConsoleError(VALUE, f"target must be a finite angle in degrees, within ±{MAX_ANGLE_DEG:g}")
     _require_running(s.loop)
     _require_idle(s.loop)
+    _require_homed(s.loop)
     target = hold_position(s.loop)
     target[j] = float(deg_to_rad(a["target"]))
     return start_motion(s, [QuinticMove(target, None, _speed(a["speed"]))],
                         f"move {s.loop.names[j]} to {a['target']:g} deg")
+
+
+@atom("move_to", (*(Param(k, FLOAT) for k in ("x", "y", "z")),
+                   *(Param(k, FLOAT, None) for k in ("roll", "pitch", "yaw")),
+                   Param("approach", FLOAT, 0.0), Param("speed", FLOAT, 1.0)),
+      "the tool to X Y Z (metres, the arm's base frame) with the hand at ROLL PITCH YAW (degrees; all three or "
+      "none: the default, level and pointing outward); approach=M: straight in over the last M metres")
+def _move_to(s: Session, a: dict[str, Any]) -> Outcome:
+    moves = a.get("moves")
+    if moves is None:  # not prepared off the loop thread (direct API use)
+        moves = _move_to_moves(a)
+    rpy = [a["roll"], a["pitch"], a["yaw"]]
+    what = f"move_to {[a['x'], a['y'], a['z']]}" + ("" if rpy[0] is None else f" rpy {rpy}")
+    return start_motion(s, moves, what, a.get("planned"))
+
+
+def _move_to_moves(a: dict[str, Any]) -> list[Any]:
+    """``move_to``'s one Cartesian move, its arguments checked."""
+    from servo.cartesian import MAX_COORDINATE_M, CartesianMove, CartesianTarget
+
+    xyz = [a["x"], a["y"], a["z"]]
+    rpy = [a["roll"], a["pitch"], a["yaw"]]
+    if not all(math.isfinite(v) and abs(v) <= MAX_COORDINATE_M for v in xyz):
+        raise ConsoleError(VALUE, f"move_to: X Y Z must be finite, within ±{MAX_COORDINATE_M:g} m")
+    if any(v is None for v in rpy) and not all(v is None for v in rpy):
+        raise ConsoleError(ARGS, "move_to X Y Z [ROLL PITCH YAW]: the hand's orientation needs all three angles")
+    if rpy[0] is not None:
+        _angles(tuple(rpy), "roll, pitch, yaw")  # finite, within a turn
+    approach = a["approach"]
+    if not (math.isfinite(approach) and 0.0 <= approach <= MAX_COORDINATE_M):
+        raise ConsoleError(VALUE, f"move_to: approach must be a distance in [0, {MAX_COORDINATE_M:g}] m")
+    target = CartesianTarget.make(xyz, None if rpy[0] is None else rpy)
+    return [CartesianMove(target, approach, _speed(a["speed"]))]
+
+
+#: the largest jog speed the console takes (°/s): a sanity bound on the command; the joint's
+#: velocity limit then clamps it
+MAX_JOG_DEG_S = 3600.0
+
+
+@atom("jog", (Param("joint", JOINT), Param("speed_deg_s", FLOAT)),
+      "jog JOINT at SPEED_DEG_S (°/s, signed; 0 stops): a velocity move with a deadman - it stops unless "
+      "renewed within 0.5 s - bounded by the soft limits and the velocity limit", in_files=False)
+def _jog(s: Session, a: dict[str, Any]) -> Outcome:
+    from servo.jog import DEADMAN_S, jog, running_jog
+    from servo.trajectory import TrajectoryError
+
+    loop = s.loop
+    j = a["joint"]
+    if j is None:
+        raise ConsoleError(VALUE, "jog moves one joint (not all): jog J SPEED_DEG_S")
+    speed = a["speed_deg_s"]
+    if not math.isfinite(speed) or abs(speed) > MAX_JOG_DEG_S:
+        raise ConsoleError(VALUE, f"speed_deg_s must be a finite speed in °/s, within ±{MAX_JOG_DEG_S:g}")
+    _require_running(loop)
+    if running_jog(loop) is None:
+        _require_idle(loop)  # a planned motion runs: it is not the jog's to interrupt
+    try:
+        speeds, started = jog(loop, {j: float(deg_to_rad(speed))}, hold_position(loop))
+    except TrajectoryError as e:
+        cur = running_jog(loop)
+        if cur is not None and cur.refusal is not None:  # it stopped short of an obstacle
+            raise ConsoleError(COLLISION, str(e)) from None
+        raise ConsoleError(VALUE, f"cannot jog: {e}") from None
+    got = _deg(speeds[j])
+    if started:  # renewals (a handset sends them at 10 Hz) are not each logged
+        loop.note(s.source, f"jog {loop.names[j]} at {speed:g} deg/s")
+    return Outcome(ok=kv(joint=loop.names[j], speed_deg_s=round(got, 6), limited=int(abs(got - speed) > 1e-9),
+                         deadman_s=DEADMAN_S, started=int(started)))
 
 
 @atom("stay", (), "stop the motion: hold the present target (the amplifiers stay on)")
@@ -756,6 +859,22 @@ def _calibrate(s: Session, a: dict[str, Any]) -> Outcome:
     return s.calibrate(s, a.get("args", []))
 
 
+@atom("home", (Param("joint", JOINT),), "home JOINT's encoder (or all) to the motor index its calibrated pot "
+      "chooses: calibrate home --joint JOINT, as vmehil calibrate home; stop aborts", in_files=False)
+def _home(s: Session, a: dict[str, Any]) -> Outcome:
+    if s.calibrate is None:
+        raise ConsoleError(UNAVAILABLE, "home: not available here: this console's host has no rig for it "
+                                        "(vmehil console and vmehil run --console on an emulated rig offer it)")
+    from vmehil.console.protocol import Arg
+
+    joint = a["joint"]
+    which = "all" if joint is None else s.loop.names[joint]
+    if joint is not None and homed_word(s.loop, joint) == "exempt":
+        raise ConsoleError(VALUE, f"home: {which} is exempt: it has no pot to choose an index by (a continuous "
+                                  "joint, its loop closes on the encoder)")
+    return s.calibrate(s, [Arg(None, "home"), Arg("joint", which)], command="home")
+
+
 @atom("log", (Param("count", INT, 20),), "the last COUNT entries of the loop's change log (time, source, message)")
 def _log(s: Session, a: dict[str, Any]) -> Outcome:
     count = a["count"]
@@ -833,19 +952,25 @@ def _shutdown(s: Session, a: dict[str, Any]) -> Outcome:
 
 #: The atomic commands by name, in the order of ``help``.
 ATOMS: dict[str, Atom] = {a.name: a for a in (
-    _help, _status, _move, _move_rel, _move_joint, _stay, _gains, _mode, _stop, _estop, _enable, _run, _calibrate, _log,
-    _commands, _load, _cancel, _pause, _echo, _shutdown, _obstacle,
+    _help, _status, _move, _move_rel, _move_joint, _move_to, _stay, _gains, _mode, _stop, _estop, _enable, _run,
+    _calibrate, _home, _jog, _log, _commands, _load, _cancel, _pause, _echo, _shutdown, _obstacle,
 )}
 
 
 def prepare(name: str, bound: dict[str, Any], n_joints: int, names: list[str], loop: Any = None) -> dict[str, Any]:
-    """The off-loop phase of an atom that reads a motion file (``run``); returns the arguments to
-    run with (with ``loop``, the motion planned off the loop too: :func:`plan_off_loop`). ``load``
+    """The off-loop phase of an atom that reads a motion file (``run``) or plans a Cartesian move
+    (``move_to``); returns the arguments to run with (with ``loop``, the motion planned off the
+    loop too: :func:`plan_off_loop`). ``load``
     reads its file in :func:`vmehil.console.compound.prepare`, which wraps this."""
     if name == "run":
         out = _prepare_run(bound, n_joints)
         if loop is not None:
             out["planned"] = plan_off_loop(list(out["motion"].moves), loop)
+        return out
+    if name == "move_to":  # a straight approach is a tabulated path (tens of ms): planned off the loop too
+        out = {**bound, "moves": _move_to_moves(bound)}
+        if loop is not None:
+            out["planned"] = plan_off_loop(out["moves"], loop)
         return out
     return bound
 

@@ -52,8 +52,9 @@ INTERNAL = "INTERNAL"  # a bug: the command raised an unexpected exception
 LIMIT = "LIMIT"  # a move's target past a joint's soft limit (docs/motion-safety.md)
 COLLISION = "COLLISION"  # a move's path through an obstacle of the scene
 REACH = "REACH"  # a point the arm cannot reach
+NOT_HOMED = "NOT_HOMED"  # the rig requires homing before moves, and a joint is not homed
 ERROR_CODES = (SYNTAX, UNKNOWN, ARGS, VALUE, GAIN, STATE, BUSY, LONG, BINARY, FILE, UNAVAILABLE, INTERNAL, LIMIT,
-               COLLISION, REACH)
+               COLLISION, REACH, NOT_HOMED)
 
 Vector = tuple[float, ...]
 Value = Union[str, int, float, Vector]  # noqa: UP007 - a runtime alias

@@ -27,6 +27,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
+import numpy as np
+
 import vmehil.mavlink  # noqa: F401  (MAVLINK20=1 before pymavlink)
 from vmehil.errors import VmehilError
 from vmehil.mavlink import params as P
@@ -247,6 +249,7 @@ class MavlinkEndpoint:
             "PARAM_REQUEST_READ": self._on_request_read,
             "PARAM_SET": self._on_param_set,
             "COMMAND_LONG": self._on_command_long,
+            "MANUAL_CONTROL": self._on_manual_control,
         }.get(mtype)
         if handler is None:
             return
@@ -457,6 +460,36 @@ class MavlinkEndpoint:
 
         self.loop.note(self.source, f"disarm requested ({origin})")
         self.loop.submit(stop, done)
+
+    def _on_manual_control(self, msg: Any) -> None:
+        """Jog (vmehil.mavlink.manual_control): each axis one joint's speed; each message renews
+        the 0.5 s deadman. With a key only signed messages move the arm."""
+        from vmehil.mavlink.manual_control import axis_speeds, jog_command
+
+        if int(getattr(msg, "target", 0)) not in (0, self.sysid):
+            return
+        if not self._signed_ok(msg, read=False):
+            self.stats.unsigned_refused += 1
+            if self._note_refusal(f"refused MANUAL_CONTROL ({self._origin(msg)}): signing required",
+                                  ("manual_control", "unsigned", self._origin(msg))):
+                self._statustext(self.ml.MAV_SEVERITY_WARNING, "unsigned MANUAL_CONTROL refused: signing required")
+            return
+        plan = self.loop.plan_context or self.loop.sequencer.ctx
+        speeds = axis_speeds(msg, np.asarray(plan.limits.v_max, float))
+        if not speeds:
+            return
+        origin = self._origin(msg)
+
+        def done(result: Any, error: BaseException | None) -> None:
+            if error is not None:
+                self._results.put(lambda: self._refuse_jog(str(error), origin))
+
+        self.loop.submit(jog_command(speeds), done)
+
+    def _refuse_jog(self, text: str, origin: str) -> None:
+        """A jog the loop refused: logged and told to the ground station once per kind."""
+        if self._note_refusal(f"{text} ({origin})", ("manual_control", text, origin)):
+            self._statustext(self.ml.MAV_SEVERITY_WARNING, text)
 
     def _ack(self, msg: Any, result: int) -> None:
         self.conn.mav.command_ack_send(int(msg.command), result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())

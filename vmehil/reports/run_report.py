@@ -102,7 +102,44 @@ def summarize(loop: ServoLoop, *, rig: str, seed: int, realtime: bool, overruns:
     vision = loop.vision
     if vision is not None:
         out["vision"] = vision.summary()
+    tool = tool_summary(loop, rec)
+    if tool is not None:
+        out["tool"] = tool
     return out
+
+
+def tool_summary(loop: ServoLoop, rec: dict[str, np.ndarray]) -> dict[str, Any] | None:
+    """Where the tool ended against the target of the motion's last move when that is a Cartesian
+    one (docs/cartesian.md): ``final_error_mm`` from the emulated truth (the plant's true joint
+    angles through the arm's forward kinematics) at the run's last recorded tick, and
+    ``measured_error_mm`` from the drivers' angles (what the servo believed: its own static error),
+    ``sensor_error_mm`` between the two (the pots' and calibration's part); ``None`` when the last
+    move that ran is not Cartesian, or there is no arm model or no truth."""
+    ctx = getattr(loop, "plan_context", None)
+    arm = ctx.bounds.arm if ctx is not None and ctx.bounds is not None else None
+    ran = [r for r in loop.sequencer.records if r.kind not in ("wait", "stay")]
+    if arm is None or not ran or not rec or "theta_true" not in rec:
+        return None
+    move = loop.sequencer.moves[ran[-1].index]
+    target = getattr(move, "tool_target_m", None)
+    truth = rec["theta_true"]
+    rows = np.flatnonzero(np.all(np.isfinite(truth), axis=1))
+    if target is None or not rows.size:
+        return None
+    last = int(rows[-1])
+    where = arm.tool_position(truth[last])
+    measured = arm.tool_position(rec["theta"][last])
+    measured_mm = float(np.linalg.norm(measured - target) * 1e3)
+    sensor_mm = float(np.linalg.norm(measured - where) * 1e3)
+    return {"move": ran[-1].index + 1, "kind": move.kind,
+            "target_m": [round(float(x), 6) for x in target],
+            "final_position_m": [round(float(x), 6) for x in where],
+            "final_error_mm": float(np.linalg.norm(where - target) * 1e3),
+            # None when a sensor no longer answered at that tick
+            "measured_error_mm": measured_mm if np.isfinite(measured_mm) else None,
+            # the sensing part of the error: where the drivers' angles put the tool against the truth
+            "sensor_error_mm": sensor_mm if np.isfinite(sensor_mm) else None,
+            "source": "true joint angles through the arm's forward kinematics"}
 
 
 def _deg(x: float) -> float:
@@ -126,6 +163,10 @@ def table(summary: dict[str, Any]) -> str:
     vis = [] if v is None else [
         f"vision: {v['commands']} commands, robot {v['robot_state']} ({v['end_reason']}), "
         f"end effector {_f(v['final_distance_mm'], 2)} mm from the target"]
+    tool = summary.get("tool")
+    if tool is not None:
+        vis.append(f"tool: {tool['final_error_mm']:.2f} mm from the target of move {tool['move']} ({tool['kind']}; "
+                   f"the drivers' angles say {_f(tool['measured_error_mm'], 2)} mm)")
     tail = [*vis] + [f"fault: {f['cause']} at {f['time_s']:.3f} s"
                      + (f" ({f['joint']})" if f["joint"] is not None else "") + f": {f['detail']}"
                      for f in summary["faults"]]
@@ -220,6 +261,16 @@ def write_report(loop: ServoLoop, summary: dict[str, Any], out_dir: str | Path) 
     files.append(write_json(out / "run.json", summary))
     files.append(write_atomic(out / "summary.md", "# vmehil run\n\n```\n" + table(summary) + "\n```\n"))
     return files
+
+
+def final_stop_line(stop: dict[str, Any] | None) -> str | None:
+    """The terminal's line for a run's final stop: "final stop: end (category 1); moved after the
+    stop …" (``None``: the stop has no category, an older loop's)."""
+    stop = stop or {}
+    if stop.get("category") is None:
+        return None
+    return (f"final stop: {stop.get('cause') or stop.get('reason')} (category {stop['category']}); "
+            f"{excursion_text(stop.get('excursion_deg'))}")
 
 
 def excursion_text(excursion_deg: dict[str, float | None] | None) -> str:

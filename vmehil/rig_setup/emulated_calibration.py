@@ -19,7 +19,7 @@ import numpy as np
 
 from servo.motion import QuinticMove, WaitMove
 from servo.trajectory.sequencer import Sequencer
-from vmehil.calibration.base import TickHook
+from vmehil.calibration.base import CalibrationAbort, TickHook
 from vmehil.calibration.store import CalibrationStore
 from vmehil.rig_setup.session import build_loop, plan_context_of
 from vmehil.rig_setup.system import EmulatedRig
@@ -98,9 +98,12 @@ class EmulatedPositioner:
                 limit = speed_rad_s if isinstance(speed_rad_s, Mapping) else dict.fromkeys(moving, speed_rad_s)
                 speed = min(1.0, min(limit[j] / vmax[j] for j in moving))
         seq = Sequencer([QuinticMove(goal, None, speed)], start, ctx)
+        if seq.plan_error is not None:  # refused (a soft limit, the scene): never started
+            raise CalibrationAbort(f"cannot move the joints there: {seq.plan_error}")
         self.loop.set_motion(seq)
         ticks = 0
-        while not seq.finished and self.loop.fault is None and ticks < 10**6:
+        # (a loop that replaced the move — it refused it when it was to start — holds instead)
+        while not seq.finished and self.loop.sequencer is seq and self.loop.fault is None and ticks < 10**6:
             self._tick(on_tick)
             ticks += 1
         self._theta_d = goal

@@ -20,8 +20,10 @@ plant stepped once per exchange with the merged command. Lockstep results are bi
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -31,12 +33,12 @@ from emulators.harness import InProcessLink
 from emulators.plant import Plant
 from emulators.plant_link import PlantLink
 from emulators.presets import resolve_rig
-from servo.interrupts import Terminated
+from servo.interrupts import INTERRUPTS, Terminated
 from servo.joint_groups import UnitSegments, UnitSpec, rig_units, unit_rig, watchdog_unit
 from servo.loop import ServoLoop
 from servo.motion import Motion, default_demo_motion
 from servo.rig import RigSpec, load_rig
-from servo.runner import LockstepRunner, RealtimeRunner
+from servo.runner import WATCH_AFTER_STOP_S, LockstepRunner, RealtimeRunner
 from servo.settings import servo_settings
 from servo.trajectory.base import JointLimits
 from servo.trajectory.sequencer import PlanContext
@@ -106,6 +108,44 @@ class ParallelRun:
         self.hub.link.close()
 
 
+#: the cause and detail of the units' stop when the coordinator is interrupted (SIGINT/SIGTERM)
+INTERRUPT_CAUSE = "interrupted"
+INTERRUPT_DETAIL = "the coordinator was interrupted (SIGINT/SIGTERM)"
+
+
+def _stop_news(loop: ServoLoop, ending: list[str]) -> str | None:
+    """What a unit's exchanges tell the others (:class:`~vmehil.unit_controllers.hub.UnitLink`):
+    why its loop stopped, or ``None``. The unit's own end — the category-1 stop every unit makes
+    at the run's end or on the coordinator's interruption — is no news: each unit makes its own
+    (the others would otherwise fall to category 0 mid-deceleration); a fault, or an end that
+    fell to category 0, is."""
+    f = loop.fault
+    if f is None:
+        return None
+    if ending and f.cause == ending[0] and loop.stop_fell is None:
+        return None
+    return f"{f.cause}: {f.detail}"
+
+
+def _cut_short(cut: threading.Event, second: list[BaseException], loop: ServoLoop) -> None:
+    """After each of a unit's ticks: the coordinator's second signal (``second``: SIGINT when
+    none is named), raised in the unit's thread — its runner makes a category-1 stop under way a
+    category 0 and ends the window after the stop, as for the single run's second signal."""
+    if cut.is_set():
+        sig = second[0] if second else None
+        raise Terminated(sig.signum) if isinstance(sig, Terminated) else KeyboardInterrupt()
+
+
+def _wait_all(ended: dict[str, threading.Event], seconds: float) -> None:
+    """Wait for every unit to say it has ended, at most ``seconds`` in all, in slices: Ctrl-C and
+    SIGTERM are handled while waiting (a simulated one, ``_thread.interrupt_main``, too)."""
+    end = time.monotonic() + seconds
+    for e in ended.values():
+        while not e.wait(min(0.2, max(0.0, end - time.monotonic()))):
+            if time.monotonic() >= end:
+                return
+
+
 def plant_link_for(spec: RigSpec, seed: int) -> PlantLink:
     """The in-process plant of every joint (as :func:`vmehil.rig_setup.system.build_emulated_rig` builds it)."""
     return InProcessLink(Plant.from_config(spec.table, seed=seed, foreign_keys=NON_PLANT_JOINT_KEYS))
@@ -115,11 +155,15 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
               gains: dict[str, float] | None = None, switch_off: bool | None = None,
               link: PlantLink | None = None, realtime: bool = False, realtime_options: dict[str, Any] | None = None,
               timeout_s: float = UNIT_TIMEOUT_S, after_tick: UnitHook | None = None,
-              abort: threading.Event | None = None, calibration: Any = None,
+              abort: threading.Event | None = None, cut_short: threading.Event | None = None,
+              calibration: Any = None,
               before_run: Callable[[UnitRun], None] | None = None) -> ParallelRun:
     """Run the rig's units in parallel (one thread each) against one plant, in lockstep; returns
     when every unit's runner has ended (each one safe-stopped). ``abort``: set it to stop every
-    unit at its next tick (Ctrl-C and SIGTERM set it, then go on). ``calibration``: a store of
+    unit at its next tick: each makes the single run's end for a signal, a category-1 stop then
+    2 s watched (Ctrl-C and SIGTERM set it, then go on). ``cut_short``: set it, after ``abort``,
+    to end those at once — a stop under way falls to category 0, the window ends (a second
+    Ctrl-C or SIGTERM sets it). ``calibration``: a store of
     the whole rig (each unit's drivers apply their own boards' and joints' entries).
     ``before_run``: called in each unit's thread once its loop is armed, before its first tick
     (``vmehil run --units parallel`` attaches the unit's fault schedule there)."""
@@ -149,9 +193,15 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
             theta[list(u.indices)] = starts[u.name]
         return theta
 
+    #: a second SIGINT/SIGTERM to the coordinator during the units' end (their category-1 stops
+    #: and the 2 s after): each unit's next tick raises it, as the single run's second signal does
+    second: list[BaseException] = []
+    cut = cut_short if cut_short is not None else threading.Event()
+
     def unit_main(ur: UnitRun) -> None:
         unit = ur.unit
         ulink = UnitLink(hub, unit.name)
+        ending: list[str] = []  # the cause of the unit's own end, once its run proper is over
         why: str | None = "it never started"
         try:
             system = ur.system = build_emulated_rig(unit_rig(spec, unit), seed=seed, link=ulink,
@@ -163,28 +213,36 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
             segments = UnitSegments(list(motion.moves), global_start(), PlanContext(limits), unit.indices)
             loop = ur.loop = build_loop(system, sequencer=segments, gains=gains, switch_off=switch_off,
                                         n_ticks=n_ticks)
-            ulink.stopped = lambda: None if loop.fault is None else f"{loop.fault.cause}: {loop.fault.detail}"
+            ulink.stopped = partial(_stop_news, loop, ending)
             runner = ur.runner = (RealtimeRunner(system, loop, **(realtime_options or {})) if realtime
                                   else LockstepRunner(system, loop))
             if after_tick is not None:
                 runner.after_tick.append(lambda lp: after_tick(unit.name, system, lp))
-            def interrupted() -> bool:
-                if stop_all.is_set():
-                    loop.safe_stop("interrupted", "the coordinator was interrupted (SIGINT/SIGTERM)")
-                return stop_all.is_set()
-
+            runner.after_tick.append(partial(_cut_short, cut, second))
             with loop.armed():
                 if before_run is not None:
                     before_run(ur)
                 # every unit starts its runner together: a real-time runner's deadlines count
                 # from its start, and lockstep couples the units from the first exchange on
                 go.wait(timeout=timeout_s * 4)
-                ur.completed = runner.run(n_ticks, stop=interrupted)
-            why = None if ur.completed == n_ticks else f"its run ended after {ur.completed} ticks"
+                ur.completed = runner.run(n_ticks, stop=stop_all.is_set)
+                # the single run's end (servo.runner.LockstepRunner.end_run): a category-1 stop
+                # (decelerate, brakes, power off), then 2 s watching the joints; each unit its own
+                ending.append(INTERRUPT_CAUSE if stop_all.is_set() else "end")
+                if stop_all.is_set():
+                    runner.end_run(cause=INTERRUPT_CAUSE, detail=INTERRUPT_DETAIL)
+                else:
+                    runner.end_run()
+            # an abort ends every unit's run early, each with its own end: leaving then is no
+            # news for the others (the hub would cut their windows short)
+            why = (None if ur.completed == n_ticks or ending == [INTERRUPT_CAUSE]
+                   else f"its run ended after {ur.completed} ticks")
             if runner.ended_by is not None:
                 why = f"{type(runner.ended_by).__name__}: {runner.ended_by}"
         except (Exception, KeyboardInterrupt, Terminated) as e:
-            ur.error = e
+            # (the coordinator's second signal, raised here by _cut_short, is no error of the unit's)
+            if not (cut.is_set() and isinstance(e, INTERRUPTS)):
+                ur.error = e
             why = f"{type(e).__name__}: {e}"
             if ur.system is not None:  # no loop yet, or armed() already stopped it: the boards safe
                 ur.system.io.safe_stop()
@@ -208,11 +266,15 @@ def run_units(rig: str | Path | RigSpec, *, seed: int = 0, n_ticks: int, motion:
             while not e.wait(0.2):  # in slices: Ctrl-C and SIGTERM are handled while waiting
                 pass
     except BaseException:
-        # Ctrl-C or SIGTERM reaches this (the main) thread: every unit safe-stops at its next
-        # tick boundary (its armed() block), then the signal goes on
+        # Ctrl-C or SIGTERM reaches this (the main) thread: every unit stops at its next tick
+        # boundary as the single run does (category 1, then 2 s watching), then the signal goes on
         stop_all.set()
-        for e in ended.values():
-            e.wait(timeout=timeout_s * 4)
+        try:
+            _wait_all(ended, timeout_s * 4 + WATCH_AFTER_STOP_S)
+        except INTERRUPTS as again:  # a second one: category 0 now, the window ends (_cut_short)
+            second.append(again)
+            cut.set()
+            _wait_all(ended, timeout_s * 4)
         raise
     for t in threads:
         t.join(timeout=timeout_s)  # each has set its Event: only its thread's own ending is left

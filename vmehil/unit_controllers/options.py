@@ -164,6 +164,9 @@ class MergedUnits:
         self.n = len(self.names)
         self.period_s = run.rig.period_s
         self.tick_count = max(lp.tick_count for lp in loops)
+        #: the run's own ticks (each unit's end — its category-1 stop and the 2 s after — not counted)
+        run_ticks = [lp.run_ticks for lp in loops if lp.run_ticks is not None]
+        self.run_ticks: int | None = max(run_ticks) if run_ticks else None
         self.recorder = _MergedRecorder(run, loops)
         self.sequencer: Sequencer = first.sequencer  # every unit plays the same global plan
         self._t_motion0 = first._t_motion0
@@ -193,6 +196,9 @@ def _first_fault(run: ParallelRun, ran: list[UnitRun]) -> Fault | None:
 
 
 def _merged_final_stop(run: ParallelRun, ran: list[UnitRun], incomplete: list[str]) -> dict[str, Any] | None:
+    """The units' final stops as the one loop's: the first stopping unit's reason and cause, the
+    strictest category (one unit that fell to category 0 makes the run's stop a category 0), and
+    the excursions of every joint in the rig's order (each from its own unit)."""
     stops = {u.unit.name: u.loop.final_stop for u in ran if u.loop is not None and u.loop.final_stop is not None}
     if not stops:
         return None
@@ -201,4 +207,17 @@ def _merged_final_stop(run: ParallelRun, ran: list[UnitRun], incomplete: list[st
     out.update(tick=max(s["tick"] for s in stops.values()), verified=all(s["verified"] for s in stops.values()),
                incomplete=list(incomplete), unit=who)
     out["time_s"] = out["tick"] * run.rig.period_s
+    categories = [s["category"] for s in stops.values() if s.get("category") is not None]
+    out["category"] = min(categories) if categories else None
+    fell = [f"{name}: {s['fell_to_0']}" for name, s in stops.items() if s.get("fell_to_0")]
+    out["fell_to_0"] = "; ".join(fell) if fell else None
+    for key in ("excursion_deg", "excursion_sensor_deg"):
+        per_unit = [s.get(key) for s in stops.values()]
+        if all(p is None for p in per_unit):
+            out[key] = None
+            continue
+        joined: dict[str, float | None] = {}
+        for p in per_unit:
+            joined.update(p or {})
+        out[key] = {j.name: joined.get(j.name) for j in run.rig.joints}
     return out

@@ -3,7 +3,8 @@
 :func:`run_unit` is what ``vmehil unit --rig melmalec-16 --unit leg1`` runs: announce itself,
 wait for the coordinator's start, build its own boards, plan the global motion from every
 unit's start, run its loop in lockstep inside :meth:`ServoLoop.armed` (every exit path ends with
-its amplifiers disabled and its DACs at 0 V, read back), and leave. :func:`run_coordinator` is
+its amplifiers disabled and its DACs at 0 V, read back), end as the single run does (a category-1
+stop, then 2 s watching its joints: ``final_stop``), and leave. :func:`run_coordinator` is
 ``vmehil coordinate``: the plant of every joint (in this process, or the CAN plant node on the
 plant bus with ``--plant can``) served to the units.
 """
@@ -113,6 +114,12 @@ def run_unit(spec: RigSpec, unit_name: str, bus: UnitBus, *, timeout_s: float, s
                     loop.safe_stop(e.cause, str(e))
             # a stopped unit's run ends: the others stop in the same exchange (module remote)
             out.completed = runner.run(n_ticks, stop=lambda: loop.fault is not None)
+            # the single run's end (servo.runner.LockstepRunner.end_run): a category-1 stop, then
+            # 2 s watching the joints; the coordinator serves the plant until every unit has left.
+            # A link that is dead (the coordinator gone, or no fresh answer: the loop stopped for
+            # it) has only held values to give: nothing to watch
+            if not link.dead:
+                runner.end_run()
         out.free_running, out.stale, out.incomplete = link.free_running, link.stale, link.incomplete
         if runner.ended_by is not None:
             out.ended = f"{type(runner.ended_by).__name__}: {runner.ended_by}"

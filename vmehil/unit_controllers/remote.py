@@ -654,9 +654,10 @@ class _Server:
         u = int(f.raw["Unit"])
         self.running.discard(u)
         self.out.events.append(HubEvent(r, self.units[u].name, "left"))
-        # a unit that ran to the end leaves after its n_ticks + 1 exchanges (power-up included);
-        # any other count is no normal end either
-        if int(f.raw["Stopped"]) or int(f.raw["Exchange"]) != self.n_ticks + 1:
+        # a unit that ran to the end leaves after its n_ticks + 1 exchanges (power-up included)
+        # and its end (a category-1 stop and 2 s watched, servo.runner.LockstepRunner.end_run);
+        # fewer is no normal end either
+        if int(f.raw["Stopped"]) or int(f.raw["Exchange"]) < self.n_ticks + 1:
             self.stop_now(r, u, "UNIT_STOPPED", "left before the run's end")
 
     def keep_plant(self) -> None:

@@ -57,6 +57,16 @@ def test_local_cluster_gives_the_rows_of_the_local_pool(local_rows) -> None:
 
 
 @pytest.mark.slow
+def test_local_cluster_runs_batches_with_the_rows_of_the_local_pool(local_rows) -> None:
+    """--batch 2 on Dask: the engine ships batches (two tasks for three points) to its workers."""
+    seen: list[int] = []
+    engine = DaskEngine(jobs=2).open()
+    rows = evaluate_points(_tasks(), engine=engine, batch=2, on_result=lambda row, _rows: seen.append(row["index"]))
+    assert _same(rows) == local_rows
+    assert sorted(seen) == [0, 1, 2]
+
+
+@pytest.mark.slow
 @pytest.mark.filterwarnings("error::vmehil.analysis.dask_engine.ExposedClusterWarning")  # loopback only
 def test_cli_cluster_worker_killed_mid_point_gives_every_row_once(tmp_path: Path, local_rows) -> None:
     """Scheduler and two workers from `dask scheduler`/`dask worker` on 127.0.0.1; the worker that

@@ -31,9 +31,18 @@ def test_run_units_parallel_reports_every_unit_with_the_single_runs_figures(tmp_
     assert par["joints"] == single["joints"] and par["motion_end_s"] == single["motion_end_s"]
     assert par["ticks"] == single["ticks"] == par["ticks_planned"] == 62
     out = capsys.readouterr().out
-    assert "units (parallel; plant steps 63):" in out
+    # the run's 62 ticks and the power-up, then each unit's end: its category-1 stop and 2 s watched
+    steps = par["plant_steps"]
+    assert steps >= 63 + 250 and f"units (parallel; plant steps {steps}):" in out
     assert "  arm    4 joints  ticks 62  ran to the end  stop verified" in out
-    assert par["units_mode"] == "parallel" and par["plant_steps"] == 63 and par["stop"] is None
+    assert par["units_mode"] == "parallel" and par["stop"] is None
+    # the single run's end, with the single run's keys (issue #29): category 1, every joint's excursion
+    stop, ref = par["final_stop"], single["final_stop"]
+    assert set(ref) <= set(stop)
+    assert stop["category"] == ref["category"] == 1 and stop["cause"] == "end" and stop["fell_to_0"] is None
+    for key in ("excursion_deg", "excursion_sensor_deg"):
+        assert list(stop[key]) == list(ref[key]) == [j["name"] for j in single["joints"]]
+    assert "final stop: end (category 1); moved after the stop" in out
     assert list(par["units"]) == ["leg1", "leg2", "leg3", "leg4", "arm"]
     joints = {j["name"]: j for u in par["units"].values() for j in u["joints"]}
     assert len(joints) == 16
@@ -65,7 +74,8 @@ def test_run_units_parallel_writes_the_single_runs_report(tmp_path, monkeypatch)
         assert len(a) == len(b) > 5, name
         assert all(np.array_equal(x, y, equal_nan=True) for x, y in zip(a, b, strict=True)), name
     md = (tmp_path / "parallel" / "summary.md").read_text()
-    assert "units (parallel; plant steps 63):" in md and "  leg2   3 joints  ticks 62  ran to the end" in md
+    assert f"units (parallel; plant steps {report['parallel']['plant_steps']}):" in md
+    assert "  leg2   3 joints  ticks 62  ran to the end" in md
 
 
 def test_run_units_parallel_refuses_a_rig_without_units_and_options_it_does_not_take(capsys) -> None:

@@ -131,3 +131,55 @@ def test_ctrl_c_on_the_dask_engine_keeps_the_finished_rows_and_leaves_no_process
     d = json.loads((out / "sweep.json").read_text())
     assert d["interrupted"] and 1 <= d["completed"] < 8
     assert all(r["status"] == "ok" for r in d["rows"])
+
+
+@pytest.mark.slow
+def test_batched_sweep_resumes_after_sigint_and_its_rows_equal_the_scalar_sweep(tmp_path: Path, capsys) -> None:
+    """--batch 2: SIGINT ends every instance of the running batch (exit 130, finished rows kept);
+    --resume (another batch size) runs only the rest; the rows equal a --batch 1 sweep's, wall_s aside."""
+    out = tmp_path / "out"
+    # 8 points in 4 batches: the files are written at most once a second, so the SIGINT must still
+    # find batches to cut when the first two rows are on disk
+    args = ["tune", "sweep", "--grid", "kp=80:140:8", "--jobs", "1", *FAST, "--quiet"]
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen([sys.executable, "-m", "vmehil", *args, "--batch", "2", "--out", str(out)], cwd=tmp_path,
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    csv_path = out / "sweep.csv"
+    try:
+        wait_for(lambda: proc.poll() is not None or (csv_path.exists() and len(csv_path.read_text().splitlines()) >= 3),
+                 "the first batch written")
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(signal.SIGINT)
+        _stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, stderr
+    before = json.loads((out / "sweep.json").read_text())
+    k = before["completed"]
+    assert 2 <= k < 8 and k % 2 == 0 and before["interrupted"], stderr  # whole batches only
+    assert all(r["status"] == "ok" for r in before["rows"])  # no row of the interrupted batch is kept
+
+    assert main([*args, "--batch", "3", "--resume", str(out)]) == 0
+    assert f"({k} done before, {8 - k} to go)" in capsys.readouterr().out
+    batched = json.loads((out / "sweep.json").read_text())["rows"]
+    assert main([*args, "--out", str(tmp_path / "scalar")]) == 0
+    scalar = json.loads((tmp_path / "scalar" / "sweep.json").read_text())["rows"]
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]  # noqa: E731
+    assert strip(batched) == strip(scalar)
+
+
+def test_batch_n_refuses_a_rig_with_a_board_type_that_cannot_batch_in_one_line(tmp_path: Path, capsys,
+                                                                                monkeypatch) -> None:
+    from vmehil.analysis import batch
+
+    # stand-in for a plug-in board type: the decoders' type is not among the batchable ones
+    monkeypatch.setattr(batch, "batchable_types", lambda: frozenset({"adc", "dac", "pio", "bit3", "ram"}))
+    assert main(["tune", "sweep", "--grid", "kp=80:140:2", *FAST, "--batch", "4", "--out", str(tmp_path / "o"),
+                 "--quiet"]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if "batch" in line]
+    assert len(err) == 1 and "--batch 4: rig jpl-arm has board type(s) quad from a plug-in" in err[0]
+    assert not (tmp_path / "o").exists()  # refused before anything was written
+    assert main(["tune", "sweep", "--batch", "zero", "--out", str(tmp_path / "o")]) == 2
+    assert "--batch 'zero': give a number of instances (1 = one run at a time) or auto" in capsys.readouterr().err

@@ -146,6 +146,11 @@ def test_a_real_bus_run_writes_the_same_json_and_report_as_the_emulated_run(rig_
     summary = json.loads(out.read_text())
     assert summary["rig"] == system.rig.name and summary["final_stop"]["verified"] is True
     assert [j["name"] for j in summary["joints"]] == [j.name for j in system.rig.joints]
+    # issue #29 on a real rig: a category (1 for the end, 0 for a fault) and the 2 s after the stop
+    # read from the sensors (no plant truth here: excursion_deg is the sensors' figure)
+    stop, names = summary["final_stop"], [j.name for j in system.rig.joints]
+    assert stop["category"] in (0, 1) and stop["tick"] >= summary["ticks"] + 250
+    assert list(stop["excursion_sensor_deg"]) == names and stop["excursion_deg"] == stop["excursion_sensor_deg"]
     assert (rep / "summary.md").exists() and any(rep.glob("*.png"))
 
 

@@ -54,6 +54,8 @@ def test_a_runtime_overshoot_past_a_soft_limit_stops_the_loop_with_soft_limit(tm
     # time would be) takes the joint past 3° + 0.5° margin: a category-1 stop from there
     text = resolve_rig("jpl-arm").read_text(encoding="utf-8")
     path = tmp_path / "rig.toml"
+    # (and the watchdog's margin at the default 0.5°, not jpl-arm's 1.75°: the figures below are for it)
+    text = text.replace("soft_limit_margin_deg = 1.75", "soft_limit_margin_deg = 0.5", 1)
     path.write_text(text.replace("max_deg = 163.01", "max_deg = 3.0", 1), encoding="utf-8")
     system = rig_system.build_emulated_rig(load_rig(path), seed=0)
     try:
@@ -131,3 +133,49 @@ def test_vmehil_plan_reports_the_collision_at_its_point_and_passes_the_route_aro
     assert main(["plan", str(far), "--scene", "none", f"--start-deg={START}", "--json", str(out), "--force"]) == 2
     (limit,) = json.loads(out.read_text(encoding="utf-8"))["refusals"]
     assert (limit["kind"], limit["joint"], limit["link"], limit["obstacle"]) == ("limit", "j2", None, None)
+
+
+def test_a_parallel_run_with_a_duration_is_refused_past_a_soft_limit_before_any_unit_runs(
+        tmp_path, monkeypatch, capsys) -> None:
+    """`--units parallel --duration S` plans no probe for the run's length; the motion is checked
+    all the same (it once went to the units unchecked, guarded by their watchdogs only)."""
+    from vmehil.commands import run_units
+
+    motion = tmp_path / "far.toml"
+    targets = [0.0] * 16
+    targets[0] = 80.0  # leg1_swing: soft limits ±43.83° (melmalec-16.toml: 2° inside ±0.8 rad)
+    motion.write_text(f"[[move]]\ntargets_deg = {targets}\n", encoding="utf-8")
+    started: list[object] = []
+    monkeypatch.setattr(run_units, "run_parallel", lambda *a, **k: started.append(a) or 0)
+    assert main(["run", "--rig", "melmalec-16", "--units", "parallel", "--duration", "2",
+                 "--motion", str(motion), "--quiet"]) == 2
+    assert "joint leg1_swing target 80.00° is past its soft limit max_deg = 43.83°" in capsys.readouterr().err
+    assert started == []
+
+
+def test_a_short_move_to_a_soft_limit_overshoots_it_without_a_stop(tmp_path) -> None:
+    """150° then 162° on j1 (limit 163.01°): the servo overshoots the target by ~1.5° before it
+    settles (docs/motion-safety.md, measured); the watchdog's margin on jpl-arm (1.75°) lets an
+    accepted move finish — with the default 0.5° it stopped with soft_limit at pot 163.52°."""
+    motion = tmp_path / "near.toml"
+    motion.write_text("[[move]]\ntargets_deg = [150, 0, 0, 0, 0, 0, 30]\n"
+                      "[[move]]\ntargets_deg = [162, 0, 0, 0, 0, 0, 30]\n", encoding="utf-8")
+    out = tmp_path / "run.json"
+    assert main(["run", "--motion", str(motion), "--scene", "none", "--quiet", "--json", str(out)]) == 0
+    import json
+
+    result = json.loads(out.read_text())
+    assert result["faults"] == []
+    assert result["final_stop"]["cause"] != "soft_limit"
+
+
+def test_a_rig_that_requires_homing_refuses_a_run_with_moves_and_holds_without(tmp_path, capsys) -> None:
+    """`[servo] require_homing = true`: `vmehil run` does not home, so it refuses to move (exit 2,
+    nothing enabled) and says where to home; a hold (--motion none) still runs."""
+    text = resolve_rig("jpl-arm").read_text(encoding="utf-8")
+    path = tmp_path / "homed.toml"
+    path.write_text(text.replace("[servo]\n", "[servo]\nrequire_homing = true\n", 1), encoding="utf-8")
+    assert main(["run", "--rig", str(path), "--quiet", "--scene", "none"]) == 2
+    assert "requires homing before moves" in capsys.readouterr().err
+    assert main(["run", "--rig", str(path), "--quiet", "--scene", "none", "--motion", "none",
+                 "--duration", "0.2"]) == 0

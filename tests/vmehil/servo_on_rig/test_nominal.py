@@ -55,6 +55,7 @@ def _expected_from_plant(p: PlantJoint) -> dict[str, float]:
         "encoder_counts_per_rev": 4.0 * p.encoder.lines_per_rev * p.gear.ratio,
         "supply_v": p.hbridge.supply_v, "resistance_ohm": p.motor.resistance_ohm,
         "ke_v_s_per_rad": p.motor.ke_v_s_per_rad, "pwm_period_s": 1.0 / p.hbridge.pwm_hz,
+        "gravity_torque_nm": p.link.gravity_torque_nm, "gravity_phase_rad": p.link.gravity_phase_rad,
     }
 
 

@@ -251,3 +251,74 @@ def test_a_controlled_stop_over_can_holds_the_arm_and_the_node_sees_power_off():
         assert worst.max() < 1.0, worst
     finally:
         system.close()
+
+
+def test_a_signal_during_the_window_after_the_stop_ends_it_at_once():
+    """SIGINT (a real one, Python's own handler) 0.4 s into the 2 s watched after a run's
+    category-1 end: the window ends in that tick, the stop already done (boards safe, brakes
+    holding), the signal raised for the command's exit status (130)."""
+    import signal
+
+    system = build_emulated_rig("jpl-arm", seed=0)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        loop = build_loop(system, n_ticks=300)
+        runner = LockstepRunner(system, loop)
+        loop.start()
+        runner.run(250)
+        at: dict[str, int] = {}
+
+        def sigint_in_the_window(lp) -> None:
+            if not lp.enabled and lp.stopping is None and "off" not in at:
+                at["off"] = lp.tick_count  # the stop is done: the window begins
+            if "off" in at and lp.tick_count == at["off"] + 50 and "sent" not in at:
+                at["sent"] = lp.tick_count
+                signal.raise_signal(signal.SIGINT)
+
+        runner.after_tick.append(sigint_in_the_window)
+        with pytest.raises(KeyboardInterrupt):
+            runner.end_run()
+        assert loop.tick_count == at["sent"]  # no tick after the signal's
+        assert loop.stop_summary()["category"] == 1 and loop.stop_summary()["cause"] == "end"
+        assert_boards_safe(system)
+        assert not any(_net(system, j, "holding_brake") for j in BRAKED)
+        assert system.truth()["brake_engaged"][[1, 2, 3, 5]].all()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        system.close()
+
+
+def test_a_plant_lost_in_the_window_after_the_stop_ends_it_without_a_fault():
+    """The run ended by its category-1 stop; 0.2 s into the 2 s watched after it the plant stops
+    answering (a CAN node gone): nothing is left to watch, the window ends in that tick, and the
+    run stays fault-free — its stop was done (brake lines low, boards safe)."""
+    from servo.boundary import PlantBoundaryError
+
+    system = build_emulated_rig("jpl-arm", seed=0)
+    try:
+        loop = build_loop(system, n_ticks=300)
+        runner = LockstepRunner(system, loop)
+        loop.start()
+        runner.run(250)
+        exchange = system.exchange
+        at: dict[str, int] = {}
+
+        def lost_in_the_window(k: int):
+            if not loop.enabled and loop.stopping is None:
+                at.setdefault("off", k)
+                if k >= at["off"] + 25:
+                    at["lost"] = k
+                    raise PlantBoundaryError("plant_lost", "test: the plant node is gone")
+            return exchange(k)
+
+        system.exchange = lost_in_the_window  # type: ignore[method-assign]
+        runner.end_run()
+        assert loop.tick_count == at["lost"] + 1  # the window ended with the tick that lost the plant
+        assert loop.fault is None and loop.faults == []
+        assert isinstance(runner.window_ended_by, PlantBoundaryError)
+        assert loop.stop_summary()["category"] == 1
+        assert not any(_net(system, j, "holding_brake") for j in BRAKED)
+        assert not any(_net(system, j, "amp_enable") for j in JOINTS[:6])
+        assert any("the watch after the stop ended: plant_lost" in msg for _, _, msg in loop.log)
+    finally:
+        system.close()

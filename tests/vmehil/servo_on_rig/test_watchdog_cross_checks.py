@@ -212,3 +212,24 @@ def test_the_velocity_check_integrates_over_the_plant_time_of_free_running_sampl
         if (trip := checks.check(m, theta, np.array([0.5]), step * T)) is not None:
             break
     assert trip is not None and trip.cause == "velocity_mismatch"
+
+
+def test_a_homed_encoder_is_compared_with_the_pot_absolutely() -> None:
+    # the pot reads 30°; the encoder 2° more, standing still. Unhomed, the encoder's reading is
+    # relative (power-up zero): no travel, no disagreement. Homed, it is the joint's angle: 2° off
+    # the pot is a mismatch (limit 8 pot codes + 2 counts ≈ 0.67°).
+    def first_trip(homed: bool):
+        io = _FakeIO()
+        io.homed = np.array([homed])
+        checks = CrossChecks(io, WatchdogConfig(following_error_rad=np.ones(1), cross_checks=True))
+        pot, enc = np.radians([30.0]), np.radians([32.0])
+        m = SimpleNamespace(theta_pot=pot, theta_enc=enc, omega_tach=np.zeros(1), current=np.full(1, np.nan))
+        for _ in range(3):
+            trip = checks.check(m, pot, np.zeros(1))
+            if trip is not None:
+                return trip
+        return None
+
+    assert first_trip(False) is None
+    trip = first_trip(True)
+    assert trip is not None and trip.cause == "position_mismatch" and "disagree by 2.00°" in trip.detail
