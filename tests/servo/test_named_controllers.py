@@ -1,0 +1,141 @@
+"""Named controllers per joint (servo.named_controllers): the rig file's [[joint.controller]]
+tables, the rig's default, the gain guard at parse time and at a switch, and the bumpless
+switch of one joint of the law (PidLaw.switch_joint)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hal.config import ConfigError
+from servo.control.errors import ControlError
+from servo.control.gains import Gains
+from servo.control.law import PidLaw, SwitchOffConfig
+from servo.gain_guard import GainRejected
+from servo.named_controllers import use_controller
+from servo.rig import load_rig
+from servo.settings import servo_settings
+
+PRESET = Path(__file__).resolve().parents[2] / "emulators" / "presets" / "jpl-arm.toml"
+
+STIFF = """
+[[joint.controller]]
+name = "stiff"
+[joint.controller.pid]
+kp = 200.0
+kpi = 10000.0
+kv = 60.0
+kvi = 2000.0
+[[joint.controller]]
+name = "filtered"
+[joint.controller.pid]
+velocity_filter = { cutoff_hz = 5.0 }
+"""
+
+
+def rig_with(tmp_path: Path, extra: str, joint: int = 2, servo_extra: str = "") -> Path:
+    """jpl-arm with ``extra`` appended to joint ``joint``'s tables (and ``servo_extra`` to its
+    [joint.servo] table)."""
+    parts = PRESET.read_text().split("\n[[joint]]\n")
+    body = parts[joint]
+    if servo_extra:
+        body = body.replace("[joint.servo]\n", "[joint.servo]\n" + servo_extra + "\n", 1)
+    parts[joint] = body.rstrip("\n") + "\n" + extra + "\n"
+    path = tmp_path / "rig.toml"
+    path.write_text("\n[[joint]]\n".join(parts))
+    return path
+
+
+def test_each_joint_has_its_default_then_the_rigs_named_controllers(tmp_path):
+    s = servo_settings(load_rig(rig_with(tmp_path, STIFF)))
+    c = s.controllers
+    assert c is not None and c.any_named
+    assert c.names(0) == ["default"] and c.names(1) == ["default", "stiff", "filtered"]
+    assert c.start == (0,) * 7
+    stiff = c.per_joint[1][1]
+    assert stiff.gains == Gains(kp=200.0, kpi=10000.0, kv=60.0, kvi=2000.0)
+    filt = c.per_joint[1][2]
+    assert filt.gains == Gains(kp=100.0, kpi=5000.0, kv=50.0, kvi=1000.0)  # the joint's own, as not given
+    assert filt.filter_hz == 5.0
+    assert s.velocity_filter_hz == ()  # nothing selects the filter by default
+
+
+def test_the_rigs_default_controller_is_the_one_the_joint_starts_with(tmp_path):
+    s = servo_settings(load_rig(rig_with(tmp_path, STIFF, servo_extra='controller = "filtered"')))
+    assert s.controllers is not None and s.controllers.start[1] == 2
+    assert s.filter_hz[1] == 5.0 and np.isnan(s.filter_hz[0])
+
+
+def test_a_named_controller_the_guard_refuses_names_its_key(tmp_path):
+    bad = '[[joint.controller]]\nname = "hot"\n[joint.controller.pid]\nkp = 5e4\n'
+    with pytest.raises(ConfigError, match=r"joint\[1\]\.controller\[0\]\.pid.*unstable"):
+        servo_settings(load_rig(rig_with(tmp_path, bad)))
+
+
+def test_an_unknown_default_or_a_repeated_name_is_refused(tmp_path):
+    with pytest.raises(ConfigError, match="controller.*one of default, stiff, filtered"):
+        servo_settings(load_rig(rig_with(tmp_path, STIFF, servo_extra='controller = "nope"')))
+    twice = '[[joint.controller]]\nname = "default"\n'
+    with pytest.raises(ConfigError, match="not used before"):
+        servo_settings(load_rig(rig_with(tmp_path, twice)))
+
+
+def test_a_velocity_filter_of_the_joint_is_parsed_once(tmp_path):
+    s = servo_settings(load_rig(rig_with(tmp_path, "", servo_extra="velocity_filter = { cutoff_hz = 8.0 }")))
+    assert s.velocity_filter_hz[1] == 8.0 and np.isnan(s.velocity_filter_hz[0])
+    with pytest.raises(ConfigError, match="cutoff_hz"):
+        servo_settings(load_rig(rig_with(tmp_path, "", servo_extra="velocity_filter = { cutoff_hz = 0.0 }")))
+
+
+def _loaded_law() -> tuple[PidLaw, np.ndarray]:
+    """A law holding a load: integrators charged, switch-off disabled (always integrating)."""
+    law = PidLaw(2, 0.008, Gains(kp=100.0, kpi=5000.0, kv=50.0, kvi=1000.0), SwitchOffConfig.disabled(2))
+    law.state.ie[:] = [0.001, 0.002]  # Kpi·Ie = 5 and 10 rad/s²: the load's share
+    law.state.iv[:] = [0.0004, -0.0003]
+    return law, np.array([0.0021, -0.0013])
+
+
+def test_a_switch_keeps_the_output_but_for_the_velocity_term():
+    law, e = _loaded_law()
+    z = np.zeros(2)
+    edot = np.array([0.03, -0.02])
+    old = Gains(kp=100.0, kpi=5000.0, kv=50.0, kvi=1000.0)
+    # what the old law commands this tick, by hand (integrators fed with T·e and T·ė first)
+    T = 0.008
+    ie, iv = law.state.ie + T * e, law.state.iv + T * edot
+    a_old = old.kp * e + old.kpi * ie + old.kv * edot + old.kvi * iv
+    new = Gains(kp=200.0, kpi=10000.0, kv=60.0, kvi=2000.0)
+    law.switch_joint(1, new)
+    a = law.update(z, -edot, e, z, tick=0)
+    assert a[0] == pytest.approx(a_old[0], rel=1e-12)  # joint 1 untouched
+    # joint 2: the same output but for the change of the velocity gain on this tick's ė
+    assert a[1] == pytest.approx(a_old[1] + (new.kv - old.kv) * edot[1], rel=1e-9)
+    assert list(law.gains.kp) == [100.0, 200.0]
+
+
+def test_a_switch_to_the_filter_primes_it_and_stays_bumpless():
+    law, e = _loaded_law()
+    z = np.zeros(2)
+    before = law.update(z, z, e, z, tick=0)
+    law.switch_joint(0, Gains(kp=100.0, kpi=5000.0, kv=50.0, kvi=1000.0), 5.0)
+    after = law.update(z, z, e, z, tick=1)
+    assert law.filtered.tolist() == [True, False]
+    # the errors did not change: joint 1's output moves only by this tick's integration T·Kpi·e
+    assert after[0] - before[0] == pytest.approx(0.008 * 5000.0 * e[0], rel=1e-9)
+
+
+def test_a_switch_the_guard_refuses_changes_nothing():
+    law, _ = _loaded_law()
+    from servo.named_controllers import ControllerChoices, NamedController
+
+    paper = Gains(kp=100.0, kpi=5000.0, kv=50.0, kvi=1000.0)
+    hot = NamedController("hot", Gains(kp=5e4, kpi=5000.0, kv=50.0, kvi=1000.0))
+    choices = ControllerChoices(((NamedController("default", paper), hot),) * 2, (0, 0))
+    active = [0, 0]
+    with pytest.raises(GainRejected, match="unstable"):
+        use_controller(law, choices, active, "hot", [0, 1], 0.008, 0.125)
+    with pytest.raises(ControlError, match="no controller 'cold'"):
+        use_controller(law, choices, active, "cold", [1], 0.008, 0.125)
+    assert active == [0, 0] and law._pending_switch == {}
