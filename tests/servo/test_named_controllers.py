@@ -4,8 +4,6 @@ switch of one joint of the law (PidLaw.switch_joint)."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -17,42 +15,13 @@ from servo.gain_guard import GainRejected
 from servo.named_controllers import use_controller
 from servo.rig import load_rig
 from servo.settings import servo_settings
-
-PRESET = Path(__file__).resolve().parents[2] / "emulators" / "presets" / "jpl-arm.toml"
-
-STIFF = """
-[[joint.controller]]
-name = "stiff"
-[joint.controller.pid]
-kp = 200.0
-kpi = 10000.0
-kv = 60.0
-kvi = 2000.0
-[[joint.controller]]
-name = "filtered"
-[joint.controller.pid]
-velocity_filter = { cutoff_hz = 5.0 }
-"""
-
-
-def rig_with(tmp_path: Path, extra: str, joint: int = 2, servo_extra: str = "") -> Path:
-    """jpl-arm with ``extra`` appended to joint ``joint``'s tables (and ``servo_extra`` to its
-    [joint.servo] table)."""
-    parts = PRESET.read_text().split("\n[[joint]]\n")
-    body = parts[joint]
-    if servo_extra:
-        body = body.replace("[joint.servo]\n", "[joint.servo]\n" + servo_extra + "\n", 1)
-    parts[joint] = body.rstrip("\n") + "\n" + extra + "\n"
-    path = tmp_path / "rig.toml"
-    path.write_text("\n[[joint]]\n".join(parts))
-    return path
-
+from tests.support.rig_variants import STIFF, rig_with
 
 def test_each_joint_has_its_default_then_the_rigs_named_controllers(tmp_path):
     s = servo_settings(load_rig(rig_with(tmp_path, STIFF)))
     c = s.controllers
     assert c is not None and c.any_named
-    assert c.names(0) == ["default"] and c.names(1) == ["default", "stiff", "filtered"]
+    assert c.names(0) == ["default"] and c.names(1) == ["default", "stiff", "filtered", "tight"]
     assert c.start == (0,) * 7
     stiff = c.per_joint[1][1]
     assert stiff.gains == Gains(kp=200.0, kpi=10000.0, kv=60.0, kvi=2000.0)
@@ -75,7 +44,7 @@ def test_a_named_controller_the_guard_refuses_names_its_key(tmp_path):
 
 
 def test_an_unknown_default_or_a_repeated_name_is_refused(tmp_path):
-    with pytest.raises(ConfigError, match="controller.*one of default, stiff, filtered"):
+    with pytest.raises(ConfigError, match="controller.*one of default, stiff, filtered, tight"):
         servo_settings(load_rig(rig_with(tmp_path, STIFF, servo_extra='controller = "nope"')))
     twice = '[[joint.controller]]\nname = "default"\n'
     with pytest.raises(ConfigError, match="not used before"):
