@@ -17,6 +17,7 @@ from servo.rig import load_rig
 from servo.settings import servo_settings
 from tests.support.rig_variants import STIFF, rig_with
 
+
 def test_each_joint_has_its_default_then_the_rigs_named_controllers(tmp_path):
     s = servo_settings(load_rig(rig_with(tmp_path, STIFF)))
     c = s.controllers

@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 
 from servo.control.objects import ControlContext
-
 from servo.motion import hold_motion
 from servo.runner import LockstepRunner
 from tests.support.rig_variants import STIFF, rig_with
