@@ -1,5 +1,6 @@
-"""The velocity filter alternative to KvI (servo.control.velocity_filter): the law, the gain
-guard's sampled loop and the tuning model use one definition; expected values from the
+"""The velocity filter alternative to KvI (servo.control.velocity_filter): the law and the
+gain guard's sampled loop use one definition (the tuning model: tests/vmehil/analysis/
+test_velocity_filter_model.py); expected values from the
 filter's formula (ef_k = ef_{k−1} + α·(e_k − ef_{k−1}), α = 1 − exp(−2π·f_c·T)), written here."""
 
 from __future__ import annotations
@@ -41,23 +42,9 @@ def test_without_a_filter_the_law_integrates_the_velocity_error_as_before():
     assert not law.filtered.any()
 
 
-def test_the_tuning_model_and_the_guard_loop_use_the_laws_filter():
-    pytest.importorskip("control")
-    from vmehil.analysis.loop_model import sampled_controller
-
+def test_the_guard_loop_takes_the_laws_filter():
     T, fc = 0.008, 4.0
     g = Gains(kp=100.0, kpi=5000.0, kv=50.0, kvi=1000.0)
-    law = PidLaw(1, T, g, SwitchOffConfig.disabled(1), filter_hz=np.array([fc]))
-    K = sampled_controller(g, T, "tach", kvi_filter_hz=fc)
-    rng = np.random.default_rng(3)
-    r, rv = rng.normal(0, 0.01, 60), rng.normal(0, 0.05, 60)
-    x = np.zeros(K.nstates)
-    for k in range(60):
-        u = np.array([r[k], rv[k], 0.0, 0.0])
-        y = float((K.C @ x + K.D @ u)[0])
-        x = K.A @ x + K.B @ u
-        a = law.update(np.array([0.0]), np.array([0.0]), np.array([r[k]]), np.array([rv[k]]))
-        assert y == pytest.approx(a[0], rel=1e-9, abs=1e-12)
     # the guard's sampled loop: a fourth state ef with pole 1 − α fed by α·e
     A = sampled_loop_matrix(g.kp, g.kpi, g.kv, g.kvi, T, 0.0, filter_alpha=_alpha(fc, T))
     assert A[3, 3] == pytest.approx(1.0 - _alpha(fc, T)) and A[3, 0] == pytest.approx(-_alpha(fc, T))
