@@ -209,7 +209,12 @@ class PidLaw:
         on the errors from there on (ros2_control's switch: deactivate and activate in one step)."""
         if not (isinstance(joint, int) and 0 <= joint < self.n):
             raise GainError("joint", joint, f"a joint index in 0..{self.n - 1}")
-        self._pending_switch[joint] = (gains, float(filter_hz))
+        f_hz = float(filter_hz)
+        if not (math.isnan(f_hz) or (math.isfinite(f_hz) and f_hz > 0.0)):  # refused now, never inside the tick
+            raise GainError("velocity_filter.cutoff_hz", filter_hz, "a positive cutoff in Hz, or NaN for none", joint)
+        if not isinstance(gains, Gains) or gains.n is not None:
+            raise GainError("gains", gains, "one joint's Gains", joint)
+        self._pending_switch[joint] = (gains, f_hz)
     # ---- live tuning ---------------------------------------------------------------------------
     def set_gains(self, kp: float | list[float] | np.ndarray | None = None,
                   kpi: float | list[float] | np.ndarray | None = None,

@@ -48,3 +48,14 @@ def test_a_switch_to_the_filter_primes_it_and_stays_bumpless():
     assert after[0] - before[0] == pytest.approx(0.008 * 5000.0 * e[0], rel=1e-9)
 
 
+
+
+def test_a_bad_switch_is_refused_when_staged_not_inside_the_tick():
+    from servo.control.errors import GainError
+
+    law, _ = _loaded_law()
+    with pytest.raises(GainError):
+        law.switch_joint(0, Gains(kp=100.0, kpi=5000.0, kv=50.0, kvi=1000.0), -5.0)
+    with pytest.raises(GainError):
+        law.switch_joint(2, Gains(kp=100.0, kpi=5000.0, kv=50.0, kvi=1000.0))
+    assert law._pending_switch == {}
