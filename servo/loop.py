@@ -37,6 +37,7 @@ import numpy as np
 from servo.control.objects import ControlContext, Controller, SwitchableController
 from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_name
 from servo.io import JointIO, Measurement
+from servo.named_controllers import ControllerChoices
 from servo.stops import NOT_FAULTS, ControlledStop, Deceleration, StopCategory, StopSettings
 from servo.trajectory.base import Sample
 from servo.trajectory.bounds import MotionRefused
@@ -200,6 +201,10 @@ class ServoLoop:
         self.require_homing = False
         #: per joint how far past its soft limit it may be (``None``: the margin; see _soft_allowance)
         self._soft_allow: np.ndarray | None = None
+        #: the named controllers per joint (servo.named_controllers; set by servo.assembly.build_loop)
+        #: and per joint the index of the one in force
+        self.controllers: ControllerChoices | None = None
+        self.active_controller: list[int] = [0] * self.n
 
     # --- live interface ------------------------------------------------------------------------
     def submit(self, command: LiveCommand,

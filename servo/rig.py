@@ -92,7 +92,7 @@ DIGITAL_INPUTS = ("amp_fault",)
 WIRING_KEYS = ("amp_command", "encoder", "pwm", *ANALOG_INPUTS, *DIGITAL_OUTPUTS, *DIGITAL_INPUTS)
 #: The keys of a ``[[joint]]`` table that only the servo side reads (``name`` and ``amplifier`` are
 #: shared with the plant, whose subtables sit beside these).
-SERVO_JOINT_KEYS = ("wiring", "servo", "limits")
+SERVO_JOINT_KEYS = ("wiring", "servo", "limits", "controller")
 
 
 class NoSuchJointError(ServoError, ValueError):
