@@ -115,6 +115,7 @@ def build_loop(plant: PlantBoundary, io: JointIO, settings: ServoSettings, *, mo
     if settings.controllers is not None:  # the named controllers per joint, the rig's default active
         loop.controllers = settings.controllers
         loop.active_controller = list(settings.controllers.start)
+    loop.hand_model = settings.hand
     # an emulated rig's free-running plant: its answers may skip or repeat plant steps
     loop.sample_clock = plant.sample_clock
     return loop

@@ -29,12 +29,14 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
 
+from hal.hand import HandModel
 from servo.control.objects import ControlContext, Controller, SwitchableController
+from servo.hand import HandCurrent, TorqueWindow
 from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_name
 from servo.io import JointIO, Measurement
 from servo.named_controllers import ControllerChoices
@@ -205,6 +207,15 @@ class ServoLoop:
         #: and per joint the index of the one in force
         self.controllers: ControllerChoices | None = None
         self.active_controller: list[int] = [0] * self.n
+        #: the hand's current-command mode (servo.hand; ``None``: every joint by position)
+        self.hand: HandCurrent | None = None
+        #: the soft limit the hand is held at by position once its current drove it there (servo.hand)
+        self.hand_hold_rad: float | None = None
+        #: the hand's fingers (``[hand]``, set by servo.assembly.build_loop; ``None``: no hand)
+        self.hand_model: HandModel | None = None
+        #: the arm's measured holding torques over the last second (servo.hand; ``None``: not
+        #: kept — the console's ``open`` starts it, for ``weigh``)
+        self.torque_window: TorqueWindow | None = None
 
     # --- live interface ------------------------------------------------------------------------
     def submit(self, command: LiveCommand,
@@ -382,6 +393,7 @@ class ServoLoop:
             self._soft_allow = np.maximum(margin, past + margin) if np.any(past > 0.0) else None
         self.fault = None
         self.stopping = None
+        self.set_hand(None)  # the hand too is held by position where it is (servo.hand)
         self.stop_tick = None  # the excursion of the last stop is kept, no longer tracked
         self._last_theta = None
         self.cross_checks.reset()
@@ -619,11 +631,25 @@ class ServoLoop:
             sample = st.trajectory.sample((k - st.tick0) * self.period_s)
         else:
             sample = self._next_sample(t)
+        hand = self.hand
+        if hand is not None:  # the hand by current: its desired position is where it is
+            j = hand.joint
+            if self.hand_hold_rad is None and np.isfinite(m.theta[j]):
+                lo, hi = self.watchdog.soft_limits(self.n)
+                self.hand_hold_rad = hand.limit_hold(float(m.theta[j]), float(lo[j]), float(hi[j]))
+            theta_d, omega_d = np.array(sample.theta_d, float), np.array(sample.omega_d, float)
+            theta_d[j] = m.theta[j] if self.hand_hold_rad is None else self.hand_hold_rad
+            omega_d[j] = 0.0
+            sample = sample._replace(theta_d=theta_d, omega_d=omega_d)
         if self._check(m, sample):
             self._record(k, t, m, sample, None, truth, t0)
             self.tick_count += 1
             return
+        if self.torque_window is not None and self.hand_model is not None:
+            self.torque_window.add(m.current, float(m.omega[self.hand_model.joint]))
         out = self.controller.update(self._context(k, t, m, sample))
+        if hand is not None and self.hand_hold_rad is None:
+            out = replace(out, torque=self._hand_torque(hand, out.torque, m.omega))
         try:
             current = self.io.write_torque(out.torque, m.omega)
         except Exception as e:
@@ -633,6 +659,20 @@ class ServoLoop:
         self.tick_count += 1
         if self.stopping is not None and self.fault is None:
             self._advance_stop(k)
+
+    def set_hand(self, command: HandCurrent | None) -> None:
+        """Drive the hand by ``command`` from the next tick (``None``: by position, where it is
+        commanded now). Call at a tick boundary (inside a live command)."""
+        self.hand = command
+        self.hand_hold_rad = None
+
+    def _hand_torque(self, hand: HandCurrent, torque: np.ndarray, omega: np.ndarray) -> np.ndarray:
+        """``torque`` with the hand joint's replaced by its current command's (servo.hand)."""
+        j = hand.joint
+        s = self.io.scaling[j]
+        out = np.array(torque, float)
+        out[j] = hand.current_at(float(omega[j])) * s.ratio * s.kt_nm_per_a
+        return out
 
     def _soft_allowance(self, theta: np.ndarray) -> np.ndarray | None:
         """How far past its soft limit each joint may be before the watchdog stops the loop: the

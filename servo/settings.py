@@ -78,6 +78,7 @@ from typing import Any
 import numpy as np
 
 from hal.config import ConfigTable
+from hal.hand import HandModel
 from hal.kinematics import ArmModel
 from servo.control.errors import ControlError
 from servo.control.gains import DEFAULT_GAINS, GAIN_NAMES, Gains
@@ -185,6 +186,8 @@ class ServoSettings:
     #: per joint its named controllers (``[[joint.controller]]``, servo.named_controllers) and the
     #: rig's default; ``None``: settings made without a rig file
     controllers: ControllerChoices | None = None
+    #: the hand's fingers (``[hand]``, :mod:`hal.hand`; ``None``: the rig states none)
+    hand: HandModel | None = None
 
     @property
     def filter_hz(self) -> np.ndarray:
@@ -294,6 +297,7 @@ def servo_settings(rig: RigSpec) -> ServoSettings:
         **_soft_limits(rig, top),
         arm=ArmModel.from_table(rig.table.table("arm")) if "arm" in rig.table else None,
         require_homing=top.get_bool("require_homing", False),
+        hand=_hand(rig),
         gains_given=tuple("+".join(w for w, t in (("joint", j.servo), ("rig", top)) if "gains" in t)
                           for j in rig.joints),
         velocity_filter_hz=tuple(float(x) for x in filter_hz) if not np.all(np.isnan(filter_hz)) else (),
@@ -302,6 +306,17 @@ def servo_settings(rig: RigSpec) -> ServoSettings:
     if "pid" in names:
         _guard_rig_gains(rig, top, settings)
     return settings
+
+
+def _hand(rig: RigSpec) -> HandModel | None:
+    """``[hand]`` (:mod:`hal.hand`), its joint one of the rig's and not a linear amplifier's."""
+    if "hand" not in rig.table:
+        return None
+    t = rig.table.table("hand")
+    hand = HandModel.from_table(t)
+    if hand.joint >= rig.n_joints:
+        raise t.error("joint", f"a joint of the rig (0..{rig.n_joints - 1})", hand.joint)
+    return hand
 
 
 #: a controlled stop's deceleration unless the rig file says (deg/s²): 30°/s to rest in 75 ms, over 1.1°

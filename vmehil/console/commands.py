@@ -26,6 +26,7 @@ from servo.control.errors import ControlError
 from servo.control.gains import GAIN_NAMES
 from servo.gain_guard import GainRejected, check_gain_change, check_gain_set
 from servo.named_controllers import DEFAULT_CONTROLLER, use_controller
+from vmehil.console import hand as fingers
 from vmehil.console.protocol import (
     ARGS,
     COLLISION,
@@ -1027,11 +1028,42 @@ def _shutdown(s: Session, a: dict[str, Any]) -> Outcome:
     return Outcome(ok=kv(state=loop_state(s.loop), category=int(category)))
 
 
+@atom("open", (Param("amps", FLOAT, None),), "open the fingers at a fixed current (A; default 0.5)")
+def _open(s: Session, a: dict[str, Any]) -> Outcome:
+    lines, ok, until = fingers.finger(s.loop, "open", a["amps"], s.source, _require_running)
+    return Outcome(lines, ok, until=until)
+
+
+@atom("close", (Param("amps", FLOAT, None),), "close the fingers at a fixed current (A; default 0.5): they stop "
+      "on an object")
+def _close(s: Session, a: dict[str, Any]) -> Outcome:
+    lines, ok, until = fingers.finger(s.loop, "close", a["amps"], s.source, _require_running)
+    return Outcome(lines, ok, until=until)
+
+
+@atom("squeeze", (Param("amps", FLOAT, None),), "squeeze the fingers at a fixed current (A; default 1.0)")
+def _squeeze(s: Session, a: dict[str, Any]) -> Outcome:
+    lines, ok, until = fingers.finger(s.loop, "squeeze", a["amps"], s.source, _require_running)
+    return Outcome(lines, ok, until=until)
+
+
+@atom("grasp", (Param("object", STRING, None),), "check the grasp: the tactile switches against the hand pot (and "
+      "the OBJECT's width); ERR GRASP when they disagree")
+def _grasp(s: Session, a: dict[str, Any]) -> Outcome:
+    return Outcome(ok=fingers.grasp(s.loop, a["object"]))
+
+
+@atom("weigh", (), "estimate the held object's mass from the joints' current monitors through the arm's Jacobian")
+def _weigh(s: Session, a: dict[str, Any]) -> Outcome:
+    return Outcome(ok=fingers.weigh(s.loop, s.source, _require_running))
+
+
 #: The atomic commands by name, in the order of ``help``.
 ATOMS: dict[str, Atom] = {a.name: a for a in (
     _help, _status, _move, _move_rel, _move_joint, _move_to, _stay, _gains, _controller, _filter, _mode, _stop,
     _estop, _enable, _run, _calibrate, _home, _jog, _log, _commands, _load, _cancel, _pause, _echo, _shutdown,
     _obstacle,
+    _open, _close, _squeeze, _grasp, _weigh,
 )}
 
 
