@@ -24,8 +24,9 @@ import numpy as np
 
 from hal.hand import GRAVITY_M_S2
 from servo.errors import ServoError
+from servo.trajectory.stay import Stay
 
-__all__ = ["ACTIONS", "DEFAULT_CURRENT_A", "HandCurrent", "HandError", "MassEstimate", "TorqueWindow",
+__all__ = ["ACTIONS", "DEFAULT_CURRENT_A", "HandCurrent", "HandError", "HandStay", "MassEstimate", "TorqueWindow",
            "check_grasp", "estimate_mass"]
 
 #: action → direction of the current (+ opens: the hand angle grows with the gap)
@@ -85,6 +86,17 @@ class HandCurrent:
         if math.isfinite(omega_rad_s) and omega_rad_s * math.copysign(1.0, i) > MAX_SPEED_RAD_S:
             return 0.0
         return i
+
+
+class HandStay(Stay):
+    """A motion file's hand move as the sequencer plays it: the arm holds its target for
+    ``duration`` s while the loop drives the hand by ``action`` at ``current_a`` (``None``: the
+    action's default) from the move's first tick (:meth:`servo.loop.ServoLoop.tick`)."""
+
+    def __init__(self, position: np.ndarray, duration: float, action: str, current_a: float | None) -> None:
+        super().__init__(position, duration)
+        self.hand_action = action
+        self.hand_current_a = current_a
 
 
 class TorqueWindow:

@@ -36,7 +36,7 @@ import numpy as np
 
 from hal.hand import HandModel
 from servo.control.objects import ControlContext, Controller, SwitchableController
-from servo.hand import HandCurrent, TorqueWindow
+from servo.hand import HandCurrent, HandError, HandStay, TorqueWindow
 from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_name
 from servo.io import JointIO, Measurement
 from servo.named_controllers import ControllerChoices
@@ -209,6 +209,8 @@ class ServoLoop:
         self.active_controller: list[int] = [0] * self.n
         #: the hand's current-command mode (servo.hand; ``None``: every joint by position)
         self.hand: HandCurrent | None = None
+        #: the hand move last started: each starts its command once
+        self._hand_move: HandStay | None = None
         #: the soft limit the hand is held at by position once its current drove it there (servo.hand)
         self.hand_hold_rad: float | None = None
         #: the hand's fingers (``[hand]``, set by servo.assembly.build_loop; ``None``: no hand)
@@ -692,13 +694,32 @@ class ServoLoop:
         ``vservo`` move) that the bounds refuse is not started: the joints hold where the previous
         move ended, and the refusal is noted (:attr:`refusals`)."""
         try:
-            return self.sequencer.sample(max(0.0, t - self._t_motion0))
+            sample = self.sequencer.sample(max(0.0, t - self._t_motion0))
         except MotionRefused as e:
             self.refusals.append(e)
             self.note("servo", str(e))
             hold = np.asarray(self.sequencer.current.end, float).copy()
             self.set_motion(Sequencer([], hold, self.plan_context or self.sequencer.ctx))
             return self.sequencer.sample(0.0)
+        current = self.sequencer.current
+        if isinstance(current, HandStay) and self._hand_move is not current:
+            self._hand_move = current  # a hand move starts: its command once
+            self._start_hand_move(current)
+        return sample
+
+    def _start_hand_move(self, move: HandStay) -> None:
+        """A motion file's hand move (servo.motion.HandMove): the hand by its current from now."""
+        if self.hand_model is None:
+            self.note("servo", f"hand move {move.hand_action}: this rig states no [hand]; ignored")
+            return
+        j = self.hand_model.joint
+        try:
+            cmd = HandCurrent.make(j, move.hand_action, move.hand_current_a, self.io.scaling[j].current_limit_a)
+        except HandError as e:
+            self.note("servo", f"hand move refused: {e}")
+            return
+        self.set_hand(cmd)
+        self.note("servo", f"hand {cmd.action} at {cmd.current_a:g} A")
 
     def _context(self, k: int, t: float, m: Measurement, sample):
         ctrl = self.controller.active

@@ -141,3 +141,22 @@ def test_a_close_on_nothing_is_err_grasp() -> None:
         assert e.value.code == "GRASP" and "closed on nothing" in e.value.message
     finally:
         r.close()
+
+
+def test_a_motion_files_hand_move_closes_the_fingers_on_the_object(tmp_path) -> None:
+    from servo.motion import load_motion
+
+    path = tmp_path / "grasp.toml"
+    path.write_text('[[move]]\ntype = "hand"\naction = "close"\ncurrent_a = 0.5\nduration_s = 2\n', encoding="utf-8")
+    r = Rig()
+    try:
+        motion = load_motion(path, 7)
+        r.runner.run(125)  # the arm settles on its gravity load first (it sags until the integrators take it)
+        held = np.asarray(r.loop.sequencer.current.end, float)  # the pots' view of where the arm is held
+        r.loop.set_motion(motion.sequencer(held, r.loop.plan_context))
+        r.runner.run(250)  # 2 s: 0.2 rad at the fingers' 0.5 rad/s top speed takes 0.4 s
+        assert r.switches() == [True, True]
+        assert 0.0395 <= r.gap_true_m() <= 0.0401
+        assert r.loop.fault is None
+    finally:
+        r.close()
