@@ -160,3 +160,28 @@ def test_a_motion_files_hand_move_closes_the_fingers_on_the_object(tmp_path) -> 
         assert r.loop.fault is None
     finally:
         r.close()
+
+
+def test_vmehil_run_closes_the_hand_on_the_scenes_object(tmp_path, monkeypatch) -> None:
+    from vmehil.cli import main
+    from vmehil.rig_setup import system as rig_system
+
+    scene = tmp_path / "grasp.scene.toml"  # at jpl-arm's tool point at its start pose (all joints 0)
+    scene.write_text('[[object]]\nname = "sample"\nwidth_m = 0.04\nmass_kg = 0.5\nstiffness_n_per_m = 5000.0\n'
+                     'position_m = [1.4, 0.0, 0.3]\n', encoding="utf-8")
+    motion = tmp_path / "grasp.toml"
+    motion.write_text('[[move]]\ntype = "wait"\nduration_s = 1\n[[move]]\ntype = "hand"\naction = "close"\n'
+                      'duration_s = 2\n', encoding="utf-8")
+    built = []
+    real_build = rig_system.build_emulated_rig
+
+    def keep(*args, **kwargs):
+        s = real_build(*args, **kwargs)
+        built.append(s)
+        return s
+
+    monkeypatch.setattr(rig_system, "build_emulated_rig", keep)
+    assert main(["run", "--motion", str(motion), "--scene", str(scene), "--quiet"]) == 0
+    (system,) = [s for s in built if s.grasp is not None]  # the run's rig (a probe rig plans the duration)
+    # the fingers stopped at the object's 40 mm (0.4 rad), not at the soft minimum (2°: 3.5 mm)
+    assert 0.39 <= float(system.plant.joint_angle()[HAND]) <= 0.401
