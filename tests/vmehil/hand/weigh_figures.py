@@ -38,7 +38,8 @@ def main() -> None:
         print(f"{pose_name:10s} {mass:7.2f} {seed:4d} {est:12.4f} {sigma:15.4f} {est - mass:+9.4f} {ratios[-1]:10.2f}")
     e = np.asarray(errors)
     print(f"rms error {np.sqrt(np.mean(e ** 2)):.4f} kg, max |error| {np.max(np.abs(e)):.4f} kg, "
-          f"max |error|/uncertainty {max(ratios):.2f}, within 1 uncertainty: {sum(x <= 1 for x in ratios)}/{len(ratios)}")
+          f"max |error|/uncertainty {max(ratios):.2f}, "
+          f"within 1 uncertainty: {sum(x <= 1 for x in ratios)}/{len(ratios)}")
 
 
 if __name__ == "__main__":
