@@ -309,7 +309,7 @@ def servo_settings(rig: RigSpec) -> ServoSettings:
 
 
 def _hand(rig: RigSpec) -> HandModel | None:
-    """``[hand]`` (:mod:`hal.hand`), its joint one of the rig's and not a linear amplifier's."""
+    """``[hand]`` (:mod:`hal.hand`), its joint one of the rig's."""
     if "hand" not in rig.table:
         return None
     t = rig.table.table("hand")

@@ -93,3 +93,23 @@ def test_a_bad_object_is_refused_naming_the_file(bad: dict) -> None:
            "position_m": [0.9, 0.0, 0.2], **bad}
     with pytest.raises(ConfigError, match="s.toml"):
         parse_scene(ConfigTable({"object": [obj]}, "s.toml"))
+
+
+def test_a_hand_table_with_an_unknown_key_is_refused() -> None:
+    from hal.hand import HandModel
+
+    with pytest.raises(ConfigError, match="grip"):
+        HandModel.from_table(ConfigTable({"joint": 6, "grip": 1.0}, "rig.toml", "hand"))
+
+
+def test_a_hand_joint_the_rig_has_not_is_refused(tmp_path) -> None:
+    from emulators.presets import resolve_rig
+    from servo.rig import load_rig
+    from servo.settings import servo_settings
+
+    text = resolve_rig("jpl-arm").read_text(encoding="utf-8")
+    path = tmp_path / "rig.toml"
+    path.write_text(text.replace("joint = 6                        # the hand joint", "joint = 9  # the hand joint", 1),
+                    encoding="utf-8")
+    with pytest.raises(ConfigError, match="a joint of the rig"):
+        servo_settings(load_rig(path))
