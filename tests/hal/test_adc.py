@@ -145,6 +145,18 @@ def _doc_gain_codes() -> dict[int, int]:
     return {int(r["gain"]): int(r["gain code"]) for r in doc_rows("adc", "gain code", "gain")}
 
 
+def test_range_names_and_the_array_conversion_at_gain_1_by_default() -> None:
+    for text in ("bipolar", " Unipolar ", "BIPOLAR_10V", "unipolar_10v"):
+        assert AdcRange.parse(text) is (AdcRange.UNIPOLAR_10V if "uni" in text.lower() else AdcRange.BIPOLAR_10V)
+    assert AdcRange.parse(AdcRange.UNIPOLAR_10V) is AdcRange.UNIPOLAR_10V
+    with pytest.raises(ValueError, match=r"^unknown ADC range 'tripolar'; expected 'bipolar' \(±10 V\) "
+                                         r"or 'unipolar' \(0\.\.10 V\)$"):
+        AdcRange.parse("tripolar")
+    # 0x000, 0x800, 0xC00 at gain 1: −10, 0, +5 V bipolar; 0, 5, 7.5 V unipolar (docs/boards/adc.md)
+    np.testing.assert_allclose(adc_codes_to_volts([0, 0x800, 0xC00], AdcRange.BIPOLAR_10V), [-10.0, 0.0, 5.0])
+    np.testing.assert_allclose(adc_codes_to_volts([0, 0x800, 0xC00], AdcRange.UNIPOLAR_10V), [0.0, 5.0, 7.5])
+
+
 def test_the_driver_register_map_is_the_docs_register_table() -> None:
     assert map_differences(ADC_REGMAP, doc_registers("adc"), who="driver") == []
 
