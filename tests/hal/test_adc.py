@@ -613,6 +613,16 @@ def test_scan_with_block_read_matches_single_conversions() -> None:
     assert list(adc.scan_counts(15)) == singles
 
 
+def test_a_repeated_scan_follows_a_new_calibration_and_a_new_range() -> None:
+    c, _, adc = make()
+    c.signals.set_analog("in0", 2.0)
+    assert adc.scan(0)[0] == pytest.approx(2.0, abs=LSB / 2)
+    adc.calibration = Calibration((0.5,) + (0.0,) * 15, (1.0,) * 16)  # the same scan, a new calibration
+    assert adc.scan(0)[0] == pytest.approx(1.5, abs=LSB / 2)
+    adc.set_range("unipolar")  # the same scan and calibration, a new range: code 819 is 2.0 V (not −6 V)
+    assert adc.scan(0)[0] == pytest.approx(1.5, abs=LSB / 4)
+
+
 def test_scan_of_a_channel_list_with_per_channel_gains() -> None:
     c, _, adc = make()
     c.signals.set_analog("in0", 0.3)
