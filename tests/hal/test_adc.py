@@ -40,6 +40,8 @@ from hal.adc_dac.conversions import (
     adc_lsb,
     adc_span,
     adc_volts_to_code,
+    dac_code_to_volts,
+    dac_volts_to_code,
     gain_code,
     gain_from_code,
 )
@@ -143,6 +145,22 @@ def _examples() -> list[tuple[AdcRange, int, float, int, float]]:
 def _doc_gain_codes() -> dict[int, int]:
     """The doc's gain table: gain → gain code."""
     return {int(r["gain"]): int(r["gain code"]) for r in doc_rows("adc", "gain code", "gain")}
+
+
+def test_conversions_default_to_gain_1_and_refuse_nan_and_codes_beyond_12_bits() -> None:
+    # docs/boards/adc.md: ±10 V at gain 1, LSB 20 V / 4096; 0..10 V, LSB 10 V / 4096
+    assert adc_code_to_volts(0xC00, AdcRange.BIPOLAR_10V) == 5.0
+    assert adc_lsb(AdcRange.BIPOLAR_10V) == 20.0 / 4096
+    assert adc_span(AdcRange.BIPOLAR_10V) == (-10.0, 10.0 - 20.0 / 4096)
+    assert adc_span(AdcRange.UNIPOLAR_10V) == (0.0, 10.0 - 10.0 / 4096)
+    with pytest.raises(ValueError, match=r"^ADC input is NaN$"):
+        adc_volts_to_code(math.nan, AdcRange.BIPOLAR_10V)
+    with pytest.raises(ValueError, match=r"^ADC code 4096 is outside 0\.\.0xFFF$"):
+        adc_code_to_volts(0x1000, AdcRange.BIPOLAR_10V)
+    with pytest.raises(ValueError, match=r"^DAC command is NaN$"):
+        dac_volts_to_code(math.nan)
+    with pytest.raises(ValueError, match=r"^DAC code -1 is outside 0\.\.0xFFF$"):
+        dac_code_to_volts(-1)
 
 
 def test_range_names_and_the_array_conversion_at_gain_1_by_default() -> None:

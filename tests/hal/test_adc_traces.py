@@ -306,6 +306,32 @@ def test_a_scan_that_never_finishes_names_the_scan_and_the_default_timeout() -> 
     assert str(ei.value).startswith("ADC scan of channels 0..3 did not finish within 1060 µs (CSR=0x0004); ")
 
 
+def test_an_interrupt_driven_wait_ends_at_its_deadline_too() -> None:
+    tc, tp = 2.0**-16, 2.0**-19  # as above: exact in binary, the deadline on the fourth check
+    bus = scripted({("A16", 0x6002): 0x0704})  # no interrupt ever comes
+    adc = AdcDriver(bus, BASE, conversion_time_s=tc, poll_interval_s=tp, timeout_s=3 * tp)
+    adc.enable_interrupts(level=3, vector=0x60)
+    bus.delays.clear()
+    with pytest.raises(AdcTimeoutError) as ei:
+        adc.read_counts(0)
+    assert bus.delays == [tc, tp, tp, tp]
+    assert ei.value.timeout_s == tc + 3 * tp
+    assert str(ei.value).startswith("ADC conversion of channel 0 (interrupt-driven) did not finish within 21 µs "
+                                    "(CSR=0x0704); ")
+
+
+def test_timeout_text_is_in_whole_microseconds() -> None:
+    assert "within 1500000 µs (CSR=0x0000)" in str(AdcTimeoutError("scan", 1.5, 0))
+
+
+def test_channel_and_scan_list_refusals_name_the_range() -> None:
+    adc = AdcDriver(scripted(), BASE)
+    with pytest.raises(ValueError, match=r"^ADC channel 16 is not 0\.\.15$"):
+        adc.read_counts(16)
+    with pytest.raises(ValueError, match=r"^scan needs at least one channel$"):
+        adc.scan([])
+
+
 def test_interrupt_levels_1_to_7_are_accepted_and_others_refused() -> None:
     bus = scripted()
     adc = AdcDriver(bus, BASE)

@@ -92,6 +92,10 @@ def test_commands_missed_and_clamped_are_counted() -> None:
     cmd = robot.step(0.011)
     assert cmd is not None and cmd.clamped and cmd.drot == pytest.approx((0.0, 0.0, -0.05))
     assert (robot.commands, robot.missed, robot.clamped) == (3, 3, 2)
+    vision.send(0.012, (0.001, 0.0, 0.0), (0.04, 0.0, 0.0))  # each within its own limit
+    cmd = robot.step(0.013)
+    assert cmd is not None and not cmd.clamped
+    assert cmd.dp == pytest.approx((0.001, 0.0, 0.0)) and cmd.drot == pytest.approx((0.04, 0.0, 0.0))
 
 
 def test_a_command_begun_when_servoing_starts_is_taken_once_complete() -> None:
@@ -172,6 +176,8 @@ def test_record_versions_above_2_to_the_31_and_the_wrap_to_1() -> None:
     assert buf[0:4] == bytes.fromhex("FFFFFFFE") and buf[12:16] == bytes.fromhex("FFFFFFFE")
     assert w.write(b"efgh") == 0xFFFFFFFF  # slot 1
     assert r.read() == (0xFFFFFFFF, b"efgh")
+    r.resume()
+    assert r.seq == 0xFFFFFFFF
     assert w.write(b"ijkl") == 1  # 0 is never a version: the count goes on at 1 (slot 1)
     assert r.read() == (1, b"ijkl")
     r.resume()

@@ -293,6 +293,7 @@ def test_memory_views_default_to_the_rest_of_the_window() -> None:
     m = Bit3WindowMemory(drv)
     assert (m.base, m.size) == (0, 0x1000)
     assert Bit3WindowMemory(drv, 0x100, 8).size == 8
+    assert Bit3WindowMemory(drv, 0x100).size == 0xF00
 
 
 def test_a_failed_window_cycle_is_explained_with_the_status_in_full() -> None:
@@ -322,3 +323,13 @@ def test_a_failed_window_cycle_with_status_unreadable_says_so() -> None:
                              "check cable and remote power, then reset_link()")
     with pytest.raises(LinkDownError, match=r"^BIT3 window \+0x4: link down"):
         drv.read_block(4, 1)
+
+
+def test_a_failed_block_write_is_a_link_error_too() -> None:
+    link = Bit3Link(0x1000)  # the remote crate never powered on
+    crate = Crate()
+    crate.install(Bit3Board("bit3", link, window_base=WIN), base=CSR, space="A16")
+    drv = Bit3Driver(crate, CSR, WIN, window_size=0x1000)
+    with pytest.raises(LinkDownError, match=r"^BIT3 window \+0x10: link down") as ei:
+        drv.write_block(0x10, [1, 2])
+    assert ei.value.bus_error is not None and ei.value.bus_error.address == WIN + 0x10

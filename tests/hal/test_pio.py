@@ -381,6 +381,14 @@ def test_driver_register_map_matches_the_doc() -> None:
     assert map_differences(PIO_REGS, doc_registers("pio"), who="hal.pio") == []
 
 
+def test_pin_names_are_p_port_and_bit_0_to_7() -> None:
+    assert [pio_regs.parse_line(p) for p in ("PA0", " pb3 ", "PC7")] == [(0, 0), (1, 3), (2, 7)]
+    for bad in ("PAX", "PA8", "PD0", "PA", "PA00", "QA0"):
+        with pytest.raises(ValueError, match=rf"^{bad!r} is not a PIO line; expected PA0\.\.PA7, PB0\.\.PB7 "
+                                             r"or PC0\.\.PC7$"):
+            pio_regs.parse_line(bad)
+
+
 def test_port_register_builder_gives_the_doc_s_fifteen_port_registers() -> None:
     # PIO_REGS is built at import, before any test; calling the builder here checks what it
     # makes as it runs now (a mutation tester's changes to it take effect only so)

@@ -499,3 +499,18 @@ def test_a_board_with_another_id_is_named_in_full() -> None:
     with pytest.raises(PioBoardIdError, match=r"^no parallel I/O board at 0x4000: ID register reads 0xAD16, "
                                               r"expected 0x5001; check the base address in the crate/rig file$"):
         _driver(bus).probe()
+
+
+def test_the_handler_goes_on_past_a_port_with_nothing_pending() -> None:
+    bus = _scripted({0x4012: 0x00, 0x4013: 0x02, 0x400B: 0x02}, wires=False)  # port A quiet, PB1 changed
+    d = _driver(bus)
+    seen: list[tuple[str, bool]] = []
+    d.on_change("PA4", lambda n, v: seen.append((n, v)))
+    d.on_change("PB1", lambda n, v: seen.append((n, v)))
+    bus.clear()
+    handler = bus.irq_handler(0x60)
+    assert handler is not None
+    handler(0x60)
+    assert bus.trace() == ["R A16 0x4012 D8 0x00", "R A16 0x4013 D8 0x02", "W A16 0x4013 D8 0x02",
+                           "R A16 0x400B D8 0x02"]
+    assert seen == [("PB1", True)]

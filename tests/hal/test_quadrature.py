@@ -457,6 +457,11 @@ def test_counter_jump_fault_is_caught_by_the_plausibility_limit() -> None:
     assert b.ch[0].status & 0b1000 == 0  # and the driver consumed the underflow flag while unwrapping
 
 
+def test_each_reading_of_update_names_its_channel() -> None:
+    _, _, d = _rig(channels=(0, 2))
+    assert [(ch, r.channel) for ch, r in d.update(0.008).items()] == [(0, 0), (2, 2)]
+
+
 def test_a_jump_seen_by_velocity_of_one_channel_names_that_channel() -> None:
     c, _, d = _rig(channels=(1,), max_counts_per_tick=1000)
     d.velocity(1, 0.008)

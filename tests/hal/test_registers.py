@@ -94,6 +94,8 @@ def test_map_refuses_overlapping_registers_and_accepts_neighbours() -> None:
     m = _map(Register("A", 0x00, Width.D16, Access.RW), Register("B", 0x02, Width.D16, Access.RW),
              Register("C", 0x04, Width.D8, Access.RW), Register("D", 0x05, Width.D8, Access.RW))
     assert m.containing(0x05).name == "D"
+    m = _map(Register("HI", 0x02, Width.D16, Access.RW), Register("LO", 0x00, Width.D16, Access.RW))  # any order
+    assert (m.at(0).name, m.at(2).name) == ("LO", "HI")
     with pytest.raises(ValueError, match=r"^toy: registers A and B overlap$"):
         _map(Register("A", 0x00, Width.D32, Access.RW), Register("B", 0x02, Width.D16, Access.RW))
     with pytest.raises(ValueError, match=r"^toy: registers A and B overlap$"):
