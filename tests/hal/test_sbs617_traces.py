@@ -14,8 +14,10 @@ import pytest
 from emulators.bit3 import Bit3RemotePort
 from emulators.crate import Crate
 from emulators.sbs617 import Sbs617Card
-from hal.bit3 import Bit3Error, LinkDownError, RemoteBusError, Sbs617Driver
-from hal.vme import Width
+from hal.bit3 import Bit3Error, LinkDownError, RemoteBusError, Sbs617Driver, sbs617_regs
+from hal.bit3.sbs617 import probe_sbs617
+from hal.vme import AddressSpace, Width
+from hal.vme.registers import Access, Field, Register
 from tests.support.bus_trace import Answer, RecordingBus
 
 NODE, MAPS, WIN = 0x80000000, 0x80010000, 0x82000000
@@ -193,3 +195,81 @@ def test_remote_power_off_on_the_emulated_card_reads_all_ones_and_0x05() -> None
     with pytest.raises(LinkDownError):
         drv.read(0x10)
     assert bus.trace() == ["R A32 0x82000010 D32 0xFFFFFFFF", "R A32 0x80000002 D8 0x05", CLEAR_ERRORS]
+
+
+# --- the dry pass's probe, the register helper, edges ----------------------------------------------
+@pytest.mark.parametrize(("lsr", "ctrl", "ok", "text"), [
+    (0x00, 0x00, True, "LOC_STATUS 0x00 (remote connected), LOC_INT_CTRL 0x00; no ID register"),
+    (0x01, 0x00, True, "LOC_STATUS 0x01 (remote crate off or cable out), LOC_INT_CTRL 0x00; no ID register"),
+    (0xF6, 0xE7, True, "LOC_STATUS 0xF6 (remote connected), LOC_INT_CTRL 0xE7; no ID register"),  # every other bit
+    (0x08, 0x00, False, "LOC_STATUS 0x08, LOC_INT_CTRL 0x00: bits the 617 reads as 0 are set"),  # LOC_STATUS bit 3
+    (0x00, 0x10, False, "LOC_STATUS 0x00, LOC_INT_CTRL 0x10: bits the 617 reads as 0 are set"),  # LOC_INT_CTRL bit 4
+    (0x00, 0x08, False, "LOC_STATUS 0x00, LOC_INT_CTRL 0x08: bits the 617 reads as 0 are set"),  # LOC_INT_CTRL bit 3
+])
+def test_the_dry_pass_probe_reads_the_bits_that_must_be_0(lsr: int, ctrl: int, ok: bool, text: str) -> None:
+    bus = RecordingBus(answers={("A32", NODE + 2): lsr, ("A32", NODE + 1): ctrl})
+    got = probe_sbs617(bus, NODE, AddressSpace.A32)
+    assert (got.ok, got.detail) == (ok, text)
+    assert bus.trace() == [f"R A32 0x80000002 D8 0x{lsr:02X}", f"R A32 0x80000001 D8 0x{ctrl:02X}"]
+
+
+def test_the_dry_pass_probe_of_nothing_says_the_card_is_pci() -> None:
+    got = probe_sbs617(RecordingBus(answers={}), NODE, AddressSpace.A32)
+    assert not got.ok
+    assert got.detail.startswith("BusError: ") and got.detail.endswith(
+        " (the SBS 617 is a PCI card: its registers are the host's PCI BARs, not VME addresses)")
+
+
+def test_node_registers_are_single_bytes() -> None:
+    f = Field("X", 1, 2)
+    assert sbs617_regs._r("R", 0x05, Access.RO, f, reset=0x12, doc="d") == Register(
+        "R", 0x05, Width.D8, Access.RO, fields=(f,), reset=0x12, doc="d")
+    assert sbs617_regs._r("S", 0x06, Access.RW) == Register("S", 0x06, Width.D8, Access.RW)
+
+
+def test_driver_refuses_irq_levels_vectors_and_sizes_out_of_range() -> None:
+    bus = RecordingBus(answers={})
+    kw = {"remote_base": 0x400000}
+    for level, vector in ((1, 0x00), (7, 0xFF)):
+        Sbs617Driver(bus, NODE, MAPS, WIN, irq_level=level, irq_vector=vector, **kw)
+    for level, vector in ((0, 0xB3), (8, 0xB3), (3, -1), (3, 0x100)):
+        with pytest.raises(ValueError, match=rf"^IRQ level {level} must be 1\.\.7 and vector {vector} 0\.\.255$"):
+            Sbs617Driver(bus, NODE, MAPS, WIN, irq_level=level, irq_vector=vector, **kw)
+    Sbs617Driver(bus, NODE, MAPS, WIN, mem_size=1, **kw)
+    with pytest.raises(ValueError, match=r"^remote base 0x400000 must be 4 KiB aligned and 0 < mem_size <= 32 MiB$"):
+        Sbs617Driver(bus, NODE, MAPS, WIN, mem_size=0, **kw)
+
+
+def test_longer_transfers_step_four_bytes_a_word() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x00, window_1=0x01, window_2=0x02, window_3=0x03, window_4=0x04050607,
+                         window_8=0x08090A0B, window_C=0x0C)
+    assert drv.read_bytes(1, 12) == bytes(range(1, 13))
+    assert bus.trace() == ["R A32 0x82000001 D8 0x01", "R A32 0x82000002 D8 0x02", "R A32 0x82000003 D8 0x03",
+                           "R A32 0x82000004 D32 0x04050607", "R A32 0x82000008 D32 0x08090A0B",
+                           "R A32 0x8200000C D8 0x0C", LSR_OK]
+    bus.clear()
+    drv.write_bytes(1, bytes(range(1, 13)))
+    assert bus.trace() == ["W A32 0x82000001 D8 0x01", "W A32 0x82000002 D8 0x02", "W A32 0x82000003 D8 0x03",
+                           "W A32 0x82000004 D32 0x04050607", "W A32 0x82000008 D32 0x08090A0B",
+                           "W A32 0x8200000C D8 0x0C", LSR_OK]
+
+
+def test_ring_doorbell_default_and_an_interrupt_without_pr_only_reads() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x00)
+    drv.ring_doorbell()
+    assert bus.trace() == ["W A32 0x80000008 D8 0x20", LSR_OK]
+    got: list[int] = []
+    drv.on_doorbell(got.append)
+    bus.clear()
+    handler = bus.irq_handler(0xB3)
+    assert handler is not None
+    handler(0xB3)  # LOC_STATUS 0x00: no PR interrupt pending
+    assert bus.trace() == [LSR_OK] and got == []
+
+
+def test_each_status_error_counts() -> None:
+    _bus, drv = _scripted(LOC_STATUS=0x40)
+    for _ in range(2):
+        with pytest.raises(RemoteBusError):
+            drv.write(0, 1, Width.D8)
+    assert drv.errors == 2
