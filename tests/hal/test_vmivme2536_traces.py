@@ -254,3 +254,19 @@ def test_the_dry_pass_probe_refuses_an_empty_slot_and_the_reference_pio() -> Non
     c.install(PioBoard("pio0"), base=BASE, space="A16", slot=5)
     reading = probe(c, BASE, AddressSpace.A16)  # ID 0x5001 answers at D16; DDR_A (0x02) is D8 only
     assert not reading.ok and "CSR: BusError" in reading.detail and reading.id_read == 0x5001
+
+
+def test_read_pins_replaces_only_each_looped_back_bit_at_its_place() -> None:
+    bus = _scripted({BASE + 0x04: 0x0010_0000})  # IN20 high, the loopback of OUT5
+    d = _driver(bus, loopback={"OUT5": "IN20"})
+    d.write_port("OUT", 0x0000_0040)  # latch: OUT6 high (not looped back), OUT5 low
+    assert d.read_pins("OUT") == 0x0000_0060  # OUT5's wire is high; OUT6 is the latch's
+
+
+def test_verify_outputs_lists_each_latch_bit_that_reads_back_wrong_with_its_level() -> None:
+    bus = _scripted({BASE + 0x08: 0x0000_000A}, latch=False)  # OUTPUT reads OUT1 and OUT3 high
+    d = _driver(bus)
+    d.write_port("OUT", 0x0000_0022)  # the driver's copy: OUT1 and OUT5 high
+    with pytest.raises(LineStuckError) as ei:
+        d.verify_outputs()
+    assert ei.value.lines == {"OUT3": True, "OUT5": False}  # stuck high, stuck low

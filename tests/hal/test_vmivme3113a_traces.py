@@ -14,7 +14,7 @@ import pytest
 from emulators.crate import Crate
 from emulators.vmivme3113a import Vmivme3113aBoard
 from hal.adc_dac import AdcTimeoutError, BoardIdError, Calibration
-from hal.adc_dac.vmivme3113a import Vmivme3113aDriver
+from hal.adc_dac.vmivme3113a import Vmi3113aStatus, Vmivme3113aDriver
 from hal.vme import BusError
 from tests.support.bus_trace import Answer, RecordingBus
 
@@ -171,3 +171,17 @@ def test_through_the_crate_a_read_shows_an_input_step_only_after_fresh_after_s()
     assert drv.read_counts(0) == 0x800  # the same conversion: the board has not converted channel 0 again
     c.delay(drv.fresh_after_s)
     assert drv.read_counts(0) == 0xC00  # +5 V on ±10 V
+
+
+@pytest.mark.parametrize(("csr", "decoded"), [
+    # (new_data_ready, end_of_scan, fail_led_off, twos_complement), docs/boards/vmivme-3113a.md CSR bits 15..12
+    (0x0000, (False, False, False, False)),
+    (0x8000, (True, False, False, False)),
+    (0x4000, (False, False, True, False)),
+    (0x2000, (False, True, False, False)),
+    (0x1000, (False, False, False, True)),
+    (0x0FFF, (False, False, False, False)),
+])
+def test_each_csr_status_bit_decodes_alone(csr: int, decoded: tuple) -> None:
+    s = Vmi3113aStatus.decode(csr)
+    assert (s.new_data_ready, s.end_of_scan, s.fail_led_off, s.twos_complement) == decoded
