@@ -9,6 +9,8 @@ the doc says the card would; the forwarding bus runs the driver on a crate with 
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from emulators.bit3 import Bit3RemotePort
@@ -273,3 +275,72 @@ def test_each_status_error_counts() -> None:
         with pytest.raises(RemoteBusError):
             drv.write(0, 1, Width.D8)
     assert drv.errors == 2
+
+
+def test_status_errors_are_explained_in_full_and_carry_the_status() -> None:
+    _bus, drv = _scripted(LOC_STATUS=0x04, window_10=0)
+    with pytest.raises(LinkDownError) as ei:
+        drv.read(0x10)
+    assert ei.value.status == 0x04
+    assert str(ei.value) == ("SBS 617 read +0x10: link down (LOC_STATUS=0x04 no_connect=0 timeout=1 rembus=0 parity=0 "
+                             "lrc=0); check the cable and the remote crate's power, then reset_link()")
+    _bus, drv = _scripted(LOC_STATUS=0xC2)
+    with pytest.raises(RemoteBusError) as ei2:
+        drv.write_bytes(0x20, b"\x01\x02")
+    assert ei2.value.status == 0xC2 and ei2.value.bus_error is None
+    assert str(ei2.value) == ("SBS 617 write +0x20..+0x22: remote bus error (LOC_STATUS=0xC2 no_connect=0 timeout=0 "
+                              "rembus=1 parity=1 lrc=1); the error is cleared")
+    _bus, drv = _scripted(LOC_STATUS=0x40, window_8=0)
+    with pytest.raises(RemoteBusError, match=r"^SBS 617 read \+0x8\.\.\+0xC: remote bus error"):
+        drv.read_bytes(8, 4)
+    _bus, drv = _scripted(LOC_STATUS=0x40)
+    with pytest.raises(RemoteBusError, match=r"^SBS 617 write \+0x4: remote bus error"):
+        drv.write(4, 0)
+    _bus, drv = _scripted(LOC_STATUS=0x40)
+    with pytest.raises(RemoteBusError, match=r"^SBS 617 ring: remote bus error"):
+        drv.ring_doorbell()
+    assert drv.status().errors == 1
+
+
+def test_a_failed_host_cycle_names_the_operation() -> None:
+    bus = RecordingBus(answers={})  # nothing answers a read: the host's bus fails, not the link
+    drv = Sbs617Driver(bus, NODE, MAPS, WIN, remote_base=0x400000)
+    for call, what in ((lambda: drv.read(0x10), "read +0x10"), (lambda: drv.read_bytes(0x10, 4), "read +0x10")):
+        with pytest.raises(LinkDownError, match=rf"^SBS 617 {re.escape(what)}: the host's bus failed \(") as ei:
+            call()
+        assert ei.value.bus_error is not None and ei.value.status is None
+
+
+def test_probe_with_the_remote_off_says_so_in_full() -> None:
+    _bus, drv = _scripted(LOC_STATUS=0x01)
+    with pytest.raises(LinkDownError) as ei:
+        drv.probe()
+    assert ei.value.status == 0x01
+    assert str(ei.value) == ("SBS 617 at 0x80000000: not connected (LOC_STATUS=0x01): the remote crate is off or "
+                             "the cable is out")
+
+
+def test_window_limits_of_the_default_4_kib_memory() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x00, window_FFC=0x01020304)
+    assert drv.read(0xFFC) == 0x01020304  # the last word of 0x1000 bytes
+    for offset, width in ((0xFFD, Width.D32), (0x1000, Width.D8), (-1, Width.D8)):
+        with pytest.raises(ValueError, match=r"outside the 0x1000-byte memory$"):
+            drv.read(offset, width)
+    with pytest.raises(ValueError, match=r"^window access 0xffe\.\.0x1002 outside the 0x1000-byte memory$"):
+        drv.write_bytes(0xFFE, b"abcd")
+    Sbs617Driver(bus, NODE, MAPS, WIN, remote_base=0x400000, mem_size=32 << 20)  # the whole window
+    with pytest.raises(ValueError, match=r"^remote base 0x400000 must be 4 KiB aligned"):
+        Sbs617Driver(bus, NODE, MAPS, WIN, remote_base=0x400000, mem_size=(32 << 20) + 1)
+    with pytest.raises(ValueError, match=r"^the remote memory must be in A24 or A32, not A16$"):
+        Sbs617Driver(bus, NODE, MAPS, WIN, remote_base=0x4000, remote_space="A16")
+    assert Sbs617Driver(bus, NODE, MAPS, WIN, remote_base=0x400000).irq_level == 3
+
+
+def test_an_interrupt_with_a_latched_error_clears_it() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x44)  # remote BERR and timeout latched, no PR
+    drv.on_doorbell(lambda code: None)
+    bus.clear()
+    handler = bus.irq_handler(0xB3)
+    assert handler is not None
+    handler(0xB3)
+    assert bus.trace() == ["R A32 0x80000002 D8 0x44", CLEAR_ERRORS]
