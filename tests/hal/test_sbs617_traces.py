@@ -17,7 +17,7 @@ from emulators.bit3 import Bit3RemotePort
 from emulators.crate import Crate
 from emulators.sbs617 import Sbs617Card
 from hal.bit3 import Bit3Error, LinkDownError, RemoteBusError, Sbs617Driver, sbs617_regs
-from hal.bit3.sbs617 import probe_sbs617
+from hal.bit3.sbs617 import Sbs617WindowMemory, probe_sbs617
 from hal.vme import AddressSpace, Width
 from hal.vme.registers import Access, Field, Register
 from tests.support.bus_trace import Answer, RecordingBus
@@ -217,7 +217,7 @@ def test_the_dry_pass_probe_reads_the_bits_that_must_be_0(lsr: int, ctrl: int, o
 
 def test_the_dry_pass_probe_of_nothing_says_the_card_is_pci() -> None:
     got = probe_sbs617(RecordingBus(answers={}), NODE, AddressSpace.A32)
-    assert not got.ok
+    assert got.ok is False
     assert got.detail.startswith("BusError: ") and got.detail.endswith(
         " (the SBS 617 is a PCI card: its registers are the host's PCI BARs, not VME addresses)")
 
@@ -344,3 +344,24 @@ def test_an_interrupt_with_a_latched_error_clears_it() -> None:
     assert handler is not None
     handler(0xB3)
     assert bus.trace() == ["R A32 0x80000002 D8 0x44", CLEAR_ERRORS]
+
+
+def test_memory_views_default_to_the_rest_of_the_memory_and_go_through_the_window() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x00, window_44=0x11223344)  # 0x1000 bytes of remote memory
+    assert (drv.memory(0x40).base, drv.memory(0x40).size) == (0x40, 0xFC0)
+    assert drv.memory(0x40, 0x10).size == 0x10
+    assert (Sbs617WindowMemory(drv).base, Sbs617WindowMemory(drv).size) == (0, 0x1000)
+    assert Sbs617WindowMemory(drv, 0x100).size == 0xF00
+    view = drv.memory(0x40)
+    assert view.read(4, 4) == bytes([0x11, 0x22, 0x33, 0x44])
+    view.write(8, b"VSM1")
+    assert bus.trace() == ["R A32 0x82000044 D32 0x11223344", LSR_OK, "W A32 0x82000048 D32 0x56534D31", LSR_OK]
+
+
+def test_a_failed_host_write_names_the_operation() -> None:
+    drv = Sbs617Driver(Crate(), NODE, MAPS, WIN, remote_base=0x400000)  # an empty crate: every cycle fails
+    for call, what in ((lambda: drv.write(0x10, 1), "write +0x10"), (lambda: drv.write_bytes(0x10, b"abcd"),
+                                                                     "write +0x10"), (drv.ring_doorbell, "ring")):
+        with pytest.raises(LinkDownError, match=rf"^SBS 617 {re.escape(what)}: the host's bus failed \(") as ei:
+            call()
+        assert ei.value.bus_error is not None and ei.value.status is None

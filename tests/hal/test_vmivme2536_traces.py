@@ -346,8 +346,8 @@ def test_after_reset_the_next_line_write_starts_from_an_all_low_latch() -> None:
     d.write_port("OUT", 0x0000_00F0)
     d.reset()
     bus.clear()
-    d.set_line("j1.amp_enable", True, verify=False)
-    assert bus.trace() == ["W A16 0xFF08 D32 0x00000001"]
+    d.set_line("j2.amp_enable", True, verify=False)  # OUT1
+    assert bus.trace() == ["W A16 0xFF08 D32 0x00000002"]
 
 
 def test_stuck_lines_report_the_level_they_read() -> None:
@@ -361,3 +361,16 @@ def test_stuck_lines_report_the_level_they_read() -> None:
     with pytest.raises(LineStuckError) as ei:
         d.verify_outputs()
     assert ei.value.lines == {"j2.amp_enable": True}
+
+
+def test_is_output_is_the_port_of_the_line() -> None:
+    d = _driver(_scripted())
+    assert [d.is_output(n) for n in ("j1.amp_enable", "watchdog", "j1.amp_fault", "IN31")] == [True, True, False, False]
+
+
+def test_the_dry_pass_probe_reads_in_the_space_it_is_given() -> None:
+    bus = RecordingBus(answers={("A24", 0x80FF00 + o): v for o, v in ((0, 0x2536), (2, 0), (4, 0), (8, 0))})
+    probe = BOARD_TYPES["vmivme-2536"].load_probe()
+    assert probe is not None
+    assert probe(bus, 0x80FF00, AddressSpace.A24).ok is True
+    assert bus.trace()[0] == "R A24 0x80FF00 D16 0x2536"

@@ -15,6 +15,7 @@ from emulators.crate import Crate
 from emulators.vmivme3113a import Vmivme3113aBoard
 from hal.adc_dac import AdcTimeoutError, BoardIdError, Calibration
 from hal.adc_dac.vmivme3113a import Vmi3113aStatus, Vmivme3113aDriver
+from hal.adc_dac.vmivme3113a_format import Vmi3113aFormat, Vmi3113aRange, volts_from_code, volts_from_codes
 from hal.vme import BusError
 from tests.support.bus_trace import Answer, RecordingBus
 
@@ -222,3 +223,18 @@ def test_refusals_name_the_board_and_the_limit() -> None:
     with pytest.raises(ValueError, match=r"^VMIVME-3113A gain 2: the board has gain 1 only \(its range is set by "
                                          r"jumpers\)$"):
         drv.scan_counts(3, gain=2)  # ... and a gain other than 1 is still refused
+
+
+def test_the_format_helpers_convert_arrays_and_refuse_what_they_do_not_know() -> None:
+    # docs/boards/vmivme-3113a.md: 12-bit offset binary; ±10 V: LSB 20 V / 4096; 0..10 V: 10 V / 4096
+    np.testing.assert_allclose(volts_from_codes(np.array([0, 0x800, 0xC00]), Vmi3113aRange.BIPOLAR_10V),
+                               [-10.0, 0.0, 5.0])
+    np.testing.assert_allclose(volts_from_codes([0, 0x800], Vmi3113aRange.UNIPOLAR_10V), [0.0, 5.0])
+    with pytest.raises(ValueError, match=r"^VMIVME-3113A code 4096 is outside 0\.\.0xFFF$"):
+        volts_from_code(0x1000, Vmi3113aRange.BIPOLAR_10V)
+    with pytest.raises(ValueError, match=r"^unknown VMIVME-3113A data format 'gray'; expected offset_binary or "
+                                         r"twos_complement$"):
+        Vmi3113aFormat.parse("gray")
+    with pytest.raises(ValueError, match=r"^unknown VMIVME-3113A input range 'x'; expected one of bipolar_10v, "
+                                         r"bipolar_5v, unipolar_10v$"):
+        Vmi3113aRange.parse("x")

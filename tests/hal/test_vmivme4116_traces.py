@@ -39,7 +39,8 @@ def test_probe_reads_the_csr_and_writes_nothing() -> None:
     assert (reading.id_expected, reading.id_read) == (None, None)
     assert bus.trace() == ["R A16 0x7010 D16 0x4100"]
     nothing = RecordingBus(answers={})
-    assert not probe_vmivme4116(nothing, BASE).ok
+    refused = probe_vmivme4116(nothing, BASE)
+    assert refused.ok is False and refused.detail.startswith("BusError: bus error on D16 read at A16 0x7010")
     assert nothing.trace() == []  # the refused read is no completed cycle
 
 
