@@ -365,3 +365,17 @@ def test_a_failed_host_write_names_the_operation() -> None:
         with pytest.raises(LinkDownError, match=rf"^SBS 617 {re.escape(what)}: the host's bus failed \(") as ei:
             call()
         assert ei.value.bus_error is not None and ei.value.status is None
+
+
+def test_defaults_4_kib_of_remote_memory_and_a_second_doorbell_callback_replaces_the_first() -> None:
+    bus, _ = _scripted(LOC_STATUS=0x20)
+    drv = Sbs617Driver(bus, NODE, MAPS, WIN, remote_base=0x400000)
+    assert drv.window_size == 0x1000
+    first: list[int] = []
+    second: list[int] = []
+    drv.on_doorbell(first.append)
+    drv.on_doorbell(second.append)
+    handler = bus.irq_handler(0xB3)
+    assert handler is not None
+    handler(0xB3)
+    assert (first, second) == ([], [0])

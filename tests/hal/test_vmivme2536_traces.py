@@ -374,3 +374,10 @@ def test_the_dry_pass_probe_reads_in_the_space_it_is_given() -> None:
     assert probe is not None
     assert probe(bus, 0x80FF00, AddressSpace.A24).ok is True
     assert bus.trace()[0] == "R A24 0x80FF00 D16 0x2536"
+
+
+def test_the_dry_pass_probe_of_an_empty_slot_has_read_no_id() -> None:
+    probe = BOARD_TYPES["vmivme-2536"].load_probe()
+    assert probe is not None
+    reading = probe(RecordingBus(answers={}), BASE, AddressSpace.A16)
+    assert reading.ok is False and reading.id_read is None and reading.detail.startswith("BID: BusError: ")

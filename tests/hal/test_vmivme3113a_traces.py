@@ -238,3 +238,9 @@ def test_the_format_helpers_convert_arrays_and_refuse_what_they_do_not_know() ->
     with pytest.raises(ValueError, match=r"^unknown VMIVME-3113A input range 'x'; expected one of bipolar_10v, "
                                          r"bipolar_5v, unipolar_10v$"):
         Vmi3113aRange.parse("x")
+
+
+def test_a_single_read_in_twos_complement_gives_the_offset_binary_code() -> None:
+    # the doc: bit 11 inverted and copied into bits 15:12; 0x0000 is mid-scale, 0xF800 the bottom
+    _, drv = opened({("A16", 0x8580): 0x0000, ("A16", 0x8582): 0xF800}, data_format="twos_complement")
+    assert (drv.read_counts(0), drv.read_counts(1)) == (0x800, 0x000)
