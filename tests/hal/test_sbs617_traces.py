@@ -348,6 +348,7 @@ def test_an_interrupt_with_a_latched_error_clears_it() -> None:
 
 def test_memory_views_default_to_the_rest_of_the_memory_and_go_through_the_window() -> None:
     bus, drv = _scripted(LOC_STATUS=0x00, window_44=0x11223344)  # 0x1000 bytes of remote memory
+    assert (drv.memory().base, drv.memory().size) == (0, 0x1000)
     assert (drv.memory(0x40).base, drv.memory(0x40).size) == (0x40, 0xFC0)
     assert drv.memory(0x40, 0x10).size == 0x10
     assert (Sbs617WindowMemory(drv).base, Sbs617WindowMemory(drv).size) == (0, 0x1000)
