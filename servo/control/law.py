@@ -94,7 +94,7 @@ class SwitchOffConfig:
         for j in range(n):
             if not outer[j] > inner[j]:
                 raise GainError("switch_off.outer_band", float(outer[j]),
-                                f"a band wider than inner_band ({inner[j]!r} rad) for hysteresis", j)
+                                f"a band wider than inner_band ({float(inner[j])!r} rad) for hysteresis", j)
             if not np.isnan(boost[j]) and boost[j] < 1.0:
                 raise GainError("switch_off.kp_boost", float(boost[j]), "a factor >= 1 (or auto)", j)
         return cls(en, inner, outer, boost, settle, zc)
