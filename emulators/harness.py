@@ -69,6 +69,8 @@ class JointNets:
     tach: str | None = None
     imon: str | None = None
     encoder: str | None = None
+    tactile_left: str | None = None  # the fingers' tactile switches: driven by emulators.grasp, not the plant
+    tactile_right: str | None = None
 
 
 class Harness:

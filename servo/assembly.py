@@ -38,7 +38,8 @@ def build_controller(settings: ServoSettings) -> Controller:
     objects: list[BaseControlObject] = []
     for name in settings.objects:
         if name == "pid":
-            objects.append(PidObject(PidLaw(settings.n, settings.period_s, settings.gains, settings.switch_off)))
+            objects.append(PidObject(PidLaw(settings.n, settings.period_s, settings.gains, settings.switch_off,
+                                            settings.filter_hz if settings.velocity_filter_hz else None)))
         elif name == "torque_limit":
             objects.append(TorqueLimit(np.asarray(settings.torque_limit_nm, float)))
         else:  # another object: its defaults ([servo] gives them no table)
@@ -113,6 +114,10 @@ def build_loop(plant: PlantBoundary, io: JointIO, settings: ServoSettings, *, mo
                      plan_context=plan_context(settings, bounds=bounds))
     loop.stop_settings = settings.stop
     loop.require_homing = settings.require_homing
+    if settings.controllers is not None:  # the named controllers per joint, the rig's default active
+        loop.controllers = settings.controllers
+        loop.active_controller = list(settings.controllers.start)
+    loop.hand_model = settings.hand
     # always kept: the last seconds before any stop (servo.blackbox; no bus access of its own)
     loop.blackbox = BlackBox(settings.n, settings.period_s, settings.joint_names, seconds=settings.blackbox_s)
     # an emulated rig's free-running plant: its answers may skip or repeat plant steps

@@ -60,6 +60,7 @@ from servo.control.errors import GainRejected
 from servo.control.gains import GAIN_NAMES, Gains, gain_value_problem
 from servo.control.law import switched_off_kp
 from servo.control.linear import sampled_loop_matrix
+from servo.control.velocity_filter import VelocityFilter
 
 __all__ = ["GAIN_MAX", "MIN_MARGIN_FLOOR", "GainRejected", "GainVerdict", "check_gain_change", "check_gain_set",
            "check_values",
@@ -123,15 +124,22 @@ def check_values(changes: Mapping[str, Any], joint: int | None = None) -> dict[s
 
 
 # ---- the sampled loop ----------------------------------------------------------------------------------
-def loop_poles(kp: float, kpi: float, kv: float, kvi: float, period_s: float, delay: float = 0.0) -> np.ndarray:
+def loop_poles(kp: float, kpi: float, kv: float, kvi: float, period_s: float, delay: float = 0.0,
+               filter_alpha: float | None = None) -> np.ndarray:
     """Poles (z-plane) of the sampled closed loop, without the structural eigenvalue at z = 1.
 
     Coordinates: ``S = Kpi·Ie + KvI·Iv`` (acts on the plant) and ``R = KvI·Ie − Kpi·Iv`` (never
     feeds back); the loop poles are the eigenvalues of the block without R. With Kpi = KvI = 0 both
-    integrator states are dropped.
+    integrator states are dropped. ``filter_alpha``: the KvI channel is the velocity filter
+    (:mod:`servo.control.velocity_filter`): no structural eigenvalue (the filter state is a real
+    pole at 1 − α, dropped only with KvI = 0), and Ie only with Kpi = 0.
     """
-    A = sampled_loop_matrix(kp, kpi, kv, kvi, period_s, delay)
+    A = sampled_loop_matrix(kp, kpi, kv, kvi, period_s, delay, filter_alpha)
     m = A.shape[0]
+    if filter_alpha is not None:
+        drop = ({2} if kpi == 0.0 else set()) | ({3} if kvi == 0.0 else set())
+        keep = [i for i in range(m) if i not in drop]
+        return np.linalg.eigvals(A[np.ix_(keep, keep)])
     if kpi == 0.0 and kvi == 0.0:
         keep = [i for i in range(m) if i not in (2, 3)]
         return np.linalg.eigvals(A[np.ix_(keep, keep)])
@@ -143,9 +151,10 @@ def loop_poles(kp: float, kpi: float, kv: float, kvi: float, period_s: float, de
     return np.linalg.eigvals(Ap[np.ix_(keep, keep)])
 
 
-def spectral_radius(kp: float, kpi: float, kv: float, kvi: float, period_s: float, delay: float = 0.0) -> float:
+def spectral_radius(kp: float, kpi: float, kv: float, kvi: float, period_s: float, delay: float = 0.0,
+                    filter_alpha: float | None = None) -> float:
     """Largest pole magnitude of the sampled loop (< 1: stable)."""
-    return float(np.max(np.abs(loop_poles(kp, kpi, kv, kvi, period_s, delay))))
+    return float(np.max(np.abs(loop_poles(kp, kpi, kv, kvi, period_s, delay, filter_alpha))))
 
 
 def _stability_problem(loop: str, r: float, need: float, where: str, lower: str, stiffer: str) -> str | None:
@@ -163,12 +172,13 @@ def _stability_problem(loop: str, r: float, need: float, where: str, lower: str,
 
 
 def judge(gains: Gains[float], period_s: float, delay: float = 0.0, *, kp_off: float | None = None,
-          min_margin: float = 0.0) -> GainVerdict:
+          min_margin: float = 0.0, filter_hz: float | None = None) -> GainVerdict:
     """The verdict on one joint's gain set (see the module docstring); never raises for bad gains.
 
     ``period_s`` the servo period (s), ``delay`` the computation delay in periods (0..1),
     ``kp_off`` the position gain while the integrators are switched off (1/s²; None: the switch-off
-    is disabled, not checked), ``min_margin`` the margin 1 − ρ the set must keep (> it).
+    is disabled, not checked), ``min_margin`` the margin 1 − ρ the set must keep (> it),
+    ``filter_hz`` the velocity filter's cutoff when the KvI channel is that filter (None or NaN: ∫ė).
     Raises :class:`GainRejected` only for a bad ``period_s``, ``delay`` or ``kp_off``.
     """
     if not (math.isfinite(period_s) and period_s > 0):
@@ -183,9 +193,12 @@ def judge(gains: Gains[float], period_s: float, delay: float = 0.0, *, kp_off: f
             return GainVerdict(False, "invalid", problem)
     need = max(float(min_margin), MIN_MARGIN_FLOOR)
     g = gains
-    m_int = 1.0 - spectral_radius(g.kp, g.kpi, g.kv, g.kvi, period_s, delay)
-    m_off = math.nan if kp_off is None else 1.0 - spectral_radius(kp_off, 0.0, g.kv, 0.0, period_s, delay)
-    if g.kpi == 0.0 and g.kvi > 0.0:
+    fa = None if filter_hz is None or math.isnan(filter_hz) else VelocityFilter(filter_hz).alpha(period_s)
+    m_int = 1.0 - spectral_radius(g.kp, g.kpi, g.kv, g.kvi, period_s, delay, fa)
+    # switched off, the integrators are frozen; a velocity filter keeps running (it is no integrator)
+    m_off = math.nan if kp_off is None else 1.0 - spectral_radius(kp_off, 0.0, g.kv, 0.0 if fa is None else g.kvi,
+                                                                  period_s, delay, fa)
+    if g.kpi == 0.0 and g.kvi > 0.0 and fa is None:
         return GainVerdict(False, "unstable", (
             "Kpi = 0 with KvI > 0 leaves a closed-loop pole at z = 1 (the KvI integrator would hold whatever "
             "offset it has, nothing brings the joint back to its target); set kvi=0 as well, or keep kpi > 0"),
@@ -224,14 +237,17 @@ def check_gain_change(law: Any, joint: int | None, changes: Mapping[str, Any], p
     if not changes and switch_off is None:
         raise GainRejected("gains", {}, "no gain given (use kp=, kpi=, kv=, kvi=)")
     so = switch_off if switch_off is not None else _staged(law, "switch_off")
-    check_gain_set(_staged(law, "gains"), so, changes, period_s, delay, joint=joint, min_margin=min_margin)
+    check_gain_set(_staged(law, "gains"), so, changes, period_s, delay, joint=joint, min_margin=min_margin,
+                   filter_hz=getattr(law, "filter_hz", None))
 
 
 def check_gain_set(gains: Gains[np.ndarray], switch_off: Any, changes: Mapping[str, Any], period_s: float,
-                   delay: float = 0.0, *, joint: int | None = None, min_margin: float = 0.0) -> dict[str, float]:
+                   delay: float = 0.0, *, joint: int | None = None, min_margin: float = 0.0,
+                   filter_hz: Any = None) -> dict[str, float]:
     """Raise :class:`GainRejected` unless ``changes`` (gain name → value) applied to the per-joint
     set ``gains`` (of joint ``joint``, or of every joint for None) pass: values first, then every
     changed joint's sampled loop with ``switch_off`` (a :class:`~servo.control.law.SwitchOffConfig`).
+    ``filter_hz``: per joint the velocity filter's cutoff (NaN: none; None: no joint has one).
     Returns ``changes`` as floats (:func:`check_values`).
     :func:`check_gain_change` (a live law) and an override of a rig's settings
     (:meth:`servo.settings.ServoSettings.overridden`) both ask this."""
@@ -243,6 +259,8 @@ def check_gain_set(gains: Gains[np.ndarray], switch_off: Any, changes: Mapping[s
     shown = ", ".join(f"{k}={v:g}" for k, v in clean.items()) or "switch-off change"
     for j in range(n) if joint is None else (joint,):
         g = gains.joint(j).replace(**clean)
-        kp_off = float(switched_off_kp(g.kp, g.kvi, float(so.kp_boost[j]))) if bool(so.enabled[j]) else None
-        judge(g, period_s, delay, kp_off=kp_off, min_margin=min_margin).raise_if_refused(shown, j)
+        f_hz = None if filter_hz is None or math.isnan(float(filter_hz[j])) else float(filter_hz[j])
+        kvi_lost = g.kvi if f_hz is None else 0.0  # a filter keeps its stiffness while switched off
+        kp_off = float(switched_off_kp(g.kp, kvi_lost, float(so.kp_boost[j]))) if bool(so.enabled[j]) else None
+        judge(g, period_s, delay, kp_off=kp_off, min_margin=min_margin, filter_hz=f_hz).raise_if_refused(shown, j)
     return clean

@@ -29,15 +29,18 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
 
+from hal.hand import HandModel
 from servo.blackbox import HOLDING, RUNNING, STOPPED, STOPPING, BlackBox
 from servo.control.objects import ControlContext, Controller, SwitchableController
+from servo.hand import HandCurrent, HandError, HandStay, TorqueWindow
 from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_name
 from servo.io import JointIO, Measurement
+from servo.named_controllers import ControllerChoices
 from servo.stops import NOT_FAULTS, ControlledStop, Deceleration, StopCategory, StopSettings
 from servo.trajectory.base import Sample
 from servo.trajectory.bounds import MotionRefused
@@ -201,6 +204,21 @@ class ServoLoop:
         self.require_homing = False
         #: per joint how far past its soft limit it may be (``None``: the margin; see _soft_allowance)
         self._soft_allow: np.ndarray | None = None
+        #: the named controllers per joint (servo.named_controllers; set by servo.assembly.build_loop)
+        #: and per joint the index of the one in force
+        self.controllers: ControllerChoices | None = None
+        self.active_controller: list[int] = [0] * self.n
+        #: the hand's current-command mode (servo.hand; ``None``: every joint by position)
+        self.hand: HandCurrent | None = None
+        #: the hand move last started: each starts its command once
+        self._hand_move: HandStay | None = None
+        #: the soft limit the hand is held at by position once its current drove it there (servo.hand)
+        self.hand_hold_rad: float | None = None
+        #: the hand's fingers (``[hand]``, set by servo.assembly.build_loop; ``None``: no hand)
+        self.hand_model: HandModel | None = None
+        #: the arm's measured holding torques over the last second (servo.hand; ``None``: not
+        #: kept — the console's ``open`` starts it, for ``weigh``)
+        self.torque_window: TorqueWindow | None = None
         #: the last seconds of every joint's signals and lines (servo.blackbox; set by
         #: servo.assembly.build_loop; ``None``: not kept)
         self.blackbox: BlackBox | None = None
@@ -381,6 +399,7 @@ class ServoLoop:
             self._soft_allow = np.maximum(margin, past + margin) if np.any(past > 0.0) else None
         self.fault = None
         self.stopping = None
+        self.set_hand(None)  # the hand too is held by position where it is (servo.hand)
         self.stop_tick = None  # the excursion of the last stop is kept, no longer tracked
         self._last_theta = None
         self.cross_checks.reset()
@@ -618,11 +637,25 @@ class ServoLoop:
             sample = st.trajectory.sample((k - st.tick0) * self.period_s)
         else:
             sample = self._next_sample(t)
+        hand = self.hand
+        if hand is not None:  # the hand by current: its desired position is where it is
+            j = hand.joint
+            if self.hand_hold_rad is None and np.isfinite(m.theta[j]):
+                lo, hi = self.watchdog.soft_limits(self.n)
+                self.hand_hold_rad = hand.limit_hold(float(m.theta[j]), float(lo[j]), float(hi[j]))
+            theta_d, omega_d = np.array(sample.theta_d, float), np.array(sample.omega_d, float)
+            theta_d[j] = m.theta[j] if self.hand_hold_rad is None else self.hand_hold_rad
+            omega_d[j] = 0.0
+            sample = sample._replace(theta_d=theta_d, omega_d=omega_d)
         if self._check(m, sample):
             self._record(k, t, m, sample, None, truth, t0)
             self.tick_count += 1
             return
+        if self.torque_window is not None and self.hand_model is not None:
+            self.torque_window.add(m.current, float(m.omega[self.hand_model.joint]))
         out = self.controller.update(self._context(k, t, m, sample))
+        if hand is not None and self.hand_hold_rad is None:
+            out = replace(out, torque=self._hand_torque(hand, out.torque, m.omega))
         try:
             current = self.io.write_torque(out.torque, m.omega)
         except Exception as e:
@@ -632,6 +665,20 @@ class ServoLoop:
         self.tick_count += 1
         if self.stopping is not None and self.fault is None:
             self._advance_stop(k)
+
+    def set_hand(self, command: HandCurrent | None) -> None:
+        """Drive the hand by ``command`` from the next tick (``None``: by position, where it is
+        commanded now). Call at a tick boundary (inside a live command)."""
+        self.hand = command
+        self.hand_hold_rad = None
+
+    def _hand_torque(self, hand: HandCurrent, torque: np.ndarray, omega: np.ndarray) -> np.ndarray:
+        """``torque`` with the hand joint's replaced by its current command's (servo.hand)."""
+        j = hand.joint
+        s = self.io.scaling[j]
+        out = np.array(torque, float)
+        out[j] = hand.current_at(float(omega[j])) * s.ratio * s.kt_nm_per_a
+        return out
 
     def _soft_allowance(self, theta: np.ndarray) -> np.ndarray | None:
         """How far past its soft limit each joint may be before the watchdog stops the loop: the
@@ -651,13 +698,32 @@ class ServoLoop:
         ``vservo`` move) that the bounds refuse is not started: the joints hold where the previous
         move ended, and the refusal is noted (:attr:`refusals`)."""
         try:
-            return self.sequencer.sample(max(0.0, t - self._t_motion0))
+            sample = self.sequencer.sample(max(0.0, t - self._t_motion0))
         except MotionRefused as e:
             self.refusals.append(e)
             self.note("servo", str(e))
             hold = np.asarray(self.sequencer.current.end, float).copy()
             self.set_motion(Sequencer([], hold, self.plan_context or self.sequencer.ctx))
             return self.sequencer.sample(0.0)
+        current = self.sequencer.current
+        if isinstance(current, HandStay) and self._hand_move is not current:
+            self._hand_move = current  # a hand move starts: its command once
+            self._start_hand_move(current)
+        return sample
+
+    def _start_hand_move(self, move: HandStay) -> None:
+        """A motion file's hand move (servo.motion.HandMove): the hand by its current from now."""
+        if self.hand_model is None:
+            self.note("servo", f"hand move {move.hand_action}: this rig states no [hand]; ignored")
+            return
+        j = self.hand_model.joint
+        try:
+            cmd = HandCurrent.make(j, move.hand_action, move.hand_current_a, self.io.scaling[j].current_limit_a)
+        except HandError as e:
+            self.note("servo", f"hand move refused: {e}")
+            return
+        self.set_hand(cmd)
+        self.note("servo", f"hand {cmd.action} at {cmd.current_a:g} A")
 
     def _context(self, k: int, t: float, m: Measurement, sample):
         ctrl = self.controller.active

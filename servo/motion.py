@@ -24,6 +24,11 @@ Format (angles in degrees at this edge, or radians with the ``_rad`` keys)::
     type = "blendx"                    # straight lines with parabolic blends through via_m
     via_m = [[0.7, 0.2, 0.3]]
     position_m = [0.7, 0.3, 0.1]
+    [[move]]
+    type = "hand"                      # the fingers by a fixed current (servo.hand, docs/hand.md)
+    action = "close"                   # open | close | squeeze
+    current_a = 0.5                    # optional (default: open/close 0.5 A, squeeze 1.0 A)
+    duration_s = 3                     # the arm holds meanwhile (default 3 s)
 
 Limits (docs/control.md): a file of at most :data:`MAX_MOTION_FILE_BYTES`, at most
 :data:`MAX_MOVES` moves, an LSPB move of at most :data:`servo.trajectory.lspb.MAX_VIA_POINTS`
@@ -48,6 +53,7 @@ import numpy as np
 from hal.config import ConfigError, ConfigTable, load_toml
 from hal.si import deg_to_rad
 from servo.cartesian import parse_blendx, parse_cartesian
+from servo.hand import ACTIONS, HandStay
 from servo.trajectory import Lspb, MoveSpec, PlanContext, Quintic, Sequencer, Stay, Trajectory
 from servo.trajectory.lspb import MAX_VIA_POINTS
 from servo.vservo import parse_vservo
@@ -96,6 +102,20 @@ class WaitMove:
 
     def build(self, start: np.ndarray, ctx: PlanContext) -> Trajectory:
         return Stay(start, self.duration)
+
+
+@dataclass(frozen=True)
+class HandMove:
+    """The hand by ``action`` at ``current_a`` (A; ``None``: the action's default) while the arm
+    holds its target for ``duration`` s (:class:`servo.hand.HandStay`)."""
+
+    action: str
+    current_a: float | None
+    duration: float = 3.0
+    kind: str = "hand"
+
+    def build(self, start: np.ndarray, ctx: PlanContext) -> Trajectory:
+        return HandStay(start, self.duration, self.action, self.current_a)
 
 
 def _angles(cfg: ConfigTable, base: str, n: int, required: bool = True) -> np.ndarray | None:
@@ -157,9 +177,18 @@ def parse_wait(cfg: ConfigTable, n: int) -> MoveSpec:
     return move
 
 
+def parse_hand(cfg: ConfigTable, n: int) -> MoveSpec:
+    action = cfg.get_str("action", choices=tuple(ACTIONS))
+    amps = cfg.get_float("current_a", min=1e-3, max=100.0) if "current_a" in cfg else None
+    move = HandMove(action, amps, cfg.get_float("duration_s", 3.0, min=0.0, max=3600.0))
+    cfg.check_unknown({"type", "action", "current_a", "duration_s"})
+    return move
+
+
 MOVE_TYPES: dict[str, MoveParser] = {"quintic": parse_quintic, "lspb": parse_lspb, "wait": parse_wait,
                                      "stay": parse_wait, "vservo": parse_vservo,
-                                     "cartesian": parse_cartesian, "blendx": parse_blendx}
+                                     "cartesian": parse_cartesian, "blendx": parse_blendx,
+                                     "hand": parse_hand}
 
 
 # ---- files --------------------------------------------------------------------------------------------

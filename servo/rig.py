@@ -88,11 +88,11 @@ from servo.errors import ServoError
 
 ANALOG_INPUTS = ("pot", "tach", "imon")
 DIGITAL_OUTPUTS = ("amp_enable", "amp_reset", "direction", "brake", "holding_brake")
-DIGITAL_INPUTS = ("amp_fault",)
+DIGITAL_INPUTS = ("amp_fault", "tactile_left", "tactile_right")  # tactile: the hand's finger switches (docs/hand.md)
 WIRING_KEYS = ("amp_command", "encoder", "pwm", *ANALOG_INPUTS, *DIGITAL_OUTPUTS, *DIGITAL_INPUTS)
 #: The keys of a ``[[joint]]`` table that only the servo side reads (``name`` and ``amplifier`` are
 #: shared with the plant, whose subtables sit beside these).
-SERVO_JOINT_KEYS = ("wiring", "servo", "limits")
+SERVO_JOINT_KEYS = ("wiring", "servo", "limits", "controller")
 
 
 class NoSuchJointError(ServoError, ValueError):

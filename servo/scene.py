@@ -11,6 +11,13 @@ in the arm's base frame)::
     min_m = [-0.9, -0.5, -0.45]
     max_m = [-0.1, 0.5, -0.02]
 
+    [[object]]                     # a graspable object (the hand: docs/hand.md)
+    name = "sample"
+    width_m = 0.04                 # across the fingers
+    mass_kg = 0.5
+    stiffness_n_per_m = 5000.0     # across the fingers: a close stops on contact
+    position_m = [0.9, 0.0, 0.2]   # the tool point must be within the hand's capture radius
+
 ``vmehil run|plan --scene PATH``; by default the rig file's ``<rig>.scene.toml`` beside it when
 one exists (:func:`default_scene_path`). Obstacles come and go at run time (the console's
 ``obstacle add|remove``): a :class:`Scene` is the one mutable list the planner reads.
@@ -24,9 +31,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hal.config import ConfigTable, load_toml
+from hal.hand import GraspObject
 from servo.errors import ServoError
 
-__all__ = ["MAX_OBSTACLES", "Obstacle", "Scene", "SceneError", "default_scene_path", "load_scene", "parse_scene"]
+__all__ = ["MAX_OBSTACLES", "GraspObject", "Obstacle", "Scene", "SceneError", "default_scene_path", "load_scene",
+           "parse_scene"]
 
 #: the most obstacles a scene holds (the paper's arm had twelve permanent ones)
 MAX_OBSTACLES = 1000
@@ -67,11 +76,29 @@ class Obstacle:
 class Scene:
     """The obstacles, by name, in the order they were added. ``source``: where they came from."""
 
-    def __init__(self, obstacles: list[Obstacle] | tuple[Obstacle, ...] = (), source: str = "<no scene>") -> None:
+    def __init__(self, obstacles: list[Obstacle] | tuple[Obstacle, ...] = (), source: str = "<no scene>",
+                 objects: list[GraspObject] | tuple[GraspObject, ...] = ()) -> None:
         self.source = source
         self._obstacles: dict[str, Obstacle] = {}
         for ob in obstacles:
             self.add(ob)
+        #: the graspable objects (``[[object]]``), by name: not obstacles (the hand closes on them)
+        self._objects: dict[str, GraspObject] = {}
+        for obj in objects:
+            self.add_object(obj)
+
+    @property
+    def objects(self) -> tuple[GraspObject, ...]:
+        """The graspable objects, in the order they were added."""
+        return tuple(self._objects.values())
+
+    def add_object(self, obj: GraspObject) -> None:
+        """Add a graspable object; a name already in the scene (object or obstacle) is refused."""
+        if obj.name in self._objects or obj.name in self._obstacles:
+            raise SceneError(f"object {obj.name!r}: the name is already in the scene")
+        if len(self._objects) >= MAX_OBSTACLES:
+            raise SceneError(f"the scene holds at most {MAX_OBSTACLES} objects")
+        self._objects[obj.name] = obj
 
     @property
     def obstacles(self) -> tuple[Obstacle, ...]:
@@ -98,9 +125,10 @@ class Scene:
 
 
 def parse_scene(cfg: ConfigTable) -> Scene:
-    """A scene table (``[[obstacle]] name, min_m, max_m``); :class:`hal.config.ConfigError` names
-    the file and key of anything wrong."""
-    cfg.check_unknown({"obstacle", "description"})
+    """A scene table (``[[obstacle]] name, min_m, max_m``; ``[[object]] name, width_m, mass_kg,
+    stiffness_n_per_m, position_m``); :class:`hal.config.ConfigError` names the file and key of
+    anything wrong."""
+    cfg.check_unknown({"obstacle", "object", "description"})
     scene = Scene(source=cfg.source)
     for ob in cfg.tables("obstacle", []):
         ob.check_unknown({"name", "min_m", "max_m", "note"})
@@ -109,6 +137,15 @@ def parse_scene(cfg: ConfigTable) -> Scene:
             scene.add(Obstacle.make(name, ob.floats("min_m", length=3), ob.floats("max_m", length=3)))
         except SceneError as e:
             raise ob.error("name", str(e), name) from None
+    for ot in cfg.tables("object", []):
+        ot.check_unknown({"name", "width_m", "mass_kg", "stiffness_n_per_m", "position_m", "note"})
+        name = ot.get_str("name")
+        try:
+            obj = GraspObject.make(name, ot.get_float("width_m"), ot.get_float("mass_kg"),
+                                   ot.get_float("stiffness_n_per_m"), ot.floats("position_m", length=3))
+            scene.add_object(obj)
+        except (SceneError, ValueError) as e:
+            raise ot.error("name", str(e), name) from None
     return scene
 
 

@@ -79,6 +79,7 @@ from typing import Any
 import numpy as np
 
 from hal.config import ConfigTable
+from hal.hand import HandModel
 from hal.kinematics import ArmModel
 from servo.blackbox import DEFAULT_SECONDS as DEFAULT_BLACKBOX_S
 from servo.control.errors import ControlError
@@ -88,6 +89,7 @@ from servo.control.linear import delay_periods
 from servo.control.normalize import NormalizingChain
 from servo.control.objects import CONTROL_OBJECTS, cfg_per_joint, parse_switch_off
 from servo.gain_guard import GainRejected, check_gain_set, check_values
+from servo.named_controllers import ControllerChoices, parse_controllers, parse_velocity_filter
 from servo.nominal import JointNominal, nominal_chain, rig_nominal
 from servo.rig import RigSpec
 from servo.stops import CATEGORIES, HoldingLoad, StopSettings
@@ -183,8 +185,23 @@ class ServoSettings:
     #: moves (console, MAVLink) are refused until every homeable joint is homed (``[servo]
     #: require_homing``; docs/motion-safety.md, "Homing"); jogs are not
     require_homing: bool = False
+    #: per joint the velocity filter's cutoff (Hz; ``[joint.servo.velocity_filter] cutoff_hz``), NaN
+    #: where the KvI channel integrates ė (the paper's law, every preset); ``()``: none anywhere
+    velocity_filter_hz: tuple[float, ...] = ()
+    #: per joint its named controllers (``[[joint.controller]]``, servo.named_controllers) and the
+    #: rig's default; ``None``: settings made without a rig file
+    controllers: ControllerChoices | None = None
+    #: the hand's fingers (``[hand]``, :mod:`hal.hand`; ``None``: the rig states none)
+    hand: HandModel | None = None
     #: seconds of every joint's signals the black box keeps before a stop (:mod:`servo.blackbox`)
     blackbox_s: float = DEFAULT_BLACKBOX_S
+
+    @property
+    def filter_hz(self) -> np.ndarray:
+        """:attr:`velocity_filter_hz` as an array of n (NaN: no filter)."""
+        if len(self.velocity_filter_hz) == self.n:
+            return np.asarray(self.velocity_filter_hz, float)
+        return np.full(self.n, np.nan)
 
     def overridden(self, gains: Mapping[str, float] | None = None, switch_off: bool | None = None) -> ServoSettings:
         """These settings with ``gains`` (name → value) applied to every joint and the switch-off
@@ -200,7 +217,8 @@ class ServoSettings:
             if "pid" not in self.objects:
                 check_values(gains)  # a value no gain may have is refused as such first
                 raise ControlError(f"gain overrides {dict(gains)}: the rig's controller has no pid object to take them")
-            clean = check_gain_set(out.gains, out.switch_off, gains, self.period_s, self.delay_periods)
+            clean = check_gain_set(out.gains, out.switch_off, gains, self.period_s, self.delay_periods,
+                                   filter_hz=self.filter_hz)
             out = dataclasses.replace(out, gains=out.gains.replace(**clean))
         return out
 
@@ -266,6 +284,14 @@ def servo_settings(rig: RigSpec) -> ServoSettings:
         tau_max = cfg_per_joint(cfg.table("torque_limit"), "tau_max_nm", n, None, positive=True)
         tl = [float(x) for x in tau_max]
     per_joint_gains = Gains.make(n, **gains)
+    filter_hz = [parse_velocity_filter(j.servo.table("velocity_filter")) if "velocity_filter" in j.servo else np.nan
+                 for j in rig.joints]
+    choices = parse_controllers(rig, names, per_joint_gains, filter_hz, switch_off,
+                                delay_periods(rig.computation_delay_s, rig.period_s))
+    if any(s != 0 for s in choices.start):  # the rig's default is a named controller: the joint starts with it
+        start = [cs[i] for cs, i in zip(choices.per_joint, choices.start, strict=True)]
+        per_joint_gains = Gains.make(n, **{k: [getattr(c.gains, k) for c in start] for k in GAIN_NAMES})
+        filter_hz = [c.filter_hz for c in start]
     settings = ServoSettings(
         joint_names=tuple(j.name for j in rig.joints), period_s=rig.period_s,
         computation_delay_s=rig.computation_delay_s, objects=names, gains=per_joint_gains,
@@ -278,13 +304,27 @@ def servo_settings(rig: RigSpec) -> ServoSettings:
         **_soft_limits(rig, top),
         arm=ArmModel.from_table(rig.table.table("arm")) if "arm" in rig.table else None,
         require_homing=top.get_bool("require_homing", False),
+        hand=_hand(rig),
         blackbox_s=top.get_float("blackbox_s", DEFAULT_BLACKBOX_S, min=rig.period_s, max=MAX_BLACKBOX_S),
         gains_given=tuple("+".join(w for w, t in (("joint", j.servo), ("rig", top)) if "gains" in t)
                           for j in rig.joints),
+        velocity_filter_hz=tuple(float(x) for x in filter_hz) if not np.all(np.isnan(filter_hz)) else (),
+        controllers=choices,
         source=str(rig.path))
     if "pid" in names:
         _guard_rig_gains(rig, top, settings)
     return settings
+
+
+def _hand(rig: RigSpec) -> HandModel | None:
+    """``[hand]`` (:mod:`hal.hand`), its joint one of the rig's."""
+    if "hand" not in rig.table:
+        return None
+    t = rig.table.table("hand")
+    hand = HandModel.from_table(t)
+    if hand.joint >= rig.n_joints:
+        raise t.error("joint", f"a joint of the rig (0..{rig.n_joints - 1})", hand.joint)
+    return hand
 
 
 #: a controlled stop's deceleration unless the rig file says (deg/s²): 30°/s to rest in 75 ms, over 1.1°
@@ -388,7 +428,8 @@ def _guard_rig_gains(rig: RigSpec, top: ConfigTable, settings: ServoSettings) ->
     """Every joint's gains as the rig file gives them, through the gain guard (values, then the
     sampled loop's stability with the joint's switch-off), as any other source of gains."""
     try:
-        check_gain_set(settings.gains, settings.switch_off, {}, settings.period_s, settings.delay_periods)
+        check_gain_set(settings.gains, settings.switch_off, {}, settings.period_s, settings.delay_periods,
+                       filter_hz=settings.filter_hz)
     except GainRejected as e:
         spec = rig.joints[e.joint if e.joint is not None else 0]
         table = spec.servo if "gains" in spec.servo else top

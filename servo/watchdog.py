@@ -113,6 +113,10 @@ class WatchdogConfig:
         hi = np.full(n, np.inf) if self.soft_max_rad is None else np.asarray(self.soft_max_rad, float)
         return lo, hi
 
+    def soft_limits(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """The soft limits of ``n`` joints (rad), −inf / +inf where a joint has none."""
+        return self._soft_bounds(n)
+
     def past_soft_limit(self, theta: np.ndarray) -> np.ndarray:
         """Per joint how far past its soft limit ``theta`` is (rad; ≤ 0 inside, −inf: no limit
         or no reading)."""

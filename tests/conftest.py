@@ -36,6 +36,14 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
 os.environ.setdefault("VMEHIL_BLACKBOX", "off")
 
 
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """Python ignores SIGPIPE (a write to a closed pipe raises BrokenPipeError); a library that
+    resets it to the default when imported (vcdvcd does) would let such a write kill the whole
+    pytest process (CI: exit 243, no report). Every test module is imported by now: put it back."""
+    if signal.getsignal(signal.SIGPIPE) is not signal.SIG_IGN:
+        signal.signal(signal.SIGPIPE, signal.SIG_IGN)
+
+
 @pytest.fixture
 def crate() -> Crate:
     """A crate with RAM boards in each address space."""

@@ -1,12 +1,16 @@
 """Per-module counts of a mutation run (``make mutation``; docs/mutation.md), read from the state
 mutmut 3 keeps under ``mutants/`` (one ``<file>.meta`` JSON per mutated source file).
 
-    python -m tests.mutation_report [MUTANTS_DIR] [--survivors]
+    python -m tests.mutation_report [MUTANTS_DIR] [--survivors | --unkilled]
 
 Prints, per mutated file, the mutants and how many were killed, survived, had no test calling
 them, timed out or are not checked yet, then the total and the score killed / (killed +
 survived). ``--survivors`` lists the surviving mutants' names (``mutmut show NAME`` prints the
-diff of one). Not a test module (no ``test_`` prefix).
+diff of one). ``--unkilled`` prints only the names of every mutant not killed (survived, no
+tests, timeout, not checked), one a line, for checking them again after new tests: mutmut keeps
+a verdict until the mutated function changes, so new tests kill nothing until the mutants are
+named (``python -m tests.mutation_report --unkilled | xargs -d '\\n' mutmut run --max-children 2``).
+Not a test module (no ``test_`` prefix).
 """
 
 from __future__ import annotations
@@ -42,11 +46,18 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("mutants", nargs="?", default="mutants", type=Path)
     ap.add_argument("--survivors", action="store_true", help="list the surviving mutants")
+    ap.add_argument("--unkilled", action="store_true", help="only the names of the mutants not killed, one a line")
     args = ap.parse_args(argv)
     data = read(args.mutants)
     if not data:
         print(f"no mutation results under {args.mutants}/ (run `make mutation` first)", file=sys.stderr)
         return 1
+    if args.unkilled:
+        for codes in data.values():
+            for name, code in sorted(codes.items()):
+                if status(code) != "killed":
+                    print(name)
+        return 0
     width = max(len(f) for f in data)
     print(f"{'file':<{width}}  {'mutants':>7}  " + "  ".join(f"{c:>11}" for c in COLUMNS) + "  score")
     total: Counter[str] = Counter()

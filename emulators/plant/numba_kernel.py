@@ -20,6 +20,8 @@ from emulators.plant.kernel_layout import (
     BREAKOUT,
     C_FLEX,
     COMPLIANT,
+    CONTACT_K,
+    CONTACT_RAD,
     COULOMB,
     D_TS,
     E_COUNTS,
@@ -32,6 +34,7 @@ from emulators.plant.kernel_layout import (
     EXT_TORQUE,
     F_BRAKE,
     F_COMPLIANT,
+    F_CONTACT,
     F_DIRECT,
     F_EXTERNAL,
     F_GRAVITY,
@@ -270,6 +273,7 @@ def period_kernel(
     has_tach_ripple = F[F_TACH_RIPPLE] != 0
     direct = F[F_DIRECT] != 0
     has_brake = F[F_BRAKE] != 0
+    has_contact = F[F_CONTACT] != 0
     n_flips = flips.shape[0]
     for j in range(n):
         is_lin = P[IS_LIN, j] != 0.0
@@ -296,6 +300,8 @@ def period_kernel(
         lower = P[LOWER, j]
         upper = P[UPPER, j]
         ext = P[EXT_TORQUE, j]
+        contact_k = P[CONTACT_K, j]
+        contact_rad = P[CONTACT_RAD, j]
         fr_ripple = P[FR_RIPPLE, j]
         fr_phase = P[FR_PHASE, j]
         inv_ws = P[INV_WS, j]
@@ -405,6 +411,10 @@ def period_kernel(
             t_drive = kt * i1
             if has_ext:
                 t_drive = t_drive + (0.0 if comp else 1.0) * ext * inv_n
+            if has_contact and contact_k != 0.0:  # a one-sided spring below contact_rad (rigid joints)
+                th_c = theta_m * inv_n
+                if th_c < contact_rad:
+                    t_drive = t_drive + contact_k * (contact_rad - th_c) * inv_n
             tau_s = 0.0
             if any_comp:
                 th_out = theta_m / n_ratio

@@ -184,6 +184,7 @@ class _StepConsts:
             _k.MON_OFFSET: np.where(amp.is_lin, amp.lin_monitor_offset, amp.hb_monitor_offset),
             _k.MON_NOISE: amp.monitor_noise, _k.SW_NOISE: plant.hb_switching_noise,
             _k.BRAKE_HOLD: plant.brakes.hold_motor_nm,
+            _k.CONTACT_K: plant.contact_k_nm_per_rad, _k.CONTACT_RAD: plant.contact_rad,
         }
         for row, values in rows.items():
             P[row] = values
@@ -216,6 +217,9 @@ class _StepConsts:
         if self.P is not None:
             self.P[_k.EXT_TORQUE] = plant.external_torque_nm
             self.F[_k.F_EXTERNAL] = plant.has_external
+            self.P[_k.CONTACT_K] = plant.contact_k_nm_per_rad
+            self.P[_k.CONTACT_RAD] = plant.contact_rad
+            self.F[_k.F_CONTACT] = plant.has_contact
 
 
 def _stack(joints: list, path: str, dtype: type = float) -> np.ndarray:
@@ -457,6 +461,9 @@ class Plant(FaultInjectable):
         self.at_stop = np.zeros(n, dtype=bool)
         self.external_torque_nm = np.zeros(n)
         self.has_external = False
+        self.contact_k_nm_per_rad = np.zeros(n)
+        self.contact_rad = np.zeros(n)
+        self.has_contact = False
         for c in self._consts.values():
             c.set_external(self)
         self.time_s = 0.0
@@ -470,6 +477,18 @@ class Plant(FaultInjectable):
         e.g. a torque gauge or a contact load. Held until changed; :meth:`reset` clears it."""
         self.external_torque_nm = np.broadcast_to(np.asarray(torque_nm, dtype=float), (self.n_joints,)).copy()
         self.has_external = bool(np.any(self.external_torque_nm != 0.0))
+        for c in self._consts.values():
+            c.set_external(self)
+
+    def set_contact(self, stiffness_nm_per_rad: np.ndarray, angle_rad: np.ndarray) -> None:
+        """A one-sided spring on each rigid joint's link: below ``angle_rad`` it pushes the link
+        back up with ``stiffness_nm_per_rad·(angle_rad − θ)`` (N·m at the joint) — the fingers
+        meeting a grasped object (:mod:`emulators.grasp`). Evaluated every substep; 0 stiffness: no
+        spring. Held until changed; :meth:`reset` clears it."""
+        n = self.n_joints
+        self.contact_k_nm_per_rad = np.broadcast_to(np.asarray(stiffness_nm_per_rad, dtype=float), (n,)).copy()
+        self.contact_rad = np.broadcast_to(np.asarray(angle_rad, dtype=float), (n,)).copy()
+        self.has_contact = bool(np.any(self.contact_k_nm_per_rad != 0.0))
         for c in self._consts.values():
             c.set_external(self)
 
@@ -506,6 +525,10 @@ class Plant(FaultInjectable):
         t_drive = self.Kt * self.i
         if self.has_external:
             t_drive = t_drive + ~self.compliant * self.external_torque_nm * self.inv_N
+        if self.has_contact:  # the one-sided spring of set_contact (rigid joints)
+            th_c = self.theta_m * self.inv_N
+            t_drive = t_drive + np.where(th_c < self.contact_rad, self.contact_k_nm_per_rad * (self.contact_rad - th_c),
+                                         0.0) * self.inv_N
         if self.any_compliant:
             th_out = self._theta_out(self.theta_m)
             tau_s = self.compliant * (

@@ -169,7 +169,6 @@ class AdcDriver:
         self.timeout_s = float(timeout_s)
         self._vector: int | None = None
         self._irq_count = 0
-        self._irq_csr = 0
         self._scan_cfg: tuple[int, int, int] | None = None
         self._scan_plans: dict[tuple[int, int], _ScanPlan] = {}
         self.win.write("CSR", _B["RESET"])
@@ -224,8 +223,7 @@ class AdcDriver:
         return self._irq_count
 
     def _on_irq(self, vector: int) -> None:
-        csr = self.win.read("CSR")
-        self._irq_csr = csr
+        self.win.read("CSR")  # the handler's first cycle (docs/boards/adc.md); the value is not kept
         self.win.write_offset(_CSR_LOW, _B["IRQ_PEND"], Width.D8)  # RORA release
         self._irq_count += 1
 

@@ -38,6 +38,7 @@ import numpy as np
 from servo.control.errors import GainError
 from servo.control.gains import GAIN_NAMES, Gains, V
 from servo.control.normalize import per_joint
+from servo.control.velocity_filter import VelocityFilter, filter_alpha
 
 DEFAULT_PERIOD_S = 0.008
 
@@ -93,7 +94,7 @@ class SwitchOffConfig:
         for j in range(n):
             if not outer[j] > inner[j]:
                 raise GainError("switch_off.outer_band", float(outer[j]),
-                                f"a band wider than inner_band ({inner[j]!r} rad) for hysteresis", j)
+                                f"a band wider than inner_band ({float(inner[j])!r} rad) for hysteresis", j)
             if not np.isnan(boost[j]) and boost[j] < 1.0:
                 raise GainError("switch_off.kp_boost", float(boost[j]), "a factor >= 1 (or auto)", j)
         return cls(en, inner, outer, boost, settle, zc)
@@ -133,14 +134,17 @@ class LawState:
     in_band_time: np.ndarray  # s spent settled in the inner band while integrating
     e_prev: np.ndarray  # rad, NaN before the first tick
     events: list[SwitchEvent] = field(default_factory=list)
+    #: the velocity filter's output ef (rad) where a joint uses it (servo.control.velocity_filter)
+    ef: np.ndarray | None = None
 
     @classmethod
     def zeros(cls, n: int) -> LawState:
-        return cls(np.zeros(n), np.zeros(n), np.ones(n, bool), np.zeros(n), np.full(n, np.nan))
+        return cls(np.zeros(n), np.zeros(n), np.ones(n, bool), np.zeros(n), np.full(n, np.nan), ef=np.zeros(n))
 
     def copy(self) -> LawState:
         return LawState(self.ie.copy(), self.iv.copy(), self.integrating.copy(), self.in_band_time.copy(),
-                        self.e_prev.copy(), list(self.events))
+                        self.e_prev.copy(), list(self.events),
+                        ef=np.zeros_like(self.ie) if self.ef is None else self.ef.copy())
 
 
 class PidLaw:
@@ -152,7 +156,7 @@ class PidLaw:
     """
 
     def __init__(self, n: int, period: float = DEFAULT_PERIOD_S, gains: Gains | None = None,
-                 switch_off: SwitchOffConfig | None = None) -> None:
+                 switch_off: SwitchOffConfig | None = None, filter_hz: np.ndarray | None = None) -> None:
         if not (isinstance(n, int) and n > 0):
             raise GainError("n_joints", n, "a positive integer")
         if not (math.isfinite(period) and period > 0):
@@ -162,6 +166,14 @@ class PidLaw:
         self.gains = (gains if gains is not None else Gains.paper()).broadcast(n)
         self.switch_off = switch_off if switch_off is not None else SwitchOffConfig.make(n)
         self.state = LawState.zeros(n)
+        #: per joint the velocity filter's cutoff in Hz, NaN: the KvI channel integrates ė (the paper's law)
+        self.filter_hz = np.full(n, np.nan)
+        self._alpha = np.full(n, np.nan)
+        self._filtered = np.zeros(n, bool)
+        if filter_hz is not None:
+            self._set_filter(np.asarray(filter_hz, float))
+        #: staged per-joint controller switches: joint → (gains, filter cutoff Hz or NaN)
+        self._pending_switch: dict[int, tuple[Gains[float], float]] = {}
         self._pending_gains: Gains[np.ndarray] | None = None
         self._pending_switch_off: SwitchOffConfig | None = None
         self._tick = -1
@@ -173,8 +185,36 @@ class PidLaw:
         self._feed = np.zeros(n, bool)
         self._ie_new = np.zeros(n)
         self._iv_new = np.zeros(n)
+        self._ef_new = np.zeros(n)
         self.last_accel = np.zeros(n)
 
+    def _set_filter(self, filter_hz: np.ndarray) -> None:
+        if filter_hz.shape != (self.n,) or np.any(~np.isnan(filter_hz) & ~(filter_hz > 0)):
+            raise GainError("velocity_filter.cutoff_hz", filter_hz.tolist(), f"{self.n} positive cutoffs in Hz or NaN")
+        self.filter_hz = filter_hz.copy()
+        self._alpha = np.asarray(filter_alpha(self.filter_hz, self.period), float).reshape(self.n)
+        self._filtered = ~np.isnan(self.filter_hz)
+        self._kp_off_key = None
+
+    @property
+    def filtered(self) -> np.ndarray:
+        """Per joint: True where the KvI channel is the velocity filter, not the integral of ė."""
+        return self._filtered.copy()
+
+    def switch_joint(self, joint: int, gains: Gains[float], filter_hz: float = math.nan) -> None:
+        """Stage a controller switch of ``joint`` (its gains and velocity filter, NaN: none), done
+        at the start of the next tick and bumpless: the position integrator of that joint is set
+        so the law's output in that tick is what the old controller would have commanded, but for
+        the Kv·ė term (one sample's noise at rest; the new Kv acts on it) — the new gains then act
+        on the errors from there on (ros2_control's switch: deactivate and activate in one step)."""
+        if not (isinstance(joint, int) and 0 <= joint < self.n):
+            raise GainError("joint", joint, f"a joint index in 0..{self.n - 1}")
+        f_hz = float(filter_hz)
+        if not (math.isnan(f_hz) or (math.isfinite(f_hz) and f_hz > 0.0)):  # refused now, never inside the tick
+            raise GainError("velocity_filter.cutoff_hz", filter_hz, "a positive cutoff in Hz, or NaN for none", joint)
+        if not isinstance(gains, Gains) or gains.n is not None:
+            raise GainError("gains", gains, "one joint's Gains", joint)
+        self._pending_switch[joint] = (gains, f_hz)
     # ---- live tuning ---------------------------------------------------------------------------
     def set_gains(self, kp: float | list[float] | np.ndarray | None = None,
                   kpi: float | list[float] | np.ndarray | None = None,
@@ -225,7 +265,9 @@ class PidLaw:
         so the per-tick path does not redo the same three numpy calls twice a tick."""
         key = (self.gains, self.switch_off)
         if self._kp_off_key is None or key[0] is not self._kp_off_key[0] or key[1] is not self._kp_off_key[1]:
-            self._kp_off = switched_off_kp(self.gains.kp, self.gains.kvi, self.switch_off.kp_boost)
+            # a filtered KvI channel keeps following e while the integrators are off: nothing to make up
+            kvi = np.where(self._filtered, 0.0, self.gains.kvi) if self._filtered.any() else self.gains.kvi
+            self._kp_off = switched_off_kp(self.gains.kp, kvi, self.switch_off.kp_boost)
             self._kp_off_key = key
         return self._kp_off.copy()
 
@@ -269,6 +311,50 @@ class PidLaw:
         self._e, self._edot = e, edot
         self._switch_off_step(e, np.broadcast_to(np.asarray(motion_done, bool), (self.n,)))
         self.state.e_prev = e.copy()
+        if self._pending_switch:
+            self._apply_switches()
+
+    def _accel_of(self, j: int, g: Gains[float], alpha: float, ef_prev: float) -> float:
+        """Joint ``j``'s output this tick without the Kv·ė term (integrators fed as the state says)
+        with gains ``g`` and a filter coefficient ``alpha`` (NaN: the integral of ė)."""
+        st, T = self.state, self.period
+        feed = bool(st.integrating[j])
+        e, ed = float(self._e[j]), float(self._edot[j])
+        ie = float(st.ie[j]) + (T * e if feed else 0.0)
+        if math.isnan(alpha):
+            kvi_in = float(st.iv[j]) + (T * ed if feed else 0.0)
+        else:
+            kvi_in = ef_prev + alpha * (e - ef_prev)
+        kvi = 0.0 if not math.isnan(alpha) else g.kvi
+        kp_eff = g.kp if feed else float(switched_off_kp(g.kp, kvi, float(self.switch_off.kp_boost[j])))
+        # the velocity term is left out of the match: at rest ė is one sample's noise (a tach ripple,
+        # an encoder count), which the integrator would keep for good; in motion it is small
+        return kp_eff * e + g.kpi * ie + g.kvi * kvi_in
+
+    def _apply_switches(self) -> None:
+        """The staged per-joint controller switches (:meth:`switch_joint`), bumpless."""
+        st = self.state
+        if st.ef is None:
+            st.ef = np.zeros(self.n)
+        new = {k: np.array(getattr(self.gains, k), float) for k in GAIN_NAMES}
+        hz = self.filter_hz.copy()
+        for j, (g, f_hz) in sorted(self._pending_switch.items()):
+            a_old = self._accel_of(j, self.gains.joint(j), float(self._alpha[j]), float(st.ef[j]))
+            alpha = math.nan if math.isnan(f_hz) else float(filter_alpha(f_hz, self.period))
+            if not math.isnan(alpha) and math.isnan(float(self._alpha[j])):
+                st.ef[j] = self._e[j]  # primed: the filter starts where the error is
+            a_new = self._accel_of(j, g, alpha, float(st.ef[j]))
+            # the difference is taken up by an integrator of the new law (the torque does not step)
+            if g.kpi > 0.0:
+                st.ie[j] += (a_old - a_new) / g.kpi
+            elif g.kvi > 0.0 and math.isnan(alpha):
+                st.iv[j] += (a_old - a_new) / g.kvi
+            for k in GAIN_NAMES:
+                new[k][j] = getattr(g, k)
+            hz[j] = f_hz
+        self._pending_switch = {}
+        self.gains = Gains(**new)
+        self._set_filter(hz)
 
     def _switch_off_step(self, e: np.ndarray, done: np.ndarray) -> None:
         """The switch-off state machine of every joint at once (each joint changes at most once a
@@ -322,7 +408,14 @@ class PidLaw:
         self._feed = feed
         self._ie_new = st.ie + np.where(feed, T * self._e, 0.0)
         self._iv_new = st.iv + np.where(feed, T * self._edot, 0.0)
-        a = self.kp_eff() * self._e + g.kpi * self._ie_new + g.kv * self._edot + g.kvi * self._iv_new + alpha_d
+        if self._filtered.any():  # the filter alternative to KvI where a joint uses it
+            self._iv_new = np.where(self._filtered, st.iv, self._iv_new)  # ∫ė not kept where the filter serves
+            ef = st.ef if st.ef is not None else np.zeros(self.n)
+            self._ef_new = np.where(self._filtered, VelocityFilter.step(ef, self._e, self._alpha), ef)
+            kvi_in = np.where(self._filtered, self._ef_new, self._iv_new)
+            a = self.kp_eff() * self._e + g.kpi * self._ie_new + g.kv * self._edot + g.kvi * kvi_in + alpha_d
+        else:
+            a = self.kp_eff() * self._e + g.kpi * self._ie_new + g.kv * self._edot + g.kvi * self._iv_new + alpha_d
         self.last_accel = a
         return a
 
@@ -330,12 +423,15 @@ class PidLaw:
         """The change of a_k (rad/s²) this tick's integration makes for joints being fed (0 elsewhere):
         T·(Kpi·e + KvI·ė). Its sign is the direction integration drives the output."""
         g, T = self.gains, self.period
-        return np.where(self.state.integrating, T * (g.kpi * self._e + g.kvi * self._edot), 0.0)
+        kvi = np.where(self._filtered, 0.0, g.kvi) if self._filtered.any() else g.kvi  # a filter is no integrator
+        return np.where(self.state.integrating, T * (g.kpi * self._e + kvi * self._edot), 0.0)
 
     def commit(self) -> None:
         """Store the integrator values of the last :meth:`evaluate`."""
         self.state.ie = self._ie_new.copy()
         self.state.iv = self._iv_new.copy()
+        if self._filtered.any():
+            self.state.ef = self._ef_new.copy()
 
     @property
     def fed(self) -> np.ndarray:

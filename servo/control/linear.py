@@ -31,17 +31,19 @@ def continuous_poles(kp: float, kpi: float, kv: float, kvi: float) -> np.ndarray
 
 
 def sampled_loop_matrix(kp: float, kpi: float, kv: float, kvi: float, period: float,
-                        delay: float = 0.0) -> np.ndarray:
+                        delay: float = 0.0, filter_alpha: float | None = None) -> np.ndarray:
     """Closed-loop state matrix A (x_{k+1} = A·x_k, reference 0) of the sampled loop.
 
     State ``x_k = [θ_k, ω_k, Ie_{k−1}, Iv_{k−1}]`` (plus ``a_{k−1}`` when ``delay > 0``). The
     eigenvalues are the sampled loop's poles (compare with exp(s·T) of :func:`continuous_poles`).
+    ``filter_alpha``: the KvI channel is the velocity filter (:mod:`servo.control.velocity_filter`,
+    its coefficient α) instead of ∫ė; the fourth state is then ef_{k−1}.
     """
-    return sampled_loop_ss(kp, kpi, kv, kvi, period, delay)[0]
+    return sampled_loop_ss(kp, kpi, kv, kvi, period, delay, filter_alpha)[0]
 
 
 def sampled_loop_ss(kp: float, kpi: float, kv: float, kvi: float, period: float,
-                    delay: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+                    delay: float = 0.0, filter_alpha: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(A, B) of the sampled closed loop, x_{k+1} = A·x_k + B·u_k with u_k = [θd_k, ωd_k, αd_k].
 
     State as in :func:`sampled_loop_matrix`; θ_k = x_k[0], ω_k = x_k[1].
@@ -49,9 +51,15 @@ def sampled_loop_ss(kp: float, kpi: float, kv: float, kvi: float, period: float,
     if not 0.0 <= delay <= 1.0:
         raise ValueError(f"delay must be within 0..1 periods, got {delay!r}")
     T = float(period)
-    # a_k = (Kp + Kpi·T)·(θd − θ) + (Kv + KvI·T)·(ωd − ω) + Kpi·Ie_{k−1} + KvI·Iv_{k−1} + αd
-    a_x = np.array([-(kp + kpi * T), -(kv + kvi * T), kpi, kvi])
-    a_u = np.array([kp + kpi * T, kv + kvi * T, 1.0])
+    if filter_alpha is None:
+        # a_k = (Kp + Kpi·T)·(θd − θ) + (Kv + KvI·T)·(ωd − ω) + Kpi·Ie_{k−1} + KvI·Iv_{k−1} + αd
+        a_x = np.array([-(kp + kpi * T), -(kv + kvi * T), kpi, kvi])
+        a_u = np.array([kp + kpi * T, kv + kvi * T, 1.0])
+    else:
+        # ef_k = (1 − α)·ef_{k−1} + α·e_k: a_k = (Kp + Kpi·T + KvI·α)·e + Kv·ė + Kpi·Ie + KvI·(1 − α)·ef
+        al = float(filter_alpha)
+        a_x = np.array([-(kp + kpi * T + kvi * al), -kv, kpi, kvi * (1.0 - al)])
+        a_u = np.array([kp + kpi * T + kvi * al, kv, 1.0])
     t1, t2 = (1.0 - delay) * T, delay * T  # time the new / the previous command acts in the period
     new_th, new_w = t1 * t1 / 2.0, t1
     old_th, old_w = t2 * t2 / 2.0 + t2 * t1, t2
@@ -64,6 +72,10 @@ def sampled_loop_ss(kp: float, kpi: float, kv: float, kvi: float, period: float,
     B = np.zeros((4, 3))
     B[2, 0] = T
     B[3, 1] = T
+    if filter_alpha is not None:
+        al = float(filter_alpha)
+        A[3] = [-al, 0.0, 0.0, 1.0 - al]
+        B[3] = [al, 0.0, 0.0]
     A[0] += new_th * a_x
     A[1] += new_w * a_x
     B[0] += new_th * a_u

@@ -40,6 +40,8 @@ from hal.adc_dac.conversions import (
     adc_lsb,
     adc_span,
     adc_volts_to_code,
+    dac_code_to_volts,
+    dac_volts_to_code,
     gain_code,
     gain_from_code,
 )
@@ -143,6 +145,34 @@ def _examples() -> list[tuple[AdcRange, int, float, int, float]]:
 def _doc_gain_codes() -> dict[int, int]:
     """The doc's gain table: gain → gain code."""
     return {int(r["gain"]): int(r["gain code"]) for r in doc_rows("adc", "gain code", "gain")}
+
+
+def test_conversions_default_to_gain_1_and_refuse_nan_and_codes_beyond_12_bits() -> None:
+    # docs/boards/adc.md: ±10 V at gain 1, LSB 20 V / 4096; 0..10 V, LSB 10 V / 4096
+    assert adc_code_to_volts(0xC00, AdcRange.BIPOLAR_10V) == 5.0
+    assert adc_lsb(AdcRange.BIPOLAR_10V) == 20.0 / 4096
+    assert adc_span(AdcRange.BIPOLAR_10V) == (-10.0, 10.0 - 20.0 / 4096)
+    assert adc_span(AdcRange.UNIPOLAR_10V) == (0.0, 10.0 - 10.0 / 4096)
+    with pytest.raises(ValueError, match=r"^ADC input is NaN$"):
+        adc_volts_to_code(math.nan, AdcRange.BIPOLAR_10V)
+    with pytest.raises(ValueError, match=r"^ADC code 4096 is outside 0\.\.0xFFF$"):
+        adc_code_to_volts(0x1000, AdcRange.BIPOLAR_10V)
+    with pytest.raises(ValueError, match=r"^DAC command is NaN$"):
+        dac_volts_to_code(math.nan)
+    with pytest.raises(ValueError, match=r"^DAC code -1 is outside 0\.\.0xFFF$"):
+        dac_code_to_volts(-1)
+
+
+def test_range_names_and_the_array_conversion_at_gain_1_by_default() -> None:
+    for text in ("bipolar", " Unipolar ", "BIPOLAR_10V", "unipolar_10v"):
+        assert AdcRange.parse(text) is (AdcRange.UNIPOLAR_10V if "uni" in text.lower() else AdcRange.BIPOLAR_10V)
+    assert AdcRange.parse(AdcRange.UNIPOLAR_10V) is AdcRange.UNIPOLAR_10V
+    with pytest.raises(ValueError, match=r"^unknown ADC range 'tripolar'; expected 'bipolar' \(±10 V\) "
+                                         r"or 'unipolar' \(0\.\.10 V\)$"):
+        AdcRange.parse("tripolar")
+    # 0x000, 0x800, 0xC00 at gain 1: −10, 0, +5 V bipolar; 0, 5, 7.5 V unipolar (docs/boards/adc.md)
+    np.testing.assert_allclose(adc_codes_to_volts([0, 0x800, 0xC00], AdcRange.BIPOLAR_10V), [-10.0, 0.0, 5.0])
+    np.testing.assert_allclose(adc_codes_to_volts([0, 0x800, 0xC00], AdcRange.UNIPOLAR_10V), [0.0, 5.0, 7.5])
 
 
 def test_the_driver_register_map_is_the_docs_register_table() -> None:
@@ -599,6 +629,16 @@ def test_scan_with_block_read_matches_single_conversions() -> None:
         assert word >> 12 == ch  # channel tag
     singles = [adc.read_counts(ch) for ch in range(16)]
     assert list(adc.scan_counts(15)) == singles
+
+
+def test_a_repeated_scan_follows_a_new_calibration_and_a_new_range() -> None:
+    c, _, adc = make()
+    c.signals.set_analog("in0", 2.0)
+    assert adc.scan(0)[0] == pytest.approx(2.0, abs=LSB / 2)
+    adc.calibration = Calibration((0.5,) + (0.0,) * 15, (1.0,) * 16)  # the same scan, a new calibration
+    assert adc.scan(0)[0] == pytest.approx(1.5, abs=LSB / 2)
+    adc.set_range("unipolar")  # the same scan and calibration, a new range: code 819 is 2.0 V (not −6 V)
+    assert adc.scan(0)[0] == pytest.approx(1.5, abs=LSB / 4)
 
 
 def test_scan_of_a_channel_list_with_per_channel_gains() -> None:

@@ -246,3 +246,107 @@ def test_start_conversion_and_read_data_are_the_raw_steps() -> None:
     with pytest.raises(ValueError, match="gain"):
         adc.start_conversion(1, gain=3)
     assert bus.trace() == []
+
+
+# --- status bits one at a time, waits and their limits -------------------------------------------
+
+@pytest.mark.parametrize(("csr", "decoded"), [
+    # (busy, done, early_read, overrun, irq_pending, irq_enabled, irq_level, unipolar)
+    (0x0000, (False, False, False, False, False, False, 0, False)),
+    (0x0004, (True, False, False, False, False, False, 0, False)),  # bit 2 BUSY
+    (0x0008, (False, True, False, False, False, False, 0, False)),  # bit 3 DONE
+    (0x0010, (False, False, True, False, False, False, 0, False)),  # bit 4 EARLY
+    (0x0020, (False, False, False, True, False, False, 0, False)),  # bit 5 OVERRUN
+    (0x0080, (False, False, False, False, True, False, 0, False)),  # bit 7 IRQ_PEND
+    (0x0100, (False, False, False, False, False, True, 0, False)),  # bit 8 IRQ_EN
+    (0x0E00, (False, False, False, False, False, False, 7, False)),  # bits 11:9 IRQ_LEVEL
+    (0x1000, (False, False, False, False, False, False, 0, True)),  # bit 12 RANGE
+    (0x8043, (False, False, False, False, False, False, 0, False)),  # RESET, bit 6, SCAN, START: none of these
+])
+def test_status_decodes_each_csr_bit_alone(csr: int, decoded: tuple) -> None:
+    bus = scripted({("A16", 0x6002): csr})
+    s = AdcDriver(bus, BASE).status()
+    assert (s.busy, s.done, s.early_read, s.overrun, s.irq_pending, s.irq_enabled, s.irq_level,
+            s.range is AdcRange.UNIPOLAR_10V) == decoded
+
+
+@pytest.mark.parametrize("status", [0x00, 0x0C])
+def test_the_wait_needs_done_and_not_busy(status: int) -> None:
+    # idle without DONE (nothing converted yet), or DONE with BUSY (a new conversion running):
+    # neither ends the wait, which times out after 15 + 5 µs (polls at 15, 17, 19, 21 µs)
+    bus = scripted({("A16", 0x6002): status}, status=status)
+    adc = AdcDriver(bus, BASE, timeout_s=5e-6)
+    bus.clear()
+    with pytest.raises(AdcTimeoutError):
+        adc.read_counts(0)
+    assert bus.trace()[2:] == [f"R A16 0x6003 D8 0x{status:02X}"] * 4 + [f"R A16 0x6002 D16 0x{status:04X}"]
+
+
+def test_the_wait_ends_at_its_deadline_and_says_how_long_it_waited() -> None:
+    # times exact in binary: conversion 2**-16 s, polls every 2**-19 s, timeout 3 polls; the
+    # deadline is the fourth poll's time, so the fourth poll is the last
+    tc, tp = 2.0**-16, 2.0**-19
+    bus = scripted({("A16", 0x6002): 0x0004}, status=0x04)
+    adc = AdcDriver(bus, BASE, conversion_time_s=tc, poll_interval_s=tp, timeout_s=3 * tp)
+    bus.clear()
+    with pytest.raises(AdcTimeoutError) as ei:
+        adc.read_counts(4)
+    assert bus.trace()[2:] == [BUSY] * 4 + ["R A16 0x6002 D16 0x0004"]
+    assert ei.value.timeout_s == tc + 3 * tp and ei.value.csr == 0x0004
+    assert str(ei.value) == ("ADC conversion of channel 4 did not finish within 21 µs (CSR=0x0004); "  # 20.98 µs
+                             "check the board's clock/conversion time, the IRQ level and vector, or raise timeout_s")
+
+
+def test_a_scan_that_never_finishes_names_the_scan_and_the_default_timeout() -> None:
+    bus = scripted({("A16", 0x6002): 0x0004}, status=0x04)
+    adc = AdcDriver(bus, BASE)  # 15 µs a conversion, 1 ms of timeout by default
+    with pytest.raises(AdcTimeoutError) as ei:
+        adc.scan(3)
+    assert ei.value.timeout_s == pytest.approx(4 * 15e-6 + 1e-3)
+    assert str(ei.value).startswith("ADC scan of channels 0..3 did not finish within 1060 µs (CSR=0x0004); ")
+
+
+def test_an_interrupt_driven_wait_ends_at_its_deadline_too() -> None:
+    tc, tp = 2.0**-16, 2.0**-19  # as above: exact in binary, the deadline on the fourth check
+    bus = scripted({("A16", 0x6002): 0x0704})  # no interrupt ever comes
+    adc = AdcDriver(bus, BASE, conversion_time_s=tc, poll_interval_s=tp, timeout_s=3 * tp)
+    adc.enable_interrupts(level=3, vector=0x60)
+    bus.delays.clear()
+    with pytest.raises(AdcTimeoutError) as ei:
+        adc.read_counts(0)
+    assert bus.delays == [tc, tp, tp, tp]
+    assert ei.value.timeout_s == tc + 3 * tp
+    assert str(ei.value).startswith("ADC conversion of channel 0 (interrupt-driven) did not finish within 21 µs "
+                                    "(CSR=0x0704); ")
+
+
+def test_timeout_text_is_in_whole_microseconds() -> None:
+    assert "within 1500000 µs (CSR=0x0000)" in str(AdcTimeoutError("scan", 1.5, 0))
+
+
+def test_channel_and_scan_list_refusals_name_the_range() -> None:
+    adc = AdcDriver(scripted(), BASE)
+    with pytest.raises(ValueError, match=r"^ADC channel 16 is not 0\.\.15$"):
+        adc.read_counts(16)
+    with pytest.raises(ValueError, match=r"^scan needs at least one channel$"):
+        adc.scan([])
+
+
+def test_interrupt_levels_1_to_7_are_accepted_and_others_refused() -> None:
+    bus = scripted()
+    adc = AdcDriver(bus, BASE)
+    for level in (0, 8):
+        with pytest.raises(ValueError, match=rf"^IRQ level {level} is not 1\.\.7$"):
+            adc.enable_interrupts(level=level, vector=0x60)
+    bus.clear()
+    adc.enable_interrupts(level=1, vector=0x60)
+    adc.enable_interrupts(level=7, vector=0x61)
+    assert bus.trace()[2] == "W A16 0x6002 D16 0x0300"  # IRQ_LEVEL 1, IRQ_EN
+    assert bus.trace()[5] == "W A16 0x6002 D16 0x0F00"  # IRQ_LEVEL 7, IRQ_EN
+
+
+def test_the_wrong_board_is_named_in_the_id_error_in_full() -> None:
+    bus = RecordingBus(answers={("A16", 0x6000): 0x5001})  # a PIO there
+    with pytest.raises(BoardIdError, match=r"^no ADC at 0x6000: ID register reads 0x5001, expected 0xAD16; "
+                                           r"check the base address in the crate/rig file$"):
+        AdcDriver(bus, BASE)

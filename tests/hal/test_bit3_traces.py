@@ -14,6 +14,7 @@ import pytest
 from emulators.bit3 import Bit3Board, Bit3Link, Bit3RemotePort
 from emulators.crate import Crate
 from hal.bit3 import Bit3Driver, Bit3Error, LinkDownError, RemoteBusError
+from hal.bit3.driver import Bit3WindowMemory
 from hal.vme import BusError, BusErrorCause, Width
 from hal.vme.types import resolve_am
 from tests.support.bus_trace import Answer, RecordingBus
@@ -221,3 +222,114 @@ def test_doorbell_irq_on_the_emulated_card_is_taken_and_acknowledged() -> None:
     crate.delay(1e-6)  # the crate's CPU takes the interrupt
     assert got == [0x42] and not card.irq_pending
     assert bus.trace() == ["W A16 0xC004 D16 0xB30B", "R A16 0xC008 D16 0x0042"]
+
+
+# --- limits, defaults and texts ------------------------------------------------------------------
+def test_driver_refuses_an_a16_window_and_an_irq_level_or_vector_out_of_range() -> None:
+    bus = RecordingBus(answers={})
+    with pytest.raises(ValueError, match=r"^the BIT3 window must be in A24 or A32$"):
+        Bit3Driver(bus, CSR, 0x8000, window_space="A16")
+    for level, vector in ((1, 0x00), (7, 0xFF)):
+        Bit3Driver(bus, CSR, WIN, irq_level=level, irq_vector=vector)
+    for level, vector in ((0, 0xB3), (8, 0xB3), (3, -1), (3, 0x100)):
+        with pytest.raises(ValueError, match=rf"^IRQ level {level} must be 1\.\.7 and vector {vector} 0\.\.255$"):
+            Bit3Driver(bus, CSR, WIN, irq_level=level, irq_vector=vector)
+
+
+def test_the_default_window_is_64_kib_and_accesses_beyond_it_are_refused_without_a_cycle() -> None:
+    bus = RecordingBus(answers={("A24", WIN + 0xFFFF): 0x5A})
+    drv = Bit3Driver(bus, CSR, WIN)
+    assert drv.read(0xFFFF, Width.D8) == 0x5A
+    with pytest.raises(ValueError, match=r"^window access 0x10000\.\.0x10001 outside the 0x10000-byte window$"):
+        drv.read(0x10000, Width.D8)
+    with pytest.raises(ValueError, match=r"^window access -0x1\.\.0x3 outside the 0x10000-byte window$"):
+        drv.write(-1, 0)
+    assert bus.trace() == ["R A24 0x40FFFF D8 0x5A"]
+
+
+def test_block_transfers_check_count_times_width_against_the_window() -> None:
+    bus, drv = _scripted()  # a 0x1000-byte window
+    with pytest.raises(ValueError, match=r"^window access 0xff8\.\.0x1004 outside"):
+        drv.read_block(0xFF8, 3)  # 3 D32 words: 12 bytes from 0xFF8
+    drv.write_block(0xFFC, [1, 2], Width.D16)  # 4 bytes from 0xFFC: the last of the window
+    assert bus.trace() == ["W A24 0x400FFC D16 0x0001 BLT", "W A24 0x400FFE D16 0x0002 BLT"]
+    with pytest.raises(ValueError, match=r"^window access 0xffc\.\.0x1002 outside"):
+        drv.write_block(0xFFC, [1, 2, 3], Width.D16)
+
+
+def test_block_transfers_use_the_window_s_space_and_the_given_width() -> None:
+    bus = RecordingBus(answers={("A32", 0x8000_0000): 0x1234, ("A32", 0x8000_0002): 0x5678})
+    drv = Bit3Driver(bus, CSR, 0x8000_0000, window_space="A32")
+    assert drv.read_block(0, 2, Width.D16) == [0x1234, 0x5678]
+    drv.write_block(4, [0xAB], Width.D16)
+    assert bus.trace() == ["R A32 0x80000000 D16 0x1234 BLT", "R A32 0x80000002 D16 0x5678 BLT",
+                           "W A32 0x80000004 D16 0x00AB BLT"]
+
+
+def test_ring_doorbell_sends_code_1_by_default() -> None:
+    bus, drv = _scripted()
+    drv.ring_doorbell()
+    assert bus.trace() == ["W A16 0xC006 D16 0x0001"]
+
+
+def test_a_second_on_doorbell_replaces_the_callback_on_the_same_handler() -> None:
+    bus, drv = _scripted(DOORBELL_IN=0x0007)
+    first: list[int] = []
+    second: list[int] = []
+    drv.on_doorbell(first.append)
+    drv.on_doorbell(second.append)
+    handler = bus.irq_handler(0xB3)
+    assert handler is not None
+    handler(0xB3)
+    assert (first, second) == ([], [7])
+
+
+def test_memory_views_default_to_the_rest_of_the_window() -> None:
+    _bus, drv = _scripted()  # a 0x1000-byte window
+    m = drv.memory(0x40)
+    assert (m.base, m.size) == (0x40, 0xFC0)
+    m = drv.memory(0x40, 0x10)
+    assert (m.base, m.size) == (0x40, 0x10)
+    m = Bit3WindowMemory(drv)
+    assert (m.base, m.size) == (0, 0x1000)
+    assert Bit3WindowMemory(drv, 0x100, 8).size == 8
+    assert Bit3WindowMemory(drv, 0x100).size == 0xF00
+
+
+def test_a_failed_window_cycle_is_explained_with_the_status_in_full() -> None:
+    _bus, drv = _scripted(window_10=_berr(BusErrorCause.LINK_DOWN, WIN + 0x10), STATUS=0x0004, ERRORS=0x0001)
+    with pytest.raises(LinkDownError) as ei:
+        drv.read(0x10)
+    assert str(ei.value) == (
+        "BIT3 window +0x10: link down (the bus-bridge link is down or the remote crate is off; STATUS=0x0004 "
+        "link_up=0 remote_power=0 timeout=1 remote_berr=0 parity=0); check cable and remote power, then reset_link()")
+    _bus, drv = _scripted(window_8=_berr(BusErrorCause.REMOTE, WIN + 8), STATUS=0x001B, ERRORS=0x0001)
+    with pytest.raises(RemoteBusError) as ei2:
+        drv.read(8)
+    assert str(ei2.value) == (
+        "BIT3 window +0x8: remote bus error (the remote side of a bus bridge failed the cycle; STATUS=0x001B "
+        "link_up=1 remote_power=1 timeout=0 remote_berr=1 parity=1); reset_link() clears the latched error")
+
+
+def test_a_failed_window_cycle_with_status_unreadable_says_so() -> None:
+    def berr_with_detail(_n: int) -> int:
+        raise BusError(WIN + 4, resolve_am("A24"), Width.D32, BusErrorCause.NO_RESPONDER, detail="cable out")
+
+    _bus, drv = _scripted(window_4=berr_with_detail)  # no STATUS answer: the diagnosis read fails too
+    with pytest.raises(LinkDownError) as ei:
+        drv.read(4)
+    assert ei.value.status is None
+    assert str(ei.value) == ("BIT3 window +0x4: link down (cable out; STATUS unreadable); "
+                             "check cable and remote power, then reset_link()")
+    with pytest.raises(LinkDownError, match=r"^BIT3 window \+0x4: link down"):
+        drv.read_block(4, 1)
+
+
+def test_a_failed_block_write_is_a_link_error_too() -> None:
+    link = Bit3Link(0x1000)  # the remote crate never powered on
+    crate = Crate()
+    crate.install(Bit3Board("bit3", link, window_base=WIN), base=CSR, space="A16")
+    drv = Bit3Driver(crate, CSR, WIN, window_size=0x1000)
+    with pytest.raises(LinkDownError, match=r"^BIT3 window \+0x10: link down") as ei:
+        drv.write_block(0x10, [1, 2])
+    assert ei.value.bus_error is not None and ei.value.bus_error.address == WIN + 0x10

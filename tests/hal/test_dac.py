@@ -382,3 +382,47 @@ gain_error = [0, 0, 0.01, 0, 0, 0, 0, 0]
     c.delay(6e-6)
     assert c.signals.get_analog("amp1.cmd") == pytest.approx(5.05, abs=DAC_LSB_V)
     assert c.describe()[0]["type"] == "dac"
+
+
+# --- the driver's API edges and texts ------------------------------------------------------------
+
+def test_wrong_board_at_the_address_is_named_in_the_id_error() -> None:
+    with pytest.raises(BoardIdError, match=r"^no DAC at 0x6000: ID register reads 0xAD16, expected 0xDA08; "
+                                           r"check the base address in the crate/rig file$"):
+        DacDriver(_adc_crate(), ADC_BASE)
+    c, _, dac = make()
+    assert dac.bus is c
+    with pytest.raises(ValueError, match=r"^DAC calibration has 4 channels, the board has 8$"):
+        DacDriver(c, BASE, calibration=Calibration.identity(4))
+
+
+def test_channel_and_raw_code_ranges() -> None:
+    *_, dac = make()
+    for bad in (-1, 8):
+        with pytest.raises(ValueError, match=rf"^DAC channel {bad} is not 0\.\.7$"):
+            dac.write_counts(bad, 0x800)
+    dac.write_counts(7, 0x000)  # both ends of the 12 bits are codes
+    assert dac.read_holding_counts(7) == 0x000
+    dac.write_counts(7, 0xFFF, update=False)
+    assert dac.read_holding_counts(7) == 0xFFF
+    for bad in (-1, 0x1000):
+        with pytest.raises(ValueError, match=rf"^DAC code {bad} is outside 0\.\.0xFFF$"):
+            dac.write_counts(0, bad)
+
+
+def test_write_result_says_whether_an_update_strobe_was_written() -> None:
+    *_, dac = make()
+    assert dac.write_many({0: 1.0}).updated is True
+    assert dac.write_many({0: 1.0}, update=False).updated is False
+    assert dac.write_many({}).updated is False  # nothing loaded: no strobe
+
+
+def test_range_error_names_the_command_and_the_calibrated_command() -> None:
+    e = DacRangeError(3, 12.0, 12.0)
+    assert (e.channel, e.volts, e.command_v) == (3, 12.0, 12.0)
+    assert str(e) == ("DAC channel 3: +12.0000 V is outside the output range -10.0000..+9.9951 V; "
+                      "limit the command upstream or open the driver with clamp=True")
+    e = DacRangeError(1, 9.9, 10.02)
+    assert e.command_v == 10.02
+    assert str(e) == ("DAC channel 1: +9.9000 V (calibrated command +10.0200 V) is outside the output range "
+                      "-10.0000..+9.9951 V; limit the command upstream or open the driver with clamp=True")

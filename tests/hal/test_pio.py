@@ -15,8 +15,10 @@ from hal.pio import (
     PioDriver,
     PwmRangeError,
     UnknownLineError,
+    pio_regs,
 )
-from hal.vme import BusError, BusErrorCause, Width
+from hal.vme import AddressSpace, BusError, BusErrorCause, Width
+from hal.vme.registers import RegisterMap
 from tests.support.board_spec import doc_registers, map_differences
 from vmehil.commands.crate import probe_all
 
@@ -377,6 +379,24 @@ def test_doc_register_table_states_every_register_of_the_board() -> None:
 
 def test_driver_register_map_matches_the_doc() -> None:
     assert map_differences(PIO_REGS, doc_registers("pio"), who="hal.pio") == []
+
+
+def test_pin_names_are_p_port_and_bit_0_to_7() -> None:
+    assert [pio_regs.parse_line(p) for p in ("PA0", " pb3 ", "PC7")] == [(0, 0), (1, 3), (2, 7)]
+    for bad in ("PAX", "PA8", "PD0", "PA", "PA00", "QA0"):
+        with pytest.raises(ValueError, match=rf"^{bad!r} is not a PIO line; expected PA0\.\.PA7, PB0\.\.PB7 "
+                                             r"or PC0\.\.PC7$"):
+            pio_regs.parse_line(bad)
+
+
+def test_port_register_builder_gives_the_doc_s_fifteen_port_registers() -> None:
+    # PIO_REGS is built at import, before any test; calling the builder here checks what it
+    # makes as it runs now (a mutation tester's changes to it take effect only so)
+    doc = {n: r for n, r in doc_registers("pio").items() if n.split("_")[0] in ("DDR", "DATA", "PIN", "IER", "ICS")}
+    built = pio_regs._port_regs()
+    assert len(built) == len(doc) == 15
+    ports = RegisterMap("pio ports", 0x20, AddressSpace.A16, tuple(built))
+    assert map_differences(ports, doc, who="hal.pio._port_regs") == []
 
 
 def test_emulator_register_map_matches_the_doc() -> None:

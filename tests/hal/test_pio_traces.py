@@ -13,7 +13,7 @@ import pytest
 
 from emulators.crate import Crate
 from emulators.pio import PioBoard
-from hal.pio import LineStuckError, PioBoardIdError, PioDriver, PwmRangeError
+from hal.pio import LineDirectionError, LineStuckError, PioBoardIdError, PioDriver, PwmRangeError, UnknownLineError
 from hal.vme.types import AddressModifier, Width
 from tests.support.bus_trace import Answer, RecordingBus
 
@@ -300,3 +300,217 @@ def test_pwm_on_the_emulated_board_publishes_the_duty_fraction() -> None:
     d.pwm_enable(True)
     assert bus.trace() == ["W A16 0x401A D16 0x01F4", "W A16 0x401C D16 0x007D", "W A16 0x4018 D16 0x0001"]
     assert crate.signals.get_analog("hb1.pwm") == 0.25 and crate.signals.get_digital("hb1.dir") is False
+
+
+# --- bits other than 0, boundaries, state after reset and close, error texts ---------------------
+def test_driver_refuses_an_irq_level_or_vector_the_board_cannot_hold() -> None:
+    bus = _scripted()
+    for level in (1, 7):
+        PioDriver(bus, BASE, irq_level=level)
+    for vector in (0x00, 0xFF):
+        PioDriver(bus, BASE, vector=vector)
+    for level in (0, 8):
+        with pytest.raises(ValueError, match=rf"^irq_level {level} is not 1\.\.7$"):
+            PioDriver(bus, BASE, irq_level=level)
+    for vector in (-1, 0x100):
+        with pytest.raises(ValueError, match=rf"^vector {vector} is not an 8-bit status/ID$"):
+            PioDriver(bus, BASE, vector=vector)
+    with pytest.raises(UnknownLineError, match=r"^wiring table entry 'x' = 'PD0': 'PD0' is not a PIO line; "
+                                               r"expected PA0\.\.PA7, PB0\.\.PB7 or PC0\.\.PC7$"):
+        PioDriver(bus, BASE, lines={"x": "PD0"})
+
+
+def test_default_interrupt_word_is_vector_0x60_level_3() -> None:
+    bus = _scripted()
+    d = PioDriver(bus, BASE)
+    bus.clear()
+    d.on_change("PB1", lambda n, v: None)  # bit 1 of port B: IER_B 0x02 from a clean start
+    assert bus.trace() == ["W A16 0x4013 D8 0x02", "W A16 0x400F D8 0x02", "W A16 0x4016 D16 0x6083"]
+
+
+def test_on_change_of_lines_adds_their_bits_and_refuses_an_output() -> None:
+    bus = _scripted()
+    d = _driver(bus)
+    d.configure(outputs=["hb1.dir"])
+    bus.clear()
+    d.on_change("PB1", lambda n, v: None)
+    d.on_change("PB4", lambda n, v: None)
+    assert bus.trace()[3:5] == ["W A16 0x4013 D8 0x10", "W A16 0x400F D8 0x12"]  # PB1 kept, PB4 added
+    with pytest.raises(LineDirectionError, match=r"^PIO line 'hb1\.dir' is an output; input-change interrupts "
+                                                 r"watch inputs only$"):
+        d.on_change("hb1.dir", lambda n, v: None)  # PA1, bit 1
+
+
+def test_on_change_takes_a_port_by_letter_or_p_letter_and_a_wiring_name_first() -> None:
+    bus = _scripted()
+    d = PioDriver(bus, BASE, lines={"B": "PA3"})
+    bus.clear()
+    ports: list[tuple[str, int, int]] = []
+    d.on_change("PC", lambda p, changed, levels: ports.append((p, changed, levels)))
+    d.on_change(" pa ", lambda p, changed, levels: None)
+    d.on_change("B", lambda n, v: None)  # the wiring table's line B is PA3, not port B
+    assert bus.trace() == [
+        "W A16 0x4014 D8 0xFF", "W A16 0x4010 D8 0xFF", "W A16 0x4016 D16 0x6083",  # port C
+        "W A16 0x4012 D8 0xFF", "W A16 0x400E D8 0xFF", "W A16 0x4016 D16 0x6083",  # port A
+        "W A16 0x4012 D8 0x08", "W A16 0x400E D8 0xFF", "W A16 0x4016 D16 0x6083",  # line B = PA3
+    ]
+
+
+def test_the_handler_serves_port_b_when_port_a_has_nothing_enabled_and_calls_only_changed_lines() -> None:
+    bus = _scripted({0x4013: [0x08, 0x00], 0x400B: 0x0A}, wires=False)  # PB3 changed; pins PB1, PB3 high
+    d = _driver(bus)
+    seen: list[tuple[str, bool]] = []
+    d.on_change("PB1", lambda n, v: seen.append((n, v)))
+    d.on_change("PB3", lambda n, v: seen.append((n, v)))
+    bus.clear()
+    handler = bus.irq_handler(0x60)
+    assert handler is not None
+    handler(0x60)
+    assert bus.trace() == ["R A16 0x4013 D8 0x08", "W A16 0x4013 D8 0x08", "R A16 0x400B D8 0x0A"]
+    assert seen == [("PB3", True)]
+
+
+def test_is_output_reads_each_bit_of_the_direction_shadow() -> None:
+    bus = _scripted()
+    d = _driver(bus)
+    d.configure(outputs=["hb1.dir", "PC7"])
+    assert [d.is_output(n) for n in ("amp1.enable", "hb1.dir", "PA2", "PC6", "PC7")] == [
+        False, True, False, False, True]
+
+
+def test_configure_sets_several_initial_levels_of_one_port_and_refuses_one_for_an_input() -> None:
+    bus = _scripted()
+    d = _driver(bus)
+    d.configure(outputs=["PC1", "PC5"], initial={"PC1": True, "PC5": True})
+    assert bus.trace() == ["W A16 0x4006 D8 0x00", "W A16 0x4002 D8 0x00", "W A16 0x4007 D8 0x00",
+                           "W A16 0x4003 D8 0x00", "W A16 0x4008 D8 0x22", "W A16 0x4004 D8 0x22"]
+    with pytest.raises(LineDirectionError, match=r"^initial level given for 'PC2', which is not in outputs$"):
+        d.configure(outputs=["PC1"], initial={"PC2": True})
+
+
+def test_set_line_on_an_input_names_its_pin_and_a_pin_stuck_high_is_reported_high() -> None:
+    bus = _scripted({0x400A: 0x02}, wires=False)  # PA1's wire stays high
+    d = _driver(bus)
+    with pytest.raises(LineDirectionError, match=r"^PIO line 'amp1\.fault' \(PB0\) is an input; "
+                                                 r"list it in configure\(outputs=\.\.\.\) to drive it$"):
+        d.set_line("amp1.fault", True)
+    d.configure(outputs=["hb1.dir"])
+    with pytest.raises(LineStuckError) as ei:
+        d.set_line("hb1.dir", False)
+    assert ei.value.lines == {"hb1.dir": True}
+    assert str(ei.value) == ("output line(s) do not follow their latch: hb1.dir (latch 0, pin 1); the line is stuck "
+                             "or shorted — check the wiring and the load before re-enabling")
+
+
+def test_verify_outputs_lists_each_stuck_output_by_name_or_pin_with_its_pin_level() -> None:
+    bus = _scripted({0x400A: 0x02}, wires=False)  # PIN_A: PA1 high, PA2 low
+    d = _driver(bus)
+    d.configure(outputs=["hb1.dir", "PA2"], initial={"PA2": True})  # latch: PA1 low, PA2 high
+    with pytest.raises(LineStuckError) as ei:
+        d.verify_outputs()
+    assert ei.value.lines == {"hb1.dir": True, "PA2": False}
+    assert "hb1.dir (latch 0, pin 1), PA2 (latch 1, pin 0); " in str(ei.value)
+
+
+def test_unknown_names_and_ports_are_refused_naming_what_is_known() -> None:
+    bus = _scripted()
+    d = _driver(bus)
+    with pytest.raises(UnknownLineError, match=r"^unknown PIO line 'x': not in the wiring table \(known: amp1\.enable, "
+                                               r"amp1\.fault, grip\.closed, hb1\.dir\) and not a pin PA0\.\.PC7$"):
+        d.resolve("x")
+    with pytest.raises(UnknownLineError, match=r"\(known: none\)"):
+        PioDriver(bus, BASE).resolve("x")
+    assert d.read_port(2) == 0x00
+    for bad in (3, -1, "D"):
+        with pytest.raises(UnknownLineError, match=rf"^unknown PIO port {bad!r}; expected A, B or C$"):
+            d.read_port(bad)
+
+
+def test_write_port_takes_a_byte_and_set_line_keeps_the_other_bits_it_wrote() -> None:
+    bus = _scripted()
+    d = _driver(bus)
+    d.configure(outputs=["amp1.enable"])
+    d.write_port("A", 0xFF)
+    bus.clear()
+    d.set_line("amp1.enable", False, verify=False)
+    assert bus.trace() == ["W A16 0x4006 D8 0xFE"]
+    for bad in (-1, 0x100):
+        with pytest.raises(ValueError, match=rf"^port value {bad} is not a byte$"):
+            d.write_port("A", bad)
+
+
+def test_after_reset_every_line_is_an_input_no_interrupt_is_enabled_and_the_period_is_0() -> None:
+    bus = _scripted()
+    d = _driver(bus)
+    d.configure(outputs=["amp1.enable", "PB0", "PC0"])
+    d.on_change("PB3", lambda n, v: None)
+    d.set_pwm_period(50e-6)
+    d.reset()
+    assert [d.is_output(n) for n in ("PA0", "PB0", "PC0")] == [False, False, False]
+    with pytest.raises(PwmRangeError, match=r"^PWM period is 0 \(output held low\); pass period_s or call "
+                                            r"set_pwm_period first$"):
+        d.set_pwm(0.5)
+    bus.clear()
+    for line in ("PA1", "PB1", "PC1"):
+        d.on_change(line, lambda n, v: None)
+    assert [t for t in bus.trace() if t.startswith(("W A16 0x400E", "W A16 0x400F", "W A16 0x4010"))] == [
+        "W A16 0x400E D8 0x02", "W A16 0x400F D8 0x02", "W A16 0x4010 D8 0x02"]
+    assert bus.irq_handler(0x60) is not None
+
+
+def test_after_close_a_new_watch_starts_from_no_enabled_bits_and_registers_the_handler_again() -> None:
+    bus = _scripted()
+    d = _driver(bus)
+    d.on_change("PB0", lambda n, v: None)
+    d.close()
+    assert bus.irq_handler(0x60) is None
+    bus.clear()
+    d.on_change("PB1", lambda n, v: None)
+    assert bus.trace()[1] == "W A16 0x400F D8 0x02"
+    assert bus.irq_handler(0x60) is not None
+
+
+def test_pwm_limits_and_their_texts() -> None:
+    bus = _scripted()
+    d = _driver(bus)
+    d.set_pwm(0.0, period_s=50e-6)  # no direction line: a zero duty is allowed, a negative one is not
+    with pytest.raises(PwmRangeError, match=r"^negative duty -0\.5 needs a direction line \(none configured\)$"):
+        d.set_pwm(-0.5)
+    with pytest.raises(PwmRangeError, match=r"^PWM duty 1\.5 is outside \[-1, 1\]$"):
+        d.set_pwm(1.5)
+    with pytest.raises(LineDirectionError, match=r"^PWM direction line 'hb1\.dir' is an input; "
+                                                 r"configure it as an output$"):
+        d.set_pwm(0.5, direction_line="hb1.dir")  # PA1, bit 1, an input
+    d.set_pwm_period(6.5535e-3)  # 65535 ticks, the top
+    for bad in (6.5536e-3, float("inf"), float("nan")):
+        with pytest.raises(PwmRangeError, match=r"^PWM period .* s is outside 2\.\.65535 ticks of 10 MHz "
+                                                r"\(0\.2 µs \.\. 6\.5535 ms\)$"):
+            d.set_pwm_period(bad)
+
+
+def test_pwm_duty_of_a_running_timer_with_period_0_is_0() -> None:
+    bus = _scripted({0x4018: 0x0001, 0x401A: 0x0000, 0x401C: 0x0010})
+    d = _driver(bus)
+    assert d.pwm_duty() == 0.0
+
+
+def test_a_board_with_another_id_is_named_in_full() -> None:
+    bus = _scripted({0x4000: 0xAD16})
+    with pytest.raises(PioBoardIdError, match=r"^no parallel I/O board at 0x4000: ID register reads 0xAD16, "
+                                              r"expected 0x5001; check the base address in the crate/rig file$"):
+        _driver(bus).probe()
+
+
+def test_the_handler_goes_on_past_a_port_with_nothing_pending() -> None:
+    bus = _scripted({0x4012: 0x00, 0x4013: 0x02, 0x400B: 0x02}, wires=False)  # port A quiet, PB1 changed
+    d = _driver(bus)
+    seen: list[tuple[str, bool]] = []
+    d.on_change("PA4", lambda n, v: seen.append((n, v)))
+    d.on_change("PB1", lambda n, v: seen.append((n, v)))
+    bus.clear()
+    handler = bus.irq_handler(0x60)
+    assert handler is not None
+    handler(0x60)
+    assert bus.trace() == ["R A16 0x4012 D8 0x00", "R A16 0x4013 D8 0x02", "W A16 0x4013 D8 0x02",
+                           "R A16 0x400B D8 0x02"]
+    assert seen == [("PB1", True)]

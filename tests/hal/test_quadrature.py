@@ -294,8 +294,12 @@ def test_long_runs_wrap_many_times_in_both_directions() -> None:
 def test_more_than_half_a_range_between_reads_is_reported_not_guessed() -> None:
     c, _, d = _rig(channels=(0,))
     _pub(c, int(0.6 * M))  # no wrap, but it looks like -0.4 M
-    with pytest.raises(TrackingLostError, match="half a range"):
+    with pytest.raises(TrackingLostError, match=(
+            r"^quadrature channel 0: count moved -\d+ \(more than a quarter of the 24-bit range\) since the "
+            r"last read and the wrap flags \(overflow=False, underflow=False\) disagree: more than half a range "
+            r"of travel between reads; read the channel more often and re-home$")) as lost:
         d.position_counts(0)
+    assert lost.value.channel == 0
     d.preset(0, M - 10)
     before = d.position_counts(0)
     _pub(c, int(0.45 * M))  # wraps, overflow flag set: consistent, accepted
@@ -310,7 +314,10 @@ def test_too_fast_a_shaft_is_reported_as_illegal_and_the_count_falls_behind() ->
     slow_decoder_hz = 20_000.0
     enc = EncoderSampler(CPR, slow_decoder_hz, index_phase_x4=None)
     omega = 2.2 * slow_decoder_hz / CPR * 2 * math.pi  # 2.2 states per decoder sample
-    with pytest.raises(IllegalTransitionError, match="outran") as ei:
+    with pytest.raises(IllegalTransitionError, match=(
+            r"^quadrature channel 0: illegal transition \(A and B changed in one decoder sample\): counts were "
+            r"lost — the shaft outran the decoder's sampling rate or the signals are noisy; re-home, then "
+            r"clear_errors\(\)$")) as ei:
         theta = 0.0
         for _ in range(3):
             theta += omega * dt
@@ -360,8 +367,10 @@ def test_index_latch_and_homing_define_zero_at_the_index() -> None:
     c, _, d = _rig(channels=(0,))
     index_state = 777
     enc = EncoderSampler(CPR, 1e6, index_phase_x4=index_state, theta0_rad=0.1)
-    with pytest.raises(IndexNotSeenError):
+    with pytest.raises(IndexNotSeenError, match=r"^quadrature channel 0: no index captured; arm_index\(\) and "
+                                                r"move through the index first$") as unseen:
         d.home_at_index(0)
+    assert unseen.value.channel == 0
     d.arm_index(0)
     theta = 0.1
     while not d.index_seen(0):
@@ -427,6 +436,8 @@ def test_missed_counts_fault_is_caught_by_the_index_check() -> None:
     with pytest.raises(IndexMismatchError) as ei:
         d.check_index(0)
     assert ei.value.error_counts == -3.0
+    assert str(ei.value) == ("quadrature channel 0: index captured -3 counts off the homed grid: counts were missed "
+                             "or gained (check encoder wiring, speed vs decoder sampling rate); re-home the axis")
     truth = math.floor(theta * CPR / (2 * math.pi))
     assert d.position_counts(0) == truth - 3
 
@@ -437,10 +448,27 @@ def test_counter_jump_fault_is_caught_by_the_plausibility_limit() -> None:
     _pub(c, 900)
     d.update(0.008)
     b.inject("counter_jump", channel=0, counts=-5000)
-    with pytest.raises(CountJumpError, match="-5000"):
+    with pytest.raises(CountJumpError, match=r"^quadrature channel 0: count changed by -5000 in one tick "
+                                             r"\(limit 1000\): a counter jump or noise burst; check the encoder "
+                                             r"and re-home$") as ei:
         d.update(0.008)
+    assert ei.value.channel == 0
     assert d.read_count(0) == (900 - 5000) % M  # the jump wrapped below zero
     assert b.ch[0].status & 0b1000 == 0  # and the driver consumed the underflow flag while unwrapping
+
+
+def test_each_reading_of_update_names_its_channel() -> None:
+    _, _, d = _rig(channels=(0, 2))
+    assert [(ch, r.channel) for ch, r in d.update(0.008).items()] == [(0, 0), (2, 2)]
+
+
+def test_a_jump_seen_by_velocity_of_one_channel_names_that_channel() -> None:
+    c, _, d = _rig(channels=(1,), max_counts_per_tick=1000)
+    d.velocity(1, 0.008)
+    _pub(c, 1001, ch=1)
+    with pytest.raises(CountJumpError, match=r"count changed by \+1001 in one tick \(limit 1000\)") as ei:
+        d.velocity(1, 0.008)
+    assert ei.value.channel == 1
 
 
 def test_huge_counter_jump_is_tracking_lost() -> None:
@@ -494,9 +522,9 @@ def test_velocity_uses_one_over_t_at_low_speed_and_decays_to_zero() -> None:
 
 def test_velocity_argument_check() -> None:
     _, _, d = _rig(channels=(0,))
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"^dt must be > 0 s \(got 0\.0\)$"):
         d.velocity(0, 0.0)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"^quadrature channel 3 is not in use \(channels \(0,\)\)$"):
         d.position_counts(3)  # not in use
 
 
@@ -511,7 +539,7 @@ def test_mode_change_keeps_position_continuous() -> None:
     p0 = d.position_rad(0)
     _pub(c, 400)
     assert d.position_rad(0) - p0 == pytest.approx(400 * 2 * math.pi / 2000)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"^quadrature mode 3 is not 1, 2 or 4$"):
         d.set_mode(0, 3)
 
 
@@ -526,7 +554,7 @@ def test_preset_and_clear_keep_the_position() -> None:
     d.clear(0)
     assert d.read_count(0) == 0
     assert d.position_rad(0) == pytest.approx(1.0 + 0x200 * 2 * math.pi / CPR)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"^preset 16777216 is not a 24-bit count$"):
         d.preset(0, M)
 
 
@@ -534,8 +562,10 @@ def test_counts_per_rev_validation() -> None:
     c, _, _ = _rig()
     with pytest.raises(ValueError, match="channel"):
         QuadratureDriver(c, BASE, counts_per_rev={0: 2000.0}, channels=(0, 1))
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"^counts_per_rev for channel 0 must be > 0 \(got 0\.0\)$"):
         QuadratureDriver(c, BASE, counts_per_rev=0.0)
+    with pytest.raises(ValueError, match=r"^errors must be 'raise' or 'report' \(got 'ignore'\)$"):
+        QuadratureDriver(c, BASE, counts_per_rev=2000.0, errors="ignore")
 
 
 # --- wiring ------------------------------------------------------------------------------

@@ -179,8 +179,10 @@ def test_preset_and_mode_change_keep_home_and_velocity_consistent() -> None:
     c.signals.publish_quadrature("enc0", QuadratureEvents(counts=1990, index_offsets=(1970,)))
     assert d.check_index(0) == 0.0
     d.set_mode(0, 2)
-    with pytest.raises(IndexNotSeenError):  # the grid was in x4 counts: re-home first
+    with pytest.raises(IndexNotSeenError, match=r"^quadrature channel 0: the axis is not homed; call "
+                                                r"home_at_index\(\) first$") as ei:  # the grid was in x4 counts
         d.check_index(0)
+    assert ei.value.channel == 0
     assert d.update(0.008)[0].velocity_counts_s == 0.0  # the estimator restarts in the new mode
 
 

@@ -9,13 +9,17 @@ the doc says the card would; the forwarding bus runs the driver on a crate with 
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from emulators.bit3 import Bit3RemotePort
 from emulators.crate import Crate
 from emulators.sbs617 import Sbs617Card
-from hal.bit3 import Bit3Error, LinkDownError, RemoteBusError, Sbs617Driver
-from hal.vme import Width
+from hal.bit3 import Bit3Error, LinkDownError, RemoteBusError, Sbs617Driver, sbs617_regs
+from hal.bit3.sbs617 import Sbs617WindowMemory, probe_sbs617
+from hal.vme import AddressSpace, Width
+from hal.vme.registers import Access, Field, Register
 from tests.support.bus_trace import Answer, RecordingBus
 
 NODE, MAPS, WIN = 0x80000000, 0x80010000, 0x82000000
@@ -193,3 +197,186 @@ def test_remote_power_off_on_the_emulated_card_reads_all_ones_and_0x05() -> None
     with pytest.raises(LinkDownError):
         drv.read(0x10)
     assert bus.trace() == ["R A32 0x82000010 D32 0xFFFFFFFF", "R A32 0x80000002 D8 0x05", CLEAR_ERRORS]
+
+
+# --- the dry pass's probe, the register helper, edges ----------------------------------------------
+@pytest.mark.parametrize(("lsr", "ctrl", "ok", "text"), [
+    (0x00, 0x00, True, "LOC_STATUS 0x00 (remote connected), LOC_INT_CTRL 0x00; no ID register"),
+    (0x01, 0x00, True, "LOC_STATUS 0x01 (remote crate off or cable out), LOC_INT_CTRL 0x00; no ID register"),
+    (0xF6, 0xE7, True, "LOC_STATUS 0xF6 (remote connected), LOC_INT_CTRL 0xE7; no ID register"),  # every other bit
+    (0x08, 0x00, False, "LOC_STATUS 0x08, LOC_INT_CTRL 0x00: bits the 617 reads as 0 are set"),  # LOC_STATUS bit 3
+    (0x00, 0x10, False, "LOC_STATUS 0x00, LOC_INT_CTRL 0x10: bits the 617 reads as 0 are set"),  # LOC_INT_CTRL bit 4
+    (0x00, 0x08, False, "LOC_STATUS 0x00, LOC_INT_CTRL 0x08: bits the 617 reads as 0 are set"),  # LOC_INT_CTRL bit 3
+])
+def test_the_dry_pass_probe_reads_the_bits_that_must_be_0(lsr: int, ctrl: int, ok: bool, text: str) -> None:
+    bus = RecordingBus(answers={("A32", NODE + 2): lsr, ("A32", NODE + 1): ctrl})
+    got = probe_sbs617(bus, NODE, AddressSpace.A32)
+    assert (got.ok, got.detail) == (ok, text)
+    assert bus.trace() == [f"R A32 0x80000002 D8 0x{lsr:02X}", f"R A32 0x80000001 D8 0x{ctrl:02X}"]
+
+
+def test_the_dry_pass_probe_of_nothing_says_the_card_is_pci() -> None:
+    got = probe_sbs617(RecordingBus(answers={}), NODE, AddressSpace.A32)
+    assert got.ok is False
+    assert got.detail.startswith("BusError: ") and got.detail.endswith(
+        " (the SBS 617 is a PCI card: its registers are the host's PCI BARs, not VME addresses)")
+
+
+def test_node_registers_are_single_bytes() -> None:
+    f = Field("X", 1, 2)
+    assert sbs617_regs._r("R", 0x05, Access.RO, f, reset=0x12, doc="d") == Register(
+        "R", 0x05, Width.D8, Access.RO, fields=(f,), reset=0x12, doc="d")
+    assert sbs617_regs._r("S", 0x06, Access.RW) == Register("S", 0x06, Width.D8, Access.RW)
+
+
+def test_driver_refuses_irq_levels_vectors_and_sizes_out_of_range() -> None:
+    bus = RecordingBus(answers={})
+    kw = {"remote_base": 0x400000}
+    for level, vector in ((1, 0x00), (7, 0xFF)):
+        Sbs617Driver(bus, NODE, MAPS, WIN, irq_level=level, irq_vector=vector, **kw)
+    for level, vector in ((0, 0xB3), (8, 0xB3), (3, -1), (3, 0x100)):
+        with pytest.raises(ValueError, match=rf"^IRQ level {level} must be 1\.\.7 and vector {vector} 0\.\.255$"):
+            Sbs617Driver(bus, NODE, MAPS, WIN, irq_level=level, irq_vector=vector, **kw)
+    Sbs617Driver(bus, NODE, MAPS, WIN, mem_size=1, **kw)
+    with pytest.raises(ValueError, match=r"^remote base 0x400000 must be 4 KiB aligned and 0 < mem_size <= 32 MiB$"):
+        Sbs617Driver(bus, NODE, MAPS, WIN, mem_size=0, **kw)
+
+
+def test_longer_transfers_step_four_bytes_a_word() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x00, window_1=0x01, window_2=0x02, window_3=0x03, window_4=0x04050607,
+                         window_8=0x08090A0B, window_C=0x0C)
+    assert drv.read_bytes(1, 12) == bytes(range(1, 13))
+    assert bus.trace() == ["R A32 0x82000001 D8 0x01", "R A32 0x82000002 D8 0x02", "R A32 0x82000003 D8 0x03",
+                           "R A32 0x82000004 D32 0x04050607", "R A32 0x82000008 D32 0x08090A0B",
+                           "R A32 0x8200000C D8 0x0C", LSR_OK]
+    bus.clear()
+    drv.write_bytes(1, bytes(range(1, 13)))
+    assert bus.trace() == ["W A32 0x82000001 D8 0x01", "W A32 0x82000002 D8 0x02", "W A32 0x82000003 D8 0x03",
+                           "W A32 0x82000004 D32 0x04050607", "W A32 0x82000008 D32 0x08090A0B",
+                           "W A32 0x8200000C D8 0x0C", LSR_OK]
+
+
+def test_ring_doorbell_default_and_an_interrupt_without_pr_only_reads() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x00)
+    drv.ring_doorbell()
+    assert bus.trace() == ["W A32 0x80000008 D8 0x20", LSR_OK]
+    got: list[int] = []
+    drv.on_doorbell(got.append)
+    bus.clear()
+    handler = bus.irq_handler(0xB3)
+    assert handler is not None
+    handler(0xB3)  # LOC_STATUS 0x00: no PR interrupt pending
+    assert bus.trace() == [LSR_OK] and got == []
+
+
+def test_each_status_error_counts() -> None:
+    _bus, drv = _scripted(LOC_STATUS=0x40)
+    for _ in range(2):
+        with pytest.raises(RemoteBusError):
+            drv.write(0, 1, Width.D8)
+    assert drv.errors == 2
+
+
+def test_status_errors_are_explained_in_full_and_carry_the_status() -> None:
+    _bus, drv = _scripted(LOC_STATUS=0x04, window_10=0)
+    with pytest.raises(LinkDownError) as ei:
+        drv.read(0x10)
+    assert ei.value.status == 0x04
+    assert str(ei.value) == ("SBS 617 read +0x10: link down (LOC_STATUS=0x04 no_connect=0 timeout=1 rembus=0 parity=0 "
+                             "lrc=0); check the cable and the remote crate's power, then reset_link()")
+    _bus, drv = _scripted(LOC_STATUS=0xC2)
+    with pytest.raises(RemoteBusError) as ei2:
+        drv.write_bytes(0x20, b"\x01\x02")
+    assert ei2.value.status == 0xC2 and ei2.value.bus_error is None
+    assert str(ei2.value) == ("SBS 617 write +0x20..+0x22: remote bus error (LOC_STATUS=0xC2 no_connect=0 timeout=0 "
+                              "rembus=1 parity=1 lrc=1); the error is cleared")
+    _bus, drv = _scripted(LOC_STATUS=0x40, window_8=0)
+    with pytest.raises(RemoteBusError, match=r"^SBS 617 read \+0x8\.\.\+0xC: remote bus error"):
+        drv.read_bytes(8, 4)
+    _bus, drv = _scripted(LOC_STATUS=0x40)
+    with pytest.raises(RemoteBusError, match=r"^SBS 617 write \+0x4: remote bus error"):
+        drv.write(4, 0)
+    _bus, drv = _scripted(LOC_STATUS=0x40)
+    with pytest.raises(RemoteBusError, match=r"^SBS 617 ring: remote bus error"):
+        drv.ring_doorbell()
+    assert drv.status().errors == 1
+
+
+def test_a_failed_host_cycle_names_the_operation() -> None:
+    bus = RecordingBus(answers={})  # nothing answers a read: the host's bus fails, not the link
+    drv = Sbs617Driver(bus, NODE, MAPS, WIN, remote_base=0x400000)
+    for call, what in ((lambda: drv.read(0x10), "read +0x10"), (lambda: drv.read_bytes(0x10, 4), "read +0x10")):
+        with pytest.raises(LinkDownError, match=rf"^SBS 617 {re.escape(what)}: the host's bus failed \(") as ei:
+            call()
+        assert ei.value.bus_error is not None and ei.value.status is None
+
+
+def test_probe_with_the_remote_off_says_so_in_full() -> None:
+    _bus, drv = _scripted(LOC_STATUS=0x01)
+    with pytest.raises(LinkDownError) as ei:
+        drv.probe()
+    assert ei.value.status == 0x01
+    assert str(ei.value) == ("SBS 617 at 0x80000000: not connected (LOC_STATUS=0x01): the remote crate is off or "
+                             "the cable is out")
+
+
+def test_window_limits_of_the_default_4_kib_memory() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x00, window_FFC=0x01020304)
+    assert drv.read(0xFFC) == 0x01020304  # the last word of 0x1000 bytes
+    for offset, width in ((0xFFD, Width.D32), (0x1000, Width.D8), (-1, Width.D8)):
+        with pytest.raises(ValueError, match=r"outside the 0x1000-byte memory$"):
+            drv.read(offset, width)
+    with pytest.raises(ValueError, match=r"^window access 0xffe\.\.0x1002 outside the 0x1000-byte memory$"):
+        drv.write_bytes(0xFFE, b"abcd")
+    Sbs617Driver(bus, NODE, MAPS, WIN, remote_base=0x400000, mem_size=32 << 20)  # the whole window
+    with pytest.raises(ValueError, match=r"^remote base 0x400000 must be 4 KiB aligned"):
+        Sbs617Driver(bus, NODE, MAPS, WIN, remote_base=0x400000, mem_size=(32 << 20) + 1)
+    with pytest.raises(ValueError, match=r"^the remote memory must be in A24 or A32, not A16$"):
+        Sbs617Driver(bus, NODE, MAPS, WIN, remote_base=0x4000, remote_space="A16")
+    assert Sbs617Driver(bus, NODE, MAPS, WIN, remote_base=0x400000).irq_level == 3
+
+
+def test_an_interrupt_with_a_latched_error_clears_it() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x44)  # remote BERR and timeout latched, no PR
+    drv.on_doorbell(lambda code: None)
+    bus.clear()
+    handler = bus.irq_handler(0xB3)
+    assert handler is not None
+    handler(0xB3)
+    assert bus.trace() == ["R A32 0x80000002 D8 0x44", CLEAR_ERRORS]
+
+
+def test_memory_views_default_to_the_rest_of_the_memory_and_go_through_the_window() -> None:
+    bus, drv = _scripted(LOC_STATUS=0x00, window_44=0x11223344)  # 0x1000 bytes of remote memory
+    assert (drv.memory().base, drv.memory().size) == (0, 0x1000)
+    assert (drv.memory(0x40).base, drv.memory(0x40).size) == (0x40, 0xFC0)
+    assert drv.memory(0x40, 0x10).size == 0x10
+    assert (Sbs617WindowMemory(drv).base, Sbs617WindowMemory(drv).size) == (0, 0x1000)
+    assert Sbs617WindowMemory(drv, 0x100).size == 0xF00
+    view = drv.memory(0x40)
+    assert view.read(4, 4) == bytes([0x11, 0x22, 0x33, 0x44])
+    view.write(8, b"VSM1")
+    assert bus.trace() == ["R A32 0x82000044 D32 0x11223344", LSR_OK, "W A32 0x82000048 D32 0x56534D31", LSR_OK]
+
+
+def test_a_failed_host_write_names_the_operation() -> None:
+    drv = Sbs617Driver(Crate(), NODE, MAPS, WIN, remote_base=0x400000)  # an empty crate: every cycle fails
+    for call, what in ((lambda: drv.write(0x10, 1), "write +0x10"), (lambda: drv.write_bytes(0x10, b"abcd"),
+                                                                     "write +0x10"), (drv.ring_doorbell, "ring")):
+        with pytest.raises(LinkDownError, match=rf"^SBS 617 {re.escape(what)}: the host's bus failed \(") as ei:
+            call()
+        assert ei.value.bus_error is not None and ei.value.status is None
+
+
+def test_defaults_4_kib_of_remote_memory_and_a_second_doorbell_callback_replaces_the_first() -> None:
+    bus, _ = _scripted(LOC_STATUS=0x20)
+    drv = Sbs617Driver(bus, NODE, MAPS, WIN, remote_base=0x400000)
+    assert drv.window_size == 0x1000
+    first: list[int] = []
+    second: list[int] = []
+    drv.on_doorbell(first.append)
+    drv.on_doorbell(second.append)
+    handler = bus.irq_handler(0xB3)
+    assert handler is not None
+    handler(0xB3)
+    assert (first, second) == ([], [0])

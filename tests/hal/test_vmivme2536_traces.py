@@ -254,3 +254,130 @@ def test_the_dry_pass_probe_refuses_an_empty_slot_and_the_reference_pio() -> Non
     c.install(PioBoard("pio0"), base=BASE, space="A16", slot=5)
     reading = probe(c, BASE, AddressSpace.A16)  # ID 0x5001 answers at D16; DDR_A (0x02) is D8 only
     assert not reading.ok and "CSR: BusError" in reading.detail and reading.id_read == 0x5001
+
+
+def test_read_pins_replaces_only_each_looped_back_bit_at_its_place() -> None:
+    bus = _scripted({BASE + 0x04: 0x0010_0000})  # IN20 high, the loopback of OUT5
+    d = _driver(bus, loopback={"OUT5": "IN20"})
+    d.write_port("OUT", 0x0000_0040)  # latch: OUT6 high (not looped back), OUT5 low
+    assert d.read_pins("OUT") == 0x0000_0060  # OUT5's wire is high; OUT6 is the latch's
+
+
+def test_verify_outputs_lists_each_latch_bit_that_reads_back_wrong_with_its_level() -> None:
+    bus = _scripted({BASE + 0x08: 0x0000_000A}, latch=False)  # OUTPUT reads OUT1 and OUT3 high
+    d = _driver(bus)
+    d.write_port("OUT", 0x0000_0022)  # the driver's copy: OUT1 and OUT5 high
+    with pytest.raises(LineStuckError) as ei:
+        d.verify_outputs()
+    assert ei.value.lines == {"OUT3": True, "OUT5": False}  # stuck high, stuck low
+
+
+# --- edges and texts ------------------------------------------------------------------------------------
+def test_the_dry_pass_probe_reports_each_register_at_its_width() -> None:
+    bus = _scripted({BASE + 0x02: 0xE000, BASE + 0x04: 0x0000_0009, BASE + 0x08: 0x0001_0000})
+    probe = BOARD_TYPES["vmivme-2536"].load_probe()
+    assert probe is not None
+    reading = probe(bus, BASE, AddressSpace.A16)
+    assert reading.ok is True
+    assert reading.detail == ("BID 0x2536; CSR 0xE000; INPUT 0x00000009; OUTPUT 0x00010000 "
+                              "(BID not published: not compared)")
+    empty = probe(RecordingBus(answers={("A16", BASE): 0x2536}), BASE, AddressSpace.A16)
+    assert empty.ok is False and empty.id_read == 0x2536
+    assert empty.detail.startswith("BID 0x2536; CSR: BusError: ")
+
+
+def test_board_id_settle_time_and_loopback_refusals() -> None:
+    bus = _scripted()
+    for bid in (0x0000, 0xFFFF):
+        Vmi2536Driver(bus, BASE, board_id=bid)
+    for bid in (-1, 0x10000):
+        with pytest.raises(ValueError, match=rf"^board_id {bid} is not a 16-bit BID value$"):
+            Vmi2536Driver(bus, BASE, board_id=bid)
+    with pytest.raises(ValueError, match=r"^settle_s -1e-06 is not a time ≥ 0$"):
+        Vmi2536Driver(bus, BASE, settle_s=-1e-6)
+    for out, inp in (("IN0", "IN1"), ("OUT0", "OUT1")):
+        with pytest.raises(LineDirectionError, match=rf"^loopback '{out}' → '{inp}': an output is looped back into "
+                                                     r"an input$"):
+            Vmi2536Driver(bus, BASE, loopback={out: inp})
+    with pytest.raises(UnknownLineError, match=r"^wiring table entry 'x' = 'OUT32': 'OUT32' is not a VMIVME-2536 line; "
+                                               r"expected IN0\.\.IN31 or OUT0\.\.OUT31$"):
+        Vmi2536Driver(bus, BASE, lines={"x": "OUT32"})
+
+
+def test_without_settle_time_a_loopback_read_does_not_wait() -> None:
+    bus = _scripted({BASE + 0x04: 0x0010_0000})
+    d = _driver(bus, loopback={"OUT0": "IN20"})
+    d.set_line("j1.amp_enable", True)
+    assert bus.delays == []
+
+
+def test_ports_names_and_values_refused_with_their_texts() -> None:
+    bus = _scripted({BASE + 0x04: 0x1234_5678})
+    d = _driver(bus)
+    assert d.read_port("OUT") == 0 and d.read_pins("IN") == 0x1234_5678
+    for bad in (2, -1, "X"):
+        with pytest.raises(UnknownLineError, match=rf"^unknown VMIVME-2536 port {bad!r}; expected IN or OUT$"):
+            d.read_port(bad)
+    with pytest.raises(UnknownLineError, match=r"^unknown VMIVME-2536 line 'x': not in the wiring table \(known: "
+                                               r"j1\.amp_enable, j1\.amp_fault, j2\.amp_enable, j2\.amp_fault, "
+                                               r"watchdog\) and not a pin IN0\.\.IN31 or OUT0\.\.OUT31$"):
+        d.resolve("x")
+    with pytest.raises(UnknownLineError, match=r"\(known: none\)"):
+        Vmi2536Driver(bus, BASE).resolve("x")
+    with pytest.raises(LineDirectionError, match=r"^VMIVME-2536 line 'j1\.amp_fault' \(IN0\) is an input$"):
+        d.set_line("j1.amp_fault", True)
+    with pytest.raises(LineDirectionError, match=r"^the VMIVME-2536 inputs cannot be written$"):
+        d.write_port("IN", 1)
+    d.write_port("OUT", 0x0000_0000)
+    d.write_port("OUT", 0xFFFF_FFFF)
+    with pytest.raises(ValueError, match=r"^port value 4294967296 is not 32 bits$"):
+        d.write_port("OUT", 0x1_0000_0000)
+    with pytest.raises(ValueError, match=r"^port value -1 is not 32 bits$"):
+        d.write_port("OUT", -1)
+    for pin in ("OUT07", "IN00"):
+        with pytest.raises(UnknownLineError):
+            d.resolve(pin)
+    assert d.resolve("OUT7") == (1, 7) and d.resolve("IN0") == (0, 0)
+
+
+def test_after_reset_the_next_line_write_starts_from_an_all_low_latch() -> None:
+    bus = _scripted()
+    d = _driver(bus)
+    d.write_port("OUT", 0x0000_00F0)
+    d.reset()
+    bus.clear()
+    d.set_line("j2.amp_enable", True, verify=False)  # OUT1
+    assert bus.trace() == ["W A16 0xFF08 D32 0x00000002"]
+
+
+def test_stuck_lines_report_the_level_they_read() -> None:
+    bus = _scripted({BASE + 0x08: 0x0000_0001}, latch=False)  # OUT0 reads high whatever is written
+    d = _driver(bus)
+    with pytest.raises(LineStuckError) as ei:
+        d.set_line("j1.amp_enable", False)
+    assert ei.value.lines == {"j1.amp_enable": True}
+    bus = _scripted({BASE + 0x04: 0x0001_0000})  # IN16 high: the loopback of OUT1
+    d = _driver(bus, loopback={"OUT1": "IN16"})
+    with pytest.raises(LineStuckError) as ei:
+        d.verify_outputs()
+    assert ei.value.lines == {"j2.amp_enable": True}
+
+
+def test_is_output_is_the_port_of_the_line() -> None:
+    d = _driver(_scripted())
+    assert [d.is_output(n) for n in ("j1.amp_enable", "watchdog", "j1.amp_fault", "IN31")] == [True, True, False, False]
+
+
+def test_the_dry_pass_probe_reads_in_the_space_it_is_given() -> None:
+    bus = RecordingBus(answers={("A24", 0x80FF00 + o): v for o, v in ((0, 0x2536), (2, 0), (4, 0), (8, 0))})
+    probe = BOARD_TYPES["vmivme-2536"].load_probe()
+    assert probe is not None
+    assert probe(bus, 0x80FF00, AddressSpace.A24).ok is True
+    assert bus.trace()[0] == "R A24 0x80FF00 D16 0x2536"
+
+
+def test_the_dry_pass_probe_of_an_empty_slot_has_read_no_id() -> None:
+    probe = BOARD_TYPES["vmivme-2536"].load_probe()
+    assert probe is not None
+    reading = probe(RecordingBus(answers={}), BASE, AddressSpace.A16)
+    assert reading.ok is False and reading.id_read is None and reading.detail.startswith("BID: BusError: ")

@@ -14,7 +14,8 @@ import pytest
 from emulators.crate import Crate
 from emulators.vmivme3113a import Vmivme3113aBoard
 from hal.adc_dac import AdcTimeoutError, BoardIdError, Calibration
-from hal.adc_dac.vmivme3113a import Vmivme3113aDriver
+from hal.adc_dac.vmivme3113a import Vmi3113aStatus, Vmivme3113aDriver
+from hal.adc_dac.vmivme3113a_format import Vmi3113aFormat, Vmi3113aRange, volts_from_code, volts_from_codes
 from hal.vme import BusError
 from tests.support.bus_trace import Answer, RecordingBus
 
@@ -171,3 +172,75 @@ def test_through_the_crate_a_read_shows_an_input_step_only_after_fresh_after_s()
     assert drv.read_counts(0) == 0x800  # the same conversion: the board has not converted channel 0 again
     c.delay(drv.fresh_after_s)
     assert drv.read_counts(0) == 0xC00  # +5 V on ±10 V
+
+
+@pytest.mark.parametrize(("csr", "decoded"), [
+    # (new_data_ready, end_of_scan, fail_led_off, twos_complement), docs/boards/vmivme-3113a.md CSR bits 15..12
+    (0x0000, (False, False, False, False)),
+    (0x8000, (True, False, False, False)),
+    (0x4000, (False, False, True, False)),
+    (0x2000, (False, True, False, False)),
+    (0x1000, (False, False, False, True)),
+    (0x0FFF, (False, False, False, False)),
+])
+def test_each_csr_status_bit_decodes_alone(csr: int, decoded: tuple) -> None:
+    s = Vmi3113aStatus.decode(csr)
+    assert (s.new_data_ready, s.end_of_scan, s.fail_led_off, s.twos_complement) == decoded
+
+
+# --- edges and texts ------------------------------------------------------------------------------------
+def test_the_first_autoscan_wait_ends_at_its_deadline_and_names_itself() -> None:
+    # times exact in binary: 64 conversions of 2**-22 s = 2**-16 s, polls every 2**-19 s, timeout 3 polls
+    tc, tp = 2.0**-22, 2.0**-19
+    bus = scripted(csr=0x4000)
+    with pytest.raises(AdcTimeoutError) as ei:
+        Vmivme3113aDriver(bus, BASE, conversion_time_s=tc, poll_interval_s=tp, timeout_s=3 * tp)
+    assert bus.trace() == [PROBE, RESET, AUTOSCAN] + [NOT_YET] * 4
+    assert ei.value.timeout_s == 64 * tc + 3 * tp
+    assert str(ei.value).startswith("ADC VMIVME-3113A first autoscan did not finish within 21 µs (CSR=0x4000); ")
+
+
+def test_the_default_timeout_of_the_first_scan_is_5_ms() -> None:
+    with pytest.raises(AdcTimeoutError) as ei:
+        Vmivme3113aDriver(scripted(csr=0x4000), BASE)
+    assert ei.value.timeout_s == pytest.approx(64 * 10e-6 + 5e-3)
+
+
+def test_refusals_name_the_board_and_the_limit() -> None:
+    with pytest.raises(ValueError, match=r"^VMIVME-3113A: two's complement data on the unipolar 0\.\.10 V range means "
+                                         r"nothing; use offset_binary$"):
+        Vmivme3113aDriver(scripted(), BASE, input_range="unipolar_10v", data_format="twos_complement")
+    with pytest.raises(BoardIdError, match=r"^no VMIVME-3113A at 0x8500: "):
+        Vmivme3113aDriver(scripted({("A16", 0x8500): 0xAD16}), BASE)
+    with pytest.raises(ValueError, match=r"^VMIVME-3113A calibration has 4 channels, the board has 64$"):
+        Vmivme3113aDriver(scripted(), BASE, calibration=Calibration.identity(4))
+    _, drv = opened({("A16", 0x8580 + 2 * ch): 0x0800 for ch in range(4)})  # CH0..CH3's data words
+    with pytest.raises(ValueError, match=r"^VMIVME-3113A channel 64 is not 0\.\.63$"):
+        drv.read_counts(64)
+    with pytest.raises(ValueError, match=r"^scan needs at least one channel$"):
+        drv.scan([])
+    drv.scan_counts(3)  # the plan for 0..3 is kept ...
+    with pytest.raises(ValueError, match=r"^VMIVME-3113A gain 2: the board has gain 1 only \(its range is set by "
+                                         r"jumpers\)$"):
+        drv.scan_counts(3, gain=2)  # ... and a gain other than 1 is still refused
+
+
+def test_the_format_helpers_convert_arrays_and_refuse_what_they_do_not_know() -> None:
+    # docs/boards/vmivme-3113a.md: 12-bit offset binary; ±10 V: LSB 20 V / 4096; 0..10 V: 10 V / 4096
+    np.testing.assert_allclose(volts_from_codes(np.array([0, 0x800, 0xC00]), Vmi3113aRange.BIPOLAR_10V),
+                               [-10.0, 0.0, 5.0])
+    np.testing.assert_allclose(volts_from_codes([0, 0x800], Vmi3113aRange.UNIPOLAR_10V), [0.0, 5.0])
+    with pytest.raises(ValueError, match=r"^VMIVME-3113A code 4096 is outside 0\.\.0xFFF$"):
+        volts_from_code(0x1000, Vmi3113aRange.BIPOLAR_10V)
+    with pytest.raises(ValueError, match=r"^unknown VMIVME-3113A data format 'gray'; expected offset_binary or "
+                                         r"twos_complement$"):
+        Vmi3113aFormat.parse("gray")
+    with pytest.raises(ValueError, match=r"^unknown VMIVME-3113A input range 'x'; expected one of bipolar_10v, "
+                                         r"bipolar_5v, unipolar_10v$"):
+        Vmi3113aRange.parse("x")
+
+
+def test_a_single_read_in_twos_complement_gives_the_offset_binary_code() -> None:
+    # the doc: bit 11 inverted and copied into bits 15:12; 0x0000 is mid-scale, 0xF800 the bottom
+    _, drv = opened({("A16", 0x8580): 0x0000, ("A16", 0x8582): 0xF800}, data_format="twos_complement")
+    assert (drv.read_counts(0), drv.read_counts(1)) == (0x800, 0x000)

@@ -12,7 +12,8 @@ import pytest
 
 from emulators.crate import Crate
 from emulators.vmivme4116 import VmiVme4116Board
-from hal.adc_dac import DacRangeError, VmiVme4116Driver, probe_vmivme4116
+from hal.adc_dac import Calibration, DacRangeError, VmiVme4116Driver, probe_vmivme4116
+from hal.adc_dac.vmivme4116 import Vmi4116RangeError, vmi4116_code_to_volts, vmi4116_volts_to_code
 from tests.support.bus_trace import RecordingBus
 
 BASE = 0x7000
@@ -38,7 +39,8 @@ def test_probe_reads_the_csr_and_writes_nothing() -> None:
     assert (reading.id_expected, reading.id_read) == (None, None)
     assert bus.trace() == ["R A16 0x7010 D16 0x4100"]
     nothing = RecordingBus(answers={})
-    assert not probe_vmivme4116(nothing, BASE).ok
+    refused = probe_vmivme4116(nothing, BASE)
+    assert refused.ok is False and refused.detail.startswith("BusError: bus error on D16 read at A16 0x7010")
     assert nothing.trace() == []  # the refused read is no completed cycle
 
 
@@ -149,3 +151,49 @@ def test_a_synchronized_update_through_the_emulator() -> None:
     crate.delay(12e-6)
     assert (crate.signals.get_analog("o0"), crate.signals.get_analog("o3")) == (1.00006103515625, -2.0001220703125)
     assert bus.trace() == [*OPEN, "W A16 0x7000 D16 0x8CCD", "W A16 0x7006 D16 0x6666", STROBE]
+
+
+# --- edges and texts ------------------------------------------------------------------------------------
+def test_conversions_default_to_offset_binary_and_refuse_nan_and_17_bit_codes() -> None:
+    assert vmi4116_volts_to_code(0.0) == (0x8000, False)  # offset binary by default
+    assert vmi4116_code_to_volts(0x0000) == -10.0
+    with pytest.raises(ValueError, match=r"^DAC command is NaN$"):
+        vmi4116_volts_to_code(float("nan"))
+    with pytest.raises(ValueError, match=r"^DAC code 65536 is outside 0\.\.0xFFFF$"):
+        vmi4116_code_to_volts(0x10000)
+
+
+def test_driver_refusals_name_the_limit() -> None:
+    with pytest.raises(ValueError, match=r"^VMIVME-4116 coding 'gray': expected one of offset_binary, "
+                                         r"twos_complement$"):
+        opened(coding="gray")
+    with pytest.raises(ValueError, match=r"^VMIVME-4116 calibration has 4 channels, the board has 8$"):
+        opened(calibration=Calibration.identity(4))
+    bus, dac = opened()
+    for bad in (-1, 8):
+        with pytest.raises(ValueError, match=rf"^DAC channel {bad} is not 0\.\.7$"):
+            dac.write_counts(bad, 0)
+    bus.clear()
+    dac.write_counts(7, 0x0000, update=False)  # both ends of the 16 bits are codes
+    dac.write_counts(7, 0xFFFF, update=False)
+    assert bus.trace() == ["W A16 0x700E D16 0x0000", "W A16 0x700E D16 0xFFFF"]
+    for bad in (-1, 0x10000):
+        with pytest.raises(ValueError, match=rf"^DAC code {bad} is outside 0\.\.0xFFFF$"):
+            dac.write_counts(0, bad)
+
+
+def test_clamp_events_add_up_and_the_result_says_whether_it_strobed() -> None:
+    _, dac = opened(clamp=True)
+    assert dac.clamp is True
+    dac.write_many({0: 11.0})
+    res = dac.write_many({0: 11.0, 1: -11.0}, update=False)
+    assert dac.clamp_events == 3 and res.clamped == (0, 1) and res.updated is False
+    assert dac.write_many({}).updated is False and dac.write_many({2: 1.0}).updated is True
+
+
+def test_the_range_error_names_the_channel_and_the_calibrated_command() -> None:
+    e = Vmi4116RangeError(3, 9.9, 10.2)
+    assert e.channel == 3
+    assert str(e) == ("VMIVME-4116 channel 3: +9.90000 V (calibrated command +10.20000 V) is outside the output range "
+                      "-10.00000..+9.99969 V; limit the command upstream or open the driver with clamp=True")
+    assert str(Vmi4116RangeError(1, 12.0, 12.0)).startswith("VMIVME-4116 channel 1: +12.00000 V is outside")

@@ -81,6 +81,10 @@ def test_a_soft_limit_at_or_past_a_hard_stop_is_refused_naming_the_key(tmp_path)
 
 def test_a_joint_without_limits_has_none_and_the_margin_defaults_to_half_a_degree(tmp_path) -> None:
     path = _rig_with(tmp_path, J1_LIMITS + "  ", "# ")
+    # jpl-arm states its own margin (1.75°); without the key the default is 0.5°
+    text = path.read_text(encoding="utf-8")
+    assert "soft_limit_margin_deg = 1.75" in text
+    path.write_text(text.replace("soft_limit_margin_deg = 1.75", "# soft_limit_margin_deg", 1), encoding="utf-8")
     st = servo_settings(load_rig(path))
     assert st.soft_min_rad[0] == -math.inf and math.degrees(st.soft_max_rad[0]) == pytest.approx(163.01)
     assert math.degrees(st.soft_limit_margin_rad) == pytest.approx(0.5)

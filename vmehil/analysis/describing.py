@@ -364,7 +364,7 @@ def hybrid_response_fn(cfg: LoopConfig, location: str = "friction") -> Callable[
         raise ValueError(f"hybrid_response supports friction and actuator, not {location!r}")
     T, dly = cfg.sample_period_s, cfg.delay_s
     P = continuous_plant(cfg.replace(velocity_source="tach"))
-    K = sampled_controller(cfg.gains, T, cfg.velocity_source)
+    K = sampled_controller(cfg.gains, T, cfg.velocity_source, cfg.kvi_filter_hz)
 
     def fn(f_hz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         w = 2 * np.pi * np.atleast_1d(np.asarray(f_hz, dtype=float))
@@ -580,7 +580,7 @@ def simulate_joint(cfg: LoopConfig, seconds: float, deadband_rad_s: float = 0.0,
     analog options are ignored).
     """
     T, d = cfg.sample_period_s, cfg.delay_fraction
-    K = sampled_controller(cfg.gains, T, cfg.velocity_source)
+    K = sampled_controller(cfg.gains, T, cfg.velocity_source, cfg.kvi_filter_hz)
     Ka, Kb, Kc, Kd = K.A, K.B, K.C[0], K.D[0]
     h = T / substeps
     j_switch = round(d * substeps)

@@ -41,6 +41,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from servo.control.gains import Gains
+from servo.control.velocity_filter import VelocityFilter
 from vmehil.errors import VmehilError
 
 VelocitySource = Literal["tach", "encoder"]
@@ -81,6 +82,9 @@ class LoopConfig:
     position_filter_hz: float | None = None
     velocity_filter_hz: float | None = None
     viscous_damping: float = 0.0
+    #: the velocity filter alternative to KvI (servo.control.velocity_filter): the KvI channel low-pass
+    #: filters the position error at this corner instead of integrating ė; None: ∫ė (the paper's law)
+    kvi_filter_hz: float | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.sample_period_s) and self.sample_period_s > 0):
@@ -95,6 +99,7 @@ class LoopConfig:
         _check_bandwidth("amplifier_bandwidth_hz", self.amplifier_bandwidth_hz)
         _check_bandwidth("position_filter_hz", self.position_filter_hz)
         _check_bandwidth("velocity_filter_hz", self.velocity_filter_hz)
+        _check_bandwidth("kvi_filter_hz", self.kvi_filter_hz)
         if not (math.isfinite(self.viscous_damping) and self.viscous_damping >= 0):
             raise LoopConfigError(f"viscous_damping={self.viscous_damping} must be ≥ 0")
 
@@ -216,11 +221,15 @@ def _sampled_plant_arrays(cfg: LoopConfig) -> tuple[np.ndarray, np.ndarray, np.n
 # ----------------------------------------------------------------------- controller
 
 
-def _controller_matrices(gains: Gains[float], T: float | None, velocity_source: str) -> tuple[np.ndarray, ...]:
+def _controller_matrices(gains: Gains[float], T: float | None, velocity_source: str,
+                         kvi_filter_hz: float | None = None) -> tuple[np.ndarray, ...]:
     """Controller (A, B, C, D); inputs [r, rv, thin, win], output a. T=None: continuous.
 
     Integrator states exist only for non-zero integral gains (no hidden uncontrollable poles).
+    ``kvi_filter_hz``: the KvI channel is the velocity filter (:class:`servo.control.velocity_filter.
+    VelocityFilter`, the servo's own definition: pole 1 − α, gain α; continuous ωc/(s + ωc)).
     """
+    filt = VelocityFilter(kvi_filter_hz) if kvi_filter_hz else None
     encoder = T is not None and velocity_source == "encoder"
     # error rows over the inputs q = [r, rv, thin, win] (and, for the encoder, the state thprev)
     e_q = np.array([1.0, 0.0, -1.0, 0.0])
@@ -231,7 +240,7 @@ def _controller_matrices(gains: Gains[float], T: float | None, velocity_source: 
     if gains.kpi:
         states.append("ie")
     if gains.kvi:
-        states.append("iv")
+        states.append("iv" if filt is None else "ef")
     if encoder:
         states.append("thprev")
     n = len(states)
@@ -259,6 +268,19 @@ def _controller_matrices(gains: Gains[float], T: float | None, velocity_source: 
             C[0, i] += gain
             C[0] += gain * T * rs
             D[0] += gain * T * rq
+    if filt is not None and "ef" in ix:
+        i = ix["ef"]
+        if T is None:  # ef' = −ωc·ef + ωc·e
+            a, b = filt.continuous()
+            A[i, i] += a
+            B[i] += b * e_q
+            C[0, i] += gains.kvi
+        else:  # ef_k = pole·s_k + α·e_k with s_{k+1} = ef_k, and a uses KvI·ef_k
+            pole, alpha = filt.discrete(T)
+            A[i, i] += pole
+            B[i] += alpha * e_q
+            C[0, i] += gains.kvi * pole
+            D[0] += gains.kvi * alpha * e_q
     if encoder:
         B[ix["thprev"], 2] = 1.0
     return A, B, C, D
@@ -268,15 +290,15 @@ _CTRL_IO = {"inputs": ["r", "rv", "thin", "win"], "outputs": ["a"]}
 
 
 def sampled_controller(gains: Gains[float], sample_period_s: float,
-                       velocity_source: VelocitySource = "tach") -> ct.StateSpace:
+                       velocity_source: VelocitySource = "tach", kvi_filter_hz: float | None = None) -> ct.StateSpace:
     """The discrete servo law (dt = T) with inputs [r, rv, thin, win] and output a (rad/s²)."""
-    A, B, C, D = _controller_matrices(gains, sample_period_s, velocity_source)
+    A, B, C, D = _controller_matrices(gains, sample_period_s, velocity_source, kvi_filter_hz)
     return ct.ss(A, B, C, D, sample_period_s, name="K", **_CTRL_IO)
 
 
-def continuous_controller(gains: Gains[float]) -> ct.StateSpace:
-    """The continuous ideal of the servo law: Kp·e + Kpi·∫e + Kv·ė + KvI·∫ė."""
-    A, B, C, D = _controller_matrices(gains, None, "tach")
+def continuous_controller(gains: Gains[float], kvi_filter_hz: float | None = None) -> ct.StateSpace:
+    """The continuous ideal of the servo law: Kp·e + Kpi·∫e + Kv·ė + KvI·∫ė (or KvI·ωc/(s + ωc)·e)."""
+    A, B, C, D = _controller_matrices(gains, None, "tach", kvi_filter_hz)
     return ct.ss(A, B, C, D, name="K", **_CTRL_IO)
 
 
@@ -309,11 +331,11 @@ def build_loop(cfg: LoopConfig, sampled: bool, break_at: str | None = None) -> c
                               "derives velocity from the position; break at position_sensor instead)")
     if sampled:
         Ap, Bp, Cp = _sampled_plant_arrays(cfg.replace(gains=Gains.paper(), velocity_source="tach"))
-        Ak, Bk, Ck, Dk = _controller_matrices(cfg.gains, cfg.sample_period_s, cfg.velocity_source)
+        Ak, Bk, Ck, Dk = _controller_matrices(cfg.gains, cfg.sample_period_s, cfg.velocity_source, cfg.kvi_filter_hz)
         dt: float = cfg.sample_period_s
     else:
         Ap, Bp, Cp = _plant_matrices(cfg, ideal_velocity=True)
-        Ak, Bk, Ck, Dk = _controller_matrices(cfg.gains, None, "tach")
+        Ak, Bk, Ck, Dk = _controller_matrices(cfg.gains, None, "tach", cfg.kvi_filter_hz)
         dt = 0.0
     # where each block's inputs come from (signal names)
     p_in = {"u": "a", "w": "d"}

@@ -247,7 +247,9 @@ def bode_text(r: dict[str, Any]) -> str:
         f"rig {r['rig']}, joint {r['joint']} ({r['joint_name']}); gains {_gains_line(r['gains'])} "
         f"[{r['gains_source']}]",
         f"loop: T = {r['sample_period_s'] * 1e3:g} ms ({1 / r['sample_period_s']:g} Hz), computation delay "
-        f"{r['computation_delay_s'] * 1e3:g} ms, velocity from {r['velocity_source']}",
+        f"{r['computation_delay_s'] * 1e3:g} ms, velocity from {r['velocity_source']}"
+        + (f", KvI on the position error low-passed at {r['kvi_filter_hz']:g} Hz (velocity filter)"
+           if r.get("kvi_filter_hz") else ""),
         "",
         f"{'':30s}{'continuous':>14s}{'sampled':>14s}",
         _row("closed loop stable", c["stable"], s["stable"], lambda v: "yes" if v else "NO"),

@@ -46,6 +46,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
 
+import numpy as np
+
 from emulators.plant import plant_params_from_config
 from emulators.presets import resolve_rig
 from hal.adc_dac.conversions import AdcRange, adc_lsb
@@ -89,7 +91,9 @@ class JointParams:
     def switch_off_cfg(self) -> LoopConfig:
         """The loop while the integrators are switched off: no integral action, Kp raised."""
         g = self.cfg.gains
-        return self.cfg.replace(gains=Gains(kp=self.switch_off_kp, kpi=0.0, kv=g.kv, kvi=0.0))
+        # a velocity filter in the KvI channel keeps running (it is no integrator)
+        kvi = 0.0 if self.cfg.kvi_filter_hz is None else g.kvi
+        return self.cfg.replace(gains=Gains(kp=self.switch_off_kp, kpi=0.0, kv=g.kv, kvi=kvi))
 
     def verdict(self, switch_off: bool | None = None) -> GainVerdict:
         """:func:`servo.gain_guard.judge` on this joint's gains, at its period and computation delay:
@@ -97,7 +101,8 @@ class JointParams:
         :attr:`switch_off_kp`) is judged too; None = as the rig says."""
         on = self.switch_off_enabled if switch_off is None else switch_off
         c = self.cfg
-        return judge(c.gains, c.sample_period_s, c.delay_fraction, kp_off=self.switch_off_kp if on else None)
+        return judge(c.gains, c.sample_period_s, c.delay_fraction, kp_off=self.switch_off_kp if on else None,
+                     filter_hz=c.kvi_filter_hz)
 
     def nonlinearities(self) -> list[Nonlinearity]:
         """The joint's nonlinearities for the describing-function analysis."""
@@ -125,6 +130,7 @@ class JointParams:
             "sample_period_s": c.sample_period_s, "computation_delay_s": c.delay_s,
             "velocity_source": c.velocity_source, "position_source": self.position_source,
             "amplifier_bandwidth_hz": c.amplifier_bandwidth_hz, "velocity_filter_hz": c.velocity_filter_hz,
+            "kvi_filter_hz": c.kvi_filter_hz,
             "tach_deadband_rad_s": self.tach_deadband_rad_s, "coulomb_friction_nm": self.coulomb_nm,
             "breakout_friction_nm": self.breakout_nm, "viscous_friction_nm_s_per_rad": self.viscous_nm_s_per_rad,
             "viscous_damping_per_s": c.viscous_damping,
@@ -151,13 +157,17 @@ def _joint_data(spec: RigSpec, index: int) -> dict[str, Any]:
 
 
 def load_joint(rig: str | Path | RigSpec | None, joint: int = 1, gains: str | dict[str, float] | None = None,
-               switch_off_kp: float | None = None, *, servo: ServoSettings | None = None) -> JointParams:
+               switch_off_kp: float | None = None, *, servo: ServoSettings | None = None,
+               velocity_filter_hz: float | None = None) -> JointParams:
     """Read joint ``joint`` (1-based) of ``rig`` (preset name or path; None = jpl-arm).
 
     ``gains``: ``"kp=..,kv=.."`` text (:func:`servo.control.gains.parse_gains`) or a mapping of
     overrides for this joint, refused by :func:`servo.gain_guard.check_values` if no gain may have
     those values (stability is not judged here: :meth:`JointParams.verdict`); ``switch_off_kp``
     overrides the switch-off gain (default: the control law's ``kp_off`` for these gains).
+    ``velocity_filter_hz``: the velocity filter alternative to KvI on this joint (0: off, the
+    integral of ė; None: as the rig says), in the model and in the settings the full-stack
+    simulations run with (:attr:`JointParams.servo`).
     Raises :class:`hal.config.ConfigError` (a ValueError) for a malformed rig file,
     :class:`servo.control.errors.GainError` for bad gains and ValueError for a bad joint number.
     """
@@ -193,6 +203,13 @@ def load_joint(rig: str | Path | RigSpec | None, joint: int = 1, gains: str | di
 
     # ---- gains and switch-off, as the session resolves them
     rig_settings = servo if servo is not None else servo_settings(spec)
+    if velocity_filter_hz is not None:  # the one definition (servo.control.velocity_filter), model and runs alike
+        if not (math.isfinite(velocity_filter_hz) and velocity_filter_hz >= 0):
+            raise CliError(f"velocity filter {velocity_filter_hz!r} Hz: a cutoff in Hz, or 0 for none")
+        hz = rig_settings.filter_hz.copy()
+        hz[joint - 1] = velocity_filter_hz if velocity_filter_hz > 0 else math.nan
+        rig_settings = dataclasses.replace(
+            rig_settings, velocity_filter_hz=tuple(float(x) for x in hz) if not np.all(np.isnan(hz)) else ())
     settings = rig_settings
     base = settings.gains.joint(j).as_dict()
     given = rig_settings.gains_given[j]
@@ -225,6 +242,9 @@ def load_joint(rig: str | Path | RigSpec | None, joint: int = 1, gains: str | di
                          f"{switch_off_kp:g}")
     elif not (math.isfinite(switch_off_kp) and switch_off_kp > 0):
         raise GainError("switch_off_kp", switch_off_kp, "a positive number of 1/s² (--switch-off-kp)")
+
+    f_hz = float(settings.filter_hz[j])
+    kvi_filter = None if math.isnan(f_hz) else f_hz
 
     # ---- plant
     n_gear = p.gear.ratio
@@ -288,7 +308,7 @@ def load_joint(rig: str | Path | RigSpec | None, joint: int = 1, gains: str | di
 
     cfg = LoopConfig(gains=g, sample_period_s=T, delay_fraction=delay_periods(spec.computation_delay_s, T),
                      velocity_source=velocity, amplifier_bandwidth_hz=amp_bw, velocity_filter_hz=vel_filter,
-                     viscous_damping=viscous / inertia)
+                     viscous_damping=viscous / inertia, kvi_filter_hz=kvi_filter)
     return JointParams(rig=spec.name, rig_path=str(path), joint=joint, name=js.name, cfg=cfg, gains_source=gsrc,
                        tach_deadband_rad_s=deadband, coulomb_nm=coulomb, breakout_nm=breakout,
                        viscous_nm_s_per_rad=viscous, inertia_kg_m2=inertia, position_quantum_rad=quantum,

@@ -268,6 +268,8 @@ def _figures(jp: JointParams, s: SimSettings, step_deg: float | None, loop: Any,
     g = law.gains
     frozen = float(g.kpi[j] * law.state.ie[j] + g.kvi[j] * law.state.iv[j])  # Kpi·∫e + KvI·∫ė, rad/s²
     kp_now = float(law.kp_eff()[j])
+    if law.filtered[j]:  # the velocity filter's KvI·ef follows e at rest: static stiffness Kp_eff + KvI
+        kp_now += float(g.kvi[j])
     fault = summary["faults"][0] if summary["faults"] else None
     so = js["switch_off_events"]
     out: dict[str, Any] = {

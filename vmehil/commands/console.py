@@ -144,14 +144,16 @@ def run_console(opts: ConsoleCommandOptions) -> int:
               else hold_motion("<console>"))
     from servo.settings import servo_settings
     from vmehil.option_groups.scene_options import resolve_scene
+    from vmehil.rig_setup.hand_world import attach_hand_world
 
     settings = servo_settings(rig)
     try:  # a --motion the soft limits or the scene refuse: refused before anything is enabled
-        loop = build_loop(system, motion=motion, gains=gains, n_ticks=0, settings=settings,
-                          scene=resolve_scene(opts.scene, rig, settings))
+        scene = resolve_scene(opts.scene, rig, settings)
+        loop = build_loop(system, motion=motion, gains=gains, n_ticks=0, settings=settings, scene=scene)
     except BaseException:
         system.close()
         raise
+    attach_hand_world(system, scene, settings)  # the scene's [[object]]s between the fingers (docs/hand.md)
     paced = opts.pacing.realtime
     runner = RealtimeRunner(system, loop, **opts.pacing.runner_options()) if paced else LockstepRunner(system, loop)
     try:

@@ -202,6 +202,9 @@ def _run(opts: RunOptions, rig, gains: dict[str, float], settings: ServoSettings
     except BaseException:
         system.close()
         raise
+    from vmehil.rig_setup.hand_world import attach_hand_world
+
+    attach_hand_world(system, scene, settings)  # the scene's [[object]]s between the fingers (docs/hand.md)
     runner = (RealtimeRunner(system, loop, **opts.pacing.runner_options()) if opts.realtime
               else LockstepRunner(system, loop))
     progress = TickProgress("run", quiet=opts.quiet)

@@ -47,7 +47,7 @@ from servo.control.gains import parse_gains
 from vmehil.commands import needs_extra
 from vmehil.errors import CliError
 from vmehil.option_groups.can_options import CanPlantOptions
-from vmehil.option_groups.cli_types import bounded_int, joint_number, nonzero_float, positive_float, seed
+from vmehil.option_groups.cli_types import bounded_float, bounded_int, joint_number, nonzero_float, positive_float, seed
 from vmehil.writers.files import write_atomic, write_json
 
 if TYPE_CHECKING:  # the analysis needs the 'tune' extra: imported when a tune command runs
@@ -60,6 +60,11 @@ def _common() -> argparse.ArgumentParser:
     p.add_argument("--joint", type=joint_number, default=1, help="joint number, 1-based (default 1)")
     p.add_argument("--gains", default=None, metavar="kp=..,kpi=..,kv=..,kvi=..",
                    help="override some or all of the joint's gains (this joint only)")
+    p.add_argument("--velocity-filter-hz", type=bounded_float(0.0, 1e4, what="a cutoff in Hz (0: off)"),
+                   default=None, metavar="HZ",
+                   help="the velocity filter alternative to KvI on this joint: KvI acts on the position error "
+                        "low-passed at HZ instead of the integral of the velocity error (0: off; default: as the "
+                        "rig's [joint.servo.velocity_filter]); in the model and the simulated runs alike")
     p.add_argument("--json", dest="json_path", default=None, metavar="PATH", help="write the results as JSON")
     p.add_argument("--report", default=None, metavar="DIR", help="write PNG/SVG plots and a markdown summary")
     return p
@@ -179,6 +184,8 @@ class TuneOptions:
     # limit-cycle
     predict_only: bool = False
     switch_off_kp: float | None = None
+    #: --velocity-filter-hz (None: the rig's; 0: off)
+    velocity_filter_hz: float | None = None
     # sweep
     grid: tuple[str, ...] = ()
     gains_file: str | None = None
@@ -210,6 +217,7 @@ class TuneOptions:
                    calibration=given("calibration"),
                    plant=CanPlantOptions.from_args(args) if hasattr(args, "plant") else None, jobs=given("jobs"),
                    predict_only=given("predict_only", False), switch_off_kp=given("switch_off_kp"),
+                   velocity_filter_hz=given("velocity_filter_hz"),
                    grid=tuple(given("grid") or ()), gains_file=given("gains_file"), engine=given("engine"),
                    scheduler=given("scheduler"), resume=given("resume"), vary=tuple(given("vary") or ()),
                    samples=given("samples"), threshold=tuple(given("threshold") or ()), x=given("x"), y=given("y"),
@@ -274,7 +282,8 @@ def _command_line(opts: TuneOptions) -> str:
 def _load(opts: TuneOptions) -> JointParams:
     from vmehil.analysis.rigparams import load_joint
 
-    return load_joint(opts.rig, opts.joint, gains=opts.gains, switch_off_kp=opts.switch_off_kp)
+    return load_joint(opts.rig, opts.joint, gains=opts.gains, switch_off_kp=opts.switch_off_kp,
+                      velocity_filter_hz=opts.velocity_filter_hz)
 
 
 def _link_factory(opts: TuneOptions):

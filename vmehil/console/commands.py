@@ -22,8 +22,11 @@ from typing import Any, Protocol
 import numpy as np
 
 from hal.si import deg_to_rad, rad_to_deg
+from servo.control.errors import ControlError
 from servo.control.gains import GAIN_NAMES
-from servo.gain_guard import GainRejected, check_gain_change
+from servo.gain_guard import GainRejected, check_gain_change, check_gain_set
+from servo.named_controllers import DEFAULT_CONTROLLER, use_controller
+from vmehil.console import hand as fingers
 from vmehil.console.protocol import (
     ARGS,
     COLLISION,
@@ -769,6 +772,81 @@ def _mode(s: Session, a: dict[str, Any]) -> Outcome:
     return Outcome(lines)
 
 
+def _controller_lines(loop: Any, joint: int | None) -> list[str]:
+    choices = getattr(loop, "controllers", None)
+    law = _law(loop)
+    lines = []
+    for i, name in enumerate(loop.names):
+        if joint is not None and i != joint:
+            continue
+        pending = getattr(law, "_pending_switch", {})
+        hz = float(pending[i][1]) if i in pending else float(law.filter_hz[i])  # what the next tick uses
+        names = choices.names(i) if choices is not None else [DEFAULT_CONTROLLER]
+        active = names[loop.active_controller[i]] if choices is not None else DEFAULT_CONTROLLER
+        lines.append(kv("DATA", "controller", joint=name, active=active, index=names.index(active),
+                        controllers=",".join(names), velocity_filter_hz=None if math.isnan(hz) else hz))
+    return lines
+
+
+@atom("controller", (Param("action", STRING, "list"), Param("name", STRING, ""), Param("joint", JOINT, "all")),
+      "list each joint's named controllers, or 'controller use NAME [joint]': switch at the next tick, bumpless; "
+      "gains checked by servo.gain_guard")
+def _controller(s: Session, a: dict[str, Any]) -> Outcome:
+    loop = s.loop
+    action, name, joint = a["action"], a["name"], a["joint"]
+    if action == "list":
+        return Outcome(_controller_lines(loop, joint))
+    if action != "use":
+        raise ConsoleError(VALUE, f"controller {action!r}: use 'controller list' or 'controller use NAME [joint]'")
+    if not name:
+        raise ConsoleError(ARGS, "controller use: give the controller's name (see 'controller list')")
+    choices = getattr(loop, "controllers", None)
+    if choices is None:
+        raise ConsoleError(UNAVAILABLE, "this loop has no named controllers (a loop built from a rig file has)")
+    joints = list(range(loop.n)) if joint is None else [joint]
+    try:
+        use_controller(_law(loop), choices, loop.active_controller, name, joints, loop.period_s, s.delay)
+    except GainRejected as e:
+        where = f"{loop.names[e.joint]}: " if e.joint is not None else ""
+        raise ConsoleError(GAIN, f"controller {name} rejected ({where}{e.reason}); nothing was changed") from None
+    except ControlError as e:
+        raise ConsoleError(VALUE, f"{e}; nothing was changed") from None
+    where = "all joints" if joint is None else loop.names[joint]
+    loop.note(s.source, f"controller {name} on {where}")
+    return Outcome(_controller_lines(loop, joint), kv(applied_at_tick=int(loop.tick_count)))
+
+
+@atom("filter", (Param("joint", JOINT, "all"), Param("cutoff_hz", FLOAT, None)),
+      "show the velocity filter (the alternative to KvI), or set its cutoff in Hz for one joint or all (0: off, "
+      "KvI integrates the velocity error); switched bumpless at the next tick, checked by servo.gain_guard")
+def _filter(s: Session, a: dict[str, Any]) -> Outcome:
+    loop = s.loop
+    law = _law(loop)
+    joint, hz = a["joint"], a["cutoff_hz"]
+    if hz is None:
+        return Outcome(_controller_lines(loop, joint))
+    if not (math.isfinite(hz) and hz >= 0.0) or hz >= 0.5 / loop.period_s:
+        raise ConsoleError(VALUE, f"cutoff_hz {hz:g}: a number of Hz in 0 (off) .. {0.5 / loop.period_s:g} "
+                                  "(the Nyquist frequency)")
+    f_hz = math.nan if hz == 0.0 else float(hz)
+    joints = list(range(loop.n)) if joint is None else [joint]
+    g = getattr(law, "_pending_gains", None) or law.gains
+    so = getattr(law, "_pending_switch_off", None) or law.switch_off
+    try:
+        for j in joints:
+            f = law.filter_hz.copy()
+            f[j] = f_hz
+            check_gain_set(g, so, {}, loop.period_s, s.delay, joint=j, filter_hz=f)
+    except GainRejected as e:
+        where = f"{loop.names[e.joint]}: " if e.joint is not None else ""
+        raise ConsoleError(GAIN, f"filter {hz:g} Hz rejected ({where}{e.reason}); nothing was changed") from None
+    for j in joints:
+        law.switch_joint(j, g.joint(j), f_hz)
+    where = "all joints" if joint is None else loop.names[joint]
+    loop.note(s.source, f"velocity filter {'off' if hz == 0 else f'{hz:g} Hz'} on {where}")
+    return Outcome([], kv(applied_at_tick=int(loop.tick_count)))
+
+
 @atom("stop", (), "controlled stop (category 1): decelerate, brakes, then amplifiers off; cancels compound "
       "commands")
 def _stop(s: Session, a: dict[str, Any]) -> Outcome:
@@ -950,10 +1028,42 @@ def _shutdown(s: Session, a: dict[str, Any]) -> Outcome:
     return Outcome(ok=kv(state=loop_state(s.loop), category=int(category)))
 
 
+@atom("open", (Param("amps", FLOAT, None),), "open the fingers at a fixed current (A; default 0.5)")
+def _open(s: Session, a: dict[str, Any]) -> Outcome:
+    lines, ok, until = fingers.finger(s.loop, "open", a["amps"], s.source, _require_running)
+    return Outcome(lines, ok, until=until)
+
+
+@atom("close", (Param("amps", FLOAT, None),), "close the fingers at a fixed current (A; default 0.5): they stop "
+      "on an object")
+def _close(s: Session, a: dict[str, Any]) -> Outcome:
+    lines, ok, until = fingers.finger(s.loop, "close", a["amps"], s.source, _require_running)
+    return Outcome(lines, ok, until=until)
+
+
+@atom("squeeze", (Param("amps", FLOAT, None),), "squeeze the fingers at a fixed current (A; default 1.0)")
+def _squeeze(s: Session, a: dict[str, Any]) -> Outcome:
+    lines, ok, until = fingers.finger(s.loop, "squeeze", a["amps"], s.source, _require_running)
+    return Outcome(lines, ok, until=until)
+
+
+@atom("grasp", (Param("object", STRING, None),), "check the grasp: the tactile switches against the hand pot (and "
+      "the OBJECT's width); ERR GRASP when they disagree")
+def _grasp(s: Session, a: dict[str, Any]) -> Outcome:
+    return Outcome(ok=fingers.grasp(s.loop, a["object"]))
+
+
+@atom("weigh", (), "estimate the held object's mass from the joints' current monitors through the arm's Jacobian")
+def _weigh(s: Session, a: dict[str, Any]) -> Outcome:
+    return Outcome(ok=fingers.weigh(s.loop, s.source, _require_running))
+
+
 #: The atomic commands by name, in the order of ``help``.
 ATOMS: dict[str, Atom] = {a.name: a for a in (
-    _help, _status, _move, _move_rel, _move_joint, _move_to, _stay, _gains, _mode, _stop, _estop, _enable, _run,
-    _calibrate, _home, _jog, _log, _commands, _load, _cancel, _pause, _echo, _shutdown, _obstacle,
+    _help, _status, _move, _move_rel, _move_joint, _move_to, _stay, _gains, _controller, _filter, _mode, _stop,
+    _estop, _enable, _run, _calibrate, _home, _jog, _log, _commands, _load, _cancel, _pause, _echo, _shutdown,
+    _obstacle,
+    _open, _close, _squeeze, _grasp, _weigh,
 )}
 
 

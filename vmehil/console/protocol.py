@@ -53,8 +53,9 @@ LIMIT = "LIMIT"  # a move's target past a joint's soft limit (docs/motion-safety
 COLLISION = "COLLISION"  # a move's path through an obstacle of the scene
 REACH = "REACH"  # a point the arm cannot reach
 NOT_HOMED = "NOT_HOMED"  # the rig requires homing before moves, and a joint is not homed
+GRASP = "GRASP"  # the hand's tactile switches and hand pot disagree about a grasp (docs/hand.md)
 ERROR_CODES = (SYNTAX, UNKNOWN, ARGS, VALUE, GAIN, STATE, BUSY, LONG, BINARY, FILE, UNAVAILABLE, INTERNAL, LIMIT,
-               COLLISION, REACH, NOT_HOMED)
+               COLLISION, REACH, NOT_HOMED, GRASP)
 
 Vector = tuple[float, ...]
 Value = Union[str, int, float, Vector]  # noqa: UP007 - a runtime alias

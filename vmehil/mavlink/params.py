@@ -19,7 +19,14 @@ J1_SO_SETTLE  s         0 … 10                   time in the inner band before
 J1_TAU_MAX    N·m       > 0 … configured value   torque limit at the joint (if the rig has one)
 J1_FERR_MAX   rad       > 0 … configured value   watchdog following-error limit
 J1_VEL_MAX    rad/s     read-only                trajectory planning velocity limit
+J1_CTRL       —         0 … controllers − 1      the joint's controller in force, an index
+                                                 (0 "default", then the rig's named ones)
 ============  ========  =======================  ==========================================
+
+``J<n>_CTRL`` is there only when the rig file names controllers (``[[joint.controller]]``,
+:mod:`servo.named_controllers`), for every joint; setting it switches that joint at the tick
+boundary, bumpless, refused (``out_of_range``, with the guard's reason) when the gain guard
+refuses the controller's gains.
 
 and, after the joints, ``SERVO_RATE_HZ`` (read-only, the loop rate). Gains, switch-off settings
 and limits are checked when received (finite, in range) and again when applied at the tick
@@ -41,6 +48,7 @@ import numpy as np
 from servo.control.gains import GAIN_DESCRIPTIONS, GAIN_NAMES, GAIN_UNITS
 from servo.control.law import SwitchOffConfig
 from servo.gain_guard import GAIN_MAX, GainRejected, check_gain_change
+from servo.named_controllers import use_controller
 from vmehil.errors import VmehilError
 
 MAX_NAME_LEN = 16
@@ -145,6 +153,11 @@ class ParamTable:
             if getattr(loop, "plan_context", None) is not None:
                 specs.append(ParamSpec(p + "VEL_MAX", "vel_max", j, "rad/s", 0.0, 0.0, False,
                                        "trajectory planning velocity limit"))
+            choices = getattr(loop, "controllers", None)
+            if choices is not None and choices.any_named and loop.law is not None:
+                specs.append(ParamSpec(p + "CTRL", "ctrl", j, "", 0.0, float(len(choices.per_joint[j]) - 1), True,
+                                       "controller in force (index: 0 default, then the rig's named ones)",
+                                       integer=True))
         specs.append(ParamSpec("SERVO_RATE_HZ", "rate", None, "Hz", 0.0, 0.0, False, "servo loop rate"))
         for s in specs:
             if len(s.name) > MAX_NAME_LEN:
@@ -199,6 +212,8 @@ class ParamTable:
             return float(loop.watchdog.following_error_rad[j])
         if key == "vel_max":
             return float(loop.plan_context.limits.v_max[j])
+        if key == "ctrl":
+            return float(loop.active_controller[j])
         raise AssertionError(key)  # pragma: no cover
 
     # --- write ---------------------------------------------------------------------------------------
@@ -269,6 +284,14 @@ class ParamTable:
             tau = np.array(tl.tau_max, float)
             tau[j] = v
             tl.tau_max = tau
+            return v
+        if key == "ctrl":
+            name = loop.controllers.per_joint[j][int(v)].name
+            try:  # the switch the console's `controller use` makes: guarded, bumpless, at this tick boundary
+                use_controller(loop.law, loop.controllers, loop.active_controller, name, [j], self.period_s,
+                               self.delay)
+            except GainRejected as e:
+                raise ParamRefused(OUT_OF_RANGE, spec.name, f"{v:g} ({name}) refused: {e.reason}") from None
             return v
         if key == "ferr_max":
             ferr = np.array(loop.watchdog.following_error_rad, float)

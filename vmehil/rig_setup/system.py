@@ -15,6 +15,7 @@ import numpy as np
 
 from emulators.crate import Crate
 from emulators.crate_file import build_crate
+from emulators.grasp import GraspWorld
 from emulators.harness import Harness, InProcessLink, JointNets, PlantLink, PlantLinkError
 from emulators.plant import JointParams, Plant, plant_params_from_config
 from emulators.presets import resolve_rig
@@ -146,6 +147,8 @@ class EmulatedRig:
 
     def sense(self, tick: int) -> None:
         self.harness.publish()
+        if self.grasp is not None:
+            self.grasp.publish()
 
     def exchange(self, tick: int) -> None:
         late_ns = self.crate.clock.now_ns - (tick * self.period_ns + round(self.rig.computation_delay_s * 1e9))
@@ -157,6 +160,8 @@ class EmulatedRig:
             # single controller's plant sees what the units' plant sees (docs/melmalec.md).
             self.late_exchanges += 1
             self.crate.advance_to(self.crate.clock.now_ns + self._settle_ns())
+        if self.grasp is not None:
+            self.grasp.before_period()
         try:
             self.harness.step(self.rig.period_s, self.rig.computation_delay_s)
         except PlantLinkError as e:
@@ -167,6 +172,8 @@ class EmulatedRig:
 
     #: exchanges made after their instant (see :meth:`exchange`), for the reports
     late_exchanges: int = 0
+    #: the hand's world (objects, their weight, the tactile switches; vmehil.rig_setup.hand_world)
+    grasp: GraspWorld | None = None
 
     def _settle_ns(self) -> int:
         """The longest output settling time of the crate's boards (a DAC's), ns."""

@@ -284,3 +284,48 @@ def test_the_switched_off_kp_follows_new_gains_and_a_new_switch_off_config_at_th
     law.set_switch_off(SwitchOffConfig.make(1, inner_band=1e-3, outer_band=0.02, kp_boost=None))
     law.update(plant.theta, plant.omega, 0.1, 0.0, motion_done=True)
     assert law.kp_off()[0] == pytest.approx(150.0 + KVI)
+
+
+# ---- construction and settings refused, with their texts --------------------------------------------------
+def test_law_refuses_a_joint_count_or_period_that_is_not_positive():
+    for n in (0, -1, 2.0, True):
+        if n is True:
+            continue  # bool is an int: PidLaw(True) is one joint, as Python counts
+        with pytest.raises(GainError, match=rf"^gain n_joints = {float(n)!r}: expected a positive integer; "):
+            PidLaw(n)
+    for period in (0.0, -0.008, float("inf"), float("nan")):
+        with pytest.raises(GainError, match=r"^gain period = .*: expected a positive number of seconds; nothing was "
+                                            r"changed, fix the value and retry$") as ei:
+            PidLaw(2, period)
+        assert (ei.value.name, ei.value.joint) == ("period", None)
+    law = PidLaw(2)
+    assert (law.n, law.period) == (2, 0.008)
+    assert isinstance(PidLaw(1, 1).period, float)
+
+
+def test_switch_off_settings_refused_name_the_setting_and_joint():
+    with pytest.raises(GainError, match=r"^gain switch_off\.outer_band\[1\] = 0\.001: expected a band wider than "
+                                        r"inner_band \(0\.002 rad\) for hysteresis; "):
+        SwitchOffConfig.make(2, inner_band=[0.001, 0.002], outer_band=[0.01, 0.001])
+    with pytest.raises(GainError, match=r"^gain switch_off\.outer_band\[0\] = 0\.002: expected a band wider"):
+        SwitchOffConfig.make(1, inner_band=0.002, outer_band=0.002)  # equal is not wider
+    with pytest.raises(GainError, match=r"^gain switch_off\.kp_boost\[1\] = 0\.99: expected a factor >= 1 \(or auto\)"):
+        SwitchOffConfig.make(2, kp_boost=[1.0, 0.99])
+    cfg = SwitchOffConfig.make(3, kp_boost=[None, 1.0, 2.5])  # None: auto, kept as NaN
+    assert np.isnan(cfg.kp_boost[0]) and list(cfg.kp_boost[1:]) == [1.0, 2.5]
+    for name in ("enabled", "zero_crossing"):
+        with pytest.raises(GainError, match=rf"^gain switch_off\.{name} = .*: expected true/false or a list of 2 "
+                                            r"of them; "):
+            SwitchOffConfig.make(2, **{name: [True, 1.5]})
+        with pytest.raises(GainError, match=rf"^gain switch_off\.{name} = .*: expected true/false or a list of 2"):
+            SwitchOffConfig.make(2, **{name: [True, False, True]})
+    cfg = SwitchOffConfig.make(2, enabled=[True, False], zero_crossing=False, settle_time=0.05,
+                               inner_band=0.001, outer_band=0.01)
+    assert cfg.enabled.tolist() == [True, False] and cfg.zero_crossing.tolist() == [False, False]
+    assert cfg.settle_time.tolist() == [0.05, 0.05] and cfg.enabled.dtype == np.bool_
+    default = SwitchOffConfig.make(1)
+    assert (bool(default.enabled[0]), bool(default.zero_crossing[0])) == (True, True)
+    assert float(default.settle_time[0]) == 0.0
+    assert np.isnan(default.kp_boost[0])
+    np.testing.assert_allclose([default.inner_band[0], default.outer_band[0]], [math.pi / 1800, math.pi / 180])
+    assert SwitchOffConfig.disabled(2).enabled.tolist() == [False, False]

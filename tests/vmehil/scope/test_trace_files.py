@@ -8,6 +8,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import signal
 from collections import Counter
 
 import pytest
@@ -15,7 +16,12 @@ import pytest
 from vmehil.cli import main
 
 mcap_reader = pytest.importorskip("mcap.reader")
+# vcdvcd resets SIGPIPE to its default action when imported (a CLI's "handle broken pipes"): in a
+# pytest process that makes a later write to a closed pipe kill the whole run (exit 243 = -SIGPIPE,
+# seen in CI). Python's own setting (ignored: EPIPE raised instead) is put back at once.
+_sigpipe = signal.getsignal(signal.SIGPIPE)
 vcdvcd = pytest.importorskip("vcdvcd")
+signal.signal(signal.SIGPIPE, _sigpipe)
 pd = pytest.importorskip("pandas")
 
 PERIOD_NS = 8_000_000  #: jpl-arm's servo_rate_hz = 125 (emulators/presets/jpl-arm.toml)
