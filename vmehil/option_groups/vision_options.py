@@ -22,7 +22,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from servo.rig import RigSpec
+from servo.rig import RigSpec, crate_boards
 from vmehil.errors import CliError
 from vmehil.option_groups.cli_types import bounded_float, duration_s, positive_float
 
@@ -129,9 +129,7 @@ def prepare(run: RunNeeds, rig: RigSpec) -> VisionPreparation | None:
 
 
 def _bit3_board(rig: RigSpec) -> dict[str, Any]:
-    from hal.board_types import board_role
-
-    boards = [b for b in rig.table.data.get("crate", {}).get("board", []) if board_role(str(b.get("type"))) == "bit3"]
+    boards = [b.data for b in crate_boards(rig, "bit3")]
     if not boards:
         raise CliError(f"rig {rig.name} has no BIT3 card (a [[crate.board]] with type = \"bit3\")")
     return boards[0]
