@@ -246,3 +246,12 @@ def test_a_spec_the_rig_cannot_meet_is_refused_before_the_loop_is_armed(capsys) 
 def test_trace_out_without_trace_is_refused(capsys) -> None:
     assert main(["run", "--trace-out", "t.mcap"]) == 2
     assert "--trace-out: give --trace SPEC too" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # builds the rig (its plant kernel): over 1.5 s
+def test_console_trace_list_prints_the_same_names_as_run(capsys) -> None:
+    # jpl-arm's controller names of its first joint and its last (the hand), as run's listing above
+    assert main(["console", "--trace", "list"]) == 0
+    names = [line.split()[0] for line in capsys.readouterr().out.splitlines()]
+    assert names[:2] == ["j1.target_rad", "j1.target_rad_s"]
+    assert {"drv.hand.enc_counts", "net.rig.watchdog", "irq.IRQ7", "bus.berr"} <= set(names)
