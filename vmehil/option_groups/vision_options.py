@@ -188,7 +188,11 @@ def attach(run: RunNeeds, system, loop, runner, prepared: VisionPreparation | No
     board = _bit3_board(rig)
     card = system.crate.board(board["name"])
     drv, link_up = _link_driver(system.crate, board)
-    arm = ArmModel.from_table(rig.table.data.get("arm", {}))
+    # the arm the servo plans with (ServoSettings.arm, parsed once); a rig that states no [arm]
+    # gets the model's default lengths, as visual servoing always did
+    ctx = loop.plan_context or loop.sequencer.ctx
+    bounds = ctx.bounds if ctx is not None else None
+    arm = bounds.arm if bounds is not None and bounds.arm is not None else ArmModel.from_table({})
     theta0 = system.io.read().theta + prepared.ready_delta  # where vservo will start
     target = _target(opts.target, arm, theta0)
     params = VisionParams(rate_hz=opts.rate_hz, latency_s=opts.latency_ms * 1e-3,
