@@ -135,8 +135,8 @@ class AdcBoard(RegisterBoard):
         if noise_rms_v < 0:
             raise ValueError(f"{name}: noise_rms_v must be >= 0 V, got {noise_rms_v}")
         self.noise_rms_v = float(noise_rms_v)
-        self.offset_v = _per_channel(name, "offset_v", offset_v, 0.0)
-        self.gain_error = _per_channel(name, "gain_error", gain_error, 0.0)
+        self.offset_v = per_channel(name, "offset_v", offset_v, ADC_CHANNELS)
+        self.gain_error = per_channel(name, "gain_error", gain_error, ADC_CHANNELS)
         if conversion_time_ns <= 0:
             raise ValueError(f"{name}: conversion_time_ns must be > 0")
         self.conversion_time_ns = int(conversion_time_ns)
@@ -420,11 +420,13 @@ def quantize(volts: float, bipolar: bool, gain_code: int) -> int:
     return 0 if code < 0 else CODE_MAX if code > CODE_MAX else code
 
 
-def _per_channel(name: str, key: str, values: Sequence[float] | None, default: float) -> tuple[float, ...]:
+def per_channel(name: str, key: str, values: Sequence[float] | None, channels: int) -> tuple[float, ...]:
+    """A board's per-channel figure (``offset_v``, ``gain_error``): one value per channel, all 0.0
+    when none is given (every analog board emulator's)."""
     if values is None:
-        return (default,) * ADC_CHANNELS
-    if len(values) != ADC_CHANNELS:
-        raise ValueError(f"{name}: {key} needs {ADC_CHANNELS} values (one per channel), got {len(values)}")
+        return (0.0,) * channels
+    if len(values) != channels:
+        raise ValueError(f"{name}: {key} needs {channels} values (one per channel), got {len(values)}")
     return tuple(float(v) for v in values)
 
 

@@ -29,7 +29,7 @@ from collections.abc import Mapping, Sequence
 from functools import partial
 from typing import Any, ClassVar
 
-from emulators.adc import wiring_from_config
+from emulators.adc import per_channel, wiring_from_config
 from emulators.board import RegisterBoard
 from emulators.board_factory import BuildContext
 from hal.config import ConfigTable
@@ -103,8 +103,8 @@ class DacBoard(RegisterBoard):
             if not 0 <= int(ch) < DAC_CHANNELS:
                 raise ValueError(f"{name}: wiring channel {ch} is not 0..{DAC_CHANNELS - 1}")
             self.wiring[int(ch)] = str(net)
-        self.offset_v = _per_channel(name, "offset_v", offset_v)
-        self.gain_error = _per_channel(name, "gain_error", gain_error)
+        self.offset_v = per_channel(name, "offset_v", offset_v, DAC_CHANNELS)
+        self.gain_error = per_channel(name, "gain_error", gain_error, DAC_CHANNELS)
         if settling_time_ns < 0:
             raise ValueError(f"{name}: settling_time_ns must be >= 0")
         self.settling_time_ns = int(settling_time_ns)
@@ -238,14 +238,6 @@ def _data_writer(ch: int):
 
 for _ch in range(DAC_CHANNELS):  # write_DATA0..write_DATA7
     setattr(DacBoard, f"write_DATA{_ch}", _data_writer(_ch))
-
-
-def _per_channel(name: str, key: str, values: Sequence[float] | None) -> tuple[float, ...]:
-    if values is None:
-        return (0.0,) * DAC_CHANNELS
-    if len(values) != DAC_CHANNELS:
-        raise ValueError(f"{name}: {key} needs {DAC_CHANNELS} values (one per channel), got {len(values)}")
-    return tuple(float(v) for v in values)
 
 
 def dac_factory(name: str, cfg: ConfigTable, ctx: BuildContext) -> DacBoard:

@@ -31,6 +31,7 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
+from emulators.adc import per_channel, wiring_from_config
 from emulators.board import RegisterBoard
 from emulators.board_factory import BuildContext
 from emulators.rng import rng_for
@@ -175,8 +176,8 @@ class Vmivme3113aBoard(RegisterBoard):
         if noise_rms_v < 0:
             raise ValueError(f"{name}: noise_rms_v must be >= 0 V, got {noise_rms_v}")
         self.noise_rms_v = float(noise_rms_v)
-        self.offset_v = _per_channel(name, "offset_v", offset_v)
-        self.gain_error = _per_channel(name, "gain_error", gain_error)
+        self.offset_v = per_channel(name, "offset_v", offset_v, CHANNELS)
+        self.gain_error = per_channel(name, "gain_error", gain_error, CHANNELS)
         if conversion_time_ns <= 0:
             raise ValueError(f"{name}: conversion_time_ns must be > 0")
         self.conversion_time_ns = int(conversion_time_ns)
@@ -391,26 +392,6 @@ class Vmivme3113aBoard(RegisterBoard):
 _CH = tuple(f"CH{k}" for k in range(CHANNELS))
 
 
-def _per_channel(name: str, key: str, values: Sequence[float] | None) -> tuple[float, ...]:
-    if values is None:
-        return (0.0,) * CHANNELS
-    if len(values) != CHANNELS:
-        raise ValueError(f"{name}: {key} needs {CHANNELS} values (one per channel), got {len(values)}")
-    return tuple(float(v) for v in values)
-
-
-def _wiring(cfg: ConfigTable) -> dict[int, str]:
-    if "wiring" not in cfg:
-        return {}
-    table = cfg.table("wiring")
-    out: dict[int, str] = {}
-    for key in table.keys():
-        if not key.isdigit() or not 0 <= int(key) < CHANNELS:
-            raise table.error(key, f"a channel number 0..{CHANNELS - 1}", key)
-        out[int(key)] = table.get_str(key)
-    return out
-
-
 def vmivme3113a_factory(name: str, cfg: ConfigTable, ctx: BuildContext) -> Vmivme3113aBoard:
     """Crate-file factory for ``type = "vmivme-3113a"``.
 
@@ -419,7 +400,7 @@ def vmivme3113a_factory(name: str, cfg: ConfigTable, ctx: BuildContext) -> Vmivm
     """
     return Vmivme3113aBoard(
         name,
-        wiring=_wiring(cfg),
+        wiring=wiring_from_config(cfg, CHANNELS),
         input_range=cfg.get_str("input_range", "bipolar_10v", choices=tuple(RANGES)),
         noise_rms_v=cfg.get_float("noise_rms_v", 0.0, min=0.0, max=10.0),
         offset_v=cfg.floats("offset_v", None, length=CHANNELS) if "offset_v" in cfg else None,

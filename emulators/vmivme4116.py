@@ -29,7 +29,7 @@ from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from typing import Any, ClassVar
 
-from emulators.adc import wiring_from_config
+from emulators.adc import per_channel, wiring_from_config
 from emulators.board import RegisterBoard
 from emulators.board_factory import BuildContext
 from hal.config import ConfigTable
@@ -121,8 +121,8 @@ class VmiVme4116Board(RegisterBoard):
             self.wiring[int(ch)] = str(net)
         self.synchronized = update == "synchronized"
         self.coding = coding
-        self.offset_v = _per_channel(name, "offset_v", offset_v)
-        self.gain_error = _per_channel(name, "gain_error", gain_error)
+        self.offset_v = per_channel(name, "offset_v", offset_v, CHANNELS)
+        self.gain_error = per_channel(name, "gain_error", gain_error, CHANNELS)
         if settling_time_ns < 0:
             raise ValueError(f"{name}: settling_time_ns must be >= 0")
         self.settling_time_ns = int(settling_time_ns)
@@ -274,14 +274,6 @@ def _chan_writer(ch: int):
 
 for _ch in range(CHANNELS):  # write_CHAN0..write_CHAN7
     setattr(VmiVme4116Board, f"write_CHAN{_ch}", _chan_writer(_ch))
-
-
-def _per_channel(name: str, key: str, values: Sequence[float] | None) -> tuple[float, ...]:
-    if values is None:
-        return (0.0,) * CHANNELS
-    if len(values) != CHANNELS:
-        raise ValueError(f"{name}: {key} needs {CHANNELS} values (one per channel), got {len(values)}")
-    return tuple(float(v) for v in values)
 
 
 def vmivme4116_factory(name: str, cfg: ConfigTable, ctx: BuildContext) -> VmiVme4116Board:

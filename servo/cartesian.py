@@ -33,7 +33,7 @@ import numpy as np
 from hal.config import ConfigTable
 from hal.kinematics import ArmModel, IkResult, rotation_rpy
 from servo.trajectory import MoveSpec, PlanContext, Quintic, Trajectory, TrajectoryError
-from servo.trajectory.cartesian import CartesianPath, Chain, reach_refusal
+from servo.trajectory.cartesian import CartesianPath, Chain, fmt_m, reach_refusal
 from servo.trajectory.lspb import MAX_VIA_POINTS
 
 __all__ = ["BlendxMove", "CartesianMove", "CartesianTarget", "parse_blendx", "parse_cartesian"]
@@ -41,10 +41,6 @@ __all__ = ["BlendxMove", "CartesianMove", "CartesianTarget", "parse_blendx", "pa
 #: no Cartesian coordinate is farther than this from the base (m): a sanity bound on the file, not
 #: the arm's reach (which the inverse kinematics checks)
 MAX_COORDINATE_M = 100.0
-
-
-def _fmt_m(p: np.ndarray) -> str:
-    return "[" + ", ".join(f"{float(x):.3f}" for x in p) + "] m"
 
 
 @dataclass(frozen=True)
@@ -83,9 +79,9 @@ def _solve(arm: ArmModel, point: np.ndarray, rot: np.ndarray, theta0: np.ndarray
         reason = res.reason
         if res.limit_joint is not None and res.limit_joint < len(names):
             reason = reason.replace(f"joint index {res.limit_joint}", f"joint {names[res.limit_joint]}")
-        raise reach_refusal(f"{what} {_fmt_m(point)} cannot be reached: {reason}")
+        raise reach_refusal(f"{what} {fmt_m(point)} cannot be reached: {reason}")
     if res.singular:
-        raise reach_refusal(f"{what} {_fmt_m(point)} is at a singularity: {res.singularity} "
+        raise reach_refusal(f"{what} {fmt_m(point)} is at a singularity: {res.singularity} "
                             f"(manipulability {res.manipulability:.2e} m³)", theta=res.theta)
     return res.theta
 

@@ -242,6 +242,14 @@ def _board_roles(table: ConfigTable) -> dict[str, str | None]:
     return {b.get_str("name"): board_role(b.get_str("type")) for b in table.table("crate", {}).tables("board", [])}
 
 
+def crate_boards(rig: RigSpec, kind: str) -> list[ConfigTable]:
+    """``[crate]``'s boards of role ``kind`` (hal.board_types: the vision link ``"bit3"`` is the
+    reference card and the SBS 617) or of type ``kind`` exactly, in the file's order: the one way
+    to find a rig's board by role."""
+    return [b for b in rig.table.table("crate", {}).tables("board", [])
+            if b.get_str("type") == kind or board_role(b.get_str("type")) == kind]
+
+
 def _pio_lines(type_name: str) -> tuple[str, ...]:
     """The pin names of a board of role ``pio``: its driver's ``LINES`` (the reference PIO's
     PA0..PC7 when it declares none)."""

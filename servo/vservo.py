@@ -79,10 +79,9 @@ class VisionLink:
         theta = self._frozen if self._frozen is not None else self.measure()
         out = {"robot_state": self.client.state.name,
                "end_reason": getattr(self.client.end_reason, "name", None),
-               "commands": self.commands, "final_distance_mm": None}
-        if self.refused:
-            out["refused_targets"] = self.refused
-            out["last_refusal"] = self.last_refusal
+               "commands": self.commands, "final_distance_mm": None,
+               # always there (0, None): docs/motion-safety.md promises the count to a reader
+               "refused_targets": self.refused, "last_refusal": self.last_refusal}
         if self.vision is not None and theta is not None:
             ee = np.asarray(self.arm.position(np.asarray(theta, float)[:6]))
             out["final_distance_mm"] = float(np.linalg.norm(ee - np.asarray(self.vision.target)) * 1e3)

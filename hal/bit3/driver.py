@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 from hal.bit3.errors import Bit3Error, LinkDownError, RemoteBusError
 from hal.bit3.regs import BIT3_CSR, CARD_ID
@@ -217,10 +218,22 @@ class Bit3Driver:
             self._doorbell_cb(code)
 
 
-class Bit3WindowMemory:
-    """:class:`hal.shm.Memory` through the BIT3 window (raises ``Bit3Error`` on link failure)."""
+class WindowDriver(Protocol):
+    """What :class:`Bit3WindowMemory` needs of a vision-link card's driver (the reference BIT3's
+    and the SBS 617's both have it)."""
 
-    def __init__(self, driver: Bit3Driver, offset: int = 0, size: int | None = None) -> None:
+    window_size: int
+
+    def read_bytes(self, offset: int, size: int) -> bytes: ...
+
+    def write_bytes(self, offset: int, data: bytes) -> None: ...
+
+
+class Bit3WindowMemory:
+    """:class:`hal.shm.Memory` through a vision-link card's window (the reference BIT3's or the
+    SBS 617's, whose name for it is ``Sbs617WindowMemory``); raises ``Bit3Error`` on link failure."""
+
+    def __init__(self, driver: WindowDriver, offset: int = 0, size: int | None = None) -> None:
         self.driver = driver
         self.base = offset
         self.size = driver.window_size - offset if size is None else size

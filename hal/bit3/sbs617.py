@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from hal.bit3.driver import Bit3WindowMemory
 from hal.bit3.errors import Bit3Error, LinkDownError, RemoteBusError
 from hal.bit3.sbs617_regs import (
     AM_A24_DATA,
@@ -290,19 +291,8 @@ class Sbs617Driver:
                 self._doorbell_cb(0)
 
 
-class Sbs617WindowMemory:
-    """:class:`hal.shm.Memory` through the 617's window (raises ``Bit3Error`` on a link error)."""
-
-    def __init__(self, driver: Sbs617Driver, offset: int = 0, size: int | None = None) -> None:
-        self.driver = driver
-        self.base = offset
-        self.size = driver.window_size - offset if size is None else size
-
-    def read(self, offset: int, size: int) -> bytes:
-        return self.driver.read_bytes(self.base + offset, size)
-
-    def write(self, offset: int, data: bytes) -> None:
-        self.driver.write_bytes(self.base + offset, data)
+#: the 617's window as :class:`hal.shm.Memory`: the one window memory of the vision link's cards
+Sbs617WindowMemory = Bit3WindowMemory
 
 
 def probe_sbs617(bus: VmeBus, base: int, space: AddressSpace) -> ProbeReading:

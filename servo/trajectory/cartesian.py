@@ -32,7 +32,7 @@ from servo.trajectory.base import JointLimits, Sample, Trajectory, TrajectoryErr
 from servo.trajectory.bounds import MotionRefused, Refusal
 from servo.trajectory.lspb import Lspb
 
-__all__ = ["CARTESIAN_ACCEL_M_S2", "CARTESIAN_SPEED_M_S", "CartesianPath", "Chain", "reach_refusal"]
+__all__ = ["CARTESIAN_ACCEL_M_S2", "CARTESIAN_SPEED_M_S", "CartesianPath", "Chain", "fmt_m", "reach_refusal"]
 
 #: the nominal speed (m/s, per axis) and acceleration (m/s², per axis) of the tool on a straight
 #: line at speed factor 1, before the joints' limits stretch the path
@@ -45,7 +45,8 @@ GRID_MIN = 20
 GRID_MAX = 600
 
 
-def _fmt_m(p: np.ndarray) -> str:
+def fmt_m(p: np.ndarray) -> str:
+    """A point for a message: ``[x, y, z] m`` to the millimetre (the Cartesian refusals' one format)."""
     return "[" + ", ".join(f"{float(x):.3f}" for x in p) + "] m"
 
 
@@ -92,7 +93,7 @@ class CartesianPath:
                                 "with a joint or cartesian move first", point_index=0, t_s=0.0, theta=theta[0])
         for i in range(1, m):
             res = arm.solve(xyz[i], slerp(r_start, r_end, float(frac[i])), theta0=theta[i - 1])
-            where = f"point {i + 1} of {m} of the path, {_fmt_m(xyz[i])} (t = {tau[i] / s:.3f} s nominal)"
+            where = f"point {i + 1} of {m} of the path, {fmt_m(xyz[i])} (t = {tau[i] / s:.3f} s nominal)"
             if not res.reachable or res.theta is None:
                 raise reach_refusal(f"the straight path leaves the workspace at {where}: {res.reason}",
                                     point_index=i, t_s=float(tau[i]))

@@ -250,3 +250,17 @@ def test_a_visual_servoing_target_past_a_limit_or_into_an_obstacle_is_not_used()
     # 10° used; 170° (past the 160° limit) refused: held at 10°; q1 = 0 (the arm in BOX) refused: held
     assert seen == pytest.approx([10.0, 10.0, 10.0, 12.0])
     assert link.refused == 2 and "hits obstacle box" in (link.last_refusal or "")
+
+
+def test_the_vision_summary_counts_refused_targets_even_when_none_were_refused() -> None:
+    # docs/motion-safety.md: "the run's `vision.refused_targets` counts them" — a key a reader can
+    # rely on, 0 in a run where every target was used (it was left out then)
+    from servo.vservo import VisionLink
+
+    client = _Client()
+    client.end_reason = None  # type: ignore[attr-defined]  # the protocol's: None while the task runs
+    link = VisionLink(client, ArmModel(), lambda: 0.0, lambda: None, 7)  # type: ignore[arg-type]
+    summary = link.summary()
+    assert summary["refused_targets"] == 0 and summary["last_refusal"] is None
+    link.refused, link.last_refusal = 2, "move 1: joint j2 target 170.00° is past its soft limit"
+    assert link.summary()["refused_targets"] == 2

@@ -30,3 +30,26 @@ def driving(system) -> bool:
     """Whether any amplifier enable line is high on the emulated boards."""
     s = system.crate.signals
     return any(s.get_digital(j.net("amp_enable")) for j in system.rig.joints if "amp_enable" in j.wiring)
+
+
+def watch_enables(monkeypatch) -> tuple[list, list[str]]:
+    """Watch every rig the command builds (``vmehil.rig_setup.system.build_emulated_rig``) from its
+    build on: returns ``(built, raised)``, the systems built and the joints whose amplifier enable
+    net ever went high."""
+    from vmehil.rig_setup import system as rig_system
+
+    built: list = []
+    raised: list[str] = []
+    real_build = rig_system.build_emulated_rig
+
+    def watched(*args, **kwargs):
+        system = real_build(*args, **kwargs)
+        for j in system.rig.joints:
+            if "amp_enable" in j.wiring:
+                system.crate.signals.subscribe(j.net("amp_enable"),
+                                               lambda v, name=j.name: raised.append(name) if v else None)
+        built.append(system)
+        return system
+
+    monkeypatch.setattr(rig_system, "build_emulated_rig", watched)
+    return built, raised

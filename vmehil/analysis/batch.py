@@ -4,7 +4,7 @@ Each instance is a complete scalar rig (:class:`vmehil.analysis.simulate.SimRun`
 boards, drivers, harness, plant, servo loop, gains, plant values and seed); the batch ticks
 instance 0, 1, …, B-1 for tick k, then every one for tick k+1. Every instance runs exactly the
 calls its scalar run makes, in the same order, on objects no other instance touches, so its
-recorded trajectory is the scalar run's byte for byte (tests/vmehil/test_batch.py; the
+recorded trajectory is the scalar run's byte for byte (tests/vmehil/analysis/test_batch.py; the
 fingerprint's ``--batch`` cases). Divergence needs no handling in this form: an instance whose
 drivers take an extra bus cycle (an encoder wrap-flag clear, a PWM direction flip) takes it on its
 own crate and clock. docs/architecture.md, "Batched lockstep", gives the design and what the

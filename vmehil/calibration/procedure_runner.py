@@ -19,7 +19,7 @@ from typing import Any
 from vmehil.calibration.base import CalibrationContext, Procedure, ProcedureResult
 from vmehil.calibration.procedures import ALL, PROCEDURES, procedures_for_all
 from vmehil.calibration.store import CalibrationStore
-from vmehil.errors import CliError
+from vmehil.errors import CliError, VmehilError
 
 
 @dataclass
@@ -29,6 +29,9 @@ class ProcedureRunOutcome:
     #: where the file that ``written`` replaced was kept (``.prev``); None when there was none
     previous: Path | None = None
     error: str | None = None
+    #: a typed abort's own sentence (ours: a ``VmehilError``), without the procedure and the class
+    #: ``error`` puts before it; None when nothing aborted or the error was not ours (a bug)
+    reason: str | None = None
     #: every procedure passed but none changed an entry (``friction`` writes none): nothing written
     unchanged: bool = False
 
@@ -90,6 +93,7 @@ def run_procedures(ctx: CalibrationContext, names: list[str], *, out_path: str |
             result = proc.run(ctx)
         except Exception as e:
             outcome.error = f"{name}: {type(e).__name__}: {e}"
+            outcome.reason = str(e) if isinstance(e, VmehilError) else None
             ctx.say(f"  {name} failed: {e}; the calibration file is left unchanged")
             return outcome
         outcome.results.append(result)

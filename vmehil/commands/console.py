@@ -119,11 +119,7 @@ def run_console(opts: ConsoleCommandOptions) -> int:
 
     rig = load_rig(resolve_rig(opts.rig))
     if opts.trace.wants_list:
-        listed = build_emulated_rig(rig, seed=opts.seed)
-        try:
-            return trace_options.list_signals(listed, [j.name for j in rig.joints])
-        finally:
-            listed.close()
+        return trace_options.list_rig_signals(rig, seed=opts.seed)
     calibration = opts.calibration or str(default_store_path(rig))
     if opts.calibration and not Path(opts.calibration).exists():
         raise FileNotFoundError(f"--calibration {opts.calibration}: no such file")

@@ -109,13 +109,7 @@ def run(opts: RunOptions) -> int:
         return fault_options.list_faults()
     rig = load_rig(resolve_rig(opts.rig))
     if opts.trace.wants_list:
-        from vmehil.rig_setup.system import build_emulated_rig
-
-        system = build_emulated_rig(rig, seed=opts.seed)
-        try:
-            return trace_options.list_signals(system, [j.name for j in rig.joints])
-        finally:
-            system.close()
+        return trace_options.list_rig_signals(rig, seed=opts.seed)
     # the servo's settings, parsed once; the command line's override applied and guarded here, once
     settings = servo_settings(rig).overridden(opts.gains, opts.integrator_switch_off)
     prepared: dict[ModuleType, Any] = {}  # the extensions' preparations, filled by _run

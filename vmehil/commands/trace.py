@@ -19,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("file", metavar="FILE", help="the trace file")
     s.add_argument("--signals", metavar="SPEC", default=None,
                    help="the signals to plot, in --trace's grammar (default: *.target_rad,*.position_rad,"
-                        "truth.*.theta_rad)")
+                        "truth.*.theta_rad); list: print the file's signal names and exit")
     s.add_argument("--out", dest="png", metavar="PNG", default=None, help="the figure (default: FILE with .png)")
     s.set_defaults(func=show, options=TraceShowOptions.from_args)
 
@@ -40,9 +40,18 @@ class TraceShowOptions:
 def show(opts: TraceShowOptions) -> int:
     from vmehil.commands import refuse_without
 
-    extras = ["plots"] + (["trace"] if not opts.file.lower().endswith(".csv") else [])
+    listing = opts.signals == "list"  # as `--trace list`: the names the SPEC chooses from
+    extras = ([] if listing else ["plots"]) + (["trace"] if not opts.file.lower().endswith(".csv") else [])
     if any(refuse_without("vmehil trace show", extra) for extra in extras):
         return 2
+    if listing:
+        from pathlib import Path
+
+        from vmehil.scope.show import signal_names
+
+        for name in signal_names(Path(opts.file)):
+            print(name)
+        return 0
     from vmehil.scope.show import show as plot
 
     path, names = plot(opts.file, opts.signals, opts.png)

@@ -321,7 +321,11 @@ class ConsoleCalibrator:
         if outcome.error is not None:
             f = loop.fault
             where = f" (the loop stopped: {f.cause})" if f is not None else ""
-            lines.append(f"ERR {STATE} {req.command} {req.procedure}: {outcome.error}{where}; "
+            # `home J` names its one procedure already: its abort's own sentence, once (before:
+            # "ERR STATE home home: home: CalibrationAbort: j2: …")
+            why = (f"{req.command}: {outcome.reason}" if req.command == req.procedure and outcome.reason
+                   else f"{req.command} {req.procedure}: {outcome.error}")
+            lines.append(f"ERR {STATE} {why}{where}; "
                          f"{self.path} left unchanged" + (", enable to servo again" if f is not None else ""))
         elif outcome.unchanged:
             # every check passed and no entry changed (friction writes none): nothing to write is

@@ -44,14 +44,16 @@ from vmehil.console.protocol import (
     type_name,
 )
 
-# parameter types: the (DM)² four, plus "joint" (an int 1..n or a joint name, or "all")
-STRING, INT, FLOAT, VECTOR, JOINT = "string", "int", "float", "vector", "joint"
+# parameter types: the (DM)² four, plus "joint" (an int 1..n or a joint name, or "all") and
+# "joints" (the same, or a vector of joint numbers: 1,3)
+STRING, INT, FLOAT, VECTOR, JOINT, JOINTS = "string", "int", "float", "vector", "joint", "joints"
 ACCEPTS: dict[str, tuple[str, ...]] = {
     STRING: ("string",),
     INT: ("int",),
     FLOAT: ("float", "int"),
     VECTOR: ("vector",),
     JOINT: ("int", "string"),
+    JOINTS: ("int", "string", "vector"),
 }
 REQUIRED: Any = object()
 MAX_LOG_LINES = 200
@@ -221,7 +223,25 @@ def check_arg(cmd: str, p: Param, value: Value | Typed, n_joints: int | None, na
         if names is None:
             return value
         return resolve_joint(value, names)
+    if p.type == JOINTS:
+        return resolve_joints(value, names)
     return value
+
+
+def resolve_joints(value: Value, names: list[str] | None) -> list[int] | None:
+    """``"all"`` → None; a joint (number or name) → [its index]; a vector of joint numbers (``1,3``)
+    → their indices, each once, in the order given."""
+    if not isinstance(value, tuple):
+        one = resolve_joint(value, names)
+        return None if one is None else [one]
+    out: list[int] = []
+    for v in value:
+        if not (isinstance(v, int | float) and float(v).is_integer()):
+            raise ConsoleError(VALUE, f"joint {v!r} in {','.join(map(str, value))}: joints are numbers 1..n")
+        j = resolve_joint(int(v), names)
+        if j is not None and j not in out:
+            out.append(j)
+    return out
 
 
 def bind(cmd: str, params: tuple[Param, ...], args: Sequence[tuple[str | None, Value | Typed]],
@@ -250,7 +270,8 @@ def bind(cmd: str, params: tuple[Param, ...], args: Sequence[tuple[str | None, V
             if p.default is REQUIRED:
                 raise ConsoleError(ARGS, f"{cmd}: missing {p.name} ({p.type}); usage: "
                                          f"{' '.join([cmd, *(q.usage() for q in params)])}")
-            out[p.name] = resolve_joint(p.default, names) if p.type == JOINT and names is not None else p.default
+            out[p.name] = (resolve_joint(p.default, names) if p.type == JOINT and names is not None
+                           else resolve_joints(p.default, names) if p.type == JOINTS else p.default)
     return out
 
 
@@ -772,12 +793,13 @@ def _mode(s: Session, a: dict[str, Any]) -> Outcome:
     return Outcome(lines)
 
 
-def _controller_lines(loop: Any, joint: int | None) -> list[str]:
+def _controller_lines(loop: Any, joint: int | list[int] | None) -> list[str]:
     choices = getattr(loop, "controllers", None)
     law = _law(loop)
     lines = []
+    wanted = None if joint is None else ({joint} if isinstance(joint, int) else set(joint))
     for i, name in enumerate(loop.names):
-        if joint is not None and i != joint:
+        if wanted is not None and i not in wanted:
             continue
         pending = getattr(law, "_pending_switch", {})
         hz = float(pending[i][1]) if i in pending else float(law.filter_hz[i])  # what the next tick uses
@@ -788,12 +810,14 @@ def _controller_lines(loop: Any, joint: int | None) -> list[str]:
     return lines
 
 
-@atom("controller", (Param("action", STRING, "list"), Param("name", STRING, ""), Param("joint", JOINT, "all")),
-      "list each joint's named controllers, or 'controller use NAME [joint]': switch at the next tick, bumpless; "
-      "gains checked by servo.gain_guard")
+@atom("controller", (Param("action", STRING, "list"), Param("name", STRING, ""), Param("joint", JOINTS, "all")),
+      "list each joint's named controllers, or 'controller use NAME [JOINTS]' (a joint, 1,3 or all): switch at "
+      "the next tick, bumpless, every joint named or none; gains checked by servo.gain_guard")
 def _controller(s: Session, a: dict[str, Any]) -> Outcome:
     loop = s.loop
     action, name, joint = a["action"], a["name"], a["joint"]
+    if isinstance(joint, int):  # one joint index, as a caller in code (MAVLink's Jn_CTRL) gives it
+        joint = [joint]
     if action == "list":
         return Outcome(_controller_lines(loop, joint))
     if action != "use":
@@ -803,7 +827,7 @@ def _controller(s: Session, a: dict[str, Any]) -> Outcome:
     choices = getattr(loop, "controllers", None)
     if choices is None:
         raise ConsoleError(UNAVAILABLE, "this loop has no named controllers (a loop built from a rig file has)")
-    joints = list(range(loop.n)) if joint is None else [joint]
+    joints = list(range(loop.n)) if joint is None else list(joint)
     try:
         use_controller(_law(loop), choices, loop.active_controller, name, joints, loop.period_s, s.delay)
     except GainRejected as e:
@@ -811,7 +835,7 @@ def _controller(s: Session, a: dict[str, Any]) -> Outcome:
         raise ConsoleError(GAIN, f"controller {name} rejected ({where}{e.reason}); nothing was changed") from None
     except ControlError as e:
         raise ConsoleError(VALUE, f"{e}; nothing was changed") from None
-    where = "all joints" if joint is None else loop.names[joint]
+    where = "all joints" if joint is None else ",".join(loop.names[j] for j in joint)
     loop.note(s.source, f"controller {name} on {where}")
     return Outcome(_controller_lines(loop, joint), kv(applied_at_tick=int(loop.tick_count)))
 

@@ -33,7 +33,7 @@ import numpy as np
 
 from hal.board_types import board_role
 from hal.config import ConfigError, load_toml
-from servo.rig import RigSpec
+from servo.rig import RigSpec, crate_boards
 from vmehil.errors import CliError, VmehilError
 
 _REQUIRED = object()
@@ -105,8 +105,7 @@ class FaultContext:
 
     def board_of_type(self, kind: str, what: str) -> Any:
         # a role names every board type of it (the vision link: "bit3" and "sbs617")
-        boards = [b for b in self.rig.table.table("crate", {}).tables("board", [])
-                  if b.get_str("type") == kind or board_role(b.get_str("type")) == kind]
+        boards = crate_boards(self.rig, kind)
         if not boards:
             raise CliError(f"{what}: rig {self.rig.name} has no {kind} board")
         return self.system.crate.board(boards[0].get_str("name"))

@@ -130,6 +130,18 @@ def list_signals(system: Any, names: Sequence[str], *, truth: bool | None = None
     return 0
 
 
+def list_rig_signals(rig: Any, *, seed: int) -> int:
+    """``--trace list`` on a command that has not built its rig yet (``run``, ``console``): the
+    rig's emulated build, listed with every joint, then closed."""
+    from vmehil.rig_setup.system import build_emulated_rig
+
+    system = build_emulated_rig(rig, seed=seed)
+    try:
+        return list_signals(system, [j.name for j in rig.joints])
+    finally:
+        system.close()
+
+
 def start_on_plant(options: TraceOptions, link: Any, rig: Any, *, seed: int) -> Any:
     """Trace a coordinator's plant exchanges (``vmehil coordinate``): the nets the commands and
     answers carry and the plant's truth, one row per plant step; ``None`` without ``--trace``."""

@@ -22,7 +22,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from servo.rig import RigSpec
+from servo.rig import RigSpec, crate_boards
 from vmehil.errors import CliError
 from vmehil.option_groups.cli_types import bounded_float, duration_s, positive_float
 
@@ -129,9 +129,7 @@ def prepare(run: RunNeeds, rig: RigSpec) -> VisionPreparation | None:
 
 
 def _bit3_board(rig: RigSpec) -> dict[str, Any]:
-    from hal.board_types import board_role
-
-    boards = [b for b in rig.table.data.get("crate", {}).get("board", []) if board_role(str(b.get("type"))) == "bit3"]
+    boards = [b.data for b in crate_boards(rig, "bit3")]
     if not boards:
         raise CliError(f"rig {rig.name} has no BIT3 card (a [[crate.board]] with type = \"bit3\")")
     return boards[0]
@@ -190,7 +188,11 @@ def attach(run: RunNeeds, system, loop, runner, prepared: VisionPreparation | No
     board = _bit3_board(rig)
     card = system.crate.board(board["name"])
     drv, link_up = _link_driver(system.crate, board)
-    arm = ArmModel.from_table(rig.table.data.get("arm", {}))
+    # the arm the servo plans with (ServoSettings.arm, parsed once); a rig that states no [arm]
+    # gets the model's default lengths, as visual servoing always did
+    ctx = loop.plan_context or loop.sequencer.ctx
+    bounds = ctx.bounds if ctx is not None else None
+    arm = bounds.arm if bounds is not None and bounds.arm is not None else ArmModel.from_table({})
     theta0 = system.io.read().theta + prepared.ready_delta  # where vservo will start
     target = _target(opts.target, arm, theta0)
     params = VisionParams(rate_hz=opts.rate_hz, latency_s=opts.latency_ms * 1e-3,

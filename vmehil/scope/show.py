@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import csv
 import json
-from collections.abc import Sequence
+import struct
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,7 +20,7 @@ import numpy as np
 from vmehil.errors import CliError
 from vmehil.scope.catalog import Catalog, Signal
 
-__all__ = ["DEFAULT_SIGNALS", "Series", "plot_series", "read_series", "signal_names"]
+__all__ = ["DEFAULT_SIGNALS", "Series", "plot_series", "read_series", "signal_names", "unreadable_trace"]
 
 #: what ``trace show`` plots without ``--signals``: where the joints were meant to be and were
 DEFAULT_SIGNALS = "*.target_rad,*.position_rad,truth.*.theta_rad"
@@ -43,9 +45,39 @@ def _format(path: Path) -> str:
     return fmt
 
 
+def _reader_errors() -> tuple[type[BaseException], ...]:
+    """What the formats' readers raise on a file that is not a trace (bad magic, cut off, another
+    file renamed): the error classes of the readers that are installed."""
+    errors: list[type[BaseException]] = [ValueError, KeyError, IndexError, EOFError, struct.error]
+    try:
+        from mcap.exceptions import McapError
+    except ImportError:  # the trace extra is missing: only CSV is read
+        pass
+    else:
+        errors.append(McapError)
+    return tuple(errors)
+
+
+@contextmanager
+def unreadable_trace(path: Path, fmt: str) -> Iterator[None]:
+    """A file the format's reader cannot read is the user's input, not a bug: one line, exit 2
+    (before: ``unexpected error: InvalidMagic``, exit 3)."""
+    try:
+        yield
+    except CliError:
+        raise
+    except _reader_errors() as e:
+        raise CliError(f"vmehil trace show {path}: not a readable .{fmt} trace ({type(e).__name__}: {e})") from e
+
+
 def signal_names(path: Path) -> list[str]:
     """The per-tick signals a trace file holds (the bus cycles are not plotted)."""
     fmt = _format(path)
+    with unreadable_trace(path, fmt):
+        return _signal_names(path, fmt)
+
+
+def _signal_names(path: Path, fmt: str) -> list[str]:
     if fmt == "mcap":
         from mcap.reader import make_reader
 
@@ -66,7 +98,9 @@ def signal_names(path: Path) -> list[str]:
 
         return [c for c in pq.read_schema(path).names if c not in ("tick", "t_s")]
     with path.open(newline="", encoding="utf-8") as f:
-        header = next(csv.reader(line for line in f if not line.startswith("#")))
+        header = next(csv.reader(line for line in f if not line.startswith("#")), [])
+    if "t_s" not in header:  # every trace CSV has the loop's time (docs/scope.md)
+        raise CliError(f"vmehil trace show {path}: not a trace written by --trace (no t_s column)")
     return [c for c in header if c not in ("tick", "t_s")]
 
 
@@ -89,6 +123,11 @@ def read_series(path: str | Path, spec: str | None = None) -> Series:
     p = Path(path)
     fmt = _format(p)
     wanted = _chosen(p, spec)
+    with unreadable_trace(p, fmt):
+        return _read_series(p, fmt, wanted)
+
+
+def _read_series(p: Path, fmt: str, wanted: list[str]) -> Series:
     out = Series(p)
     if fmt == "mcap":
         from mcap.reader import make_reader

@@ -21,6 +21,18 @@ HOT = Gains(kp=5e4, kpi=5000.0, kv=50.0, kvi=1000.0)  # unstable at 125 Hz: the 
 
 
 @pytest.fixture
+def drv3():
+    """Three joints, each with default and stiff; j3 also hot."""
+    loop = make_loop(3)
+    named = (NamedController("default", PAPER), NamedController("stiff", STIFF), NamedController("hot", HOT))
+    loop.controllers = ControllerChoices((named[:2], named[:2], named), (0, 0, 0))
+    loop.active_controller = [0, 0, 0]
+    console = Console(loop, open_transport("loop://")).start()
+    yield Driver(loop, console, console.transport.write, tap_poll(console))
+    console.close()
+
+
+@pytest.fixture
 def drv():
     loop = make_loop(2)
     named = (NamedController("default", PAPER), NamedController("stiff", STIFF), NamedController("hot", HOT))
@@ -65,3 +77,18 @@ def test_filter_sets_and_clears_the_velocity_filter_of_a_joint(drv):
     ok(drv.ask("filter j1 0"), "filter")
     tick(drv.loop, drv.console, 2)
     assert not drv.loop.law.filtered.any()
+
+
+def test_controller_use_takes_a_list_of_joints_and_switches_those_only(drv3):
+    r = drv3.ask("controller use stiff 1,3")
+    ok(r, "controller")
+    assert [(x["joint"], x["active"]) for x in data(r, "controller")] == [("j1", "stiff"), ("j3", "stiff")]
+    tick(drv3.loop, drv3.console, 2)
+    assert drv3.loop.active_controller == [1, 0, 1]
+    assert drv3.loop.law.gains.joint(0) == STIFF and drv3.loop.law.gains.joint(1) == PAPER
+    assert drv3.loop.law.gains.joint(2) == STIFF
+    # all or none: hot exists on j3 only, so 2,3 changes nothing
+    assert "no controller 'hot'" in err(drv3.ask("controller use hot 2,3"), "VALUE")
+    assert "joints are numbers" in err(drv3.ask("controller use default 1.5,2"), "VALUE")
+    tick(drv3.loop, drv3.console, 2)
+    assert drv3.loop.active_controller == [1, 0, 1]

@@ -144,3 +144,13 @@ def test_a_jog_toward_an_obstacle_stops_short_of_it_and_the_next_jog_says_why(ar
     refused = [r for r in replies if r.startswith("ERR")]
     assert refused and refused[0].startswith("ERR COLLISION jog stopped: link") and "obstacle shelf" in refused[0]
     assert 140.0 < _true_deg(system) < 150.0 and loop.fault is None
+
+
+def test_home_of_a_joint_whose_pot_is_not_calibrated_says_why_once(rig):
+    # the fixture calibrated j1's pot only: j2 cannot choose its index
+    _system, _loop, _runner, drv, out = rig
+    before = out.read_bytes()
+    end = drv.ask("home j2", max_ticks=20)[-1]
+    assert end.startswith("ERR STATE home: j2: its pot is not calibrated"), end
+    assert "CalibrationAbort" not in end and "home home" not in end and "left unchanged" in end
+    assert out.read_bytes() == before

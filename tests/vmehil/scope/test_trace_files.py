@@ -246,3 +246,35 @@ def test_a_spec_the_rig_cannot_meet_is_refused_before_the_loop_is_armed(capsys) 
 def test_trace_out_without_trace_is_refused(capsys) -> None:
     assert main(["run", "--trace-out", "t.mcap"]) == 2
     assert "--trace-out: give --trace SPEC too" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # builds the rig (its plant kernel): over 1.5 s
+def test_console_trace_list_prints_the_same_names_as_run(capsys) -> None:
+    # jpl-arm's controller names of its first joint and its last (the hand), as run's listing above
+    assert main(["console", "--trace", "list"]) == 0
+    names = [line.split()[0] for line in capsys.readouterr().out.splitlines()]
+    assert names[:2] == ["j1.target_rad", "j1.target_rad_s"]
+    assert {"drv.hand.enc_counts", "net.rig.watchdog", "irq.IRQ7", "bus.berr"} <= set(names)
+
+
+@pytest.mark.parametrize(("name", "content"), [
+    ("t.mcap", b"garbage\n"),  # no MCAP magic
+    ("t.parquet", b"garbage\n"),  # no Parquet footer
+    ("t.csv", b"garbage\n1\n"),  # a CSV, but no t_s column: not a trace
+])
+def test_trace_show_refuses_a_file_that_is_not_a_trace_in_one_line(tmp_path, capsys, name, content) -> None:
+    path = tmp_path / name
+    path.write_bytes(content)
+    assert main(["trace", "show", str(path), "--out", str(tmp_path / "t.png")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"vmehil trace: error: vmehil trace show {path}: not a") and err.count("\n") == 1
+    assert not (tmp_path / "t.png").exists()
+
+
+def test_trace_show_signals_list_prints_the_files_signal_names(tmp_path, capsys) -> None:
+    # the hint every --signals refusal gives ("--signals list prints them all") must work
+    path = tmp_path / "t.csv"
+    path.write_text("# vmehil trace\ntick,t_s,j1.position_rad,truth.j1.theta_rad\n0,0,0.5,0.25\n")
+    assert main(["trace", "show", str(path), "--signals", "list"]) == 0
+    assert capsys.readouterr().out.splitlines() == ["j1.position_rad", "truth.j1.theta_rad"]
+    assert not (tmp_path / "t.png").exists()

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from hal.kinematics import ArmModel
+from tests.support.boards import watch_enables
 from vmehil.cli import main
-from vmehil.rig_setup import system as rig_system
 
 ARM = ArmModel()  # jpl-arm's [arm] is the model's defaults (docs/motion-safety.md)
 
@@ -33,19 +33,7 @@ def test_an_unreachable_cartesian_target_is_refused_with_exit_2_before_any_enabl
                                                                                   capsys) -> None:
     motion = tmp_path / "far.toml"
     motion.write_text('[[move]]\ntype = "cartesian"\nposition_m = [1.6, 0.0, 0.3]\n', encoding="utf-8")
-    built, raised = [], []
-    real_build = rig_system.build_emulated_rig
-
-    def watched(*args, **kwargs):  # every rig the run builds: its enable nets watched from the start
-        system = real_build(*args, **kwargs)
-        for j in system.rig.joints:
-            if "amp_enable" in j.wiring:
-                system.crate.signals.subscribe(j.net("amp_enable"),
-                                               lambda v, name=j.name: raised.append(name) if v else None)
-        built.append(system)
-        return system
-
-    monkeypatch.setattr(rig_system, "build_emulated_rig", watched)
+    built, raised = watch_enables(monkeypatch)  # every rig the run builds: its enable nets watched from the start
     assert main(["run", "--motion", str(motion), "--quiet"]) == 2
     assert built and raised == []  # the rig was built (the joints read), no enable line ever rose
     err = capsys.readouterr().err

@@ -18,7 +18,7 @@ from servo.rig import load_rig
 from servo.runner import LockstepRunner
 from servo.stops import StopCategory
 from servo.trajectory import JointLimits, PlanContext, Sequencer
-from tests.support.boards import assert_boards_safe
+from tests.support.boards import assert_boards_safe, watch_enables
 from vmehil.cli import main
 from vmehil.rig_setup import system as rig_system
 from vmehil.rig_setup.session import build_loop
@@ -27,19 +27,7 @@ from vmehil.rig_setup.session import build_loop
 def test_a_200_deg_target_is_refused_before_any_amplifier_is_enabled(tmp_path, monkeypatch, capsys) -> None:
     motion = tmp_path / "far.toml"
     motion.write_text("[[move]]\ntargets_deg = [200, 0, 0, 0, 0, 0, 30]\n", encoding="utf-8")
-    built, raised = [], []
-    real_build = rig_system.build_emulated_rig
-
-    def watched(*args, **kwargs):  # every rig the run builds: its enable nets watched from the start
-        system = real_build(*args, **kwargs)
-        for j in system.rig.joints:
-            if "amp_enable" in j.wiring:
-                system.crate.signals.subscribe(j.net("amp_enable"),
-                                               lambda v, name=j.name: raised.append(name) if v else None)
-        built.append(system)
-        return system
-
-    monkeypatch.setattr(rig_system, "build_emulated_rig", watched)
+    built, raised = watch_enables(monkeypatch)  # every rig the run builds: its enable nets watched from the start
     assert main(["run", "--motion", str(motion), "--quiet", "--scene", "none"]) == 2
     err = capsys.readouterr().err
     assert "joint j1 target 200.00° is past its soft limit max_deg = 163.01°" in err
