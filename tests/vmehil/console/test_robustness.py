@@ -45,9 +45,11 @@ def test_flood_never_stalls_the_loop_and_handling_is_bounded_per_tick(tmp_path):
     t = threading.Thread(target=flood, daemon=True)
     t.start()
     try:
-        for _ in range(50):  # let the flood reach the queue
-            if console.stats.busy:
-                break
+        # let the flood reach the queue: its first chunk fills it (busy) and carries a binary and a
+        # long line. Waited for, not timed: under load the reader thread may take seconds to run.
+        deadline = time.monotonic() + 60.0
+        while not (console.stats.busy and console.stats.binary and console.stats.long):
+            assert time.monotonic() < deadline, "the flood never reached the console's reader"
             time.sleep(0.01)
         ticks = 600
         k0 = loop.tick_count
