@@ -177,10 +177,13 @@ def test_vmehil_unit_and_vmehil_coordinate_take_trace_and_say_so_in_their_json(t
         t.join(timeout=60)
     assert status == {"leg1": 0, "coordinate": 0}
     unit = json.loads((tmp_path / "leg1.json").read_text())
-    assert unit["trace"]["files"][0]["ticks"] == len(pd.read_csv(tmp_path / "leg1.csv", comment="#")) == 50  # 0.4 s
+    # every tick is traced: the 0.4 s run (50 ticks), its category-1 stop and the 2 s watched after
+    # it (250 ticks at 125 Hz: a unit ends as the single run does, docs/safe-stop.md)
+    ticks = unit["trace"]["files"][0]["ticks"]
+    assert ticks == len(pd.read_csv(tmp_path / "leg1.csv", comment="#")) and 50 + 250 <= ticks <= 50 + 250 + 125
     coordinate = json.loads((tmp_path / "coordinate.json").read_text())
     steps = pd.read_parquet(tmp_path / "plant.parquet")
-    assert coordinate["trace"]["files"][0]["ticks"] == len(steps) >= 50
+    assert coordinate["trace"]["files"][0]["ticks"] == len(steps) >= 50 + 250
     assert list(steps.columns) == ["tick", "t_s", *[f"truth.leg1_knee.{leaf}" for leaf in (
         "theta_rad", "omega_rad_s", "theta_motor_rad", "omega_motor_rad_s", "current_a", "motor_torque_nm",
         "friction_torque_nm", "encoder_x4", "stuck", "at_stop", "amp_enabled", "brake_engaged")]]
