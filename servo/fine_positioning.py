@@ -92,19 +92,25 @@ class FinePositioning:
         self._moved[[j for j in model if j < n]] = True
         self._zeros = np.zeros(n)
         self._sum = np.zeros(n)
+        self._t_seen = -math.inf
+        self._reset()
+        # the soft-limit and scene checks see the move's own path (the trims stay within MAX_TRIM_RAD)
+        for name in ("points", "via_times"):
+            if hasattr(base, name):
+                setattr(self, name, getattr(base, name))
+
+    def _reset(self) -> None:
+        """The phase from its beginning: the planned targets, nothing averaged or decided."""
+        self.setpoint = self.planned.copy()
+        self._sum[:] = 0.0
         self._count = 0
         self._window_end: float | None = None
-        self._last_tau = -math.inf
         #: trims made; whether the phase ended within the tolerance (``None`` while it runs) and
         #: when (s into the phase); the tool's measured error at the last decision (m)
         self.trims = 0
         self.settled: bool | None = None
         self.settled_after_s: float | None = None
         self.error_m: float | None = None
-        # the soft-limit and scene checks see the move's own path (the trims stay within MAX_TRIM_RAD)
-        for name in ("points", "via_times"):
-            if hasattr(base, name):
-                setattr(self, name, getattr(base, name))
 
     @property
     def duration(self) -> float:
@@ -115,6 +121,9 @@ class FinePositioning:
         return self.setpoint.copy()
 
     def sample(self, t: float) -> Sample:
+        if t < self._t_seen:  # sampled again from an earlier time: a check's pass, or the run after one
+            self._reset()
+        self._t_seen = t
         t_base = float(self.base.duration)
         if t < t_base:
             return self.base.sample(t)
@@ -133,12 +142,11 @@ class FinePositioning:
     def _step(self, tau: float) -> None:
         """One tick of the phase, ``tau`` s after the move's own trajectory. Without a measurement
         (planning, the scene check: no loop yet) nothing happens, so sampling then is pure; a
-        ``tau`` earlier than the last one's (a check sampling the path again) is ignored too."""
+        pass sampled again from an earlier time (the run after a check) starts over (:meth:`sample`)."""
         s = self.settings
         theta = self._measured()
-        if theta is None or tau < self._last_tau or tau < s.delay_s:
+        if theta is None or tau < s.delay_s:
             return
-        self._last_tau = tau
         self._sum += theta
         self._count += 1
         if self._window_end is None:

@@ -41,7 +41,7 @@ class _Move:
         return FinePositioning(Stay(start, 0.5), ARM, TARGET_M, self.settings, ctx.extras)
 
 
-def _play(tolerance_mm: float, seconds: float, offset_rad: np.ndarray = OFFSET_RAD
+def _play(tolerance_mm: float, seconds: float, offset_rad: np.ndarray = OFFSET_RAD, checked_first: bool = False
           ) -> tuple[Sequencer, FinePositioning, list[np.ndarray]]:
     planned = ARM.solve(TARGET_M, None, theta0=np.zeros(7)).theta
     assert planned is not None
@@ -49,6 +49,12 @@ def _play(tolerance_mm: float, seconds: float, offset_rad: np.ndarray = OFFSET_R
     seq = Sequencer([_Move(FineSettings(tolerance_mm * 1e-3, timeout_s=3.0)), WaitMove(1.0)], planned, ctx)
     held: list[np.ndarray] = []
     ctx.extras[MEASURE_KEY] = lambda: held[-1] + offset_rad if held else None  # where the joint rests
+    if checked_first:  # a scene check's pass (20 instants) while the joints are measured 1° off
+        held.append(planned + np.radians(1.0))
+        first = seq.planned[0]
+        for i in range(20):
+            first.sample(first.duration * i / 19)
+        held.clear()
     for k in range(round(seconds / PERIOD_S)):
         held.append(seq.sample(k * PERIOD_S).theta_d)
     fine = seq.records[0].trajectory
@@ -67,6 +73,12 @@ def test_a_tighter_tolerance_takes_a_second_trim() -> None:
     _, fine, _ = _play(0.5, 2.5)
     assert fine.settled is True and fine.trims == 2
     assert fine.error_m == pytest.approx(0.167552e-3, abs=1e-8)
+    assert np.degrees(fine.setpoint - fine.planned) == pytest.approx([0.288, 0, 0, 0, 0, 0, 0], abs=1e-9)
+
+
+def test_a_check_sampling_the_move_before_the_run_leaves_the_run_as_without_it() -> None:
+    _, fine, _ = _play(0.5, 2.5, checked_first=True)
+    assert fine.settled is True and fine.trims == 2
     assert np.degrees(fine.setpoint - fine.planned) == pytest.approx([0.288, 0, 0, 0, 0, 0, 0], abs=1e-9)
 
 
