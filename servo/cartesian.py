@@ -34,7 +34,6 @@ from hal.config import ConfigTable
 from hal.kinematics import ArmModel, IkResult, rotation_rpy
 from servo.fine_positioning import FinePositioning, FineSettings
 from servo.trajectory import MoveSpec, PlanContext, Quintic, Trajectory, TrajectoryError
-from servo.trajectory.bounds import MotionRefused
 from servo.trajectory.cartesian import CartesianPath, Chain, fmt_m, reach_refusal
 from servo.trajectory.lspb import MAX_VIA_POINTS
 
@@ -96,15 +95,11 @@ def _solve(arm: ArmModel, point: np.ndarray, rot: np.ndarray, theta0: np.ndarray
 def _finely(ctx: PlanContext, base: Trajectory, target: CartesianTarget, fine: FineSettings | None,
             kind: str) -> Trajectory:
     """``base``, or with ``fine`` the move's trajectory followed by the fine-positioning phase
-    (:mod:`servo.fine_positioning`). Its duration is open, so the sequencer's own scene check
-    cannot sample it: the move's path is checked here, before it is wrapped."""
+    (:mod:`servo.fine_positioning`; checked by the sequencer as every move is: the phase holds the
+    planned targets while nothing is measured)."""
     if fine is None:
         return base
     arm, lo, hi = _arm_and_limits(ctx, kind)
-    if ctx.bounds is not None:
-        refusals = ctx.bounds.check_trajectory(base)
-        if refusals:
-            raise MotionRefused(refusals)
     return FinePositioning(base, arm, target.position_m, fine, ctx.extras, lo, hi)
 
 

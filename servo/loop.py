@@ -260,8 +260,9 @@ class ServoLoop:
 
     def _offer_measurement(self, ctx: PlanContext) -> None:
         """Moves that act on where the joints are (a Cartesian move's fine positioning,
-        servo.fine_positioning) read the latest measured angles through their plan context."""
-        ctx.extras.setdefault(MEASURE_KEY, self._measured_theta)
+        servo.fine_positioning) read the latest measured angles through their plan context (the
+        loop given the motion last is the one that moves it)."""
+        ctx.extras[MEASURE_KEY] = self._measured_theta
 
     def _measured_theta(self) -> np.ndarray | None:
         return self.last.get("theta")

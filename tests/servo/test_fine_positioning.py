@@ -12,6 +12,7 @@ at (0.8, 0, 0.3) m, 2·0.8 m·sin(0.03°) = 0.837758 mm; a second trim of 0.8·0
 from __future__ import annotations
 
 import math
+import tomllib
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,8 +22,9 @@ from hal.config import ConfigError, ConfigTable
 from hal.kinematics import ArmModel
 from servo.cartesian import parse_cartesian
 from servo.fine_positioning import MEASURE_KEY, FinePositioning, FineSettings
-from servo.motion import WaitMove
-from servo.trajectory import JointLimits, PlanContext, Sequencer, Stay
+from servo.motion import WaitMove, parse_motion
+from servo.scene import Obstacle, Scene
+from servo.trajectory import JointLimits, MotionBounds, MotionRefused, PlanContext, Sequencer, Stay
 
 ARM = ArmModel()
 TARGET_M = np.array([0.8, 0.0, 0.3])
@@ -114,3 +116,16 @@ def test_the_motion_file_keys_of_the_fine_positioning() -> None:
     with pytest.raises(ConfigError, match="settle_tolerance_mm"):
         parse_cartesian(ConfigTable({"type": "cartesian", "position_m": [0.8, 0.0, 0.3],
                                      "settle_tolerance_mm": 0.0}, "m.toml", "move[0]"), 7)
+
+
+def test_a_fine_positioned_move_into_an_obstacle_is_still_refused_before_it_starts() -> None:
+    # the box of test_cartesian_moves around the target: the hand ends inside it, trimmed or not
+    lo = np.radians([-163.01, -106.86, -135.50, -112.59, -163.01, -112.59, -66.75])
+    hi = np.radians([163.01, 106.86, 135.50, 112.59, 163.01, 112.59, 66.75])
+    scene = Scene([Obstacle.make("crate", [0.75, -0.05, 0.25], [0.85, 0.05, 0.35])])
+    ctx = PlanContext(JointLimits.make(7, math.radians(30.0)),
+                      bounds=MotionBounds(("j1", "j2", "j3", "j4", "j5", "j6", "hand"), lo, hi, ARM, scene))
+    text = '[[move]]\ntype = "cartesian"\nposition_m = [0.8, 0.0, 0.3]\nsettle_tolerance_mm = 1.0\n'
+    moves = parse_motion(ConfigTable(tomllib.loads(text), "test.toml"), 7).moves
+    err = Sequencer(list(moves), np.radians([0.0, 40.0, -90.0, 50.0, 0.0, 0.0, 30.0]), ctx).plan_error
+    assert isinstance(err, MotionRefused) and err.code == "COLLISION" and "hits obstacle crate" in str(err)
