@@ -42,8 +42,8 @@ __all__ = ["BlendxMove", "CartesianMove", "CartesianTarget", "parse_blendx", "pa
 #: no Cartesian coordinate is farther than this from the base (m): a sanity bound on the file, not
 #: the arm's reach (which the inverse kinematics checks)
 MAX_COORDINATE_M = 100.0
-#: the smallest fine-positioning tolerance (mm): the pots' noise averaged over a window is ~0.1 mm
-#: at the tool; below it the phase would only run to its timeout
+#: the smallest fine-positioning tolerance (mm): a floor, not a measured limit — finer than the
+#: averaged pots resolve, the phase would only run to its timeout (0.5 mm settled on six targets)
 MIN_SETTLE_TOLERANCE_MM = 0.1
 #: the motion-file keys of the fine-positioning phase
 FINE_KEYS = ("settle_tolerance_mm", "settle_timeout_s")
