@@ -32,6 +32,7 @@ import numpy as np
 
 from hal.config import ConfigTable
 from hal.kinematics import ArmModel, IkResult, rotation_rpy
+from servo.fine_positioning import FinePositioning, FineSettings
 from servo.trajectory import MoveSpec, PlanContext, Quintic, Trajectory, TrajectoryError
 from servo.trajectory.cartesian import CartesianPath, Chain, fmt_m, reach_refusal
 from servo.trajectory.lspb import MAX_VIA_POINTS
@@ -41,6 +42,11 @@ __all__ = ["BlendxMove", "CartesianMove", "CartesianTarget", "parse_blendx", "pa
 #: no Cartesian coordinate is farther than this from the base (m): a sanity bound on the file, not
 #: the arm's reach (which the inverse kinematics checks)
 MAX_COORDINATE_M = 100.0
+#: the smallest fine-positioning tolerance (mm): a floor, not a measured limit — finer than the
+#: averaged pots resolve, the phase would only run to its timeout (0.5 mm settled on six targets)
+MIN_SETTLE_TOLERANCE_MM = 0.1
+#: the motion-file keys of the fine-positioning phase
+FINE_KEYS = ("settle_tolerance_mm", "settle_timeout_s")
 
 
 @dataclass(frozen=True)
@@ -86,6 +92,17 @@ def _solve(arm: ArmModel, point: np.ndarray, rot: np.ndarray, theta0: np.ndarray
     return res.theta
 
 
+def _finely(ctx: PlanContext, base: Trajectory, target: CartesianTarget, fine: FineSettings | None,
+            kind: str) -> Trajectory:
+    """``base``, or with ``fine`` the move's trajectory followed by the fine-positioning phase
+    (:mod:`servo.fine_positioning`; checked by the sequencer as every move is: the phase holds the
+    planned targets while nothing is measured)."""
+    if fine is None:
+        return base
+    arm, lo, hi = _arm_and_limits(ctx, kind)
+    return FinePositioning(base, arm, target.position_m, fine, ctx.extras, lo, hi)
+
+
 def _plan(ctx: PlanContext, start: np.ndarray, target: CartesianTarget, vias: tuple[np.ndarray, ...],
           approach_m: float, speed: float, kind: str) -> Trajectory:
     arm, lo, hi = _arm_and_limits(ctx, kind)
@@ -117,6 +134,8 @@ class CartesianMove:
     approach_m: float = 0.0
     speed: float = 1.0
     kind: str = "cartesian"
+    #: the fine-positioning phase after the move (``settle_tolerance_mm``); ``None``: none
+    fine: FineSettings | None = None
 
     @property
     def tool_target_m(self) -> np.ndarray:
@@ -124,7 +143,8 @@ class CartesianMove:
         return self.target.position_m
 
     def build(self, start: np.ndarray, ctx: PlanContext) -> Trajectory:
-        return _plan(ctx, start, self.target, (), self.approach_m, self.speed, self.kind)
+        return _finely(ctx, _plan(ctx, start, self.target, (), self.approach_m, self.speed, self.kind),
+                       self.target, self.fine, self.kind)
 
 
 @dataclass(frozen=True)
@@ -136,13 +156,15 @@ class BlendxMove:
     approach_m: float = 0.0
     speed: float = 1.0
     kind: str = "blendx"
+    fine: FineSettings | None = None
 
     @property
     def tool_target_m(self) -> np.ndarray:
         return self.target.position_m
 
     def build(self, start: np.ndarray, ctx: PlanContext) -> Trajectory:
-        return _plan(ctx, start, self.target, self.vias_m, self.approach_m, self.speed, self.kind)
+        return _finely(ctx, _plan(ctx, start, self.target, self.vias_m, self.approach_m, self.speed, self.kind),
+                       self.target, self.fine, self.kind)
 
 
 # ---- the motion file ----------------------------------------------------------------------------------
@@ -172,12 +194,25 @@ def _common(cfg: ConfigTable) -> tuple[float, float]:
     return approach, speed
 
 
+def _fine(cfg: ConfigTable) -> FineSettings | None:
+    """``settle_tolerance_mm`` (and ``settle_timeout_s``, default 3): the fine-positioning phase."""
+    if "settle_tolerance_mm" not in cfg:
+        if "settle_timeout_s" in cfg:
+            raise cfg.error("settle_timeout_s", "settle_tolerance_mm beside it (the phase's tolerance)")
+        return None
+    tol_mm = cfg.get_float("settle_tolerance_mm", 1.0, min=MIN_SETTLE_TOLERANCE_MM, max=1000.0)
+    timeout_s = cfg.get_float("settle_timeout_s", 3.0, min=0.1, max=600.0)
+    return FineSettings(tol_mm * 1e-3, timeout_s)
+
+
 def parse_cartesian(cfg: ConfigTable, n: int) -> MoveSpec:
-    """``type = "cartesian"``: ``position_m``, optional ``orientation_deg``, ``approach_m``, ``speed``."""
+    """``type = "cartesian"``: ``position_m``, optional ``orientation_deg``, ``approach_m``, ``speed``,
+    ``settle_tolerance_mm``, ``settle_timeout_s``."""
     target = _target(cfg)
     approach, speed = _common(cfg)
-    cfg.check_unknown({"type", "position_m", "orientation_deg", "approach_m", "speed"})
-    return CartesianMove(target, approach, speed)
+    fine = _fine(cfg)
+    cfg.check_unknown({"type", "position_m", "orientation_deg", "approach_m", "speed", *FINE_KEYS})
+    return CartesianMove(target, approach, speed, fine=fine)
 
 
 def parse_blendx(cfg: ConfigTable, n: int) -> MoveSpec:
@@ -191,5 +226,6 @@ def parse_blendx(cfg: ConfigTable, n: int) -> MoveSpec:
         raise cfg.error("via_m", f"at most {MAX_VIA_POINTS} via points", f"{len(raw)} points")
     vias = tuple(_point(cfg, f"via_m[{i}]", p) for i, p in enumerate(raw))
     approach, speed = _common(cfg)
-    cfg.check_unknown({"type", "position_m", "via_m", "orientation_deg", "approach_m", "speed"})
-    return BlendxMove(target, vias, approach, speed)
+    fine = _fine(cfg)
+    cfg.check_unknown({"type", "position_m", "via_m", "orientation_deg", "approach_m", "speed", *FINE_KEYS})
+    return BlendxMove(target, vias, approach, speed, fine=fine)

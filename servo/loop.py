@@ -37,6 +37,7 @@ import numpy as np
 from hal.hand import HandModel
 from servo.blackbox import HOLDING, RUNNING, STOPPED, STOPPING, BlackBox
 from servo.control.objects import ControlContext, Controller, SwitchableController
+from servo.fine_positioning import MEASURE_KEY
 from servo.hand import HandCurrent, HandError, HandStay, TorqueWindow
 from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_name
 from servo.io import JointIO, Measurement
@@ -174,6 +175,9 @@ class ServoLoop:
         #: notes dropped from the front of ``log`` to keep it bounded (long runs)
         self.log_dropped = 0
         self.plan_context = plan_context
+        self._offer_measurement(sequencer.ctx)
+        if plan_context is not None:
+            self._offer_measurement(plan_context)
         #: the run's visual-servo link when it has one (set by ``vmehil run --vision``), for the report
         self.vision: VisionOutcome | None = None
         #: when this tick's readings were taken (s; ``None``: one period per tick), for the
@@ -255,7 +259,17 @@ class ServoLoop:
     def set_motion(self, sequencer: Sequencer) -> None:
         """Start a new motion at the current tick (call inside a live command)."""
         self.sequencer = sequencer
+        self._offer_measurement(sequencer.ctx)
         self._t_motion0 = self.tick_count * self.period_s
+
+    def _offer_measurement(self, ctx: PlanContext) -> None:
+        """Moves that act on where the joints are (a Cartesian move's fine positioning,
+        servo.fine_positioning) read the latest measured angles through their plan context (the
+        loop given the motion last is the one that moves it)."""
+        ctx.extras[MEASURE_KEY] = self._measured_theta
+
+    def _measured_theta(self) -> np.ndarray | None:
+        return self.last.get("theta")
 
     @property
     def law(self):

@@ -20,6 +20,7 @@ Format (angles in degrees at this edge, or radians with the ``_rad`` keys)::
     position_m = [0.8, 0.0, 0.3]
     orientation_deg = [0, 30, 0]       # optional: the hand's roll, pitch, yaw (default: level, outward)
     approach_m = 0.05                  # optional: straight in over the last 5 cm along the hand's axis
+    settle_tolerance_mm = 1.0          # optional: trim the targets until the tool is within 1 mm
     [[move]]
     type = "blendx"                    # straight lines with parabolic blends through via_m
     via_m = [[0.7, 0.2, 0.3]]

@@ -59,6 +59,8 @@ class MoveRecord:
     kind: str
     t_start: float
     duration: float
+    #: the trajectory the move ran (its outcome, e.g. a fine positioning's: the run report)
+    trajectory: Trajectory | None = field(default=None, compare=False, repr=False)
 
 
 class Sequencer:
@@ -122,10 +124,12 @@ class Sequencer:
             return
         move = self.moves[self.index]
         planned = self.planned[self.index] if self.index < len(self.planned) else None
+        if planned is not None and not np.array_equal(np.asarray(planned.start, float), start):
+            planned = None  # the move before ended elsewhere than planned (a fine positioning's trim)
         self._current = planned if planned is not None else self._build(move, start, self.index)
         self._t0 = t_start
         self.motion_id += 1
-        self.records.append(MoveRecord(self.index, move.kind, t_start, float(self._current.duration)))
+        self.records.append(MoveRecord(self.index, move.kind, t_start, float(self._current.duration), self._current))
 
     def sample(self, t: float) -> Sample:
         if t < self._last_t:

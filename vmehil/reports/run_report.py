@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from servo.fine_positioning import FinePositioning
 from servo.loop import ServoLoop
 from vmehil.reports.metrics import CYCLE_RULE, limit_cycle
 from vmehil.writers.files import save_figure, write_atomic, write_json
@@ -139,7 +140,21 @@ def tool_summary(loop: ServoLoop, rec: dict[str, np.ndarray]) -> dict[str, Any] 
             "measured_error_mm": measured_mm if np.isfinite(measured_mm) else None,
             # the sensing part of the error: where the drivers' angles put the tool against the truth
             "sensor_error_mm": sensor_mm if np.isfinite(sensor_mm) else None,
-            "source": "true joint angles through the arm's forward kinematics"}
+            "source": "true joint angles through the arm's forward kinematics",
+            **_fine_positioning(ran[-1].trajectory)}
+
+
+def _fine_positioning(trajectory: object) -> dict[str, Any]:
+    """The fine-positioning phase's outcome (servo.fine_positioning) when the move had one."""
+    if not isinstance(trajectory, FinePositioning):
+        return {}
+    err = trajectory.error_m
+    return {"fine_positioning": {
+        "tolerance_mm": trajectory.settings.tolerance_m * 1e3, "settled": trajectory.settled,
+        "after_s": trajectory.settled_after_s, "trims": trajectory.trims,
+        # the tool's measured error over the last averaging window (the pots' noise averaged)
+        "window_error_mm": None if err is None else err * 1e3,
+        "trim_deg": [round(float(np.degrees(x)), 4) for x in trajectory.setpoint - trajectory.planned]}}
 
 
 def _deg(x: float) -> float:
