@@ -80,6 +80,8 @@ def _vmic_rig_data() -> dict:
     data["rig"]["watchdog"]["line"] = snippet["rig"]["watchdog"]["line"]
     data["rig"]["readback"] = snippet["rig"]["readback"]
     for j in data["joint"]:
+        # pio1's other lines (the hand's tactile switches) go with it, as on jpl-arm-vmic (no switches)
+        j["wiring"] = {k: v for k, v in j["wiring"].items() if not str(v).startswith("pio1:")}
         j["wiring"].update(snippet["wiring"].get(j["name"], {}))
     return data
 
