@@ -584,9 +584,10 @@ def _move_joint(s: Session, a: dict[str, Any]) -> Outcome:
 
 @atom("move_to", (*(Param(k, FLOAT) for k in ("x", "y", "z")),
                    *(Param(k, FLOAT, None) for k in ("roll", "pitch", "yaw")),
-                   Param("approach", FLOAT, 0.0), Param("speed", FLOAT, 1.0)),
+                   Param("approach", FLOAT, 0.0), Param("speed", FLOAT, 1.0), Param("settle", FLOAT, 0.0)),
       "the tool to X Y Z (metres, the arm's base frame) with the hand at ROLL PITCH YAW (degrees; all three or "
-      "none: the default, level and pointing outward); approach=M: straight in over the last M metres")
+      "none: the default, level and pointing outward); approach=M: straight in over the last M metres; "
+      "settle=MM: then fine positioning until the tool is within MM millimetres (docs/cartesian.md)")
 def _move_to(s: Session, a: dict[str, Any]) -> Outcome:
     moves = a.get("moves")
     if moves is None:  # not prepared off the loop thread (direct API use)
@@ -612,7 +613,17 @@ def _move_to_moves(a: dict[str, Any]) -> list[Any]:
     if not (math.isfinite(approach) and 0.0 <= approach <= MAX_COORDINATE_M):
         raise ConsoleError(VALUE, f"move_to: approach must be a distance in [0, {MAX_COORDINATE_M:g}] m")
     target = CartesianTarget.make(xyz, None if rpy[0] is None else rpy)
-    return [CartesianMove(target, approach, _speed(a["speed"]))]
+    settle_mm = a["settle"]
+    fine = None
+    if settle_mm != 0.0:  # as the motion file's settle_tolerance_mm (its default phase of 3 s)
+        from servo.cartesian import MIN_SETTLE_TOLERANCE_MM
+        from servo.fine_positioning import FineSettings
+
+        if not (math.isfinite(settle_mm) and MIN_SETTLE_TOLERANCE_MM <= settle_mm <= 1000.0):
+            raise ConsoleError(VALUE, f"move_to: settle must be a tolerance in [{MIN_SETTLE_TOLERANCE_MM:g}, 1000] mm "
+                                      "(or 0: no fine positioning)")
+        fine = FineSettings(settle_mm * 1e-3, 3.0)
+    return [CartesianMove(target, approach, _speed(a["speed"]), fine=fine)]
 
 
 #: the largest jog speed the console takes (°/s): a sanity bound on the command; the joint's

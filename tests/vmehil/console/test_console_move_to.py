@@ -59,3 +59,15 @@ def test_move_to_beyond_reach_is_refused_with_err_reach(drv) -> None:
 def test_move_to_needs_all_three_angles_or_none(drv) -> None:
     assert drv.ask("move_to 0.8 0 0.3 10 20")[0].startswith("ERR ARGS move_to X Y Z [ROLL PITCH YAW]")
     assert drv.ask("move_to 0.8 0 1e9")[0].startswith("ERR VALUE move_to: X Y Z must be finite")
+
+
+def test_move_to_settle_adds_the_fine_positioning_phase_and_refuses_a_bad_tolerance(drv) -> None:
+    plain = drv.ask("move_to 0.8 0.1 0.3")[-1]
+    until(lambda: drv.loop.sequencer.finished, drv.loop, drv.console, max_ticks=4000, pause_s=0.0)
+    settled = drv.ask("move_to 0.8 0.1 0.3 settle=1")[-1]
+    assert settled.startswith("OK move_to duration_s="), settled
+    # the same point (already there: a zero-length move) plus the phase's 3 s (docs/cartesian.md)
+    d_plain = float(plain.split("duration_s=")[1].split()[0])
+    d_settled = float(settled.split("duration_s=")[1].split()[0])
+    assert d_settled >= 3.0 and d_settled < d_plain + 3.0 + 1e-6
+    assert "settle must be a tolerance" in drv.ask("move_to 0.8 0.1 0.3 settle=0.01")[-1]
