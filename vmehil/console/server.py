@@ -530,6 +530,11 @@ class Console:
                 self._enqueue_reply([f"ERR {BINARY} line with non-text bytes discarded"])
             elif ev.kind != "line":
                 continue  # a cursor key (the terminal view used it)
+            elif is_reply_line(ev.text):
+                # dropped here, not by the preparer: a link that echoes (loop://, a terminal with
+                # local echo) hands every reply back, and queued they filled the input queue: a help
+                # reply's ~40 lines made the next command ERR BUSY while the preparer was starved
+                self.stats.ignored += 1
             elif self._lines is None or _is_stop(ev.text):
                 self.handle_line(ev.text)
             else:

@@ -229,6 +229,20 @@ def test_loop_url_ignores_its_own_replies():
     console.close()
 
 
+def test_echoed_replies_take_no_room_in_the_input_queue():
+    # A link that echoes hands each reply back (loop://: a help reply's ~40 lines). The preparer
+    # is held still here (the queue the reader fills, no threads), as a loaded machine starves it:
+    # 40 echoed lines and one command must leave the command queued, not answered ERR BUSY.
+    loop = make_loop(2)
+    console = Console(loop, None)
+    console._lines = queue.Queue(maxsize=32)
+    sent: list[str] = []
+    console.taps.append(sent.append)
+    console.feed(b"".join(b"DATA help command=c%d usage=c%d\r\n" % (i, i) for i in range(40)) + b"help move\r\n")
+    assert console.stats.ignored == 40 and console.stats.busy == 0 and sent == []
+    assert console._lines.get_nowait() == "help move" and console.preparing() == 0
+
+
 @pytest.mark.parametrize("port", ["socket://10.0.0.1:5000", "socket://example.com:23", "rfc2217://192.168.1.2:2217",
                                   "spy://socket://8.8.8.8:53", "listen://0.0.0.0:5555", "socket://127.0.0.1"])
 def test_nothing_beyond_loopback(port):
