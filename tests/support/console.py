@@ -93,7 +93,14 @@ class Driver:
         return got[0]
 
     def ask(self, line: str, max_ticks: int = 400) -> list[str]:
+        wait = getattr(self.console, "wait_taken", None)
+        before = self.console.lines_taken() if wait is not None else 0
         self.send((line + "\r\n").encode())
+        # the ticks count from when the console has the line: how long its reader and preparer
+        # threads wait for a core (a loaded machine) must not decide which tick the command lands
+        # on, nor use up max_ticks (the wait's bound is against a hang only)
+        if wait is not None:
+            assert wait(before + 1, timeout_s=60.0), f"the console did not take {line!r} within 60 s"
         return self.reply(max_ticks)
 
     def wait_event(self, prefix: str, max_ticks: int = 2000) -> str:

@@ -462,6 +462,10 @@ class Console:
         self._threads: list[threading.Thread] = []
         # lines from the reader to the preparer; None: handle_line runs in the caller (no threads)
         self._lines: queue.Queue[str] | None = None
+        # input lines dealt with (queued for the loop, answered, or a stop submitted), by either
+        # thread: a caller waits on it (wait_taken) rather than on a clock
+        self._taken = 0
+        self._taken_cv = threading.Condition()
         self._last_fault = loop.fault
         self._dropped_since = 0
         #: the stop announced last (its begin tick) and the tick the current one completed
@@ -525,9 +529,11 @@ class Console:
             if ev.kind == "long":
                 self.stats.long += 1
                 self._enqueue_reply([f"ERR {LONG} line longer than {self._max_line} bytes discarded"])
+                self._took()
             elif ev.kind == "binary":
                 self.stats.binary += 1
                 self._enqueue_reply([f"ERR {BINARY} line with non-text bytes discarded"])
+                self._took()
             elif ev.kind != "line":
                 continue  # a cursor key (the terminal view used it)
             elif is_reply_line(ev.text):
@@ -537,6 +543,7 @@ class Console:
                 self.stats.ignored += 1
             elif self._lines is None or _is_stop(ev.text):
                 self.handle_line(ev.text)
+                self._took()
             else:
                 try:
                     self._lines.put_nowait(ev.text)
@@ -544,6 +551,7 @@ class Console:
                     self.stats.busy += 1
                     self._send([f"ERR {BUSY} console input queue full ({self._lines.maxsize} lines being "
                                 "prepared); line dropped, wait for the replies before sending more"])
+                    self._took()
 
     def _preparer(self) -> None:
         """Parse, check and read the files of the lines the reader hands over, in their order."""
@@ -557,6 +565,25 @@ class Console:
                 self.handle_line(text)
             except Exception as e:  # a bug in one command's preparation must not end the console
                 self._send([f"ERR {INTERNAL} {one_line(f'{type(e).__name__}: {e}')}"])
+            self._took()
+
+    def _took(self) -> None:
+        with self._taken_cv:
+            self._taken += 1
+            self._taken_cv.notify_all()
+
+    def lines_taken(self) -> int:
+        """Input lines (not echoed replies) dealt with so far: queued for the loop, answered at
+        once, or a stop submitted to the loop."""
+        with self._taken_cv:
+            return self._taken
+
+    def wait_taken(self, n: int, timeout_s: float) -> bool:
+        """Wait until :meth:`lines_taken` reaches ``n`` (False: ``timeout_s`` passed first). A
+        driver that counts ticks waits on this first, so the reader and preparer threads' share
+        of the machine does not change how many ticks a reply takes."""
+        with self._taken_cv:
+            return self._taken_cv.wait_for(lambda: self._taken >= n, timeout_s)
 
     def handle_line(self, text: str) -> None:
         """Parse, check and queue one request line."""
