@@ -17,7 +17,6 @@ staged directly (they take effect at tick 0) and the run starts when a client ar
 
 from __future__ import annotations
 
-import ipaddress
 import math
 import queue
 import socket
@@ -35,6 +34,7 @@ from vmehil.mavlink import params as P
 from vmehil.mavlink.params import ParamRefused, ParamTable
 from vmehil.mavlink.signing import UnsignedPolicy, install_verified_signature_check
 from vmehil.mavlink.telemetry import array_messages, named_messages
+from vmehil.option_groups.cli_types import is_loopback
 from vmehil.writers.ascii_text import to_ascii
 
 
@@ -67,19 +67,10 @@ def check_url(url: str, allow_remote: bool = False) -> tuple[str, str, int]:
         raise MavlinkError(f"--mavlink {url!r}: port {port_s!r} is not a number") from None
     if not 0 <= port <= 65535:
         raise MavlinkError(f"--mavlink {url!r}: port {port} is out of range")
-    if not allow_remote and not _is_loopback(host):
+    if not allow_remote and not is_loopback(host):
         raise MavlinkError(f"--mavlink {url!r}: {host} is not a loopback address; the endpoint binds/sends to "
                            "127.0.0.1 (or ::1, localhost) only unless --mavlink-allow-remote is given")
     return scheme, host, port
-
-
-def _is_loopback(host: str) -> bool:
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 @dataclass

@@ -8,6 +8,7 @@ One place for them, so that no command accepts ``--duration inf`` (an OverflowEr
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import math
 from collections.abc import Callable
 
@@ -58,3 +59,15 @@ positive_float = bounded_float(0.0, 1e9, what="a positive number", lo_open=True)
 duration_s = bounded_float(0.0, MAX_DURATION_S, what="a duration in seconds", lo_open=True)
 seed = bounded_int(0, 2**32 - 1, what="a seed")
 joint_number = bounded_int(1, 64, what="a joint number (joints are numbered from 1)")
+
+
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` is this machine only: ``localhost`` or a loopback address (127.0.0.0/8,
+    ::1). Any other name is not (it could resolve anywhere). The one check behind every
+    ``--…-allow-remote`` refusal (``--live``, ``--mavlink``)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False

@@ -11,10 +11,10 @@
 from __future__ import annotations
 
 import argparse
-import ipaddress
 from dataclasses import dataclass
 
 from vmehil.errors import CliError
+from vmehil.option_groups.cli_types import is_loopback
 
 #: ``--live`` with no address
 DEFAULT_LIVE = "127.0.0.1:8765"
@@ -72,10 +72,3 @@ def parse_live(text: str, *, allow_remote: bool = False) -> tuple[str, int]:
     return host, port
 
 
-def is_loopback(host: str) -> bool:
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
