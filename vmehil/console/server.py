@@ -214,9 +214,12 @@ class PtyTransport:
         except OSError as e:
             if e.errno in (errno.EIO, errno.EBADF):  # no client has the slave open
                 if self.connected:
-                    self.connected = False
+                    # the hung-up client's leftovers are flushed first, then it counts as gone: a
+                    # new client that sees `connected` false and types at once must not lose its
+                    # first line to this flush (it did, rarely: a test's reconnect waited 400 ticks)
                     with contextlib.suppress(OSError, termios.error):
                         termios.tcflush(self.master, termios.TCIOFLUSH)
+                    self.connected = False
                 time.sleep(READ_TIMEOUT_S)
                 return b""
             raise
