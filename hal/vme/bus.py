@@ -12,7 +12,9 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from functools import partial
+from typing import Any
 
+from hal.lanes import LaneSet
 from hal.vme.errors import BusError, BusErrorCause
 from hal.vme.types import AddressModifier, AddressSpace, VmeValueError, Width, am_for, resolve_am
 
@@ -30,8 +32,20 @@ class VmeBus(ABC):
     per-vector interrupt handler table.
     """
 
+    #: the lanes of a batch this bus carries (hal.lanes): ``None`` for one instance (every bus but
+    #: an emulated crate in lane mode); then each value read or written may be a lane array
+    lanes: LaneSet | None = None
+
     def __init__(self) -> None:
         self._irq_handlers: dict[int, IrqHandler] = {}
+
+    def decide(self, cond: Any, reason: str) -> bool:
+        """The branch a driver takes on ``cond``, a value read from this bus or computed from one:
+        ``bool(cond)`` on a bus of one instance; on a bus of lanes, the live lanes' common answer
+        (:meth:`hal.lanes.LaneSet.decide`: lanes that would branch the other way are left, with
+        ``reason``)."""
+        lanes = self.lanes
+        return bool(cond) if lanes is None else lanes.decide(cond, reason)
 
     # --- single cycles -------------------------------------------------------------------
     def read(self, address: int, *, space: SpaceLike = AddressSpace.A16, width: Width = Width.D16) -> int:
