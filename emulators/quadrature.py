@@ -25,6 +25,13 @@ Misbehaviour kept on purpose: ``CNT_HI``/``CNT_LO`` read the live counter, so a 
 read tears when counts arrive between the cycles (e.g. 0x00FFFF → 0x010000 read high-first
 gives 0x000000). Use the LATCH command and the output latch.
 
+Lanes (batched lockstep, :mod:`hal.lanes`): :meth:`QuadratureBoard.from_lanes` stacks B boards
+into one whose counters, accumulators, latches, flags and A/B phases are int64 arrays of shape
+(B,) (lane b's value at index b) and whose CTL/PRE registers are lane values; it takes the
+lane-mode :class:`~emulators.signals.QuadratureEvents` (``QuadratureEvents.for_lanes``) and
+applies each lane's events by the same rules, so every lane's registers equal its scalar
+board's. Injected faults are per instance: a lane-mode board has none (they run scalar).
+
 Faults (one channel each, ``channel=n``):
 
 - ``glitch(channel, counts=0, illegal=1, intervals=1)``: noise edges — each of the next
@@ -37,12 +44,16 @@ Faults (one channel each, ``channel=n``):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from typing import Any, ClassVar
 
-from emulators.board import RegisterBoard
+import numpy as np
+
+from emulators.board import Backplane, RegisterBoard
 from emulators.signals import QuadratureEvents
+from hal.lanes import LaneValue, stack
 from hal.vme.registers import Access, Field, Register, RegisterMap
 from hal.vme.types import AddressSpace, Width
 
@@ -68,6 +79,9 @@ _A_HIGH = (False, True, True, False)  #: A level per Gray state 0..3 (00, A, AB,
 _B_HIGH = (False, False, True, True)
 
 _D8 = (Width.D8,)
+# lane mode: the same rules as lookup tables indexed by a lane array
+_AB_BITS = np.array([_A_HIGH[p] << 8 | _B_HIGH[p] << 9 for p in range(4)], dtype=np.int64)  #: STATUS [9:8] per phase
+_PRESCALE_BY_CODE = np.array([*_PRESCALE, 1], dtype=np.int64)  #: k per CTL.mode code (hold: any k, steps zeroed)
 
 
 def _block(n: int) -> int:
@@ -137,6 +151,32 @@ class _Channel:
     glitch_left: int = 0
     missed_left: int = 0
     stats: dict[str, int] = field(default_factory=lambda: {"counts": 0, "illegal": 0, "index": 0, "intervals": 0})
+
+
+class _LaneChannel:
+    """One counter chip of B boards (lane mode): each field of :class:`_Channel` as an int64
+    array of shape (B,). Fields are replaced, never changed in place (a latch shares the
+    counter's array)."""
+
+    __slots__ = ("acc", "counter", "idx", "ol", "phase", "stats", "status")
+
+    def __init__(self, chans: Sequence[_Channel]) -> None:
+        def lanes(values: Any) -> np.ndarray:
+            return np.array(list(values), dtype=np.int64)
+
+        self.counter = lanes(c.counter for c in chans)
+        self.acc = lanes(c.acc for c in chans)
+        self.ol = lanes(c.ol for c in chans)
+        self.idx = lanes(c.idx for c in chans)
+        self.status = lanes(c.status for c in chans)
+        self.phase = lanes(c.phase for c in chans)
+        self.stats = {k: lanes(c.stats[k] for c in chans) for k in chans[0].stats}
+
+
+def _counter_steps_lanes(mode: LaneValue, acc_from: LaneValue, acc_to: LaneValue) -> LaneValue:
+    """:meth:`QuadratureBoard._counter_steps` per lane (numpy ``//`` floors, as Python's)."""
+    k = _PRESCALE_BY_CODE[mode]
+    return np.where(mode == _HOLD, 0, acc_to // k - acc_from // k)
 
 
 class QuadratureBoard(RegisterBoard):
@@ -295,6 +335,124 @@ class QuadratureBoard(RegisterBoard):
             ch.stats["illegal"] += illegal
         ch.stats["counts"] += total
         ch.phase = int(ev.phase) % 4
+
+    # --- lanes (batched lockstep) ---------------------------------------------------------
+    @classmethod
+    def from_lanes(cls, boards: Sequence[QuadratureBoard], crate: Backplane) -> QuadratureBoard:
+        """One board in lane mode holding the B ``boards`` (lane order; same wiring and sampling
+        rate, no fault armed). The crate installs it (``attach`` subscribes its channels' nets
+        on ``crate.signals``, as for a scalar board); from then on its register reads return
+        lane values and the nets carry lane-mode events."""
+        first = boards[0]
+        for b in boards:
+            if type(b) is not cls:
+                raise NotImplementedError(f"{first.name}: lanes of one board type only, got {type(b).__name__}")
+            if b.nets != first.nets or b.sample_hz != first.sample_hz:
+                raise NotImplementedError(f"{first.name}: the lanes' decoders are wired or sampled differently")
+            if b.faulted:
+                raise NotImplementedError(f"{first.name}: a decoder with a fault injected runs scalar")
+        board = cls(first.name, nets=first.nets, sample_hz=first.sample_hz)
+        board._lanes_from(boards)
+        return board
+
+    def _lanes_from(self, boards: Sequence[QuadratureBoard]) -> None:
+        """Turn this new board into the lane-mode board of ``boards``: state stacked, the lane
+        handlers bound in place of the scalar ones (before any cycle resolves them), so the
+        scalar board's code is untouched."""
+        self.size_lanes = len(boards)
+        self.regs = {name: stack([b.regs[name] for b in boards]) for name in self.regs}
+        self.lane_ch = [_LaneChannel([b.ch[c] for b in boards]) for c in range(CHANNELS)]
+        self.ch = []  # the scalar channels are not used in lane mode (an access would fail loudly)
+        for c in range(CHANNELS):
+            for reg, attr in (("OL", "ol"), ("CNT", "counter"), ("IDX", "idx")):
+                setattr(self, f"read_{_name(c, reg + '_HI')}", partial(self._lane_high, c, attr))
+                setattr(self, f"read_{_name(c, reg + '_LO')}", partial(self._lane_low, c, attr))
+            setattr(self, f"write_{_name(c, 'CMD')}", partial(self._lane_command, c))
+            setattr(self, f"read_{_name(c, 'STATUS')}", partial(self._lane_read_status, c))
+            setattr(self, f"write_{_name(c, 'STATUS')}", partial(self._lane_clear_flags, c))
+        self.write_GCMD = self._lane_gcmd  # type: ignore[method-assign]
+        self.apply_events = self._lane_apply_events  # type: ignore[method-assign]
+        self.reset = self._lane_reset  # type: ignore[method-assign]
+        self.inject = self._lane_inject  # type: ignore[method-assign]
+
+    def _lane_reset(self) -> None:
+        RegisterBoard.reset(self)
+        self.lane_ch = [_LaneChannel([_Channel()] * self.size_lanes) for _ in range(CHANNELS)]
+
+    def _lane_inject(self, name: str, **params: Any) -> None:
+        raise NotImplementedError(f"{self.name}: faults are injected per instance; a run with faults runs scalar")
+
+    def _lane_high(self, c: int, attr: str) -> LaneValue:
+        return getattr(self.lane_ch[c], attr) >> 16
+
+    def _lane_low(self, c: int, attr: str) -> LaneValue:
+        return getattr(self.lane_ch[c], attr) & 0xFFFF
+
+    def _lane_command(self, c: int, value: LaneValue) -> None:
+        ch = self.lane_ch[c]
+        counter = ch.counter
+        if isinstance(value, np.ndarray):  # a command per lane
+            ch.ol = np.where(value & _LATCH != 0, counter, ch.ol)
+            counter = np.where(value & _CLEAR != 0, 0, counter)
+            ch.counter = np.where(value & _PRESET != 0, self._preset_value(c), counter)
+            return
+        if value & _LATCH:
+            ch.ol = counter
+        if value & _CLEAR:
+            ch.counter = np.zeros_like(counter)
+        if value & _PRESET:
+            ch.counter = np.zeros_like(counter) + self._preset_value(c)
+
+    def _lane_gcmd(self, value: LaneValue) -> None:
+        for c, ch in enumerate(self.lane_ch):
+            bit = value & (1 << c)
+            if isinstance(bit, np.ndarray):
+                ch.ol = np.where(bit != 0, ch.counter, ch.ol)
+            elif bit:
+                ch.ol = ch.counter
+
+    def _lane_read_status(self, c: int) -> LaneValue:
+        ch = self.lane_ch[c]
+        return ch.status | _AB_BITS[ch.phase]
+
+    def _lane_clear_flags(self, c: int, value: LaneValue) -> None:
+        ch = self.lane_ch[c]
+        ch.status = ch.status & (~value & _FLAGS)
+
+    def _lane_apply_events(self, c: int, ev: QuadratureEvents) -> None:
+        """:meth:`apply_events` for B lanes: ``ev`` carries lane values (``QuadratureEvents.for_lanes``;
+        a plain scalar object is every lane's). The same rules, lane by lane, as array operations."""
+        ch = self.lane_ch[c]
+        counts, illegal = ev.counts, ev.illegal
+        offsets: Any = ev.index_offsets  # lane mode: a tuple of B tuples
+        stats = ch.stats
+        stats["intervals"] = stats["intervals"] + 1
+        ctl_key = self._ctl[c]
+        regs: dict[str, Any] = self.regs  # lane values
+        ctl = regs[ctl_key]
+        mode = ctl & _MODE
+        acc, counter = ch.acc, ch.counter
+        if offsets and not isinstance(offsets[0], tuple):  # a scalar object: every lane's offsets
+            offsets = (offsets,) * self.size_lanes
+        if any(offsets):  # an index pulse in some lane: the first one captured where armed, then disarm
+            n = self.size_lanes
+            seen = np.fromiter(map(len, offsets), dtype=np.int64, count=n)
+            first = np.fromiter((o[0] if o else 0 for o in offsets), dtype=np.int64, count=n)
+            stats["index"] = stats["index"] + seen
+            capture = (seen > 0) & (ctl & _ARM != 0)
+            steps = _counter_steps_lanes(mode, acc, acc + first)
+            ch.idx = np.where(capture, (counter + steps) % _MODULUS, ch.idx)
+            ch.status = np.where(capture, ch.status | _INDEX, ch.status)
+            regs[ctl_key] = np.where(capture, ctl & ~_ARM, ctl)
+        counting = mode != _HOLD
+        value = counter + _counter_steps_lanes(mode, acc, acc + counts)
+        flags = np.where(value > _TOP, _OVERFLOW, np.where(value < 0, _UNDERFLOW, 0))
+        ch.counter = value % _MODULUS
+        ch.acc = np.where(counting, acc + counts, acc)
+        ch.status = ch.status | flags | np.where(illegal != 0, _ILLEGAL, 0)
+        stats["illegal"] = stats["illegal"] + illegal
+        stats["counts"] = stats["counts"] + counts
+        ch.phase = ev.phase % 4 + np.zeros_like(counter)
 
     # --- faults --------------------------------------------------------------------------
     def _fault_changed(self, name: str) -> None:

@@ -24,6 +24,17 @@ in the board and raises :class:`IllegalTransitionError` on every read until
 :meth:`QuadratureDriver.clear_errors`; with ``errors="report"`` the flags are returned in
 each :class:`ChannelReading` instead.
 
+Lanes (batched lockstep, :mod:`hal.lanes`): :meth:`QuadratureDriver.from_lanes` stacks B drivers
+over a bus of lanes. Its :meth:`~QuadratureDriver.update` makes the scalar tick's cycles and
+returns readings whose numbers (``raw``, ``counts``, ``position_rad``, velocities, the status
+bits) are lane values; each lane's unwrapping and velocity estimator are its own. Where a
+scalar driver would make a cycle for some instances only (the wrap-flag clear) it asks
+``bus.decide``; where it would raise (tracking lost, a count jump, ILLEGAL with
+``errors="raise"``) those lanes are ejected (``lanes.eject``) and the others go on. Only the
+per-tick operations run in lane mode (:meth:`~QuadratureDriver.update`,
+:meth:`~QuadratureDriver.clear_illegal`, :meth:`~QuadratureDriver.clear_illegal_where`); set-up
+and homing are done on the scalar drivers before stacking.
+
 Example::
 
     qd = QuadratureDriver(bus, 0x5000, counts_per_rev=2000.0)   # 500-line encoders, x4
@@ -37,10 +48,15 @@ Example::
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from functools import partial
+from typing import Any
+
+import numpy as np
 
 from hal.errors import HalError
+from hal.lanes import LaneSet, LaneValue, stack
 from hal.quadrature.quad_regs import (
     BOARD_TYPE,
     CHANNELS,
@@ -121,6 +137,13 @@ class ChannelStatus:
         return cls(bool(raw & ST_INDEX), bool(raw & ST_ILLEGAL), bool(raw & ST_OVERFLOW),
                    bool(raw & ST_UNDERFLOW), bool(raw >> 8 & 1), bool(raw >> 9 & 1), raw)
 
+    @classmethod
+    def decode_lanes(cls, raw: LaneValue) -> ChannelStatus:
+        """:meth:`decode` of a lane value: every field a lane value (bool arrays, ``raw`` as read)."""
+        flags: Any = raw
+        return cls(flags & ST_INDEX != 0, flags & ST_ILLEGAL != 0, flags & ST_OVERFLOW != 0,
+                   flags & ST_UNDERFLOW != 0, flags >> 8 & 1 != 0, flags >> 9 & 1 != 0, raw)
+
 
 @dataclass(frozen=True)
 class ChannelReading:
@@ -149,6 +172,55 @@ class _Track:
         self.velocity = 0.0
 
 
+class _LaneTrack:
+    """:class:`_Track` of B lanes: every number a lane value (arrays of shape (B,), replaced and
+    never changed in place, so a reading may keep them); ``home_index``/``tick_counts`` are
+    ``None`` when they are in every lane."""
+
+    raw: LaneValue
+    counts: LaneValue
+    mode: LaneValue
+    zero: LaneValue
+    home_index: LaneValue | None
+    tick_counts: LaneValue | None
+    change_counts: LaneValue
+    ticks_since_change: LaneValue
+    velocity: LaneValue
+
+    def __init__(self, tracks: Sequence[_Track]) -> None:
+        def lanes(values: list[Any], dtype: Any) -> np.ndarray:
+            return np.array(values, dtype=dtype)
+
+        def optional(values: list[int | None], what: str) -> np.ndarray | None:
+            if all(v is None for v in values):
+                return None
+            if any(v is None for v in values):
+                raise NotImplementedError(f"the lanes' decoder channels differ in {what} (set in some only)")
+            return lanes(values, np.int64)
+
+        self.raw = lanes([t.raw for t in tracks], np.int64)
+        self.counts = lanes([t.counts for t in tracks], np.int64)
+        self.mode = stack([t.mode for t in tracks])
+        self.zero = lanes([t.zero for t in tracks], np.float64)
+        self.home_index = optional([t.home_index for t in tracks], "their home")
+        self.tick_counts = optional([t.tick_counts for t in tracks], "their velocity estimator's start")
+        self.change_counts = lanes([t.change_counts for t in tracks], np.int64)
+        self.ticks_since_change = lanes([t.ticks_since_change for t in tracks], np.int64)
+        self.velocity = lanes([t.velocity for t in tracks], np.float64)
+
+
+#: operations a lane-mode driver does not run (set-up, homing, diagnostics: done on the scalar
+#: drivers before they are stacked)
+_SCALAR_ONLY = ("probe", "read_count", "read_count_unlatched", "status", "clear_errors", "set_mode", "hold",
+                "preset", "clear", "position_counts", "position_rad", "set_zero", "velocity", "arm_index",
+                "index_seen", "home_at_index", "check_index", "counts_per_rev")
+
+
+def _scalar_only(name: str, *args: Any, **kwargs: Any) -> Any:
+    raise NotImplementedError(f"QuadratureDriver.{name} is not run in lanes (set-up and homing: scalar, "
+                              "before stacking)")
+
+
 class QuadratureDriver:
     """Quadrature decoder driver.
 
@@ -171,6 +243,9 @@ class QuadratureDriver:
 
     #: the board's channel count (hal.board_types: a board of role "quad" says how many it has)
     CHANNELS = CHANNELS
+    #: lane mode (:meth:`from_lanes`): the lanes and each channel's tracking state of every lane
+    _lanes: LaneSet
+    _lane_track: dict[int, _LaneTrack]
 
     def __init__(
         self,
@@ -286,6 +361,16 @@ class QuadratureDriver:
         that counts the reads that found ILLEGAL set clears it after each."""
         self._check_ch(ch)
         self.win.write(reg_name(ch, "STATUS"), ST_ILLEGAL)
+
+    def clear_illegal_where(self, ch: int, illegal: LaneValue) -> bool:
+        """:meth:`clear_illegal` if ``illegal`` (a reading's ``status.illegal``): the servo tick's
+        clear after a read that found ILLEGAL set. Returns whether it cleared. On a bus of lanes
+        the clear is one cycle for every live lane or for none: the live lanes' common answer
+        (``bus.decide``; lanes of the other answer are ejected)."""
+        if not self.win.bus.decide(illegal, f"quadrature 0x{self.win.base:X} channel {ch}: ILLEGAL clear"):
+            return False
+        self.clear_illegal(ch)
+        return True
 
     def set_mode(self, ch: int, mode: int) -> None:
         """Counting mode 1, 2 or 4 (counts per quadrature cycle). The position in radians is
@@ -478,6 +563,118 @@ class QuadratureDriver:
             first_error.readings = out
             raise first_error
         return out
+
+    # --- lanes (batched lockstep) ---------------------------------------------------------
+    @classmethod
+    def from_lanes(cls, drivers: Sequence[QuadratureDriver], bus: VmeBus) -> QuadratureDriver:
+        """One driver in lane mode for the B ``drivers`` (lane order: set up, same board address,
+        channels and settings), on ``bus``, a bus of lanes (the stacked crate). Makes no cycle."""
+        lanes = bus.lanes
+        if lanes is None:
+            raise ValueError("a lane-mode quadrature driver needs a bus of lanes (bus.lanes)")
+        if len(drivers) != lanes.size:
+            raise ValueError(f"{len(drivers)} drivers for {lanes.size} lanes")
+        first = drivers[0]
+
+        def settings(d: QuadratureDriver) -> tuple:
+            return (type(d), d.win.base, d.win.am, d.channels, d.errors, d.max_counts_per_tick, d.low_speed_counts,
+                    d.stop_ticks)
+
+        if any(settings(d) != settings(first) for d in drivers):
+            raise NotImplementedError(f"quadrature 0x{first.win.base:X}: the lanes' drivers are set up differently")
+        drv = cls.__new__(cls)
+        drv.win = BoardWindow(bus, first.win.base, QUAD_REGS, first.win.am)
+        drv.channels = first.channels
+        drv.counts_per_rev_x4 = {ch: stack([d.counts_per_rev_x4[ch] for d in drivers]) for ch in first.channels}
+        drv.errors = first.errors
+        drv.max_counts_per_tick = first.max_counts_per_tick
+        drv.low_speed_counts = first.low_speed_counts
+        drv.stop_ticks = first.stop_ticks
+        drv._latch_mask = first._latch_mask
+        drv._gcmd = first._gcmd
+        drv._gcmd_latch = first._gcmd_latch
+        drv._regs = first._regs
+        drv._status_cache = {}
+        drv._lanes = lanes
+        drv._lane_track = {ch: _LaneTrack([d._track[ch] for d in drivers]) for ch in first.channels}
+        drv._track = {}
+        drv.update = drv._update_lanes  # type: ignore[method-assign]
+        for name in _SCALAR_ONLY:
+            setattr(drv, name, partial(_scalar_only, name))
+        return drv
+
+    def _update_lanes(self, dt: float) -> dict[int, ChannelReading]:
+        """:meth:`update` on a bus of lanes: the same cycles; readings of lane values. A lane
+        whose scalar driver would raise is ejected with the error's reason."""
+        if not dt > 0:
+            raise ValueError(f"dt must be > 0 s (got {dt})")
+        win, lanes = self.win, self._lanes
+        read, write, decide = win.read, win.write, win.bus.decide
+        write(self._gcmd, self._gcmd_latch)
+        out: dict[int, ChannelReading] = {}
+        where = f"quadrature 0x{win.base:X} channel"
+        for ch in self.channels:
+            t = self._lane_track[ch]
+            regs = self._regs[ch]
+            status = read(regs["STATUS"])
+            hi = read(regs["OL_HI"]) & 0xFF
+            raw = hi << 16 | read(regs["OL_LO"])
+            wrap = status & (ST_OVERFLOW | ST_UNDERFLOW)
+            # the clear is a cycle where a flag is set: one for every live lane or for none
+            if decide(wrap != 0, f"{where} {ch}: OVERFLOW/UNDERFLOW clear"):
+                write(regs["STATUS"], wrap)
+            self._unwrap_lanes(ch, t, raw, status, lanes)
+            st = ChannelStatus.decode_lanes(status)
+            v = self._velocity_lanes(ch, t, dt, lanes)
+            if self.errors == "raise":
+                lanes.eject(st.illegal, f"{where} {ch}: IllegalTransitionError (ILLEGAL set)")
+            cpr = self.counts_per_rev_x4[ch] * t.mode / 4.0
+            counts = t.counts
+            out[ch] = ChannelReading(ch, raw, counts, (counts - t.zero) * TWO_PI / cpr, v, v * TWO_PI / cpr, st)
+        return out
+
+    @staticmethod
+    def _unwrap_lanes(ch: int, t: _LaneTrack, raw: LaneValue, status: LaneValue, lanes: LaneSet) -> None:
+        """:meth:`_unwrap` per lane; a lane whose scalar driver raises TrackingLostError is ejected."""
+        d = ((raw - t.raw + _HALF) % COUNTER_MODULUS) - _HALF
+        far = np.abs(d) > _QUARTER
+        if lanes.any(far):
+            end = t.raw + d
+            crossing = np.where(end > COUNTER_MASK, 1, np.where(end < 0, -1, 0))
+            ovf, unf = status & ST_OVERFLOW != 0, status & ST_UNDERFLOW != 0
+            ok = ((crossing == 1) & ovf) | ((crossing == -1) & unf) | ((crossing == 0) & (ovf == unf))
+            lanes.eject(far & ~ok, f"quadrature channel {ch}: TrackingLostError (more than a quarter range "
+                                   "between reads and the wrap flags disagree)")
+        t.counts = t.counts + d
+        t.raw = raw
+
+    def _velocity_lanes(self, ch: int, t: _LaneTrack, dt: float, lanes: LaneSet) -> LaneValue:
+        """:meth:`_velocity_step` per lane (the same float operations, so the same bits)."""
+        counts = t.counts
+        if t.tick_counts is None:  # the first tick in every lane (stacked before any update)
+            t.tick_counts = t.change_counts = counts
+            t.ticks_since_change = np.zeros(lanes.size, dtype=np.int64)
+            t.velocity = np.zeros(lanes.size)
+            return t.velocity
+        delta = counts - t.tick_counts
+        t.tick_counts = counts
+        ticks = t.ticks_since_change + 1
+        if self.max_counts_per_tick is not None:
+            jump = np.abs(delta) > self.max_counts_per_tick
+            if lanes.any(jump):
+                lanes.eject(jump, f"quadrature channel {ch}: CountJumpError (limit {self.max_counts_per_tick})")
+        moved = delta != 0
+        velocity = t.velocity
+        with np.errstate(all="ignore"):  # the branches not taken, and ejected lanes, may divide by 0
+            changed = np.where(np.abs(delta) >= self.low_speed_counts, delta / dt,
+                               (counts - t.change_counts) / (ticks * dt))
+            bounded = np.copysign(np.minimum(np.abs(velocity), 1.0 / (ticks * dt)), velocity)
+        still = np.where(ticks >= self.stop_ticks, 0.0, np.where(velocity != 0, bounded, 0.0))
+        v = np.where(moved, changed, still)
+        t.change_counts = np.where(moved, counts, t.change_counts)
+        t.ticks_since_change = np.where(moved, 0, ticks)
+        t.velocity = v
+        return v
 
     # --- index and homing ----------------------------------------------------------------
     def arm_index(self, ch: int) -> None:
