@@ -40,6 +40,9 @@ BOARDS = (
      {0: 160000.0, 1: 100000.0, 2: 20000.0}),
 )
 NETS = [net for *_, nets, _ in BOARDS for net in nets.values()]
+#: the velocity estimate's ticks without a count before it reads 0: short, so that the noise's
+#: quiet spells (x1: a few x4 counts either way often leave the counter still) reach it
+STOP_TICKS = 6
 
 
 class _LaneCrate(Crate):
@@ -95,7 +98,7 @@ def _setup(b: int, max_counts_per_tick: int | None = None) -> tuple[Crate, dict[
         scale = 1.0 + 0.125 * b  # a calibrated scaling per lane
         drivers[name] = QuadratureDriver(crate, base, counts_per_rev={c: v * scale for c, v in cpr.items()},
                                          channels=sorted(nets), errors="report",
-                                         max_counts_per_tick=max_counts_per_tick)
+                                         max_counts_per_tick=max_counts_per_tick, stop_ticks=STOP_TICKS)
     return crate, drivers
 
 
