@@ -202,10 +202,11 @@ class Batch:
 
 
 def _noise(rngs: list[np.random.Generator], n_nets: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, list]:
-    """Each lane's own events for one tick, from its own generator: a few counts either way,
-    a random A/B phase, now and then an index pulse."""
+    """Each lane's own events for one tick, from its own generator: on most ticks no count, else
+    up to 6 either way (so the estimator sees quiet spells, 1/T and Δ/dt), a random A/B phase,
+    now and then an index pulse."""
     n = len(rngs)
-    counts = np.array([r.integers(-3, 4, n_nets) for r in rngs], dtype=np.int64)
+    counts = np.array([np.where(r.random(n_nets) < 0.6, 0, r.integers(-6, 7, n_nets)) for r in rngs], dtype=np.int64)
     phase = np.array([r.integers(0, 4, n_nets) for r in rngs], dtype=np.int64)
     offsets = [[(int(r.integers(-2, 3)),) if r.random() < 0.15 else () for _ in range(n_nets)] for r in rngs]
     return counts, np.zeros((n, n_nets), dtype=np.int64), phase, offsets
