@@ -665,10 +665,9 @@ class QuadratureDriver:
                 lanes.eject(jump, f"quadrature channel {ch}: CountJumpError (limit {self.max_counts_per_tick})")
         moved = delta != 0
         velocity = t.velocity
-        with np.errstate(all="ignore"):  # the branches not taken, and ejected lanes, may divide by 0
-            changed = np.where(np.abs(delta) >= self.low_speed_counts, delta / dt,
-                               (counts - t.change_counts) / (ticks * dt))
-            bounded = np.copysign(np.minimum(np.abs(velocity), 1.0 / (ticks * dt)), velocity)
+        elapsed = ticks * dt  # > 0: ticks >= 1 in every lane, dead or alive
+        changed = np.where(np.abs(delta) >= self.low_speed_counts, delta / dt, (counts - t.change_counts) / elapsed)
+        bounded = np.copysign(np.minimum(np.abs(velocity), 1.0 / elapsed), velocity)
         still = np.where(ticks >= self.stop_ticks, 0.0, np.where(velocity != 0, bounded, 0.0))
         v = np.where(moved, changed, still)
         t.change_counts = np.where(moved, counts, t.change_counts)

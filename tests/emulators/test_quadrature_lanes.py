@@ -48,6 +48,8 @@ STOP_TICKS = 6
 class _LaneCrate(Crate):
     """Stand-in for lane-core's ``Crate.from_lanes`` (see the module doc)."""
 
+    lanes: LaneSet
+
     def __init__(self, crates: list[Crate]) -> None:
         first = crates[0]
         for c in crates:  # the lanes' set-up made the same cycles (the values differ)
@@ -58,7 +60,8 @@ class _LaneCrate(Crate):
         self.counters.update(first.counters)
         for s in first.slots():
             boards = [c.board(s.board.name) for c in crates]
-            self.install(type(s.board).from_lanes(boards, self), base=s.base, space=s.space, slot=s.board.slot)
+            stacked = type(s.board).from_lanes(boards, self)  # type: ignore[attr-defined]
+            self.install(stacked, base=s.base, space=s.space, slot=s.board.slot)
 
     def writer(self, address: int, *, space: Any = AddressSpace.A16, width: Width = Width.D16):
         am, w = self._check(address, space, width, write=True)
@@ -111,7 +114,7 @@ def _bits(x: Any) -> Any:
     return int(x)
 
 
-def _same(lane_value: Any, b: int, twin_value: Any) -> bool:
+def _same(lane_value: Any, b: Any, twin_value: Any) -> bool:
     v = lane(lane_value, int(b))
     if isinstance(v, np.ndarray):  # a 0-d array: its element
         v = v[()]
@@ -296,7 +299,8 @@ def test_lane_board_registers_equal_scalar_boards_under_lane_valued_writes_and_e
             values = rng.integers(0, 16, n)
             low = rng.integers(0, 0x14, n)
             ctl = base + BOARD_MAP[f"CH{ch}_CTL"].offset + 1
-            for c, gv, lv in [(lanes_crate, values, low)] + [(t, int(values[b]), int(low[b])) for b, t in enumerate(twins)]:
+            writes = [(lanes_crate, values, low)] + [(t, int(values[b]), int(low[b])) for b, t in enumerate(twins)]
+            for c, gv, lv in writes:
                 c.write(base + BOARD_MAP["GCMD"].offset, gv, space="A16", width=Width.D16)
                 c.write(ctl, lv, space="A16", width=Width.D8)
         elif op == 2:  # one interval's events on one channel, different per lane
@@ -304,7 +308,8 @@ def test_lane_board_registers_equal_scalar_boards_under_lane_valued_writes_and_e
             illegal = (rng.random(n) < 0.1).astype(np.int64)
             phase = rng.integers(0, 4, n)
             offsets = tuple(tuple(sorted(int(x) for x in rng.integers(-9, 10, rng.integers(0, 3)))) for _ in range(n))
-            lanes_crate.signals.publish_quadrature(nets[ch], QuadratureEvents.for_lanes(counts, illegal, offsets, phase))
+            events = QuadratureEvents.for_lanes(counts, illegal, offsets, phase)
+            lanes_crate.signals.publish_quadrature(nets[ch], events)
             for b, c in enumerate(twins):
                 c.signals.publish_quadrature(nets[ch], QuadratureEvents(int(counts[b]), int(illegal[b]), offsets[b],
                                                                         int(phase[b])))
