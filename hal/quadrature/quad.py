@@ -27,10 +27,11 @@ each :class:`ChannelReading` instead.
 Lanes (batched lockstep, :mod:`hal.lanes`): :meth:`QuadratureDriver.from_lanes` stacks B drivers
 over a bus of lanes. Its :meth:`~QuadratureDriver.update` makes the scalar tick's cycles and
 returns readings whose numbers (``raw``, ``counts``, ``position_rad``, velocities, the status
-bits) are lane values; each lane's unwrapping and velocity estimator are its own. Where a
-scalar driver would make a cycle for some instances only (the wrap-flag clear) it asks
-``bus.decide``; where it would raise (tracking lost, a count jump, ILLEGAL with
-``errors="raise"``) those lanes are ejected (``lanes.eject``) and the others go on. Only the
+bits) are lane values; each lane's unwrapping and velocity estimator are its own. The tick's
+cycles do not depend on the counts (the wrap flags are cleared on every read, set or not), so
+every lane makes them; where a scalar driver would raise (tracking lost, a count jump, ILLEGAL
+with ``errors="raise"``) those lanes are ejected (``lanes.eject``) and the others go on; the
+servo tick's ILLEGAL clear asks ``bus.decide`` (:meth:`~QuadratureDriver.clear_illegal_where`). Only the
 per-tick operations run in lane mode (:meth:`~QuadratureDriver.update`,
 :meth:`~QuadratureDriver.clear_illegal`, :meth:`~QuadratureDriver.clear_illegal_where`); set-up
 and homing are done on the scalar drivers before stacking.
@@ -545,9 +546,11 @@ class QuadratureDriver:
                 status = read(regs["STATUS"])
                 hi = read(regs["OL_HI"]) & 0xFF
                 raw = hi << 16 | read(regs["OL_LO"])
-                wrap = status & (ST_OVERFLOW | ST_UNDERFLOW)
-                if wrap:
-                    write(regs["STATUS"], wrap)
+                # the wrap flags read are written back (W1C) on every read, 0x0000 when neither is
+                # set (a 0 bit leaves its flag alone): the tick's cycles do not depend on the
+                # counts, so instances batched in lanes make the same ones (a joint resting near
+                # its start count crosses 0 every few dozen ticks, each instance at its own tick)
+                write(regs["STATUS"], status & (ST_OVERFLOW | ST_UNDERFLOW))
                 self._unwrap(ch, t, raw, status)
                 st = self._decode(status)
                 v = self._velocity_step(ch, t, dt)
@@ -609,7 +612,7 @@ class QuadratureDriver:
         if not dt > 0:
             raise ValueError(f"dt must be > 0 s (got {dt})")
         win, lanes = self.win, self._lanes
-        read, write, decide = win.read, win.write, win.bus.decide
+        read, write = win.read, win.write
         write(self._gcmd, self._gcmd_latch)
         out: dict[int, ChannelReading] = {}
         where = f"quadrature 0x{win.base:X} channel"
@@ -619,10 +622,7 @@ class QuadratureDriver:
             status = read(regs["STATUS"])
             hi = read(regs["OL_HI"]) & 0xFF
             raw = hi << 16 | read(regs["OL_LO"])
-            wrap = status & (ST_OVERFLOW | ST_UNDERFLOW)
-            # the clear is a cycle where a flag is set: one for every live lane or for none
-            if decide(wrap != 0, f"{where} {ch}: OVERFLOW/UNDERFLOW clear"):
-                write(regs["STATUS"], wrap)
+            write(regs["STATUS"], status & (ST_OVERFLOW | ST_UNDERFLOW))  # every read, as update()
             self._unwrap_lanes(ch, t, raw, status, lanes)
             st = ChannelStatus.decode_lanes(status)
             v = self._velocity_lanes(ch, t, dt, lanes)

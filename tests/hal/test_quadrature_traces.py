@@ -118,8 +118,8 @@ def test_update_latches_every_channel_in_one_gcmd_write() -> None:
     r = d.update(0.008)
     assert bus.trace() == [
         "W A16 0x5002 D16 0x0005",
-        "R A16 0x5024 D16 0x0000", "R A16 0x5028 D16 0x0000", "R A16 0x502A D16 0x0007",
-        "R A16 0x5064 D16 0x0000", "R A16 0x5068 D16 0x0000", "R A16 0x506A D16 0x0003",
+        "R A16 0x5024 D16 0x0000", "R A16 0x5028 D16 0x0000", "R A16 0x502A D16 0x0007", "W A16 0x5024 D16 0x0000",
+        "R A16 0x5064 D16 0x0000", "R A16 0x5068 D16 0x0000", "R A16 0x506A D16 0x0003", "W A16 0x5064 D16 0x0000",
     ]
     assert (r[0].counts, r[2].counts) == (7, 3)
 
@@ -242,7 +242,7 @@ def test_illegal_status_raises_after_reading_every_channel_and_rereads_status() 
     assert bus.trace() == [
         "W A16 0x5002 D16 0x0001",
         "R A16 0x5024 D16 0x0302", "R A16 0x5028 D16 0x0000", "R A16 0x502A D16 0x0000",
-        "R A16 0x5024 D16 0x0302",
+        "W A16 0x5024 D16 0x0000", "R A16 0x5024 D16 0x0302",
     ]
     st = ei.value.readings[0].status
     assert (st.illegal, st.a, st.b, st.index, st.overflow, st.underflow) == (True, True, True, False, False, False)
@@ -254,6 +254,7 @@ def test_report_mode_reads_the_illegal_status_once() -> None:
     assert bus.trace() == [
         "W A16 0x5002 D16 0x0001",
         "R A16 0x5024 D16 0x0102", "R A16 0x5028 D16 0x0000", "R A16 0x502A D16 0x0000",
+        "W A16 0x5024 D16 0x0000",
     ]
     assert (st.illegal, st.a, st.b) == (True, True, False)
 
@@ -281,13 +282,13 @@ def test_illegal_transition_on_the_emulated_board_is_sticky_until_cleared() -> N
             d.update(0.008)
     d.clear_errors(0)
     assert not d.update(0.008)[0].status.illegal
-    assert bus.trace()[:5] == [
+    assert bus.trace()[:6] == [
         "W A16 0x5002 D16 0x0001",
         "R A16 0x5024 D16 0x0102", "R A16 0x5028 D16 0x0000", "R A16 0x502A D16 0x0000",
-        "R A16 0x5024 D16 0x0102",
+        "W A16 0x5024 D16 0x0000", "R A16 0x5024 D16 0x0102",
     ]
-    assert bus.trace()[10:12] == ["W A16 0x5024 D16 0x000E", "W A16 0x5002 D16 0x0001"]
-    assert bus.trace()[12] == "R A16 0x5024 D16 0x0100"
+    assert bus.trace()[12:14] == ["W A16 0x5024 D16 0x000E", "W A16 0x5002 D16 0x0001"]
+    assert bus.trace()[14] == "R A16 0x5024 D16 0x0100"
 
 
 # --- the interrupt path: there is none -----------------------------------------------------
