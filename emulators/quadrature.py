@@ -51,9 +51,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from emulators.board import Backplane, RegisterBoard
+from emulators.board import Backplane, Board, RegisterBoard
 from emulators.signals import QuadratureEvents
-from hal.lanes import LaneValue, stack
+from hal.lanes import LaneValue
 from hal.vme.registers import Access, Field, Register, RegisterMap
 from hal.vme.types import AddressSpace, Width
 
@@ -338,21 +338,24 @@ class QuadratureBoard(RegisterBoard):
 
     # --- lanes (batched lockstep) ---------------------------------------------------------
     @classmethod
-    def from_lanes(cls, boards: Sequence[QuadratureBoard], crate: Backplane) -> QuadratureBoard:
+    def from_lanes(cls, boards: Sequence[Board], crate: Backplane) -> QuadratureBoard:
         """One board in lane mode holding the B ``boards`` (lane order; same wiring and sampling
         rate, no fault armed). The crate installs it (``attach`` subscribes its channels' nets
         on ``crate.signals``, as for a scalar board); from then on its register reads return
         lane values and the nets carry lane-mode events."""
-        first = boards[0]
+        quads: list[QuadratureBoard] = []
         for b in boards:
-            if type(b) is not cls:
-                raise NotImplementedError(f"{first.name}: lanes of one board type only, got {type(b).__name__}")
+            if type(b) is not cls or not isinstance(b, QuadratureBoard):
+                raise NotImplementedError(f"{boards[0].name}: lanes of one board type only, got {type(b).__name__}")
+            quads.append(b)
+        first = quads[0]
+        for b in quads:
             if b.nets != first.nets or b.sample_hz != first.sample_hz:
                 raise NotImplementedError(f"{first.name}: the lanes' decoders are wired or sampled differently")
             if b.faulted:
                 raise NotImplementedError(f"{first.name}: a decoder with a fault injected runs scalar")
         board = cls(first.name, nets=first.nets, sample_hz=first.sample_hz)
-        board._lanes_from(boards)
+        board._lanes_from(quads)
         return board
 
     def _lanes_from(self, boards: Sequence[QuadratureBoard]) -> None:
@@ -360,7 +363,7 @@ class QuadratureBoard(RegisterBoard):
         handlers bound in place of the scalar ones (before any cycle resolves them), so the
         scalar board's code is untouched."""
         self.size_lanes = len(boards)
-        self.regs = {name: stack([b.regs[name] for b in boards]) for name in self.regs}
+        self._stack_regs(boards)
         self.lane_ch = [_LaneChannel([b.ch[c] for b in boards]) for c in range(CHANNELS)]
         self.ch = []  # the scalar channels are not used in lane mode (an access would fail loudly)
         for c in range(CHANNELS):

@@ -8,11 +8,6 @@ every live lane equals its twin bit for bit: the readings, the board's counters,
 and registers, the driver's unwrapping and velocity state, the bus clock and the cycle counters.
 The lanes expected to be ejected are found from the twins alone: a twin that raised, or whose
 cycle counters left the majority's (it made a cycle the others did not).
-
-``Crate.from_lanes`` (branch lane-core) is not on main yet: :class:`_LaneCrate` is a minimal
-stand-in for it, in this test only (one clock and one set of counters copied from the B crates,
-which must agree; boards stacked with ``type(b).from_lanes`` and installed at the same place;
-lane values through the cycles, written values range-checked in every lane).
 """
 
 from __future__ import annotations
@@ -28,7 +23,7 @@ from emulators.quadrature import BOARD_MAP, QuadratureBoard
 from emulators.signals import QuadratureEvents
 from hal.lanes import LaneSet, lane
 from hal.quadrature import QuadratureDriver, QuadratureError
-from hal.vme.types import AddressSpace, VmeValueError, Width
+from hal.vme.types import Width
 
 PERIOD_S = 0.008
 PERIOD_NS = 8_000_000
@@ -45,35 +40,9 @@ NETS = [net for *_, nets, _ in BOARDS for net in nets.values()]
 STOP_TICKS = 6
 
 
-class _LaneCrate(Crate):
-    """Stand-in for lane-core's ``Crate.from_lanes`` (see the module doc)."""
-
-    lanes: LaneSet
-
-    def __init__(self, crates: list[Crate]) -> None:
-        first = crates[0]
-        for c in crates:  # the lanes' set-up made the same cycles (the values differ)
-            assert c.clock.now_ns == first.clock.now_ns and c.counters == first.counters
-        super().__init__("lanes")
-        self.lanes = LaneSet(len(crates))
-        self.clock.advance_to(first.clock.now_ns)
-        self.counters.update(first.counters)
-        for s in first.slots():
-            boards = [c.board(s.board.name) for c in crates]
-            stacked = type(s.board).from_lanes(boards, self)  # type: ignore[attr-defined]
-            self.install(stacked, base=s.base, space=s.space, slot=s.board.slot)
-
-    def writer(self, address: int, *, space: Any = AddressSpace.A16, width: Width = Width.D16):
-        am, w = self._check(address, space, width, write=True)
-        cycle = self._cycle_for(am, address, w, True)
-
-        def write(value: Any) -> None:
-            v = np.asarray(value)
-            if np.any((v < 0) | (v > w.max_value)):
-                raise VmeValueError(f"value {value} does not fit {w.name}")
-            cycle(value)
-
-        return write
+def _lane_crate(crates: list[Crate]) -> Crate:
+    """The crate of lanes of ``crates`` (lane order), each board stacked by its type's ``from_lanes``."""
+    return Crate.from_lanes(crates, LaneSet(len(crates)))
 
 
 def _reg(crate: Crate, base: int, name: str, value: Any) -> None:
@@ -127,8 +96,10 @@ class Batch:
     def __init__(self, n: int, max_counts_per_tick: int | None = None) -> None:
         rigs = [_setup(b, max_counts_per_tick) for b in range(n)]
         self.twins = [_setup(b, max_counts_per_tick) for b in range(n)]
-        self.crate = _LaneCrate([c for c, _ in rigs])
-        self.lanes = self.crate.lanes
+        self.crate = _lane_crate([c for c, _ in rigs])
+        lanes = self.crate.lanes
+        assert lanes is not None
+        self.lanes = lanes
         self.drivers = {name: QuadratureDriver.from_lanes([d[name] for _, d in rigs], self.crate)
                         for name, *_ in BOARDS}
         self.n = n
@@ -284,7 +255,7 @@ def test_lane_board_registers_equal_scalar_boards_under_lane_valued_writes_and_e
     crates = [Crate("one") for _ in range(2 * n)]
     for c in crates:
         c.install(QuadratureBoard("q", nets=nets), base=base, space="A16", slot=5)
-    lanes_crate, twins = _LaneCrate(crates[:n]), crates[n:]
+    lanes_crate, twins = _lane_crate(crates[:n]), crates[n:]
     rng = np.random.default_rng(36)
     writable = {"CTL": 0x13, "PRE_HI": 0xFF, "PRE_LO": 0xFFFF, "CMD": 0x7, "STATUS": 0xF}
     readable = ("CTL", "STATUS", "OL_HI", "OL_LO", "CNT_HI", "CNT_LO", "IDX_HI", "IDX_LO", "PRE_HI", "PRE_LO")
@@ -328,7 +299,7 @@ def test_lane_board_registers_equal_scalar_boards_under_lane_valued_writes_and_e
                     assert _same(got, b, c.read(a, space="A16", width=Width.D8)), (step, off, b)
         assert all(lanes_crate.clock.now_ns == c.clock.now_ns for c in twins)
         assert all(lanes_crate.counter_snapshot() == c.counter_snapshot() for c in twins)
-    assert lanes_crate.lanes.n_alive == n
+    assert lanes_crate.lanes is not None and lanes_crate.lanes.n_alive == n
 
 
 def test_stacking_refuses_what_lanes_do_not_run_and_lane_mode_is_chosen_once():
@@ -339,7 +310,7 @@ def test_stacking_refuses_what_lanes_do_not_run_and_lane_mode_is_chosen_once():
     with pytest.raises(NotImplementedError, match="fault"):
         QuadratureBoard.from_lanes([c.board("q") for c in crates], crates[0])
     crates[1].board("q").clear_fault()
-    lanes_crate = _LaneCrate(crates)
+    lanes_crate = _lane_crate(crates)
     with pytest.raises(NotImplementedError, match="per instance"):
         lanes_crate.board("q").inject("glitch", channel=0)
     drivers = [QuadratureDriver(c, 0x5000, counts_per_rev=2000.0, channels=[0]) for c in crates]
