@@ -7,7 +7,8 @@ and drivers built the same way run the same program alone (the scalar twins). Af
 every live lane equals its twin bit for bit: the readings, the board's counters, latches, flags
 and registers, the driver's unwrapping and velocity state, the bus clock and the cycle counters.
 The lanes expected to be ejected are found from the twins alone: a twin that raised, or whose
-cycle counters left the majority's (it made a cycle the others did not).
+cycle counters left the majority's (it made a cycle the others did not). A counter that wraps in
+some lanes only leaves none: the driver writes the wrap flags back on every read, set or not.
 """
 
 from __future__ import annotations
