@@ -263,10 +263,14 @@ def test_lane_board_registers_equal_scalar_boards_under_lane_valued_writes_and_e
     for step in range(300):
         op = rng.integers(0, 4)
         ch = int(rng.integers(0, 4))
-        if op == 0:  # a register write, its value per lane
+        if op == 0:  # a register write, its value per lane (or one value for every lane, a plain int)
             name = list(writable)[rng.integers(0, len(writable))]
             values = rng.integers(0, writable[name] + 1, n)
-            _reg(lanes_crate, base, f"CH{ch}_{name}", values)
+            if rng.random() < 0.3:
+                values[:] = values[0]
+                _reg(lanes_crate, base, f"CH{ch}_{name}", int(values[0]))
+            else:
+                _reg(lanes_crate, base, f"CH{ch}_{name}", values)
             for b, c in enumerate(twins):
                 _reg(c, base, f"CH{ch}_{name}", int(values[b]))
         elif op == 1:  # the global latch, a D8 write of CTL's low byte
@@ -282,7 +286,12 @@ def test_lane_board_registers_equal_scalar_boards_under_lane_valued_writes_and_e
             illegal = (rng.random(n) < 0.1).astype(np.int64)
             phase = rng.integers(0, 4, n)
             offsets = tuple(tuple(sorted(int(x) for x in rng.integers(-9, 10, rng.integers(0, 3)))) for _ in range(n))
-            events = QuadratureEvents.for_lanes(counts, illegal, offsets, phase)
+            if rng.random() < 0.2:  # now and then a plain (scalar) object: every lane's events
+                counts, illegal, phase = (np.full(n, x[0]) for x in (counts, illegal, phase))
+                offsets = (offsets[0],) * n
+                events = QuadratureEvents(int(counts[0]), int(illegal[0]), offsets[0], int(phase[0]))
+            else:
+                events = QuadratureEvents.for_lanes(counts, illegal, offsets, phase)
             lanes_crate.signals.publish_quadrature(nets[ch], events)
             for b, c in enumerate(twins):
                 c.signals.publish_quadrature(nets[ch], QuadratureEvents(int(counts[b]), int(illegal[b]), offsets[b],
