@@ -1,0 +1,169 @@
+"""The servo side of jpl-arm in lanes (batched lockstep, issue #34): ``JointIO.from_lanes``,
+``ServoLoop.from_lanes`` and ``LockstepRunner.from_lanes`` tick B sweep points (different gains;
+one whose tach brush drop trips its watchdog) as one, and every live lane's run equals its scalar
+twin's — recorded rows, switch-off events, the boards' counters, the figures of its report.
+
+The boards' lane drivers are branches of their own (lane-adc, lane-dacpio, lane-quad); here a
+stand-in (:class:`PerLane`) drives lane b's values into a scalar driver of lane b's own rig, one
+call per lane, and stacks what they return: an independent implementation of the lane drivers'
+interface (a (k, B) scan, readings whose fields are (B,) values, ports as (B,) words).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+
+from hal.lanes import LaneSet
+from servo.io import JointIO
+from servo.loop import ServoLoop
+from servo.runner import LockstepRunner
+from vmehil.analysis.rigparams import load_joint
+from vmehil.analysis.simulate import SimRun, SimSettings
+from vmehil.analysis.sweep import rig_text, task_rig
+
+SIM = SimSettings(move_deg=10, hold_s=0.5, allow_short=True, seed=3)
+TRIP_DROP_V = 0.2  #: tach brush drop of the tripping lane (nominal 0.12 V: docs/sweeps.md)
+
+
+def _points():
+    text = rig_text("jpl-arm")
+    nominal = task_rig(text, "jpl-arm", 1)
+    tripping = task_rig(text, "jpl-arm", 1, {"tach_brush_drop": TRIP_DROP_V})
+    return [load_joint(nominal, 1, gains={"kp": 80.0}), load_joint(nominal, 1, gains={"kp": 120.0, "kvi": 700.0}),
+            load_joint(tripping, 1), load_joint(nominal, 1, gains={"kv": 40.0})]
+
+
+def _lane_value(v: Any, b: int) -> Any:
+    if isinstance(v, np.ndarray) and v.ndim >= 1:
+        return v[..., b].item() if v.ndim == 1 else v[..., b]
+    if isinstance(v, dict):
+        return {k: _lane_value(x, b) for k, x in v.items()}
+    return v
+
+
+def _stacked(values: list[Any]) -> Any:
+    first = values[0]
+    if first is None:
+        return None
+    if isinstance(first, dict):
+        return {k: _stacked([v[k] for v in values]) for k in first}
+    if isinstance(first, tuple):
+        return tuple(_stacked(list(x)) for x in zip(*values, strict=True))
+    if isinstance(first, bool | int | float | np.ndarray | np.generic):
+        return np.stack([np.asarray(v) for v in values], axis=-1)
+    fields = getattr(first, "__dataclass_fields__", None)
+    if fields is not None:  # a reading (and its status): each field a lane value
+        return SimpleNamespace(**{f: _stacked([getattr(v, f) for v in values]) for f in fields})
+    return first
+
+
+class PerLane:
+    """A lane driver stand-in: lane b's values to scalar driver ``drivers[b]``, results stacked."""
+
+    def __init__(self, drivers: list[Any]) -> None:
+        self._drivers = drivers
+
+    def __getattr__(self, name: str) -> Any:
+        attr = getattr(self._drivers[0], name)
+        if not callable(attr):
+            return attr
+
+        def call(*args: Any, **kwargs: Any) -> Any:
+            out = [getattr(d, name)(*(_lane_value(a, b) for a in args),
+                                    **{k: _lane_value(v, b) for k, v in kwargs.items()})
+                   for b, d in enumerate(self._drivers)]
+            return _stacked(out)
+        return call
+
+
+class SideBySidePlants:
+    """The B rigs' plant boundaries as one (a stand-in for the lane harness and plant): each rig
+    steps on its own; the truth is lane-major."""
+
+    def __init__(self, systems: list[Any]) -> None:
+        self.systems = systems
+        first = systems[0]
+        self.joints, self.period_s, self.computation_delay_s = first.joints, first.period_s, first.computation_delay_s
+
+    def advance_to(self, t_ns: int) -> None:
+        for s in self.systems:
+            s.advance_to(t_ns)
+
+    def sense(self, tick: int) -> None:
+        for s in self.systems:
+            s.sense(tick)
+
+    def exchange(self, tick: int) -> None:
+        for s in self.systems:
+            s.exchange(tick)
+
+    def truth(self) -> dict[str, np.ndarray]:
+        truths = [s.truth() for s in self.systems]
+        return {k: np.concatenate([t[k] for t in truths]) for k in truths[0]}
+
+
+def _digest(run: SimRun) -> dict[str, Any]:
+    rec = run.loop.recorder.trimmed()
+    out: dict[str, Any] = {k: hashlib.sha256(np.ascontiguousarray(v).tobytes()).hexdigest()
+                           for k, v in rec.items() if k != "compute_s"}
+    out["ticks"] = run.loop.tick_count
+    out["events"] = run.loop.law.events
+    out["counters"] = run.system.crate.counter_snapshot()
+    out["clock_ns"] = run.system.crate.clock.now_ns
+    out["final_stop"] = run.loop.final_stop
+    return out
+
+
+@pytest.mark.slow  # ≈ 2 s (8 runs of 1.3 s of jpl-arm)
+def test_jpl_arm_sweep_points_in_lanes_equal_their_scalar_runs_and_a_trip_ejects_only_its_lane() -> None:
+    points = _points()
+    twins = [SimRun(jp, False, SIM) for jp in points]
+    runs = [SimRun(jp, False, SIM) for jp in points]
+    try:
+        for r in twins:
+            with r.loop.armed():
+                r.runner.run(r.n_ticks, stop=r.halt_when(None))
+        B = len(runs)
+        lanes = LaneSet(B)
+        ios = [r.system.io for r in runs]
+
+        def per_lane(role: str) -> dict[str, PerLane]:
+            return {name: PerLane([getattr(io, role)[name] for io in ios]) for name in getattr(ios[0], role)}
+
+        io = JointIO.from_lanes(ios, lanes, adc=per_lane("adc"), dac=per_lane("dac"), pio=per_lane("pio"),
+                                quad=per_lane("quad"))
+        loop = ServoLoop.from_lanes([r.loop for r in runs], io, lanes)
+        runner = LockstepRunner.from_lanes([r.runner for r in runs], SideBySidePlants([r.system for r in runs]), loop)
+        with loop.armed():
+            runner.run(runs[0].n_ticks, stop=lambda: not lanes.alive.any())
+        for b in np.flatnonzero(lanes.alive).tolist():
+            loop.write_lane(b, runs[b].loop)
+        ejected = twins[2].loop.fault
+        assert ejected is not None and ejected.cause == "velocity_mismatch"
+        assert lanes.alive.tolist() == [True, True, False, True]
+        assert lanes.reasons[2].startswith("velocity_mismatch") and lanes.first_tick[2] == ejected.tick
+        assert loop.lane_faults[2].detail == ejected.detail
+        for b in (0, 1, 3):
+            assert twins[b].loop.fault is None
+            assert _digest(runs[b]) == _digest(twins[b]), f"lane {b} differs from its scalar run"
+            assert runs[b].figures(runs[b].summarize()) == twins[b].figures(twins[b].summarize())
+    finally:
+        for r in twins + runs:
+            r.close()
+
+
+def test_lanes_refuse_a_run_with_injected_faults() -> None:
+    jp = _points()[0]
+    runs = [SimRun(jp, False, SIM), SimRun(jp, False, SIM, faults=("adc_noise@0.1:joint=j1,rms_v=0.02",))]
+    try:
+        with pytest.raises(NotImplementedError, match="after-tick"):
+            LockstepRunner.from_lanes([r.runner for r in runs], SideBySidePlants([r.system for r in runs]),
+                                      runs[0].loop)
+    finally:
+        for r in runs:
+            r.close()
