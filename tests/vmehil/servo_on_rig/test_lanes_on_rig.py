@@ -167,3 +167,74 @@ def test_lanes_refuse_a_run_with_injected_faults() -> None:
     finally:
         for r in runs:
             r.close()
+
+
+def _bits(x: Any) -> bytes:
+    return np.ascontiguousarray(np.asarray(x)).tobytes()
+
+
+def test_joint_io_in_lanes_reads_and_commands_each_lane_as_its_own_io_does() -> None:
+    """A seeded program of torque writes (saturating ones, a NaN, a non-finite speed, the hand's
+    H-bridge changing direction) and reads, then a safe stop: every lane's measurement, commanded
+    current and board state equal its twin rig's, bit for bit."""
+    from vmehil.rig_setup.system import build_emulated_rig
+
+    seeds = (1, 2, 5)
+    twins = [build_emulated_rig("jpl-arm", seed=s) for s in seeds]
+    systems = [build_emulated_rig("jpl-arm", seed=s) for s in seeds]
+    try:
+        B, n = len(seeds), twins[0].io.n
+        lanes = LaneSet(B)
+        ios = [s.io for s in systems]
+
+        def per_lane(role: str) -> dict[str, PerLane]:
+            return {name: PerLane([getattr(io, role)[name] for io in ios]) for name in getattr(ios[0], role)}
+
+        io = JointIO.from_lanes(ios, lanes, adc=per_lane("adc"), dac=per_lane("dac"), pio=per_lane("pio"),
+                                quad=per_lane("quad"))
+        plants = SideBySidePlants(systems)
+        rng = np.random.default_rng(7)
+        limit = np.array([0.8, 0.4, 0.25, 0.1, 0.1, 0.05, 1.0])  # N·m (the hand's: 2 A at 0.5 N·m/A)
+        for t in twins:
+            t.io.clear_faults()
+            t.io.enable(True)
+        io.clear_faults()
+        io.enable(True)
+        period_ns, delay_ns = round(twins[0].period_s * 1e9), round(twins[0].computation_delay_s * 1e9)
+        for k in range(60):
+            torque = rng.normal(size=(B, n)) * limit * (3.0 if k % 7 == 0 else 0.5)
+            if k == 20:
+                torque[1, 2] = np.nan
+            for s in (*twins, plants):
+                s.advance_to(k * period_ns)
+                s.sense(k)
+            got = io.read()
+            speed = got.omega.copy()
+            if k == 30:
+                speed[n + 6] = np.inf  # lane 1's hand: no back-EMF feed-forward
+            cur = io.write_torque(torque.reshape(-1), speed)
+            duty = io.pio["pio0"].pwm_duty()  # (a read-back: the twins each make it too)
+            for b, t in enumerate(twins):
+                m = t.io.read()
+                for f in ("theta_pot", "theta_enc", "omega_tach", "omega_enc", "current", "pot_v", "fault", "theta",
+                          "omega", "encoder_illegal", "encoder_counts"):
+                    assert _bits(getattr(got, f)[b * n:(b + 1) * n]) == _bits(np.asarray(getattr(m, f), getattr(
+                        got, f).dtype)), (k, b, f)
+                mine = t.io.write_torque(torque[b], speed[b * n:(b + 1) * n])
+                assert _bits(cur[b * n:(b + 1) * n]) == _bits(mine), (k, b)
+                assert _bits(io.last_dac_volts[b * n:(b + 1) * n]) == _bits(t.io.last_dac_volts)
+                assert _bits(io.brake_released[b * n:(b + 1) * n]) == _bits(t.io.brake_released)
+                assert duty[b] == t.io.pio["pio0"].pwm_duty()  # the hand's H-bridge
+            for s in (*twins, plants):
+                s.advance_to(k * period_ns + delay_ns)
+                s.exchange(k)
+        assert lanes.alive.all()
+        assert io.safe_stop() == [] and io.lane_stop_failures == [[], [], []]
+        for b, t in enumerate(twins):
+            assert t.io.safe_stop() == []
+            assert systems[b].crate.counter_snapshot() == t.crate.counter_snapshot()
+            assert {k: _bits(v) for k, v in systems[b].truth().items()} == {k: _bits(v) for k, v in t.truth().items()}
+            assert _bits(io.brake_released[b * n:(b + 1) * n]) == _bits(t.io.brake_released)
+    finally:
+        for s in twins + systems:
+            s.close()
