@@ -308,8 +308,17 @@ class JointIO:
         self._build_plans()
         self._scaling_key: tuple[int, int] | None = None
         self.calibration: CalibrationSource | None = None
-        #: the lanes of a batch (:meth:`from_lanes`); ``None``: one instance
+        #: the lanes of a batch (:meth:`from_lanes`); ``None``: one instance. In lanes ``n`` counts
+        #: every lane's joints (lane-major), ``lane_n`` one lane's, ``lane_size`` the lanes
         self.lanes: LaneSet | None = None
+        self.lane_n = self.n
+        self.lane_size = 1
+        self.lane_scaling = [scaling]
+        #: in lanes: per calibrated pot (flat joint index, its table); per H-bridge joint (joint, flat
+        #: indices, R, Ke, N, supply over the lanes); per lane what the last stop's read-back could not confirm
+        self._lane_pot_cal: list[tuple[int, PotCalibration]] = []
+        self._lane_hbridge: list[tuple[Any, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self.lane_stop_failures: list[list[str]] = [[]]
         if calibration is not None:
             self.apply_calibration(calibration)
 
@@ -366,15 +375,12 @@ class JointIO:
         obj.velocity_source = list(first.velocity_source)
         obj._linear_idx = (np.arange(size)[:, None] * n + first._linear_idx[None, :]).reshape(-1)
         obj.lane_scaling = [io.scaling for io in ios]
-        #: per calibrated pot: (flat joint index, its table)
         obj._lane_pot_cal = [(b * n + i, cal) for b, io in enumerate(ios) for i, cal in sorted(io.pot_cal.items())]
-        #: per H-bridge joint: (joint, flat indices over the lanes, R, Ke, N, supply: arrays over the lanes)
-        obj._lane_hbridge = [
-            (j, np.arange(size) * n + j.index,
-             *(np.array([float(getattr(io.scaling[j.index], f)) for io in ios])
-               for f in ("resistance_ohm", "ke_v_s_per_rad", "ratio", "supply_v")))
-            for j in first._hbridge_joints]
-        #: per lane what the last safe stop's read-back could not confirm
+        obj._lane_hbridge = []
+        for j in first._hbridge_joints:
+            r_ohm, ke, ratio, supply = (np.array([float(getattr(io.scaling[j.index], f)) for io in ios])
+                                        for f in ("resistance_ohm", "ke_v_s_per_rad", "ratio", "supply_v"))
+            obj._lane_hbridge.append((j, np.arange(size) * n + j.index, r_ohm, ke, ratio, supply))
         obj.lane_stop_failures = [[] for _ in range(size)]
         obj._scaling_key = None
         d = obj.__dict__  # the lane methods, chosen once (the scalar ones are untouched)
@@ -471,8 +477,8 @@ class JointIO:
             current[lin] = volts * gain + off
             dv = self._lane_rows(self.last_dac_volts)
             for board, js, chans in self._dac_plan:
-                self.dac[board].write_many({ch: dv[:, j].copy() for j, ch in zip(js.tolist(), chans, strict=True)},
-                                           update=True)
+                cmds: dict[int, Any] = {ch: dv[:, j].copy() for j, ch in zip(js.tolist(), chans, strict=True)}
+                self.dac[board].write_many(cmds, update=True)
         self.last_current_a[:] = current
         self.last_torque_nm[:] = np.where(np.isfinite(tau), tau, 0.0)
         if self._release_pending:
@@ -583,9 +589,9 @@ class JointIO:
                 if "amp_command" in w:
                     pin = w["amp_command"]
                     dac = self.dac[pin.board]
-                    zero, _ = dac.code_for(pin.index, 0.0)
+                    zero_code, _ = dac.code_for(pin.index, 0.0)
                     code = np.broadcast_to(np.asarray(dac.read_back_counts(pin.index)), (B,))
-                    zero = np.broadcast_to(np.asarray(zero), (B,))
+                    zero = np.broadcast_to(np.asarray(zero_code), (B,))
                     for b in np.flatnonzero(code != zero).tolist():
                         per_lane[b].append(f"{j.name}: DAC {pin} output code {int(code[b]):#05x}, not the 0 V code "
                                            f"{int(zero[b]):#05x}")
@@ -898,11 +904,11 @@ class JointIO:
             # Not read back: a line stuck at either level gives no edges, which is what counts.
             self._watchdog_pio.set_line(WATCHDOG_NET, False, verify=False)
 
-    def _set_hbridge(self, j, duty: float) -> None:
+    def _set_hbridge(self, j, duty: float | np.ndarray) -> None:
         pwm = j.wiring.get("pwm")
         if pwm is None:
             return
-        drv = self.pio[pwm.board]
+        drv: Any = self.pio[pwm.board]  # (in lanes a lane driver, which takes a duty per lane)
         direction = j.net("direction") if "direction" in j.wiring else None
         drv.set_pwm(duty, direction_line=direction)
 

@@ -194,7 +194,7 @@ def _worst_lanes(bad: np.ndarray, off: np.ndarray, tol: np.ndarray | float,
     """:func:`_worst` per lane of a lane-major array of ``size`` lanes: which lanes have a joint
     beyond its limit, and per lane the flat index of the one furthest beyond (as ``_worst`` picks it)."""
     rows = bad.reshape(size, -1)
-    hit = rows.any(axis=1)
+    hit = np.asarray(rows.any(axis=1))
     n = rows.shape[1]
     worst = np.argmax(np.where(bad, off - tol, -np.inf).reshape(size, n), axis=1) + np.arange(size) * n
     return hit, worst
@@ -257,6 +257,8 @@ class CrossChecks:
         self._limits_key: tuple[int, ...] = ()
         self._limits: dict[str, np.ndarray] = {}
         self._ratio = np.zeros(n)
+        #: the lanes these checks serve (batched lockstep, :meth:`from_lanes`); 1: one instance
+        self.lane_size = 1
         self.reset()
 
     @classmethod
@@ -276,8 +278,8 @@ class CrossChecks:
                     or (c._last_theta_d is None) != (first._last_theta_d is None):
                 raise NotImplementedError("lanes' cross-checks are not at the same point: they cannot run as lanes")
 
-        def cat(get: Callable[[CrossChecks], np.ndarray]) -> np.ndarray:
-            return np.concatenate([get(c) for c in checks], axis=-1)
+        def cat(values: list[Any]) -> np.ndarray:
+            return np.concatenate(values, axis=-1)
 
         obj = cls.__new__(cls)
         obj.io = io
@@ -287,9 +289,9 @@ class CrossChecks:
         for name in ("pot_rad", "enc_rad", "tach_rad_s", "has_pot", "has_enc", "has_tach", "has_imon", "both",
                      "ref_rad", "stale_rad", "_pot0", "_enc0", "_ring_ref", "_ring_int", "_tach_int", "_last_tach",
                      "_cur_over", "_stale_at", "_stale_count", "_stale_travel"):
-            setattr(obj, name, cat(lambda c, name=name: getattr(c, name)))
+            setattr(obj, name, cat([getattr(c, name) for c in checks]))
         obj.window = first.window
-        obj.defaults = {k: cat(lambda c, k=k: c.defaults[k]) for k in first.defaults}
+        obj.defaults = {k: cat([c.defaults[k] for c in checks]) for k in first.defaults}
         obj._limits_key = ()
         obj._limits = {}
         obj._ratio = np.zeros(obj.n)
@@ -298,9 +300,9 @@ class CrossChecks:
         obj._last_t, obj._tick = first._last_t, first._tick
         obj._cur_history = deque((np.concatenate(rows) for rows in zip(*(c._cur_history for c in checks), strict=True)),
                                  maxlen=first._cur_history.maxlen)
-        obj._last_theta_d = None if first._last_theta_d is None else cat(lambda c: c._last_theta_d)
+        obj._last_theta_d = None if first._last_theta_d is None else cat([c._last_theta_d for c in checks])
         obj._illegal_seen = {}
-        obj.peak_ratio = {k: cat(lambda c, k=k: c.peak_ratio[k]) for k in first.peak_ratio}
+        obj.peak_ratio = {k: cat([c.peak_ratio[k] for c in checks]) for k in first.peak_ratio}
         obj.lane_size = size
         return obj
 
@@ -522,7 +524,8 @@ class CrossChecks:
         if flags is None or len(flags) != self.n or not flags.any():
             return []
         hit = np.asarray(flags, bool).reshape(self.lane_size, -1)
-        return [("encoder_illegal", hit.any(axis=1), np.argmax(hit, axis=1) + np.arange(self.lane_size) * hit.shape[1],
+        worst = np.argmax(hit, axis=1) + np.arange(self.lane_size) * hit.shape[1]
+        return [("encoder_illegal", np.asarray(hit.any(axis=1)), worst,
                  lambda i: "the quadrature decoder flagged an illegal transition")]
 
     def _position_lanes(self, m: Any) -> list[LaneTrip]:

@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import numpy as np
 
@@ -202,7 +202,7 @@ class LaneSequencer:
         alpha = np.concatenate([np.broadcast_to(np.asarray(x.alpha_d, float), (n,)) for x in samples])
         done = np.repeat(np.array([bool(x.done) for x in samples]), n)
         self._restack()
-        return Sample(theta, omega, alpha, done)
+        return Sample(theta, omega, alpha, cast(bool, done))  # per joint in lanes (ControlContext takes either)
 
     def _restack(self) -> None:
         """After the lanes' sequencers moved on: which fast path holds until some lane's move ends."""
@@ -221,14 +221,14 @@ class LaneSequencer:
                 c.duration >= 1e-9 for c in currents):  # (shorter: a step, sampled by the lanes)
             n = self.n
             self._q_start = np.concatenate([c.start for c in currents])
-            self._q_delta = np.concatenate([c.delta for c in currents])
+            self._q_delta = np.concatenate([cast(Any, c).delta for c in currents])
             self._done = np.zeros(self._q_start.shape, bool)
             self._q_n = n
             self._mode = "quintic"
 
     def _sample_stay(self, t: float) -> Sample:
         """:meth:`Stay.sample` of every lane at once."""
-        return Sample(self._theta.copy(), self._zeros.copy(), self._zeros.copy(), self._done.copy())
+        return Sample(self._theta.copy(), self._zeros.copy(), self._zeros.copy(), cast(bool, self._done.copy()))
 
     def _sample_quintic(self, t: float) -> Sample:
         """:meth:`Quintic.sample` of every lane at once (t < duration in every lane here)."""
@@ -241,4 +241,4 @@ class LaneSequencer:
         a = 60.0 * u * (1.0 - 3.0 * u + 2.0 * u2)
         n = self._q_n
         return Sample(self._q_start + self._q_delta * np.repeat(p, n), self._q_delta * np.repeat(v / T, n),
-                      self._q_delta * np.repeat(a / (T * T), n), self._done.copy())
+                      self._q_delta * np.repeat(a / (T * T), n), cast(bool, self._done.copy()))

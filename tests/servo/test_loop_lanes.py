@@ -17,8 +17,8 @@ import math
 import numpy as np
 
 from hal.lanes import LaneSet
-from servo.control.objects import build_controller
 from servo.control.normalize import normalizing_chain
+from servo.control.objects import build_controller
 from servo.io import Measurement, SensorResolution
 from servo.loop import Recorder, ServoLoop, WatchdogConfig
 from servo.motion import QuinticMove, WaitMove
@@ -195,7 +195,7 @@ def test_lanes_record_their_scalar_twins_rows_bit_for_bit_and_a_tripping_lane_is
             io.step()
             for b in np.flatnonzero(lanes.alive).tolist():
                 mine, theirs = lane.recorder_for_lane(b), twins[b].recorder
-                for f in Recorder.FIELDS + ("t",):
+                for f in (*Recorder.FIELDS, "t"):
                     assert _bits(mine.data[f][k]) == _bits(theirs.data[f][k]), (k, b, f)
     for lp in twins:
         if lp.enabled:
