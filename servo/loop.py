@@ -30,6 +30,7 @@ from collections import deque
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Any, Protocol
 
 import numpy as np
@@ -52,6 +53,10 @@ from servo.watchdog import CrossChecks, LaneTrip, WatchdogConfig
 __all__ = ["Fault", "LiveCommand", "Recorder", "ServoLoop", "WatchdogConfig"]
 
 LiveCommand = Callable[["ServoLoop"], Any]
+
+
+def _not_in_lanes(name: str, *args: Any, **kwargs: Any) -> Any:
+    raise NotImplementedError(f"ServoLoop.{name} cannot run in lanes (batched lockstep)")
 
 
 class VisionOutcome(Protocol):
@@ -335,6 +340,8 @@ class ServoLoop:
         obj.active_controller = list(first.active_controller)
         obj.blackbox = None
         obj.__dict__["tick"] = obj._tick_lanes  # the lane tick, chosen once (the scalar one is untouched)
+        for name in ("submit", "set_motion", "set_hand", "resume"):  # live changes: not in lanes
+            obj.__dict__[name] = partial(_not_in_lanes, name)
         return obj
 
     def _tick_lanes(self, truth: Mapping[str, np.ndarray] | None = None) -> None:

@@ -174,6 +174,13 @@ def test_lanes_record_their_scalar_twins_rows_bit_for_bit_and_a_tripping_lane_is
     io = SideBySide([lp.io for lp in scalars])
     lane = ServoLoop.from_lanes(scalars, io, lanes)  # type: ignore[arg-type]
     assert lane.n == B * N and lane.tick != scalars[0].tick  # the lane tick, chosen once
+    for live in (lambda: lane.submit(lambda lp: None), lambda: lane.resume()):  # no live changes in lanes
+        try:
+            live()
+        except NotImplementedError:
+            pass
+        else:
+            raise AssertionError("a live change was taken by a lane loop")
     seq = lane.sequencer
     paths = {"quintic": 0, "stay": 0}
     quintic, stay = seq._sample_quintic, seq._sample_stay  # type: ignore[attr-defined]
