@@ -161,6 +161,14 @@ class PotCalibration:
             return float(a[-1] + (volts - v[-1]) * (a[-1] - a[-2]) / (v[-1] - v[-2]))
         return float(np.interp(volts, v, a))
 
+    def angles_of(self, volts: np.ndarray) -> np.ndarray:
+        """:meth:`angle` of each of ``volts`` (the same operations elementwise: the same numbers)."""
+        v, a = self.volts, self.angles
+        x = np.asarray(volts, float)
+        low = a[0] + (x - v[0]) * (a[1] - a[0]) / (v[1] - v[0])
+        high = a[-1] + (x - v[-1]) * (a[-1] - a[-2]) / (v[-1] - v[-2])
+        return np.where(x <= v[0], low, np.where(x >= v[-1], high, np.interp(x, v, a)))
+
 
 def _not_in_lanes(name: str, *args: Any, **kwargs: Any) -> Any:
     raise NotImplementedError(f"JointIO.{name} cannot run in lanes (batched lockstep)")
@@ -317,6 +325,7 @@ class JointIO:
         #: in lanes: per calibrated pot (flat joint index, its table); per H-bridge joint (joint, flat
         #: indices, R, Ke, N, supply over the lanes); per lane what the last stop's read-back could not confirm
         self._lane_pot_cal: list[tuple[int, PotCalibration]] = []
+        self._lane_pot_tables: list[tuple[np.ndarray, PotCalibration]] = []
         self._lane_hbridge: list[tuple[Any, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         self.lane_stop_failures: list[list[str]] = [[]]
         if calibration is not None:
@@ -375,7 +384,15 @@ class JointIO:
         obj.velocity_source = list(first.velocity_source)
         obj._linear_idx = (np.arange(size)[:, None] * n + first._linear_idx[None, :]).reshape(-1)
         obj.lane_scaling = [io.scaling for io in ios]
-        obj._lane_pot_cal = [(b * n + i, cal) for b, io in enumerate(ios) for i, cal in sorted(io.pot_cal.items())]
+        obj._lane_pot_cal, obj._lane_pot_tables = [], []
+        for i in sorted({i for io in ios for i in io.pot_cal}):
+            cals = [io.pot_cal.get(i) for io in ios]
+            first_cal = cals[0]
+            if first_cal is not None and all(c is not None and np.array_equal(c.volts, first_cal.volts)
+                                             and np.array_equal(c.angles, first_cal.angles) for c in cals):
+                obj._lane_pot_tables.append((np.arange(size) * n + i, first_cal))  # one table: every lane at once
+            else:
+                obj._lane_pot_cal += [(b * n + i, c) for b, c in enumerate(cals) if c is not None]
         obj._lane_hbridge = []
         for j in first._hbridge_joints:
             r_ohm, ke, ratio, supply = (np.array([float(getattr(io.scaling[j.index], f)) for io in ios])
@@ -412,6 +429,9 @@ class JointIO:
             rows(pot_v)[:, js] = volts[board][chs].T
         has = self._has_pot
         theta_pot[has] = (pot_v[has] - self._pot_zero_v[has]) / self._pot_v_per_rad[has]
+        for idx, cal in self._lane_pot_tables:
+            if has[idx[0]]:
+                theta_pot[idx] = cal.angles_of(pot_v[idx])
         for i, cal in self._lane_pot_cal:
             if has[i]:
                 theta_pot[i] = cal.angle(float(pot_v[i]))

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from hal.lanes import LaneSet
-from servo.io import JointIO
+from servo.io import JointIO, PotCalibration
 from servo.loop import ServoLoop
 from servo.runner import LockstepRunner
 from vmehil.analysis.rigparams import load_joint
@@ -176,7 +176,9 @@ def _bits(x: Any) -> bytes:
 def test_joint_io_in_lanes_reads_and_commands_each_lane_as_its_own_io_does() -> None:
     """A seeded program of torque writes (saturating ones, a NaN, a non-finite speed, the hand's
     H-bridge changing direction) and reads, then a safe stop: every lane's measurement, commanded
-    current and board state equal its twin rig's, bit for bit."""
+    current and board state equal its twin rig's, bit for bit. Pots calibrated: j1 with one table
+    in every lane (read for all lanes at once; readings inside and beyond its ends), j2 with a
+    table of its own per lane."""
     from vmehil.rig_setup.system import build_emulated_rig
 
     seeds = (1, 2, 5)
@@ -184,6 +186,11 @@ def test_joint_io_in_lanes_reads_and_commands_each_lane_as_its_own_io_does() -> 
     systems = [build_emulated_rig("jpl-arm", seed=s) for s in seeds]
     try:
         B, n = len(seeds), twins[0].io.n
+        for b, s in enumerate((*twins, *systems)):
+            s.io.set_pot_calibration(0, PotCalibration([0.05, 0.058, 0.062, 0.07], [0.0149, 0.0172, 0.0183, 0.0209]))
+            lane_b = b % B
+            s.io.set_pot_calibration(1, PotCalibration([-6.0, -2.0, 3.0, 6.0],
+                                                       [-1.0, -0.1 - 0.01 * lane_b, 1.7, 2.5 + 0.1 * lane_b]))
         lanes = LaneSet(B)
         ios = [s.io for s in systems]
 
@@ -200,6 +207,7 @@ def test_joint_io_in_lanes_reads_and_commands_each_lane_as_its_own_io_does() -> 
             t.io.enable(True)
         io.clear_faults()
         io.enable(True)
+        pot_j1: list[float] = []
         period_ns, delay_ns = round(twins[0].period_s * 1e9), round(twins[0].computation_delay_s * 1e9)
         for k in range(60):
             torque = rng.normal(size=(B, n)) * limit * (3.0 if k % 7 == 0 else 0.5)
@@ -209,6 +217,7 @@ def test_joint_io_in_lanes_reads_and_commands_each_lane_as_its_own_io_does() -> 
                 s.advance_to(k * period_ns)
                 s.sense(k)
             got = io.read()
+            pot_j1.extend(got.pot_v[::n].tolist())
             speed = got.omega.copy()
             if k == 30:
                 speed[n + 6] = np.inf  # lane 1's hand: no back-EMF feed-forward
@@ -229,6 +238,9 @@ def test_joint_io_in_lanes_reads_and_commands_each_lane_as_its_own_io_does() -> 
                 s.advance_to(k * period_ns + delay_ns)
                 s.exchange(k)
         assert lanes.alive.all()
+        # j1's table was read inside and beyond its ends
+        assert min(pot_j1) < 0.05 and max(pot_j1) > 0.07 and any(0.05 < v < 0.07 for v in pot_j1), (
+            min(pot_j1), max(pot_j1))
         assert io.safe_stop() == [] and io.lane_stop_failures == [[], [], []]
         for b, t in enumerate(twins):
             assert t.io.safe_stop() == []
