@@ -250,3 +250,78 @@ def test_joint_io_in_lanes_reads_and_commands_each_lane_as_its_own_io_does() -> 
     finally:
         for s in twins + systems:
             s.close()
+
+
+def _lane_drivers_landed() -> bool:
+    from hal.adc_dac.adc import AdcDriver
+    from hal.adc_dac.dac import DacDriver
+    from hal.pio.pio import PioDriver
+    from hal.quadrature.quad import QuadratureDriver
+
+    return all(hasattr(d, "from_lanes") for d in (AdcDriver, DacDriver, PioDriver, QuadratureDriver))
+
+
+@pytest.mark.skipif(not _lane_drivers_landed(),
+                    reason="the lane drivers (lane-adc, lane-dacpio, lane-quad) have not landed")
+def test_joint_io_over_the_lane_drivers_on_a_crate_of_lanes_equals_each_lanes_own_io() -> None:
+    """JointIO.from_lanes over the drivers' own lane mode on ``Crate.from_lanes``: every lane's
+    readings, commands and bus cycles are its twin rig's; the lane whose hand reverses (its PIO
+    driver would flip the direction line: a cycle the others do not make) is ejected. No lane
+    plant here: the nets hold the power-up readings (the boards' noise still differs per tick)."""
+    from emulators.crate import Crate
+    from vmehil.rig_setup.system import build_emulated_rig
+
+    seeds = (1, 2, 5)
+    twins = [build_emulated_rig("jpl-arm", seed=s) for s in seeds]
+    systems = [build_emulated_rig("jpl-arm", seed=s) for s in seeds]
+    try:
+        B, n = len(seeds), twins[0].io.n
+        lanes = LaneSet(B)
+        crate = Crate.from_lanes([s.crate for s in systems], lanes)
+        ios = [s.io for s in systems]
+
+        def drivers(role: str) -> dict[str, Any]:
+            return {name: type(d).from_lanes([getattr(io, role)[name] for io in ios], crate)
+                    for name, d in getattr(ios[0], role).items()}
+
+        io = JointIO.from_lanes(ios, lanes, adc=drivers("adc"), dac=drivers("dac"), pio=drivers("pio"),
+                                quad=drivers("quad"))
+        rng = np.random.default_rng(7)
+        limit = np.array([0.8, 0.4, 0.25, 0.1, 0.1, 0.05, 1.0])
+        for t in twins:
+            t.io.clear_faults()
+            t.io.write_torque(np.zeros(n))
+            t.io.enable(True)
+        io.clear_faults()
+        io.write_torque(np.zeros(B * n))
+        io.enable(True)
+        period_ns = round(twins[0].period_s * 1e9)
+        for k in range(1, 60):
+            torque = rng.normal(size=(B, n)) * limit * (3.0 if k % 7 == 0 else 0.5)
+            torque[:, 6] = np.abs(torque[:, 6]) * (-1.0 if k >= 40 else 1.0) ** np.arange(B)  # lane 1's hand reverses
+            crate.advance_to(k * period_ns)
+            for t in twins:
+                t.crate.advance_to(k * period_ns)
+            got = io.read()
+            cur = io.write_torque(torque.reshape(-1), got.omega)
+            for b, t in enumerate(twins):
+                m = t.io.read()
+                mine = t.io.write_torque(torque[b], m.omega)
+                if not lanes.alive[b]:
+                    continue
+                for f in ("theta_pot", "theta_enc", "omega_tach", "omega_enc", "current", "pot_v", "fault", "theta",
+                          "omega", "encoder_counts"):
+                    assert _bits(getattr(got, f)[b * n:(b + 1) * n]) == _bits(np.asarray(getattr(m, f), getattr(
+                        got, f).dtype)), (k, b, f)
+                assert _bits(cur[b * n:(b + 1) * n]) == _bits(mine), (k, b)
+        assert lanes.alive.tolist() == [True, False, True] and lanes.first_tick[1] == 0  # (no runner: tick unset)
+        codes = {ch: np.broadcast_to(np.asarray(io.dac["dac0"].read_back_counts(ch)), (B,)) for ch in range(8)}
+        assert io.safe_stop() == [] and io.lane_stop_failures[0] == io.lane_stop_failures[2] == []
+        for b in (0, 2):
+            t = twins[b]
+            assert [int(codes[ch][b]) for ch in range(8)] == [t.io.dac["dac0"].read_back_counts(ch) for ch in range(8)]
+            assert t.io.safe_stop() == []
+        assert crate.counter_snapshot() == twins[0].crate.counter_snapshot() == twins[2].crate.counter_snapshot()
+    finally:
+        for s in twins + systems:
+            s.close()
