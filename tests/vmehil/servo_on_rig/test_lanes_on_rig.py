@@ -119,7 +119,7 @@ def _digest(run: SimRun) -> dict[str, Any]:
     return out
 
 
-@pytest.mark.slow  # ≈ 2 s (8 runs of 1.3 s of jpl-arm)
+@pytest.mark.slow  # ≈ 3 s at rest (8 runs of jpl-arm)
 def test_jpl_arm_sweep_points_in_lanes_equal_their_scalar_runs_and_a_trip_ejects_only_its_lane() -> None:
     points = _points()
     twins = [SimRun(jp, False, SIM) for jp in points]
