@@ -231,14 +231,14 @@ class DacBoard(RegisterBoard):
 
     # --- lanes (batched lockstep, hal.lanes) ---------------------------------------------
     @classmethod
-    def from_lanes(cls, boards: Sequence[DacBoard], crate: Backplane) -> DacBoard:
+    def from_lanes(cls, boards: Sequence[Any], crate: Any) -> DacBoard:
         """One board in lane mode holding the B scalar ``boards`` (lane order), for the lane
         crate ``crate`` (which installs it). Registers, offset/gain errors, rails and output
         volts become lane values; the wiring and the settling time must be the same in every
         lane (one clock: the settling events are the same instants), and so must the strobe
-        history (which lockstep gives). An output still settling has its event queued again on
-        ``crate``'s clock (the scalar board's stays on its own crate's). Makes no bus cycle and
-        drives no net (``Signals.from_lanes`` stacked them)."""
+        history (which lockstep gives; ``Crate.from_lanes`` stacks crates with no event queued,
+        so no output is settling then). Makes no bus cycle and drives no net
+        (``Signals.from_lanes`` stacked them)."""
         first = boards[0]
         for b in boards:
             if type(b) is not cls:
@@ -247,32 +247,20 @@ class DacBoard(RegisterBoard):
                 raise NotImplementedError(f"{b.name}: a board with an injected fault runs scalar")
             if b.wiring != first.wiring or b.settling_time_ns != first.settling_time_ns:
                 raise NotImplementedError(f"{first.name}: the lanes' boards differ in wiring or settling time")
-            if (b._gen, [s[0] for s in b._step], b._pending_settles()) != (
-                    first._gen, [s[0] for s in first._step], first._pending_settles()):
+            if (b._gen, [s[0] for s in b._step]) != (first._gen, [s[0] for s in first._step]):
                 raise NotImplementedError(f"{first.name}: the lanes' boards were strobed at different times")
         obj = cls(first.name, wiring=first.wiring, settling_time_ns=first.settling_time_ns)
         obj.offset_v = tuple(stack([b.offset_v[ch] for b in boards]) for ch in range(DAC_CHANNELS))
         obj.gain_error = tuple(stack([b.gain_error[ch] for b in boards]) for ch in range(DAC_CHANNELS))
         obj.rail_v = stack([b.rail_v for b in boards])
-        obj.regs = RegisterBoard._stack_regs(boards)
+        obj._stack_regs(boards)
         obj._step = [(first._step[ch][0], stack([b._step[ch][1] for b in boards]),
                       stack([b._step[ch][2] for b in boards])) for ch in range(DAC_CHANNELS)]
         obj._gen = list(first._gen)
         obj.updates = stack([b.updates for b in boards])
         for name in ("attach", "_analog", "read_CSR", "write_CSR", "write_UPDATE", "inject"):
             setattr(obj, name, getattr(obj, "_lane_" + name.lstrip("_")))
-        for at_ns, ch in first._pending_settles():  # the scalar boards' events still queued, in order
-            crate.clock.schedule(at_ns, partial(obj._settled, ch, obj._gen[ch]))
         return obj
-
-    def _pending_settles(self) -> list[tuple[int, int]]:
-        """(time, channel) of this board's settling events still queued on its crate's clock
-        (the live ones: a newer strobe supersedes), in the order they will run."""
-        if self.crate is None:
-            return []
-        queued = sorted((at, seq, cb.args[0]) for at, seq, cb in self.crate.clock._queue
-                        if isinstance(cb, partial) and cb.func == self._settled and cb.args[1] == self._gen[cb.args[0]])
-        return [(at, ch) for at, _, ch in queued]
 
     def _lane_attach(self, crate: Backplane) -> None:
         RegisterBoard.attach(self, crate)  # the steps and the nets are the stacked scalar ones

@@ -40,7 +40,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from emulators.board import Backplane, RegisterBoard
+from emulators.board import RegisterBoard
 from hal.lanes import LaneSet, LaneValue, stack
 from hal.vme.registers import Access, Field, Register, RegisterMap
 from hal.vme.types import AddressSpace, Width
@@ -294,7 +294,7 @@ class PioBoard(RegisterBoard):
 
     # --- lanes (batched lockstep, hal.lanes) ---------------------------------------------
     @classmethod
-    def from_lanes(cls, boards: Sequence[PioBoard], crate: Backplane) -> PioBoard:
+    def from_lanes(cls, boards: Sequence[Any], crate: Any) -> PioBoard:
         """One board in lane mode holding the B scalar ``boards`` (lane order), for the lane
         crate ``crate`` (a bus of lanes: ``crate.lanes``), which installs it — and so subscribes
         it to its wired nets on ``crate.signals``, as installing a scalar board does. The wiring
@@ -315,7 +315,7 @@ class PioBoard(RegisterBoard):
                 raise NotImplementedError(f"{first.name}: the lanes' boards are wired differently")
         lines = {f"P{_PORT_LETTERS[port]}{bit}": net for (port, bit), net in first.nets.items()}
         obj = cls(first.name, lines=lines, pwm_net=first.pwm_net)
-        obj.regs = RegisterBoard._stack_regs(boards)
+        obj._stack_regs(boards)
         obj._prev_inputs = [stack([b._prev_inputs[port] for b in boards]) for port in range(3)]
         obj._lanes = lanes
         for name in ("pins", "pin_level", "_drive_outputs", "_resample", "_write_ics", "_update_irq", "duty_fraction",

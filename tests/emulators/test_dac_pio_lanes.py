@@ -13,26 +13,21 @@ nets, returned values, counters and time are compared with its twin's after ever
 from __future__ import annotations
 
 import struct
-from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 import pytest
 
-from emulators.board import RegisterBoard
-from emulators.clock import SimClock
 from emulators.crate import Crate
 from emulators.dac import DacBoard
 from emulators.pio import PioBoard
-from emulators.signals import Signals
 from hal.adc_dac.calibration import Calibration
 from hal.adc_dac.conversions import dac_volts_to_code, dac_volts_to_codes
 from hal.adc_dac.dac import DacDriver
 from hal.amplifiers import duty_for_current, duty_for_current_array
 from hal.lanes import LaneSet, lane, stack
 from hal.pio.pio import LineStuckError, PioDriver
-from hal.vme.types import VmeValueError
 
 B = 4
 PERIOD_NS = 8_000_000  # 125 Hz
@@ -49,68 +44,6 @@ PIO0 = ({f"j{i + 1}.amp_enable": f"PA{i}" for i in range(6)} | {"hand.direction"
         | {f"j{i + 1}.amp_reset": f"PC{i}" for i in range(6)} | {"hand.amp_reset": "PC6", "hand.amp_enable": "PC7"})
 PIO1 = {n: f"PA{i}" for i, n in enumerate(BRAKES)} | {n: f"PB{i}" for i, n in enumerate(TACTILE)}
 PIO0_OUT = [*ENABLES, "hand.direction", "hand.brake", *RESETS, "rig.watchdog"]
-
-
-# --- a stand-in for lane-core's Crate.from_lanes / Signals.from_lanes, until it is on main -----
-class _LaneSignals(Signals):
-    """Nets holding lane values: set as given; listeners told when any lane changed."""
-
-    def set_analog(self, net: str, volts: Any) -> None:
-        self.analog[net] = volts if isinstance(volts, np.ndarray) else float(volts)
-        for cb in self._listeners.get(net, ()):
-            cb(net, volts)
-
-    def set_digital(self, net: str, level: Any) -> None:
-        level = level if isinstance(level, np.ndarray) else bool(level)
-        old = self.digital.get(net)
-        self.digital[net] = level
-        if old is None or bool(np.any(old != level)):
-            self._notify(net, level)
-
-
-class _LaneCrate(Crate):
-    """A crate of lanes: a write's range check per lane (out-of-range live lanes ejected)."""
-
-    def writer(self, address: int, *, space: Any = "A16", width: Any = None) -> Callable[[Any], None]:
-        am, w = self._check(address, space, width, write=True)
-        cycle = self._cycle_for(am, address, w, True)
-
-        def write(value: Any) -> None:
-            bad = (value < 0) | (value > w.max_value)
-            if isinstance(bad, np.ndarray):
-                self.lanes.eject(bad, "a value that does not fit the cycle's width")
-            elif bad:
-                raise VmeValueError(f"value {value} does not fit {w.name}")
-            cycle(value)
-
-        return write
-
-
-def _lane_crate(crates: Sequence[Crate], lanes: LaneSet, *, pending: bool = False) -> Crate:
-    c0 = crates[0]
-    assert all(c.clock.now_ns == c0.clock.now_ns and (pending or not c.clock.pending()) for c in crates)
-    signals = _LaneSignals()
-    for net in c0.signals.analog:
-        signals.analog[net] = stack([c.signals.analog[net] for c in crates])
-    for net in c0.signals.digital:
-        signals.digital[net] = stack([c.signals.digital[net] for c in crates])
-    crate = _LaneCrate(c0.name, clock=SimClock(c0.clock.now_ns), signals=signals)
-    crate.lanes = lanes
-    for s in c0.slots():
-        boards = [c.boards[s.board.name] for c in crates]
-        crate.install(type(s.board).from_lanes(boards, crate), base=s.base, space=s.space, slot=s.board.slot)
-    assert all(c.counters == c0.counters for c in crates)
-    crate.counters = Counter(c0.counters)
-    return crate
-
-
-@pytest.fixture(autouse=True)
-def _stack_regs(monkeypatch: pytest.MonkeyPatch) -> None:
-    if not hasattr(RegisterBoard, "_stack_regs"):  # lane-core's, until it is on main
-        def stack_regs(boards: Sequence[RegisterBoard]) -> dict[str, Any]:
-            return {k: stack([b.regs[k] for b in boards]) for k in boards[0].regs}
-
-        monkeypatch.setattr(RegisterBoard, "_stack_regs", staticmethod(stack_regs), raising=False)
 
 
 # --- the rigs -----------------------------------------------------------------------------------
@@ -250,17 +183,12 @@ class Program:
         rig.crate.advance_to(k * PERIOD_NS + DELAY_NS)
 
 
-def _build(before: Callable[[Rig, int], None] | None = None) -> tuple[Rig, list[Rig], LaneSet]:
-    """The lane rig and the twins; ``before(rig, b)`` runs on each instance before stacking."""
+def _build() -> tuple[Rig, list[Rig], LaneSet]:
+    """The lane rig (four rigs stacked) and the four scalar twins."""
     parts = [Rig(b) for b in range(B)]
     twins = [Rig(b) for b in range(B)]
-    for b, (p, t) in enumerate(zip(parts, twins, strict=True)):
-        if before is not None:
-            before(p, b)
-            before(t, b)
     lanes = LaneSet(B)
-    crate = _lane_crate([p.crate for p in parts], lanes, pending=before is not None)
-    return Rig(-1, crate, parts), twins, lanes
+    return Rig(-1, Crate.from_lanes([p.crate for p in parts], lanes), parts), twins, lanes
 
 
 def _compare_got(lane_rig: Rig, twins: Sequence[Rig], lanes: LaneSet) -> None:
@@ -340,27 +268,11 @@ def test_a_lane_whose_output_line_does_not_follow_its_latch_is_ejected_where_the
         assert_lane_equals_twin(lane_rig, twins[b], b)
 
 
-def test_a_dac_output_still_settling_when_the_boards_are_stacked_settles_in_its_lane_as_in_its_twin() -> None:
-    def strobe(rig: Rig, b: int) -> None:
-        rig.dac.write_many({0: 1.0 + b, 3: -2.0 * b}, update=True)  # settles 10 µs later
-
-    lane_rig, twins, _ = _build(strobe)
-    assert lane_rig.crate.clock.pending() == 2
-    start = twins[0].crate.clock.now_ns  # the strobe was the last cycle
-    for dt in (2_000, 9_000, 9_600, 9_800, 50_000):  # mid-settle, then settled (the nets move)
-        for r in [lane_rig, *twins]:
-            r.crate.advance_to(start + dt)
-        for b, t in enumerate(twins):
-            assert_lane_equals_twin(lane_rig, t, b)
-    assert lane_rig.crate.signals.analog["j1.amp_command"].tolist() == [
-        t.crate.signals.analog["j1.amp_command"] for t in twins]
-
-
 def test_boards_with_an_injected_fault_do_not_stack() -> None:
     parts = [Rig(b) for b in range(2)]
     parts[1].crate.boards["dac0"].inject("dead_channel", channel=3)
     with pytest.raises(NotImplementedError, match="fault"):
-        _lane_crate([p.crate for p in parts], LaneSet(2))
+        Crate.from_lanes([p.crate for p in parts], LaneSet(2))
 
 
 def test_the_array_dac_conversion_gives_the_scalar_codes_bit_for_bit() -> None:
@@ -386,3 +298,17 @@ def test_the_array_duty_for_current_gives_the_scalar_duties_bit_for_bit() -> Non
     got = duty_for_current_array(amps, 0.8, 0.028, omega, 24.0)
     want = [duty_for_current(a, 0.8, 0.028, w, 24.0) for a, w in zip(amps.tolist(), omega.tolist(), strict=True)]
     assert [_bits(d) for d in got.tolist()] == [_bits(d) for d in want]
+
+
+def test_a_net_holding_lanes_set_to_one_level_tells_its_listeners_only_when_some_lane_changes() -> None:
+    from emulators.signals import Signals
+
+    s = Signals.from_lanes([Signals(), Signals(), Signals()])
+    heard: list[Any] = []
+    s.subscribe("fault", lambda net, v: heard.append(v))
+    s.set_digital("fault", np.array([True, False, True]))
+    s.set_digital("fault", False)  # lanes 0 and 2 change
+    s.set_digital("fault", np.array([False, False, False]))  # no lane changes
+    s.set_digital("fault", False)  # no lane changes
+    assert [np.asarray(v).tolist() for v in heard] == [[True, False, True], False]
+    assert s.digital["fault"] is False
