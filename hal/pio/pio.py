@@ -512,8 +512,9 @@ class PioDriver:
             "PWM period is 0 (output held low); pass period_s or call set_pwm_period first"))
         line = direction_line if direction_line is not None else self.pwm_direction_line
         ticks = abs(duty) * self._period_ticks
-        if isinstance(ticks, np.ndarray):  # round() per lane (half to even); a dead lane's NaN: 0
-            ticks = np.rint(np.where(np.isfinite(ticks), ticks, 0.0)).astype(np.int64)
+        if isinstance(ticks, np.ndarray):  # round() per lane (half to even); an ejected lane's NaN: 0
+            with np.errstate(invalid="ignore"):
+                ticks = np.rint(np.where(ticks <= 0xFFFF, ticks, 0.0)).astype(np.int64)
         else:
             ticks = round(ticks)
         if line is None:

@@ -13,6 +13,7 @@ nets, returned values, counters and time are compared with its twin's after ever
 from __future__ import annotations
 
 import struct
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -228,6 +229,28 @@ def test_a_lane_whose_hand_reverses_alone_is_ejected_and_the_others_still_equal_
         _compare_got(lane_rig, twins, lanes)
     assert lanes.alive.tolist() == [True, True, False, True]
     assert "hand.direction" in lanes.reasons[2] and "reverses" in lanes.reasons[2]
+
+
+def test_a_lane_left_with_garbage_raises_and_warns_nothing_and_the_others_still_equal_their_twins() -> None:
+    lane_rig, twins, lanes = _build()
+    prog = Program(seed=5)
+    junk = [np.nan, np.inf, -np.inf, 1e300, -1e300, 1e30]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a dead lane's values must not even warn
+        for k in range(16):
+            x = prog.inputs(k, twins)
+            if k >= 4:  # lane 2: NaN at tick 4 (its twin's drivers raise: it is left), then any junk
+                x["duty"] = duty_for_current_array(x["amps"], 2.0, 0.03, x["omega"] * 50.0, 24.0)
+                x["duty"][2] = junk[k % len(junk)]
+                x["volts"][:, 2] = np.roll(junk, k)
+            prog.watchdog = not prog.watchdog
+            prog._tick(k, lane_rig, x, None)
+            for b, t in enumerate(twins):
+                if b != 2 or k < 4:
+                    prog._tick(k, t, x, b)
+            assert lanes.alive.tolist() == [True, True, k < 4, True]
+            _compare_got(lane_rig, twins, lanes)
+    assert "PWM duty" in lanes.reasons[2]
 
 
 def test_a_lane_whose_dac_command_is_nan_is_ejected_where_the_scalar_driver_raises() -> None:
