@@ -30,7 +30,7 @@ coalesce (the count says how many); the protocol never depends on them.
 from __future__ import annotations
 
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from multiprocessing import resource_tracker, shared_memory
 from typing import Any
 
@@ -287,6 +287,20 @@ class Bit3Board(RegisterBoard):
         crate.install(self.window, base=self.window_base, space=self.window_space)
         if self.poll_period_ns is not None:
             crate.clock.schedule_in(self.poll_period_ns, self._poll_event)
+
+    @classmethod
+    def from_lanes(cls, boards: Sequence[Board], crate: Any) -> Board:
+        """Lane 0's card (with its window) when every lane's card is idle alike: the same
+        registers, link memory and doorbells, no polling (a sweep's run never talks to the
+        vision computer). A card in use has no lane form."""
+        def state(b: Board) -> Any:
+            if not isinstance(b, Bit3Board) or b.poll_period_ns is not None:
+                return None
+            return (dict(b.regs), bytes(b.link.mem), b.link.bells_to_local(), b.link.bells_to_remote(), b._bells_seen)
+
+        if state(boards[0]) is None:
+            raise NotImplementedError(f"board {boards[0].name!r} (bit3) polls its link: no lane form")
+        return cls._adopt_passive(boards, state)
 
     def _poll_event(self) -> None:
         self.poll_doorbell()

@@ -7,7 +7,7 @@ A board decodes ``size`` bytes from its base address. The crate converts the boa
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any, ClassVar, Protocol
 
@@ -16,6 +16,7 @@ from emulators.errors import EmulatorError
 from emulators.faults import FaultInjectable
 from emulators.irq import IrqController
 from emulators.signals import Signals
+from hal.lanes import stack
 from hal.vme.errors import BusErrorCause
 from hal.vme.registers import Register, RegisterMap
 from hal.vme.types import AddressSpace, Width
@@ -104,6 +105,25 @@ class Board(FaultInjectable):
         """A short description for ``vmehil crate list``."""
         return {"type": self.TYPE}
 
+    # --- lanes (batched lockstep: hal.lanes) ---------------------------------------------
+    @classmethod
+    def from_lanes(cls, boards: Sequence[Board], crate: Any) -> Board:
+        """One board of ``crate`` (a crate of lanes, :meth:`emulators.crate.Crate.from_lanes`)
+        holding the state of ``boards``, the same board of B scalar crates in lane order. A board
+        type that has no lane form says so here: its rigs run one instance at a time."""
+        raise NotImplementedError(f"board type {cls.TYPE!r} ({cls.__name__}) has no lane form")
+
+    @classmethod
+    def _adopt_passive(cls, boards: Sequence[Board], state: Callable[[Board], Any]) -> Board:
+        """The lane form of a board nobody accesses in a tick (a RAM, an idle link card): lane 0's
+        board itself, when every lane's board is in the same ``state`` (else no lane form: a lane
+        value written to it later would have nowhere to go)."""
+        first = state(boards[0])
+        if any(b.faulted for b in boards) or any(state(b) != first for b in boards[1:]):
+            raise NotImplementedError(f"board {boards[0].name!r} ({cls.TYPE}) differs between instances "
+                                      "or has a fault: no lane form")
+        return boards[0]
+
     # --- interrupts ----------------------------------------------------------------------
     def request_irq(self, level: int, vector: int) -> None:
         """Assert IRQ ``level`` (1..7); answer IACK with ``vector``."""
@@ -160,6 +180,11 @@ class RegisterBoard(Board):
     def reset(self) -> None:
         super().reset()
         self.regs = {r.name: r.reset for r in self.REGMAP.registers}
+
+    def _stack_regs(self, boards: Sequence[RegisterBoard]) -> None:
+        """This (lane) board's registers: each register of ``boards`` stacked over the lanes
+        (:func:`hal.lanes.stack`: a plain int where every lane holds the same)."""
+        self.regs = {name: stack([b.regs[name] for b in boards]) for name in boards[0].regs}
 
     def _hook(self, prefix: str, name: str) -> Any:
         """The bound ``read_<REG>``/``write_<REG>`` hook (or None), looked up once per board

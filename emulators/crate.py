@@ -9,15 +9,18 @@ that takes interrupts between instructions.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
+
+import numpy as np
 
 from emulators.board import Board, BoardAccessError
 from emulators.clock import SimClock, seconds_to_ns
 from emulators.irq import IrqController
 from emulators.signals import Signals
+from hal.lanes import LaneSet
 from hal.vme.bus import SpaceLike, VmeBus
 from hal.vme.errors import BusError, BusErrorCause, VmeConfigError
 from hal.vme.types import AddressModifier, AddressSpace, VmeValueError, Width
@@ -75,6 +78,39 @@ class Crate(VmeBus):
         self._generation = 0
         self._tap: CycleTap | None = None
         self.irq = IrqController(self.irq_handler, on_iack=self._count_iack)
+
+    # --- lanes (batched lockstep: hal.lanes) ---------------------------------------------
+    @classmethod
+    def from_lanes(cls, crates: Sequence[Crate], lanes: LaneSet) -> Crate:
+        """One crate of ``lanes`` holding B scalar crates built alike (lane order): their boards
+        stacked (each board type's ``from_lanes``, installed where it was), their nets stacked
+        (:meth:`Signals.from_lanes`), their common time. The B crates must be at the same point of
+        the same program: the same layout, time, counters, no event queued, no interrupt pending
+        or handled, no trace tap (:class:`NotImplementedError` names what differs). The B crates
+        are not used afterwards (a board may be taken over as it is: ``Board._adopt_passive``)."""
+        c0 = crates[0]
+        if len(crates) != lanes.size:
+            raise ValueError(f"{len(crates)} crates for {lanes.size} lanes")
+        layout = [(s.board.name, s.space, s.base, s.board.slot) for s in c0._slots]
+        for c in crates:
+            if [(s.board.name, s.space, s.base, s.board.slot) for s in c._slots] != layout:
+                raise NotImplementedError(f"crate {c.name}: the instances' crates differ in their boards")
+            if c.clock.now_ns != c0.clock.now_ns or c.clock.pending():
+                raise NotImplementedError(f"crate {c.name}: the instances are at different times or have events queued")
+            if c.counters != c0.counters:
+                raise NotImplementedError(f"crate {c.name}: the instances made different bus cycles in their set-up")
+            if c.irq.highest or c.irq.ipl or c._irq_handlers or c._tap is not None:
+                raise NotImplementedError(f"crate {c.name}: interrupts or a cycle trace in use: no lane form")
+        crate = cls(c0.name, bus_timeout_ns=c0.bus_timeout_ns, clock=SimClock(c0.clock.now_ns),
+                    signals=Signals.from_lanes([c.signals for c in crates]))
+        crate.lanes = lanes
+        crate.counters.update(c0.counters)
+        for name, space, base, slot in layout:
+            if name in crate.boards:
+                continue  # installed by another board's attach (a BIT3 card's window)
+            board = type(c0.boards[name]).from_lanes([c.boards[name] for c in crates], crate)
+            crate.install(board, base=base, space=space, slot=slot)
+        return crate
 
     # --- configuration -------------------------------------------------------------------
     def install(self, board: Board, *, base: int, space: AddressSpace | str, slot: int | None = None) -> Board:
@@ -177,7 +213,10 @@ class Crate(VmeBus):
     def writer(self, address: int, *, space: SpaceLike = AddressSpace.A16,
                width: Width = Width.D16) -> Callable[[int], None]:
         am, w = self._check(address, space, width, write=True)
-        c = partial(_checked_value, self._cycle_for(am, address, w, True), w, w.max_value)
+        if self.lanes is not None:
+            c = partial(_checked_lane_value, self._cycle_for(am, address, w, True), w, w.max_value, self.lanes)
+        else:
+            c = partial(_checked_value, self._cycle_for(am, address, w, True), w, w.max_value)
         if type(width) is Width:
             self._remember(self._writes, (address, space, width), c)
         return c
@@ -396,4 +435,25 @@ def _checked_value(cycle: Callable[[int], None], width: Width, max_value: int, v
     v = int(value)
     if not 0 <= v <= max_value:
         raise VmeValueError(f"value {value} does not fit {width.name} (0..{max_value})")
+    cycle(v)
+
+
+def _checked_lane_value(cycle: Callable[[Any], None], width: Width, max_value: int, lanes: LaneSet,
+                        value: Any) -> None:
+    """:func:`_checked_value` on a crate of lanes: a lane array is checked lane by lane as
+    ``int(value)`` and the range check would check it, and the live lanes where that raises are
+    left (:meth:`LaneSet.eject`); the cycle carries int64 lanes (0 in lanes that failed)."""
+    if type(value) is not np.ndarray:
+        _checked_value(cycle, width, max_value, value)
+        return
+    v = value
+    with np.errstate(invalid="ignore"):
+        if v.dtype.kind == "f":  # int() truncates toward zero; it raises on NaN and inf
+            bad = ~np.isfinite(v) | (v <= -1.0) | (v >= max_value + 1.0)
+        else:
+            bad = (v < 0) | (v > max_value)
+        v = v.astype(np.int64)
+    if bad.any():
+        lanes.eject(bad, f"VmeValueError: value does not fit {width.name} (0..{max_value})")
+        v = np.where(bad, 0, v)
     cycle(v)

@@ -7,6 +7,7 @@ window. The storage may be any writable buffer (``bytearray`` or a
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 from emulators.board import Board
@@ -30,6 +31,11 @@ class RamBoard(Board):
 
     def bus_write(self, offset: int, width: Width, value: int) -> None:
         self.mem[offset : offset + int(width)] = value.to_bytes(int(width), "big")
+
+    @classmethod
+    def from_lanes(cls, boards: Sequence[Board], crate: Any) -> Board:
+        """Lane 0's RAM when every lane's holds the same bytes (no tick accesses a RAM)."""
+        return cls._adopt_passive(boards, lambda b: bytes(b.mem) if isinstance(b, RamBoard) else None)
 
     def describe(self) -> dict[str, Any]:
         return {"type": self.TYPE, "size": self.size}

@@ -12,9 +12,13 @@ carry :class:`QuadratureEvents` summaries of what the decoder's input sampler sa
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
+
+import numpy as np
+
+from hal.lanes import stack
 
 
 @dataclass(frozen=True)
@@ -47,6 +51,21 @@ class Signals:
         self.digital: dict[str, bool] = {}
         self._listeners: dict[str, list[Listener]] = defaultdict(list)
 
+    @classmethod
+    def from_lanes(cls, lanes: Sequence[Signals]) -> Signals:
+        """The nets of B instances (lane order) as one panel: each net's values stacked
+        (:func:`hal.lanes.stack`: a plain value where every lane holds the same, else a lane
+        array). No listener is carried over: the lane boards subscribe again when installed."""
+        s = cls()
+        first = lanes[0]
+        for attr in ("analog", "digital"):
+            nets = getattr(first, attr)
+            for other in lanes[1:]:
+                if getattr(other, attr).keys() != nets.keys():
+                    raise NotImplementedError(f"the instances' {attr} nets differ")
+            getattr(s, attr).update({net: stack([getattr(x, attr)[net] for x in lanes]) for net in nets})
+        return s
+
     def subscribe(self, net: str, listener: Listener) -> None:
         """Call ``listener(net, value)`` whenever ``net`` is set or published."""
         self._listeners[net].append(listener)
@@ -56,7 +75,8 @@ class Signals:
             cb(net, value)
 
     def set_analog(self, net: str, volts: float) -> None:
-        self.analog[net] = float(volts)
+        # a lane array (batched lockstep, hal.lanes) is kept as float64 lanes
+        self.analog[net] = float(volts) if type(volts) is not np.ndarray else volts.astype(float)
         listeners = self._listeners.get(net)  # most analog nets have none (the ADC samples them)
         if listeners:
             for cb in listeners:
@@ -72,11 +92,24 @@ class Signals:
         return self.analog.get(net, default)
 
     def set_digital(self, net: str, level: bool) -> None:
+        if type(level) is np.ndarray:
+            self._set_digital_lanes(net, level)
+            return
         level = bool(level)
         changed = self.digital.get(net) != level
         self.digital[net] = level
         if changed:
             self._notify(net, level)
+
+    def _set_digital_lanes(self, net: str, level: np.ndarray) -> None:
+        """:meth:`set_digital` of a lane array of levels: the listeners hear of it when any lane
+        changed (with the lanes' levels)."""
+        lv = level.astype(bool)
+        old = self.digital.get(net)
+        changed = old is None or not np.array_equal(np.broadcast_to(old, lv.shape), lv)
+        self.digital[net] = lv  # type: ignore[assignment]
+        if changed:
+            self._notify(net, lv)
 
     def get_digital(self, net: str, default: bool = False) -> bool:
         return self.digital.get(net, default)
