@@ -40,7 +40,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from emulators.board import Backplane, RegisterBoard
+from emulators.board import Backplane, Board, RegisterBoard
 from emulators.board_factory import BuildContext
 from emulators.rng import rng_for
 from hal.config import ConfigTable
@@ -162,11 +162,14 @@ class AdcBoard(RegisterBoard):
         super().__init__(name)
 
     @classmethod
-    def from_lanes(cls, boards: Sequence[AdcBoard], crate: Backplane) -> AdcBoard:
-        """One board of lanes holding ``boards`` (one per lane of ``crate``, in lane order; built
-        and set up as scalar runs build them): registers, parameters and noise streams stacked, for
-        ``crate`` to install at the boards' address (:mod:`emulators.adc_lanes`)."""
-        return _stack_adc_boards(cls, boards, crate)
+    def from_lanes(cls, boards: Sequence[Board], crate: Any) -> AdcBoard:
+        """One board of lanes holding ``boards`` (the same ADC of B instances built and set up as
+        scalar runs build them, in lane order): registers, parameters and noise streams stacked,
+        for ``crate`` (a crate of lanes) to install where they were (the section "lanes" below)."""
+        adcs = [b for b in boards if type(b) is cls]
+        if len(adcs) != len(boards):
+            raise NotImplementedError(f"{boards[0].name}: other board types cannot stack into one {cls.__name__}")
+        return _stack_adc_boards(cls, adcs, crate)
 
     # --- power-up / reset ---------------------------------------------------------------
     def reset(self) -> None:
@@ -549,8 +552,6 @@ def _stack_adc_boards(cls: type[AdcBoard], boards: Sequence[AdcBoard], crate: Ba
         raise ValueError(f"{len(boards)} ADC boards for a crate of {lanes.size} lanes")
     first = boards[0]
     for b in boards:
-        if type(b) is not cls:
-            raise NotImplementedError(f"{b.name}: a {type(b).__name__} is not a {cls.__name__}: they cannot stack")
         if b.faulted:
             raise NotImplementedError(f"{b.name}: an ADC with a fault armed cannot run in lanes (faults: scalar)")
         if b._busy or b._irq_level:
@@ -563,7 +564,7 @@ def _stack_adc_boards(cls: type[AdcBoard], boards: Sequence[AdcBoard], crate: Ba
         if [s[0] for s in b._noise_specs if s] != [s[0] for s in first._noise_specs if s]:
             raise NotImplementedError(f"{b.name}: ADCs whose switching noise reads different nets cannot run in lanes")
     board = cls(first.name, wiring=first.wiring, conversion_time_ns=first.conversion_time_ns)
-    board.regs = {name: stack([b.regs[name] for b in boards]) for name in first.regs}
+    board._stack_regs(boards)
     board.noise_rms_v = stack([b.noise_rms_v for b in boards])
     board.offset_v = tuple(stack([b.offset_v[ch] for b in boards]) for ch in range(ADC_CHANNELS))
     board.gain_error = tuple(stack([b.gain_error[ch] for b in boards]) for ch in range(ADC_CHANNELS))
