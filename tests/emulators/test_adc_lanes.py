@@ -121,7 +121,8 @@ def _nets(rng: np.random.Generator, names: list[str], tick: int) -> list[dict[st
     return out
 
 
-def test_adc_lanes_equal_their_scalar_twins_through_the_servo_scans_and_a_nan_lane_is_ejected() -> None:
+@pytest.mark.filterwarnings("error")  # a dead lane's garbage must not even warn
+def test_adc_lanes_equal_their_scalar_twins_through_the_servo_scans_and_bad_inputs_eject_their_lane() -> None:
     assert LAST == {"adc0": 13, "adc1": 6}  # pots 0..6, tachs 8..13; current monitors 0..6
     twins = [Rack(s, b) for b, s in enumerate(SEEDS)]
     lc, drivers = _stacked([Rack(s, b) for b, s in enumerate(SEEDS)])
@@ -131,13 +132,16 @@ def test_adc_lanes_equal_their_scalar_twins_through_the_servo_scans_and_a_nan_la
     names = twins[0].nets()
     for b in range(B):
         _assert_lane_is_twin(lc, twins, b)
-    nan_lane, nan_tick = 2, 31
+    nan_lane, nan_tick = 2, 31  # the scalar run's quantizer raises ValueError (NaN)
+    inf_lane, inf_tick = 3, 47  # the scalar run's math.floor raises OverflowError (inf)
     t = lc.clock.now_ns
     for tick in range(60):
         t += TICK_NS
         values = _nets(rng, names, tick)
         if tick >= nan_tick:
             values[nan_lane]["j4.pot"] = float("nan")  # adc0 channel 3
+        if tick >= inf_tick:
+            values[inf_lane]["j2.tach"] = float("inf")  # adc0 channel 9
         for net in values[0]:
             lc.signals.analog[net] = stack([values[b][net] for b in range(B)])
         lc.advance_to(t)
@@ -154,6 +158,11 @@ def test_adc_lanes_equal_their_scalar_twins_through_the_servo_scans_and_a_nan_la
                     twins[b].adc["adc0"].scan(LAST["adc0"], gain)
                 assert not lanes.alive[b] and "NaN" in lanes.reasons[b]
                 continue
+            if tick >= inf_tick and b == inf_lane:
+                with pytest.raises(OverflowError):
+                    twins[b].adc["adc0"].scan(LAST["adc0"], gain)
+                assert not lanes.alive[b] and "float range" in lanes.reasons[b]
+                continue
             assert _same_bits(volts[:, b], twins[b].adc["adc0"].scan(LAST["adc0"], gain)), (tick, b)
         followed = [b for b in range(B) if lanes.alive[b]]
         if tick % 4 == 1:  # every channel of adc1 (references, DAC loopback), raw codes
@@ -166,8 +175,8 @@ def test_adc_lanes_equal_their_scalar_twins_through_the_servo_scans_and_a_nan_la
             assert _same_bits(volts[:, b], twins[b].adc["adc1"].scan(LAST["adc1"])), (tick, b)
         for b in followed:
             _assert_lane_is_twin(lc, twins, b)
-    assert list(lanes.alive) == [True, True, False, True]
-    assert set(lanes.reasons) == {nan_lane}
+    assert list(lanes.alive) == [True, True, False, False]
+    assert set(lanes.reasons) == {nan_lane, inf_lane}
     adc0 = lc.boards["adc0"]
     assert isinstance(adc0, AdcBoard) and adc0._lanes is not None
     assert isinstance(adc0._lanes.next, np.ndarray), "lanes that drew at different samples keep their own index"
