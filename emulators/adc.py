@@ -590,6 +590,8 @@ class _AdcLanes:
         self.board, self.lanes, self.n = board, lanes, n
         # the scalar expressions of _Conversion.sample, evaluated per lane in Python (same bits)
         self.var0 = np.array([b.noise_rms_v**2 for b in boards], dtype=float)
+        #: every lane has noise of its own (σ > 0 at every sample): every lane draws at every sample
+        self.always_draw = bool((self.var0 > 0).all())
         self.gain1 = tuple(stack([1.0 + b.gain_error[ch] for b in boards]) for ch in range(ADC_CHANNELS))
         self.offset_v = tuple(stack([b.offset_v[ch] for b in boards]) for ch in range(ADC_CHANNELS))
         #: the switching-noise sources: (nets, level² per lane); a lane's scalar source returned
@@ -628,10 +630,11 @@ class _AdcLanes:
                 on: Any = False
                 for name in nets:
                     on = on | (analog.get(name, 0.0) > 0.0)
-                var = var + np.where(on, level_sq, 0.0)
+                if on is not False:  # no lane's bridge switching: the scalar sources added 0.0
+                    var = var + level_sq * on  # level² · 1.0 or · 0.0: the scalar's level² or 0.0², exactly
             sigma = np.sqrt(var)
             draw = sigma > 0
-            if draw.all():
+            if self.always_draw or draw.all():
                 v = v + sigma * self._normals_all()
             elif draw.any():
                 v = np.where(draw, v + sigma * self._normals_some(draw), v)
