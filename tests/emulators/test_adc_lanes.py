@@ -1,8 +1,8 @@
 """The reference ADC board and its driver in lanes (issue #34): B = 4 jpl-arm racks' ADCs stacked
 (``Crate.from_lanes``, ``AdcBoard.from_lanes``, ``AdcDriver.from_lanes``), driven through the servo
 tick's scans next to 4 scalar twins built the same way; every lane must equal its twin bit for bit
-(codes, volts, registers, noise stream, clock); a lane with a NaN input is ejected and the others
-still equal their twins.
+(codes, volts, registers, noise stream, clock, bus counters); a lane whose input is NaN or inf
+(its scalar run raises there) is ejected and the others still equal their twins.
 
 Each instance's crate holds the rig file's two ADC boards only (as ``build_emulated_rig`` builds
 them: wiring, noise, references, the H-bridge switching noise), and its ADC drivers are built as
@@ -46,7 +46,11 @@ class Rack:
         self.crate = build_crate(ConfigTable(table.data, table.source), seed=seed)
         publish_references(self.crate, SPEC)
         _couple_hbridge_noise(self.crate, SPEC)
-        self.boards = {name: self.crate.boards[name] for name in ADCS}
+        self.boards: dict[str, AdcBoard] = {}
+        for name in ADCS:
+            board = self.crate.boards[name]
+            assert isinstance(board, AdcBoard)
+            self.boards[name] = board
         self.adc = {name: AdcDriver(self.crate, bd.base, space=bd.space) for name, bd in self.boards.items()}
         for net in self.nets():
             self.crate.signals.set_analog(net, 0.0)  # every wired net exists from the start
@@ -55,13 +59,12 @@ class Rack:
             self.set_up(b)
 
     def nets(self) -> list[str]:
-        return sorted({n for bd in self.boards.values() for n in bd.wiring.values()} | {PWM})  # type: ignore[attr-defined]
+        return sorted({n for bd in self.boards.values() for n in bd.wiring.values()} | {PWM})
 
     def vary(self, b: int) -> None:
         """Lane ``b``'s own electronics: noise, offset and gain errors, a second switching-noise
         source of its own level, its own ADC calibration."""
         adc0, adc1 = (self.boards[n] for n in ADCS)
-        assert isinstance(adc0, AdcBoard) and isinstance(adc1, AdcBoard)
         adc0.noise_rms_v = (0.001, 0.0, 0.003, 0.001)[b]  # lane 1: noise only while the bridge switches
         adc1.noise_rms_v = (0.0, 0.0, 0.002, 0.0)[b]  # adc1 of lanes 0, 1, 3: no draw while it is off
         if b == 3:
@@ -70,7 +73,6 @@ class Rack:
         adc0.add_switching_noise([PWM, "j1.amp_command"], (0.01, 0.02, 0.0, 0.005)[b])
         self.adc["adc0"].calibration = Calibration(tuple(0.001 * b * (ch % 3) for ch in range(16)),
                                                    tuple(1.0 + 0.0007 * b * (ch % 4) for ch in range(16)))
-
 
     def set_up(self, b: int) -> None:
         """Scans before the batch takes over, with the bridge switching in lane 1 only: the lanes
