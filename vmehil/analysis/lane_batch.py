@@ -35,10 +35,11 @@ class LaneReport:
                 "rerun": {str(b): {"reason": r, "tick": self.ejected_tick.get(b)} for b, r in self.ejected.items()}}
 
 
-def stack_runs(runs: Sequence[Any], lanes: LaneSet) -> tuple[Any, Any]:
-    """The lane rig and the lane servo loop of ``runs`` (built, not yet ticked), or
+def stack_runs(runs: Sequence[Any], lanes: LaneSet) -> tuple[Any, Any, Any]:
+    """The lane rig, servo loop and runner of ``runs`` (built, not yet ticked), or
     :class:`NotImplementedError` saying why they have no lane form."""
     from servo.loop import ServoLoop
+    from servo.runner import LockstepRunner
     from vmehil.rig_setup.lane_rig import stack_rigs
 
     r0 = runs[0]
@@ -51,7 +52,8 @@ def stack_runs(runs: Sequence[Any], lanes: LaneSet) -> tuple[Any, Any]:
             raise NotImplementedError("an instance has per-tick hooks")
     rig = stack_rigs([r.system for r in runs], lanes)
     loop = ServoLoop.from_lanes([r.loop for r in runs], io=rig.io, lanes=lanes)
-    return rig, loop
+    runner = LockstepRunner.from_lanes([r.runner for r in runs], plant=rig, loop=loop)
+    return rig, loop, runner
 
 
 def simulate_lanes(runs: Sequence[Any], *, traces: bool = False, stop: Callable[[], bool] | None = None,
@@ -62,11 +64,8 @@ def simulate_lanes(runs: Sequence[Any], *, traces: bool = False, stop: Callable[
     Raises :class:`NotImplementedError` before any tick when they have no lane form (the caller
     then runs them as scalar instances: :func:`vmehil.analysis.batch.simulate_batch`); the runs
     are spent either way (a board may have been taken over: run ``fresh()`` copies)."""
-    from servo.runner import LockstepRunner
-
     lanes = LaneSet(len(runs))
-    rig, loop = stack_runs(runs, lanes)
-    runner = LockstepRunner(rig, loop)
+    _rig, loop, runner = stack_runs(runs, lanes)
     n = runs[0].n_ticks
 
     def tick_done(_loop: Any) -> None:
@@ -86,7 +85,7 @@ def simulate_lanes(runs: Sequence[Any], *, traces: bool = False, stop: Callable[
     out: list[dict[str, Any] | None] = [None] * len(runs)
     for b, r in enumerate(runs):
         if lanes.alive[b] and loop.fault is None:
-            loop.lane_into(b, r.loop)
+            loop.write_lane(b, r.loop)
             out[b] = r.figures(r.summarize(), traces=traces)
     for b in range(len(runs)):
         if out[b] is not None:

@@ -10,18 +10,14 @@ remote plant); the batch then runs its instances one at a time.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
-
-import numpy as np
 
 from emulators.crate import Crate
 from emulators.harness import Harness, InProcessLink
 from emulators.plant import Plant
 from hal.lanes import LaneSet
 from servo.io import JointIO
-from servo.joint_groups import rig_units
-from servo.rig import RigSpec
 from vmehil.rig_setup.system import EmulatedRig
 
 
@@ -37,7 +33,6 @@ def stack_rigs(systems: Sequence[EmulatedRig], lanes: LaneSet) -> EmulatedRig:
         if s.plant is None or not isinstance(s.link, InProcessLink):
             raise NotImplementedError("a plant out of process (--plant can) has no lane form")
     crate = Crate.from_lanes([s.crate for s in systems], lanes)
-    _couple_hbridge_noise_lanes(crate, s0.rig)
     plant = Plant.from_lanes([s.plant for s in systems if s.plant is not None], lanes)
     link = InProcessLink(plant, codec=s0.link.codec)  # type: ignore[attr-defined]
     harness = Harness.from_lanes([s.harness for s in systems], signals=crate.signals, link=link)
@@ -53,37 +48,3 @@ def stack_rigs(systems: Sequence[EmulatedRig], lanes: LaneSet) -> EmulatedRig:
     rig = EmulatedRig(s0.rig, crate, plant, link, harness, io, s0.params, s0.seed)
     rig.late_exchanges = s0.late_exchanges
     return rig
-
-
-def _couple_hbridge_noise_lanes(crate: Crate, spec: RigSpec) -> None:
-    """:func:`vmehil.rig_setup.system._couple_hbridge_noise` for a crate of lanes: the same noise
-    level where a bridge drives, per lane (each lane's PWM duty net). The boards' noise sources
-    are made again here: the scalar boards' read their own crates' nets."""
-    level = spec.table.table("rig", {}).get_float("hbridge_noise_v", 0.0, min=0.0)
-    for b in crate.boards.values():
-        if hasattr(b, "_noise_sources"):
-            b._noise_sources = []
-    bridges = [j for j in spec.joints if "pwm" in j.wiring]
-    if level <= 0.0 or not bridges:
-        return
-    units = rig_units(spec)
-    reach: dict[str, list[str]] = {}
-    for j in bridges:
-        boards = next((u.boards for u in units if j.index in u.indices), tuple(crate.boards))
-        for name in boards:
-            reach.setdefault(name, []).append(j.net("pwm"))
-    analog = crate.signals.analog
-
-    def noise_of(nets: list[str]) -> Callable[[], Any]:
-        def noise() -> Any:
-            # the scalar source: ``level`` when any of the bridges drives (duty > 0), else 0.0
-            on: Any = False
-            for n in nets:
-                on = on | (np.asarray(analog.get(n, 0.0)) > 0.0)
-            return np.where(on, level, 0.0) if isinstance(on, np.ndarray) and on.ndim else (level if on else 0.0)
-        return noise
-
-    for name, nets in reach.items():
-        add = getattr(crate.boards.get(name), "add_noise_source", None)
-        if add is not None:
-            add(noise_of(nets))
