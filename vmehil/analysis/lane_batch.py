@@ -29,9 +29,11 @@ class LaneReport:
     ejected: dict[int, str] = field(default_factory=dict)
     ejected_tick: dict[int, int] = field(default_factory=dict)
     vector_ticks: int = 0
+    #: why the batch ran as scalar instances instead (``None``: it ran as lanes)
+    scalar_reason: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
-        return {"lanes": self.size, "vector_ticks": self.vector_ticks,
+        return {"lanes": self.size, "vector_ticks": self.vector_ticks, "scalar_reason": self.scalar_reason,
                 "rerun": {str(b): {"reason": r, "tick": self.ejected_tick.get(b)} for b, r in self.ejected.items()}}
 
 
@@ -66,6 +68,18 @@ def simulate_lanes(runs: Sequence[Any], *, traces: bool = False, stop: Callable[
     are spent either way (a board may have been taken over: run ``fresh()`` copies)."""
     lanes = LaneSet(len(runs))
     _rig, loop, runner = stack_runs(runs, lanes)
+    try:
+        return _tick_lanes(runs, lanes, loop, runner, traces=traces, stop=stop, progress=progress,
+                           report=report)
+    finally:
+        for r in runs:
+            with contextlib.suppress(Exception):
+                r.close()
+
+
+def _tick_lanes(runs: Sequence[Any], lanes: LaneSet, loop: Any, runner: Any, *, traces: bool,
+                stop: Callable[[], bool] | None, progress: Callable[[int, int], None] | None,
+                report: LaneReport | None) -> list[dict[str, Any]]:
     n = runs[0].n_ticks
 
     def tick_done(_loop: Any) -> None:
