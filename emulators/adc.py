@@ -25,6 +25,10 @@ Behaviour (as the real boards of the era: see ``docs/boards/adc.md``):
   strobes and write-1-to-clear flags see zeros (:meth:`AdcBoard._resolve_write`).
 
 Faults: ``stuck_channel(channel, code)``, ``noise_burst(rms_v, channels=None)``.
+
+Lanes (batched lockstep, :mod:`hal.lanes`): :meth:`AdcBoard.from_lanes` stacks the boards of B
+instances into one board whose registers hold a value per lane and whose conversions convert
+every lane, each from its own noise stream (the section "lanes" at the end of this module).
 """
 
 from __future__ import annotations
@@ -34,10 +38,13 @@ from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from typing import Any, ClassVar
 
-from emulators.board import RegisterBoard
+import numpy as np
+
+from emulators.board import Backplane, Board, RegisterBoard
 from emulators.board_factory import BuildContext
 from emulators.rng import rng_for
 from hal.config import ConfigTable
+from hal.lanes import LaneSet, stack
 from hal.vme.registers import Access, Field, Register, RegisterMap
 from hal.vme.types import AddressSpace, Width
 
@@ -111,6 +118,8 @@ class AdcBoard(RegisterBoard):
     TYPE = "adc"
     REGMAP = REGMAP
     irq_release = "rora"
+    #: the per-lane state of a board of lanes (:meth:`from_lanes`); None: one instance
+    _lanes: _AdcLanes | None = None
     FAULTS: ClassVar[dict[str, str]] = {
         "stuck_channel": "channel=N, code=C: channel N always converts to code C (0..0xFFF)",
         "noise_burst": "rms_v=V[, channels=[...]]: extra Gaussian noise (V rms) on all or listed channels",
@@ -144,10 +153,23 @@ class AdcBoard(RegisterBoard):
         self._normals: list[float] = []  # drawn ahead from _rng (see _normal)
         self._normal_next = 0
         self._noise_sources: list[NoiseSource] = []
+        #: what each noise source is, as data (:meth:`add_switching_noise`: its nets and level),
+        #: or None for an opaque ``add_noise_source`` callable (a board with one cannot run in lanes)
+        self._noise_specs: list[tuple[tuple[str, ...], float] | None] = []
         self._gen = 0  # bumped on reset: events of an aborted conversion are ignored
         self._busy = False
         self.conversions = 0  #: number of channel conversions completed (diagnostic)
         super().__init__(name)
+
+    @classmethod
+    def from_lanes(cls, boards: Sequence[Board], crate: Any) -> AdcBoard:
+        """One board of lanes holding ``boards`` (the same ADC of B instances built and set up as
+        scalar runs build them, in lane order): registers, parameters and noise streams stacked,
+        for ``crate`` (a crate of lanes) to install where they were (the section "lanes" below)."""
+        adcs = [b for b in boards if type(b) is cls]
+        if len(adcs) != len(boards):
+            raise NotImplementedError(f"{boards[0].name}: other board types cannot stack into one {cls.__name__}")
+        return _stack_adc_boards(cls, adcs, crate)
 
     # --- power-up / reset ---------------------------------------------------------------
     def reset(self) -> None:
@@ -160,6 +182,26 @@ class AdcBoard(RegisterBoard):
         """Add a noise contributor: ``fn()`` returns extra rms volts at the conversion instant
         (e.g. H-bridge switching noise coupling into the inputs while the bridge runs)."""
         self._noise_sources.append(fn)
+        self._noise_specs.append(None)
+
+    def add_switching_noise(self, nets: Sequence[str], level_v: float) -> None:
+        """Add ``level_v`` rms of noise to every conversion made while any of the analog ``nets``
+        (e.g. H-bridge PWM duty nets) is above 0 V: switching noise coupling into the inputs while
+        a bridge drives. Kept as data too, so that a lane-mode board can rebuild it
+        (:meth:`from_lanes`). Call it once the board is in its crate (it reads the crate's nets)."""
+        if self.crate is None:
+            raise ValueError(f"{self.name}: switching noise reads the crate's nets; install the board first")
+        names, level = tuple(str(n) for n in nets), float(level_v)
+        analog = self.crate.signals.analog  # read directly: called at every conversion
+
+        def noise() -> float:
+            for n in names:
+                if analog.get(n, 0.0) > 0.0:
+                    return level
+            return 0.0
+
+        self._noise_sources.append(noise)
+        self._noise_specs.append((names, level))
 
     def input_volts(self, channel: int) -> float:
         """The noiseless voltage at ``channel``'s input pin now (0 V if unwired)."""
@@ -195,6 +237,14 @@ class AdcBoard(RegisterBoard):
         """Draw the next block of normals; returns the index of the next one (0)."""
         self._normals = self._rng.standard_normal(_NORMAL_BLOCK).tolist()
         return 0
+
+    def noise_state(self, lane: int = 0) -> tuple[Mapping[str, Any], tuple[float, ...]]:
+        """The noise stream where it stands: its generator's state and the normals drawn ahead
+        and not used yet (of ``lane``, on a board of lanes). Two boards with equal states draw the
+        same noise from now on."""
+        if self._lanes is not None:
+            return self._lanes.noise_state(lane)
+        return self._rng.bit_generator.state, tuple(self._normals[self._normal_next:])
 
     def sample(self, channel: int, gain: int, bipolar: bool = True) -> int:
         """Sample-and-hold plus conversion of ``channel`` now at ``gain`` (1, 2, 4 or 8) in the
@@ -314,6 +364,10 @@ class AdcBoard(RegisterBoard):
                 return
             conv.sample()
             clock._now = end  # as the crate moves the time of a cycle that ends before any event
+        self._sequence_done()
+
+    def _sequence_done(self) -> None:
+        """End of the last conversion of a start or scan: DONE, and the interrupt if enabled."""
         self._busy = False
         self.regs["CSR"] |= _BIT["DONE"]
         csr = self.regs["CSR"]
@@ -459,3 +513,257 @@ def adc_factory(name: str, cfg: ConfigTable, ctx: BuildContext) -> AdcBoard:
                                            min=0.1, max=10_000.0) * 1000),
         seed=ctx.seed,
     )
+
+
+# --- lanes: B boards of B instances of a rig in one board (batched lockstep, issue #34) ----------
+# AdcBoard.from_lanes builds an ordinary AdcBoard and gives it an _AdcLanes, which holds what
+# differs per lane and replaces, once, the board's three hooks that branch on a register value or
+# compute a sample (write_CSR, _sequence_done, _sample_code); the scalar code above runs unchanged.
+# * Sequencing is every lane's: the lanes make the same bus cycles at the same simulated times (one
+#   clock), so BUSY, DONE, the scan in progress, the free_until shortcut of _converted and the
+#   conversions counter run the scalar code. Where a register value decides the sequence (a CSR
+#   write's RESET/START/SCAN bits, SCAN_LAST, the end-of-scan interrupt), the live lanes' common
+#   answer is taken and a lane that would have done otherwise is ejected (hal.lanes.LaneSet.decide).
+# * The per-sample arithmetic runs on (B,) arrays (_AdcLanes.sample_code) with _Conversion.sample's
+#   operations in its order: the same IEEE double operations give the same bits (x**2, sqrt,
+#   + - * /, floor are exact in both). A NaN at a lane's input (the scalar run's ValueError) or a
+#   value its math.floor cannot convert (±inf: OverflowError) ejects that lane; the others go on.
+# * Noise: each lane keeps its scalar board's generator and its block of normals drawn ahead, the
+#   blocks as the columns of one (256, B) array, and draws in the scalar order: a lane whose σ is 0
+#   at a sample draws nothing there, as its scalar board; a lane's block is refilled from its own
+#   generator at the sample where its scalar board refills it.
+# * Per-lane parameters (--vary): noise_rms_v, offset_v, gain_error, the switching-noise levels
+#   (add_switching_noise, rebuilt on the lane crate's nets, which may hold a value per lane).
+# Out of scope (NotImplementedError when stacking or converting): armed faults, opaque
+# add_noise_source callables, a conversion in flight, boards differing in wiring or timing.
+#: V₀ and LSB of the quantizer as arrays indexed [bipolar, gain code] (the same floats as _V0_LSB)
+_V0 = np.array([[v0 for v0, _ in row] for row in _V0_LSB])
+_LSB = np.array([[lsb for _, lsb in row] for row in _V0_LSB])
+_START_OR_SCAN = _BIT["START"] | _BIT["SCAN"]
+_IRQ_LEVEL = _F["IRQ_LEVEL"]
+
+
+def _stack_adc_boards(cls: type[AdcBoard], boards: Sequence[AdcBoard], crate: Backplane) -> AdcBoard:
+    """:meth:`AdcBoard.from_lanes`: one board holding ``boards`` (one per lane, in lane order)."""
+    lanes = getattr(crate, "lanes", None)
+    if not isinstance(lanes, LaneSet):
+        raise ValueError("AdcBoard.from_lanes needs a crate of lanes (its .lanes is a hal.lanes.LaneSet)")
+    if len(boards) != lanes.size:
+        raise ValueError(f"{len(boards)} ADC boards for a crate of {lanes.size} lanes")
+    first = boards[0]
+    for b in boards:
+        if b.faulted:
+            raise NotImplementedError(f"{b.name}: an ADC with a fault armed cannot run in lanes (faults: scalar)")
+        if b._busy or b._irq_level:
+            raise NotImplementedError(f"{b.name}: an ADC converting or interrupting cannot be stacked (between ticks)")
+        if (b.name, b.wiring, b.conversion_time_ns) != (first.name, first.wiring, first.conversion_time_ns):
+            raise NotImplementedError(f"{b.name}: ADCs differing in name, wiring or timing cannot run in lanes")
+        if None in b._noise_specs:
+            raise NotImplementedError(f"{b.name}: an opaque add_noise_source callable cannot run in lanes "
+                                      "(add_switching_noise says what a source is)")
+        if [s[0] for s in b._noise_specs if s] != [s[0] for s in first._noise_specs if s]:
+            raise NotImplementedError(f"{b.name}: ADCs whose switching noise reads different nets cannot run in lanes")
+    board = cls(first.name, wiring=first.wiring, conversion_time_ns=first.conversion_time_ns)
+    board._stack_regs(boards)
+    board.noise_rms_v = stack([b.noise_rms_v for b in boards])
+    board.offset_v = tuple(stack([b.offset_v[ch] for b in boards]) for ch in range(ADC_CHANNELS))
+    board.gain_error = tuple(stack([b.gain_error[ch] for b in boards]) for ch in range(ADC_CHANNELS))
+    board.conversions = stack([b.conversions for b in boards])
+    board._gen = first._gen
+    board._noise_specs = list(first._noise_specs)  # the nets; the levels are per lane (_AdcLanes)
+    board._noise_sources = []  # the scalar closures read the scalar crates' nets: _AdcLanes rebuilds them
+    fe = _AdcLanes(board, boards, lanes)
+    board._lanes = fe
+    # the hooks that branch on register values or compute a sample: selected once, here (the
+    # scalar board's code runs unchanged on every other path)
+    board.write_CSR = fe.write_CSR  # type: ignore[method-assign]
+    board._sequence_done = fe.sequence_done  # type: ignore[method-assign]
+    board._sample_code = fe.sample_code  # type: ignore[method-assign,assignment]
+    return board
+
+
+class _AdcLanes:
+    """What a board of lanes holds per lane, and its lane-mode hooks (the section's comment)."""
+
+    def __init__(self, board: AdcBoard, boards: Sequence[AdcBoard], lanes: LaneSet) -> None:
+        n = len(boards)
+        self.board, self.lanes, self.n = board, lanes, n
+        # the scalar expressions of _Conversion.sample, evaluated per lane in Python (same bits)
+        self.var0 = np.array([b.noise_rms_v**2 for b in boards], dtype=float)
+        #: every lane has noise of its own (σ > 0 at every sample): every lane draws at every sample
+        self.always_draw = bool((self.var0 > 0).all())
+        self.gain1 = tuple(stack([1.0 + b.gain_error[ch] for b in boards]) for ch in range(ADC_CHANNELS))
+        self.offset_v = tuple(stack([b.offset_v[ch] for b in boards]) for ch in range(ADC_CHANNELS))
+        #: the switching-noise sources: (nets, level² per lane); a lane's scalar source returned
+        #: its level while a net is > 0 V, and the sample added its square
+        specs = [[s for s in b._noise_specs if s is not None] for b in boards]
+        self.switching = tuple((nets, np.array([float(lane[k][1]) ** 2 for lane in specs]))
+                               for k, (nets, _) in enumerate(specs[0]))
+        self.rngs = [b._rng for b in boards]
+        self.normals = np.zeros((_NORMAL_BLOCK, n))
+        nexts = []
+        for k, b in enumerate(boards):
+            if not b._normals:
+                nexts.append(_NORMAL_BLOCK)  # nothing drawn yet: the first draw refills, as the scalar's
+                continue
+            if len(b._normals) != _NORMAL_BLOCK:
+                raise NotImplementedError(f"{b.name}: a noise block of {len(b._normals)} normals cannot be stacked")
+            self.normals[:, k] = b._normals
+            nexts.append(b._normal_next)
+        #: the index of each lane's next normal in its column: one int while every lane is at the
+        #: same index (every lane drew at every sample: the common case), else an (B,) array
+        self.next: int | np.ndarray = nexts[0] if len(set(nexts)) == 1 else np.array(nexts, dtype=np.int64)
+        self.index = np.arange(n)
+
+    # --- the per-sample arithmetic ---------------------------------------------------------
+    def sample_code(self, channel: int, gcode: Any, bipolar: Any) -> np.ndarray:
+        """:meth:`AdcBoard._sample_code` of every lane: the codes (B,) int64 of ``channel`` now."""
+        b = self.board
+        if b.faulted:
+            raise NotImplementedError(f"{b.name}: an ADC of lanes cannot convert with a fault armed (faults: scalar)")
+        net = b.wiring.get(channel)
+        analog = b.crate.signals.analog if b.crate is not None else {}
+        with np.errstate(all="ignore"):  # a dead lane's garbage (inf, NaN) must not warn or raise
+            v: Any = 0.0 if net is None else analog.get(net, 0.0)
+            var = self.var0
+            for nets, level_sq in self.switching:
+                on: Any = False
+                for name in nets:
+                    on = on | (analog.get(name, 0.0) > 0.0)
+                if on is not False:  # no lane's bridge switching: the scalar sources added 0.0
+                    var = var + level_sq * on  # level² · 1.0 or · 0.0: the scalar's level² or 0.0², exactly
+            sigma = np.sqrt(var)
+            draw = sigma > 0
+            if self.always_draw or draw.all():
+                v = v + sigma * self._normals_all()
+            elif draw.any():
+                v = np.where(draw, v + sigma * self._normals_some(draw), v)
+            elif not isinstance(v, np.ndarray):
+                v = np.full(self.n, v)
+            v = v * self.gain1[channel] + self.offset_v[channel]
+            if type(bipolar) is bool and type(gcode) is int:
+                v0, lsb = _V0_LSB[bipolar][gcode]
+            else:  # registers that differ per lane
+                rng = np.asarray(bipolar, dtype=np.intp)
+                v0, lsb = _V0[rng, gcode], _LSB[rng, gcode]
+            x = (v - v0) / lsb + 0.5
+            ok = np.isfinite(x)
+            if not ok.all():
+                nan = v != v
+                self.lanes.eject(nan, f"{b.name}: ADC input is NaN (channel {channel})")
+                self.lanes.eject(~ok & ~nan, f"{b.name}: ADC input out of the float range (channel {channel})")
+                x = np.where(ok, x, 0.0)
+            code = np.floor(x)
+        np.maximum(code, 0.0, out=code)
+        np.minimum(code, float(CODE_MAX), out=code)
+        return code.astype(np.int64)
+
+    def _normals_all(self) -> np.ndarray:
+        """Every lane's next normal (:meth:`AdcBoard._normal` of each lane)."""
+        i = self.next
+        if type(i) is int:
+            if i >= _NORMAL_BLOCK:
+                for k in range(self.n):
+                    self._refill(k)
+                i = 0
+            self.next = i + 1
+            return self.normals[i]  # a view, used at once (before any refill)
+        return self._normals_some(np.ones(self.n, dtype=bool))
+
+    def _normals_some(self, draw: np.ndarray) -> np.ndarray:
+        """The next normal of the lanes where ``draw`` (the others: any number, not drawn)."""
+        i = np.full(self.n, self.next, dtype=np.int64) if type(self.next) is int else self.next
+        empty = draw & (i >= _NORMAL_BLOCK)
+        if empty.any():
+            for k in np.flatnonzero(empty).tolist():
+                self._refill(k)
+            i = np.where(empty, 0, i)
+        out = self.normals[np.minimum(i, _NORMAL_BLOCK - 1), self.index]
+        i = i + draw
+        self.next = int(i[0]) if (i == i[0]).all() else i
+        return out
+
+    def _refill(self, k: int) -> None:
+        """Lane ``k``'s next block, from its own generator (:meth:`AdcBoard._refill_normals`)."""
+        self.normals[:, k] = self.rngs[k].standard_normal(_NORMAL_BLOCK)
+
+    def noise_state(self, k: int) -> tuple[Mapping[str, Any], tuple[float, ...]]:
+        """Lane ``k``'s :meth:`AdcBoard.noise_state`."""
+        i = int(self.next[k]) if isinstance(self.next, np.ndarray) else self.next
+        return self.rngs[k].bit_generator.state, tuple(self.normals[i:, k].tolist())
+
+    # --- sequencing: the register values that decide it, one answer for every lane -------
+    def common(self, value: Any, reason: str) -> int:
+        """The live lanes' common value of a register field that selects what the board does
+        (the most frequent one); lanes holding another are ejected with ``reason``."""
+        if not isinstance(value, np.ndarray):
+            return int(value)
+        live = value[self.lanes.alive]
+        if live.size == 0:
+            return int(value[0])
+        vals, counts = np.unique(live, return_counts=True)
+        v = int(vals[np.argmax(counts)])
+        self.lanes.eject(value != v, reason)
+        return v
+
+    def write_CSR(self, value: Any) -> None:
+        """:meth:`AdcBoard.write_CSR` of every lane (``value`` a lane value)."""
+        b, lanes = self.board, self.lanes
+        if lanes.decide((value & _BIT["RESET"]) != 0, f"{b.name}: CSR.RESET written in some lanes only"):
+            b.reset()
+            return
+        csr = b.regs["CSR"]
+        csr &= ~(value & _W1C)
+        csr = (csr & ~_CONFIG) | (value & _CONFIG)
+        b.regs["CSR"] = csr
+        if lanes.decide(((value & _BIT["IRQ_PEND"]) != 0) | ((csr & _BIT["IRQ_EN"]) == 0),
+                        f"{b.name}: ADC interrupt released in some lanes only"):
+            b._drop_irq()
+        if lanes.decide((value & _START_OR_SCAN) != 0, f"{b.name}: ADC conversion started in some lanes only"):
+            if b._busy:
+                b.regs["CSR"] |= _BIT["OVERRUN"]
+            elif lanes.decide((value & _BIT["SCAN"]) != 0, f"{b.name}: ADC scan vs single conversion differs"):
+                last = self.common(b.regs["SCAN_LAST"] & 0xF, f"{b.name}: ADC SCAN_LAST differs")
+                self.start(list(range(last + 1)), scan=True)
+            else:
+                self.start([self.common(b.regs["CHAN"] & 0xF, f"{b.name}: ADC CHAN differs")], scan=False)
+
+    def start(self, channels: list[int], *, scan: bool) -> None:
+        """:meth:`AdcBoard._start`, with the lane-mode conversion."""
+        b = self.board
+        b._busy = True
+        b.regs["CSR"] &= ~_BIT["DONE"]
+        b._drop_irq()
+        _LaneConversion(b, channels, scan, b._gen).begin()
+
+    def sequence_done(self) -> None:
+        """:meth:`AdcBoard._sequence_done` of every lane."""
+        b = self.board
+        b._busy = False
+        b.regs["CSR"] |= _BIT["DONE"]
+        csr = b.regs["CSR"]
+        level = _IRQ_LEVEL.get(csr)
+        if self.lanes.decide(((csr & _BIT["IRQ_EN"]) != 0) & (level != 0),
+                             f"{b.name}: ADC end-of-scan interrupt in some lanes only"):
+            b.regs["CSR"] |= _BIT["IRQ_PEND"]
+            b.request_irq(self.common(level, f"{b.name}: ADC IRQ level differs"),
+                          self.common(b.regs["VECTOR"], f"{b.name}: ADC vector differs"))
+
+
+class _LaneConversion(_Conversion):
+    """A conversion or scan of a lane-mode board: the sequencing is :class:`_Conversion`'s; a
+    sample reads the range and gain registers (lane values) and converts every lane."""
+
+    __slots__ = ()
+
+    def sample(self) -> None:
+        b = self.board
+        ch = self.channels[self.i]
+        regs = b.regs
+        bipolar = (regs["CSR"] & _RANGE) == 0
+        if self.scan:
+            gcode = regs[_SCAN_GAIN[ch >= 8]] >> (2 * (ch % 8)) & 0x3
+        else:
+            gcode = regs["CHAN"] >> 4 & 0x3
+        self.word = (ch << 12) | b._sample_code(ch, gcode, bipolar)
+

@@ -20,6 +20,11 @@ Behaviour (see ``docs/boards/dac.md``):
 Fault: ``dead_channel(channel, volts=0.0)`` — the output pin sits at ``volts`` whatever is
 written (the registers still read back what was written, as on a board with a blown output
 buffer).
+
+Lanes (batched lockstep, :mod:`hal.lanes`): :meth:`DacBoard.from_lanes` stacks B boards into
+one whose registers, offset/gain errors, rails and output volts are lane values; the strobes,
+and so the settling events, are the same instants in every lane (one clock). Injected faults
+are not carried into lanes (those runs go scalar).
 """
 
 from __future__ import annotations
@@ -29,10 +34,13 @@ from collections.abc import Mapping, Sequence
 from functools import partial
 from typing import Any, ClassVar
 
+import numpy as np
+
 from emulators.adc import per_channel, wiring_from_config
-from emulators.board import RegisterBoard
+from emulators.board import Backplane, RegisterBoard
 from emulators.board_factory import BuildContext
 from hal.config import ConfigTable
+from hal.lanes import LaneValue, stack
 from hal.vme.registers import Access, Field, Register, RegisterMap
 from hal.vme.types import AddressSpace, Width
 
@@ -221,11 +229,85 @@ class DacBoard(RegisterBoard):
             "settling_us": self.settling_time_ns / 1000,
         }
 
+    # --- lanes (batched lockstep, hal.lanes) ---------------------------------------------
+    @classmethod
+    def from_lanes(cls, boards: Sequence[Any], crate: Any) -> DacBoard:
+        """One board in lane mode holding the B scalar ``boards`` (lane order), for the lane
+        crate ``crate`` (which installs it). Registers, offset/gain errors, rails and output
+        volts become lane values; the wiring and the settling time must be the same in every
+        lane (one clock: the settling events are the same instants), and so must the strobe
+        history (which lockstep gives; ``Crate.from_lanes`` stacks crates with no event queued,
+        so no output is settling then). Makes no bus cycle and drives no net
+        (``Signals.from_lanes`` stacked them)."""
+        first = boards[0]
+        for b in boards:
+            if type(b) is not cls:
+                raise NotImplementedError(f"{first.name}: a {type(b).__name__} cannot be a lane of a {cls.__name__}")
+            if b.faulted:
+                raise NotImplementedError(f"{b.name}: a board with an injected fault runs scalar")
+            if b.wiring != first.wiring or b.settling_time_ns != first.settling_time_ns:
+                raise NotImplementedError(f"{first.name}: the lanes' boards differ in wiring or settling time")
+            if (b._gen, [s[0] for s in b._step]) != (first._gen, [s[0] for s in first._step]):
+                raise NotImplementedError(f"{first.name}: the lanes' boards were strobed at different times")
+        obj = cls(first.name, wiring=first.wiring, settling_time_ns=first.settling_time_ns)
+        obj.offset_v = tuple(stack([b.offset_v[ch] for b in boards]) for ch in range(DAC_CHANNELS))
+        obj.gain_error = tuple(stack([b.gain_error[ch] for b in boards]) for ch in range(DAC_CHANNELS))
+        obj.rail_v = stack([b.rail_v for b in boards])
+        obj._stack_regs(boards)
+        obj._step = [(first._step[ch][0], stack([b._step[ch][1] for b in boards]),
+                      stack([b._step[ch][2] for b in boards])) for ch in range(DAC_CHANNELS)]
+        obj._gen = list(first._gen)
+        obj.updates = stack([b.updates for b in boards])
+        for name in ("attach", "_analog", "read_CSR", "write_CSR", "write_UPDATE", "inject"):
+            setattr(obj, name, getattr(obj, "_lane_" + name.lstrip("_")))
+        return obj
+
+    def _lane_attach(self, crate: Backplane) -> None:
+        RegisterBoard.attach(self, crate)  # the steps and the nets are the stacked scalar ones
+
+    def _lane_analog(self, ch: int, code: LaneValue) -> LaneValue:
+        v = ideal_volts(code) * (1.0 + self.gain_error[ch]) + self.offset_v[ch]
+        rail = self.rail_v
+        if not isinstance(v, np.ndarray) and not isinstance(rail, np.ndarray):
+            return min(max(v, -rail), rail)
+        v = np.where(-rail > v, -rail, v)  # max(v, -rail): a NaN stays, as max() leaves it
+        return np.where(rail < v, rail, v)  # min(·, rail)
+
+    def _lane_read_CSR(self) -> LaneValue:
+        now, st = self.now_ns, self.settling_time_ns
+        settling: Any = False
+        for t0, vs, vf in self._step:
+            if now - t0 < st:
+                settling = settling | (vs != vf)
+        if isinstance(settling, np.ndarray):
+            return np.where(settling, _SETTLING, 0)
+        return _SETTLING if settling else 0
+
+    def _lane_write_CSR(self, value: LaneValue) -> None:
+        DacBoard.write_CSR(self, _uniform(value, self.name, "CSR"))
+
+    def _lane_write_UPDATE(self, value: LaneValue) -> None:
+        DacBoard.write_UPDATE(self, _uniform(value, self.name, "UPDATE"))
+
+    def _lane_inject(self, name: str, **params: Any) -> None:
+        raise NotImplementedError(f"{self.name}: faults are not injected into lanes (such runs go scalar)")
+
 
 def ideal_volts(code: int) -> float:
     """The ideal output of a 12-bit offset-binary ``code``: 0x800 is 0 V, one code 20 V/4096
     (0x000 → −10 V, 0xFFF → +9.99512 V)."""
     return (code - DAC_POWER_UP_CODE) * _LSB_V
+
+
+def _uniform(value: LaneValue, board: str, reg: str) -> int:
+    """A strobe/control word that must be the same in every lane (the strobes' instants are the
+    lanes' common settling events): the word itself."""
+    if isinstance(value, np.ndarray):
+        v0 = value.flat[0]
+        if (value != v0).any():
+            raise NotImplementedError(f"{board}.{reg}: a write that differs between lanes (one clock for all lanes)")
+        return int(v0)
+    return value  # type: ignore[no-any-return]
 
 
 def _data_writer(ch: int):

@@ -25,14 +25,23 @@ it).
 Faults: ``line_stuck(line="PB0", level=True)`` — the pin is held at ``level`` whatever the
 board or the net does: a stuck output drives the stuck level onto its net (``DATA_x`` still
 reads the latch, ``PIN_x`` shows the stuck level); a stuck input reads the stuck level.
+
+Lanes (batched lockstep, :mod:`hal.lanes`): :meth:`PioBoard.from_lanes` stacks B boards into
+one whose registers, pins and nets are lane values (bools per lane on the nets, the PWM duty
+fraction per lane on the PWM net). An input-change interrupt a lane would raise is not modelled
+in lanes: that lane is ejected (interrupt-driven runs go scalar); injected faults are refused.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from functools import partial
 from typing import Any, ClassVar
 
+import numpy as np
+
 from emulators.board import RegisterBoard
+from hal.lanes import LaneSet, LaneValue, stack
 from hal.vme.registers import Access, Field, Register, RegisterMap
 from hal.vme.types import AddressSpace, Width
 
@@ -101,6 +110,7 @@ class PioBoard(RegisterBoard):
     TYPE = "pio"
     REGMAP = PIO_BOARD_MAP
     irq_release = "rora"
+    _lanes: LaneSet  #: in lane mode only (from_lanes): the crate's lanes
     FAULTS: ClassVar[dict[str, str]] = {
         "line_stuck": "line=PXn, level=bool: the pin is held at level (board and net cannot move it)",
     }
@@ -117,7 +127,12 @@ class PioBoard(RegisterBoard):
         # the ports each net is wired to, in port order (_on_net runs at every change of a net)
         self._net_ports = {net: tuple(sorted({p for (p, _), n in self.nets.items() if n == net}))
                            for net in set(self.nets.values())}
-        self._prev_inputs = [0, 0, 0]
+        self._prev_inputs: list[Any] = [0, 0, 0]
+        self._bind_ports()
+        super().__init__(name)
+
+    def _bind_ports(self) -> None:
+        """The per-port register hooks (``read_DATA_A``..), bound to this board's methods."""
         for i, p in enumerate(_PORT_LETTERS):
             setattr(self, f"read_DATA_{p}", partial(self._read_data, i))
             setattr(self, f"write_DATA_{p}", partial(self._write_data, i))
@@ -125,7 +140,6 @@ class PioBoard(RegisterBoard):
             setattr(self, f"read_PIN_{p}", partial(self.pins, i))
             setattr(self, f"write_IER_{p}", partial(self._write_ier, i))
             setattr(self, f"write_ICS_{p}", partial(self._write_ics, i))
-        super().__init__(name)
 
     # --- crate hooks ---------------------------------------------------------------------
     def attach(self, crate) -> None:
@@ -277,6 +291,115 @@ class PioBoard(RegisterBoard):
         if not self.regs["PWM_CTL"] & 1 or period == 0:
             return 0
         return (self.now_ns // _NS_PER_TICK) % period
+
+    # --- lanes (batched lockstep, hal.lanes) ---------------------------------------------
+    @classmethod
+    def from_lanes(cls, boards: Sequence[Any], crate: Any) -> PioBoard:
+        """One board in lane mode holding the B scalar ``boards`` (lane order), for the lane
+        crate ``crate`` (a bus of lanes: ``crate.lanes``), which installs it — and so subscribes
+        it to its wired nets on ``crate.signals``, as installing a scalar board does. The wiring
+        must be the same in every lane; registers and the input-change memory are stacked. No bus
+        cycle, no net driven (``Signals.from_lanes`` stacked the nets)."""
+        first = boards[0]
+        lanes = getattr(crate, "lanes", None)
+        if not isinstance(lanes, LaneSet):
+            raise ValueError(f"{first.name}: a board in lanes needs a crate of lanes (crate.lanes)")
+        for b in boards:
+            if type(b) is not cls:
+                raise NotImplementedError(f"{first.name}: a {type(b).__name__} cannot be a lane of a {cls.__name__}")
+            if b.faulted:
+                raise NotImplementedError(f"{b.name}: a board with an injected fault runs scalar")
+            if b.irq_pending:
+                raise NotImplementedError(f"{b.name}: an input-change interrupt is pending (such runs go scalar)")
+            if b.nets != first.nets or b.pwm_net != first.pwm_net:
+                raise NotImplementedError(f"{first.name}: the lanes' boards are wired differently")
+        lines = {f"P{_PORT_LETTERS[port]}{bit}": net for (port, bit), net in first.nets.items()}
+        obj = cls(first.name, lines=lines, pwm_net=first.pwm_net)
+        obj._stack_regs(boards)
+        obj._prev_inputs = [stack([b._prev_inputs[port] for b in boards]) for port in range(3)]
+        obj._lanes = lanes
+        for name in ("pins", "pin_level", "_drive_outputs", "_resample", "_write_ics", "_update_irq", "duty_fraction",
+                     "read_PWM_COUNT", "inject"):
+            setattr(obj, name, getattr(obj, "_lane_" + name.lstrip("_")))
+        obj._bind_ports()  # the port hooks again, now bound to the lane methods
+        return obj
+
+    def _lane_pin_level(self, port: int, bit: int) -> LaneValue:
+        out = (self.regs[_DDR[port]] >> bit) & 1
+        latch = (self.regs[_DATA[port]] >> bit) & 1 != 0
+        net = self.nets.get((port, bit))
+        wire = False if net is None or self.crate is None else self.crate.signals.get_digital(net)
+        if isinstance(out, np.ndarray):
+            return np.where(out != 0, latch, wire)
+        return latch if out else wire
+
+    def _lane_pins(self, port: int) -> LaneValue:
+        # pins() without a stuck line (no faults in lanes): outputs show the latch, wired inputs
+        # their net (a bool per lane), unwired inputs 0 -- per bit, as a lane word
+        ddr = self.regs[_DDR[port]]
+        value = self.regs[_DATA[port]] & ddr
+        if self.crate is None:
+            return value
+        digital = self.crate.signals.digital
+        for bit, net in self._port_nets[port]:
+            value = value | (((ddr >> bit) & 1 ^ 1) & digital.get(net, False)) << bit
+        return value
+
+    def _lane_drive_outputs(self) -> None:
+        if self.crate is None:
+            return
+        signals, regs = self.crate.signals, self.regs
+        for port, bit, net in self._wired:
+            out = (regs[_DDR[port]] >> bit) & 1
+            level = (regs[_DATA[port]] >> bit) & 1 != 0
+            if isinstance(out, np.ndarray):  # an output in some lanes only: the others keep the net
+                signals.set_digital(net, np.where(out != 0, level, signals.get_digital(net)))
+            elif out:
+                signals.set_digital(net, level)
+
+    def _lane_resample(self, port: int, *, flag: bool) -> None:
+        inputs = ~self.regs[_DDR[port]] & 0xFF
+        now = self.pins(port) & inputs
+        changed = (now ^ self._prev_inputs[port]) & inputs
+        self._prev_inputs[port] = now
+        if flag and (changed.any() if isinstance(changed, np.ndarray) else changed):
+            self.regs[_ICS[port]] = self.regs[_ICS[port]] | changed  # never in place: lane arrays may be shared
+            self._update_irq()
+
+    def _lane_write_ics(self, port: int, value: LaneValue) -> None:
+        self.regs[_ICS[port]] = self.regs[_ICS[port]] & (~value & 0xFF)
+        self._update_irq()
+
+    def _lane_update_irq(self) -> None:
+        # A lane that would interrupt leaves the batch: one interrupt controller serves every
+        # lane, and an interrupt-driven driver's cycles would differ per lane.
+        regs = self.regs
+        ctl = regs["INT_CTL"]
+        active: Any = 0
+        for s, e in zip(_ICS, _IER, strict=True):
+            active = active | (regs[s] & regs[e])
+        want = (active != 0) & (ctl & _IEN != 0) & (ctl & _LEVEL != 0)
+        if isinstance(want, np.ndarray) or want:
+            self._lanes.eject(want, f"{self.name}: input-change interrupt (interrupt-driven runs go scalar)")
+
+    def _lane_duty_fraction(self) -> LaneValue:
+        ctl, period, duty = self.regs["PWM_CTL"] & 1, self.regs["PWM_PERIOD"], self.regs["PWM_DUTY"]
+        if not any(isinstance(x, np.ndarray) for x in (ctl, period, duty)):
+            return PioBoard.duty_fraction(self)
+        on = (ctl != 0) & (period != 0)
+        with np.errstate(all="ignore"):  # int64 / int64: exact operands, one rounding, as int / int
+            frac = np.where(period < duty, period, duty) / np.where(on, period, 1)
+        return np.where(on, frac, 0.0)
+
+    def _lane_read_PWM_COUNT(self) -> LaneValue:
+        ctl, period = self.regs["PWM_CTL"] & 1, self.regs["PWM_PERIOD"]
+        if not isinstance(ctl, np.ndarray) and not isinstance(period, np.ndarray):
+            return PioBoard.read_PWM_COUNT(self)
+        on = (ctl != 0) & (period != 0)
+        return np.where(on, (self.now_ns // _NS_PER_TICK) % np.where(on, period, 1), 0)
+
+    def _lane_inject(self, name: str, **params: Any) -> None:
+        raise NotImplementedError(f"{self.name}: faults are not injected into lanes (such runs go scalar)")
 
     # --- faults --------------------------------------------------------------------------
     def _fault_changed(self, name: str) -> None:

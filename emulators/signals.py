@@ -112,9 +112,11 @@ class Signals:
             self._set_digital_lanes(net, level)
             return
         level = bool(level)
-        changed = self.digital.get(net) != level
+        old = self.digital.get(net)
         self.digital[net] = level
-        if changed:
+        if old is not level:  # bools are singletons: a change (or a new net, or a lane array before)
+            if type(old) is np.ndarray and not (old != level).any():
+                return  # every lane held this level already
             self._notify(net, level)
 
     def _set_digital_lanes(self, net: str, level: np.ndarray) -> None:

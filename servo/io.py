@@ -22,7 +22,7 @@ It imports ``hal`` only: it cannot tell an emulated crate from real hardware.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from typing import Any, ClassVar, Protocol
@@ -35,6 +35,7 @@ from hal.adc_dac.conversions import DAC_LSB_V, DAC_V_MAX, DAC_V_MIN
 from hal.adc_dac.dac import DacDriver
 from hal.amplifiers import duty_for_current
 from hal.board_types import BOARD_TYPES, board_role
+from hal.lanes import LaneSet
 from hal.pio.pio import PioDriver, PwmRangeError
 from hal.quadrature.quad import QuadratureDriver, QuadratureError
 from hal.vme.bus import VmeBus
@@ -159,6 +160,18 @@ class PotCalibration:
         if volts >= v[-1]:
             return float(a[-1] + (volts - v[-1]) * (a[-1] - a[-2]) / (v[-1] - v[-2]))
         return float(np.interp(volts, v, a))
+
+    def angles_of(self, volts: np.ndarray) -> np.ndarray:
+        """:meth:`angle` of each of ``volts`` (the same operations elementwise: the same numbers)."""
+        v, a = self.volts, self.angles
+        x = np.asarray(volts, float)
+        low = a[0] + (x - v[0]) * (a[1] - a[0]) / (v[1] - v[0])
+        high = a[-1] + (x - v[-1]) * (a[-1] - a[-2]) / (v[-1] - v[-2])
+        return np.where(x <= v[0], low, np.where(x >= v[-1], high, np.interp(x, v, a)))
+
+
+def _not_in_lanes(name: str, *args: Any, **kwargs: Any) -> Any:
+    raise NotImplementedError(f"JointIO.{name} cannot run in lanes (batched lockstep)")
 
 
 class JointIO:
@@ -303,8 +316,319 @@ class JointIO:
         self._build_plans()
         self._scaling_key: tuple[int, int] | None = None
         self.calibration: CalibrationSource | None = None
+        #: the lanes of a batch (:meth:`from_lanes`); ``None``: one instance. In lanes ``n`` counts
+        #: every lane's joints (lane-major), ``lane_n`` one lane's, ``lane_size`` the lanes
+        self.lanes: LaneSet | None = None
+        self.lane_n = self.n
+        self.lane_size = 1
+        self.lane_scaling = [scaling]
+        #: in lanes: per calibrated pot (flat joint index, its table); per H-bridge joint (joint, flat
+        #: indices, R, Ke, N, supply over the lanes); per lane what the last stop's read-back could not confirm
+        self._lane_pot_cal: list[tuple[int, PotCalibration]] = []
+        self._lane_pot_tables: list[tuple[np.ndarray, PotCalibration]] = []
+        self._lane_hbridge: list[tuple[Any, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self.lane_stop_failures: list[list[str]] = [[]]
         if calibration is not None:
             self.apply_calibration(calibration)
+
+    # --- lanes (batched lockstep) -------------------------------------------------------------
+    @classmethod
+    def from_lanes(cls, ios: Sequence[JointIO], lanes: LaneSet, *, adc: Mapping[str, Any], dac: Mapping[str, Any],
+                   pio: Mapping[str, Any], quad: Mapping[str, Any]) -> JointIO:
+        """The joint I/O of B lanes (batched lockstep, :mod:`hal.lanes`): ``ios`` (one per lane, as
+        its scalar run built it) over the lane drivers (board name → the stacked driver of that
+        board, :meth:`from_lanes` of the driver classes). Per-joint arrays are flat and lane-major,
+        B·n joints (joint j of lane b at ``b*n + j``); a driver takes and gives per channel a lane
+        value (B,) (an ADC scan (k, B)). :meth:`read` and :meth:`write_torque` are the lane ones,
+        selected here once: the same conversions elementwise, so every lane's numbers are its scalar
+        run's bit for bit. Where a scalar read makes a bus cycle the others do not (a decoder's
+        ILLEGAL flag cleared, a home lost), that lane is ejected. Calibration, homing and source
+        changes after stacking are not followed (the arrays are taken now)."""
+        first = ios[0]
+        size = len(ios)
+        n = first.n
+        if size != lanes.size:
+            raise ValueError(f"{size} joint I/Os for {lanes.size} lanes")
+        for io in ios:
+            io._scaling_arrays()
+            if io.rig.name != first.rig.name or io.n != n or io.position_source != first.position_source \
+                    or io.velocity_source != first.velocity_source or io.calibration_generation != \
+                    first.calibration_generation or (io._release_pending, io.watchdog_running, io._watchdog_level) != \
+                    (first._release_pending, first.watchdog_running, first._watchdog_level):
+                raise NotImplementedError("lanes' joint I/Os differ in rig, sources or state: they cannot run as lanes")
+            tach = [(b, js.tolist(), chs.tolist()) for b, js, chs in io._tach_read]
+            if tach != [(b, js.tolist(), chs.tolist()) for b, js, chs in first._tach_read]:
+                raise NotImplementedError("lanes differ in which tachometers are read: they cannot run as lanes")
+        for role, have, given in (("ADC", first.adc, adc), ("DAC", first.dac, dac), ("PIO", first.pio, pio),
+                                  ("decoder", first.quad, quad)):
+            if set(have) != set(given):
+                raise ValueError(f"lane {role} drivers for {sorted(given)}, the rig wires {sorted(have)}")
+
+        def cat(name: str) -> np.ndarray:
+            return np.concatenate([np.asarray(getattr(io, name)) for io in ios])
+
+        obj = cls.__new__(cls)
+        obj.__dict__.update(first.__dict__)  # the wiring and its plans (alike in every lane), then per lane:
+        obj.adc, obj.dac, obj.pio, obj.quad = dict(adc), dict(dac), dict(pio), dict(quad)
+        obj._watchdog_pio = obj.pio[first.rig.watchdog.line.board] if first.rig.watchdog is not None else None
+        obj.n = n * size
+        obj.lanes = lanes
+        obj.lane_n = n
+        obj.lane_size = size
+        for name in ("_position_from_pot", "_velocity_from_tach", "_has_pot", "homeable", "homed", "last_dac_volts",
+                     "last_current_a", "brake_released", "holding_brake_mask", "last_torque_nm", "_pot_zero_v",
+                     "_pot_v_per_rad", "_tach_v_per_rad_s", "_monitor_v_per_a", "_torque_per_a", "_limit_a",
+                     "_amp_gain", "_amp_offset"):
+            setattr(obj, name, cat(name))
+        obj.position_source = list(first.position_source)
+        obj.velocity_source = list(first.velocity_source)
+        obj._linear_idx = (np.arange(size)[:, None] * n + first._linear_idx[None, :]).reshape(-1)
+        obj.lane_scaling = [io.scaling for io in ios]
+        obj._lane_pot_cal, obj._lane_pot_tables = [], []
+        for i in sorted({i for io in ios for i in io.pot_cal}):
+            cals = [io.pot_cal.get(i) for io in ios]
+            first_cal = cals[0]
+            if first_cal is not None and all(c is not None and np.array_equal(c.volts, first_cal.volts)
+                                             and np.array_equal(c.angles, first_cal.angles) for c in cals):
+                obj._lane_pot_tables.append((np.arange(size) * n + i, first_cal))  # one table: every lane at once
+            else:
+                obj._lane_pot_cal += [(b * n + i, c) for b, c in enumerate(cals) if c is not None]
+        obj._lane_hbridge = []
+        for j in first._hbridge_joints:
+            r_ohm, ke, ratio, supply = (np.array([float(getattr(io.scaling[j.index], f)) for io in ios])
+                                        for f in ("resistance_ohm", "ke_v_s_per_rad", "ratio", "supply_v"))
+            obj._lane_hbridge.append((j, np.arange(size) * n + j.index, r_ohm, ke, ratio, supply))
+        obj.lane_stop_failures = [[] for _ in range(size)]
+        obj._scaling_key = None
+        d = obj.__dict__  # the lane methods, chosen once (the scalar ones are untouched)
+        d["read"], d["write_torque"] = obj._read_lanes, obj._write_torque_lanes
+        d["release_brakes"], d["engage_brakes"] = obj._release_brakes_lanes, obj._engage_brakes_lanes
+        d["_stop_outputs"], d["verify_stopped"] = obj._stop_outputs_lanes, obj._verify_stopped_lanes
+        for name in ("write_command_volts", "apply_calibration", "home_encoder", "set_sources", "set_pot_calibration"):
+            d[name] = partial(_not_in_lanes, name)
+        return obj
+
+    def _lane_rows(self, x: np.ndarray) -> np.ndarray:
+        """A flat lane-major per-joint array as (B, n) rows (a view)."""
+        return x.reshape(self.lane_size, self.lane_n)
+
+    def _read_lanes(self) -> Measurement:
+        """:meth:`read` in lanes."""
+        B, n = self.lane_size, self.lane_n
+        N = B * n
+        block = np.full((6, N), np.nan)
+        theta_pot, theta_enc, omega_tach, omega_enc, current, pot_v = block
+        rows = self._lane_rows
+        fault = np.zeros(N, bool)
+        volts = {}
+        for name, drv in self.adc.items():
+            v = np.asarray(drv.scan(self._adc_last[name]), float)
+            volts[name] = v if v.ndim == 2 else np.repeat(v[:, None], B, axis=1)  # (k, B)
+        readings = {name: drv.update(self.period_s) for name, drv in self.quad.items()}
+        for board, js, chs in self._pot_plan:
+            rows(pot_v)[:, js] = volts[board][chs].T
+        has = self._has_pot
+        theta_pot[has] = (pot_v[has] - self._pot_zero_v[has]) / self._pot_v_per_rad[has]
+        for idx, cal in self._lane_pot_tables:
+            if has[idx[0]]:
+                theta_pot[idx] = cal.angles_of(pot_v[idx])
+        for i, cal in self._lane_pot_cal:
+            if has[i]:
+                theta_pot[i] = cal.angle(float(pot_v[i]))
+        tach = rows(self._tach_v_per_rad_s)
+        for board, js, chs in self._tach_read:
+            rows(omega_tach)[:, js] = volts[board][chs].T / tach[:, js]
+        mon = rows(self._monitor_v_per_a)
+        for board, js, chs in self._imon_plan:
+            rows(current)[:, js] = volts[board][chs].T / mon[:, js]
+        illegal = np.zeros(N, bool)
+        counts = np.full(N, np.nan)
+        lanes = self.lanes
+        assert lanes is not None
+        for board, js, chans in self._enc_plan:
+            r = readings[board]
+            for i, c in zip(js.tolist(), chans, strict=True):
+                x = r[c]
+                rows(counts)[:, i] = x.counts
+                rows(theta_enc)[:, i] = x.position_rad
+                rows(omega_enc)[:, i] = x.velocity_rad_s
+                flag = np.broadcast_to(np.asarray(x.status.illegal, bool), (B,))
+                if flag.any():  # its scalar run clears the flag (a bus cycle the other lanes do not make)
+                    rows(illegal)[:, i] = flag
+                    lanes.eject(flag, f"encoder_illegal ({self.rig.joints[i].name}): the decoder flagged an "
+                                "illegal transition (its scalar run clears the flag)")
+        for board, port, js, bits in self._fault_plan:
+            value = np.asarray(self.pio[board].read_port(port))
+            rows(fault)[:, js] = (value[..., None] >> bits) & 1
+        m = Measurement(theta_pot, theta_enc, omega_tach, omega_enc, current, pot_v, fault, encoder_illegal=illegal,
+                        encoder_counts=counts)
+        m.theta = np.where(self._position_from_pot, theta_pot, theta_enc)
+        m.omega = np.where(self._velocity_from_tach, omega_tach, omega_enc)
+        return m
+
+    def _write_torque_lanes(self, torque_nm: np.ndarray, omega: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`write_torque` in lanes: each driver gets per channel the lanes' values (B,)."""
+        tau = np.asarray(torque_nm, dtype=float)
+        limit = self._limit_a
+        amps = tau / self._torque_per_a
+        amps = np.where(amps < limit, amps, limit)
+        amps = np.where(amps > -limit, amps, -limit)
+        current = np.zeros(self.n)
+        for j, idx, r_ohm, ke, ratio, supply in self._lane_hbridge:
+            a = amps[idx]
+            if omega is None:
+                w_m = np.zeros(idx.shape)
+            else:
+                w = np.asarray(omega, float)[idx]
+                w_m = np.where(np.isfinite(w), w * ratio, 0.0)
+            # hal.amplifiers.duty_for_current, elementwise: max(-1, min(1, (R·i + Ke·ω)/V)) as Python's
+            # min/max compare (min(1.0, x) is x only when x < 1.0)
+            x = (r_ohm * a + ke * w_m) / supply
+            x = np.where(x < 1.0, x, 1.0)
+            self._set_hbridge(j, np.where(x > -1.0, x, -1.0))
+            current[idx] = a
+        lin = self._linear_idx
+        if lin.size:
+            gain, off = self._amp_gain[lin], self._amp_offset[lin]
+            volts = (amps[lin] - off) / gain
+            volts = np.where(volts > DAC_V_MIN, volts, DAC_V_MIN)
+            volts = np.where(volts < DAC_V_MAX, volts, DAC_V_MAX)
+            self.last_dac_volts[lin] = volts
+            current[lin] = volts * gain + off
+            dv = self._lane_rows(self.last_dac_volts)
+            for board, js, chans in self._dac_plan:
+                cmds: dict[int, Any] = {ch: dv[:, j].copy() for j, ch in zip(js.tolist(), chans, strict=True)}
+                self.dac[board].write_many(cmds, update=True)
+        self.last_current_a[:] = current
+        self.last_torque_nm[:] = np.where(np.isfinite(tau), tau, 0.0)
+        if self._release_pending:
+            self.release_brakes()
+        if self.watchdog_running:
+            self._toggle_watchdog()
+        return current
+
+    def _release_brakes_lanes(self) -> None:
+        self._release_pending = False
+        for i, board, net in self._holding_brakes:
+            self.pio[board].set_line(net, True)
+            self._lane_rows(self.brake_released)[:, i] = True
+
+    def _engage_brakes_lanes(self) -> None:
+        self._release_pending = False
+        for i, board, net in self._holding_brakes:
+            self.pio[board].set_line(net, False)
+            self._lane_rows(self.brake_released)[:, i] = False
+
+    def _stop_outputs_lanes(self, held: list[BaseException]) -> list[str]:
+        """:meth:`_stop_outputs` in lanes: the same writes, every lane alike; the read-back per lane
+        (:attr:`lane_stop_failures`; returned: what fails in any live lane)."""
+        failures: list[str] = []
+
+        def step(what: str, action: Callable[[], object]) -> None:
+            for _ in range(self.STOP_STEP_ATTEMPTS):
+                try:
+                    action()
+                    return
+                except INTERRUPTS as e:
+                    held.append(e)
+                except Exception as e:
+                    failures.append(f"{what}: {e}")
+                    return
+            failures.append(f"{what}: interrupted {self.STOP_STEP_ATTEMPTS} times")
+
+        def dac_zero(drv: Any) -> None:
+            drv.write_many({ch: 0.0 for ch in range(drv.CHANNELS)}, update=True)
+
+        def pwm_off(j: Any) -> None:
+            self._set_hbridge(j, 0.0)
+            self.pio[j.wiring["pwm"].board].pwm_enable(False)
+
+        def enable_low(j: Any) -> None:
+            self.pio[j.wiring["amp_enable"].board].set_line(j.net("amp_enable"), False)
+
+        def brake_low(i: int, board: str, net: str) -> None:
+            self.pio[board].set_line(net, False)
+            self._lane_rows(self.brake_released)[:, i] = False
+
+        self._release_pending = False
+        for i, board, net in self._holding_brakes:
+            step(f"{self.rig.joints[i].name}: holding brake", partial(brake_low, i, board, net))
+        for name, drv in self.dac.items():
+            step(name, partial(dac_zero, drv))
+        for j in self.rig.joints:
+            if "pwm" in j.wiring:
+                step(j.name, partial(pwm_off, j))
+            if "amp_enable" in j.wiring:
+                step(j.name, partial(enable_low, j))
+        step("watchdog line", self._stop_watchdog)
+        self.last_dac_volts[:] = 0.0
+        self.last_current_a[:] = 0.0
+        verified: list[str] = []
+        for _ in range(self.STOP_STEP_ATTEMPTS):
+            try:
+                verified = self.verify_stopped()
+                break
+            except INTERRUPTS as e:
+                held.append(e)
+                verified = ["the read-back was interrupted"]
+        self.lane_stop_failures = [failures + [f for f in lane if f not in failures]
+                                   for lane in self.lane_stop_failures]
+        return failures + [f for f in verified if f not in failures]
+
+    def _verify_stopped_lanes(self) -> list[str]:
+        """:meth:`verify_stopped` in lanes: each lane's problems in :attr:`lane_stop_failures`
+        (a read that fails is every lane's); returns those of any live lane, each once."""
+        B = self.lane_size
+        per_lane: list[list[str]] = [[] for _ in range(B)]
+
+        def problem(cond: Any, text: str) -> None:
+            for b in np.flatnonzero(np.broadcast_to(np.asarray(cond, bool), (B,))).tolist():
+                per_lane[b].append(text)
+
+        for i, board, net in self._holding_brakes:
+            pin = self.rig.joints[i].wiring["holding_brake"]
+            try:
+                pio = self.pio[board]
+                port, bit = pio.resolve(net)
+                high = np.asarray(pio.get_line(net), bool) | (np.asarray(pio.read_pins(port)) >> bit & 1 != 0)
+                problem(high, f"{self.rig.joints[i].name}: holding brake {pin} still reads high (released)")
+            except Exception as e:
+                problem(True, f"{self.rig.joints[i].name}: holding brake {pin} cannot be read back ({e})")
+        for j in self.rig.joints:
+            w = j.wiring
+            try:
+                if "amp_enable" in w:
+                    pio = self.pio[w["amp_enable"].board]
+                    port, bit = pio.resolve(j.net("amp_enable"))
+                    high = np.asarray(pio.get_line(j.net("amp_enable")), bool) | (
+                        np.asarray(pio.read_pins(port)) >> bit & 1 != 0)
+                    problem(high, f"{j.name}: amplifier enable {w['amp_enable']} still reads high")
+            except Exception as e:
+                problem(True, f"{j.name}: amplifier enable {w['amp_enable']} cannot be read back ({e})")
+            try:
+                if "amp_command" in w:
+                    pin = w["amp_command"]
+                    dac = self.dac[pin.board]
+                    zero_code, _ = dac.code_for(pin.index, 0.0)
+                    code = np.broadcast_to(np.asarray(dac.read_back_counts(pin.index)), (B,))
+                    zero = np.broadcast_to(np.asarray(zero_code), (B,))
+                    for b in np.flatnonzero(code != zero).tolist():
+                        per_lane[b].append(f"{j.name}: DAC {pin} output code {int(code[b]):#05x}, not the 0 V code "
+                                           f"{int(zero[b]):#05x}")
+            except Exception as e:
+                problem(True, f"{j.name}: DAC {w['amp_command']} cannot be read back ({e})")
+            try:
+                if "pwm" in w:
+                    problem(np.asarray(self.pio[w["pwm"].board].pwm_duty()) != 0.0,
+                            f"{j.name}: PWM {w['pwm']} still running")
+            except Exception as e:
+                problem(True, f"{j.name}: PWM {w['pwm']} cannot be read back ({e})")
+        self.lane_stop_failures = per_lane
+        alive = self.lanes.alive if self.lanes is not None else np.ones(B, bool)
+        out: list[str] = []
+        for b in np.flatnonzero(alive).tolist():
+            out += [p for p in per_lane[b] if p not in out]
+        return out
 
     # --- per-tick plans -----------------------------------------------------------------------
     def _build_plans(self) -> None:
@@ -600,11 +924,11 @@ class JointIO:
             # Not read back: a line stuck at either level gives no edges, which is what counts.
             self._watchdog_pio.set_line(WATCHDOG_NET, False, verify=False)
 
-    def _set_hbridge(self, j, duty: float) -> None:
+    def _set_hbridge(self, j, duty: float | np.ndarray) -> None:
         pwm = j.wiring.get("pwm")
         if pwm is None:
             return
-        drv = self.pio[pwm.board]
+        drv: Any = self.pio[pwm.board]  # (in lanes a lane driver, which takes a duty per lane)
         direction = j.net("direction") if "direction" in j.wiring else None
         drv.set_pwm(duty, direction_line=direction)
 

@@ -27,14 +27,16 @@ from __future__ import annotations
 import queue
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Any, Protocol
 
 import numpy as np
 
 from hal.hand import HandModel
+from hal.lanes import LaneSet
 from servo.blackbox import HOLDING, RUNNING, STOPPED, STOPPING, BlackBox
 from servo.control.objects import ControlContext, Controller, SwitchableController
 from servo.fine_positioning import MEASURE_KEY
@@ -45,12 +47,16 @@ from servo.named_controllers import ControllerChoices
 from servo.stops import NOT_FAULTS, ControlledStop, Deceleration, StopCategory, StopSettings
 from servo.trajectory.base import Sample
 from servo.trajectory.bounds import MotionRefused
-from servo.trajectory.sequencer import PlanContext, Sequencer
-from servo.watchdog import CrossChecks, WatchdogConfig
+from servo.trajectory.sequencer import LaneSequencer, PlanContext, Sequencer
+from servo.watchdog import CrossChecks, LaneTrip, WatchdogConfig
 
 __all__ = ["Fault", "LiveCommand", "Recorder", "ServoLoop", "WatchdogConfig"]
 
 LiveCommand = Callable[["ServoLoop"], Any]
+
+
+def _not_in_lanes(name: str, *args: Any, **kwargs: Any) -> Any:
+    raise NotImplementedError(f"ServoLoop.{name} cannot run in lanes (batched lockstep)")
 
 
 class VisionOutcome(Protocol):
@@ -122,6 +128,32 @@ class Recorder:
         for name, v in values.items():
             self.data[name][i] = v
         self.count = max(self.count, k + 1)
+
+    @classmethod
+    def from_lanes(cls, recorders: Sequence[Recorder]) -> Recorder:
+        """One recorder for B lanes (batched lockstep, :mod:`hal.lanes`): rows of B·n joints,
+        lane-major; the rows recorded so far (the same ticks in every lane) concatenated."""
+        first = recorders[0]
+        for r in recorders:
+            if (r.n_ticks, r.n, r.count, r.max_rows) != (first.n_ticks, first.n, first.count, first.max_rows):
+                raise NotImplementedError("lanes' recorders differ in size or rows: they cannot run as lanes")
+        rec = cls(first.n_ticks, first.n * len(recorders), first.count, max_rows=first.max_rows)
+        for f in cls.FIELDS:
+            rec.data[f] = np.concatenate([r.data[f] for r in recorders], axis=1)
+        for f in ("t", "compute_s"):
+            rec.data[f] = first.data[f].copy()
+        return rec
+
+    def lane(self, lane: int, n: int) -> Recorder:
+        """Lane ``lane``'s rows of a lane recorder of ``n`` joints per lane (:meth:`from_lanes`): a
+        recorder of one instance holding what its scalar run records (``compute_s``: the batch's)."""
+        rec = Recorder(self.n_ticks, n, self.count, max_rows=self.max_rows)
+        sl = slice(lane * n, (lane + 1) * n)
+        for f in self.FIELDS:
+            rec.data[f] = self.data[f][:, sl].copy()
+        for f in ("t", "compute_s"):
+            rec.data[f] = self.data[f].copy()
+        return rec
 
     def trimmed(self) -> dict[str, np.ndarray]:
         """The ticks kept, in time order: all of them (``count``) unless some were ``dropped``."""
@@ -226,6 +258,223 @@ class ServoLoop:
         #: the last seconds of every joint's signals and lines (servo.blackbox; set by
         #: servo.assembly.build_loop; ``None``: not kept)
         self.blackbox: BlackBox | None = None
+        #: the lanes of a batch this loop ticks (batched lockstep, :meth:`from_lanes`); ``None``:
+        #: one instance. In lanes, ``n`` counts the joints of every lane (lane-major) and
+        #: ``lane_n`` those of one lane
+        self.lanes: LaneSet | None = None
+        self.lane_n = self.n
+        #: in lanes: why each lane its watchdog ejected would have stopped (its scalar run's fault)
+        self.lane_faults: dict[int, Fault] = {}
+
+    # --- lanes (batched lockstep) -----------------------------------------------------------------
+    @classmethod
+    def from_lanes(cls, loops: Sequence[ServoLoop], io: JointIO, lanes: LaneSet) -> ServoLoop:
+        """One loop ticking the B lanes of ``loops`` (batched lockstep, :mod:`hal.lanes`; lane b is
+        ``loops[b]``, built and not yet ticked as its scalar run builds it) through ``io``, their
+        drivers stacked (:meth:`servo.io.JointIO.from_lanes`). Joints are lane-major: joint j of
+        lane b at ``b*n + j``; the controller, watchdog, cross-checks, motion and recorder are the
+        lanes' stacked (their ``from_lanes``).
+
+        :meth:`tick` is then the lane tick, selected here once (the scalar tick is unchanged): every
+        check runs per lane, and a lane whose scalar run would stop (a watchdog trip, a soft limit)
+        is ejected with its cause (``lanes.reasons``, :attr:`lane_faults`) while the others run on.
+        A failure every lane shares (a driver error, an exception) ejects every lane. The end of
+        the run (:meth:`armed`'s exit) stops every live lane alike. :meth:`write_lane` hands each
+        lane's end state back to its scalar loop. Not in lanes (NotImplementedError): live
+        commands pending, the hand by current, vision, a free-running plant's sample clock, a stop
+        under way or a fault; the loops' black boxes are not kept (no part of a run's results)."""
+        first = loops[0]
+        size = len(loops)
+        if size != lanes.size:
+            raise ValueError(f"{size} loops for {lanes.size} lanes")
+        n = first.n
+        for lp in loops:
+            if lp.lanes is not None:
+                raise NotImplementedError("a loop already in lanes cannot be stacked again")
+            if (lp.n, lp.period_s, lp.names, lp.tick_count, lp.enabled, lp._t_motion0) != (
+                    n, first.period_s, first.names, first.tick_count, first.enabled, first._t_motion0):
+                raise NotImplementedError("lanes' loops differ in joints, period, tick or state: not as lanes")
+            if lp.fault is not None or lp.stopping is not None or lp.stop_category is not None:
+                raise NotImplementedError("a stopped loop cannot run in lanes")
+            if lp.hand is not None or lp._hand_move is not None or lp.torque_window is not None:
+                raise NotImplementedError("the hand by current cannot run in lanes")
+            if lp.vision is not None:
+                raise NotImplementedError("a vision link cannot run in lanes")
+            if lp.sample_clock is not None:
+                raise NotImplementedError("a free-running plant's sample clock cannot run in lanes")
+            if lp._soft_allow is not None:
+                raise NotImplementedError("a loop resumed past its soft limit cannot run in lanes")
+            if not lp._inbox.empty():
+                raise NotImplementedError("live commands pending cannot run in lanes")
+            if (lp._last_theta is None) != (first._last_theta is None) or (lp.recorder is None) != (
+                    first.recorder is None):
+                raise NotImplementedError("lanes' loops are not at the same point: they cannot run as lanes")
+        obj = cls.__new__(cls)
+        obj.__dict__.update(first.__dict__)  # rig-wide settings (names, period, stop settings…), then per lane:
+        obj.io = io
+        obj.n = n * size
+        obj.lanes = lanes
+        obj.lane_n = n
+        obj.lane_faults = {}
+        obj.controller = SwitchableController.from_lanes([lp.controller for lp in loops])
+        obj.sequencer = LaneSequencer([lp.sequencer for lp in loops])  # type: ignore[assignment]
+        obj.watchdog = WatchdogConfig.from_lanes([lp.watchdog for lp in loops])
+        obj.cross_checks = CrossChecks.from_lanes([lp.cross_checks for lp in loops], io, obj.watchdog, size)
+        obj.recorder = None if first.recorder is None else Recorder.from_lanes(
+            [lp.recorder for lp in loops if lp.recorder is not None])
+        obj._last_theta = None if first._last_theta is None else np.concatenate(
+            [lp._last_theta for lp in loops if lp._last_theta is not None])
+        obj.fault = None
+        obj.faults = []
+        obj.stop_incomplete = []
+        obj.final_stop = None
+        obj.interruptions = []
+        obj._interrupts_seen = []
+        obj._inbox = queue.SimpleQueue()
+        obj.last = {}
+        obj.log = deque(maxlen=cls.LOG_MAX)
+        obj.log_dropped = 0
+        obj.refusals = []
+        obj._stop_origin = {}
+        obj.stop_excursion = {}
+        obj.active_controller = list(first.active_controller)
+        obj.blackbox = None
+        obj.__dict__["tick"] = obj._tick_lanes  # the lane tick, chosen once (the scalar one is untouched)
+        for name in ("submit", "set_motion", "set_hand", "resume"):  # live changes: not in lanes
+            obj.__dict__[name] = partial(_not_in_lanes, name)
+        return obj
+
+    def _tick_lanes(self, truth: Mapping[str, np.ndarray] | None = None) -> None:
+        """:meth:`tick` in lanes: the scalar tick's work, elementwise over the lanes' joints; where
+        the scalar tick would stop a lane, that lane is ejected (see :meth:`from_lanes`)."""
+        k = self.tick_count
+        t0 = time.perf_counter()
+        lanes = self.lanes
+        assert lanes is not None
+        lanes.tick = k
+        t = k * self.period_s
+        with np.errstate(all="ignore"):  # ejected lanes go on being computed: garbage, never an error
+            if self.fault is not None or not self.enabled:
+                try:
+                    m_stopped: Measurement | None = self.io.read()
+                except Exception:
+                    m_stopped = None
+                self._record(k, t, m_stopped, None, None, truth, t0)
+                self.tick_count += 1
+                return
+            try:
+                m = self.io.read()
+            except Exception as e:  # every lane's read: every lane's stop
+                self.safe_stop("driver_error", f"{type(e).__name__}: {e}")
+                self._record(k, t, None, None, None, truth, t0)
+                self.tick_count += 1
+                return
+            wd = self.watchdog
+            if wd.enabled and (wd.soft_min_rad is not None or wd.soft_max_rad is not None):
+                over = wd.past_soft_limit(m.theta) - wd.soft_limit_margin_rad
+                self._trip_lanes("soft_limit", over > 0.0, np.argmax(over.reshape(-1, self.lane_n), axis=1), lambda i: (
+                    f"position {np.degrees(m.theta[i]):+.2f}° past a soft limit by more than "
+                    f"{np.degrees(wd.soft_limit_margin_rad):g}° (a category-1 stop in its scalar run)"))
+            sample = self.sequencer.sample(max(0.0, t - self._t_motion0))
+            self._check_lanes(m, sample)
+            out = self.controller.update(self._context(k, t, m, sample))
+            try:
+                current = self.io.write_torque(out.torque, m.omega)
+            except Exception as e:
+                self.safe_stop("driver_error", f"{type(e).__name__}: {e}")
+                current = None
+            self._record(k, t, m, sample, (out, current), truth, t0)
+            self.tick_count += 1
+
+    def _trip_lanes(self, cause: str, bad: np.ndarray, worst: np.ndarray | None,
+                    detail: Callable[[int], str]) -> None:
+        """Eject the live lanes where ``bad`` (per joint, lane-major) holds for some joint: each with
+        ``cause`` and its scalar stop's ``detail`` for the joint its scalar check names (``worst``:
+        per lane the joint's index within the lane, or its flat index; ``None``: the first joint
+        where ``bad`` holds)."""
+        lanes = self.lanes
+        assert lanes is not None
+        n = self.lane_n
+        rows = np.asarray(bad, bool).reshape(-1, n)
+        hit = rows.any(axis=1) & lanes.alive
+        if not hit.any():
+            return
+        for b in np.flatnonzero(hit).tolist():
+            j = int(np.argmax(rows[b])) if worst is None else int(worst[b]) % n
+            text = detail(b * n + j)
+            tick = self.tick_count
+            self.lane_faults[b] = Fault(tick, tick * self.period_s, cause, self.names[j], text)
+            lanes.eject(np.arange(lanes.size) == b, f"{cause} ({self.names[j]}): {text}")
+
+    def _check_lanes(self, m: Measurement, sample: Sample) -> None:
+        """:meth:`_check` per lane: a lane whose check fails is ejected (its scalar run stops)."""
+        wd = self.watchdog
+        if not wd.enabled:
+            return
+        n = self.lane_n
+        self._trip_lanes("amplifier_fault", np.asarray(m.fault, bool), None,
+                         lambda i: "amplifier fault line asserted")
+        self._trip_lanes("implausible_sensor", ~np.isfinite(m.theta) | ~np.isfinite(m.omega), None,
+                         lambda i: "non-finite position or velocity reading")
+        rail = np.isfinite(m.pot_v) & (np.abs(m.pot_v) >= wd.pot_rail_v)
+        self._trip_lanes("implausible_sensor", rail, None,
+                         lambda i: f"potentiometer at the ADC rail ({m.pot_v[i]:+.3f} V): open wiper?")
+        if self._last_theta is not None:
+            jump = np.abs(m.theta - self._last_theta)
+            self._trip_lanes("implausible_sensor", jump > wd.max_jump_rad, np.argmax(jump.reshape(-1, n), axis=1),
+                             lambda i: f"position jumped {jump[i]:.3f} rad in one tick")
+        self._last_theta = m.theta.copy()
+        self.cross_checks.config = wd
+        t_s = self.sample_clock() if self.sample_clock is not None else None
+        trips: list[LaneTrip] = self.cross_checks.check_lanes(m, sample.theta_d, sample.omega_d, t_s)
+        for cause, hit, worst, detail in trips:
+            self._trip_lanes(cause, np.repeat(hit, n), worst, detail)
+        err = np.abs(np.asarray(sample.theta_d) - m.theta)
+        over = err > wd.following_error_rad
+        fe = wd.following_error_rad
+        self._trip_lanes("following_error", over, None,
+                         lambda i: f"following error {err[i]:.4f} rad > limit {fe[i]:.4f} rad")
+
+    def recorder_for_lane(self, lane: int) -> Recorder | None:
+        """Lane ``lane``'s rows as its scalar recorder holds them (``None``: no recorder)."""
+        if self.recorder is None:
+            return None
+        return self.recorder.lane(lane, self.lane_n) if self.lanes is not None else self.recorder
+
+    def write_lane(self, lane: int, loop: ServoLoop) -> None:
+        """Hand lane ``lane``'s end state to ``loop``, its scalar loop (the one stacked as that lane):
+        recorded rows, the law's state and events, the cross-checks, the tick count and how the run
+        ended — so that its run's report (``summarize``, the figures) reads as its scalar run's.
+        Its sequencer is the lane's own already. For a lane still live at the end."""
+        n = self.lane_n
+        sl = slice(lane * n, (lane + 1) * n)
+        if self.recorder is not None:
+            loop.recorder = self.recorder.lane(lane, n)
+        self.controller.active.write_lane(lane, loop.controller.active)
+        self.cross_checks.write_lane(lane, loop.cross_checks)
+        loop.tick_count = self.tick_count
+        loop.run_ticks = self.run_ticks
+        loop.enabled = self.enabled
+        loop._last_theta = None if self._last_theta is None else self._last_theta[sl].copy()
+        loop.stop_category, loop.stop_cause, loop.stop_fell = self.stop_category, self.stop_cause, self.stop_fell
+        loop.stop_tick = self.stop_tick
+        loop._stop_origin = {k: v[sl].copy() for k, v in self._stop_origin.items()}
+        loop.stop_excursion = {k: v[sl].copy() for k, v in self.stop_excursion.items()}
+        loop.last = {k: (v[sl].copy() if isinstance(v, np.ndarray) and v.shape == (self.n,) else v)
+                     for k, v in self.last.items() if k != "measurement"}
+        failures = list(self.stop_incomplete)
+        per_lane = getattr(self.io, "lane_stop_failures", None)
+        if per_lane is not None:
+            failures = list(per_lane[lane])
+        loop.stop_incomplete = failures
+        loop.interruptions = list(self.interruptions)
+        loop.faults = list(self.faults)
+        loop.fault = self.fault
+        if self.final_stop is not None:
+            fs = dict(self.final_stop)
+            fs.update(verified=not failures, incomplete=list(failures), interruptions=loop.interruptions)
+            fs.update(loop.stop_summary())
+            loop.final_stop = fs
 
     # --- live interface ------------------------------------------------------------------------
     def submit(self, command: LiveCommand,
@@ -461,6 +710,9 @@ class ServoLoop:
         the joints are, power kept. A category-1 stop asked of a loop that is not servoing (or
         already stopping) is done at once as category 0 (or left to the one under way). Call it
         at a tick boundary (inside a live command, or between runner ticks). Returns the category."""
+        if self.lanes is not None:  # in lanes: every lane stops now (category 0), and is ejected
+            self.safe_stop(cause, detail, joint)
+            return StopCategory.UNCONTROLLED
         cat = self.category_of(cause)
         if cat == StopCategory.CONTROLLED and self.stopping is not None:
             return cat
@@ -534,8 +786,11 @@ class ServoLoop:
             return {n: (round(float(np.degrees(x)), 4) if np.isfinite(x) else None)
                     for n, x in zip(self.names, v, strict=True)}
 
-        sensor = per_joint(self.stop_excursion.get("sensor"))
-        true = per_joint(self.stop_excursion.get("true"))
+        if self.lanes is not None:  # per lane: write_lane gives each lane's scalar loop its own
+            sensor = true = None
+        else:
+            sensor = per_joint(self.stop_excursion.get("sensor"))
+            true = per_joint(self.stop_excursion.get("true"))
         return {"category": None if self.stop_category is None else int(self.stop_category),
                 "cause": self.stop_cause, "fell_to_0": self.stop_fell,
                 "excursion_deg": true if true is not None else sensor, "excursion_sensor_deg": sensor}
@@ -582,6 +837,8 @@ class ServoLoop:
     def _safe_stop(self, cause: str, detail: str, joint: int | None,
                    category: StopCategory = StopCategory.UNCONTROLLED) -> list[BaseException]:
         held: list[BaseException] = []
+        if self.lanes is not None:  # in lanes a stop is every lane's (a driver error, an exception, a signal)
+            self.lanes.eject(True, f"{cause}: {detail}")
         with SignalsDeferred(held):
             failures = self.io.safe_stop(held)
             self.stop_incomplete = failures

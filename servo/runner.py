@@ -31,7 +31,7 @@ from __future__ import annotations
 import gc
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -154,6 +154,24 @@ class LockstepRunner:
         #: the plant boundary error that ended the last window after a stop early (``None``: none)
         self.window_ended_by: PlantBoundaryError | None = None
         self._watching = False
+
+    @classmethod
+    def from_lanes(cls, runners: Sequence[LockstepRunner], plant: PlantBoundary, loop: ServoLoop) -> LockstepRunner:
+        """The runner of B lanes (batched lockstep, :mod:`hal.lanes`): ``plant``, the lanes' plant
+        boundary (the lane harness), and ``loop``, the lanes' loop (:meth:`ServoLoop.from_lanes`),
+        ticked exactly as one instance is — the tick's calls are the same, on lane objects. Stop
+        the run when no lane is live (``run(n, stop=lambda: not lanes.alive.any())``): a lane's
+        watchdog trip ejects it and never stops the loop. ``runners``: the lanes' scalar runners,
+        which must be alike; after-tick hooks (injected faults, taps) cannot run in lanes."""
+        for r in runners:
+            if r.after_tick:
+                raise NotImplementedError("a run with after-tick hooks (injected faults, taps) cannot run in lanes")
+            if (r.period_ns, r.delay_ns) != (runners[0].period_ns, runners[0].delay_ns):
+                raise NotImplementedError("lanes' runners differ in period or delay: they cannot run as lanes")
+        runner = cls(plant, loop)
+        if (runner.period_ns, runner.delay_ns) != (runners[0].period_ns, runners[0].delay_ns):
+            raise ValueError("the lane plant's period or delay differs from the lanes' runners'")
+        return runner
 
     def tick(self) -> None:
         signals = self._signals

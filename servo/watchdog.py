@@ -46,7 +46,8 @@ Defaults (``None`` in the config) are derived per joint from the sensors' nomina
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -107,6 +108,25 @@ class WatchdogConfig:
     soft_min_rad: np.ndarray | None = None
     soft_max_rad: np.ndarray | None = None
     soft_limit_margin_rad: float = float(np.radians(0.5))
+
+    @classmethod
+    def from_lanes(cls, configs: Sequence[WatchdogConfig]) -> WatchdogConfig:
+        """One config for B lanes (batched lockstep, :mod:`hal.lanes`): per-joint limits
+        concatenated lane-major; a rig-wide limit must be the same in every lane."""
+        first = configs[0]
+        values: dict[str, Any] = {}
+        for f in fields(cls):
+            vs = [getattr(c, f.name) for c in configs]
+            if any(isinstance(v, np.ndarray) for v in vs):
+                if not all(isinstance(v, np.ndarray) and v.ndim == 1 for v in vs):
+                    raise NotImplementedError(f"watchdog {f.name}: set in some lanes only; they cannot run as lanes")
+                values[f.name] = np.concatenate([np.asarray(v, float) for v in vs])
+            elif all(v == vs[0] or (v != v and vs[0] != vs[0]) for v in vs):
+                values[f.name] = vs[0]
+            else:
+                raise NotImplementedError(f"watchdog {f.name}: lanes differ ({vs[0]!r}, …); they cannot run as lanes")
+        del first
+        return cls(**values)
 
     def _soft_bounds(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         lo = np.full(n, -np.inf) if self.soft_min_rad is None else np.asarray(self.soft_min_rad, float)
@@ -169,6 +189,22 @@ def _worst(bad: np.ndarray, off: np.ndarray, tol: np.ndarray | float) -> int | N
     return int(np.argmax(np.where(bad, off - tol, -np.inf)))
 
 
+def _worst_lanes(bad: np.ndarray, off: np.ndarray, tol: np.ndarray | float,
+                 size: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_worst` per lane of a lane-major array of ``size`` lanes: which lanes have a joint
+    beyond its limit, and per lane the flat index of the one furthest beyond (as ``_worst`` picks it)."""
+    rows = bad.reshape(size, -1)
+    hit = np.asarray(rows.any(axis=1))
+    n = rows.shape[1]
+    worst = np.argmax(np.where(bad, off - tol, -np.inf).reshape(size, n), axis=1) + np.arange(size) * n
+    return hit, worst
+
+
+LaneTrip = tuple[str, np.ndarray, np.ndarray, Callable[[int], str]]
+"""A cross-check in lanes: its cause, per lane whether it tripped, per lane the flat index of the
+joint, and the scalar trip's detail for a flat joint index."""
+
+
 def _deg(rad: float) -> str:
     return f"{np.degrees(rad):+.2f}°"
 
@@ -221,7 +257,54 @@ class CrossChecks:
         self._limits_key: tuple[int, ...] = ()
         self._limits: dict[str, np.ndarray] = {}
         self._ratio = np.zeros(n)
+        #: the lanes these checks serve (batched lockstep, :meth:`from_lanes`); 1: one instance
+        self.lane_size = 1
         self.reset()
+
+    @classmethod
+    def from_lanes(cls, checks: Sequence[CrossChecks], io: Any, config: WatchdogConfig, size: int) -> CrossChecks:
+        """The cross-checks of B lanes (batched lockstep, :mod:`hal.lanes`): every per-joint array
+        (resolutions, limits, references, windows, counters) concatenated lane-major (the windows'
+        rings along their joint axis); the lanes' times and counts must agree. :meth:`check_lanes`
+        checks every lane as its scalar :meth:`check` does."""
+        first = checks[0]
+        n = first.n
+        for c in checks:
+            if c.n != n or c.window != first.window or c.period_s != first.period_s or c._slot != first._slot \
+                    or c._filled != first._filled or c._tick != first._tick or c._last_t != first._last_t \
+                    or c._generation != first._generation or c._illegal_seen \
+                    or not np.array_equal(c._ring_t, first._ring_t) \
+                    or len(c._cur_history) != len(first._cur_history) \
+                    or (c._last_theta_d is None) != (first._last_theta_d is None):
+                raise NotImplementedError("lanes' cross-checks are not at the same point: they cannot run as lanes")
+
+        def cat(values: list[Any]) -> np.ndarray:
+            return np.concatenate(values, axis=-1)
+
+        obj = cls.__new__(cls)
+        obj.io = io
+        obj.config = config
+        obj.n = n * size
+        obj.period_s = first.period_s
+        for name in ("pot_rad", "enc_rad", "tach_rad_s", "has_pot", "has_enc", "has_tach", "has_imon", "both",
+                     "ref_rad", "stale_rad", "_pot0", "_enc0", "_ring_ref", "_ring_int", "_tach_int", "_last_tach",
+                     "_cur_over", "_stale_at", "_stale_count", "_stale_travel"):
+            setattr(obj, name, cat([getattr(c, name) for c in checks]))
+        obj.window = first.window
+        obj.defaults = {k: cat([c.defaults[k] for c in checks]) for k in first.defaults}
+        obj._limits_key = ()
+        obj._limits = {}
+        obj._ratio = np.zeros(obj.n)
+        obj._generation = first._generation
+        obj._slot, obj._filled, obj._ring_t = first._slot, first._filled, first._ring_t.copy()
+        obj._last_t, obj._tick = first._last_t, first._tick
+        obj._cur_history = deque((np.concatenate(rows) for rows in zip(*(c._cur_history for c in checks), strict=True)),
+                                 maxlen=first._cur_history.maxlen)
+        obj._last_theta_d = None if first._last_theta_d is None else cat([c._last_theta_d for c in checks])
+        obj._illegal_seen = {}
+        obj.peak_ratio = {k: cat([c.peak_ratio[k] for c in checks]) for k in first.peak_ratio}
+        obj.lane_size = size
+        return obj
 
     def limit(self, name: str) -> np.ndarray:
         """The limit in force for ``name`` (the config's, else the derived default), per joint."""
@@ -410,3 +493,158 @@ class CrossChecks:
         return Trip("stale_sensor", i,
                     f"{src} reading within ±{cfg.stale_band_lsb:g} steps for {self._stale_count[i]} ticks while the "
                     f"target moved {np.degrees(self._stale_travel[i]):.2f}°")
+
+    # --- per tick, in lanes (batched lockstep) -------------------------------------------------
+    def check_lanes(self, m: Any, theta_d: np.ndarray, omega_d: np.ndarray,
+                    sample_time_s: float | None = None) -> list[LaneTrip]:
+        """:meth:`check` for every lane of a lane-major stack (:meth:`from_lanes`): the same state
+        updates, elementwise, then per lane the checks that failed, in :meth:`check`'s order (the
+        first is the lane's cause; its scalar run stops there). A lane that trips no longer counts:
+        the caller ejects it, so it does not matter that its later checks still updated its state."""
+        generation = getattr(self.io, "calibration_generation", 0)
+        if generation != self._generation:
+            self._generation = generation
+            self._pot0 = np.where(self.both, m.theta_pot, np.nan)
+            homed = getattr(self.io, "homed", None)
+            enc0 = m.theta_enc if homed is None else np.where(homed, m.theta_pot, m.theta_enc)
+            self._enc0 = np.where(self.both, enc0, np.nan)
+            self._filled = 0
+        self.limit("stale_travel_rad")
+        stale = self._stale_lanes(m, np.asarray(theta_d, float), np.asarray(omega_d, float))
+        trips = self._illegal_lanes(m)
+        if self.config.cross_checks:
+            trips += self._current_lanes(m) + self._velocity_lanes(m, sample_time_s) + self._position_lanes(m)
+        return trips + stale
+
+    def _illegal_lanes(self, m: Any) -> list[LaneTrip]:
+        """In lanes a decoder's ILLEGAL flag already ejected its lane (its scalar run clears the flag:
+        a bus cycle the others do not make, :meth:`servo.io.JointIO.read`): one flag is one trip here."""
+        self._tick += 1
+        flags = getattr(m, "encoder_illegal", None)
+        if flags is None or len(flags) != self.n or not flags.any():
+            return []
+        hit = np.asarray(flags, bool).reshape(self.lane_size, -1)
+        worst = np.argmax(hit, axis=1) + np.arange(self.lane_size) * hit.shape[1]
+        return [("encoder_illegal", np.asarray(hit.any(axis=1)), worst,
+                 lambda i: "the quadrature decoder flagged an illegal transition")]
+
+    def _position_lanes(self, m: Any) -> list[LaneTrip]:
+        if not self.both.any():
+            return []
+        d_pot = m.theta_pot - self._pot0
+        d_enc = m.theta_enc - self._enc0
+        travel = np.fmax(np.abs(d_pot), np.abs(d_enc))
+        tol = self._limits["position_tolerance_rad"] + self.config.position_tolerance_fraction * travel
+        off = np.abs(d_enc - d_pot)
+        bad = self._over("position", off, tol, self.both)
+        if not bad.any():
+            return []
+        hit, worst = _worst_lanes(bad, off, tol, self.lane_size)
+
+        def detail(i: int) -> str:
+            return (f"pot and encoder disagree by {np.degrees(off[i]):.2f}° (limit {np.degrees(tol[i]):.2f}°): "
+                    f"since the reference the pot moved {_deg(d_pot[i])}, the encoder {_deg(d_enc[i])}")
+        return [("position_mismatch", hit, worst, detail)]
+
+    def _velocity_lanes(self, m: Any, t_s: float | None = None) -> list[LaneTrip]:
+        if not self.has_tach.any():
+            return []
+        tach = np.where(self.has_tach, m.omega_tach, 0.0)
+        ref = np.where(self.has_enc, m.theta_enc, m.theta_pot)
+        w = self.window
+        dt = self.period_s if t_s is None else t_s - self._last_t
+        if t_s is not None and self._filled and dt <= 0.0:
+            return []
+        if self._filled == 0:
+            self._tach_int[:] = 0.0
+        else:
+            self._tach_int += 0.5 * dt * (tach + self._last_tach)
+        self._last_tach = tach
+        self._slot = (self._slot + 1) % (w + 1)
+        self._ring_ref[self._slot] = ref
+        self._ring_int[self._slot] = self._tach_int
+        if t_s is not None:
+            self._last_t = self._ring_t[self._slot] = t_s
+        self._filled = min(self._filled + 1, w + 1)
+        if self._filled <= w:
+            return []
+        old = (self._slot + 1) % (w + 1)
+        window_s = w * self.period_s if t_s is None else t_s - self._ring_t[old]
+        v_ref = (ref - self._ring_ref[old]) / window_s
+        v_tach = (self._tach_int - self._ring_int[old]) / window_s
+        off = np.abs(v_tach - v_ref)
+        tol = (self._limits["tach_dead_band_rad_s"] + self._limits["velocity_tolerance_rad_s"]
+               + self.config.velocity_tolerance_fraction * np.fmax(np.abs(v_ref), np.abs(v_tach)))
+        bad = self._over("velocity", off, tol, self.has_tach)
+        if not bad.any():
+            return []
+        hit, worst = _worst_lanes(bad, off, tol, self.lane_size)
+
+        def detail(i: int) -> str:
+            src = "encoder" if self.has_enc[i] else "pot"
+            return (f"tachometer and {src} disagree: over the last {window_s * 1e3:.0f} ms the tach averaged "
+                    f"{v_tach[i]:+.3f} rad/s, the {src} moved at {v_ref[i]:+.3f} rad/s "
+                    f"(limit ±{tol[i]:.3f} rad/s, dead band included)")
+        return [("velocity_mismatch", hit, worst, detail)]
+
+    def _current_lanes(self, m: Any) -> list[LaneTrip]:
+        if not self.has_imon.any():
+            return []
+        commanded = np.asarray(self.io.last_current_a, float)
+        if self._cur_history.maxlen == 1:
+            off = np.abs(m.current - commanded)
+            largest = np.abs(commanded)
+        else:
+            self._cur_history.append(commanded.copy())
+            lo, hi = np.min(self._cur_history, axis=0), np.max(self._cur_history, axis=0)
+            off = np.maximum(np.maximum(lo - m.current, m.current - hi), 0.0)
+            largest = np.maximum(np.abs(lo), np.abs(hi))
+        tol = self._limits["current_tolerance_a"] + self._limits["current_tolerance_fraction"] * largest
+        self._cur_over = np.where(self._over("current", off, tol, self.has_imon), self._cur_over + 1, 0)
+        bad = self._cur_over >= max(1, int(self.config.current_mismatch_ticks))
+        if not bad.any():
+            return []
+        hit, worst = _worst_lanes(bad, off, tol, self.lane_size)
+        cur_over = self._cur_over.copy()
+
+        def detail(i: int) -> str:
+            return (f"current monitor reads {m.current[i]:+.3f} A, {commanded[i]:+.3f} A commanded "
+                    f"(limit ±{tol[i]:.3f} A) for {cur_over[i]} ticks: no current reaches the motor?")
+        return [("current_mismatch", hit, worst, detail)]
+
+    def _stale_lanes(self, m: Any, theta_d: np.ndarray, omega_d: np.ndarray) -> list[LaneTrip]:
+        cfg = self.config
+        reading = np.where(self.has_pot, m.theta_pot, m.theta_enc)
+        band = cfg.stale_band_lsb * self.stale_rad
+        step = np.zeros(self.n) if self._last_theta_d is None else np.abs(theta_d - self._last_theta_d)
+        self._last_theta_d = theta_d.copy()
+        keep = (np.abs(reading - self._stale_at) <= band) & (np.abs(omega_d) > MOVING_RAD_S)
+        self._stale_count = np.where(keep, self._stale_count + 1, 0)
+        self._stale_travel = np.where(keep, self._stale_travel + step, 0.0)
+        self._stale_at = np.where(keep, self._stale_at, reading)
+        bad = (self._stale_count >= cfg.stale_ticks) & (self._stale_travel >= self._limits["stale_travel_rad"])
+        if not bad.any():
+            return []
+        hit, worst = _worst_lanes(bad, self._stale_travel, 0.0, self.lane_size)
+        count, travel = self._stale_count.copy(), self._stale_travel.copy()
+
+        def detail(i: int) -> str:
+            src = "pot" if self.has_pot[i] else "encoder"
+            return (f"{src} reading within ±{cfg.stale_band_lsb:g} steps for {count[i]} ticks while the "
+                    f"target moved {np.degrees(travel[i]):.2f}°")
+        return [("stale_sensor", hit, worst, detail)]
+
+    def write_lane(self, lane: int, checks: CrossChecks) -> None:
+        """Put lane ``lane``'s state of these lane cross-checks into ``checks`` (its scalar ones)."""
+        n = checks.n
+        sl = slice(lane * n, (lane + 1) * n)
+        for name in ("_pot0", "_enc0", "_tach_int", "_last_tach", "_cur_over", "_stale_at", "_stale_count",
+                     "_stale_travel"):
+            setattr(checks, name, getattr(self, name)[sl].copy())
+        checks._ring_ref, checks._ring_int = self._ring_ref[:, sl].copy(), self._ring_int[:, sl].copy()
+        checks._ring_t = self._ring_t.copy()
+        checks._generation, checks._slot, checks._filled = self._generation, self._slot, self._filled
+        checks._last_t, checks._tick = self._last_t, self._tick
+        checks._cur_history = deque((h[sl].copy() for h in self._cur_history), maxlen=checks._cur_history.maxlen)
+        checks._last_theta_d = None if self._last_theta_d is None else self._last_theta_d[sl].copy()
+        checks.peak_ratio = {k: v[sl].copy() for k, v in self.peak_ratio.items()}

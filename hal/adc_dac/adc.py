@@ -6,6 +6,10 @@ they wait for the end-of-conversion interrupt instead. :meth:`AdcDriver.scan` us
 sequencer and reads the result buffer with one block transfer — the fast path for the servo
 loop (one start, one wait, one block read per tick).
 
+Lanes (batched lockstep, :mod:`hal.lanes`): :meth:`AdcDriver.from_lanes` makes one driver of the
+B boards of a bus of lanes; its scans return arrays of shape (k, B) (the section "lanes" at the
+end of this module).
+
 Example::
 
     adc = AdcDriver(crate, 0x6000)
@@ -41,6 +45,7 @@ from hal.adc_dac.conversions import (
     check_gain,
     gain_code,
 )
+from hal.lanes import LaneSet, lane, stack
 from hal.vme.bus import SpaceLike, VmeBus
 from hal.vme.types import Width
 from hal.vme.window import BoardWindow
@@ -142,6 +147,8 @@ class AdcDriver:
     """
 
     CHANNELS = ADC_CHANNELS
+    #: the per-lane part of a driver of lanes (:meth:`from_lanes`); None: one board
+    _lanes: _AdcDriverLanes | None = None
     #: how long after a change at an input a read is sure to show it (every read converts after
     #: its call here; an autoscanning board's driver names its scan time)
     fresh_after_s = 0.0
@@ -175,6 +182,13 @@ class AdcDriver:
         self.range = AdcRange.parse(range)
         self._config = _B["RANGE"] if self.range is AdcRange.UNIPOLAR_10V else 0
         self._write_config()
+
+    @classmethod
+    def from_lanes(cls, drivers: Sequence[AdcDriver], bus: VmeBus) -> AdcDriver:
+        """One driver of lanes for ``drivers`` (one per lane of ``bus``, in lane order; set up as
+        scalar runs set them up) on ``bus``, a bus of lanes: :meth:`scan` and :meth:`scan_counts`
+        then return arrays of shape (k, B) (the section "lanes" at the end of this module). No bus cycle."""
+        return _stack_adc_drivers(cls, drivers, bus)
 
     # --- configuration --------------------------------------------------------------------
     def _write_config(self) -> None:
@@ -375,3 +389,123 @@ def _scan_gain_words(gains: tuple[int, ...]) -> tuple[int, int]:
     g0 = sum(gain_code(gains[i]) << (2 * i) for i in range(8))
     g1 = sum(gain_code(gains[8 + i]) << (2 * i) for i in range(8))
     return g0, g1
+
+
+# --- lanes: one driver for the B boards of a bus of lanes (batched lockstep, issue #34) -----------
+# A driver of lanes makes its scalar drivers' bus cycles once for every lane: the registers it
+# reads hold a value per lane (hal.lanes). AdcDriver.from_lanes selects, once, the three steps
+# that differ from the scalar code above (which runs unchanged on a scalar driver):
+# * the block read of a scan's buffer gives a word per channel and lane: scan_counts returns codes
+#   of shape (k, B), scan calibrated volts of shape (k, B) (each lane's column: the scalar driver's
+#   (k,) operations, element by element, so the same bits);
+# * the end-of-scan poll branches on the CSR each lane reads: the live lanes' common answer
+#   (VmeBus.decide; a lane whose board said otherwise is ejected);
+# * each lane keeps its scalar driver's calibration (arrays of shape (k, B) where the lanes'
+#   calibrations differ, (k, 1) where they are alike).
+# Out of scope (NotImplementedError): interrupt-driven waits (their instances run scalar).
+
+def _stack_adc_drivers(cls: type[AdcDriver], drivers: Sequence[AdcDriver], bus: VmeBus) -> AdcDriver:
+    """:meth:`AdcDriver.from_lanes`: one driver for ``drivers`` (one per lane, in lane order)."""
+    lanes = bus.lanes
+    if lanes is None:
+        raise ValueError("AdcDriver.from_lanes needs a bus of lanes (its .lanes is a hal.lanes.LaneSet)")
+    if len(drivers) != lanes.size:
+        raise ValueError(f"{len(drivers)} ADC drivers for a bus of {lanes.size} lanes")
+    first = drivers[0]
+
+    def same(d: AdcDriver) -> tuple[object, ...]:
+        return (d.win.base, d.win.am, d.range, d._config, d._scan_cfg, d.conversion_time_s, d.poll_interval_s,
+                d.timeout_s)
+
+    for d in drivers:
+        if type(d) is not cls:
+            raise NotImplementedError(f"a {type(d).__name__} is not a {cls.__name__}; it cannot stack with one")
+        if d._vector is not None:
+            raise NotImplementedError(f"ADC at 0x{d.win.base:X}: interrupt-driven waits cannot run in lanes")
+        if same(d) != same(first):
+            raise NotImplementedError(f"ADC at 0x{d.win.base:X}: drivers that differ in address, range, scan "
+                                      "set-up or timing cannot run in lanes")
+    drv = cls.__new__(cls)
+    drv.bus = bus
+    drv.win = BoardWindow(bus, first.win.base, ADC_REGMAP, first.win.am)
+    drv.calibration = first.calibration
+    drv.conversion_time_s, drv.poll_interval_s, drv.timeout_s = (first.conversion_time_s, first.poll_interval_s,
+                                                                 first.timeout_s)
+    drv._vector = None
+    drv._irq_count = stack([d._irq_count for d in drivers])
+    drv._scan_cfg = first._scan_cfg
+    drv._scan_plans = {}
+    drv.range, drv._config = first.range, first._config
+    ls = _AdcDriverLanes(drv, [d.calibration for d in drivers], lanes)
+    drv._lanes = ls
+    # the lane-mode steps, selected once (the scalar methods run unchanged on a scalar driver)
+    drv.scan = ls.scan  # type: ignore[method-assign]
+    drv._run_scan = ls.run_scan  # type: ignore[method-assign]
+    drv._wait = ls.wait  # type: ignore[method-assign]
+    return drv
+
+
+class _AdcDriverLanes:
+    """The per-lane part of a driver of lanes, and its lane-mode steps."""
+
+    def __init__(self, driver: AdcDriver, calibrations: Sequence[Calibration], lanes: LaneSet) -> None:
+        self.driver, self.lanes, self.n = driver, lanes, lanes.size
+        #: each lane's calibration (lane order)
+        self.calibrations = tuple(calibrations)
+
+    def scan(self, channels: int | Sequence[int], gain: int | Mapping[int, int] = 1) -> np.ndarray:
+        """:meth:`AdcDriver.scan` of every lane: calibrated volts, shape (k, B)."""
+        d = self.driver
+        plan = d._scan_plan(channels, gain)
+        codes = self.run_scan(plan)[plan.chans]
+        if plan.cal is not d.calibration or plan.range is not d.range:
+            self.bind(plan)
+        # the scalar scan's operations, element by element (each lane's arrays broadcast on its column)
+        volts = plan.v0 + codes * plan.lsb if plan.bipolar else codes * plan.lsb
+        return (volts - plan.offset_v) / plan.cal_gain  # type: ignore[no-any-return]
+
+    def bind(self, plan: _ScanPlan) -> None:
+        """:meth:`_ScanPlan.bind` for lanes: the conversion arrays as (k, 1) columns, the
+        calibration's (k, B) where the lanes' calibrations differ. A calibration assigned to the
+        driver of lanes (``driver.calibration = cal``) is every lane's from then on."""
+        d = self.driver
+        if d.calibration is not self.calibrations[0]:
+            self.calibrations = (d.calibration,) * self.n
+        plan.bind(d.calibration, d.range)
+        plan.v0, plan.lsb = plan.v0[:, None], plan.lsb[:, None]
+        for name, field in (("offset_v", "offset_v"), ("cal_gain", "gain")):
+            per_lane = stack([np.asarray(getattr(c, field), dtype=float)[plan.chans] for c in self.calibrations])
+            setattr(plan, name, per_lane if per_lane.ndim == 2 else per_lane[:, None])
+
+    def run_scan(self, plan: _ScanPlan) -> np.ndarray:
+        """:meth:`AdcDriver._run_scan` of every lane: codes of channels 0..last, shape (last+1, B)."""
+        d = self.driver
+        last = plan.last
+        d._configure_scan(last, plan.gains)
+        d.win.write_offset(_CSR_LOW, _B["SCAN"], Width.D8)
+        self.wait(last + 1, plan.what)
+        words = d.bus.read_block(d.win.base + ADC_BUFFER_OFFSET, last + 1, space=d.win.am, width=Width.D16)
+        codes = np.empty((last + 1, self.n), dtype=np.int64)
+        for k, w in enumerate(words):  # a word every lane holds alike is one int
+            codes[k] = w
+        return codes & 0xFFF
+
+    def wait(self, conversions: int, what: str) -> None:
+        """:meth:`AdcDriver._wait` (polled) of every lane: one clock, so one poll sequence; the
+        CSR each poll reads decides for the live lanes together (``VmeBus.decide``)."""
+        d = self.driver
+        if d._vector is not None:
+            raise NotImplementedError("interrupt-driven ADC waits cannot run in lanes")
+        bus = d.bus
+        nominal = conversions * d.conversion_time_s
+        deadline = bus.now() + nominal + d.timeout_s
+        bus.delay(nominal)
+        while True:
+            csr = d.win.read_offset(_CSR_LOW, Width.D8)
+            done = (csr & (_B["DONE"] | _B["BUSY"])) == _B["DONE"]  # the scalar poll's condition
+            if bus.decide(done, f"ADC {what}: done in some lanes, busy in others"):
+                return
+            if bus.now() >= deadline:
+                first_live = int(np.argmax(self.lanes.alive))
+                raise AdcTimeoutError(what, nominal + d.timeout_s, int(lane(d.win.read("CSR"), first_live)))
+            bus.delay(d.poll_interval_s)

@@ -138,6 +138,22 @@ def dac_volts_to_code(volts: float) -> tuple[int, bool]:
     return code, False
 
 
+def dac_volts_to_codes(volts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Array form of :func:`dac_volts_to_code`, element by element with the same float math (so
+    the same codes, bit for bit): ``(codes, clipped, invalid)`` — int64, bool and bool arrays of
+    ``volts``' shape. ``invalid`` marks the elements the scalar form rejects (NaN: ``ValueError``;
+    ±inf, or a value whose code overflows a float: ``OverflowError``); they get the 0 V code
+    0x800, unclipped."""
+    v = np.asarray(volts, dtype=float)
+    with np.errstate(invalid="ignore", over="ignore"):
+        code = np.floor((v - DAC_V_MIN) / DAC_LSB_V + 0.5)
+    invalid = ~np.isfinite(code)
+    code = np.where(invalid, CODE_MID, code)
+    low, high = code < 0, code > CODE_MAX
+    codes = np.where(low, 0, np.where(high, CODE_MAX, code)).astype(np.int64)
+    return codes, low | high, invalid
+
+
 def dac_code_to_volts(code: int) -> float:
     """Offset-binary code → ideal DAC output volts (0x800 = 0 V)."""
     if not 0 <= code <= CODE_MAX:

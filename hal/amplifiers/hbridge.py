@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol
 
+import numpy as np
+
 from hal.amplifiers.linear import AmplifierFault, AnalogInput
 
 
@@ -18,6 +20,16 @@ def duty_for_current(current_a: float, resistance_ohm: float, ke_v_s_per_rad: fl
     """Signed PWM duty that drives ``current_a`` into a motor turning at ``omega_motor_rad_s``:
     V = R·i + Ke·ω (steady state, back-EMF fed forward), as a fraction of the supply, in [-1, 1]."""
     return max(-1.0, min(1.0, (resistance_ohm * current_a + ke_v_s_per_rad * omega_motor_rad_s) / supply_v))
+
+
+def duty_for_current_array(current_a: np.ndarray, resistance_ohm, ke_v_s_per_rad, omega_motor_rad_s,
+                           supply_v) -> np.ndarray:
+    """Array form of :func:`duty_for_current` (element by element, arguments broadcast): the
+    same float operations and the same clamps (``min``/``max`` written as the comparisons they
+    make, so a NaN clamps to +1 as there), so the same duties bit for bit."""
+    d = (resistance_ohm * np.asarray(current_a, dtype=float) + ke_v_s_per_rad * omega_motor_rad_s) / supply_v
+    d = np.where(d < 1.0, d, 1.0)  # min(1.0, d)
+    return np.where(d > -1.0, d, -1.0)  # max(-1.0, ·)
 
 
 class PwmLines(Protocol):

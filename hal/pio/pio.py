@@ -15,14 +15,26 @@ Example::
     pio.on_change("amp1.fault", lambda name, level: print(name, level))
     pio.set_pwm(-0.25, period_s=50e-6)   # 20 kHz, 25 % duty, direction line low
     pio.pwm_enable(True)
+
+Lanes (batched lockstep, :mod:`hal.lanes`): :meth:`PioDriver.from_lanes` stacks B drivers (one
+per instance) into one on a bus of lanes: :meth:`~PioDriver.read_port` then returns a word per
+lane (``(B,)`` int64, or an int when every lane reads the same), :meth:`~PioDriver.set_line`
+takes a level per lane and :meth:`~PioDriver.set_pwm` a duty per lane. Where one instance's
+driver would raise for some lanes only (a line not following its latch, a duty out of range),
+those lanes are ejected; a direction reversal that some lanes make and others not (it adds bus
+cycles) keeps the majority's (``VmeBus.decide``). Input-change interrupts are not used in lanes.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any
+
+import numpy as np
 
 from hal.errors import HalError
+from hal.lanes import LaneSet, LaneValue, stack
 from hal.pio.pio_regs import BOARD_TYPE, LINES_PER_PORT, PIO_REGS, PORTS, PWM_CLOCK_HZ, REVISION, parse_line
 from hal.vme.bus import SpaceLike, VmeBus
 from hal.vme.errors import BoardIdError
@@ -79,6 +91,8 @@ class PioDriver:
         pwm_direction_line: default line that carries the H-bridge direction for :meth:`set_pwm`.
         direction_forward_level: level of the direction line for a positive duty.
     """
+
+    _lanes: LaneSet  #: in lane mode only (from_lanes): the bus's lanes
 
     def __init__(
         self,
@@ -360,3 +374,170 @@ class PioDriver:
             return 0.0
         period = self.win.read("PWM_PERIOD")
         return min(self.win.read("PWM_DUTY"), period) / period if period else 0.0
+
+    # --- lanes (batched lockstep, hal.lanes) ----------------------------------------------------
+    @classmethod
+    def from_lanes(cls, drivers: Sequence[PioDriver], bus: VmeBus) -> PioDriver:
+        """One driver in lane mode for the B scalar ``drivers`` (lane order, each opened and
+        configured on its instance's crate) on ``bus``, the crate of their lanes: the same board,
+        wiring table, direction line and interrupt settings in every lane; the shadows of the
+        direction registers, latches and PWM period are stacked. No bus cycle. A driver with an
+        input-change callback cannot run in lanes (``NotImplementedError``)."""
+        first = drivers[0]
+        if cls is not PioDriver:
+            raise NotImplementedError(f"{cls.__name__} has no lane mode")
+        if not isinstance(bus.lanes, LaneSet):
+            raise ValueError("a PIO driver in lanes needs a bus of lanes (bus.lanes)")
+
+        def setup(d: PioDriver) -> tuple[Any, ...]:
+            return (d.win.base, d.win.am, d.lines, d.irq_level, d.vector, d.pwm_direction_line,
+                    d.direction_forward_level)
+
+        for d in drivers:
+            if type(d) is not cls:
+                raise NotImplementedError(f"a {type(d).__name__} cannot share lanes with a {cls.__name__}")
+            if d._handler_registered or d._line_cbs or d._port_cbs:
+                raise NotImplementedError("a PIO driver with input-change interrupts runs scalar")
+            if setup(d) != setup(first):
+                raise NotImplementedError("the lanes' PIO drivers differ in board address, wiring or settings")
+        obj = cls.__new__(cls)
+        obj.win = BoardWindow(bus, first.win.base, PIO_REGS, first.win.am)
+        obj.bus = bus
+        obj.lines = dict(first.lines)
+        obj.irq_level, obj.vector = first.irq_level, first.vector
+        obj.pwm_direction_line = first.pwm_direction_line
+        obj.direction_forward_level = first.direction_forward_level
+        obj._ddr = [stack([d._ddr[i] for d in drivers]) for i in range(len(PORTS))]
+        obj._latch = [stack([d._latch[i] for d in drivers]) for i in range(len(PORTS))]
+        obj._ier = [stack([d._ier[i] for d in drivers]) for i in range(len(PORTS))]
+        obj._line_cbs, obj._port_cbs, obj._handler_registered = {}, {}, False
+        obj._period_ticks = stack([d._period_ticks for d in drivers])
+        obj._lanes = bus.lanes
+        for name in ("set_line", "get_line", "write_port", "verify_outputs", "on_change", "set_pwm_period", "set_pwm",
+                     "pwm_duty"):
+            setattr(obj, name, getattr(obj, "_lane_" + name.lstrip("_")))
+        return obj
+
+    def _lane_fail(self, cond: LaneValue, reason: str, error: Callable[[], Exception]) -> None:
+        """Where one driver raises: a condition alike in every lane raises as it would; one that
+        holds in some lanes ejects those lanes (``reason``) and the others go on."""
+        if isinstance(cond, np.ndarray):
+            self._lanes.eject(cond, reason)
+        elif cond:
+            raise error()
+
+    def _lane_output(self, name: str, port: int, bit: int, what: str) -> None:
+        self._lane_fail((self._ddr[port] >> bit) & 1 == 0, f"PIO {what} {name!r} is an input",
+                        lambda: LineDirectionError(
+                            f"PIO line {name!r} ({self._pin_name(port, bit)}) is an input; "
+                            "list it in configure(outputs=...) to drive it"))
+
+    def _lane_set_line(self, name: str, level: LaneValue, *, verify: bool = True) -> None:
+        port, bit = self.resolve(name)
+        self._lane_output(name, port, bit, "line")
+        latches: list[LaneValue] = self._latch
+        latch, m = latches[port], 1 << bit
+        if isinstance(level, np.ndarray):
+            level = level.astype(bool)
+            latches[port] = np.where(level, latch | m, latch & ~m & 0xFF)
+        else:
+            level = bool(level)
+            latches[port] = latch | m if level else latch & ~m & 0xFF
+        self.win.write(f"DATA_{PORTS[port]}", self._latch[port])
+        if verify:
+            pin = (self.win.read(f"PIN_{PORTS[port]}") >> bit) & 1 != 0
+            self._lane_fail(pin != level, f"PIO line {name!r} does not follow its latch (LineStuckError)",
+                            lambda: LineStuckError({name: bool(pin)}))
+
+    def _lane_get_line(self, name: str) -> LaneValue:
+        port, bit = self.resolve(name)
+        return (self.win.read(f"DATA_{PORTS[port]}") >> bit) & 1 != 0
+
+    def _lane_write_port(self, port: str | int, value: LaneValue) -> None:
+        i = self._port(port)
+        self._lane_fail((value < 0) | (value > 0xFF), f"PIO port {PORTS[i]}: a value that is not a byte",
+                        lambda: ValueError(f"port value {value} is not a byte"))
+        self._latch[i] = value
+        self.win.write(f"DATA_{PORTS[i]}", value)
+
+    def _lane_verify_outputs(self) -> None:
+        bad: dict[str, bool] = {}
+        stuck: Any = False
+        names = {v: k for k, v in self.lines.items()}
+        for i, p in enumerate(PORTS):
+            ddr = self._ddr[i]
+            if not self.bus.decide(ddr != 0, f"PIO port {p} has outputs in some lanes only"):
+                continue
+            diff = (self.win.read(f"PIN_{p}") ^ self._latch[i]) & ddr
+            if isinstance(diff, np.ndarray):
+                stuck = stuck | (diff != 0)
+                continue
+            for bit in range(LINES_PER_PORT):
+                if diff >> bit & 1:
+                    bad[names.get((i, bit), self._pin_name(i, bit))] = not (self._latch[i] >> bit & 1)
+        if bad:
+            raise LineStuckError(bad)
+        self._lane_fail(stuck, "PIO output lines do not follow their latches (LineStuckError)",
+                        lambda: LineStuckError({}))
+
+    def _lane_on_change(self, target: str, callback: LineCallback | PortCallback) -> None:
+        raise NotImplementedError("PIO input-change interrupts are not used in lanes (such runs go scalar)")
+
+    def _lane_set_pwm_period(self, period_s: LaneValue) -> None:
+        if not isinstance(period_s, np.ndarray):
+            PioDriver.set_pwm_period(self, period_s)
+            return
+        with np.errstate(invalid="ignore"):  # round() per lane: half to even, as round() is
+            ticks = np.where(np.isfinite(period_s), np.rint(period_s * PWM_CLOCK_HZ), -1).astype(np.int64)
+        bad = (ticks < 2) | (ticks > 0xFFFF)
+        self._lanes.eject(bad, "PWM period outside 2..65535 ticks (PwmRangeError)")
+        self._period_ticks = np.where(bad, 2, ticks)  # type: ignore[assignment]  # a lane value
+        self.win.write("PWM_PERIOD", self._period_ticks)
+
+    def _lane_set_pwm(self, duty: LaneValue, direction_line: str | None = None,
+                      period_s: LaneValue | None = None) -> None:
+        # set_pwm with a duty per lane: the same checks (ejecting where one driver would raise
+        # for some lanes) and the same cycles; a reversal some lanes make and others not goes
+        # the majority's way (VmeBus.decide)
+        lanes = self._lanes
+        if isinstance(duty, np.ndarray):
+            with np.errstate(invalid="ignore"):
+                bad = ~(np.isfinite(duty) & (duty >= -1.0) & (duty <= 1.0))
+            lanes.eject(bad, "PWM duty outside [-1, 1] (PwmRangeError)")
+        elif not (math.isfinite(duty) and -1.0 <= duty <= 1.0):
+            raise PwmRangeError(f"PWM duty {duty!r} is outside [-1, 1]")
+        if period_s is not None:
+            self.set_pwm_period(period_s)
+        self._lane_fail(self._period_ticks == 0, "PWM period is 0 (PwmRangeError)", lambda: PwmRangeError(
+            "PWM period is 0 (output held low); pass period_s or call set_pwm_period first"))
+        line = direction_line if direction_line is not None else self.pwm_direction_line
+        ticks = abs(duty) * self._period_ticks
+        if isinstance(ticks, np.ndarray):  # round() per lane (half to even); an ejected lane's NaN: 0
+            with np.errstate(invalid="ignore"):
+                ticks = np.rint(np.where(ticks <= 0xFFFF, ticks, 0.0)).astype(np.int64)
+        else:
+            ticks = round(ticks)
+        if line is None:
+            self._lane_fail(duty < 0, "negative PWM duty without a direction line (PwmRangeError)",
+                            lambda: PwmRangeError(f"negative duty {duty} needs a direction line (none configured)"))
+        else:
+            port, bit = self.resolve(line)
+            self._lane_output(line, port, bit, "PWM direction line")
+            level = (duty >= 0) == self.direction_forward_level
+            flip = ((self._latch[port] >> bit) & 1 != 0) != level
+            if self.bus.decide(flip, f"PWM direction line {line!r} reverses in some lanes only"):
+                self.win.write("PWM_DUTY", 0)
+                self.set_line(line, level)
+        self.win.write("PWM_DUTY", ticks)
+
+    def _lane_pwm_duty(self) -> LaneValue:
+        # pwm_duty's cycles depend on what it reads: lanes that would stop earlier are left
+        if not self.bus.decide(self.win.read_field("PWM_CTL", "enable") != 0, "PWM on in some lanes only"):
+            return 0.0
+        period = self.win.read("PWM_PERIOD")
+        if not self.bus.decide(period != 0, "PWM period 0 in some lanes only"):
+            return 0.0
+        duty = self.win.read("PWM_DUTY")
+        if not isinstance(duty, np.ndarray) and not isinstance(period, np.ndarray):
+            return min(duty, period) / period  # type: ignore[no-any-return]
+        return np.where(period < duty, period, duty) / period  # min(duty, period) / period

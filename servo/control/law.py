@@ -30,6 +30,7 @@ The static error left by a friction torque T_F is then T_F/(J·Kp_eff).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import cast
 
@@ -187,6 +188,85 @@ class PidLaw:
         self._iv_new = np.zeros(n)
         self._ef_new = np.zeros(n)
         self.last_accel = np.zeros(n)
+
+    @classmethod
+    def from_lanes(cls, laws: Sequence[PidLaw]) -> PidLaw:
+        """One law for B lanes of ``laws`` (batched lockstep, :mod:`hal.lanes`): per-joint arrays
+        concatenated lane-major (joint j of lane b at ``b*n + j``). Every operation of a tick is
+        elementwise, so each lane computes its scalar law's numbers bit for bit. Staged gains
+        (:meth:`set_gains` before the first tick) are taken in force now: the first :meth:`begin`
+        would, before anything reads them. Switch-off events of the lane law carry the flat joint
+        index (:meth:`lane_events`). Staged per-joint controller switches cannot run in lanes."""
+        first = laws[0]
+        n = first.n
+        for law in laws:
+            if law.n != n or law.period != first.period or law._tick != first._tick:
+                raise NotImplementedError("lanes' laws differ in joints, period or tick: they cannot run as lanes")
+            if law._pending_switch:
+                raise NotImplementedError("a staged per-joint controller switch cannot run in lanes")
+
+        def cat(arrays: Sequence[np.ndarray]) -> np.ndarray:
+            return np.concatenate([np.asarray(a) for a in arrays])
+
+        obj = cls.__new__(cls)
+        obj.n = n * len(laws)
+        obj.period = first.period
+        gains = [law._pending_gains if law._pending_gains is not None else law.gains for law in laws]
+        obj.gains = Gains(**{k: cat([getattr(g, k) for g in gains]) for k in GAIN_NAMES})
+        offs = [law._pending_switch_off if law._pending_switch_off is not None else law.switch_off for law in laws]
+        obj.switch_off = SwitchOffConfig(*(cat([getattr(o, f) for o in offs]) for f in (
+            "enabled", "inner_band", "outer_band", "kp_boost", "settle_time", "zero_crossing")))
+        states = [law.state for law in laws]
+        obj.state = LawState(cat([s.ie for s in states]), cat([s.iv for s in states]),
+                             cat([s.integrating for s in states]), cat([s.in_band_time for s in states]),
+                             cat([s.e_prev for s in states]), [],
+                             ef=cat([np.zeros(n) if s.ef is None else s.ef for s in states]))
+        # the filter coefficients as each lane computed them (not recomputed on the longer array)
+        obj.filter_hz = cat([law.filter_hz for law in laws])
+        obj._alpha = cat([law._alpha for law in laws])
+        obj._filtered = cat([law._filtered for law in laws])
+        obj._pending_switch = {}
+        obj._pending_gains = None
+        obj._pending_switch_off = None
+        obj._tick = first._tick
+        obj._kp_off_key = None
+        obj._kp_off = np.zeros(obj.n)
+        obj._e = np.zeros(obj.n)
+        obj._edot = np.zeros(obj.n)
+        obj._feed = np.zeros(obj.n, bool)
+        obj._ie_new = np.zeros(obj.n)
+        obj._iv_new = np.zeros(obj.n)
+        obj._ef_new = np.zeros(obj.n)
+        obj.last_accel = np.zeros(obj.n)
+        return obj
+
+    def lane_events(self, lane: int, n: int) -> list[SwitchEvent]:
+        """Lane ``lane``'s switch-off events of a lane law of ``n`` joints per lane (:meth:`from_lanes`),
+        with the lane's own joint indices, in the order its scalar law records them."""
+        lo = lane * n
+        return [SwitchEvent(e.tick, e.joint - lo, e.integrating, e.reason) for e in self.state.events
+                if lo <= e.joint < lo + n]
+
+    def write_lane(self, lane: int, law: PidLaw) -> None:
+        """Put lane ``lane``'s state of this lane law into ``law`` (its scalar law): gains, switch-off
+        state, integrators, filter and events (appended to its own), as its scalar run ends."""
+        n = law.n
+        sl = slice(lane * n, (lane + 1) * n)
+        law.gains = Gains(**{k: np.array(getattr(self.gains, k)[sl]) for k in GAIN_NAMES})
+        law._pending_gains = None
+        law._pending_switch_off = None
+        law.switch_off = SwitchOffConfig(*(np.array(getattr(self.switch_off, f)[sl]) for f in (
+            "enabled", "inner_band", "outer_band", "kp_boost", "settle_time", "zero_crossing")))
+        st = self.state
+        law.state = LawState(st.ie[sl].copy(), st.iv[sl].copy(), st.integrating[sl].copy(), st.in_band_time[sl].copy(),
+                             st.e_prev[sl].copy(), law.state.events + self.lane_events(lane, n),
+                             ef=None if st.ef is None else st.ef[sl].copy())
+        law._tick = self._tick
+        law._kp_off_key = None
+        law._e, law._edot, law._feed = self._e[sl].copy(), self._edot[sl].copy(), self._feed[sl].copy()
+        law._ie_new, law._iv_new = self._ie_new[sl].copy(), self._iv_new[sl].copy()
+        law._ef_new = self._ef_new[sl].copy()
+        law.last_accel = self.last_accel[sl].copy()
 
     def _set_filter(self, filter_hz: np.ndarray) -> None:
         if filter_hz.shape != (self.n,) or np.any(~np.isnan(filter_hz) & ~(filter_hz > 0)):

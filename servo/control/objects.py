@@ -37,9 +37,9 @@ Objects are named in :data:`CONTROL_OBJECTS` (the built-ins, plus the entry poin
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Protocol, runtime_checkable
+from typing import Any, ClassVar, Protocol, cast, runtime_checkable
 
 import numpy as np
 
@@ -132,6 +132,16 @@ class BaseControlObject:
         """Parameters for reports (SI, keys carry units)."""
         return {}
 
+    @classmethod
+    def from_lanes(cls, objects: Sequence[BaseControlObject]) -> BaseControlObject:
+        """One object for B lanes of ``objects`` (batched lockstep, :mod:`hal.lanes`): per-joint
+        parameters and state concatenated lane-major. An object type that does not say how cannot
+        run in lanes."""
+        raise NotImplementedError(f"control object {objects[0].name!r} ({cls.__name__}) cannot run in lanes")
+
+    def write_lane(self, lane: int, obj: BaseControlObject) -> None:
+        """Put lane ``lane``'s state of this lane object into ``obj`` (its scalar object); stateless: nothing."""
+
 
 ObjectFactory = Callable[[ConfigTable, int, NormalizingChain, float], BaseControlObject]
 """``factory(cfg, n, chain, period) -> object``: ``cfg`` is the object's sub-table of the controller
@@ -200,6 +210,13 @@ class PidObject(BaseControlObject):
 
     def preload_torque(self, torque: np.ndarray, chain: NormalizingChain) -> None:
         self.law.preload(np.asarray(torque, float) / chain.j_eff)
+
+    @classmethod
+    def from_lanes(cls, objects: Sequence[BaseControlObject]) -> PidObject:
+        return cls(PidLaw.from_lanes([cast(PidObject, o).law for o in objects]), objects[0].name)
+
+    def write_lane(self, lane: int, obj: BaseControlObject) -> None:
+        self.law.write_lane(lane, cast(PidObject, obj).law)
 
     def describe(self) -> dict[str, Any]:
         so = self.law.switch_off
@@ -280,6 +297,10 @@ class TorqueLimit(BaseControlObject):
         ctx.saturation = np.where(ctx.saturation != 0, ctx.saturation, sat).astype(np.int8)
         return np.clip(tau, -self.tau_max, self.tau_max)
 
+    @classmethod
+    def from_lanes(cls, objects: Sequence[BaseControlObject]) -> TorqueLimit:
+        return cls(np.concatenate([cast(TorqueLimit, o).tau_max for o in objects]), objects[0].name)
+
     def describe(self) -> dict[str, Any]:
         return {"tau_max_nm": [float(x) for x in self.tau_max]}
 
@@ -315,6 +336,14 @@ class FrictionComp(BaseControlObject):
         n = ctx.chain.ratio
         coulomb = np.where(np.abs(w) < self.dead_zone, 0.0, np.sign(w) * n * self.coulomb_motor)
         return tau + coulomb + n * n * self.viscous_motor * w
+
+    @classmethod
+    def from_lanes(cls, objects: Sequence[BaseControlObject]) -> FrictionComp:
+        objs = [cast(FrictionComp, o) for o in objects]
+        if len({o.use_measured for o in objs}) != 1:
+            raise NotImplementedError("friction_comp: lanes differ in the velocity they use")
+        return cls(np.concatenate([o.coulomb_motor for o in objs]), np.concatenate([o.viscous_motor for o in objs]),
+                   np.concatenate([o.dead_zone for o in objs]), objs[0].use_measured, objs[0].name)
 
     def describe(self) -> dict[str, Any]:
         return {"coulomb_motor_nm": self.coulomb_motor.tolist(),
@@ -387,6 +416,29 @@ class Controller:
         self.chain = chain
         self.period = float(period)
         self.n = chain.n
+
+    @classmethod
+    def from_lanes(cls, controllers: Sequence[Controller]) -> Controller:
+        """One controller for B lanes (batched lockstep, :mod:`hal.lanes`): the same objects in the
+        same order in every lane, each stacked by its type's ``from_lanes``; the chain's per-joint
+        gains concatenated lane-major. :meth:`update` then runs unchanged: every operation is
+        elementwise, and the anti-windup second pass, run for every lane when any lane saturates,
+        gives the lanes that did not the numbers of their first pass again."""
+        first = controllers[0]
+        kinds = [(type(o), o.name) for o in first.objects]
+        for c in controllers:
+            if [(type(o), o.name) for o in c.objects] != kinds or c.period != first.period:
+                raise NotImplementedError("lanes' controllers differ in their objects or period")
+        objects = [kind.from_lanes([c.objects[i] for c in controllers]) for i, (kind, _) in enumerate(kinds)]
+        chains = [c.chain for c in controllers]
+        chain = NormalizingChain(*(np.concatenate([getattr(ch, f) for ch in chains]) for f in (
+            "j_eff", "ratio", "kt", "amp_gain", "dac_volts_per_count")))
+        return cls(objects, chain, first.period)
+
+    def write_lane(self, lane: int, controller: Controller) -> None:
+        """Put lane ``lane``'s state (integrators, switch-off) into ``controller``, its scalar one."""
+        for mine, theirs in zip(self.objects, controller.objects, strict=True):
+            mine.write_lane(lane, theirs)
 
     def find(self, name: str) -> BaseControlObject | None:
         for o in self.objects:
@@ -476,6 +528,14 @@ class SwitchableController:
         self.active = active
         self._pending: Controller | None = None
         self.swaps: list[tuple[int, list[str]]] = []  # (tick, names of objects whose state was carried over)
+
+    @classmethod
+    def from_lanes(cls, switchables: Sequence[SwitchableController]) -> SwitchableController:
+        """The lanes' active controllers stacked (:meth:`Controller.from_lanes`); a swap pending
+        cannot run in lanes."""
+        if any(s._pending is not None for s in switchables):
+            raise NotImplementedError("a controller swap is pending: it cannot run in lanes")
+        return cls(Controller.from_lanes([s.active for s in switchables]))
 
     def request(self, new: Controller) -> None:
         if new.n != self.active.n:

@@ -21,8 +21,9 @@ before it starts).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import numpy as np
 
@@ -148,3 +149,96 @@ class Sequencer:
         if not self.finished:
             return None
         return float(sum(r.duration for r in self.records))
+
+
+class LaneSequencer:
+    """B sequencers played together (batched lockstep, :mod:`hal.lanes`): :meth:`sample` gives
+    the B samples as one, lane-major (joint j of lane b at ``b*n + j``; ``done`` per joint).
+
+    Each lane keeps its own :class:`Sequencer` (its moves, records and plans: what the run report
+    reads). A sample is cheap where it can be: while every lane holds a :class:`Stay` that does not
+    end before ``t`` (a hold, a step's target, a wait), the sample is the one already stacked; while
+    every lane plays a :class:`~servo.trajectory.quintic.Quintic`, it is computed for all lanes at
+    once with the scalar expressions (the same operations, elementwise: bit for bit). Otherwise, and
+    on every tick where some lane's move ends, each lane's sequencer samples on its own."""
+
+    def __init__(self, sequencers: Sequence[Sequencer]) -> None:
+        from servo.trajectory.quintic import Quintic
+
+        self._quintic_type = Quintic
+        first = sequencers[0]
+        self.lanes = list(sequencers)
+        self.n = int(np.asarray(first.current.end).shape[0])
+        self.size = len(self.lanes)
+        for s in self.lanes:
+            if s.plan_error is not None or len(s.planned) < len(s.moves):
+                raise NotImplementedError("a motion not planned ahead (an open or refused move) cannot run in lanes")
+            if any(getattr(m, "kind", "") == "hand" for m in s.moves):
+                raise NotImplementedError("a hand move (the hand by current) cannot run in lanes")
+        #: the plan context of lane 0 (the loop offers its measurement there; lanes never re-plan)
+        self.ctx = first.ctx
+        self._mode = ""  # "stay" / "quintic": what the stacked arrays below hold, "" none
+        self._t0 = np.zeros(self.size)
+        self._dur = np.zeros(self.size)
+        self._open = np.zeros(self.size, bool)
+
+    @property
+    def current(self) -> Any:
+        return self.lanes[0].current
+
+    @property
+    def finished(self) -> bool:
+        return all(s.finished for s in self.lanes)
+
+    def sample(self, t: float) -> Sample:
+        mode = self._mode
+        # a lane's move ends where its sequencer would advance: t - t0 >= duration (the same test)
+        if mode and not np.any(self._open & (t - self._t0 >= self._dur)):
+            return self._sample_stay(t) if mode == "stay" else self._sample_quintic(t)
+        samples = [s.sample(t) for s in self.lanes]
+        n = self.n
+        theta = np.concatenate([np.asarray(x.theta_d, float) for x in samples])
+        omega = np.concatenate([np.asarray(x.omega_d, float) for x in samples])
+        alpha = np.concatenate([np.broadcast_to(np.asarray(x.alpha_d, float), (n,)) for x in samples])
+        done = np.repeat(np.array([bool(x.done) for x in samples]), n)
+        self._restack()
+        return Sample(theta, omega, alpha, cast(bool, done))  # per joint in lanes (ControlContext takes either)
+
+    def _restack(self) -> None:
+        """After the lanes' sequencers moved on: which fast path holds until some lane's move ends."""
+        lanes = self.lanes
+        currents = [s.current for s in lanes]
+        self._t0 = np.array([s._t0 for s in lanes])
+        self._dur = np.array([float(c.duration) for c in currents])
+        self._open = np.array([not s.finished for s in lanes])
+        self._mode = ""
+        if all(type(c) is Stay for c in currents):
+            self._theta = np.concatenate([c.start for c in currents])
+            self._zeros = np.zeros(self._theta.shape)
+            self._done = np.ones(self._theta.shape, bool)
+            self._mode = "stay"
+        elif all(type(c) is self._quintic_type for c in currents) and all(
+                c.duration >= 1e-9 for c in currents):  # (shorter: a step, sampled by the lanes)
+            n = self.n
+            self._q_start = np.concatenate([c.start for c in currents])
+            self._q_delta = np.concatenate([cast(Any, c).delta for c in currents])
+            self._done = np.zeros(self._q_start.shape, bool)
+            self._q_n = n
+            self._mode = "quintic"
+
+    def _sample_stay(self, t: float) -> Sample:
+        """:meth:`Stay.sample` of every lane at once."""
+        return Sample(self._theta.copy(), self._zeros.copy(), self._zeros.copy(), cast(bool, self._done.copy()))
+
+    def _sample_quintic(self, t: float) -> Sample:
+        """:meth:`Quintic.sample` of every lane at once (t < duration in every lane here)."""
+        T = self._dur
+        tr = t - self._t0
+        u = np.where(0.0 > tr, 0.0, tr) / T  # max(t, 0.0): t unless 0.0 is greater
+        u2 = u * u
+        p = u2 * u * (10.0 - 15.0 * u + 6.0 * u2)
+        v = 30.0 * u2 * (1.0 - 2.0 * u + u2)
+        a = 60.0 * u * (1.0 - 3.0 * u + 2.0 * u2)
+        n = self._q_n
+        return Sample(self._q_start + self._q_delta * np.repeat(p, n), self._q_delta * np.repeat(v / T, n),
+                      self._q_delta * np.repeat(a / (T * T), n), cast(bool, self._done.copy()))

@@ -178,9 +178,29 @@ def _stop_all(runs: Sequence[Any], signal: BaseException) -> None:
 
 def simulate_batch(runs: Sequence[Any], *, traces: bool = False, stop: Callable[[], bool] | None = None,
                    progress: Callable[[int, int], None] | None = None,
-                   window: int = WINDOW_TICKS) -> list[dict[str, Any]]:
-    """:func:`~vmehil.analysis.simulate.simulate`'s result for each of ``runs``, run in lockstep
-    (:func:`run_lockstep`); every run is closed however this ends."""
+                   window: int = WINDOW_TICKS, lanes: bool = True,
+                   report: Any = None) -> list[dict[str, Any]]:
+    """:func:`~vmehil.analysis.simulate.simulate`'s result for each of ``runs``: as one rig of
+    lanes when they have a lane form (``lanes``; :func:`vmehil.analysis.lane_batch.simulate_lanes`),
+    else as scalar instances in lockstep (:func:`run_lockstep`, and ``report.scalar_reason`` says
+    why). The results are the same either way, bit for bit; every run is closed however this ends.
+    ``report``: a :class:`~vmehil.analysis.lane_batch.LaneReport` to fill (lanes, re-runs)."""
+    from vmehil.analysis.lane_batch import LaneReport, simulate_lanes
+
+    rep = report if report is not None else LaneReport(len(runs))
+    if lanes and len(runs) > 1:
+        try:
+            return simulate_lanes(runs, traces=traces, stop=stop, progress=progress, report=rep)
+        except NotImplementedError as e:
+            rep.scalar_reason = str(e)
+            spent, runs = runs, []
+            try:
+                for r in spent:  # a board may have been taken over by the crate of lanes: from scratch
+                    runs.append(r.fresh())
+            finally:
+                for r in spent:
+                    with contextlib.suppress(Exception):
+                        r.close()
     try:
         run_lockstep(runs, stop=stop, progress=progress, window=window)
         summaries = [r.summarize() for r in runs]

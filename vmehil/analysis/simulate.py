@@ -191,6 +191,8 @@ class SimRun:
 
         s = settings or SimSettings()
         self.jp, self.switch_off, self.settings, self.step_deg = jp, switch_off, s, step_deg
+        self.faults = tuple(faults)
+        self._link_factory = link_factory
         rig = jp.spec if jp.spec is not None else jp.rig_path
         link = None if link_factory is None else link_factory(rig, s.seed)
         try:
@@ -219,6 +221,13 @@ class SimRun:
         except BaseException:
             system.close()
             raise
+
+    def fresh(self) -> SimRun:
+        """A new run of the same joint, gains, settings, faults and link: built from scratch, so
+        it does everything this one would from its start (a batch of lanes runs an instance it
+        left again this way: vmehil.analysis.lanes)."""
+        return SimRun(self.jp, self.switch_off, self.settings, step_deg=self.step_deg,
+                      link_factory=self._link_factory, faults=self.faults)
 
     def halt_when(self, stop: Callable[[], bool] | None) -> Callable[[], bool]:
         """The runner's ``stop``: the loop faulted (its watchdog stopped it), or ``stop()``."""

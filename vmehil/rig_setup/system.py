@@ -247,6 +247,11 @@ def _couple_hbridge_noise(crate: Crate, spec: RigSpec) -> None:
         return noise
 
     for name, nets in reach.items():
-        add = getattr(crate.boards.get(name), "add_noise_source", None)
+        board = crate.boards.get(name)
+        switching = getattr(board, "add_switching_noise", None)  # the source as data (a board of lanes rebuilds it)
+        if switching is not None:
+            switching(nets, level)
+            continue
+        add = getattr(board, "add_noise_source", None)
         if add is not None:
             add(noise_of(nets))
