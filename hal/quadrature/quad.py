@@ -30,11 +30,10 @@ returns readings whose numbers (``raw``, ``counts``, ``position_rad``, velocitie
 bits) are lane values; each lane's unwrapping and velocity estimator are its own. The tick's
 cycles do not depend on the counts (the wrap flags are cleared on every read, set or not), so
 every lane makes them; where a scalar driver would raise (tracking lost, a count jump, ILLEGAL
-with ``errors="raise"``) those lanes are ejected (``lanes.eject``) and the others go on; the
-servo tick's ILLEGAL clear asks ``bus.decide`` (:meth:`~QuadratureDriver.clear_illegal_where`). Only the
-per-tick operations run in lane mode (:meth:`~QuadratureDriver.update`,
-:meth:`~QuadratureDriver.clear_illegal`, :meth:`~QuadratureDriver.clear_illegal_where`); set-up
-and homing are done on the scalar drivers before stacking.
+with ``errors="raise"``) those lanes are ejected (``lanes.eject``) and the others go on. Only
+the per-tick operations run in lane mode (:meth:`~QuadratureDriver.update`,
+:meth:`~QuadratureDriver.clear_illegal`); set-up and homing are done on the scalar drivers
+before stacking.
 
 Example::
 
@@ -362,16 +361,6 @@ class QuadratureDriver:
         that counts the reads that found ILLEGAL set clears it after each."""
         self._check_ch(ch)
         self.win.write(reg_name(ch, "STATUS"), ST_ILLEGAL)
-
-    def clear_illegal_where(self, ch: int, illegal: LaneValue) -> bool:
-        """:meth:`clear_illegal` if ``illegal`` (a reading's ``status.illegal``): the servo tick's
-        clear after a read that found ILLEGAL set. Returns whether it cleared. On a bus of lanes
-        the clear is one cycle for every live lane or for none: the live lanes' common answer
-        (``bus.decide``; lanes of the other answer are ejected)."""
-        if not self.win.bus.decide(illegal, f"quadrature 0x{self.win.base:X} channel {ch}: ILLEGAL clear"):
-            return False
-        self.clear_illegal(ch)
-        return True
 
     def set_mode(self, ch: int, mode: int) -> None:
         """Counting mode 1, 2 or 4 (counts per quadrature cycle). The position in radians is

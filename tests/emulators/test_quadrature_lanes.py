@@ -2,7 +2,8 @@
 
 B boards and drivers, each set up as a scalar rig sets them up (with different values), are
 stacked with ``from_lanes`` and driven through the servo tick's decoder program (servo/io.py:
-``update`` of quad0 then quad1, then ILLEGAL cleared where a reading found it); B more boards
+``update`` of quad0 then quad1; where a reading finds ILLEGAL the scalar tick clears it, the lane
+tick leaves the lanes that found it, as ``JointIO`` in lanes does); B more boards
 and drivers built the same way run the same program alone (the scalar twins). After every step
 every live lane equals its twin bit for bit: the readings, the board's counters, latches, flags
 and registers, the driver's unwrapping and velocity state, the bus clock and the cycle counters.
@@ -122,8 +123,8 @@ class Batch:
                 counts[:, i], illegal[:, i], tuple(offsets[b][i] for b in range(self.n)), phase[:, i]))
         self.readings = {name: drv.update(PERIOD_S) for name, drv in self.drivers.items()}
         for name, r in self.readings.items():
-            for ch, x in r.items():
-                self.drivers[name].clear_illegal_where(ch, x.status.illegal)
+            for ch, x in r.items():  # its scalar run clears ILLEGAL: a cycle of those lanes only
+                self.lanes.eject(x.status.illegal, f"{name} channel {ch}: ILLEGAL clear")
         for b, (crate, drivers) in enumerate(self.twins):  # the scalar program (servo/io.py's read)
             crate.advance_to(t_ns)
             for i, net in enumerate(NETS):
@@ -202,8 +203,6 @@ def test_lanes_with_different_event_streams_equal_their_scalar_twins_and_only_di
             counts[3, 1] -= 20000  # lane 3 alone crosses (UNDERFLOW): every read clears the flags, no divergence
         elif k == 65:
             illegal[2, 4] = 1  # lane 2 alone: ILLEGAL, which the servo tick clears (a cycle of lane 2's only)
-        elif k == 72:
-            illegal[[0, 1], 6] = 1  # lanes 0 and 1 of the three left: the clear is theirs; lane 3 is left
         batch.step(counts, illegal, phase, offsets)
         if k == 50:  # lane 3's twin found UNDERFLOW there, the others none
             assert [batch.twin_readings[b]["quad0"][1].status.underflow for b in range(4)] == [False] * 3 + [True]
@@ -213,12 +212,12 @@ def test_lanes_with_different_event_streams_equal_their_scalar_twins_and_only_di
         alive = expected
         assert np.array_equal(batch.lanes.alive, alive), k
         batch.check_lanes_equal_twins()
-    assert ejected_at == {2: 65, 3: 72}
-    assert batch.lanes.first_tick == {2: 65, 3: 72}
-    assert "ILLEGAL clear" in batch.lanes.reasons[2] and "ILLEGAL clear" in batch.lanes.reasons[3]
+    assert ejected_at == {2: 65}
+    assert batch.lanes.first_tick == {2: 65}
+    assert "ILLEGAL clear" in batch.lanes.reasons[2]
     # set-up: 6 writes a channel (CTL, PRE_HI, PRE_LO, CMD; the driver's latch and flag clear); a
-    # tick: 2 latches and a flag clear per channel; lanes 0 and 1: one ILLEGAL clear
-    assert [batch.twins[b][0].counters["write.A16.D16"] for b in (0, 1)] == [7 * 6 + 80 * (2 + 7) + 1] * 2
+    # tick: 2 latches and a flag clear per channel
+    assert [batch.twins[b][0].counters["write.A16.D16"] for b in (0, 1, 3)] == [7 * 6 + 80 * (2 + 7)] * 3
     assert any(batch.readings[name][ch].status.index[0] for name, *_ in BOARDS for ch in batch.readings[name])
 
 
