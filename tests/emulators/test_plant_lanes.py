@@ -229,18 +229,10 @@ def _joint_nets() -> list[JointNets]:
     return out
 
 
-class LaneSignals(Signals):
-    """A stand-in for the stacked crate's nets (``Signals.from_lanes`` of branch lane-core): nets
-    hold lane values (a scalar for every lane, or (B,))."""
-
-    def set_digital(self, net: str, level: Any) -> None:
-        self.digital[net] = level
-        self._notify(net, level)
-
-
-def _drive_nets(rng: np.random.Generator, signals: list[Signals], lane_signals: Signals, k: int) -> None:
+def _drive_nets(rng: np.random.Generator, signals: list[Signals], lane_signals: Signals, k: int,
+                joints: list[JointNets], watchdog_net: str = "wd") -> None:
     """Random command-net values per lane, on each twin's nets and (stacked) on the lane nets."""
-    for jn in _joint_nets():
+    for jn in joints:
         for net, kind in ((jn.amp_command, "v"), (jn.pwm, "duty"), (jn.amp_enable, "en"), (jn.amp_reset, "bit"),
                           (jn.direction, "bit"), (jn.brake, "bit"), (jn.holding_brake, "hold")):
             if net is None:
@@ -257,71 +249,98 @@ def _drive_nets(rng: np.random.Generator, signals: list[Signals], lane_signals: 
             for s, v in zip(signals, vals, strict=True):
                 (s.set_analog if kind in ("v", "duty") else s.set_digital)(net, v)
             lv = vals[0] if all(v == vals[0] for v in vals) else np.array(vals)
-            if kind in ("v", "duty"):
-                lane_signals.analog[net] = lv
-            else:
-                lane_signals.digital[net] = lv
+            (lane_signals.set_analog if kind in ("v", "duty") else lane_signals.set_digital)(net, lv)
     for s in signals:
-        s.set_digital("wd", bool(k & 1))
-    lane_signals.digital["wd"] = bool(k & 1)
+        s.set_digital(watchdog_net, bool(k & 1))
+    lane_signals.set_digital(watchdog_net, bool(k & 1))
 
 
-def _record_quadrature(signals: Signals, into: dict[str, Any]) -> None:
-    for jn in _joint_nets():
+def _record_quadrature(signals: Signals, into: dict[str, Any], joints: list[JointNets]) -> None:
+    for jn in joints:
         if jn.encoder:
             signals.subscribe(jn.encoder, lambda net, ev: into.__setitem__(net, ev))
 
 
-def test_harness_collects_and_publishes_lane_nets_as_its_scalar_twins_do():
-    rng = np.random.default_rng(5)
-    twins_sig = [Signals() for _ in range(B)]
-    twins = [Harness(s, _joint_nets(), InProcessLink(p), watchdog_net="wd") for s, p in zip(twins_sig, _plants(),
-                                                                                            strict=True)]
-    stacked_sig = [Signals() for _ in range(B)]
-    src = [Harness(s, _joint_nets(), InProcessLink(p), watchdog_net="wd") for s, p in zip(stacked_sig, _plants(),
-                                                                                          strict=True)]
-    lanes = LaneSet(B)
-    lane_sig = LaneSignals()
-    harness = Harness.from_lanes(src, lane_sig, InProcessLink.from_lanes([h.link for h in src], lanes))
-    seen_twins: list[dict[str, Any]] = [{} for _ in range(B)]
+def _exchange_and_compare(rng: np.random.Generator, harness: Harness, lane_sig: Signals, twins: list[Harness],
+                          ticks: int) -> None:
+    """Tick the lane harness and its scalar twins alike: random command nets, collect, step,
+    publish; every lane's command, answer, sensor nets and encoder events must be its twin's."""
+    joints, n, lanes_n = twins[0].joints, twins[0].n, len(twins)
+    assert harness.watchdog_net is not None
+    seen_twins: list[dict[str, Any]] = [{} for _ in twins]
     seen_lanes: dict[str, Any] = {}
-    for s, into in zip(twins_sig, seen_twins, strict=True):
-        _record_quadrature(s, into)
-    _record_quadrature(lane_sig, seen_lanes)
-    for k in range(110):
-        _drive_nets(rng, twins_sig, lane_sig, k)
+    for h, into in zip(twins, seen_twins, strict=True):
+        _record_quadrature(h.signals, into, joints)
+    _record_quadrature(lane_sig, seen_lanes, joints)
+    for k in range(ticks):
+        _drive_nets(rng, [h.signals for h in twins], lane_sig, k, joints, harness.watchdog_net)
         cmd = harness.collect()
         for b, h in enumerate(twins):
-            want, got = h.collect(), cmd.lane(b, N)
+            want, got = h.collect(), cmd.lane(b, n)
             for f in ("amp_command_v", "amp_enable", "fault_reset", "pwm_duty", "pwm_direction", "brake",
                       "holding_brake", "watchdog_line"):
-                assert np.array_equal(getattr(got, f), getattr(want, f)), f"period {k} lane {b}: {f}"
+                assert np.array_equal(getattr(got, f), getattr(want, f)), f"tick {k} lane {b}: {f}"
         for h in twins:
             h.step(T, DELAY)
             h.publish()
         harness.step(T, DELAY)
         harness.publish()
         assert harness.last is not None
-        for b, (h, s) in enumerate(zip(twins, twins_sig, strict=True)):
+        for b, h in enumerate(twins):
             assert h.last is not None
-            _assert_sensors_equal(harness.last.lane(b), h.last, f"period {k} lane {b}")
-            for net, v in s.analog.items():
-                if net.endswith((".pot", ".tach", ".imon")):
-                    assert lane(lane_sig.analog[net], b) == v, f"period {k} lane {b}: {net}"
-            for net, v in s.digital.items():
-                assert bool(lane(lane_sig.digital[net], b)) == v, f"period {k} lane {b}: {net}"
+            _assert_sensors_equal(harness.last.lane(b), h.last, f"tick {k} lane {b}")
+            for jn in joints:
+                for net in (jn.pot, jn.tach, jn.imon):
+                    if net:
+                        assert lane(lane_sig.analog[net], b) == h.signals.analog[net], f"tick {k} lane {b}: {net}"
+                if jn.amp_fault:
+                    assert bool(lane(lane_sig.digital[jn.amp_fault], b)) == h.signals.digital[jn.amp_fault]
             for net, ev in seen_twins[b].items():
                 lev = seen_lanes[net]
                 assert isinstance(lev.counts, np.ndarray) and lev.counts.dtype == np.int64
-                assert len(lev.index_offsets) == B
+                assert len(lev.index_offsets) == lanes_n
                 assert (int(lev.counts[b]), int(lev.illegal[b]), tuple(lev.index_offsets[b]), int(lev.phase[b])) == (
-                    ev.counts, ev.illegal, tuple(ev.index_offsets), ev.phase), f"period {k} lane {b}: {net}"
+                    ev.counts, ev.illegal, tuple(ev.index_offsets), ev.phase), f"tick {k} lane {b}: {net}"
+    encoders = {jn.encoder for jn in joints if jn.encoder}
+    assert encoders and all(d.keys() == encoders for d in seen_twins) and seen_lanes.keys() == encoders
+
+
+def test_harness_collects_and_publishes_lane_nets_as_its_scalar_twins_do():
+    """Nets wired as a rig would, some unwired (an enable tied high)."""
+    twins = [Harness(Signals(), _joint_nets(), InProcessLink(p), watchdog_net="wd") for p in _plants()]
+    src = [Harness(Signals(), _joint_nets(), InProcessLink(p), watchdog_net="wd") for p in _plants()]
+    lane_sig = Signals.from_lanes([h.signals for h in src])  # the stacked crate's nets
+    harness = Harness.from_lanes(src, lane_sig, InProcessLink.from_lanes([h.link for h in src], LaneSet(B)))
+    _exchange_and_compare(np.random.default_rng(5), harness, lane_sig, twins, 60)
+
+
+def test_built_rigs_exchange_in_lanes_as_each_alone():
+    """Three jpl-arm rigs built as a run builds them (their power-up exchange done), stacked as
+    the batch stacks them (vmehil.rig_setup.lane_rig: the link over the stacked plant with the
+    rigs' codec, the harness on ``Signals.from_lanes``), against three twin rigs."""
+    from vmehil.rig_setup.system import build_emulated_rig
+
+    seeds = (1, 2, 9)
+    twins = [build_emulated_rig("jpl-arm", seed=s) for s in seeds]
+    systems = [build_emulated_rig("jpl-arm", seed=s) for s in seeds]
+    lanes = LaneSet(len(seeds))
+    plant = Plant.from_lanes([s.plant for s in systems if s.plant is not None], lanes)
+    link = InProcessLink(plant, codec=systems[0].link.codec)  # type: ignore[attr-defined]
+    assert link.lanes is lanes and link.names == systems[0].link.names
+    lane_sig = Signals.from_lanes([s.crate.signals for s in systems])
+    harness = Harness.from_lanes([s.harness for s in systems], signals=lane_sig, link=link)
+    assert harness.last is not None
+    for b, t in enumerate(twins):
+        assert t.harness.last is not None
+        _assert_sensors_equal(harness.last.lane(b), t.harness.last, f"power-up lane {b}")
+    _exchange_and_compare(np.random.default_rng(8), harness, lane_sig, [t.harness for t in twins], 40)
+    assert lanes.alive.all()
 
 
 def test_a_dead_lane_gets_its_amplifiers_off_and_its_plant_stays_finite():
     lanes = LaneSet(B)
     src = [Harness(Signals(), _joint_nets(), InProcessLink(p), watchdog_net="wd") for p in _plants()]
-    lane_sig = LaneSignals()
+    lane_sig = Signals()
     harness = Harness.from_lanes(src, lane_sig, InProcessLink.from_lanes([h.link for h in src], lanes))
     for jn in _joint_nets():
         if jn.amp_command:
