@@ -27,6 +27,7 @@ from emulators.plant_link import (
     StaleDataError,
 )
 from emulators.signals import QuadratureEvents, Signals
+from hal.lanes import LaneSet, stack
 
 # The link's types stay importable from here: the harness's users name them with it.
 __all__ = ["ExchangeCodec", "Harness", "InProcessLink", "JointNets", "PlantLink", "PlantLinkError", "PlantLostError",
@@ -41,15 +42,56 @@ def default_codec() -> ExchangeCodec:
 
 
 class InProcessLink(PlantLink):
-    """The embedded default: the plant is a Python object in this process."""
+    """The embedded default: the plant is a Python object in this process.
+
+    A stacked plant (:meth:`emulators.plant.Plant.from_lanes`) makes a link in lane mode: its
+    exchange quantizes the stacked command and answer as the codec does each lane's, per
+    element (:meth:`emulators.can.codec.DbcExchangeCodec.command_lanes`), and ``names`` are one
+    lane's joints."""
+
+    #: lane mode: the batch's lanes (``None``: one plant)
+    lanes: LaneSet | None = None
 
     def __init__(self, plant: Plant, codec: ExchangeCodec | None = None) -> None:
         self.plant = plant
         self.codec = codec or default_codec()
         self.names = list(plant.names)
+        lanes = getattr(plant, "lanes", None)
+        if lanes is not None:
+            self._lane_mode(lanes)
 
     def exchange(self, cmd: PlantCommand, period_s: float, delay_s: float) -> PlantSensors:
         return self.codec.sensors(self.plant.step_period(self.codec.command(cmd), period_s, delay_s))
+
+    @classmethod
+    def from_lanes(cls, links: Sequence[PlantLink], lanes: LaneSet) -> InProcessLink:
+        """B in-process links (lane order, one codec) as one link to their plants stacked.
+        Refused (``NotImplementedError``): another kind of link (a CAN link has no lane form),
+        links of different codecs."""
+        if not all(type(link) is InProcessLink for link in links):
+            raise NotImplementedError("only in-process plant links run in lanes")
+        ins = [link for link in links if isinstance(link, InProcessLink)]
+        if any(type(link.codec) is not type(ins[0].codec) for link in ins):
+            raise NotImplementedError("plant links with different codecs cannot run in lanes")
+        return cls(Plant.from_lanes([link.plant for link in ins], lanes), codec=ins[0].codec)
+
+    def _lane_mode(self, lanes: LaneSet) -> None:
+        """Chosen once, at construction: the lane exchange replaces the scalar one."""
+        from emulators.can.codec import DbcExchangeCodec
+
+        codec = self.codec
+        if type(codec) is not ExchangeCodec and not isinstance(codec, DbcExchangeCodec):
+            raise NotImplementedError(f"the exchange codec {type(codec).__name__} has no lane form")
+        self.lanes = lanes
+        self.names = self.names[:getattr(self.plant, "lane_joints", len(self.names))]
+        if isinstance(codec, DbcExchangeCodec):
+            quantize_cmd, quantize_sensors = codec.command_lanes, codec.sensors_lanes
+            step = self.plant.step_period
+
+            def exchange(cmd: PlantCommand, period_s: float, delay_s: float) -> PlantSensors:
+                return quantize_sensors(step(quantize_cmd(cmd), period_s, delay_s))  # type: ignore[no-any-return]
+
+            self.exchange = exchange  # type: ignore[method-assign]
 
 
 @dataclass(frozen=True)
@@ -90,6 +132,39 @@ class Harness:
         self.pending: PlantSensors | None = None
         self.last: PlantSensors | None = None
         self.exchanges = 0
+
+    #: lane mode (:meth:`from_lanes`): the batch's lanes (``None``: one rig)
+    lanes: LaneSet | None = None
+
+    @classmethod
+    def from_lanes(cls, harnesses: Sequence[Harness], signals: Signals, link: PlantLink) -> Harness:
+        """B harnesses (lane order, wired alike) as one harness of the stacked crate's nets
+        (``signals``: lane values) and the stacked link (:meth:`InProcessLink.from_lanes`).
+        :meth:`collect` reads each net's lane value (a scalar for every lane, or (B,)) into a
+        command of B·n joints lane-major, with the dead lanes' (``lanes.alive`` false) amplifiers
+        disabled at 0 V so their plants stay finite; :meth:`publish` puts each joint's sensor
+        values on its nets as (B,) lane values (a fault line as one bool when every lane holds
+        the same), its encoder events as one lane-mode :class:`QuadratureEvents`."""
+        h0 = harnesses[0]
+        lanes = getattr(link, "lanes", None)
+        if lanes is None:
+            raise NotImplementedError("a harness in lanes needs a link in lanes (InProcessLink.from_lanes)")
+        if len(harnesses) != lanes.size:
+            raise ValueError(f"{len(harnesses)} harnesses for {lanes.size} lanes")
+        if any(h.joints != h0.joints or h.watchdog_net != h0.watchdog_net for h in harnesses):
+            raise NotImplementedError("harnesses wired differently cannot run in lanes")
+        out = cls(signals, h0.joints, link, watchdog_net=h0.watchdog_net)
+        out.lanes = lanes
+        for name in ("pending", "last"):
+            got = [getattr(h, name) for h in harnesses]
+            if any(g is not None for g in got):
+                if any(g is None for g in got):
+                    raise NotImplementedError(f"harnesses with and without a {name} answer cannot run in lanes")
+                setattr(out, name, PlantSensors.from_lanes(got))
+        out.exchanges = stack([h.exchanges for h in harnesses])
+        out.collect = out._collect_lanes  # type: ignore[method-assign]
+        out.publish = out._publish_lanes  # type: ignore[method-assign]
+        return out
 
     def _wiring(self) -> tuple[tuple, tuple]:
         """The joints' nets as flat tuples, built once (``joints`` is fixed after construction)."""
@@ -160,5 +235,88 @@ class Harness:
                 ev = encoder[i]
                 if isinstance(ev, QuadratureEvents):
                     s.publish_quadrature(enc_net, ev)
+        self.last = sensors
+        self.pending = None
+
+    # ---- lane mode (from_lanes) -------------------------------------------------------------
+    def _collect_lanes(self) -> PlantCommand:
+        """:meth:`collect` of B lanes: each net's lane value into column ``b`` of its joint."""
+        lanes = self.lanes
+        assert lanes is not None
+        s = self.signals
+        analog, digital = s.analog, s.digital
+        B, n = lanes.size, self.n
+        cmd_v = np.zeros((n, B))
+        enable = np.ones((n, B), dtype=bool)  # an unwired enable is tied high on the amplifier
+        reset = np.zeros((n, B), dtype=bool)
+        duty = np.zeros((n, B))
+        direction = np.zeros((n, B), dtype=bool)
+        brake = np.zeros((n, B), dtype=bool)
+        holding = np.zeros((n, B), dtype=bool)
+        for j, (command, en, rst, pwm, dirn, brk, hold) in enumerate(self._wiring()[0]):
+            if command:
+                cmd_v[j] = analog.get(command, 0.0)
+            if en:
+                enable[j] = digital.get(en, False)
+            if rst:
+                reset[j] = digital.get(rst, False)
+            if pwm:
+                duty[j] = analog.get(pwm, 0.0)
+            if dirn:
+                direction[j] = digital.get(dirn, False)
+            if brk:
+                brake[j] = digital.get(brk, False)
+            if hold:
+                holding[j] = digital.get(hold, False)
+        dead = ~lanes.alive
+        if dead.any():  # lanes no longer followed: amplifiers off, so their plants stay finite
+            enable[:, dead] = False
+            cmd_v[:, dead] = 0.0
+            duty[:, dead] = 0.0
+        watchdog = s.get_digital(self.watchdog_net) if self.watchdog_net else False
+        if isinstance(watchdog, np.ndarray):
+            watchdog = np.array(watchdog, dtype=bool)
+
+        def lane_major(a: np.ndarray) -> np.ndarray:
+            return np.ascontiguousarray(a.T).reshape(B * n)
+
+        return PlantCommand(
+            amp_command_v=lane_major(cmd_v), amp_enable=lane_major(enable), fault_reset=lane_major(reset),
+            pwm_duty=lane_major(duty), pwm_direction=lane_major(direction), brake=lane_major(brake),
+            watchdog_line=watchdog, holding_brake=lane_major(holding),
+        )
+
+    def _publish_lanes(self) -> None:
+        """:meth:`publish` of B lanes: each joint's (B,) values on its nets."""
+        sensors = self.pending
+        if sensors is None:
+            return
+        lanes = self.lanes
+        assert lanes is not None
+        s = self.signals
+        B, n = lanes.size, self.n
+
+        def per_joint(a: np.ndarray, dtype: type) -> np.ndarray:  # (n, B): row j is joint j's lane vector
+            return np.ascontiguousarray(np.asarray(a, dtype=dtype).reshape(B, n).T)
+
+        pot, tach, imon = per_joint(sensors.pot_v, float), per_joint(sensors.tach_v, float), per_joint(
+            sensors.imon_v, float)
+        fault = per_joint(sensors.amp_fault, bool)
+        encoder = sensors.encoder
+        analog, listened = s.analog, s.listened()
+        for i, pot_net, tach_net, imon_net, fault_net, enc_net in self._wiring()[1]:
+            for net, volts in ((pot_net, pot[i]), (tach_net, tach[i]), (imon_net, imon[i])):
+                if not net:
+                    continue
+                if listened.get(net):
+                    s.set_analog(net, volts)  # type: ignore[arg-type]
+                else:
+                    analog[net] = volts  # type: ignore[assignment]
+            if fault_net:
+                f = fault[i]
+                level = f if f.any() and not f.all() else bool(f[0])  # hal.lanes.stack: one bool when alike
+                s.set_digital(fault_net, level)  # type: ignore[arg-type]
+            if enc_net:
+                s.publish_quadrature(enc_net, encoder[i])
         self.last = sensors
         self.pending = None

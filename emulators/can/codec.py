@@ -20,6 +20,7 @@ period (first and last; more are spaced evenly between them), ground truth float
 
 from __future__ import annotations
 
+import copy
 import functools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -525,6 +526,61 @@ class DbcExchangeCodec:
         if out is None:
             out = self.can.sensors_from_raw(self.can.sensors_raw(s), type(s), s.truth)
         return out
+
+    # ---- lane mode (batched lockstep, issue #34): B plants' values side by side --------------
+    def command_lanes(self, cmd: Any) -> Any:
+        """:meth:`command` of a stacked command (:meth:`emulators.plant.PlantCommand.from_lanes`:
+        per-joint arrays of B·n values, the watchdog line a bool or (B,)): the same quantization
+        per element (one array operation over every lane), the watchdog line passed as it is."""
+        line = cmd.watchdog_line
+        cmd = copy.copy(cmd)
+        cmd.watchdog_line = False
+        out = self.can.command_from_raw(self.can.command_raw(cmd), type(cmd))
+        out.watchdog_line = np.array(line, dtype=bool) if isinstance(line, np.ndarray) else bool(line)
+        return out
+
+    def sensors_lanes(self, s: Any) -> Any:
+        """:meth:`sensors` of a stacked answer (:meth:`emulators.plant.PlantSensors.from_lanes`:
+        per-joint arrays of B·n values, ``encoder`` one lane-mode :class:`QuadratureEvents` per
+        joint): every value quantized as the scalar exchange quantizes it (the same IEEE
+        operations per element, :meth:`SignalSpec.quantize`), the encoder's counts and index
+        pulses decoded from their raw values as :func:`_events` does."""
+        pot, tach, imon = (self._physical_lanes(spec, v) for spec, v in zip(self._analog, (s.pot_v, s.tach_v, s.imon_v),
+                                                                          strict=True))
+        enc: Sequence[QuadratureEvents] = s.encoder
+        counts_spec, illegal_spec, k_spec, first_spec, last_spec = self._counts
+        counts = self._raw_lanes(counts_spec, np.array([e.counts for e in enc], dtype=float))
+        illegal = self._raw_lanes(illegal_spec, np.array([e.illegal for e in enc], dtype=float))
+        phase = np.array([e.phase for e in enc], dtype=np.int64) % 4
+        events = []
+        for j, e in enumerate(enc):
+            offsets: Any = e.index_offsets
+            if any(offsets):
+                lens = np.array([len(o) for o in offsets], dtype=float)
+                first = np.array([o[0] if o else 0 for o in offsets], dtype=float)
+                last = np.array([o[-1] if o else 0 for o in offsets], dtype=float)
+                offsets = tuple(index_offsets(k, f, la) for k, f, la in zip(
+                    self._raw_lanes(k_spec, lens).tolist(), self._raw_lanes(first_spec, first).tolist(),
+                    self._raw_lanes(last_spec, last).tolist(), strict=True))
+            events.append(QuadratureEvents(counts=counts[j], illegal=illegal[j], index_offsets=offsets,
+                                           phase=phase[j]))
+        n = np.size(s.pot_v)
+        switching = np.asarray(s.switching, dtype=bool)
+        if switching.shape != (n,):
+            switching = np.zeros(n, dtype=bool)
+        truth = s.truth
+        return type(s)(
+            pot_v=pot, tach_v=tach, imon_v=imon, amp_fault=np.array(s.amp_fault, dtype=bool), encoder=events,
+            switching=switching.copy(), truth=dict(truth) if truth is not None else {},
+        )
+
+    def _raw_lanes(self, spec: SignalSpec, values: np.ndarray) -> np.ndarray:
+        raw, clipped = spec.quantize(values)
+        self.can.counters.clipped += clipped
+        return raw
+
+    def _physical_lanes(self, spec: SignalSpec, values: Any) -> np.ndarray:
+        return spec.physical(self._raw_lanes(spec, values))
 
     def _sensors_fused(self, s: Any) -> Any:
         """:meth:`CanCodec.sensors_raw` then :meth:`CanCodec.sensors_from_raw` in plain Python

@@ -36,7 +36,9 @@ fault line stays low and ``fault_reset`` does not clear it.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -329,3 +331,93 @@ class EnableWatchdog:
         before = self.cause.copy()
         self._latch(enable, cause)
         return (self.cause != 0) & (before == 0)
+
+
+class LaneEnableWatchdog:
+    """The enable watchdogs of B stacked plants (lane mode, :meth:`emulators.plant.Plant.from_lanes`):
+    per lane its pump (line level, last edge, timeout), per amplifier its latch, amplifier ``j`` of
+    lane ``b`` at ``b*n + j``. Every method does for each lane what :class:`EnableWatchdog` does for
+    that lane's plant, with the same float operations; where the scalar one answers one bool or
+    substep, this one answers one per lane ((B,) arrays)."""
+
+    def __init__(self, dogs: Sequence[EnableWatchdog]) -> None:
+        self.n_lanes = len(dogs)
+        self.n = int(dogs[0].cause.size)
+        if any(d.cause.size != self.n for d in dogs):
+            raise ValueError("stacked watchdogs must have the same number of amplifiers")
+        #: lanes with a pump wired (``timeout_s`` not ``None``); the others never run out
+        self.wired = np.array([d.timeout_s is not None for d in dogs], dtype=bool)
+        self.timeout_s = np.array([math.inf if d.timeout_s is None else d.timeout_s for d in dogs], dtype=float)
+        self.level = np.array([d.level for d in dogs], dtype=bool)
+        self.last_edge_s = np.array([d.last_edge_s for d in dogs], dtype=float)
+        self.cause = np.concatenate([d.cause for d in dogs]).astype(np.int64)
+        self.trips = np.array([d.trips for d in dogs], dtype=np.int64)  #: per lane
+
+    @property
+    def latched(self) -> np.ndarray:
+        return self.cause != 0
+
+    @property
+    def armed(self) -> np.ndarray:
+        """Per lane: a pump wired and started."""
+        return self.wired & (self.last_edge_s > -math.inf)
+
+    def alive(self, t_s: float) -> np.ndarray:
+        """Per lane: the pump keeps the enable chain closed at ``t_s``."""
+        with np.errstate(invalid="ignore"):  # -inf + inf of an unarmed, unwired lane: masked
+            return ~self.armed | (t_s < self.last_edge_s + self.timeout_s)
+
+    def effective(self, enable: np.ndarray) -> np.ndarray:
+        return np.asarray(enable, dtype=bool) & (self.cause == 0)
+
+    def _latch(self, new: np.ndarray, cause: int) -> np.ndarray:
+        """Latch the amplifiers ``new`` (enabled, not latched yet) for ``cause``; per lane whether
+        one was latched."""
+        per_lane = new.reshape(self.n_lanes, self.n)
+        self.cause = np.where(new, cause, self.cause)
+        self.trips = self.trips + np.count_nonzero(per_lane, axis=1)
+        return np.asarray(per_lane.any(axis=1), dtype=bool)
+
+    def command(self, line: Any, enable: np.ndarray, prev_enable: np.ndarray, t_s: float) -> None:
+        """:meth:`EnableWatchdog.command` per lane; ``line``: the lines' levels (a bool for every
+        lane, or (B,))."""
+        line = np.asarray(line, dtype=bool)
+        edge = line != self.level
+        self.level = np.where(edge, line, self.level)
+        self.last_edge_s = np.where(edge, t_s, self.last_edge_s)
+        alive = np.repeat(self.alive(t_s), self.n)
+        enable = np.asarray(enable, dtype=bool)
+        rising = enable & ~np.asarray(prev_enable, dtype=bool)
+        self.cause = np.where(alive & rising, 0, self.cause)
+        dead = ~alive
+        if dead.any():
+            self._latch(enable & dead & (self.cause == 0), WATCHDOG_EXPIRED)
+
+    def expiry_substep(self, t0_s: float, h: float, n_sub: int) -> np.ndarray:
+        """:meth:`EnableWatchdog.expiry_substep` per lane (int64 (B,), -1: runs through)."""
+        armed = self.armed
+        with np.errstate(invalid="ignore"):
+            k = np.ceil((self.last_edge_s + self.timeout_s - t0_s) / h - 1e-9)
+        k = np.where(armed, k, -1.0).astype(np.int64)
+        return np.where(armed & (k < n_sub), np.maximum(k, 0), -1)
+
+    def expire(self, enable: np.ndarray, lanes: np.ndarray) -> np.ndarray:
+        """The pumps of ``lanes`` ((B,) bool) ran out: latch their enabled amplifiers; per lane
+        whether one was latched."""
+        new = np.asarray(enable, dtype=bool) & (self.cause == 0) & np.repeat(lanes, self.n)
+        return self._latch(new, WATCHDOG_EXPIRED)
+
+    def hold_off(self, enable: np.ndarray, cause: int = WATCHDOG_COMMAND_TIMEOUT) -> np.ndarray:
+        before = self.cause.copy()
+        self._latch(np.asarray(enable, dtype=bool) & (self.cause == 0), cause)
+        return (self.cause != 0) & (before == 0)
+
+    def lane(self, b: int) -> EnableWatchdog:
+        """Lane ``b``'s watchdog as a scalar :class:`EnableWatchdog` (a copy; for tests and
+        reports)."""
+        d = EnableWatchdog(self.n, None if not self.wired[b] else float(self.timeout_s[b]))
+        d.level = bool(self.level[b])
+        d.last_edge_s = float(self.last_edge_s[b])
+        d.cause = self.cause[b * self.n:(b + 1) * self.n].copy()
+        d.trips = int(self.trips[b])
+        return d

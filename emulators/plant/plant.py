@@ -24,7 +24,7 @@ survive :meth:`Plant.reset` like a board's faults survive SYSRESET.
 from __future__ import annotations
 
 import math
-from collections.abc import Collection
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,6 +38,7 @@ from emulators.plant.amplifier import (
     AmpDrive,
     AmpState,
     EnableWatchdog,
+    LaneEnableWatchdog,
     check_slow_faults,
     current_step,
     current_step_linear,
@@ -46,11 +47,13 @@ from emulators.plant.amplifier import (
 from emulators.plant.brake import HoldingBrakes
 from emulators.plant.encoder import encoder_events
 from emulators.plant.friction import FrictionArrays, StickSlipStepper
+from emulators.plant.lanes import LaneStepper, event_of_lane, lane_events
 from emulators.plant.link_dynamics import gravity_torque, hard_stop_overshoot
 from emulators.plant.params import AMP_LINEAR, PlantParams, plant_params_from_config
 from emulators.plant.sensors import NoiseStreams, PotArrays, TachArrays
 from emulators.signals import QuadratureEvents
 from hal.config import ConfigTable
+from hal.lanes import LaneSet, lane, stack
 
 
 @dataclass
@@ -94,6 +97,36 @@ class PlantCommand:
             brake=np.array(self.brake, dtype=bool),
             watchdog_line=bool(self.watchdog_line),
             holding_brake=np.array(self.holding_brake, dtype=bool),
+        )
+
+    @classmethod
+    def from_lanes(cls, commands: Sequence[PlantCommand]) -> PlantCommand:
+        """The commands of B plants (lane order) as one command of the stacked plant
+        (:meth:`Plant.from_lanes`): per-joint arrays lane-major, the watchdog line a lane value
+        (:func:`hal.lanes.stack`)."""
+        def cat(name: str, dtype: type) -> np.ndarray:
+            return np.concatenate([np.asarray(getattr(c, name), dtype=dtype) for c in commands])
+
+        return cls(
+            amp_command_v=cat("amp_command_v", float), amp_enable=cat("amp_enable", bool),
+            fault_reset=cat("fault_reset", bool), pwm_duty=cat("pwm_duty", float),
+            pwm_direction=cat("pwm_direction", bool), brake=cat("brake", bool),
+            watchdog_line=stack([bool(c.watchdog_line) for c in commands]),
+            holding_brake=cat("holding_brake", bool),
+        )
+
+    def lane(self, b: int, n: int) -> PlantCommand:
+        """Lane ``b``'s command (``n`` joints a lane) of a stacked command (copies)."""
+        sl = slice(b * n, (b + 1) * n)
+        return PlantCommand(
+            amp_command_v=np.array(self.amp_command_v[sl], dtype=float),
+            amp_enable=np.array(self.amp_enable[sl], dtype=bool),
+            fault_reset=np.array(self.fault_reset[sl], dtype=bool),
+            pwm_duty=np.array(self.pwm_duty[sl], dtype=float),
+            pwm_direction=np.array(self.pwm_direction[sl], dtype=bool),
+            brake=np.array(self.brake[sl], dtype=bool),
+            watchdog_line=bool(lane(self.watchdog_line, b)),
+            holding_brake=np.array(self.holding_brake[sl], dtype=bool),
         )
 
     @classmethod
@@ -144,6 +177,39 @@ class PlantSensors:
     switching: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     switching_noise_v: np.ndarray = field(default_factory=lambda: np.zeros(0))
     truth: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @classmethod
+    def from_lanes(cls, sensors: Sequence[PlantSensors]) -> PlantSensors:
+        """The answers of B plants (lane order) as one answer of the stacked plant: per-joint
+        arrays lane-major, ``encoder`` one lane-mode :class:`QuadratureEvents` per joint
+        (:func:`emulators.plant.lanes.lane_events`), truth keys every answer has, lane-major."""
+        def cat(name: str) -> np.ndarray:
+            return np.concatenate([np.asarray(getattr(s, name)) for s in sensors])
+
+        n = len(sensors[0].encoder)
+        keys = [k for k in sensors[0].truth if all(k in s.truth for s in sensors)]
+        return cls(
+            pot_v=cat("pot_v"), tach_v=cat("tach_v"), imon_v=cat("imon_v"), amp_fault=cat("amp_fault"),
+            encoder=[lane_events([s.encoder[j] for s in sensors]) for j in range(n)],
+            switching=cat("switching"), switching_noise_v=cat("switching_noise_v"),
+            truth={k: np.concatenate([np.asarray(s.truth[k]) for s in sensors]) for k in keys},
+        )
+
+    def lane(self, b: int) -> PlantSensors:
+        """Lane ``b``'s answer of a stacked answer (what its scalar plant answered; copies)."""
+        n = len(self.encoder)
+        sl = slice(b * n, (b + 1) * n)
+
+        def part(a: np.ndarray) -> np.ndarray:
+            a = np.asarray(a)
+            return a[sl].copy() if a.size else a.copy()
+
+        return PlantSensors(
+            pot_v=part(self.pot_v), tach_v=part(self.tach_v), imon_v=part(self.imon_v),
+            amp_fault=part(self.amp_fault), encoder=[event_of_lane(e, b) for e in self.encoder],
+            switching=part(self.switching), switching_noise_v=part(self.switching_noise_v),
+            truth={k: part(v) for k, v in self.truth.items()},
+        )
 
 
 class _StepConsts:
@@ -232,6 +298,12 @@ def _stack(joints: list, path: str, dtype: type = float) -> np.ndarray:
     return np.array(out, dtype=dtype)
 
 
+def _not_in_lanes(why: str) -> Callable[..., None]:
+    def refuse(*_args: object, **_kwargs: object) -> None:
+        raise NotImplementedError(why)
+    return refuse
+
+
 #: the compiled path's QuadratureEvents without index pulses, by (counts, illegal, phase)
 _EVENTS: dict[tuple[int, int, int], QuadratureEvents] = {}
 
@@ -266,6 +338,10 @@ class Plant(FaultInjectable):
         "amp_fault": "joint=NAME: the joint's amplifier trips: output stage off, fault line asserted (latched "
                      "again every period while injected, so a fault reset does not clear it)",
     }
+
+    #: lane mode (:meth:`from_lanes`): the batch's lanes (``None``: a scalar plant)
+    lanes: LaneSet | None = None
+    n_lanes = 1  #: lanes stacked (1: a scalar plant)
 
     def __init__(self, params: PlantParams, *, seed: int = 0, rate_hz: float | None = None,
                  kernel: str | None = None) -> None:
@@ -388,6 +464,88 @@ class Plant(FaultInjectable):
         as for :func:`~emulators.plant.params.plant_params_from_config`)."""
         return cls(plant_params_from_config(cfg, foreign_keys=foreign_keys), seed=seed, rate_hz=rate_hz,
                    kernel=kernel)
+
+    @classmethod
+    def from_lanes(cls, plants: Sequence[Plant], lanes: LaneSet) -> Plant:
+        """B scalar plants (lane order; built, reset and stepped as their scalar runs did) as ONE
+        plant of B·n joints in lane mode (issue #34, :mod:`hal.lanes`): joint ``j`` of lane ``b``
+        at ``b*n + j`` in every per-joint array, command and answer; one compiled kernel call
+        steps every lane's period (:mod:`emulators.plant.lanes`), and each lane's values are its
+        scalar plant's, bit for bit. Per lane its own parameters, noise generators (the scalar
+        plants' objects, drawn in the scalar order), enable watchdog and brakes.
+
+        Refused (``NotImplementedError``: the batch runs such instances scalar): the numpy path,
+        an injected plant fault, plants of different joints or rates, at different times or
+        noise positions. The stacked plant cannot be reset or take faults (reset the scalar
+        plants, then stack them)."""
+        plants = list(plants)
+        B = len(plants)
+        if B != lanes.size:
+            raise ValueError(f"{B} plants for {lanes.size} lanes")
+        p0 = plants[0]
+        n = p0.n_joints
+        for p in plants:
+            if getattr(p, "lanes", None) is not None:
+                raise NotImplementedError("a plant already in lane mode cannot be stacked again")
+            if p._kernel_fn is None:
+                raise NotImplementedError("plant lanes run the compiled kernel; this plant runs the numpy path")
+            if p.active_faults:
+                raise NotImplementedError("a plant with an injected fault cannot run in lanes")
+            if p.names != p0.names or p.rate_hz != p0.rate_hz:
+                raise NotImplementedError("plants of different joints or rates cannot run in lanes")
+            if p.time_s != p0.time_s:
+                raise NotImplementedError("plants at different times cannot run in lanes")
+
+        def cat(objs: Sequence[object], name: str) -> np.ndarray:  # a per-joint array of each, lane-major
+            return np.concatenate([np.asarray(getattr(o, name)) for o in objs])
+
+        def cat_fields(objs: Sequence[object]) -> object:  # a dataclass of per-joint arrays
+            return type(objs[0])(**{f: cat(objs, f) for f in vars(objs[0])})
+
+        lp = cls.__new__(cls)
+        d = lp.__dict__
+        d.update(kernel=p0.kernel, _kernel_fn=p0._kernel_fn, params=p0.params, rate_hz=p0.rate_hz)
+        d.update(lanes=lanes, n_lanes=B, lane_joints=n, lane_plants=plants, n_joints=B * n,
+                 names=[name for p in plants for name in p.names], seed=stack([p.seed for p in plants]),
+                 watchdog_timeout_s=stack([p.watchdog_timeout_s for p in plants]))
+        for name in ("R", "L", "Kt", "Ke", "N", "compliant", "K_flex", "C_flex", "ke_amp", "ke_phase", "J_link",
+                     "J_m", "G", "G_phase", "lower", "upper", "hb_switching_noise", "enc_counts_per_rev",
+                     "enc_index_phase", "enc_sample_hz", "inv_N", "enc_scale", "theta_m", "omega_m", "theta_l",
+                     "omega_l", "i", "tach_state", "at_stop", "external_torque_nm", "contact_k_nm_per_rad",
+                     "contact_rad"):
+            d[name] = cat(plants, name).copy()
+        # plant-wide flags of the numpy path; the kernel's flags stay per lane (LaneKernelConsts)
+        for name in ("any_compliant", "has_ke", "has_gravity", "has_tach", "has_tach_ripple", "has_external",
+                     "has_contact"):
+            d[name] = any(p.__dict__[name] for p in plants)
+        for name in ("fr", "amp", "pot", "tach"):
+            d[name] = cat_fields([p.__dict__[name] for p in plants])
+        bs = [p.brakes for p in plants]
+        brakes = HoldingBrakes(cat(bs, "present"), cat(bs, "hold_motor_nm"), cat(bs, "engage_s"), cat(bs, "release_s"))
+        for name in ("engaged", "line", "switch_s"):
+            setattr(brakes, name, cat(bs, name).copy())
+        lp.brakes = brakes
+        lp.has_brakes = brakes.any
+        amp_state = AmpState(B * n)
+        for name in ("fault", "cause", "thermal", "sat_time", "saturated"):
+            setattr(amp_state, name, cat([p.amp_state for p in plants], name).copy())
+        lp.amp_state = amp_state
+        lp.watchdog = LaneEnableWatchdog([p.watchdog for p in plants])  # type: ignore[assignment]
+        lp.time_s = p0.time_s
+        lp._prev_cmd = PlantCommand.from_lanes([p._prev_cmd for p in plants])
+        lp._noise = {src: NoiseStreams.from_lanes([p._noise[src] for p in plants]) for src in p0._noise}
+        lp._held_v = np.full((2, B * n), np.nan)
+        lp._pot_held_v = lp._held_v[0]
+        lp._tach_held_v = lp._held_v[1]
+        lp._amp_tripped = np.zeros(B * n, dtype=bool)
+        lp._sensor_faults = False
+        lp._consts = {}
+        # lane mode is chosen here, once: the scalar methods stay as they are
+        stepper = LaneStepper(lp, lanes, PlantSensors)
+        d.update(step_period=stepper.step, _step_consts=stepper.lane_consts, _lane_stepper=stepper,
+                 reset=_not_in_lanes("a stacked plant cannot be reset: reset the scalar plants, then stack them"),
+                 inject=_not_in_lanes("plant faults cannot be injected in lanes"))
+        return lp
 
     def index_of(self, name: str) -> int:
         """Position of joint ``name`` in the arrays."""

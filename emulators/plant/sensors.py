@@ -7,6 +7,7 @@ sensors, as an ADC would see them) or x4 counts (encoder, as a float position).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +28,21 @@ class NoiseStreams:
         self._gens = [rng_for(seed, "plant", name, source) for name in joint_names]
         self._buf = np.empty((len(joint_names), self.BLOCK))
         self._pos = self.BLOCK
+
+    @classmethod
+    def from_lanes(cls, streams: Sequence[NoiseStreams]) -> NoiseStreams:
+        """One stream set of B stacked plants (lane mode): every joint of every lane keeps its own
+        generator (the scalar stream's object), lane-major, and draws from it exactly as the
+        scalar one would (the buffers are copied; a refill takes one block from each generator,
+        as the scalar refill does). The lanes must stand at the same place in their blocks (they
+        drew as often): else ``NotImplementedError``."""
+        if any(s._pos != streams[0]._pos or s.BLOCK != cls.BLOCK for s in streams):
+            raise NotImplementedError("plant noise streams at different places cannot run in lanes")
+        out = cls.__new__(cls)
+        out._gens = [g for s in streams for g in s._gens]
+        out._buf = np.concatenate([s._buf for s in streams], axis=0)
+        out._pos = streams[0]._pos
+        return out
 
     def draw(self) -> np.ndarray:
         if self._pos >= self.BLOCK:

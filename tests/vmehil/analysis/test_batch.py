@@ -132,7 +132,8 @@ def test_a_stop_request_ends_every_instance_through_its_safe_stop() -> None:
     def stop() -> bool:  # once every instance has run 15 ticks
         return min(r.loop.tick_count for r in batch) >= 15
 
-    figures = simulate_batch(batch, stop=stop, progress=lambda k, n: windows.append(k), window=25)
+    figures = simulate_batch(batch, stop=stop, progress=lambda k, n: windows.append(k), window=25,
+                             lanes=False)  # the form of scalar instances: windows of 25 ticks
     assert len(figures) == 2
     # instance 0 ran its first window of 25 ticks; instance 1 stopped at 15, then instance 0 at once
     assert [r.loop.tick_count for r in batch] == [25, 15]
