@@ -28,7 +28,7 @@ gives 0x000000). Use the LATCH command and the output latch.
 Lanes (batched lockstep, :mod:`hal.lanes`): :meth:`QuadratureBoard.from_lanes` stacks B boards
 into one whose counters, accumulators, latches, flags and A/B phases are int64 arrays of shape
 (B,) (lane b's value at index b) and whose CTL/PRE registers are lane values; it takes the
-lane-mode :class:`~emulators.signals.QuadratureEvents` (``QuadratureEvents.for_lanes``) and
+lane-mode :class:`~emulators.signals.QuadratureEvents` (``emulators.plant.lanes.lane_events``) and
 applies each lane's events by the same rules, so every lane's registers equal its scalar
 board's. Injected faults are per instance: a lane-mode board has none (they run scalar).
 
@@ -423,7 +423,7 @@ class QuadratureBoard(RegisterBoard):
         ch.status = ch.status & (~value & _FLAGS)
 
     def _lane_apply_events(self, c: int, ev: QuadratureEvents) -> None:
-        """:meth:`apply_events` for B lanes: ``ev`` carries lane values (``QuadratureEvents.for_lanes``;
+        """:meth:`apply_events` for B lanes: ``ev`` carries lane values (``emulators.plant.lanes.lane_events``;
         a plain scalar object is every lane's). The same rules, lane by lane, as array operations."""
         ch = self.lane_ch[c]
         counts, illegal = ev.counts, ev.illegal

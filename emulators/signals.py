@@ -26,8 +26,9 @@ class QuadratureEvents:
     """What a quadrature decoder's input sampler saw during one interval.
 
     In lane mode (batched lockstep, :mod:`hal.lanes`) one object carries B instances' events
-    (:meth:`for_lanes`): ``counts``, ``illegal`` and ``phase`` are int64 arrays of shape (B,) and
-    ``index_offsets`` is a tuple of B tuples (lane b's offsets); a lane-mode board takes them.
+    (:func:`emulators.plant.lanes.lane_events`): ``counts``, ``illegal`` and ``phase`` are int64
+    arrays of shape (B,) and ``index_offsets`` is a tuple of B tuples (lane b's offsets); a
+    lane-mode board takes them.
 
     Attributes:
         counts: net valid x4 transitions (+ = A leads B), as the sampler decoded them; counts
@@ -42,18 +43,6 @@ class QuadratureEvents:
     illegal: int = 0
     index_offsets: tuple[int, ...] = ()
     phase: int = 0
-
-    @classmethod
-    def for_lanes(cls, counts: Any, illegal: Any, index_offsets: tuple[tuple[int, ...], ...],
-                  phase: Any) -> QuadratureEvents:
-        """B instances' events in one object (lane b's values at index b): what the harness
-        publishes on an encoder net in lane mode. ``counts``, ``illegal``, ``phase``: B integers
-        each (made int64 arrays); ``index_offsets``: one tuple of offsets per lane."""
-        c, i, p = (np.asarray(v, dtype=np.int64) for v in (counts, illegal, phase))
-        if not (c.ndim == 1 and c.shape == i.shape == p.shape and len(index_offsets) == c.shape[0]):
-            raise ValueError(f"lane events need B values each: counts {c.shape}, illegal {i.shape}, "
-                             f"phase {p.shape}, {len(index_offsets)} index offset tuples")
-        return cls(c, i, tuple(index_offsets), p)  # type: ignore[arg-type]  # the lane-mode form of the fields
 
 
 Listener = Callable[[str, Any], None]

@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from emulators.crate import Crate
+from emulators.plant.lanes import lane_events
 from emulators.quadrature import BOARD_MAP, QuadratureBoard
 from emulators.signals import QuadratureEvents
 from hal.lanes import LaneSet, lane
@@ -118,9 +119,10 @@ class Batch:
         self.lanes.tick = self.tick
         t_ns = self.tick * PERIOD_NS
         self.crate.advance_to(t_ns)
-        for i, net in enumerate(NETS):
-            self.crate.signals.publish_quadrature(net, QuadratureEvents.for_lanes(
-                counts[:, i], illegal[:, i], tuple(offsets[b][i] for b in range(self.n)), phase[:, i]))
+        events = [[QuadratureEvents(int(counts[b, i]), int(illegal[b, i]), offsets[b][i], int(phase[b, i]))
+                   for i in range(len(NETS))] for b in range(self.n)]
+        for i, net in enumerate(NETS):  # as the harness in lanes publishes them
+            self.crate.signals.publish_quadrature(net, lane_events([events[b][i] for b in range(self.n)]))
         self.readings = {name: drv.update(PERIOD_S) for name, drv in self.drivers.items()}
         for name, r in self.readings.items():
             for ch, x in r.items():  # its scalar run clears ILLEGAL: a cycle of those lanes only
@@ -128,8 +130,7 @@ class Batch:
         for b, (crate, drivers) in enumerate(self.twins):  # the scalar program (servo/io.py's read)
             crate.advance_to(t_ns)
             for i, net in enumerate(NETS):
-                crate.signals.publish_quadrature(net, QuadratureEvents(
-                    int(counts[b, i]), int(illegal[b, i]), offsets[b][i], int(phase[b, i])))
+                crate.signals.publish_quadrature(net, events[b][i])
             try:
                 self.twin_readings[b] = {name: drv.update(PERIOD_S) for name, drv in drivers.items()}
             except QuadratureError as e:
@@ -285,16 +286,16 @@ def test_lane_board_registers_equal_scalar_boards_under_lane_valued_writes_and_e
             illegal = (rng.random(n) < 0.1).astype(np.int64)
             phase = rng.integers(0, 4, n)
             offsets = tuple(tuple(sorted(int(x) for x in rng.integers(-9, 10, rng.integers(0, 3)))) for _ in range(n))
-            if rng.random() < 0.2:  # now and then a plain (scalar) object: every lane's events
+            alike = rng.random() < 0.2  # now and then the same events in every lane
+            if alike:
                 counts, illegal, phase = (np.full(n, x[0]) for x in (counts, illegal, phase))
                 offsets = (offsets[0],) * n
-                events = QuadratureEvents(int(counts[0]), int(illegal[0]), offsets[0], int(phase[0]))
-            else:
-                events = QuadratureEvents.for_lanes(counts, illegal, offsets, phase)
+            each = [QuadratureEvents(int(counts[b]), int(illegal[b]), offsets[b], int(phase[b])) for b in range(n)]
+            # lane-mode events, or (alike) a plain scalar object: every lane's events
+            events = each[0] if alike and rng.random() < 0.5 else lane_events(each)
             lanes_crate.signals.publish_quadrature(nets[ch], events)
             for b, c in enumerate(twins):
-                c.signals.publish_quadrature(nets[ch], QuadratureEvents(int(counts[b]), int(illegal[b]), offsets[b],
-                                                                        int(phase[b])))
+                c.signals.publish_quadrature(nets[ch], each[b])
         else:  # read every readable register of the channel, D16, and the OL bytes D8
             for name in readable:
                 r = BOARD_MAP[f"CH{ch}_{name}"]
@@ -309,6 +310,16 @@ def test_lane_board_registers_equal_scalar_boards_under_lane_valued_writes_and_e
         assert all(lanes_crate.clock.now_ns == c.clock.now_ns for c in twins)
         assert all(lanes_crate.counter_snapshot() == c.counter_snapshot() for c in twins)
     assert lanes_crate.lanes is not None and lanes_crate.lanes.n_alive == n
+    board = lanes_crate.board("q")
+    assert isinstance(board, QuadratureBoard)
+    for b, c in enumerate(twins):  # the state behind the registers too: accumulators, statistics
+        twin = c.board("q")
+        assert isinstance(twin, QuadratureBoard)
+        for ch in range(4):
+            for f in ("counter", "acc", "ol", "idx", "status", "phase"):
+                assert _same(getattr(board.lane_ch[ch], f), b, getattr(twin.ch[ch], f)), (b, ch, f)
+            for k, v in twin.ch[ch].stats.items():
+                assert _same(board.lane_ch[ch].stats[k], b, v), (b, ch, k)
 
 
 def test_stacking_refuses_what_lanes_do_not_run_and_lane_mode_is_chosen_once():
