@@ -105,11 +105,17 @@ class Recorder:
     def __post_init__(self) -> None:
         if self.max_rows is not None and self.max_rows < 1:
             raise ValueError(f"Recorder max_rows {self.max_rows!r}: expected at least 1 or None")
+        # the arrays come with the first row (_allocate): a batch of lanes builds B scalar loops
+        # whose recorders never record (Recorder.from_lanes), 1.2 MiB each for a jpl-arm sweep point
+
+    def _allocate(self) -> dict[str, np.ndarray]:
         rows = self.rows
+        data = self.data
         for f in self.FIELDS:
-            self.data[f] = np.full((rows, self.n), np.nan)
-        self.data["t"] = np.full(rows, np.nan)
-        self.data["compute_s"] = np.full(rows, np.nan)
+            data[f] = np.full((rows, self.n), np.nan)
+        data["t"] = np.full(rows, np.nan)
+        data["compute_s"] = np.full(rows, np.nan)
+        return data
 
     @property
     def rows(self) -> int:
@@ -125,40 +131,57 @@ class Recorder:
         if not 0 <= k < self.n_ticks:
             return
         i = k % self.rows
+        data = self.data or self._allocate()
         for name, v in values.items():
-            self.data[name][i] = v
+            data[name][i] = v
         self.count = max(self.count, k + 1)
 
     @classmethod
     def from_lanes(cls, recorders: Sequence[Recorder]) -> Recorder:
         """One recorder for B lanes (batched lockstep, :mod:`hal.lanes`): rows of B·n joints,
-        lane-major; the rows recorded so far (the same ticks in every lane) concatenated."""
+        lane-major; the rows recorded so far (the same ticks in every lane) concatenated. The B
+        recorders are spent: their arrays are released (a batch of 400 would hold every row twice)."""
         first = recorders[0]
         for r in recorders:
             if (r.n_ticks, r.n, r.count, r.max_rows) != (first.n_ticks, first.n, first.count, first.max_rows):
                 raise NotImplementedError("lanes' recorders differ in size or rows: they cannot run as lanes")
-        rec = cls(first.n_ticks, first.n * len(recorders), first.count, max_rows=first.max_rows)
+        rec = cls._of(first.n_ticks, first.n * len(recorders), first.count, first.max_rows)
+        if first.count == 0:  # nothing recorded yet (a batch stacks before its first tick)
+            return rec
         for f in cls.FIELDS:
             rec.data[f] = np.concatenate([r.data[f] for r in recorders], axis=1)
         for f in ("t", "compute_s"):
             rec.data[f] = first.data[f].copy()
+        for r in recorders:
+            r.data = {}
+        return rec
+
+    @classmethod
+    def _of(cls, n_ticks: int, n: int, count: int, max_rows: int | None) -> Recorder:
+        """A recorder of these sizes whose arrays come with its first row or from the caller."""
+        rec = cls.__new__(cls)
+        rec.n_ticks, rec.n, rec.count, rec.max_rows, rec.data = n_ticks, n, count, max_rows, {}
         return rec
 
     def lane(self, lane: int, n: int) -> Recorder:
         """Lane ``lane``'s rows of a lane recorder of ``n`` joints per lane (:meth:`from_lanes`): a
-        recorder of one instance holding what its scalar run records (``compute_s``: the batch's)."""
-        rec = Recorder(self.n_ticks, n, self.count, max_rows=self.max_rows)
+        recorder of one instance holding what its scalar run records (``compute_s``: the batch's).
+        Its joint arrays are views of this recorder's (no copy: a batch reads its lanes one by one)."""
+        rec = Recorder._of(self.n_ticks, n, self.count, self.max_rows)
+        if not self.data:
+            return rec
         sl = slice(lane * n, (lane + 1) * n)
         for f in self.FIELDS:
-            rec.data[f] = self.data[f][:, sl].copy()
+            rec.data[f] = self.data[f][:, sl]
         for f in ("t", "compute_s"):
             rec.data[f] = self.data[f].copy()
         return rec
 
     def trimmed(self) -> dict[str, np.ndarray]:
         """The ticks kept, in time order: all of them (``count``) unless some were ``dropped``."""
+        data = self.data or self._allocate()
         if self.count <= self.rows:
-            return {k: v[: self.count] for k, v in self.data.items()}
+            return {k: v[: self.count] for k, v in data.items()}
         start = self.count % self.rows
         return {k: np.concatenate((v[start:], v[:start])) for k, v in self.data.items()}
 

@@ -33,15 +33,19 @@ from servo.interrupts import INTERRUPTS, SignalsDeferred, interrupt_name
 from servo.rig import RigSpec
 from vmehil.errors import CliError
 
-#: resident memory one jpl-arm instance adds to a batch (MiB): 1.6 measured for a 10 s hold (its rig,
-#: loop and recorder; docs/benchmarks.md, "Batched lockstep"), with a margin for longer runs
-INSTANCE_MIB = 2.0
-#: the most instances ``--batch auto`` puts in one batch: small, as a batch of scalar instances is
-#: no faster per point (docs/benchmarks.md, "Batched lockstep") and a sweep's progress and its
-#: Ctrl-C move by whole batches
-AUTO_MAX = 8
-#: ticks an instance runs before the next one's turn (0.2 s at 125 Hz): instances meet at every
-#: window's end; its own working set stays warm in the CPU's caches meanwhile
+#: resident memory one jpl-arm instance adds to a batch of lanes (MiB): 3.4 measured for a sweep point
+#: of 1 469 ticks (its scalar set-up 1.4, its recorder's rows 1.2, its share of the lane rig; docs/benchmarks.md,
+#: "Batched lockstep"), with a margin for longer runs
+INSTANCE_MIB = 4.0
+#: the most instances ``--batch auto`` puts in one batch: past a few hundred lanes a tick's fixed cost
+#: (≈ 2 ms) is paid back and the memory grows on (docs/benchmarks.md, "Batched lockstep")
+AUTO_MAX = 256
+#: the fewest instances run as one rig of lanes: below it the lanes' fixed cost per tick (≈ 2 ms, against
+#: ≈ 0.6 ms for a scalar tick) makes a batch slower than its runs one by one; smaller batches run as
+#: scalar instances (docs/benchmarks.md, "Batched lockstep")
+LANES_MIN = 8
+#: ticks an instance runs before the next one's turn (0.2 s at 125 Hz), in a batch of scalar
+#: instances: instances meet at every window's end; its own working set stays warm in the CPU's caches meanwhile
 WINDOW_TICKS = 25
 
 
@@ -92,7 +96,9 @@ def choose_batch(requested: int | None, points: int, workers: int, rig: RigSpec,
     ``requested``: ``--batch N`` (refused with :class:`BatchError` for a rig that cannot batch,
     when N > 1) or ``None`` for auto: 1 for a rig that cannot batch (the note says why), else as
     many as keep every worker busy (points / workers), at most :data:`AUTO_MAX` and at most what
-    half the available memory holds at :data:`INSTANCE_MIB` per instance per worker."""
+    half the available memory holds at :data:`INSTANCE_MIB` per instance per worker. A batch of
+    :data:`LANES_MIN` or more runs as one rig of lanes, a smaller one as scalar instances
+    (:func:`simulate_batch`)."""
     blockers = batch_blockers(rig)
     if requested is not None:
         if requested > 1 and blockers:
@@ -181,14 +187,15 @@ def simulate_batch(runs: Sequence[Any], *, traces: bool = False, stop: Callable[
                    window: int = WINDOW_TICKS, lanes: bool = True,
                    report: Any = None) -> list[dict[str, Any]]:
     """:func:`~vmehil.analysis.simulate.simulate`'s result for each of ``runs``: as one rig of
-    lanes when they have a lane form (``lanes``; :func:`vmehil.analysis.lane_batch.simulate_lanes`),
+    lanes when there are at least :data:`LANES_MIN` and they have a lane form (``lanes``;
+    :func:`vmehil.analysis.lane_batch.simulate_lanes`),
     else as scalar instances in lockstep (:func:`run_lockstep`, and ``report.scalar_reason`` says
     why). The results are the same either way, bit for bit; every run is closed however this ends.
     ``report``: a :class:`~vmehil.analysis.lane_batch.LaneReport` to fill (lanes, re-runs)."""
     from vmehil.analysis.lane_batch import LaneReport, simulate_lanes
 
     rep = report if report is not None else LaneReport(len(runs))
-    if lanes and len(runs) > 1:
+    if lanes and len(runs) >= LANES_MIN:
         try:
             return simulate_lanes(runs, traces=traces, stop=stop, progress=progress, report=rep)
         except NotImplementedError as e:

@@ -101,6 +101,7 @@ def _tick_lanes(runs: Sequence[Any], lanes: LaneSet, loop: Any, runner: Any, *, 
         if lanes.alive[b] and loop.fault is None:
             loop.write_lane(b, r.loop)
             out[b] = r.figures(r.summarize(), traces=traces)
+            r.loop.recorder = None  # its rows are in out[b]; the batch's memory is the lane recorder's
     for b in range(len(runs)):
         if out[b] is not None:
             continue

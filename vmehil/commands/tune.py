@@ -143,10 +143,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     sw.add_argument("--out", default=None, metavar="DIR",
                     help="write sweep.csv and sweep.json here (default: the --report folder, else ./sweep-out)")
     sw.add_argument("--margins-only", action="store_true", help="no simulations: margins only (fast)")
-    sw.add_argument("--batch", default="1", metavar="N|auto",
-                    help="points per worker task, their full-stack runs stepped in lockstep in one process "
-                         "(bit-identical rows); auto: sized by the points, workers and free memory; 1 (default): "
-                         "one point per task (docs/sweeps.md, \"Batched lockstep\")")
+    sw.add_argument("--batch", default="auto", metavar="N|auto",
+                    help="points per worker task, their full-stack runs stepped in lockstep in one process as one "
+                         "rig of lanes (8 or more; bit-identical rows); auto (default): sized by the points, workers "
+                         "and free memory; 1: one point per task (docs/sweeps.md, \"Batched lockstep\")")
     _sim_args(sw, 8.0, 0.1)
     sw.set_defaults(func=run_sweep, options=TuneOptions.from_args)
     st = tsub.add_parser("step", parents=[common],
@@ -199,7 +199,7 @@ class TuneOptions:
     y: str | None = None
     out: str | None = None
     margins_only: bool = False
-    batch: str = "1"
+    batch: str = "auto"
     # sweep (off|on|both) and step (rig|on|off)
     switch_off: str = "off"
     # step
@@ -221,7 +221,7 @@ class TuneOptions:
                    grid=tuple(given("grid") or ()), gains_file=given("gains_file"), engine=given("engine"),
                    scheduler=given("scheduler"), resume=given("resume"), vary=tuple(given("vary") or ()),
                    samples=given("samples"), threshold=tuple(given("threshold") or ()), x=given("x"), y=given("y"),
-                   out=given("out"), margins_only=given("margins_only", False), batch=given("batch", "1"),
+                   out=given("out"), margins_only=given("margins_only", False), batch=given("batch", "auto"),
                    switch_off=given("switch_off", "off"), step_deg=given("step_deg", 2.0))
 
 
