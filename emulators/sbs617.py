@@ -15,10 +15,15 @@ computer runs unchanged against this card.
 
 What the card does on a failed remote access is the doc's: the host's cycle completes (a read
 returns all ones, a write is lost) and a LOC_STATUS bit latches — the driver must look.
+
+Lanes (batched lockstep, :mod:`hal.lanes`): a sweep's run never talks to the vision computer, so
+:meth:`Sbs617Card.from_lanes` takes lane 0's card itself, with its mapping RAM and window, when
+every lane's card is idle alike (``Board._adopt_passive``); a card in use has no lane form.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from functools import partial
 from typing import Any
 
@@ -197,6 +202,29 @@ class Sbs617Card(RegisterBoard):
         self.poll_doorbell()
         if self.crate is not None and self.poll_period_ns is not None:
             self.crate.clock.schedule_in(self.poll_period_ns, self._poll_event)
+
+    @classmethod
+    def from_lanes(cls, boards: Sequence[Board], crate: Any) -> Board:
+        """Lane 0's card when every lane's card is idle alike: the same node registers and card
+        state, mapping RAM, vision-computer memory, remote power and programmed interrupts, no
+        polling, nothing injected. Installing it in the lane crate installs its mapping RAM and
+        window there too (its BARs: lane 0's, as the card is). A card in use, or one whose state
+        differs between lanes, has no lane form (its BARs have none of their own)."""
+        def state(b: Board) -> Any:
+            if not isinstance(b, Sbs617Card) or b.poll_period_ns is not None:
+                return None
+            link = b.link
+            card = (b._bells_seen, b._latched, b._to_local, b._was_reset, b._locked, b._page_mode, b._iack_level,
+                    b.irq_pending)
+            return (dict(b.regs), card, tuple(b.map_ram.entries), bytes(link.mem), link.remote_power,
+                    link.bells_to_local(), link.bells_to_remote())
+
+        if state(boards[0]) is None:
+            raise NotImplementedError(f"board {boards[0].name!r} (sbs617) polls its link: no lane form")
+        for b in boards:
+            if isinstance(b, Sbs617Card) and (b.map_ram.faulted or b.window.faulted):
+                raise NotImplementedError(f"board {b.name!r} (sbs617): a fault injected into its BARs: no lane form")
+        return cls._adopt_passive(boards, state)
 
     def describe(self) -> dict[str, Any]:
         return {"type": self.TYPE, "vendor": "SBS Technologies (Bit 3)", "model": "617",

@@ -14,13 +14,21 @@ loopback). No interrupt, no timer; switching is immediate (the sources give no t
 
 Faults: ``line_stuck(line="OUT0", level=True)`` — the wire is held at ``level``: a stuck output
 drives the stuck level onto its net (``OUTPUT`` still reads the latch), a stuck input reads it.
+
+Lanes (batched lockstep, :mod:`hal.lanes`): :meth:`Vmi2536Board.from_lanes` stacks B boards
+(wired alike) into one whose registers are lane values; each output drives its net with a bool
+per lane and ``INPUT`` reads each lane's nets. Injected faults are refused (such runs go scalar).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any, ClassVar
 
+import numpy as np
+
 from emulators.board import RegisterBoard
+from hal.lanes import LaneSet, LaneValue
 from hal.vme.registers import Access, Field, Register, RegisterMap
 from hal.vme.types import AddressSpace, Width
 
@@ -66,6 +74,7 @@ class Vmi2536Board(RegisterBoard):
     FAULTS: ClassVar[dict[str, str]] = {
         "line_stuck": "line=INn|OUTn, level=bool: the wire is held at level (board and net cannot move it)",
     }
+    _wired_inputs: tuple[tuple[int, str], ...]  #: in lane mode only (from_lanes): (channel, net) in order
 
     def __init__(self, name: str, lines: dict[str, str] | None = None, board_id: int = DEFAULT_BOARD_ID) -> None:
         if not 0 <= board_id <= 0xFFFF:
@@ -146,6 +155,71 @@ class Vmi2536Board(RegisterBoard):
         for ch, net in self.outputs.items():
             self.crate.signals.set_digital(net, self.output_level(ch))
 
+    # --- lanes (batched lockstep, hal.lanes) ---------------------------------------------
+    @classmethod
+    def from_lanes(cls, boards: Sequence[Any], crate: Any) -> Vmi2536Board:
+        """One board in lane mode holding the B scalar ``boards`` (lane order), for the lane
+        crate ``crate`` (``crate.lanes``), which installs it. The wiring and ``BID`` must be the
+        same in every lane; the registers are stacked. No bus cycle; installing drives each
+        output's net with the level it already holds (``Signals.from_lanes`` stacked the nets)."""
+        first = boards[0]
+        lanes = getattr(crate, "lanes", None)
+        if not isinstance(lanes, LaneSet):
+            raise ValueError(f"{first.name}: a board in lanes needs a crate of lanes (crate.lanes)")
+        for b in boards:
+            if type(b) is not cls:
+                raise NotImplementedError(f"{first.name}: a {type(b).__name__} cannot be a lane of a {cls.__name__}")
+            if b.faulted:
+                raise NotImplementedError(f"{b.name}: a board with an injected fault runs scalar")
+            if (b.outputs, b.inputs, b.board_id) != (first.outputs, first.inputs, first.board_id):
+                raise NotImplementedError(f"{first.name}: the lanes' boards are wired differently")
+        lines = {f"OUT{ch}": net for ch, net in first.outputs.items()}
+        lines.update({f"IN{ch}": net for ch, net in first.inputs.items()})
+        obj = cls(first.name, lines=lines, board_id=first.board_id)
+        obj._stack_regs(boards)
+        #: the wired inputs in channel order (INPUT is assembled from them)
+        obj._wired_inputs = tuple(sorted(obj.inputs.items()))
+        for name in ("read_INPUT", "output_level", "input_level", "_drive_outputs", "inject"):
+            setattr(obj, name, getattr(obj, "_lane_" + name.lstrip("_")))
+        return obj
+
+    def _lane_read_INPUT(self) -> LaneValue:
+        # read_INPUT per lane: a wired input's bit is its net's level (a bool per lane), unwired
+        # inputs read 0, and every bit reads 0 in a lane whose inputs are off
+        value: LaneValue = 0
+        if self.crate is not None:
+            digital = self.crate.signals.digital
+            for ch, net in self._wired_inputs:
+                level = digital.get(net, False)
+                if isinstance(level, np.ndarray):
+                    value = value | (level.astype(np.int64) << ch)
+                elif level:
+                    value = value | (1 << ch)
+        on = self.regs["CSR"] & _INPUTS_ON
+        if isinstance(on, np.ndarray):
+            return np.where(on != 0, value, 0)
+        return value if on else 0
+
+    def _lane_output_level(self, ch: int) -> LaneValue:
+        return (self.regs["CSR"] & _OUTPUTS_ON != 0) & ((self.regs["OUTPUT"] >> ch) & 1 != 0)
+
+    def _lane_input_level(self, ch: int) -> LaneValue:
+        net = self.inputs.get(ch)
+        if net is None or self.crate is None:
+            return False
+        return self.crate.signals.get_digital(net)
+
+    def _lane_drive_outputs(self) -> None:
+        if self.crate is None:
+            return
+        signals = self.crate.signals
+        for ch, net in self.outputs.items():
+            signals.set_digital(net, self.output_level(ch))
+
+    def _lane_inject(self, name: str, **params: Any) -> None:
+        raise NotImplementedError(f"{self.name}: faults are not injected into lanes (such runs go scalar)")
+
+    # --- faults --------------------------------------------------------------------------
     def _fault_changed(self, name: str) -> None:
         if name == "line_stuck":
             f = self.fault("line_stuck")

@@ -46,6 +46,15 @@ PortCallback = Callable[[str, int, int], None]
 """``callback(port, changed_mask, pin_levels)`` for a port's input changes."""
 
 
+def lane_fail(lanes: LaneSet, cond: LaneValue, reason: str, error: Callable[[], Exception]) -> None:
+    """Where one (scalar) driver raises, in lanes: a condition alike in every lane raises as it
+    would; one that holds in some lanes ejects those lanes (``reason``) and the others go on."""
+    if isinstance(cond, np.ndarray):
+        lanes.eject(cond, reason)
+    elif cond:
+        raise error()
+
+
 class PioError(HalError):
     """Base class of parallel-I/O driver errors."""
 
@@ -419,12 +428,7 @@ class PioDriver:
         return obj
 
     def _lane_fail(self, cond: LaneValue, reason: str, error: Callable[[], Exception]) -> None:
-        """Where one driver raises: a condition alike in every lane raises as it would; one that
-        holds in some lanes ejects those lanes (``reason``) and the others go on."""
-        if isinstance(cond, np.ndarray):
-            self._lanes.eject(cond, reason)
-        elif cond:
-            raise error()
+        lane_fail(self._lanes, cond, reason, error)
 
     def _lane_output(self, name: str, port: int, bit: int, what: str) -> None:
         self._lane_fail((self._ddr[port] >> bit) & 1 == 0, f"PIO {what} {name!r} is an input",

@@ -15,14 +15,25 @@ Example::
                         loopback={"OUT0": "IN16"})
     dio.configure(outputs=["j1.amp_enable"])
     dio.set_line("j1.amp_enable", True)
+
+Lanes (batched lockstep, :mod:`hal.lanes`): :meth:`Vmi2536Driver.from_lanes` stacks B drivers
+(one per instance) into one on a bus of lanes: :meth:`~Vmi2536Driver.read_port` then returns a
+word per lane (``(B,)`` int64, or an int when every lane reads the same) and
+:meth:`~Vmi2536Driver.set_line` takes a level per lane. Where one instance's driver would raise
+for some lanes only (a line whose latch or looped-back wire does not follow, a port value that is
+not 32 bits), those lanes are ejected and the others go on; the cycles are the same in every lane.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import numpy as np
 
 from hal.board_types import ProbeReading
-from hal.pio.pio import LineDirectionError, LineStuckError, PioBoardIdError, UnknownLineError
+from hal.lanes import LaneSet, LaneValue, stack
+from hal.pio.pio import LineDirectionError, LineStuckError, PioBoardIdError, UnknownLineError, lane_fail
 from hal.pio.vmivme2536_regs import ALL_LINES, LINES_PER_PORT, PORTS, VMI2536_REGS, parse_line
 from hal.vme.bus import SpaceLike, VmeBus
 from hal.vme.errors import VmeError
@@ -56,6 +67,7 @@ class Vmi2536Driver:
     """
 
     LINES = ALL_LINES
+    _lanes: LaneSet  #: in lane mode only (from_lanes): the bus's lanes
 
     def __init__(
         self,
@@ -235,6 +247,106 @@ class Vmi2536Driver:
         if self.settle_s > 0.0:
             self.bus.delay(self.settle_s)
         return self.win.read("INPUT")
+
+    # --- lanes (batched lockstep, hal.lanes) ----------------------------------------------------
+    @classmethod
+    def from_lanes(cls, drivers: Sequence[Vmi2536Driver], bus: VmeBus) -> Vmi2536Driver:
+        """One driver in lane mode for the B scalar ``drivers`` (lane order, each opened and
+        configured on its instance's crate) on ``bus``, the crate of their lanes: the same board,
+        wiring table, loopbacks and settings in every lane; the latch copies are stacked. No bus
+        cycle."""
+        first = drivers[0]
+        if cls is not Vmi2536Driver:
+            raise NotImplementedError(f"{cls.__name__} has no lane mode")
+        lanes = getattr(bus, "lanes", None)
+        if not isinstance(lanes, LaneSet):
+            raise ValueError("a VMIVME-2536 driver in lanes needs a bus of lanes (bus.lanes)")
+
+        def setup(d: Vmi2536Driver) -> tuple[Any, ...]:
+            return d.win.base, d.win.am, d.lines, d.board_id, d.settle_s, d._loop
+
+        for d in drivers:
+            if type(d) is not cls:
+                raise NotImplementedError(f"a {type(d).__name__} cannot share lanes with a {cls.__name__}")
+            if setup(d) != setup(first):
+                raise NotImplementedError("the lanes' VMIVME-2536 drivers differ in board address, wiring or settings")
+        obj = cls.__new__(cls)
+        obj.win = BoardWindow(bus, first.win.base, VMI2536_REGS, first.win.am)
+        obj.bus = bus
+        obj.lines = dict(first.lines)
+        obj.board_id, obj.settle_s = first.board_id, first.settle_s
+        obj._loop = dict(first._loop)
+        obj._latch = stack([d._latch for d in drivers])
+        obj._lanes = lanes
+        for name in ("set_line", "get_line", "write_port", "verify_outputs"):
+            setattr(obj, name, getattr(obj, "_lane_" + name))
+        return obj
+
+    def _lane_set_line(self, name: str, level: LaneValue, *, verify: bool = True) -> None:
+        # set_line with a level per lane: the same cycles; a lane whose latch, or looped-back
+        # wire, does not follow is ejected where one driver raises LineStuckError
+        port, bit = self.resolve(name)
+        if port != _OUT:
+            raise LineDirectionError(f"VMIVME-2536 line {name!r} ({PORTS[port]}{bit}) is an input")
+        m = 1 << bit
+        latch: LaneValue = self._latch
+        if isinstance(level, np.ndarray):
+            level = level.astype(bool)
+            latch = np.where(level, latch | m, latch & ~m & _MASK32)
+        else:
+            level = bool(level)
+            latch = latch | m if level else latch & ~m & _MASK32
+        self._latch = latch
+        self.win.write("OUTPUT", latch)
+        if verify:
+            seen = (self.win.read("OUTPUT") >> bit) & 1 != 0
+            lane_fail(self._lanes, seen != level, f"VMIVME-2536 line {name!r}: the latch does not read back "
+                      "(LineStuckError)", lambda: LineStuckError({name: bool(seen)}))
+            if bit in self._loop:
+                wire = (self._input_bits() >> self._loop[bit]) & 1 != 0
+                lane_fail(self._lanes, wire != level, f"VMIVME-2536 line {name!r}: its looped-back wire does not "
+                          "follow its latch (LineStuckError)", lambda: LineStuckError({name: bool(wire)}))
+
+    def _lane_get_line(self, name: str) -> LaneValue:
+        port, bit = self.resolve(name)
+        return (self.win.read("INPUT" if port == _IN else "OUTPUT") >> bit) & 1 != 0
+
+    def _lane_write_port(self, port: str | int, value: LaneValue) -> None:
+        if self._port(port) != _OUT:
+            raise LineDirectionError("the VMIVME-2536 inputs cannot be written")
+        lane_fail(self._lanes, (value < 0) | (value > _MASK32), "VMIVME-2536 port OUT: a value that is not 32 bits",
+                  lambda: ValueError(f"port value {value} is not 32 bits"))
+        self._latch = value
+        self.win.write("OUTPUT", value)
+
+    def _lane_verify_outputs(self) -> None:
+        # verify_outputs per lane: a difference alike in every lane raises as one driver does
+        # (naming the lines); one in some lanes only ejects those lanes
+        names = self._names(_OUT)
+        bad: dict[str, bool] = {}
+        stuck: LaneValue = False
+        latch = self._latch
+        diff = self.win.read("OUTPUT") ^ latch
+        if isinstance(diff, np.ndarray):
+            stuck = diff != 0
+        else:
+            for bit in range(LINES_PER_PORT):
+                if diff >> bit & 1:
+                    bad[names[bit]] = not (latch >> bit & 1)
+        if self._loop:
+            inputs = self._input_bits()
+            for out, inp in self._loop.items():
+                wire = (inputs >> inp) & 1
+                want = (latch >> out) & 1
+                off = wire != want
+                if isinstance(off, np.ndarray):
+                    stuck = stuck | off
+                elif names[out] not in bad and off:
+                    bad[names[out]] = bool(wire)
+        if bad:
+            raise LineStuckError(bad)
+        lane_fail(self._lanes, stuck, "VMIVME-2536 output lines do not follow their latch (LineStuckError)",
+                  lambda: LineStuckError({}))
 
 
 def probe_vmivme2536(bus: VmeBus, base: int, space: AddressSpace) -> ProbeReading:
