@@ -531,7 +531,7 @@ class PioDriver:
             flip = ((self._latch[port] >> bit) & 1 != 0) != level
             # set_pwm's one program: a lane that reverses zeroes its duty first, the others set theirs
             first = np.where(flip, 0, ticks) if isinstance(flip, np.ndarray) else 0 if flip else ticks
-            self.win.write("PWM_DUTY", first)
+            self.win.write("PWM_DUTY", first)  # type: ignore[arg-type]  # a lane value
             self.set_line(line, level)
         self.win.write("PWM_DUTY", ticks)
 

@@ -303,7 +303,7 @@ def test_pwm_on_the_emulated_board_publishes_the_duty_fraction() -> None:
     d.set_pwm(-0.25, period_s=50e-6)
     d.pwm_enable(True)
     assert bus.trace() == ["W A16 0x401A D16 0x01F4",
-                           "W A16 0x401C D16 0x007D", "W A16 0x4006 D8 0x00", "R A16 0x400A D8 0x00",  # reverse: PA1 low
+                           "W A16 0x401C D16 0x007D", "W A16 0x4006 D8 0x00", "R A16 0x400A D8 0x00",  # PA1 low
                            "W A16 0x401C D16 0x007D", "W A16 0x4018 D16 0x0001"]
     assert crate.signals.get_analog("hb1.pwm") == 0.25 and crate.signals.get_digital("hb1.dir") is False
 
