@@ -9,12 +9,14 @@ the default rig jpl-arm, seed 0, ``--quiet``, outputs in a temporary folder), as
 * ``tune limit-cycle`` (prediction and both full-stack runs, side by side) — and ``--jobs 1``
   (the runs one after the other in one process) next to it;
 * ``calibrate all --auto`` (adc, dac, encoder, amplifier, pot; reference fixture);
-* batched lockstep (issue 34, ``--batch``): the same sweep with ``--batch auto`` beside
-  ``--batch 1``; a Monte Carlo of a 10 s hold (``--vary coulomb=±20%``, 40 samples, 4 with
-  ``--quick``; scaled to 10 000 samples) both ways; the peak resident memory of one process holding
-  B = 400 instances (40 with ``--quick``, scaled ×10), built and run for one window of ticks; and a
+* batched lockstep (issue 34, ``--batch``): the same sweep with ``--batch auto`` (the default: batches
+  of lanes) beside ``--batch 1``; a Monte Carlo of a 10 s hold (``--vary coulomb=±20%``) with
+  ``--batch auto`` over 400 samples (40 with ``--quick``) and ``--batch 1`` over 40 (4), each scaled to
+  10 000 samples (a batch of lanes costs the same per sample at 200 lanes per worker as in the full
+  study's batches of 256; a scalar run costs the same each); the peak resident memory of one process
+  running B = 400 instances as one rig of lanes to the end (40 with ``--quick``, scaled ×10); and a
   single run's speed (``simulate``, jpl-arm, 10 s hold, in this process: simulated seconds per CPU
-  second);
+  second), the scalar path every single run takes;
 * ``run --duration 0.008``: launch to the end of a one-tick run — an upper bound of the time to
   the first tick (it adds the tick, the summary and the teardown); and ``run --help`` with the
   interpreter's import time (``-X importtime``) of ``vmehil run --help``.
@@ -149,15 +151,15 @@ def batch_figures(say: Any, d: Path, grid: str, points: int, quick: bool) -> Non
     scale = 400 / points
     record(Goal(f"tune sweep --batch auto, 400 points{'' if scale == 1 else f' (scaled ×{scale:g})'}", b_s * scale,
                 BATCH_SWEEP_GOAL_S, "s", "at_most"))
-    samples = 4 if quick else 40
-    mc = ["tune", "sweep", *MC_VARY, "--samples", str(samples), "--quiet"]
-    mb_s, _ = timed([*mc, "--batch", "auto", "--out", str(d / "mcb")], cwd=d)
+    samples = 40 if quick else 400  # lanes: a batch per worker of 20 (200)
+    scalar_samples = samples // 10
+    mc = ["tune", "sweep", *MC_VARY, "--quiet"]
+    mb_s, _ = timed([*mc, "--samples", str(samples), "--batch", "auto", "--out", str(d / "mcb")], cwd=d)
     mb_cpu = last_cpu_s()
-    ms_s, _ = timed([*mc, "--batch", "1", "--out", str(d / "mcs")], cwd=d)
-    say(f"  Monte Carlo, 10 s hold, {samples} samples: --batch auto {mb_s:.2f} s (CPU {mb_cpu:.1f} s), "
-        f"--batch 1 {ms_s:.2f} s (CPU {last_cpu_s():.1f} s) "
-        f"(×{10_000 / samples:g} → {mb_s * 10_000 / samples / 60:.0f} / {ms_s * 10_000 / samples / 60:.0f} min "
-        "for 10 000)")
+    ms_s, _ = timed([*mc, "--samples", str(scalar_samples), "--batch", "1", "--out", str(d / "mcs")], cwd=d)
+    say(f"  Monte Carlo, 10 s hold: --batch auto, {samples} samples {mb_s:.2f} s (CPU {mb_cpu:.1f} s); "
+        f"--batch 1, {scalar_samples} samples {ms_s:.2f} s (CPU {last_cpu_s():.1f} s) "
+        f"(→ {mb_s * 10_000 / samples / 60:.1f} / {ms_s * 10_000 / scalar_samples / 60:.0f} min for 10 000)")
     record(Goal(f"Monte Carlo 10 000 samples of a 10 s hold (scaled ×{10_000 / samples:g})",
                 mb_s * 10_000 / samples, MONTE_CARLO_GOAL_S, "s", "at_most"))
     b = 40 if quick else 400
@@ -165,24 +167,30 @@ def batch_figures(say: Any, d: Path, grid: str, points: int, quick: bool) -> Non
                           capture_output=True, text=True, check=True)
     peak, base, x_rt = (float(v) for v in proc.stdout.split())
     mem = base + (peak - base) * 400 / b
-    say(f"  peak memory, B = {b} instances (10 s hold) in one process: {peak:.0f} MiB ({(peak - base) / b:.2f} MiB "
-        f"each over {base:.0f} MiB){'' if b == 400 else f'; at B = 400: {mem:.0f} MiB (scaled)'}")
+    say(f"  peak memory, B = {b} instances (10 s hold) as lanes in one process: {peak:.0f} MiB "
+        f"({(peak - base) / b:.2f} MiB each over {base:.0f} MiB)"
+        + ("" if b == 400 else f"; at B = 400: {mem:.0f} MiB (scaled)"))
     record(Goal(f"peak memory at B = 400{'' if b == 400 else ' (scaled ×10)'}", mem, BATCH_MEMORY_GOAL_MIB, "MiB",
                 "at_most"))
     say(f"  single run (simulate, jpl-arm joint 1, 10 s hold, in-process): {x_rt:.2f}× real time (of its CPU time)")
     proc = subprocess.run([sys.executable, "-m", "benchmarks.bench_tools", "--interleave"], cwd=REPO, env=_env(),
                           capture_output=True, text=True, check=True)
-    alone, w1, w25 = (float(v) for v in proc.stdout.split())
-    say(f"  CPU per instance-tick (jpl-arm, 2 s hold): alone {alone:.3f} ms; B = 8 interleaved every tick "
-        f"{w1:.3f} ms, in windows of 25 ticks {w25:.3f} ms")
+    alone, w25, *lanes = (float(v) for v in proc.stdout.split())
+    say(f"  CPU per instance-tick (jpl-arm, 2 s hold): alone {alone * 1e3:.0f} µs; B = 8 scalar instances in "
+        f"windows of 25 ticks {w25 * 1e3:.0f} µs; as lanes: "
+        + ", ".join(f"B = {b} {v * 1e3:.1f} µs" for b, v in zip(LANE_SIZES, lanes, strict=True)))
+
+
+#: the batch sizes of lanes whose CPU per instance-tick ``--interleave`` prints
+LANE_SIZES = (8, 50, 200)
 
 
 def _peak(b: int) -> None:
-    """Print the peak RSS (MiB) of this process after building ``b`` instances (10 s hold) and
-    running them one window of ticks, the RSS before (MiB), and one single run's × real time."""
+    """Print the peak RSS (MiB) of this process after running ``b`` instances (10 s hold) as one rig
+    of lanes to the end (their figures made), the RSS before (MiB), and one single run's × real time."""
     import time as _time
 
-    from vmehil.analysis.batch import WINDOW_TICKS, run_lockstep
+    from vmehil.analysis.lane_batch import simulate_lanes
     from vmehil.analysis.rigparams import load_joint
     from vmehil.analysis.simulate import SimRun, SimSettings
 
@@ -196,35 +204,38 @@ def _peak(b: int) -> None:
     one.close()
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     runs = [SimRun(jp, False, sim) for _ in range(b)]
-    run_lockstep(runs, stop=lambda: min(r.loop.tick_count for r in runs) >= WINDOW_TICKS)
-    for r in runs:
-        r.close()
+    simulate_lanes(runs)
     print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, base, x_rt)
 
 
 def _interleave() -> None:
-    """Print the thread CPU per instance-tick (ms) of one run alone, of a batch of 8 interleaved
-    every tick, and of a batch of 8 in windows of 25 ticks (jpl-arm joint 1, a 2 s hold)."""
+    """Print the thread CPU per instance-tick (ms) of one run alone, of a batch of 8 scalar instances
+    in windows of 25 ticks, and of batches of lanes of :data:`LANE_SIZES` (jpl-arm joint 1, a 2 s hold;
+    a batch's CPU includes building its instances)."""
     import time as _time
 
     from vmehil.analysis.batch import run_lockstep
+    from vmehil.analysis.lane_batch import simulate_lanes
     from vmehil.analysis.rigparams import load_joint
     from vmehil.analysis.simulate import SimRun, SimSettings
 
     jp = load_joint("jpl-arm", 1)
     sim = SimSettings(move_deg=2, hold_s=2.0, allow_short=True)
 
-    def per_tick(b: int, window: int) -> float:
-        runs = [SimRun(jp, False, sim) for _ in range(b)]
+    def per_tick(b: int, window: int, lanes: bool = False) -> float:
         t0 = _time.thread_time()
-        run_lockstep(runs, window=window)
-        cpu = _time.thread_time() - t0
-        for r in runs:
-            r.close()
-        return cpu / sum(r.n_ticks for r in runs) * 1e3
+        runs = [SimRun(jp, False, sim) for _ in range(b)]
+        ticks = b * runs[0].n_ticks
+        if lanes:
+            simulate_lanes(runs)
+        else:
+            run_lockstep(runs, window=window)
+            for r in runs:
+                r.close()
+        return (_time.thread_time() - t0) / ticks * 1e3
 
     per_tick(1, 1)  # warm: the kernel loaded, the DBC read
-    print(per_tick(1, 10_000), per_tick(8, 1), per_tick(8, 25))
+    print(per_tick(1, 10_000), per_tick(8, 25), *(per_tick(b, 1, lanes=True) for b in LANE_SIZES))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -368,9 +368,13 @@ class PioDriver:
             if not self._ddr[port] >> bit & 1:
                 raise LineDirectionError(f"PWM direction line {line!r} is an input; configure it as an output")
             level = self.direction_forward_level if duty >= 0 else not self.direction_forward_level
-            if bool(self._latch[port] >> bit & 1) != level:
-                self.win.write("PWM_DUTY", 0)
-                self.set_line(line, level)
+            flip = bool(self._latch[port] >> bit & 1) != level
+            # One program whether the direction reverses or not (a batch of lanes runs it for every
+            # lane alike, hal.lanes): the duty is zeroed first where the direction reverses and set
+            # to its new value where it stays; then the line is written (and read back: a line stuck
+            # the wrong way is found at the next command, not at the next reversal); then the duty.
+            self.win.write("PWM_DUTY", 0 if flip else ticks)
+            self.set_line(line, level)
         self.win.write("PWM_DUTY", ticks)
 
     def pwm_enable(self, on: bool) -> None:
@@ -529,9 +533,10 @@ class PioDriver:
             self._lane_output(line, port, bit, "PWM direction line")
             level = (duty >= 0) == self.direction_forward_level
             flip = ((self._latch[port] >> bit) & 1 != 0) != level
-            if self.bus.decide(flip, f"PWM direction line {line!r} reverses in some lanes only"):
-                self.win.write("PWM_DUTY", 0)
-                self.set_line(line, level)
+            # set_pwm's one program: a lane that reverses zeroes its duty first, the others set theirs
+            first = np.where(flip, 0, ticks) if isinstance(flip, np.ndarray) else 0 if flip else ticks
+            self.win.write("PWM_DUTY", first)  # type: ignore[arg-type]  # a lane value
+            self.set_line(line, level)
         self.win.write("PWM_DUTY", ticks)
 
     def _lane_pwm_duty(self) -> LaneValue:

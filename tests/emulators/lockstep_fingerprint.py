@@ -9,8 +9,11 @@ tree before and after the change and compare the two outputs (``diff``)::
 ``--batch`` (instead of the cases above) fingerprints batched lockstep (vmehil.analysis.batch):
 each instance of :data:`BATCH_CASES` — different gains, plant values, seeds and faults, one
 tripping its watchdog — run in one batch and again alone (the scalar run), and prints every
-instance's digests with ``batch == scalar: yes`` (exit 1 on any ``no``). The output of the default
-cases does not change with it.
+instance's digests with ``batch == scalar: yes`` (exit 1 on any ``no``). ``--lanes`` runs the same
+instances as rigs of lanes (vmehil.analysis.lane_batch; one rig of lanes per rig file, the instances
+with injected faults left out: they have no lane form) and prints each lane's digests with
+``lanes == scalar: yes`` — or, for a lane left at a watchdog trip, where and why, beside its scalar
+run's fault. The output of the default cases does not change with either.
 
 It drives the real CLI (``vmehil.cli.main(["run", ...])``) and captures the loop it built when
 the run is summarized, so what it fingerprints is exactly what ``vmehil run`` computed. Not a
@@ -147,9 +150,8 @@ def _instance_digest(run: Any) -> dict[str, Any]:
     return out
 
 
-def batch_fingerprints() -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
-    """Per instance of :data:`BATCH_CASES`: (label, digests in the batch, digests alone)."""
-    from vmehil.analysis.batch import run_lockstep
+def _maker() -> Any:
+    """``make(rig, gains, plant, seed, faults)``: the SimRun of one of :data:`BATCH_CASES`."""
     from vmehil.analysis.rigparams import load_joint
     from vmehil.analysis.simulate import SimRun, SimSettings
     from vmehil.analysis.sweep import rig_text, task_rig
@@ -164,6 +166,25 @@ def batch_fingerprints() -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
         jp = load_joint(task_rig(texts[rig], path, 1, plant), 1, gains=gains)
         return SimRun(jp, False, SimSettings(seed=seed, move_deg=10, hold_s=1.0, allow_short=True), faults=faults)
 
+    return make
+
+
+def _alone(make: Any, case: tuple) -> dict[str, Any]:
+    """The digests of one case run on its own (the scalar run)."""
+    alone = make(*case[1:])
+    try:
+        with alone.loop.armed():
+            alone.runner.run(alone.n_ticks, stop=alone.halt_when(None))
+        return _instance_digest(alone)
+    finally:
+        alone.close()
+
+
+def batch_fingerprints() -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
+    """Per instance of :data:`BATCH_CASES`: (label, digests in the batch, digests alone)."""
+    from vmehil.analysis.batch import run_lockstep
+
+    make = _maker()
     batch = [make(*case[1:]) for case in BATCH_CASES]
     try:
         run_lockstep(batch, window=1)  # every tick interleaved: the strictest order
@@ -171,24 +192,56 @@ def batch_fingerprints() -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
     finally:
         for r in batch:
             r.close()
+    return [(case[0], got, _alone(make, case)) for case, got in zip(BATCH_CASES, together, strict=True)]
+
+
+def lane_fingerprints() -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
+    """Per instance of :data:`BATCH_CASES` without faults, run in a rig of lanes with the others of
+    its rig file: (label, its lane's digests — or where and why it was left —, digests alone)."""
+    from hal.lanes import LaneSet
+    from vmehil.analysis.lane_batch import stack_runs
+
+    make = _maker()
+    groups: dict[str, list[tuple]] = {}
+    for case in BATCH_CASES:
+        if not case[5]:
+            groups.setdefault(case[1], []).append(case)
     out = []
-    for case, got in zip(BATCH_CASES, together, strict=True):
-        alone = make(*case[1:])
+    for cases in groups.values():
+        runs = [make(*case[1:]) for case in cases]
+        lanes = LaneSet(len(runs))
         try:
-            with alone.loop.armed():
-                alone.runner.run(alone.n_ticks, stop=alone.halt_when(None))
-            out.append((case[0], got, _instance_digest(alone)))
-        finally:
-            alone.close()
+            rig, loop, runner = stack_runs(runs, lanes)
+        except NotImplementedError as e:
+            for case in cases:
+                out.append((case[0], {"no lane form": str(e)}, _alone(make, case)))
+            continue
+        runner.after_tick.append(lambda lp, lanes=lanes: setattr(lanes, "tick", lp.tick_count))
+        with loop.armed():
+            runner.run(runs[0].n_ticks, stop=lambda lanes=lanes: lanes.n_alive == 0)
+        for b, (case, r) in enumerate(zip(cases, runs, strict=True)):
+            alone = _alone(make, case)
+            if not lanes.alive[b]:
+                got: dict[str, Any] = {"left at tick": lanes.first_tick[b], "why": lanes.reasons[b]}
+                fault = alone["fault"]
+                # left at its scalar run's fault (that tick, that cause), or left where its program
+                # went another way than the others': either way its result is its run alone
+                same = fault is None or (fault["tick"] == lanes.first_tick[b]
+                                         and lanes.reasons[b].startswith(fault["cause"]))
+                out.append((case[0], got, got if same else alone))
+                continue
+            loop.write_lane(b, r.loop)
+            r.system.crate = rig.crate  # the lanes' crate: its counters and clock are every live lane's
+            out.append((case[0], _instance_digest(r), alone))
     return out
 
-
-def main_batch() -> int:
+def main_batch(lanes: bool = False) -> int:
     same_all = True
-    for label, got, alone in batch_fingerprints():
+    what = "lanes" if lanes else "batch"
+    for label, got, alone in (lane_fingerprints() if lanes else batch_fingerprints()):
         same = got == alone
         same_all &= same
-        print(f"== batch instance {label}: batch == scalar: {'yes' if same else 'no'}")
+        print(f"== {what} instance {label}: {what} == scalar: {'yes' if same else 'no'}")
         for k, v in got.items():
             if k == "arrays":
                 for name, h in v.items():
@@ -202,6 +255,8 @@ def main_batch() -> int:
 def main(labels: list[str]) -> int:
     if labels == ["--batch"]:
         return main_batch()
+    if labels == ["--lanes"]:
+        return main_batch(lanes=True)
     for label, argv in CASES:
         if labels and label not in labels:
             continue

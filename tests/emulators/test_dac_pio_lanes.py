@@ -219,16 +219,19 @@ def test_every_lane_of_the_dac_and_pio_tick_program_equals_its_scalar_twin() -> 
     assert isinstance(lane_rig.crate.signals.analog["hand.pwm"], np.ndarray)
 
 
-def test_a_lane_whose_hand_reverses_alone_is_ejected_and_the_others_still_equal_their_twins() -> None:
+def test_a_lane_whose_hand_reverses_alone_stays_and_every_lane_still_equals_its_twin() -> None:
+    # set_pwm makes the same cycles whether the direction reverses or not (docs/boards/pio.md):
+    # a reversal in one lane only is no divergence
     lane_rig, twins, lanes = _build()
     prog = Program(seed=11, flip_alone=(30, 2))  # from tick 30 lane 2's hand turns the other way
+    differed = 0
     for k in range(50):
         prog.tick(k, lane_rig, twins, prog.inputs(k, twins))
-        if k < 30:
-            assert lanes.n_alive == B
         _compare_got(lane_rig, twins, lanes)
-    assert lanes.alive.tolist() == [True, True, False, True]
-    assert "hand.direction" in lanes.reasons[2] and "reverses" in lanes.reasons[2]
+        directions = lane_rig.crate.signals.digital["hand.direction"]
+        differed += isinstance(directions, np.ndarray) and len(set(directions.tolist())) == 2
+    assert lanes.alive.tolist() == [True, True, True, True]
+    assert differed  # the lanes' directions differed at some ticks
 
 
 def test_a_lane_left_with_garbage_raises_and_warns_nothing_and_the_others_still_equal_their_twins() -> None:

@@ -198,13 +198,16 @@ def test_hbridge_enable_drive_brake_disable_and_fault_trace(rig) -> None:
     assert rig.bus.trace() == [
         "W A16 0x4008 D8 0x80", "R A16 0x400C D8 0x80",  # PC7: enable high
         "W A16 0x4006 D8 0x00", "R A16 0x400A D8 0x00",  # brake (PA7) low
-        "W A16 0x401C D16 0x007D",  # −0.25: direction already low (reverse), 125 ticks
+        # −0.25: direction already low (reverse): 125 ticks at once, PA6 written low again, 125 ticks
+        "W A16 0x401C D16 0x007D", "W A16 0x4006 D8 0x00", "R A16 0x400A D8 0x00", "W A16 0x401C D16 0x007D",
         "W A16 0x4006 D8 0x00", "R A16 0x400A D8 0x00",  # brake low
         "W A16 0x401C D16 0x0000", "W A16 0x4006 D8 0x40", "R A16 0x400A D8 0x40",  # reversal: duty 0, PA6 high
         "W A16 0x401C D16 0x00FA",  # 0.5: 250 ticks
-        "W A16 0x401C D16 0x0000",  # brake: duty 0 (direction stays forward)
-        "W A16 0x4006 D8 0xC0", "R A16 0x400A D8 0xC0",  # PA7 high
-        "W A16 0x401C D16 0x0000",  # disable = coast (duty 0, brake low) then enable low
+        # brake: duty 0 (direction stays forward, PA6 written high again), then PA7 high
+        "W A16 0x401C D16 0x0000", "W A16 0x4006 D8 0x40", "R A16 0x400A D8 0x40", "W A16 0x401C D16 0x0000",
+        "W A16 0x4006 D8 0xC0", "R A16 0x400A D8 0xC0",
+        # disable = coast (duty 0, brake low) then enable low
+        "W A16 0x401C D16 0x0000", "W A16 0x4006 D8 0xC0", "R A16 0x400A D8 0xC0", "W A16 0x401C D16 0x0000",
         "W A16 0x4006 D8 0x40", "R A16 0x400A D8 0x40",
         "W A16 0x4008 D8 0x00", "R A16 0x400C D8 0x00",
         "R A16 0x4007 D8 0x40",  # DATA_B bit 6: PB6, the fault input, high

@@ -240,7 +240,9 @@ def test_set_pwm_writes_period_and_duty_ticks_of_the_docs_worked_values(period_s
     assert bus.trace() == [f"W A16 0x401A D16 {period_word}", f"W A16 0x401C D16 {duty_word}"]
 
 
-def test_set_pwm_zeroes_the_duty_before_the_direction_line_moves() -> None:
+def test_set_pwm_zeroes_the_duty_before_the_direction_line_moves_and_writes_the_line_every_time() -> None:
+    # one program whether the direction reverses or not (docs/boards/pio.md): duty (0 on a
+    # reversal, else the new duty), the direction line and its read-back, then the duty
     bus = _scripted()
     d = _driver(bus, pwm_direction_line="hb1.dir")
     d.configure(outputs=["hb1.dir"])
@@ -254,10 +256,12 @@ def test_set_pwm_zeroes_the_duty_before_the_direction_line_moves() -> None:
         "W A16 0x401A D16 0x01F4",
         "W A16 0x401C D16 0x0000", "W A16 0x4006 D8 0x02", "R A16 0x400A D8 0x02",  # forward: PA1 high
         "W A16 0x401C D16 0x00C8",  # 200 ticks = 40 %
-        "W A16 0x401C D16 0x007D",  # same direction: the duty alone (125 ticks)
+        "W A16 0x401C D16 0x007D", "W A16 0x4006 D8 0x02", "R A16 0x400A D8 0x02",  # same direction:
+        "W A16 0x401C D16 0x007D",  # the new duty (125 ticks) at once, the line written high again
         "W A16 0x401C D16 0x0000", "W A16 0x4006 D8 0x00", "R A16 0x400A D8 0x00",  # reversal: PA1 low
         "W A16 0x401C D16 0x007D",
-        "W A16 0x401C D16 0x01F4",  # −100 %: 500 ticks
+        "W A16 0x401C D16 0x01F4", "W A16 0x4006 D8 0x00", "R A16 0x400A D8 0x00",  # −100 %: 500 ticks
+        "W A16 0x401C D16 0x01F4",
         "W A16 0x401C D16 0x0000", "W A16 0x4006 D8 0x02", "R A16 0x400A D8 0x02",  # zero counts as forward
         "W A16 0x401C D16 0x0000",
     ]
@@ -298,7 +302,9 @@ def test_pwm_on_the_emulated_board_publishes_the_duty_fraction() -> None:
     bus.clear()
     d.set_pwm(-0.25, period_s=50e-6)
     d.pwm_enable(True)
-    assert bus.trace() == ["W A16 0x401A D16 0x01F4", "W A16 0x401C D16 0x007D", "W A16 0x4018 D16 0x0001"]
+    assert bus.trace() == ["W A16 0x401A D16 0x01F4",
+                           "W A16 0x401C D16 0x007D", "W A16 0x4006 D8 0x00", "R A16 0x400A D8 0x00",  # PA1 low
+                           "W A16 0x401C D16 0x007D", "W A16 0x4018 D16 0x0001"]
     assert crate.signals.get_analog("hb1.pwm") == 0.25 and crate.signals.get_digital("hb1.dir") is False
 
 
