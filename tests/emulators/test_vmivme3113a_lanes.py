@@ -40,6 +40,9 @@ LAST = max(p.index for j in SPEC.joints for p in j.wiring.values() if p.board ==
 #: a code boundary of the ±10 V range: (V − V₀)/LSB + ½ = 2047 exactly (LSB = 20 V / 4096), so the
 #: doc's floor gives code 2047 (a round-half-even would give 2046)
 BOUNDARY_V = -10.0 + 2046.5 * 20.0 / 4096
+#: 3 ulps below the boundary of codes 2458 and 2459: (V − V₀)/LSB + ½ = 2458.99999…, so the doc's
+#: floor gives 2458 (V·(1/LSB) instead of V/LSB rounds to 2459.0)
+BELOW_BOUNDARY_V = 2.0043945312499987
 CSR = 0x02  # docs/boards/vmivme-3113a.md, register table
 CH0 = 0x80
 
@@ -120,6 +123,7 @@ def _nets(rng: np.random.Generator, names: list[str], tick: int) -> list[dict[st
     for _ in range(B):
         values = {n: float(rng.uniform(-11.0, 11.0)) for n in names}
         values["j1.pot"] = BOUNDARY_V
+        values["j2.pot"] = BELOW_BOUNDARY_V
         out.append(values)
     if tick % 9 == 4:
         out = [dict(out[0]) for _ in range(B)]
@@ -169,10 +173,10 @@ def test_3113a_lanes_equal_their_scalar_twins_through_the_servo_read_and_bad_inp
                 continue
             assert _same_bits(volts[:, b], twins[b].adc.scan(LAST)), (tick, b)
         followed = [b for b in range(B) if lanes.alive[b]]
-        pot1 = drv.scan_counts(0)  # j1's pot alone: held codes (no conversion ended since the scan), or new ones
+        pots = drv.scan_counts(1)  # j1's and j2's pots again: held codes (no conversion ended since), or new ones
         for b in followed:
-            assert _same_bits(pot1[:, b], twins[b].adc.scan_counts(0)), (tick, b)
-        assert pot1[0, 1] == 2047  # the ideal lane on a code boundary: the doc's quantizer (floor) gives 2047
+            assert _same_bits(pots[:, b], twins[b].adc.scan_counts(1)), (tick, b)
+        assert list(pots[:, 1]) == [2047, 2458]  # the ideal lane at code boundaries: the doc's quantizer (floor)
         if tick % 4 == 1:  # every wired channel as raw codes (references, DAC loopback), a reference's volts
             codes = drv.scan_counts(31)
             assert codes.shape == (32, B) and codes.dtype == np.int64
