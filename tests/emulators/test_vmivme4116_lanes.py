@@ -235,6 +235,19 @@ def test_a_lane_whose_command_is_out_of_range_without_clamp_is_ejected_where_the
     _compare(lane_rig, twins, lanes, got, want)
 
 
+def test_raw_codes_per_lane_reach_each_lane_and_a_code_past_16_bits_is_ejected() -> None:
+    lane_rig, twins, lanes = _build()
+    codes = [0x1234, 0xFFFF, 0x10000, 0x0000]  # lane 2: past 0xFFFF, its twin's driver raises
+    with pytest.raises(ValueError, match="outside 0..0xFFFF"):
+        twins[2].dac.write_counts(5, codes[2])
+    for b in (0, 1, 3):
+        twins[b].dac.write_counts(5, codes[b])
+    lane_rig.dac.write_counts(5, np.array(codes, dtype=np.int64))
+    assert lanes.alive.tolist() == [True, True, False, True]
+    assert "outside 0..0xFFFF" in lanes.reasons[2]
+    _compare(lane_rig, twins, lanes, {}, [{}] * B)
+
+
 def test_boards_with_an_injected_fault_or_other_jumpers_do_not_stack() -> None:
     parts = [Rig(b) for b in range(2)]
     parts[1].crate.boards["dac0"].inject("dead_channel", channel=3)
