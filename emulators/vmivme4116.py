@@ -36,12 +36,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from emulators.adc import per_channel, wiring_from_config
+from emulators.adc import common_value, per_channel, wiring_from_config
 from emulators.board import Backplane, RegisterBoard
 from emulators.board_factory import BuildContext
-from emulators.dac import _uniform
 from hal.config import ConfigTable
-from hal.lanes import LaneValue, stack
+from hal.lanes import LaneSet, LaneValue, stack
 from hal.vme.registers import Access, Field, Register, RegisterMap
 from hal.vme.types import AddressSpace, Width
 
@@ -115,6 +114,7 @@ class VmiVme4116Board(RegisterBoard):
     FAULTS: ClassVar[dict[str, str]] = {
         "dead_channel": "channel=N[, volts=V]: output N stuck at V (default 0 V) whatever is written",
     }
+    _lanes: LaneSet  #: in lane mode only (from_lanes): the crate's lanes
 
     def __init__(
         self,
@@ -314,6 +314,7 @@ class VmiVme4116Board(RegisterBoard):
                       stack([b._step[ch][2] for b in boards])) for ch in range(CHANNELS)]
         obj._gen = list(first._gen)
         obj.updates = stack([b.updates for b in boards])
+        obj._lanes = crate.lanes
         # the channel writers, _convert, converter_volts and _drive run as they are on lane
         # values (the CSR, the times and the settling generations are every lane's)
         for name in ("attach", "_analog", "write_CSR", "inject"):
@@ -332,8 +333,10 @@ class VmiVme4116Board(RegisterBoard):
         return np.where(rail < v, rail, v)  # min(·, rail)
 
     def _lane_write_CSR(self, value: LaneValue) -> None:
-        # the P3 switch and the strobe must be every lane's (one clock for the settling events)
-        VmiVme4116Board.write_CSR(self, _uniform(value, self.name, "CSR"))
+        # the P3 switch and the strobe are every lane's (one clock for the settling events): a
+        # CSR word that differs between lanes takes the majority's, and ejects the others
+        VmiVme4116Board.write_CSR(self, common_value(self._lanes, value, f"{self.name}: a CSR write that "
+                                                     "differs between lanes (outputs on P3, the update strobe)"))
 
     def _lane_inject(self, name: str, **params: Any) -> None:
         raise NotImplementedError(f"{self.name}: faults are not injected into lanes (such runs go scalar)")

@@ -248,6 +248,18 @@ def test_raw_codes_per_lane_reach_each_lane_and_a_code_past_16_bits_is_ejected()
     _compare(lane_rig, twins, lanes, {}, [{}] * B)
 
 
+def test_a_csr_write_that_differs_between_lanes_takes_the_majoritys_and_ejects_the_others() -> None:
+    lane_rig, twins, lanes = _build()
+    csr = [0x4300, 0x4300, 0x0000, 0x4300]  # lane 2: outputs off P3, no strobe; the others: the update
+    for b, t in enumerate(twins):
+        if b != 2:
+            t.crate.write(0x7010, csr[b], space="A16")
+    lane_rig.crate.write(0x7010, np.array(csr, dtype=np.int64), space="A16")
+    assert lanes.alive.tolist() == [True, True, False, True]
+    assert "CSR" in lanes.reasons[2]
+    _compare(lane_rig, twins, lanes, {}, [{}] * B)
+
+
 def test_boards_with_an_injected_fault_or_other_jumpers_do_not_stack() -> None:
     parts = [Rig(b) for b in range(2)]
     parts[1].crate.boards["dac0"].inject("dead_channel", channel=3)
