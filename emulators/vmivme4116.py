@@ -24,7 +24,8 @@ Fault: ``dead_channel(channel, volts=0.0)`` — the output pin sits at ``volts``
 Lanes (batched lockstep, :mod:`hal.lanes`): :meth:`VmiVme4116Board.from_lanes` stacks B boards into
 one whose holding latches, converter codes, offset/gain errors, rails and output volts are lane
 values; the CSR (the outputs' P3 switch, the update strobe) and so the settling events are the
-same in every lane (one clock). Injected faults are not carried into lanes (those runs go scalar).
+same in every lane (one clock: a CSR word that differs ejects the lanes of the minority).
+Injected faults are not carried into lanes (those runs go scalar).
 """
 
 from __future__ import annotations
