@@ -582,7 +582,82 @@ def _stack_adc_boards(cls: type[AdcBoard], boards: Sequence[AdcBoard], crate: Ba
     return board
 
 
-class _AdcLanes:
+def common_value(lanes: LaneSet, value: Any, reason: str) -> int:
+    """The live lanes' common value of a register field that selects what a board of lanes does
+    (the most frequent one); lanes holding another are ejected with ``reason``."""
+    if not isinstance(value, np.ndarray):
+        return int(value)
+    live = value[lanes.alive]
+    if live.size == 0:
+        return int(value[0])
+    vals, counts = np.unique(live, return_counts=True)
+    v = int(vals[np.argmax(counts)])
+    lanes.eject(value != v, reason)
+    return v
+
+
+class LaneNormals:
+    """The noise streams of B boards stacked in lanes (one per lane, lane order), each drawn as its
+    scalar board draws it: the board's own generator and its block of ``_NORMAL_BLOCK`` normals
+    drawn ahead (the boards' ``_rng``, ``_normals``, ``_normal_next``), the blocks as the columns
+    of one (256, B) array; a lane's block is refilled from its own generator at the draw where its
+    scalar board refills it. Every analog board emulator of lanes draws through one of these."""
+
+    def __init__(self, boards: Sequence[Any]) -> None:
+        n = len(boards)
+        self.n = n
+        self.rngs = [b._rng for b in boards]
+        self.normals = np.zeros((_NORMAL_BLOCK, n))
+        nexts = []
+        for k, b in enumerate(boards):
+            if not b._normals:
+                nexts.append(_NORMAL_BLOCK)  # nothing drawn yet: the first draw refills, as the scalar's
+                continue
+            if len(b._normals) != _NORMAL_BLOCK:
+                raise NotImplementedError(f"{b.name}: a noise block of {len(b._normals)} normals cannot be stacked")
+            self.normals[:, k] = b._normals
+            nexts.append(b._normal_next)
+        #: the index of each lane's next normal in its column: one int while every lane is at the
+        #: same index (every lane drew at every sample: the common case), else an (B,) array
+        self.next: int | np.ndarray = nexts[0] if len(set(nexts)) == 1 else np.array(nexts, dtype=np.int64)
+        self.index = np.arange(n)
+
+    def _normals_all(self) -> np.ndarray:
+        """Every lane's next normal (:meth:`AdcBoard._normal` of each lane)."""
+        i = self.next
+        if type(i) is int:
+            if i >= _NORMAL_BLOCK:
+                for k in range(self.n):
+                    self._refill(k)
+                i = 0
+            self.next = i + 1
+            return self.normals[i]  # a view, used at once (before any refill)
+        return self._normals_some(np.ones(self.n, dtype=bool))
+
+    def _normals_some(self, draw: np.ndarray) -> np.ndarray:
+        """The next normal of the lanes where ``draw`` (the others: any number, not drawn)."""
+        i = np.full(self.n, self.next, dtype=np.int64) if type(self.next) is int else self.next
+        empty = draw & (i >= _NORMAL_BLOCK)
+        if empty.any():
+            for k in np.flatnonzero(empty).tolist():
+                self._refill(k)
+            i = np.where(empty, 0, i)
+        out = self.normals[np.minimum(i, _NORMAL_BLOCK - 1), self.index]
+        i = i + draw
+        self.next = int(i[0]) if (i == i[0]).all() else i
+        return out
+
+    def _refill(self, k: int) -> None:
+        """Lane ``k``'s next block, from its own generator (:meth:`AdcBoard._refill_normals`)."""
+        self.normals[:, k] = self.rngs[k].standard_normal(_NORMAL_BLOCK)
+
+    def noise_state(self, k: int) -> tuple[Mapping[str, Any], tuple[float, ...]]:
+        """Lane ``k``'s :meth:`AdcBoard.noise_state`."""
+        i = int(self.next[k]) if isinstance(self.next, np.ndarray) else self.next
+        return self.rngs[k].bit_generator.state, tuple(self.normals[i:, k].tolist())
+
+
+class _AdcLanes(LaneNormals):
     """What a board of lanes holds per lane, and its lane-mode hooks (the section's comment)."""
 
     def __init__(self, board: AdcBoard, boards: Sequence[AdcBoard], lanes: LaneSet) -> None:
@@ -599,21 +674,7 @@ class _AdcLanes:
         specs = [[s for s in b._noise_specs if s is not None] for b in boards]
         self.switching = tuple((nets, np.array([float(lane[k][1]) ** 2 for lane in specs]))
                                for k, (nets, _) in enumerate(specs[0]))
-        self.rngs = [b._rng for b in boards]
-        self.normals = np.zeros((_NORMAL_BLOCK, n))
-        nexts = []
-        for k, b in enumerate(boards):
-            if not b._normals:
-                nexts.append(_NORMAL_BLOCK)  # nothing drawn yet: the first draw refills, as the scalar's
-                continue
-            if len(b._normals) != _NORMAL_BLOCK:
-                raise NotImplementedError(f"{b.name}: a noise block of {len(b._normals)} normals cannot be stacked")
-            self.normals[:, k] = b._normals
-            nexts.append(b._normal_next)
-        #: the index of each lane's next normal in its column: one int while every lane is at the
-        #: same index (every lane drew at every sample: the common case), else an (B,) array
-        self.next: int | np.ndarray = nexts[0] if len(set(nexts)) == 1 else np.array(nexts, dtype=np.int64)
-        self.index = np.arange(n)
+        super().__init__(boards)
 
     # --- the per-sample arithmetic ---------------------------------------------------------
     def sample_code(self, channel: int, gcode: Any, bipolar: Any) -> np.ndarray:
@@ -658,53 +719,10 @@ class _AdcLanes:
         np.minimum(code, float(CODE_MAX), out=code)
         return code.astype(np.int64)
 
-    def _normals_all(self) -> np.ndarray:
-        """Every lane's next normal (:meth:`AdcBoard._normal` of each lane)."""
-        i = self.next
-        if type(i) is int:
-            if i >= _NORMAL_BLOCK:
-                for k in range(self.n):
-                    self._refill(k)
-                i = 0
-            self.next = i + 1
-            return self.normals[i]  # a view, used at once (before any refill)
-        return self._normals_some(np.ones(self.n, dtype=bool))
-
-    def _normals_some(self, draw: np.ndarray) -> np.ndarray:
-        """The next normal of the lanes where ``draw`` (the others: any number, not drawn)."""
-        i = np.full(self.n, self.next, dtype=np.int64) if type(self.next) is int else self.next
-        empty = draw & (i >= _NORMAL_BLOCK)
-        if empty.any():
-            for k in np.flatnonzero(empty).tolist():
-                self._refill(k)
-            i = np.where(empty, 0, i)
-        out = self.normals[np.minimum(i, _NORMAL_BLOCK - 1), self.index]
-        i = i + draw
-        self.next = int(i[0]) if (i == i[0]).all() else i
-        return out
-
-    def _refill(self, k: int) -> None:
-        """Lane ``k``'s next block, from its own generator (:meth:`AdcBoard._refill_normals`)."""
-        self.normals[:, k] = self.rngs[k].standard_normal(_NORMAL_BLOCK)
-
-    def noise_state(self, k: int) -> tuple[Mapping[str, Any], tuple[float, ...]]:
-        """Lane ``k``'s :meth:`AdcBoard.noise_state`."""
-        i = int(self.next[k]) if isinstance(self.next, np.ndarray) else self.next
-        return self.rngs[k].bit_generator.state, tuple(self.normals[i:, k].tolist())
-
     # --- sequencing: the register values that decide it, one answer for every lane -------
     def common(self, value: Any, reason: str) -> int:
-        """The live lanes' common value of a register field that selects what the board does
-        (the most frequent one); lanes holding another are ejected with ``reason``."""
-        if not isinstance(value, np.ndarray):
-            return int(value)
-        live = value[self.lanes.alive]
-        if live.size == 0:
-            return int(value[0])
-        vals, counts = np.unique(live, return_counts=True)
-        v = int(vals[np.argmax(counts)])
-        self.lanes.eject(value != v, reason)
-        return v
+        """:func:`common_value` of this board's lanes."""
+        return common_value(self.lanes, value, reason)
 
     def write_CSR(self, value: Any) -> None:
         """:meth:`AdcBoard.write_CSR` of every lane (``value`` a lane value)."""

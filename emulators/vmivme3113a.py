@@ -23,6 +23,10 @@ Behaviour (the doc's "Behaviour and timing"):
 
 Faults: ``stuck_channel(channel, code)``, ``noise_burst(rms_v, channels=None)`` (the reference
 ADC's kinds), and every board's ``removed``.
+
+Lanes (batched lockstep, :mod:`hal.lanes`): :meth:`Vmivme3113aBoard.from_lanes` stacks the boards of
+B instances into one board whose registers hold a value per lane and whose conversions convert
+every lane, each from its own noise stream (the section "lanes" at the end of this module).
 """
 
 from __future__ import annotations
@@ -31,11 +35,14 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
-from emulators.adc import per_channel, wiring_from_config
-from emulators.board import RegisterBoard
+import numpy as np
+
+from emulators.adc import LaneNormals, common_value, per_channel, wiring_from_config
+from emulators.board import Backplane, Board, RegisterBoard
 from emulators.board_factory import BuildContext
 from emulators.rng import rng_for
 from hal.config import ConfigTable
+from hal.lanes import LaneSet, stack
 from hal.vme.registers import Access, Field, Register, RegisterMap
 from hal.vme.types import AddressSpace, Width
 
@@ -148,6 +155,8 @@ class Vmivme3113aBoard(RegisterBoard):
     TYPE = "vmivme-3113a"
     REGMAP = REGMAP
     irq_release = "roak"
+    #: the per-lane state of a board of lanes (:meth:`from_lanes`); None: one instance
+    _lanes: _Vmi3113aLanes | None = None
     FAULTS: ClassVar[dict[str, str]] = {
         "stuck_channel": "channel=N, code=C: channel N always converts to code C (offset binary 0..0xFFF)",
         "noise_burst": "rms_v=V[, channels=[...]]: extra Gaussian noise (V rms) on all or listed channels",
@@ -187,6 +196,16 @@ class Vmivme3113aBoard(RegisterBoard):
         self.conversions = 0  #: codes produced (diagnostic)
         self._runs = 0
         super().__init__(name)
+
+    @classmethod
+    def from_lanes(cls, boards: Sequence[Board], crate: Any) -> Vmivme3113aBoard:
+        """One board of lanes holding ``boards`` (the same 3113A of B instances built and set up as
+        scalar runs build them, in lane order): registers, parameters and noise streams stacked,
+        for ``crate`` (a crate of lanes) to install where they were (the section "lanes" below)."""
+        adcs = [b for b in boards if type(b) is cls]
+        if len(adcs) != len(boards):
+            raise NotImplementedError(f"{boards[0].name}: other board types cannot stack into one {cls.__name__}")
+        return _stack_3113a_boards(cls, adcs, crate)
 
     # --- power-up / reset -----------------------------------------------------------------
     def reset(self) -> None:
@@ -276,6 +295,14 @@ class Vmivme3113aBoard(RegisterBoard):
             i = 0
         self._normal_next = i + 1
         return self._normals[i]
+
+    def noise_state(self, lane: int = 0) -> tuple[Mapping[str, Any], tuple[float, ...]]:
+        """The noise stream where it stands: its generator's state and the normals drawn ahead
+        and not used yet (of ``lane``, on a board of lanes). Two boards with equal states draw the
+        same noise from now on."""
+        if self._lanes is not None:
+            return self._lanes.noise_state(lane)
+        return self._rng.bit_generator.state, tuple(self._normals[self._normal_next:])
 
     # --- registers ----------------------------------------------------------------------
     def read_CSR(self) -> int:
@@ -409,3 +436,207 @@ def vmivme3113a_factory(name: str, cfg: ConfigTable, ctx: BuildContext) -> Vmivm
                                                min=0.1, max=10_000.0) * 1000),
         seed=ctx.seed,
     )
+
+
+# --- lanes: B boards of B instances of a rig in one board (batched lockstep, issue #34) ----------
+# Vmivme3113aBoard.from_lanes builds an ordinary board and gives it a _Vmi3113aLanes, which holds
+# what differs per lane and replaces, once, the hooks that branch on a register value or compute a
+# code (convert, _read_channel, write_CSR, write_ICR, _end_of_scan, iack); the scalar code above runs
+# unchanged, on the scalar board and on every other path of the board of lanes.
+# * The sequencer is every lane's: the lanes make the same bus cycles at the same simulated times
+#   (one clock), so the runs, which conversion each word holds, the CSR's status bits and the
+#   conversions counter run the scalar code on plain ints. Where a register value decides the
+#   sequence (a CSR write's SOFTWARE_RESET, a MODE change, START_CONVERT; the end-of-scan interrupt;
+#   ICR.INTERRUPT_ENABLE cleared with a request pending), the live lanes' common answer is taken and
+#   a lane that would have done otherwise is ejected (hal.lanes.LaneSet.decide).
+# * A conversion runs on (B,) arrays with convert's and quantize's operations in their order (+ - *
+#   /, sqrt, floor: the same bits as the scalar floats); the data word's format (CSR.TWOS_COMPLEMENT)
+#   is each lane's. A NaN at a lane's input (the scalar quantize's ValueError) or a value math.floor
+#   cannot convert (±inf: OverflowError) ejects that lane; the others go on.
+# * Noise: each lane keeps its scalar board's generator and block of normals (emulators.adc.LaneNormals)
+#   and draws where its scalar board draws: at every conversion when its noise_rms_v > 0, never else
+#   (the board has no other noise source: no switching noise couples into it, see docs).
+# * Per-lane parameters (--vary): noise_rms_v, offset_v, gain_error.
+# Out of scope (NotImplementedError when stacking or converting): armed faults, a pending interrupt,
+# boards differing in name, wiring, range, timing or sequencer state (then the instances differ in
+# their set-up, not their parameters).
+
+
+def _stack_3113a_boards(cls: type[Vmivme3113aBoard], boards: Sequence[Vmivme3113aBoard],
+                        crate: Backplane) -> Vmivme3113aBoard:
+    """:meth:`Vmivme3113aBoard.from_lanes`: one board holding ``boards`` (one per lane, in lane order)."""
+    lanes = getattr(crate, "lanes", None)
+    if not isinstance(lanes, LaneSet):
+        raise ValueError("Vmivme3113aBoard.from_lanes needs a crate of lanes (its .lanes is a hal.lanes.LaneSet)")
+    if len(boards) != lanes.size:
+        raise ValueError(f"{len(boards)} VMIVME-3113A boards for a crate of {lanes.size} lanes")
+    first = boards[0]
+
+    def sequencer(b: Vmivme3113aBoard) -> tuple[object, ...]:
+        run = b._run
+        return (b._held, b._done_before, b._seen, b._runs,
+                None if run is None else (run.ident, run.start_ns, run.limit))
+
+    for b in boards:
+        if b.faulted:
+            raise NotImplementedError(f"{b.name}: a VMIVME-3113A with a fault armed cannot run in lanes "
+                                      "(faults: scalar)")
+        if b._irq_level:
+            raise NotImplementedError(f"{b.name}: a VMIVME-3113A interrupting cannot be stacked")
+        if (b.name, b.wiring, b.input_range, b.conversion_time_ns) != \
+                (first.name, first.wiring, first.input_range, first.conversion_time_ns):
+            raise NotImplementedError(f"{b.name}: VMIVME-3113As differing in name, wiring, range or timing "
+                                      "cannot run in lanes")
+        if sequencer(b) != sequencer(first):
+            raise NotImplementedError(f"{b.name}: VMIVME-3113As whose sequencers differ cannot run in lanes")
+    board = cls(first.name, wiring=first.wiring, input_range=first.input_range,
+                conversion_time_ns=first.conversion_time_ns)
+    board._stack_regs(boards)
+    board._held = list(first._held)
+    board._done_before, board._seen, board._runs = first._done_before, first._seen, first._runs
+    run = first._run
+    board._run = None if run is None else _Run(run.ident, run.start_ns, run.limit)
+    board.noise_rms_v = stack([b.noise_rms_v for b in boards])
+    board.offset_v = tuple(stack([b.offset_v[ch] for b in boards]) for ch in range(CHANNELS))
+    board.gain_error = tuple(stack([b.gain_error[ch] for b in boards]) for ch in range(CHANNELS))
+    board.conversions = stack([b.conversions for b in boards])
+    fe = _Vmi3113aLanes(board, boards, lanes)
+    board._lanes = fe
+    # the hooks that branch on register values or compute a code: selected once, here (the scalar
+    # board's code runs unchanged on every other path)
+    board.convert = fe.convert  # type: ignore[method-assign,assignment]
+    board._read_channel = fe.read_channel  # type: ignore[method-assign,assignment]
+    board.write_CSR = fe.write_CSR  # type: ignore[method-assign]
+    board.write_ICR = fe.write_ICR  # type: ignore[method-assign]
+    board._end_of_scan = fe.end_of_scan  # type: ignore[method-assign]
+    board.iack = fe.iack  # type: ignore[method-assign]
+    return board
+
+
+class _Vmi3113aLanes(LaneNormals):
+    """What a board of lanes holds per lane, and its lane-mode hooks (the section's comment)."""
+
+    def __init__(self, board: Vmivme3113aBoard, boards: Sequence[Vmivme3113aBoard], lanes: LaneSet) -> None:
+        super().__init__(boards)
+        self.board, self.lanes = board, lanes
+        # the scalar expressions of convert, evaluated per lane in Python (the same bits)
+        self.sigma = np.array([math.sqrt(b.noise_rms_v**2) for b in boards], dtype=float)
+        #: the lanes that draw a normal at each conversion (their scalar boards' var > 0)
+        self.draw = self.sigma > 0
+        self.all_draw, self.any_draw = bool(self.draw.all()), bool(self.draw.any())
+        self.gain1 = tuple(stack([1.0 + b.gain_error[ch] for b in boards]) for ch in range(CHANNELS))
+        self.offset_v = tuple(stack([b.offset_v[ch] for b in boards]) for ch in range(CHANNELS))
+        self.v0, self.lsb = RANGES[board.input_range]
+
+    # --- a conversion of every lane -------------------------------------------------------
+    def convert(self, channel: int) -> np.ndarray:
+        """:meth:`Vmivme3113aBoard.convert` of every lane: the offset-binary codes (B,) int64."""
+        b = self.board
+        if b.faulted:
+            raise NotImplementedError(f"{b.name}: a VMIVME-3113A of lanes cannot convert with a fault armed "
+                                      "(faults: scalar)")
+        b.conversions += 1
+        net = b.wiring.get(channel)
+        analog = b.crate.signals.analog if b.crate is not None else {}
+        with np.errstate(all="ignore"):  # a dead lane's garbage (inf, NaN) must not warn or raise
+            v: Any = 0.0 if net is None else analog.get(net, 0.0)
+            if self.all_draw:
+                v = v + self.sigma * self._normals_all()
+            elif self.any_draw:
+                v = np.where(self.draw, v + self.sigma * self._normals_some(self.draw), v)
+            if not isinstance(v, np.ndarray):
+                v = np.full(self.n, v)
+            v = v * self.gain1[channel] + self.offset_v[channel]
+            x = (v - self.v0) / self.lsb + 0.5
+            ok = np.isfinite(x)
+            if not ok.all():
+                nan = v != v
+                self.lanes.eject(nan, f"{b.name}: ADC input is NaN (channel {channel})")
+                self.lanes.eject(~ok & ~nan, f"{b.name}: ADC input out of the float range (channel {channel})")
+                x = np.where(ok, x, 0.0)
+            code = np.floor(x)
+        np.maximum(code, 0.0, out=code)
+        np.minimum(code, float(CODE_MAX), out=code)
+        return code.astype(np.int64)
+
+    def read_channel(self, channel: int) -> Any:
+        """:meth:`Vmivme3113aBoard._read_channel` of every lane (which conversion a word holds is
+        every lane's; the code and its format are each lane's)."""
+        b = self.board
+        run = b._run
+        if run is not None:
+            n = b._completed(run, b.now_ns)
+            if n > channel:
+                j = channel + (n - 1 - channel) // CHANNELS * CHANNELS
+                key = (run.ident, j)
+                if b._held[channel] != key:
+                    b._held[channel] = key
+                    code = b.convert(channel)
+                    b.regs[_CH[channel]] = _lane_data_word(code, b.regs["CSR"] & _TWOS)
+        return b.regs[_CH[channel]]
+
+    # --- the register values that decide the sequence: one answer for every lane ----------
+    def write_CSR(self, value: Any) -> None:
+        """:meth:`Vmivme3113aBoard.write_CSR` of every lane (``value`` a lane value)."""
+        b, lanes = self.board, self.lanes
+        if lanes.decide((value & _SOFTWARE_RESET) != 0, f"{b.name}: CSR.SOFTWARE_RESET written in some lanes only"):
+            b.reset()
+            return
+        old_mode = b.regs["CSR"] & _MODE_MASK
+        b.regs["CSR"] = value & _CSR_STORED
+        mode = b.regs["CSR"] & _MODE_MASK
+        if lanes.decide(mode != old_mode, f"{b.name}: MODE changed in some lanes only"):
+            if lanes.decide(mode == MODE_AUTOSCAN << _MODE_SHIFT, f"{b.name}: autoscanning in some lanes only"):
+                b._start_run(None)
+            else:
+                b._stop_run()
+        scanning = (mode == MODE_SCAN_POLL << _MODE_SHIFT) | (mode == MODE_SCAN_IRQ << _MODE_SHIFT)
+        if lanes.decide(((value & _START_CONVERT) != 0) & scanning, f"{b.name}: scan started in some lanes only"):
+            run = b._run
+            if run is None or run.limit is None or b._completed(run, b.now_ns) >= run.limit:
+                b._drop_irq()
+                b._start_run(CHANNELS)
+                b._schedule_end_of_scan()
+
+    def write_ICR(self, value: Any) -> None:
+        """:meth:`Vmivme3113aBoard.write_ICR` of every lane: with no request pending, releasing it
+        changes nothing, so nothing is decided."""
+        b = self.board
+        b.regs["ICR"] = value & 0xFF
+        if b._irq_level and self.lanes.decide((value & _ICR_IE) == 0,
+                                              f"{b.name}: interrupt released in some lanes only"):
+            b._drop_irq()
+
+    def end_of_scan(self, ident: int) -> None:
+        """:meth:`Vmivme3113aBoard._end_of_scan` of every lane."""
+        b, lanes = self.board, self.lanes
+        if b._run is None or b._run.ident != ident:
+            return
+        b._materialize()
+        regs = b.regs
+        icr = regs["ICR"]
+        level = icr & _ICR_LEVEL
+        request = ((regs["CSR"] & _MODE_MASK) == MODE_SCAN_IRQ << _MODE_SHIFT) & ((icr & _ICR_IE) != 0) & (level != 0)
+        if lanes.decide(request, f"{b.name}: end-of-scan interrupt in some lanes only"):
+            b.request_irq(common_value(lanes, level, f"{b.name}: ICR.LEVEL differs"),
+                          common_value(lanes, regs["IVR"], f"{b.name}: IVR differs"))
+
+    def iack(self, level: int) -> int:
+        """:meth:`Vmivme3113aBoard.iack` of every lane: the auto-clears as bit arithmetic (the
+        INTR_AUTO_CLEAR bit is one below INTERRUPT_ENABLE, FLAG_AUTO_CLEAR one below FLAG)."""
+        b = self.board
+        vector = RegisterBoard.iack(b, level)  # ROAK: the request is released here
+        icr = b.regs["ICR"]
+        icr = icr & ~((icr & _ICR_IRAC) << 1)
+        b.regs["ICR"] = icr & ~((icr & _ICR_FAC) << 1)
+        return vector
+
+
+def _lane_data_word(code: Any, twos: Any) -> Any:
+    """:func:`data_word` of codes (B,) in each lane's format (``twos``: CSR & TWOS_COMPLEMENT, a
+    lane value)."""
+    tc = code ^ 0x800
+    tc = tc | ((tc >> 11) & 1) * 0xF000  # bits 15:12 = the inverted MSB, as data_word's sign extension
+    if not isinstance(twos, np.ndarray):
+        return tc if twos else code
+    return np.where(twos != 0, tc, code)

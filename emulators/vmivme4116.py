@@ -20,6 +20,12 @@ Behaviour (see the doc):
   the net gets the final value one settling time after the update (a newer update supersedes).
 
 Fault: ``dead_channel(channel, volts=0.0)`` — the output pin sits at ``volts`` whatever is written.
+
+Lanes (batched lockstep, :mod:`hal.lanes`): :meth:`VmiVme4116Board.from_lanes` stacks B boards into
+one whose holding latches, converter codes, offset/gain errors, rails and output volts are lane
+values; the CSR (the outputs' P3 switch, the update strobe) and so the settling events are the
+same in every lane (one clock: a CSR word that differs ejects the lanes of the minority).
+Injected faults are not carried into lanes (those runs go scalar).
 """
 
 from __future__ import annotations
@@ -29,10 +35,13 @@ from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from typing import Any, ClassVar
 
-from emulators.adc import per_channel, wiring_from_config
-from emulators.board import RegisterBoard
+import numpy as np
+
+from emulators.adc import common_value, per_channel, wiring_from_config
+from emulators.board import Backplane, RegisterBoard
 from emulators.board_factory import BuildContext
 from hal.config import ConfigTable
+from hal.lanes import LaneSet, LaneValue, stack
 from hal.vme.registers import Access, Field, Register, RegisterMap
 from hal.vme.types import AddressSpace, Width
 
@@ -76,6 +85,15 @@ def ideal_volts(code: int, coding: str = "offset_binary") -> float:
     return (signed if coding == "twos_complement" else offset) * LSB_V
 
 
+def ideal_volts_lanes(code: LaneValue, coding: str = "offset_binary") -> LaneValue:
+    """:func:`ideal_volts` of a code per lane (an int, or an int64 array): the same integer
+    value times the LSB, so the same volts bit for bit. The sign of a two's complement code is
+    taken without a branch (bit 15 set: less 0x10000)."""
+    if coding == "twos_complement":
+        return (code - ((code & 0x8000) << 1)) * LSB_V
+    return (code - 0x8000) * LSB_V
+
+
 class VmiVme4116Board(RegisterBoard):
     """Emulated VMIVME-4116.
 
@@ -97,6 +115,7 @@ class VmiVme4116Board(RegisterBoard):
     FAULTS: ClassVar[dict[str, str]] = {
         "dead_channel": "channel=N[, volts=V]: output N stuck at V (default 0 V) whatever is written",
     }
+    _lanes: LaneSet  #: in lane mode only (from_lanes): the crate's lanes
 
     def __init__(
         self,
@@ -260,6 +279,68 @@ class VmiVme4116Board(RegisterBoard):
             "coding": self.coding,
             "outputs": "connected" if self.connected else "disconnected",
         }
+
+    # --- lanes (batched lockstep, hal.lanes) ---------------------------------------------
+    @classmethod
+    def from_lanes(cls, boards: Sequence[Any], crate: Any) -> VmiVme4116Board:
+        """One board in lane mode holding the B scalar ``boards`` (lane order), for the lane
+        crate ``crate`` (which installs it). The holding latches, converter codes, offset/gain
+        errors, rails and output volts become lane values. The jumpers (update, coding), the
+        wiring, the settling time, the CSR and the update history must be the same in every lane
+        (lockstep gives the last two: the same set-up program; ``Crate.from_lanes`` stacks crates
+        with no event queued, so no output is settling then). Makes no bus cycle and drives no
+        net (``Signals.from_lanes`` stacked them)."""
+        first = boards[0]
+        for b in boards:
+            if type(b) is not cls:
+                raise NotImplementedError(f"{first.name}: a {type(b).__name__} cannot be a lane of a {cls.__name__}")
+            if b.faulted:
+                raise NotImplementedError(f"{b.name}: a board with an injected fault runs scalar")
+            if (b.wiring, b.settling_time_ns, b.synchronized, b.coding) != (
+                    first.wiring, first.settling_time_ns, first.synchronized, first.coding):
+                raise NotImplementedError(f"{first.name}: the lanes' boards differ in wiring, settling time or jumpers")
+            if b.regs["CSR"] != first.regs["CSR"]:
+                raise NotImplementedError(f"{first.name}: the lanes' boards differ in their CSR (outputs on P3)")
+            if (b._gen, [s[0] for s in b._step]) != (first._gen, [s[0] for s in first._step]):
+                raise NotImplementedError(f"{first.name}: the lanes' boards were updated at different times")
+        obj = cls(first.name, wiring=first.wiring, update="synchronized" if first.synchronized else "immediate",
+                  coding=first.coding, settling_time_ns=first.settling_time_ns)
+        obj.offset_v = tuple(stack([b.offset_v[ch] for b in boards]) for ch in range(CHANNELS))
+        obj.gain_error = tuple(stack([b.gain_error[ch] for b in boards]) for ch in range(CHANNELS))
+        obj.rail_v = stack([b.rail_v for b in boards])
+        obj._stack_regs(boards)
+        obj.holding = [stack([b.holding[ch] for b in boards]) for ch in range(CHANNELS)]
+        obj.converter = [stack([b.converter[ch] for b in boards]) for ch in range(CHANNELS)]
+        obj._step = [(first._step[ch][0], stack([b._step[ch][1] for b in boards]),
+                      stack([b._step[ch][2] for b in boards])) for ch in range(CHANNELS)]
+        obj._gen = list(first._gen)
+        obj.updates = stack([b.updates for b in boards])
+        obj._lanes = crate.lanes
+        # the channel writers, _convert, converter_volts and _drive run as they are on lane
+        # values (the CSR, the times and the settling generations are every lane's)
+        for name in ("attach", "_analog", "write_CSR", "inject"):
+            setattr(obj, name, getattr(obj, "_lane_" + name.lstrip("_")))
+        return obj
+
+    def _lane_attach(self, crate: Backplane) -> None:
+        RegisterBoard.attach(self, crate)  # the steps and the nets are the stacked scalar ones
+
+    def _lane_analog(self, ch: int, code: LaneValue) -> LaneValue:
+        v = ideal_volts_lanes(code, self.coding) * (1.0 + self.gain_error[ch]) + self.offset_v[ch]
+        rail = self.rail_v
+        if not isinstance(v, np.ndarray) and not isinstance(rail, np.ndarray):
+            return min(max(v, -rail), rail)
+        v = np.where(-rail > v, -rail, v)  # max(v, -rail): a NaN stays, as max() leaves it
+        return np.where(rail < v, rail, v)  # min(·, rail)
+
+    def _lane_write_CSR(self, value: LaneValue) -> None:
+        # the P3 switch and the strobe are every lane's (one clock for the settling events): a
+        # CSR word that differs between lanes takes the majority's, and ejects the others
+        VmiVme4116Board.write_CSR(self, common_value(self._lanes, value, f"{self.name}: a CSR write that "
+                                                     "differs between lanes (outputs on P3, the update strobe)"))
+
+    def _lane_inject(self, name: str, **params: Any) -> None:
+        raise NotImplementedError(f"{self.name}: faults are not injected into lanes (such runs go scalar)")
 
 
 def _chan_writer(ch: int):

@@ -8,6 +8,10 @@ D16 reads with no start and no wait. The role's interface is the reference ADC d
 (:class:`hal.adc_dac.AdcDriver`) as the servo uses it: ``scan(last)`` → calibrated volts, a
 ``calibration`` attribute, and ``lsb_v`` for the volts of one code.
 
+Lanes (batched lockstep, :mod:`hal.lanes`): :meth:`Vmivme3113aDriver.from_lanes` makes one driver
+of the B boards of a bus of lanes; its scans return arrays of shape (k, B) (the section "lanes" at
+the end of this module).
+
 Example::
 
     adc = Vmivme3113aDriver(crate, 0x8500)          # ±10 V jumpers, offset binary
@@ -19,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -40,6 +45,7 @@ from hal.adc_dac.vmivme3113a_regs import (
     VMI3113A_DATA_OFFSET,
     VMI3113A_REGMAP,
 )
+from hal.lanes import LaneSet, stack
 from hal.vme.bus import SpaceLike, VmeBus
 from hal.vme.types import Width
 from hal.vme.window import BoardWindow
@@ -92,6 +98,8 @@ class Vmivme3113aDriver:
     """
 
     CHANNELS = VMI3113A_CHANNELS
+    #: the per-lane part of a driver of lanes (:meth:`from_lanes`); None: one board
+    _lanes: _Vmi3113aDriverLanes | None = None
 
     def __init__(
         self,
@@ -131,6 +139,13 @@ class Vmivme3113aDriver:
         twos = _B["TWOS_COMPLEMENT"] if self.data_format is Vmi3113aFormat.TWOS_COMPLEMENT else 0
         self.win.write("CSR", _B["FAIL_LED_OFF"] | _MODE.put(0, MODE_AUTOSCANNING) | twos)
         self._wait_first_scan()
+
+    @classmethod
+    def from_lanes(cls, drivers: Sequence[Vmivme3113aDriver], bus: VmeBus) -> Vmivme3113aDriver:
+        """One driver of lanes for ``drivers`` (one per lane of ``bus``, in lane order; opened as
+        scalar runs open them) on ``bus``, a bus of lanes: :meth:`scan` and :meth:`scan_counts`
+        then return arrays of shape (k, B) (the section "lanes" at the end of this module). No bus cycle."""
+        return _stack_3113a_drivers(cls, drivers, bus)
 
     # --- conversions (named: the servo asks the driver, never the reference ADC's formulas) -----
     @property
@@ -216,3 +231,115 @@ class Vmivme3113aDriver:
             raise ValueError(f"VMIVME-3113A channel {channel} is not 0..{VMI3113A_CHANNELS - 1}")
         if gain != 1:
             raise ValueError(f"VMIVME-3113A gain {gain!r}: the board has gain 1 only (its range is set by jumpers)")
+
+
+# --- lanes: one driver for the B boards of a bus of lanes (batched lockstep, issue #34) -----------
+# A driver of lanes makes its scalar drivers' bus cycles once for every lane: the words it reads
+# hold a value per lane (hal.lanes). Vmivme3113aDriver.from_lanes selects, once, the steps that
+# differ from the scalar code above (which runs unchanged on a scalar driver):
+# * the block read of CH0..CHmax gives a word per channel and lane: scan_counts returns codes of
+#   shape (k, B), scan calibrated volts of shape (k, B) (each lane's column: the scalar driver's
+#   (k,) operations, element by element, so the same bits); read_volts a lane value;
+# * each lane keeps its scalar driver's calibration ((k, B) where the lanes' calibrations differ,
+#   (k, 1) where they are alike); a calibration assigned to the driver of lanes is every lane's;
+# * nothing in a tick branches on a lane's value (autoscanning: no start, no wait); status() decodes
+#   a CSR into one record's bools, which lanes have no form of: NotImplementedError.
+# Out of scope (NotImplementedError): drivers differing in address, range, format or timing.
+
+def _stack_3113a_drivers(cls: type[Vmivme3113aDriver], drivers: Sequence[Vmivme3113aDriver],
+                         bus: VmeBus) -> Vmivme3113aDriver:
+    """:meth:`Vmivme3113aDriver.from_lanes`: one driver for ``drivers`` (one per lane, in lane order)."""
+    lanes = bus.lanes
+    if lanes is None:
+        raise ValueError("Vmivme3113aDriver.from_lanes needs a bus of lanes (its .lanes is a hal.lanes.LaneSet)")
+    if len(drivers) != lanes.size:
+        raise ValueError(f"{len(drivers)} VMIVME-3113A drivers for a bus of {lanes.size} lanes")
+    first = drivers[0]
+
+    def same(d: Vmivme3113aDriver) -> tuple[object, ...]:
+        return (d.win.base, d.win.am, d.input_range, d.data_format, d.conversion_time_s, d.poll_interval_s,
+                d.timeout_s)
+
+    for d in drivers:
+        if type(d) is not cls:
+            raise NotImplementedError(f"a {type(d).__name__} is not a {cls.__name__}; it cannot stack with one")
+        if same(d) != same(first):
+            raise NotImplementedError(f"VMIVME-3113A at 0x{d.win.base:X}: drivers that differ in address, range, "
+                                      "data format or timing cannot run in lanes")
+    drv = cls.__new__(cls)
+    drv.bus = bus
+    drv.win = BoardWindow(bus, first.win.base, VMI3113A_REGMAP, first.win.am)
+    drv.input_range, drv.data_format = first.input_range, first.data_format
+    drv.calibration = first.calibration
+    drv.conversion_time_s, drv.poll_interval_s, drv.timeout_s = (first.conversion_time_s, first.poll_interval_s,
+                                                                 first.timeout_s)
+    drv._lsb_v, drv._v0, drv._data_address = first._lsb_v, first._v0, first._data_address
+    drv._plans = dict(first._plans)
+    ls = _Vmi3113aDriverLanes(drv, [d.calibration for d in drivers], lanes)
+    drv._lanes = ls
+    # the lane-mode steps, selected once (the scalar methods run unchanged on a scalar driver)
+    drv.scan = ls.scan  # type: ignore[method-assign]
+    drv.scan_counts = ls.scan_counts  # type: ignore[method-assign]
+    drv.read_volts = ls.read_volts  # type: ignore[method-assign]
+    drv.status = ls.status  # type: ignore[method-assign]
+    return drv
+
+
+class _Vmi3113aDriverLanes:
+    """The per-lane part of a driver of lanes, and its lane-mode steps."""
+
+    def __init__(self, driver: Vmivme3113aDriver, calibrations: Sequence[Calibration], lanes: LaneSet) -> None:
+        self.driver, self.lanes, self.n = driver, lanes, lanes.size
+        #: each lane's calibration (lane order), and the driver's when they were taken
+        self.calibrations = tuple(calibrations)
+        self._bound = driver.calibration
+        #: per channel list: the calibration's offsets and gains over the lanes, (k, B) or (k, 1)
+        self._cal: dict[Any, tuple[np.ndarray, np.ndarray]] = {}
+
+    def _calibrations(self) -> tuple[Calibration, ...]:
+        d = self.driver
+        if d.calibration is not self._bound:  # assigned to the driver of lanes: every lane's from now on
+            self._bound = d.calibration
+            self.calibrations = (d.calibration,) * self.n
+            self._cal.clear()
+        return self.calibrations
+
+    def scan_counts(self, channels: int | Sequence[int], gain: int = 1) -> np.ndarray:
+        """:meth:`Vmivme3113aDriver.scan_counts` of every lane: codes, shape (k, B)."""
+        d = self.driver
+        chans, last = d._plan(channels, gain)
+        words = d.bus.read_block(d._data_address, last + 1, space=d.win.am, width=Width.D16)
+        w = np.empty((last + 1, self.n), dtype=np.int64)
+        for k, word in enumerate(words):  # a word every lane holds alike is one int
+            w[k] = word
+        return codes_from_words(w, d.data_format)[chans]
+
+    def scan(self, channels: int | Sequence[int], gain: int = 1) -> np.ndarray:
+        """:meth:`Vmivme3113aDriver.scan` of every lane: calibrated volts, shape (k, B)."""
+        d = self.driver
+        chans, _ = d._plan(channels, gain)
+        volts = d._v0 + self.scan_counts(channels, gain) * d._lsb_v
+        cals = self._calibrations()
+        key = channels if isinstance(channels, int) else tuple(chans.tolist())
+        arrays = self._cal.get(key)
+        if arrays is None:
+            offset, cal_gain = (stack([np.asarray(getattr(c, name))[chans] for c in cals])
+                                for name in ("offset_v", "gain"))
+            arrays = self._cal[key] = (offset if offset.ndim == 2 else offset[:, None],
+                                       cal_gain if cal_gain.ndim == 2 else cal_gain[:, None])
+        # the scalar scan's operations, element by element (each lane's arrays broadcast on its column)
+        return (volts - arrays[0]) / arrays[1]  # type: ignore[no-any-return]
+
+    def read_volts(self, channel: int, gain: int = 1) -> Any:
+        """:meth:`Vmivme3113aDriver.read_volts` of every lane: a lane value (volts_from_code's and
+        Calibration.correct's operations, lane by lane)."""
+        d = self.driver
+        code = d.read_counts(channel, gain)
+        volts = d.input_range.v0 + code * lsb_v(d.input_range)
+        cals = self._calibrations()
+        offset = stack([c.offset_v[channel] for c in cals])
+        cal_gain = stack([c.gain[channel] for c in cals])
+        return (volts - offset) / cal_gain
+
+    def status(self) -> Vmi3113aStatus:
+        raise NotImplementedError("VMIVME-3113A status() decodes one board's CSR: no lane form (read CSR instead)")

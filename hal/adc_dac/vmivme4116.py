@@ -19,18 +19,28 @@ Example::
     dac = VmiVme4116Driver(crate, 0x7000)
     dac.write_many({0: 1.0, 1: -1.0})    # one synchronized update
     dac.zero()                           # every output to 0 V (the stop path)
+
+Lanes (batched lockstep, :mod:`hal.lanes`): :meth:`VmiVme4116Driver.from_lanes` stacks B drivers
+(one per instance) into one on a bus of lanes. Its :meth:`~VmiVme4116Driver.write_many` takes volts
+per lane (a float, or a ``(B,)`` array) and loads codes per lane, converted with the same float
+math as one driver's (:func:`vmi4116_volts_to_codes`, the array form of
+:func:`vmi4116_volts_to_code`) and each lane's calibration; a command one instance's driver would
+refuse (NaN, or out of range without ``clamp``) ejects that lane instead of raising.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
-from typing import Literal
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any, Literal
+
+import numpy as np
 
 from hal.adc_dac.calibration import Calibration
 from hal.adc_dac.dac import DacRangeError, DacWriteResult
 from hal.adc_dac.vmivme4116_regs import VMI4116_CHANNELS, VMI4116_REGMAP
 from hal.board_types import ProbeReading
+from hal.lanes import LaneSet, LaneValue, stack
 from hal.vme.bus import SpaceLike, VmeBus
 from hal.vme.errors import VmeError
 from hal.vme.window import BoardWindow
@@ -82,6 +92,22 @@ def vmi4116_volts_to_code(volts: float, coding: Coding = "offset_binary") -> tup
     return (code ^ _SIGN if coding == "twos_complement" else code), clipped
 
 
+def vmi4116_volts_to_codes(volts: Any, coding: Coding = "offset_binary") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Array form of :func:`vmi4116_volts_to_code`, element by element with the same float math
+    (so the same codes, bit for bit): ``(codes, clipped, invalid)`` — int64, bool and bool arrays
+    of ``volts``' shape. ``invalid`` marks the elements the scalar form rejects (NaN: ``ValueError``;
+    ±inf, or a value whose code overflows a float: ``OverflowError``); they get the 0 V code of
+    ``coding``, unclipped."""
+    v = np.asarray(volts, dtype=float)
+    with np.errstate(invalid="ignore", over="ignore"):
+        code = np.floor((v - VMI4116_V_MIN) / VMI4116_LSB_V + 0.5)
+    invalid = ~np.isfinite(code)
+    code = np.where(invalid, _SIGN, code)  # offset binary's 0 V code
+    low, high = code < 0, code > _CODE_MAX
+    codes = np.where(low, 0, np.where(high, _CODE_MAX, code)).astype(np.int64)
+    return (codes ^ _SIGN if coding == "twos_complement" else codes), low | high, invalid
+
+
 def vmi4116_code_to_volts(code: int, coding: Coding = "offset_binary") -> float:
     """16-bit code in ``coding`` → ideal output volts."""
     if not 0 <= code <= _CODE_MAX:
@@ -121,6 +147,10 @@ class VmiVme4116Driver:
     """
 
     CHANNELS = VMI4116_CHANNELS
+    # in lane mode only (from_lanes): the lanes, and each channel's calibration per lane
+    _lanes: LaneSet
+    _cal_offset_v: tuple[LaneValue, ...]
+    _cal_gain: tuple[LaneValue, ...]
 
     def __init__(
         self,
@@ -249,3 +279,87 @@ class VmiVme4116Driver:
     def _check_channel(channel: int) -> None:
         if not 0 <= channel < VMI4116_CHANNELS:
             raise ValueError(f"DAC channel {channel} is not 0..{VMI4116_CHANNELS - 1}")
+
+    # --- lanes (batched lockstep, hal.lanes) -------------------------------------------------
+    @classmethod
+    def from_lanes(cls, drivers: Sequence[VmiVme4116Driver], bus: VmeBus) -> VmiVme4116Driver:
+        """One driver in lane mode for the B scalar ``drivers`` (lane order, each opened on its
+        instance's crate) on ``bus``, the crate of their lanes: the same board (base, space),
+        ``clamp``, coding and update jumper in every lane; each lane keeps its calibration, its
+        clamp count and the codes its driver last loaded and updated. No bus cycle (the bring-up
+        was made by each scalar driver)."""
+        first = drivers[0]
+        if not isinstance(bus.lanes, LaneSet):
+            raise ValueError("a VMIVME-4116 driver in lanes needs a bus of lanes (bus.lanes)")
+        key = (first.win.base, first.win.am, first.clamp, first.coding, first.synchronized)
+        for d in drivers:
+            if type(d) is not cls:
+                raise NotImplementedError(f"a {type(d).__name__} cannot share lanes with a {cls.__name__}")
+            if (d.win.base, d.win.am, d.clamp, d.coding, d.synchronized) != key:
+                raise NotImplementedError("the lanes' VMIVME-4116 drivers differ in board address, clamp, coding "
+                                          "or update jumper")
+        obj = cls.__new__(cls)
+        obj.bus = bus
+        obj.coding = first.coding
+        obj.synchronized = first.synchronized
+        obj.calibration = first.calibration  # lane 0's; each lane's own in _cal_offset_v/_cal_gain
+        obj.clamp = first.clamp
+        obj.clamp_events = stack([d.clamp_events for d in drivers])
+        obj.win = BoardWindow(bus, first.win.base, VMI4116_REGMAP, first.win.am)
+        obj.zero_code = first.zero_code
+        obj._holding = [stack([d._holding[ch] for d in drivers]) for ch in range(VMI4116_CHANNELS)]
+        obj._output = [stack([d._output[ch] for d in drivers]) for ch in range(VMI4116_CHANNELS)]
+        obj._lanes = bus.lanes
+        obj._cal_offset_v = tuple(stack([d.calibration.offset_v[ch] for d in drivers])
+                                  for ch in range(VMI4116_CHANNELS))
+        obj._cal_gain = tuple(stack([d.calibration.gain[ch] for d in drivers]) for ch in range(VMI4116_CHANNELS))
+        # update, zero, _load and read_back_counts run as they are on lane codes
+        for name in ("code_for", "write_many", "write_counts"):
+            setattr(obj, name, getattr(obj, "_lane_" + name))
+        return obj
+
+    def _lane_code_for(self, channel: int, volts: LaneValue) -> tuple[LaneValue, LaneValue]:
+        self._check_channel(channel)
+        # Calibration.correct, per lane: the same two operations
+        command = (volts - self._cal_offset_v[channel]) / self._cal_gain[channel]
+        if not isinstance(command, np.ndarray):
+            code, clipped = vmi4116_volts_to_code(command, self.coding)
+            if clipped and not self.clamp:
+                raise Vmi4116RangeError(channel, float(volts), command)
+            return code, clipped
+        codes, outside, invalid = vmi4116_volts_to_codes(command, self.coding)
+        self._lanes.eject(invalid, f"VMIVME-4116 channel {channel}: the command is not a number (the driver raises)")
+        if not self.clamp:
+            self._lanes.eject(outside, f"VMIVME-4116 channel {channel}: a command outside the output range "
+                                       "(Vmi4116RangeError)")
+        return codes, outside
+
+    def _lane_write_many(self, commands: Mapping[int, LaneValue], update: bool = True) -> DacWriteResult:
+        # write_many in lanes: codes per lane (a lane a scalar driver would refuse is ejected, the
+        # others written); ``clamped`` lists the channels clamped in some live lane, and
+        # clamp_events counts per lane
+        codes: dict[int, Any] = {}
+        clamped: list[int] = []
+        events: Any = 0
+        for ch, v in commands.items():
+            codes[ch], c = self.code_for(ch, v)
+            events = events + c
+            if self._lanes.any(c):
+                clamped.append(ch)
+        for ch, code in codes.items():
+            self._load(ch, code)
+        if update and codes:
+            self.update()
+        self.clamp_events = self.clamp_events + events
+        return DacWriteResult(codes, tuple(clamped), update and bool(codes))
+
+    def _lane_write_counts(self, channel: int, code: LaneValue, update: bool = True) -> None:
+        self._check_channel(channel)
+        bad = (code < 0) | (code > _CODE_MAX)
+        if isinstance(bad, np.ndarray):
+            self._lanes.eject(bad, f"VMIVME-4116 channel {channel}: a code outside 0..0xFFFF (the driver raises)")
+        elif bad:
+            raise ValueError(f"DAC code {code} is outside 0..0xFFFF")
+        self._load(channel, code)
+        if update:
+            self.update()

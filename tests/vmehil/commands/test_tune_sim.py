@@ -160,6 +160,7 @@ def test_sweep_interrupted_by_sigint_keeps_the_finished_rows(tmp_path: Path) -> 
     out = tmp_path / "out"
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     cmd = [sys.executable, "-m", "vmehil", "tune", "sweep", "--grid", "kp=80:140:8", "--jobs", "1",
+           "--batch", "1",  # one point per task: each finished point is a row (batches: test_tune_sweep_engines)
            "--move-deg", "2", "--hold", "3", "--out", str(out), "--quiet"]
     proc = subprocess.Popen(cmd, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     csv_path = out / "sweep.csv"

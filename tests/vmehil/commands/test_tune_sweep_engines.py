@@ -25,7 +25,7 @@ def test_resume_after_sigint_computes_only_the_missing_points(tmp_path: Path, ca
     out = tmp_path / "out"
     # 16 points: the files are written at most once a second, so the second row may be on disk
     # only a second or more after it was computed; the SIGINT must still find points to cut
-    args = ["tune", "sweep", "--grid", "kp=80:140:16", "--jobs", "1", *FAST, "--quiet"]
+    args = ["tune", "sweep", "--grid", "kp=80:140:16", "--jobs", "1", "--batch", "1", *FAST, "--quiet"]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     proc = subprocess.Popen([sys.executable, "-m", "vmehil", *args, "--out", str(out)], cwd=tmp_path, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -314,14 +314,17 @@ def test_joint_io_over_the_lane_drivers_on_a_crate_of_lanes_equals_each_lanes_ow
                     assert _bits(getattr(got, f)[b * n:(b + 1) * n]) == _bits(np.asarray(getattr(m, f), getattr(
                         got, f).dtype)), (k, b, f)
                 assert _bits(cur[b * n:(b + 1) * n]) == _bits(mine), (k, b)
-        assert lanes.alive.tolist() == [True, False, True] and lanes.first_tick[1] == 0  # (no runner: tick unset)
+        # lane 1's hand reversing alone is no divergence: set_pwm makes the same cycles either way
+        assert lanes.alive.tolist() == [True, True, True]
         codes = {ch: np.broadcast_to(np.asarray(io.dac["dac0"].read_back_counts(ch)), (B,)) for ch in range(8)}
-        assert io.safe_stop() == [] and io.lane_stop_failures[0] == io.lane_stop_failures[2] == []
-        for b in (0, 2):
+        assert io.safe_stop() == [] and io.lane_stop_failures[0] == io.lane_stop_failures[1] == \
+            io.lane_stop_failures[2] == []
+        for b in (0, 1, 2):
             t = twins[b]
             assert [int(codes[ch][b]) for ch in range(8)] == [t.io.dac["dac0"].read_back_counts(ch) for ch in range(8)]
             assert t.io.safe_stop() == []
-        assert crate.counter_snapshot() == twins[0].crate.counter_snapshot() == twins[2].crate.counter_snapshot()
+        assert crate.counter_snapshot() == twins[0].crate.counter_snapshot() == twins[1].crate.counter_snapshot() \
+            == twins[2].crate.counter_snapshot()
     finally:
         for s in twins + systems:
             s.close()
