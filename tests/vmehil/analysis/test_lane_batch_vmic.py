@@ -15,8 +15,6 @@ from typing import Any
 
 import pytest
 
-from emulators.crate import Crate
-from hal.lanes import LaneSet
 from vmehil.analysis.batch import simulate_batch
 from vmehil.analysis.lane_batch import LaneReport
 from vmehil.analysis.rigparams import load_joint
@@ -30,36 +28,21 @@ TRIPPING = 5  #: the instance whose run stops (its velocity cross-check trips)
 
 
 def _instances() -> list[Any]:
-    """Eight sweep points of joint 1: seven gain sets, and at :data:`TRIPPING` a plant whose tach
-    brush drop makes the velocity cross-check stop its run (as tests/vmehil/analysis/test_lane_batch.py)."""
+    """Eight sweep points of joint 1: seven gain sets (the rig's and six others), and at
+    :data:`TRIPPING` the rig's gains on a plant whose tach brush drop makes the velocity
+    cross-check stop its run (as tests/vmehil/analysis/test_lane_batch.py)."""
     text = rig_text(PRESET)
     nominal = task_rig(text, PRESET, 1)
     tripping = task_rig(text, PRESET, 1, {"tach_brush_drop": TRIP_DROP_V})
     gains: list[dict[str, float]] = [{"kp": 80.0}, {"kp": 120.0, "kvi": 700.0}, {"kv": 40.0}, {},
-                                     {"kp": 90.0, "kv": 60.0}, {}, {"kpi": 4000.0}]
+                                     {"kp": 90.0, "kv": 60.0}, {"kv": 55.0, "kvi": 1200.0}, {"kpi": 4000.0}]
     jps = [load_joint(nominal, 1, gains=g) for g in gains]
     jps.insert(TRIPPING, load_joint(tripping, 1))
     return jps
 
 
-def _skip_while_a_board_has_no_lane_form() -> None:
-    """Skip while ``Crate.from_lanes`` refuses the preset's 3113A or 4116 (their lane forms are
-    another branch's work, issue #34): the batch would then run the instances one at a time."""
-    runs = [SimRun(load_joint(PRESET, 1), False, SIM) for _ in range(2)]
-    try:
-        Crate.from_lanes([r.system.crate for r in runs], LaneSet(2))
-    except NotImplementedError as e:
-        if "vmivme-3113a" in str(e) or "vmivme-4116" in str(e):
-            pytest.skip(f"{PRESET} has no lane form yet: {e}")
-        raise
-    finally:
-        for r in runs:
-            r.close()
-
-
-@pytest.mark.slow  # ≈ 4 s at rest: eight lanes and their eight scalar references
+@pytest.mark.slow  # ≈ 3 s: eight lanes, then their eight scalar references
 def test_eight_jpl_arm_vmic_instances_as_lanes_equal_their_scalar_runs_bit_for_bit() -> None:
-    _skip_while_a_board_has_no_lane_form()
     jps = _instances()
     report = LaneReport(len(jps))
     got = simulate_batch([SimRun(jp, False, SIM) for jp in jps], traces=True, report=report)
