@@ -120,7 +120,8 @@ def fingerprint(argv: list[str]) -> dict[str, Any]:
 # 10° move and a 1 s hold): gains differ; the third's tach brush drop trips the velocity
 # cross-check (docs/sweeps.md); the fourth has its own sensor faults, the sixth a pulled board
 # (BERR: a driver-error stop); the fifth another seed and +15 % Coulomb friction (0.0388 N·m
-# nominal); the seventh runs the arm on a VMIVME-4116 as its DAC, the eighth is another rig.
+# nominal); the seventh runs the arm on a VMIVME-4116 as its DAC, the eighth is another rig, the
+# ninth the arm on the VMIC boards (3113A, 4116, 2536, SBS 617).
 BATCH_CASES: list[tuple[str, str, dict[str, float], dict[str, float], int, tuple[str, ...]]] = [
     ("kp 80", "jpl-arm", {"kp": 80.0}, {}, 0, ()),
     ("kp 120 kvi 700", "jpl-arm", {"kp": 120.0, "kvi": 700.0}, {}, 0, ()),
@@ -131,6 +132,7 @@ BATCH_CASES: list[tuple[str, str, dict[str, float], dict[str, float], int, tuple
     ("board pulled", "jpl-arm", {}, {}, 1, ("board_removed@0.5:board=quad0",)),
     ("VMIVME-4116 DAC", "jpl-arm/vmivme-4116", {"kp": 90.0}, {}, 5, ()),
     ("melmalec-16", "melmalec-16", {}, {}, 2, ()),
+    ("VMIC boards (jpl-arm-vmic)", "jpl-arm-vmic", {"kp": 95.0}, {}, 4, ()),
 ]
 #: the jpl-arm preset's reference DAC, and the crate entry that makes it a VMIVME-4116 (as
 #: tests/vmehil/test_vmivme4116_rig.py does)
@@ -156,7 +158,7 @@ def _maker() -> Any:
     from vmehil.analysis.simulate import SimRun, SimSettings
     from vmehil.analysis.sweep import rig_text, task_rig
 
-    texts = {"jpl-arm": rig_text("jpl-arm"), "melmalec-16": rig_text("melmalec-16")}
+    texts = {name: rig_text(name) for name in ("jpl-arm", "melmalec-16", "jpl-arm-vmic")}
     texts["jpl-arm/vmivme-4116"] = texts["jpl-arm"].replace(_REFERENCE_DAC, _VMIVME_4116)
     if _VMIVME_4116 not in texts["jpl-arm/vmivme-4116"]:
         raise RuntimeError("the jpl-arm preset's dac0 entry changed: update _REFERENCE_DAC")
