@@ -709,7 +709,7 @@ class _AdcLanes(LaneNormals):
                 v0, lsb = _V0[rng, gcode], _LSB[rng, gcode]
             x = (v - v0) / lsb + 0.5
             ok = np.isfinite(x)
-            if not ok.all():
+            if np.count_nonzero(ok) != ok.size:
                 nan = v != v
                 self.lanes.eject(nan, f"{b.name}: ADC input is NaN (channel {channel})")
                 self.lanes.eject(~ok & ~nan, f"{b.name}: ADC input out of the float range (channel {channel})")

@@ -447,13 +447,14 @@ def _checked_lane_value(cycle: Callable[[Any], None], width: Width, max_value: i
         _checked_value(cycle, width, max_value, value)
         return
     v = value
-    with np.errstate(invalid="ignore"):
-        if v.dtype.kind == "f":  # int() truncates toward zero; it raises on NaN and inf
+    if v.dtype.kind == "f":  # int() truncates toward zero; it raises on NaN and inf
+        with np.errstate(invalid="ignore"):
             bad = ~np.isfinite(v) | (v <= -1.0) | (v >= max_value + 1.0)
-        else:
-            bad = (v < 0) | (v > max_value)
-        v = v.astype(np.int64)
-    if bad.any():
+            v = v.astype(np.int64)
+    else:  # integer words (the usual: codes, masks): nothing to warn about, no errstate to pay
+        bad = (v < 0) | (v > max_value)
+        v = v.astype(np.int64)  # a copy: the register must not share the caller's array
+    if np.count_nonzero(bad):
         lanes.eject(bad, f"VmeValueError: value does not fit {width.name} (0..{max_value})")
         v = np.where(bad, 0, v)
     cycle(v)

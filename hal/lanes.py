@@ -57,8 +57,11 @@ class LaneSet:
     def eject(self, mask: Any, reason: str) -> None:
         """Stop following the live lanes where ``mask`` is true (a bool array of shape (B,), or a
         Python bool for every lane): their scalar runs would do something the others do not."""
-        m = np.broadcast_to(np.asarray(mask, dtype=bool), (self.size,)) & self.alive
-        if not m.any():
+        if type(mask) is np.ndarray and mask.dtype == np.bool_ and mask.shape == (self.size,):
+            m = mask & self.alive  # the usual mask: no broadcast (a tick ejects nothing ~10 times)
+        else:
+            m = np.broadcast_to(np.asarray(mask, dtype=bool), (self.size,)) & self.alive
+        if not np.count_nonzero(m):  # count_nonzero: a third of .any()'s cost on (B,) bools
             return
         for b in np.flatnonzero(m).tolist():
             self.reasons.setdefault(b, reason)
@@ -89,7 +92,7 @@ class LaneSet:
         """True when ``cond`` holds in any live lane (a scalar: itself)."""
         if not isinstance(cond, np.ndarray):
             return bool(cond)
-        return bool((np.asarray(cond, dtype=bool) & self.alive).any())
+        return bool(np.count_nonzero(np.asarray(cond, dtype=bool) & self.alive))
 
 
 def stack(values: Sequence[Any]) -> Any:

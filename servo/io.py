@@ -452,8 +452,11 @@ class JointIO:
                 rows(counts)[:, i] = x.counts
                 rows(theta_enc)[:, i] = x.position_rad
                 rows(omega_enc)[:, i] = x.velocity_rad_s
-                flag = np.broadcast_to(np.asarray(x.status.illegal, bool), (B,))
-                if flag.any():  # its scalar run clears the flag (a bus cycle the other lanes do not make)
+                ill = x.status.illegal
+                if type(ill) is not np.ndarray and not ill:
+                    continue  # no lane flagged it (the usual case)
+                flag = np.broadcast_to(np.asarray(ill, bool), (B,))
+                if np.count_nonzero(flag):  # its scalar run clears the flag (a bus cycle the other lanes do not make)
                     rows(illegal)[:, i] = flag
                     lanes.eject(flag, f"encoder_illegal ({self.rig.joints[i].name}): the decoder flagged an "
                                 "illegal transition (its scalar run clears the flag)")

@@ -418,7 +418,10 @@ class ServoLoop:
         lanes = self.lanes
         assert lanes is not None
         n = self.lane_n
-        rows = np.asarray(bad, bool).reshape(-1, n)
+        flat = np.asarray(bad, bool)
+        if not np.count_nonzero(flat):  # the usual: no joint of any lane (a dozen checks a tick)
+            return
+        rows = flat.reshape(-1, n)
         hit = rows.any(axis=1) & lanes.alive
         if not hit.any():
             return

@@ -130,6 +130,12 @@ def _sign(x: float) -> float:
 
 
 @_jit
+def _same(a: float, b: float) -> bool:
+    """``a`` and ``b`` are the same number, zeros' signs included (NaN is never the same)."""
+    return a == b and (a != 0.0 or math.copysign(1.0, a) == math.copysign(1.0, b))
+
+
+@_jit
 def _phi1(x: float) -> float:
     if x < 1e-8:
         return 1.0 - 0.5 * x
@@ -345,6 +351,27 @@ def period_kernel(
         f_r = 0.0
         f_w1 = 0.0
 
+        # Memos of the transcendental calls of the substep loop, per joint and period: a call
+        # whose argument equals the previous one's returns what that one returned (the same
+        # function of the same value, so the same bits). Equal is not identical for zeros:
+        # sin(-0.0) is -0.0, so a sin's zero argument must have the memo's sign (cos and exp are
+        # even there).
+        # A joint at rest (stuck: its angle unchanged) then skips its sin/cos/exp calls.
+        m_ke_a = math.nan
+        m_ke = 0.0
+        m_g_a = math.nan
+        m_g = 0.0
+        m_r_a = math.nan
+        m_r = 0.0
+        m_q_a = math.nan
+        m_q = 0.0
+        m_x = math.nan
+        m_e = 0.0
+        m_p1 = 0.0
+        m_p2 = 0.0
+        m_t_a = math.nan
+        m_t = 0.0
+
         x4[0] = theta_m * enc_scale
         seg = -1
         lin_on = False
@@ -419,18 +446,34 @@ def period_kernel(
             if any_comp:
                 th_out = theta_m / n_ratio
                 if has_ke:
-                    th_out = th_out + ke_amp * math.sin(2.0 * theta_m + ke_phase)
+                    a_ke = 2.0 * theta_m + ke_phase
+                    if not _same(a_ke, m_ke_a):
+                        m_ke_a = a_ke
+                        m_ke = math.sin(a_ke)
+                    th_out = th_out + ke_amp * m_ke
                 if comp:
                     tau_s = k_flex * (th_out - theta_l) + c_flex * (omega_m * inv_n - omega_l)
                 load = tau_s
                 if has_grav:
-                    load = load + (0.0 if comp else 1.0) * (g_torque * math.cos(th_out + g_phase))
+                    a_g = th_out + g_phase
+                    if a_g != m_g_a:
+                        m_g_a = a_g
+                        m_g = math.cos(a_g)
+                    load = load + (0.0 if comp else 1.0) * (g_torque * m_g)
                 t_drive = t_drive - load * inv_n
             elif has_grav:
                 th_out = theta_m / n_ratio
                 if has_ke:
-                    th_out = th_out + ke_amp * math.sin(2.0 * theta_m + ke_phase)
-                t_drive = t_drive - g_torque * math.cos(th_out + g_phase) * inv_n
+                    a_ke = 2.0 * theta_m + ke_phase
+                    if not _same(a_ke, m_ke_a):
+                        m_ke_a = a_ke
+                        m_ke = math.sin(a_ke)
+                    th_out = th_out + ke_amp * m_ke
+                a_g = th_out + g_phase
+                if a_g != m_g_a:
+                    m_g_a = a_g
+                    m_g = math.cos(a_g)
+                t_drive = t_drive - g_torque * m_g * inv_n
             # ---- holding brake: the armature moves at its flip substeps
             if has_brake:
                 while kf < n_flips and flips[kf, j] == s:
@@ -439,21 +482,38 @@ def period_kernel(
                 brk = brake_hold if engaged else 0.0
             # ---- exact stick/slip step of the motor shaft
             omega = omega_m
-            r = 1.0 + fr_ripple * math.sin(2.0 * theta_m + fr_phase)
+            a_r = 2.0 * theta_m + fr_phase
+            if not _same(a_r, m_r_a):
+                m_r_a = a_r
+                m_r = math.sin(a_r)
+            r = 1.0 + fr_ripple * m_r
             stuck0 = omega == 0.0
             sgn = _sign(omega) + (_sign(t_drive) if stuck0 else 0.0)
             q = omega * inv_ws
-            tk = (coulomb + d_ts * math.exp(-(q * q))) * r
+            a_q = -(q * q)
+            if a_q != m_q_a:
+                m_q_a = a_q
+                m_q = math.exp(a_q)
+            tk = (coulomb + d_ts * m_q) * r
             if has_brake:
                 tk = tk + brk
             x = bjh * r
-            e = math.exp(-x)
-            if direct:
-                p1 = (1.0 - e) / x
-                p2 = (x - 1.0 + e) / (x * x)
+            if x == m_x and x != 0.0:
+                e = m_e
+                p1 = m_p1
+                p2 = m_p2
             else:
-                p1 = _phi1(x)
-                p2 = _phi2(x)
+                e = math.exp(-x)
+                if direct:
+                    p1 = (1.0 - e) / x
+                    p2 = (x - 1.0 + e) / (x * x)
+                else:
+                    p1 = _phi1(x)
+                    p2 = _phi2(x)
+                m_x = x
+                m_e = e
+                m_p1 = p1
+                m_p2 = p2
             acc0 = (t_drive - sgn * tk) * inv_j
             w1 = omega * e + acc0 * (h * p1)
             dth = h * (omega * p1 + acc0 * (h * p2))
@@ -519,11 +579,19 @@ def period_kernel(
                     omega_l = omega_m * inv_n
                     th_o = theta_m / n_ratio
                     if has_ke:
-                        th_o = th_o + ke_amp * math.sin(2.0 * theta_m + ke_phase)
+                        a_ke = 2.0 * theta_m + ke_phase
+                        if not _same(a_ke, m_ke_a):
+                            m_ke_a = a_ke
+                            m_ke = math.sin(a_ke)
+                        th_o = th_o + ke_amp * m_ke
                     theta_l = th_o
                 th_j = theta_l
             elif has_ke:
-                th_j = theta_m / n_ratio + ke_amp * math.sin(2.0 * theta_m + ke_phase)
+                a_ke = 2.0 * theta_m + ke_phase
+                if not _same(a_ke, m_ke_a):
+                    m_ke_a = a_ke
+                    m_ke = math.sin(a_ke)
+                th_j = theta_m / n_ratio + ke_amp * m_ke
             else:
                 th_j = theta_m * inv_n
             hit = th_j > upper or th_j < lower
@@ -544,7 +612,11 @@ def period_kernel(
                     w_j = omega_l
                 emf = t_gradient * w_j
                 if has_tach_ripple:
-                    emf = emf * (1.0 + t_ripple * math.sin(t_cycles * th_j))
+                    a_t = t_cycles * th_j
+                    if not _same(a_t, m_t_a):
+                        m_t_a = a_t
+                        m_t = math.sin(a_t)
+                    emf = emf * (1.0 + t_ripple * m_t)
                 gt = (emf - min(max(emf, -t_brush), t_brush)) * t_present
                 tach = gt + (tach - gt) * t_decay
             if sw and not flt:

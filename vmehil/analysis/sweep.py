@@ -349,7 +349,7 @@ def evaluate_batch(tasks: list[SweepTask]) -> list[dict[str, Any]]:
     """:func:`evaluate_point` for every task, the full-stack runs in lockstep in this process
     (:mod:`vmehil.analysis.batch`): each row equals the one :func:`evaluate_point` makes, ``wall_s``
     aside (the batch's wall time shared equally among its points)."""
-    from vmehil.analysis.batch import simulate_batch
+    from vmehil.analysis.batch import collector_spared, simulate_batch
     from vmehil.analysis.simulate import SimRun
 
     t0 = time.perf_counter()
@@ -364,14 +364,16 @@ def evaluate_batch(tasks: list[SweepTask]) -> list[dict[str, Any]]:
     todo = [i for i, (_row, jp) in enumerate(prepared) if jp is not None]
     stop = stop_requested()
     runs: list[Any] = []
-    try:
-        for i in todo:
-            runs.append(SimRun(prepared[i][1], tasks[i].switch_off, tasks[i].sim))
-    except BaseException:
-        for r in runs:
-            r.close()
-        raise
-    figures = simulate_batch(runs, stop=stop)
+    with collector_spared() as built:  # half of a build's time is the collector's otherwise
+        try:
+            for i in todo:
+                runs.append(SimRun(prepared[i][1], tasks[i].switch_off, tasks[i].sim))
+        except BaseException:
+            for r in runs:
+                r.close()
+            raise
+        built()
+        figures = simulate_batch(runs, stop=stop)
     interrupted = stop is not None and stop()
     for i, r in zip(todo, figures, strict=True):
         rows[i] = _complete(prepared[i][0], tasks[i], r, interrupted)

@@ -192,3 +192,41 @@ def test_a_compile_is_reported_once_and_the_next_process_loads_it_from_the_disk_
     assert second.returncode == 0, second.stderr
     assert "plant kernel" not in second.stderr  # nothing compiled, nothing said
     assert "loaded from its on-disk cache" in second.stdout
+
+
+def test_a_joint_at_rest_calls_sin_cos_exp_a_few_times_a_period_not_per_substep(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The kernel's memos (equal argument: the value computed for it before): jpl-arm idle, every
+    joint stuck, runs the Python source with counting sin/cos/exp, and its numbers are the
+    compiled kernel's (which the numpy path checks to round-off above) bit for bit."""
+    calls = {"sin": 0, "cos": 0, "exp": 0}
+
+    class CountingMath:
+        def __getattr__(self, name: str):
+            f = getattr(math, name)
+            if name not in calls:
+                return f
+
+            def counted(x: float) -> float:
+                calls[name] += 1
+                return f(x)  # type: ignore[no-any-return]
+            return counted
+
+    pp = load_plant_params("jpl-arm")
+    a = Plant(pp, seed=5, kernel="numba")
+    b = Plant(pp, seed=5, kernel="numba")
+    b._kernel_fn = numba_kernel.period_kernel.py_func
+    monkeypatch.setattr(numba_kernel, "math", CountingMath())
+    n_periods = 5
+    for _ in range(n_periods):
+        c = a.idle_command()
+        sa, sb = a.step_period(c, T, 0.002), b.step_period(c, T, 0.002)
+        for name in sa.truth:
+            np.testing.assert_array_equal(sa.truth[name], sb.truth[name], err_msg=name)
+        np.testing.assert_array_equal(sa.pot_v, sb.pot_v)
+        np.testing.assert_array_equal(sa.tach_v, sb.tach_v)
+    assert bool(np.all(sb.truth["stuck"]))
+    n_sub = round(T * b.rate_hz)  # 32 substeps a period at 4 kHz
+    per_joint_period = sum(calls.values()) / (n_periods * b.n_joints)
+    # without the memos: ≥ 3 calls (friction ripple, Stribeck exp, exp(-x)) per substep
+    assert n_sub >= 8 and per_joint_period < 3 * n_sub / 4
