@@ -106,7 +106,10 @@ def test_ctrl_c_on_the_dask_engine_keeps_the_finished_rows_and_leaves_no_process
     pytest.importorskip("distributed")
     out = tmp_path / "out"
     env = {**os.environ, "PYTHONPATH": str(REPO)}
+    # --batch 1: each finished point is a row, so a Ctrl-C after the first finds points to cut (with
+    # batches of lanes the 8 points are two batches of 4 that may both end before the signal)
     proc = subprocess.Popen([sys.executable, "-m", "vmehil", "tune", "sweep", "--engine", "dask", "--jobs", "2",
+                             "--batch", "1",
                              "--grid", "kp=80:140:8", "--move-deg", "2", "--hold", "3", "--out", str(out), "--quiet"],
                             cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
