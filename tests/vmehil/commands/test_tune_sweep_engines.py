@@ -139,7 +139,8 @@ def test_ctrl_c_on_the_dask_engine_keeps_the_finished_rows_and_leaves_no_process
 @pytest.mark.slow
 def test_batched_sweep_resumes_after_sigint_and_its_rows_equal_the_scalar_sweep(tmp_path: Path, capsys) -> None:
     """--batch 2: SIGINT ends every instance of the running batch (exit 130, finished rows kept);
-    --resume (another batch size) runs only the rest; the rows equal a --batch 1 sweep's, wall_s aside."""
+    --resume (another batch size) runs only the rest; the rows equal a --batch 1 sweep's, wall_s aside,
+    and so do the rows of the 8 points run as one batch of lanes (--batch 8)."""
     out = tmp_path / "out"
     # 8 points in 4 batches: the files are written at most once a second, so the SIGINT must still
     # find batches to cut when the first two rows are on disk
@@ -167,10 +168,14 @@ def test_batched_sweep_resumes_after_sigint_and_its_rows_equal_the_scalar_sweep(
     assert main([*args, "--batch", "3", "--resume", str(out)]) == 0
     assert f"({k} done before, {8 - k} to go)" in capsys.readouterr().out
     batched = json.loads((out / "sweep.json").read_text())["rows"]
-    assert main([*args, "--out", str(tmp_path / "scalar")]) == 0
+    assert main([*args, "--batch", "1", "--out", str(tmp_path / "scalar")]) == 0
     scalar = json.loads((tmp_path / "scalar" / "sweep.json").read_text())["rows"]
     strip = lambda rows: [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]  # noqa: E731
     assert strip(batched) == strip(scalar)
+    # the 8 points as one batch of lanes (the default's form for 8 or more): the same rows again
+    assert main([*args, "--batch", "8", "--out", str(tmp_path / "lanes")]) == 0
+    lanes = json.loads((tmp_path / "lanes" / "sweep.json").read_text())["rows"]
+    assert strip(lanes) == strip(scalar)
 
 
 def test_batch_n_refuses_a_rig_with_a_board_type_that_cannot_batch_in_one_line(tmp_path: Path, capsys,
