@@ -41,6 +41,11 @@ INSTANCE_MIB = 4.0
 #: the most instances ``--batch auto`` puts in one batch: past a few hundred lanes a tick's fixed cost
 #: (≈ 2 ms) is paid back and the memory grows on (docs/benchmarks.md, "Batched lockstep")
 AUTO_MAX = 256
+#: ``--batch auto`` aims at this many batches per worker (progress, and what a Ctrl-C loses)
+BATCHES_PER_WORKER = 4
+#: ... but no batch smaller than this while a worker has as many points: a batch of lanes costs
+#: ≈ 1.8 ms a tick + ≈ 20 µs an instance (docs/benchmarks.md), 56 µs an instance-tick at 50 lanes
+AUTO_MIN = 32
 #: the fewest instances run as one rig of lanes: below it the lanes' fixed cost per tick (≈ 2 ms, against
 #: ≈ 0.6 ms for a scalar tick) makes a batch slower than its runs one by one; smaller batches run as
 #: scalar instances (docs/benchmarks.md, "Batched lockstep")
@@ -95,11 +100,13 @@ def choose_batch(requested: int | None, points: int, workers: int, rig: RigSpec,
     """The batch size for ``points`` runs over ``workers`` workers, and a note (or ``None``).
 
     ``requested``: ``--batch N`` (refused with :class:`BatchError` for a rig that cannot batch,
-    when N > 1) or ``None`` for auto: 1 for a rig that cannot batch (the note says why), else as
-    many as keep every worker busy (points / workers), at most :data:`AUTO_MAX` and at most what
-    half the available memory holds at :data:`INSTANCE_MIB` per instance per worker. A batch of
-    :data:`LANES_MIN` or more runs as one rig of lanes, a smaller one as scalar instances
-    (:func:`simulate_batch`)."""
+    when N > 1) or ``None`` for auto: 1 for a rig that cannot batch (the note says why), else
+    :data:`BATCHES_PER_WORKER` batches per worker (so the progress bar moves and a Ctrl-C loses at
+    most a quarter of a worker's points) but no smaller than :data:`AUTO_MIN` while a worker has
+    that many points (below it a batch of lanes pays its fixed cost per tick for too few), at most
+    :data:`AUTO_MAX` and at most what half the available memory holds at :data:`INSTANCE_MIB` per
+    instance per worker. A batch of :data:`LANES_MIN` or more runs as one rig of lanes, a smaller
+    one as scalar instances (:func:`simulate_batch`)."""
     blockers = batch_blockers(rig)
     if requested is not None:
         if requested > 1 and blockers:
@@ -111,7 +118,8 @@ def choose_batch(requested: int | None, points: int, workers: int, rig: RigSpec,
     mem = available_mib() if memory_mib is None else memory_mib
     by_memory = max(1, int(0.5 * mem / INSTANCE_MIB / max(1, workers)))
     per_worker = max(1, -(-points // max(1, workers)))
-    return max(1, min(AUTO_MAX, by_memory, per_worker)), None
+    size = max(-(-per_worker // BATCHES_PER_WORKER), min(AUTO_MIN, per_worker))
+    return max(1, min(AUTO_MAX, by_memory, size)), None
 
 
 def split(items: Sequence[Any], size: int) -> list[list[Any]]:

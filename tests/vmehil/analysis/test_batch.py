@@ -165,9 +165,11 @@ def test_batch_size_parsing_and_auto_choice() -> None:
         with pytest.raises(BatchError):
             parse_batch(bad)
     rig = task_rig(rig_text("jpl-arm"), "jpl-arm", 1)
-    # 400 points on 2 workers, plenty of memory: 200 each keeps both busy; 2 000 points: capped at 256
-    assert choose_batch(None, 400, 2, rig, memory_mib=64_000) == (200, None)
-    assert choose_batch(None, 2000, 2, rig, memory_mib=64_000) == (256, None)
+    # 400 points on 2 workers, plenty of memory: 4 batches of 50 each; 4 000 points: capped at 256;
+    # 40 points: 20 each (4 batches would be 5 lanes each, below 32)
+    assert choose_batch(None, 400, 2, rig, memory_mib=64_000) == (50, None)
+    assert choose_batch(None, 4000, 2, rig, memory_mib=64_000) == (256, None)
+    assert choose_batch(None, 40, 2, rig, memory_mib=64_000) == (20, None)
     # 10 points on 2 workers: 5 each keeps both busy
     assert choose_batch(None, 10, 2, rig, memory_mib=64_000) == (5, None)
     # 80 MiB free: half of it at 4 MiB an instance, over 2 workers = 5
