@@ -229,35 +229,67 @@ def simulate_batch(runs: Sequence[Any], *, traces: bool = False, stop: Callable[
                    window: int = WINDOW_TICKS, lanes: bool = True,
                    report: Any = None) -> list[dict[str, Any]]:
     """:func:`~vmehil.analysis.simulate.simulate`'s result for each of ``runs``: as one rig of
-    lanes when there are at least :data:`LANES_MIN` and they have a lane form (``lanes``;
-    :func:`vmehil.analysis.lane_batch.simulate_lanes`),
-    else as scalar instances in lockstep (:func:`run_lockstep`, and ``report.scalar_reason`` says
-    why). The results are the same either way, bit for bit; every run is closed however this ends.
+    lanes when there are at least :data:`LANES_MIN` without injected faults and they have a lane
+    form (``lanes``; :func:`vmehil.analysis.lane_batch.simulate_lanes`; the faulted ones run beside
+    them as scalar instances), else as scalar instances in lockstep (:func:`run_lockstep`, and
+    ``report.scalar_reason`` says why). The results are the same either way, bit for bit; every run
+    is closed however this ends.
     ``report``: a :class:`~vmehil.analysis.lane_batch.LaneReport` to fill (lanes, re-runs)."""
     from vmehil.analysis.lane_batch import LaneReport, simulate_lanes
 
     rep = report if report is not None else LaneReport(len(runs))
-    if lanes and len(runs) >= LANES_MIN:
+    # instances with injected faults have no lane form: they run as scalar instances beside the lanes
+    faulted = [i for i, r in enumerate(runs) if getattr(r, "faults", ())]
+    laned = [i for i in range(len(runs)) if i not in set(faulted)]
+    out: list[dict[str, Any] | None] = [None] * len(runs)
+    scalar = list(range(len(runs)))
+    if lanes and len(laned) >= LANES_MIN:
         try:
-            return simulate_lanes(runs, traces=traces, stop=stop, progress=progress, report=rep)
+            sub = LaneReport(len(laned))
+            try:
+                got = simulate_lanes([runs[i] for i in laned], traces=traces, stop=stop, progress=progress,
+                                     report=sub)
+            except BaseException as e:
+                if not isinstance(e, NotImplementedError):  # an interruption: the faulted ones never ran
+                    for i in faulted:
+                        with contextlib.suppress(Exception):
+                            runs[i].close()
+                raise
+            for i, g in zip(laned, got, strict=True):
+                out[i] = g
+            rep.vector_ticks = sub.vector_ticks
+            rep.ejected.update({laned[b]: why for b, why in sub.ejected.items()})
+            rep.ejected_tick.update({laned[b]: k for b, k in sub.ejected_tick.items()})
+            scalar = faulted
+            if faulted:
+                rep.scalar_reason = f"{len(faulted)} instance(s) with injected faults (--fault) ran as scalar instances"
         except NotImplementedError as e:
             rep.scalar_reason = str(e)
-            spent, runs = runs, []
+            spent = [runs[i] for i in laned]
+            fresh = list(runs)
             try:
-                for r in spent:  # a board may have been taken over by the crate of lanes: from scratch
-                    runs.append(r.fresh())
+                for i in laned:  # a board may have been taken over by the crate of lanes: from scratch
+                    fresh[i] = runs[i].fresh()
             finally:
                 for r in spent:
                     with contextlib.suppress(Exception):
                         r.close()
+            runs = fresh
+    elif faulted and lanes:
+        rep.scalar_reason = f"fewer than {LANES_MIN} instances without injected faults"
+    elif lanes:
+        rep.scalar_reason = f"fewer than {LANES_MIN} instances"
+    todo = [runs[i] for i in scalar]
     try:
-        run_lockstep(runs, stop=stop, progress=progress, window=window)
-        summaries = [r.summarize() for r in runs]
+        run_lockstep(todo, stop=stop, progress=progress, window=window)
+        summaries = [r.summarize() for r in todo]
     finally:
-        for r in runs:
+        for r in todo:
             with contextlib.suppress(Exception):
                 r.close()
-    return [r.figures(s, traces=traces) for r, s in zip(runs, summaries, strict=True)]
+    for i, r, sm in zip(scalar, todo, summaries, strict=True):
+        out[i] = r.figures(sm, traces=traces)
+    return [o for o in out if o is not None]
 
 
 def cpu_workers(jobs: int | None) -> int:

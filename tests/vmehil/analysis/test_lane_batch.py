@@ -144,3 +144,21 @@ def test_simulate_lanes_raises_the_interrupt_after_the_stop() -> None:
 
     with pytest.raises(KeyboardInterrupt):
         simulate_lanes(runs, stop=stop)
+
+
+def test_instances_with_faults_run_scalar_beside_the_lanes_of_the_others() -> None:
+    jps = _instances()[:2] * 4  # eight without faults: lanes; two more with their own faults: scalar
+    faults = ("adc_noise@0.1:joint=j1,rms_v=0.02",)
+    runs = [SimRun(jp, False, SIM) for jp in jps]
+    runs[3:3] = [SimRun(jps[0], False, SIM, faults=faults), SimRun(jps[1], False, SIM, faults=faults)]
+    report = LaneReport(len(runs))
+    got = simulate_batch(runs, report=report)
+    assert report.vector_ticks > 0 and "injected faults" in str(report.scalar_reason)
+    want = [simulate(jp, False, SIM, traces=False) for jp in jps[:3]]
+    faulted = SimRun(jps[0], False, SIM, faults=faults)
+    with faulted.loop.armed():
+        faulted.runner.run(faulted.n_ticks, stop=faulted.halt_when(None))
+    want_faulted = faulted.figures(faulted.summarize(), traces=False)
+    faulted.close()
+    assert [json.dumps(g, sort_keys=True) for g in got[:3]] == [json.dumps(w, sort_keys=True) for w in want]
+    assert json.dumps(got[3], sort_keys=True) == json.dumps(want_faulted, sort_keys=True)
