@@ -10,10 +10,11 @@ the default rig jpl-arm, seed 0, ``--quiet``, outputs in a temporary folder), as
   (the runs one after the other in one process) next to it;
 * ``calibrate all --auto`` (adc, dac, encoder, amplifier, pot; reference fixture);
 * batched lockstep (issue 34, ``--batch``): the same sweep with ``--batch auto`` (the default: batches
-  of lanes) beside ``--batch 1``; a Monte Carlo of a 10 s hold (``--vary coulomb=±20%``) with
-  ``--batch auto`` over 400 samples (40 with ``--quick``) and ``--batch 1`` over 40 (4), each scaled to
-  10 000 samples (a batch of lanes costs the same per sample at 200 lanes per worker as in the full
-  study's batches of 256; a scalar run costs the same each); the peak resident memory of one process
+  of lanes) beside ``--batch 1``; a Monte Carlo of a 10 s hold (``--vary coulomb=±20%``) over 512
+  samples in batches of 256 (the size ``--batch auto`` gives a 10 000-sample study on 2 cores; 64 in
+  batches of 32 with ``--quick``) and with ``--batch 1`` over 40 (8), each scaled to 10 000 samples
+  (per sample, a batch costs what the full study's batches of the same size cost; a scalar run costs
+  the same each); the peak resident memory of one process
   running B = 400 instances as one rig of lanes to the end (40 with ``--quick``, scaled ×10); and a
   single run's speed (``simulate``, jpl-arm, 10 s hold, in this process: simulated seconds per CPU
   second), the scalar path every single run takes;
@@ -151,13 +152,15 @@ def batch_figures(say: Any, d: Path, grid: str, points: int, quick: bool) -> Non
     scale = 400 / points
     record(Goal(f"tune sweep --batch auto, 400 points{'' if scale == 1 else f' (scaled ×{scale:g})'}", b_s * scale,
                 BATCH_SWEEP_GOAL_S, "s", "at_most"))
-    samples = 40 if quick else 400  # lanes: a batch per worker of 20 (200)
-    scalar_samples = samples // 10
+    # lanes: one batch of 256 per worker, the size --batch auto gives a 10 000-sample study on 2 cores
+    # (its 5 000 points per worker in batches of at most 256); --quick: batches of 32
+    samples, size = (64, 32) if quick else (512, 256)
+    scalar_samples = 8 if quick else 40
     mc = ["tune", "sweep", *MC_VARY, "--quiet"]
-    mb_s, _ = timed([*mc, "--samples", str(samples), "--batch", "auto", "--out", str(d / "mcb")], cwd=d)
+    mb_s, _ = timed([*mc, "--samples", str(samples), "--batch", str(size), "--out", str(d / "mcb")], cwd=d)
     mb_cpu = last_cpu_s()
     ms_s, _ = timed([*mc, "--samples", str(scalar_samples), "--batch", "1", "--out", str(d / "mcs")], cwd=d)
-    say(f"  Monte Carlo, 10 s hold: --batch auto, {samples} samples {mb_s:.2f} s (CPU {mb_cpu:.1f} s); "
+    say(f"  Monte Carlo, 10 s hold: --batch {size}, {samples} samples {mb_s:.2f} s (CPU {mb_cpu:.1f} s); "
         f"--batch 1, {scalar_samples} samples {ms_s:.2f} s (CPU {last_cpu_s():.1f} s) "
         f"(→ {mb_s * 10_000 / samples / 60:.1f} / {ms_s * 10_000 / scalar_samples / 60:.0f} min for 10 000)")
     record(Goal(f"Monte Carlo 10 000 samples of a 10 s hold (scaled ×{10_000 / samples:g})",
