@@ -200,6 +200,20 @@ def _worst_lanes(bad: np.ndarray, off: np.ndarray, tol: np.ndarray | float,
     return hit, worst
 
 
+Verdict = tuple[str, np.ndarray, np.ndarray, "np.ndarray | float", Callable[[int], str]]
+"""What one cross-check found this tick: its cause, the joints beyond their limits, how far off
+each joint is and its limit, and the detail of a joint's trip."""
+
+
+def _trip(v: Verdict | None) -> Trip | None:
+    """A check's verdict for one instance: the trip of its joint furthest beyond its limit."""
+    if v is None:
+        return None
+    cause, bad, off, tol, detail = v
+    i = _worst(bad, off, tol)
+    return None if i is None else Trip(cause, i, detail(i))
+
+
 LaneTrip = tuple[str, np.ndarray, np.ndarray, Callable[[int], str]]
 """A cross-check in lanes: its cause, per lane whether it tripped, per lane the flat index of the
 joint, and the scalar trip's detail for a flat joint index."""
@@ -357,6 +371,15 @@ class CrossChecks:
         ``sample_time_s``: when the measurement was taken (s, the plant's time): given by a
         free-running plant, whose answers may skip or repeat periods; ``None``: one period per
         tick (lockstep, a real rig's sampled loop)."""
+        self._begin_tick(m)
+        stale = _trip(self._stale(m, np.asarray(theta_d, float), np.asarray(omega_d, float)))
+        illegal = self._illegal(m)
+        if not self.config.cross_checks:
+            return illegal or stale
+        return (illegal or _trip(self._current(m)) or _trip(self._velocity(m, sample_time_s))
+                or _trip(self._position(m)) or stale)
+
+    def _begin_tick(self, m: Any) -> None:
         generation = getattr(self.io, "calibration_generation", 0)
         if generation != self._generation:  # a new calibration: readings convert differently now
             self._generation = generation
@@ -368,11 +391,6 @@ class CrossChecks:
             self._enc0 = np.where(self.both, enc0, np.nan)
             self._filled = 0
         self.limit("stale_travel_rad")  # the limits in force, resolved once for this tick's checks
-        stale = self._stale(m, np.asarray(theta_d, float), np.asarray(omega_d, float))
-        illegal = self._illegal(m)
-        if not self.config.cross_checks:
-            return illegal or stale
-        return illegal or self._current(m) or self._velocity(m, sample_time_s) or self._position(m) or stale
 
     def _illegal(self, m: Any) -> Trip | None:
         """ILLEGAL seen in ``encoder_illegal_ticks`` of the last ``encoder_illegal_window_ticks``."""
@@ -400,7 +418,10 @@ class CrossChecks:
                     f"lost) in {most} of the last {window} ticks (limit {self.config.encoder_illegal_ticks}): "
                     "a noisy or failing encoder, or a shaft faster than the decoder samples")
 
-    def _position(self, m: Any) -> Trip | None:
+    # Each cross-check below updates its state with the tick's readings and gives its verdict (the
+    # joints beyond their limits, how far off, the limits, the text of a joint's trip); one joint's
+    # worst in a scalar loop (_trip), each lane's in a loop of lanes (_lane_trips).
+    def _position(self, m: Any) -> Verdict | None:
         if not self.both.any():
             return None
         d_pot = m.theta_pot - self._pot0
@@ -408,14 +429,13 @@ class CrossChecks:
         travel = np.fmax(np.abs(d_pot), np.abs(d_enc))
         tol = self._limits["position_tolerance_rad"] + self.config.position_tolerance_fraction * travel
         off = np.abs(d_enc - d_pot)
-        i = _worst(self._over("position", off, tol, self.both), off, tol)
-        if i is None:
-            return None
-        return Trip("position_mismatch", i,
-                    f"pot and encoder disagree by {np.degrees(off[i]):.2f}° (limit {np.degrees(tol[i]):.2f}°): "
-                    f"since the reference the pot moved {_deg(d_pot[i])}, the encoder {_deg(d_enc[i])}")
 
-    def _velocity(self, m: Any, t_s: float | None = None) -> Trip | None:
+        def detail(i: int) -> str:
+            return (f"pot and encoder disagree by {np.degrees(off[i]):.2f}° (limit {np.degrees(tol[i]):.2f}°): "
+                    f"since the reference the pot moved {_deg(d_pot[i])}, the encoder {_deg(d_enc[i])}")
+        return "position_mismatch", self._over("position", off, tol, self.both), off, tol, detail
+
+    def _velocity(self, m: Any, t_s: float | None = None) -> Verdict | None:
         if not self.has_tach.any():
             return None
         tach = np.where(self.has_tach, m.omega_tach, 0.0)
@@ -445,16 +465,15 @@ class CrossChecks:
         off = np.abs(v_tach - v_ref)
         tol = (self._limits["tach_dead_band_rad_s"] + self._limits["velocity_tolerance_rad_s"]
                + self.config.velocity_tolerance_fraction * np.fmax(np.abs(v_ref), np.abs(v_tach)))
-        i = _worst(self._over("velocity", off, tol, self.has_tach), off, tol)
-        if i is None:
-            return None
-        src = "encoder" if self.has_enc[i] else "pot"
-        return Trip("velocity_mismatch", i,
-                    f"tachometer and {src} disagree: over the last {window_s * 1e3:.0f} ms the tach averaged "
+
+        def detail(i: int) -> str:
+            src = "encoder" if self.has_enc[i] else "pot"
+            return (f"tachometer and {src} disagree: over the last {window_s * 1e3:.0f} ms the tach averaged "
                     f"{v_tach[i]:+.3f} rad/s, the {src} moved at {v_ref[i]:+.3f} rad/s "
                     f"(limit ±{tol[i]:.3f} rad/s, dead band included)")
+        return "velocity_mismatch", self._over("velocity", off, tol, self.has_tach), off, tol, detail
 
-    def _current(self, m: Any) -> Trip | None:
+    def _current(self, m: Any) -> Verdict | None:
         if not self.has_imon.any():
             return None
         commanded = np.asarray(self.io.last_current_a, float)
@@ -467,32 +486,30 @@ class CrossChecks:
             off = np.maximum(np.maximum(lo - m.current, m.current - hi), 0.0)
             largest = np.maximum(np.abs(lo), np.abs(hi))
         tol = self._limits["current_tolerance_a"] + self._limits["current_tolerance_fraction"] * largest
-        self._cur_over = np.where(self._over("current", off, tol, self.has_imon), self._cur_over + 1, 0)
-        i = _worst(self._cur_over >= max(1, int(self.config.current_mismatch_ticks)), off, tol)
-        if i is None:
-            return None
-        return Trip("current_mismatch", i,
-                    f"current monitor reads {m.current[i]:+.3f} A, {commanded[i]:+.3f} A commanded "
-                    f"(limit ±{tol[i]:.3f} A) for {self._cur_over[i]} ticks: no current reaches the motor?")
+        cur_over = self._cur_over = np.where(self._over("current", off, tol, self.has_imon), self._cur_over + 1, 0)
 
-    def _stale(self, m: Any, theta_d: np.ndarray, omega_d: np.ndarray) -> Trip | None:
+        def detail(i: int) -> str:
+            return (f"current monitor reads {m.current[i]:+.3f} A, {commanded[i]:+.3f} A commanded "
+                    f"(limit ±{tol[i]:.3f} A) for {cur_over[i]} ticks: no current reaches the motor?")
+        return "current_mismatch", cur_over >= max(1, int(self.config.current_mismatch_ticks)), off, tol, detail
+
+    def _stale(self, m: Any, theta_d: np.ndarray, omega_d: np.ndarray) -> Verdict:
         cfg = self.config
         reading = np.where(self.has_pot, m.theta_pot, m.theta_enc)
         band = cfg.stale_band_lsb * self.stale_rad
         step = np.zeros(self.n) if self._last_theta_d is None else np.abs(theta_d - self._last_theta_d)
         self._last_theta_d = theta_d.copy()
         keep = (np.abs(reading - self._stale_at) <= band) & (np.abs(omega_d) > MOVING_RAD_S)
-        self._stale_count = np.where(keep, self._stale_count + 1, 0)
-        self._stale_travel = np.where(keep, self._stale_travel + step, 0.0)
+        count = self._stale_count = np.where(keep, self._stale_count + 1, 0)
+        travel = self._stale_travel = np.where(keep, self._stale_travel + step, 0.0)
         self._stale_at = np.where(keep, self._stale_at, reading)
-        bad = (self._stale_count >= cfg.stale_ticks) & (self._stale_travel >= self._limits["stale_travel_rad"])
-        i = _worst(bad, self._stale_travel, 0.0)
-        if i is None:
-            return None
-        src = "pot" if self.has_pot[i] else "encoder"
-        return Trip("stale_sensor", i,
-                    f"{src} reading within ±{cfg.stale_band_lsb:g} steps for {self._stale_count[i]} ticks while the "
-                    f"target moved {np.degrees(self._stale_travel[i]):.2f}°")
+        bad = (count >= cfg.stale_ticks) & (travel >= self._limits["stale_travel_rad"])
+
+        def detail(i: int) -> str:
+            src = "pot" if self.has_pot[i] else "encoder"
+            return (f"{src} reading within ±{cfg.stale_band_lsb:g} steps for {count[i]} ticks while the "
+                    f"target moved {np.degrees(travel[i]):.2f}°")
+        return "stale_sensor", bad, travel, 0.0, detail
 
     # --- per tick, in lanes (batched lockstep) -------------------------------------------------
     def check_lanes(self, m: Any, theta_d: np.ndarray, omega_d: np.ndarray,
@@ -501,20 +518,21 @@ class CrossChecks:
         updates, elementwise, then per lane the checks that failed, in :meth:`check`'s order (the
         first is the lane's cause; its scalar run stops there). A lane that trips no longer counts:
         the caller ejects it, so it does not matter that its later checks still updated its state."""
-        generation = getattr(self.io, "calibration_generation", 0)
-        if generation != self._generation:
-            self._generation = generation
-            self._pot0 = np.where(self.both, m.theta_pot, np.nan)
-            homed = getattr(self.io, "homed", None)
-            enc0 = m.theta_enc if homed is None else np.where(homed, m.theta_pot, m.theta_enc)
-            self._enc0 = np.where(self.both, enc0, np.nan)
-            self._filled = 0
-        self.limit("stale_travel_rad")
-        stale = self._stale_lanes(m, np.asarray(theta_d, float), np.asarray(omega_d, float))
+        self._begin_tick(m)
+        stale = self._lane_trips(self._stale(m, np.asarray(theta_d, float), np.asarray(omega_d, float)))
         trips = self._illegal_lanes(m)
         if self.config.cross_checks:
-            trips += self._current_lanes(m) + self._velocity_lanes(m, sample_time_s) + self._position_lanes(m)
+            trips += (self._lane_trips(self._current(m)) + self._lane_trips(self._velocity(m, sample_time_s))
+                      + self._lane_trips(self._position(m)))
         return trips + stale
+
+    def _lane_trips(self, v: Verdict | None) -> list[LaneTrip]:
+        """A check's verdict per lane: the lanes it trips and each one's worst joint."""
+        if v is None or not v[1].any():
+            return []
+        cause, bad, off, tol, detail = v
+        hit, worst = _worst_lanes(bad, off, tol, self.lane_size)
+        return [(cause, hit, worst, detail)]
 
     def _illegal_lanes(self, m: Any) -> list[LaneTrip]:
         """In lanes a decoder's ILLEGAL flag already ejected its lane (its scalar run clears the flag:
@@ -527,112 +545,6 @@ class CrossChecks:
         worst = np.argmax(hit, axis=1) + np.arange(self.lane_size) * hit.shape[1]
         return [("encoder_illegal", np.asarray(hit.any(axis=1)), worst,
                  lambda i: "the quadrature decoder flagged an illegal transition")]
-
-    def _position_lanes(self, m: Any) -> list[LaneTrip]:
-        if not self.both.any():
-            return []
-        d_pot = m.theta_pot - self._pot0
-        d_enc = m.theta_enc - self._enc0
-        travel = np.fmax(np.abs(d_pot), np.abs(d_enc))
-        tol = self._limits["position_tolerance_rad"] + self.config.position_tolerance_fraction * travel
-        off = np.abs(d_enc - d_pot)
-        bad = self._over("position", off, tol, self.both)
-        if not bad.any():
-            return []
-        hit, worst = _worst_lanes(bad, off, tol, self.lane_size)
-
-        def detail(i: int) -> str:
-            return (f"pot and encoder disagree by {np.degrees(off[i]):.2f}° (limit {np.degrees(tol[i]):.2f}°): "
-                    f"since the reference the pot moved {_deg(d_pot[i])}, the encoder {_deg(d_enc[i])}")
-        return [("position_mismatch", hit, worst, detail)]
-
-    def _velocity_lanes(self, m: Any, t_s: float | None = None) -> list[LaneTrip]:
-        if not self.has_tach.any():
-            return []
-        tach = np.where(self.has_tach, m.omega_tach, 0.0)
-        ref = np.where(self.has_enc, m.theta_enc, m.theta_pot)
-        w = self.window
-        dt = self.period_s if t_s is None else t_s - self._last_t
-        if t_s is not None and self._filled and dt <= 0.0:
-            return []
-        if self._filled == 0:
-            self._tach_int[:] = 0.0
-        else:
-            self._tach_int += 0.5 * dt * (tach + self._last_tach)
-        self._last_tach = tach
-        self._slot = (self._slot + 1) % (w + 1)
-        self._ring_ref[self._slot] = ref
-        self._ring_int[self._slot] = self._tach_int
-        if t_s is not None:
-            self._last_t = self._ring_t[self._slot] = t_s
-        self._filled = min(self._filled + 1, w + 1)
-        if self._filled <= w:
-            return []
-        old = (self._slot + 1) % (w + 1)
-        window_s = w * self.period_s if t_s is None else t_s - self._ring_t[old]
-        v_ref = (ref - self._ring_ref[old]) / window_s
-        v_tach = (self._tach_int - self._ring_int[old]) / window_s
-        off = np.abs(v_tach - v_ref)
-        tol = (self._limits["tach_dead_band_rad_s"] + self._limits["velocity_tolerance_rad_s"]
-               + self.config.velocity_tolerance_fraction * np.fmax(np.abs(v_ref), np.abs(v_tach)))
-        bad = self._over("velocity", off, tol, self.has_tach)
-        if not bad.any():
-            return []
-        hit, worst = _worst_lanes(bad, off, tol, self.lane_size)
-
-        def detail(i: int) -> str:
-            src = "encoder" if self.has_enc[i] else "pot"
-            return (f"tachometer and {src} disagree: over the last {window_s * 1e3:.0f} ms the tach averaged "
-                    f"{v_tach[i]:+.3f} rad/s, the {src} moved at {v_ref[i]:+.3f} rad/s "
-                    f"(limit ±{tol[i]:.3f} rad/s, dead band included)")
-        return [("velocity_mismatch", hit, worst, detail)]
-
-    def _current_lanes(self, m: Any) -> list[LaneTrip]:
-        if not self.has_imon.any():
-            return []
-        commanded = np.asarray(self.io.last_current_a, float)
-        if self._cur_history.maxlen == 1:
-            off = np.abs(m.current - commanded)
-            largest = np.abs(commanded)
-        else:
-            self._cur_history.append(commanded.copy())
-            lo, hi = np.min(self._cur_history, axis=0), np.max(self._cur_history, axis=0)
-            off = np.maximum(np.maximum(lo - m.current, m.current - hi), 0.0)
-            largest = np.maximum(np.abs(lo), np.abs(hi))
-        tol = self._limits["current_tolerance_a"] + self._limits["current_tolerance_fraction"] * largest
-        self._cur_over = np.where(self._over("current", off, tol, self.has_imon), self._cur_over + 1, 0)
-        bad = self._cur_over >= max(1, int(self.config.current_mismatch_ticks))
-        if not bad.any():
-            return []
-        hit, worst = _worst_lanes(bad, off, tol, self.lane_size)
-        cur_over = self._cur_over.copy()
-
-        def detail(i: int) -> str:
-            return (f"current monitor reads {m.current[i]:+.3f} A, {commanded[i]:+.3f} A commanded "
-                    f"(limit ±{tol[i]:.3f} A) for {cur_over[i]} ticks: no current reaches the motor?")
-        return [("current_mismatch", hit, worst, detail)]
-
-    def _stale_lanes(self, m: Any, theta_d: np.ndarray, omega_d: np.ndarray) -> list[LaneTrip]:
-        cfg = self.config
-        reading = np.where(self.has_pot, m.theta_pot, m.theta_enc)
-        band = cfg.stale_band_lsb * self.stale_rad
-        step = np.zeros(self.n) if self._last_theta_d is None else np.abs(theta_d - self._last_theta_d)
-        self._last_theta_d = theta_d.copy()
-        keep = (np.abs(reading - self._stale_at) <= band) & (np.abs(omega_d) > MOVING_RAD_S)
-        self._stale_count = np.where(keep, self._stale_count + 1, 0)
-        self._stale_travel = np.where(keep, self._stale_travel + step, 0.0)
-        self._stale_at = np.where(keep, self._stale_at, reading)
-        bad = (self._stale_count >= cfg.stale_ticks) & (self._stale_travel >= self._limits["stale_travel_rad"])
-        if not bad.any():
-            return []
-        hit, worst = _worst_lanes(bad, self._stale_travel, 0.0, self.lane_size)
-        count, travel = self._stale_count.copy(), self._stale_travel.copy()
-
-        def detail(i: int) -> str:
-            src = "pot" if self.has_pot[i] else "encoder"
-            return (f"{src} reading within ±{cfg.stale_band_lsb:g} steps for {count[i]} ticks while the "
-                    f"target moved {np.degrees(travel[i]):.2f}°")
-        return [("stale_sensor", hit, worst, detail)]
 
     def write_lane(self, lane: int, checks: CrossChecks) -> None:
         """Put lane ``lane``'s state of these lane cross-checks into ``checks`` (its scalar ones)."""
