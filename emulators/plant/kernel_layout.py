@@ -4,6 +4,10 @@ rows of the parameter matrix ``P``, the flags ``F`` and the outputs ``O``, ``B``
 from __future__ import annotations
 
 import zlib
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
 
 from emulators.plant.amplifier import FAULT_COMPLIANCE, FAULT_OVERCURRENT, FAULT_THERMAL
 
@@ -39,3 +43,24 @@ def _layout_id() -> int:
 
 
 LAYOUT_ID = _layout_id()
+
+
+def kernel_inputs(prev: Any, cmd: Any, noise: Mapping[str, Any], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The kernel's command and noise inputs for ``n`` joints: ``cmd_f`` [2, 2, n] (the previous and
+    this period's amplifier command volts and PWM duty), ``cmd_b`` [2, 2, n] (their PWM direction and
+    brake) and this period's draws of the ``pot``, ``tach`` and ``imon`` noise streams [3, n]."""
+    cmd_f = np.empty((2, 2, n))
+    cmd_f[0, 0] = prev.amp_command_v
+    cmd_f[0, 1] = prev.pwm_duty
+    cmd_f[1, 0] = cmd.amp_command_v
+    cmd_f[1, 1] = cmd.pwm_duty
+    cmd_b = np.empty((2, 2, n), dtype=bool)
+    cmd_b[0, 0] = prev.pwm_direction
+    cmd_b[0, 1] = prev.brake
+    cmd_b[1, 0] = cmd.pwm_direction
+    cmd_b[1, 1] = cmd.brake
+    draws = np.empty((3, n))
+    draws[0] = noise["pot"].draw()
+    draws[1] = noise["tach"].draw()
+    draws[2] = noise["imon"].draw()
+    return cmd_f, cmd_b, draws

@@ -210,20 +210,7 @@ class LaneStepper:
         if has_brakes:
             brakes.finish(n_sub)
         # ---- the kernel's inputs, every lane side by side
-        cmd_f = np.empty((2, 2, N))
-        cmd_f[0, 0] = prev.amp_command_v
-        cmd_f[0, 1] = prev.pwm_duty
-        cmd_f[1, 0] = cmd.amp_command_v
-        cmd_f[1, 1] = cmd.pwm_duty
-        cmd_b = np.empty((2, 2, N), dtype=bool)
-        cmd_b[0, 0] = prev.pwm_direction
-        cmd_b[0, 1] = prev.brake
-        cmd_b[1, 0] = cmd.pwm_direction
-        cmd_b[1, 1] = cmd.brake
-        noise = np.empty((3, N))
-        noise[0] = p._noise["pot"].draw()
-        noise[1] = p._noise["tach"].draw()
-        noise[2] = p._noise["imon"].draw()
+        cmd_f, cmd_b, noise = _k.kernel_inputs(prev, cmd, p._noise, N)
         X = p._bind_state()
         st = p.amp_state
         O = np.empty((_k.O_ROWS, N))

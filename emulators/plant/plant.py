@@ -896,20 +896,7 @@ class Plant(FaultInjectable):
             s = nxt
         if self.has_brakes:
             brakes.finish(n_sub)
-        cmd_f = np.empty((2, 2, n))
-        cmd_f[0, 0] = prev.amp_command_v
-        cmd_f[0, 1] = prev.pwm_duty
-        cmd_f[1, 0] = cmd.amp_command_v
-        cmd_f[1, 1] = cmd.pwm_duty
-        cmd_b = np.empty((2, 2, n), dtype=bool)
-        cmd_b[0, 0] = prev.pwm_direction
-        cmd_b[0, 1] = prev.brake
-        cmd_b[1, 0] = cmd.pwm_direction
-        cmd_b[1, 1] = cmd.brake
-        noise = np.empty((3, n))
-        noise[0] = self._noise["pot"].draw()
-        noise[1] = self._noise["tach"].draw()
-        noise[2] = self._noise["imon"].draw()
+        cmd_f, cmd_b, noise = _k.kernel_inputs(prev, cmd, self._noise, n)
         X = self._bind_state()
         st = self.amp_state
         O = np.empty((_k.O_ROWS, n))
