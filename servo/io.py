@@ -261,6 +261,8 @@ class JointIO:
         self._release_pending = False
         #: per joint: its holding brake's line is high (energised: released or releasing)
         self.brake_released = np.zeros(self.n, dtype=bool)
+        #: per joint of the rig its place in the per-joint arrays (in lanes: that joint of every lane)
+        self._joint_slot: list[int | slice] = list(range(self.n))
         #: per joint: it has a holding brake
         self.holding_brake_mask = np.zeros(self.n, dtype=bool)
         for i, _, _ in self._holding_brakes:
@@ -402,7 +404,7 @@ class JointIO:
         obj._scaling_key = None
         d = obj.__dict__  # the lane methods, chosen once (the scalar ones are untouched)
         d["read"], d["write_torque"] = obj._read_lanes, obj._write_torque_lanes
-        d["release_brakes"], d["engage_brakes"] = obj._release_brakes_lanes, obj._engage_brakes_lanes
+        obj._joint_slot = [slice(j, None, n) for j in range(n)]
         d["_stop_outputs"], d["verify_stopped"] = obj._stop_outputs_lanes, obj._verify_stopped_lanes
         for name in ("write_command_volts", "apply_calibration", "home_encoder", "set_sources", "set_pot_calibration"):
             d[name] = partial(_not_in_lanes, name)
@@ -510,70 +512,11 @@ class JointIO:
             self._toggle_watchdog()
         return current
 
-    def _release_brakes_lanes(self) -> None:
-        self._release_pending = False
-        for i, board, net in self._holding_brakes:
-            self.pio[board].set_line(net, True)
-            self._lane_rows(self.brake_released)[:, i] = True
-
-    def _engage_brakes_lanes(self) -> None:
-        self._release_pending = False
-        for i, board, net in self._holding_brakes:
-            self.pio[board].set_line(net, False)
-            self._lane_rows(self.brake_released)[:, i] = False
-
     def _stop_outputs_lanes(self, held: list[BaseException]) -> list[str]:
         """:meth:`_stop_outputs` in lanes: the same writes, every lane alike; the read-back per lane
         (:attr:`lane_stop_failures`; returned: what fails in any live lane)."""
-        failures: list[str] = []
-
-        def step(what: str, action: Callable[[], object]) -> None:
-            for _ in range(self.STOP_STEP_ATTEMPTS):
-                try:
-                    action()
-                    return
-                except INTERRUPTS as e:
-                    held.append(e)
-                except Exception as e:
-                    failures.append(f"{what}: {e}")
-                    return
-            failures.append(f"{what}: interrupted {self.STOP_STEP_ATTEMPTS} times")
-
-        def dac_zero(drv: Any) -> None:
-            drv.write_many({ch: 0.0 for ch in range(drv.CHANNELS)}, update=True)
-
-        def pwm_off(j: Any) -> None:
-            self._set_hbridge(j, 0.0)
-            self.pio[j.wiring["pwm"].board].pwm_enable(False)
-
-        def enable_low(j: Any) -> None:
-            self.pio[j.wiring["amp_enable"].board].set_line(j.net("amp_enable"), False)
-
-        def brake_low(i: int, board: str, net: str) -> None:
-            self.pio[board].set_line(net, False)
-            self._lane_rows(self.brake_released)[:, i] = False
-
-        self._release_pending = False
-        for i, board, net in self._holding_brakes:
-            step(f"{self.rig.joints[i].name}: holding brake", partial(brake_low, i, board, net))
-        for name, drv in self.dac.items():
-            step(name, partial(dac_zero, drv))
-        for j in self.rig.joints:
-            if "pwm" in j.wiring:
-                step(j.name, partial(pwm_off, j))
-            if "amp_enable" in j.wiring:
-                step(j.name, partial(enable_low, j))
-        step("watchdog line", self._stop_watchdog)
-        self.last_dac_volts[:] = 0.0
-        self.last_current_a[:] = 0.0
-        verified: list[str] = []
-        for _ in range(self.STOP_STEP_ATTEMPTS):
-            try:
-                verified = self.verify_stopped()
-                break
-            except INTERRUPTS as e:
-                held.append(e)
-                verified = ["the read-back was interrupted"]
+        failures = self._stop_writes(held)
+        verified = self._read_back(held)
         self.lane_stop_failures = [failures + [f for f in lane if f not in failures]
                                    for lane in self.lane_stop_failures]
         return failures + [f for f in verified if f not in failures]
@@ -948,14 +891,14 @@ class JointIO:
         self._release_pending = False
         for i, board, net in self._holding_brakes:
             self.pio[board].set_line(net, True)
-            self.brake_released[i] = True
+            self.brake_released[self._joint_slot[i]] = True
 
     def engage_brakes(self) -> None:
         """Drop every holding brake's line (the brake holds after its engage delay)."""
         self._release_pending = False
         for i, board, net in self._holding_brakes:
             self.pio[board].set_line(net, False)
-            self.brake_released[i] = False
+            self.brake_released[self._joint_slot[i]] = False
 
     def enable(self, on: bool = True) -> None:
         """Drive every amplifier enable line (and the PWM timers). Enabling starts the watchdog
@@ -1008,6 +951,13 @@ class JointIO:
         return failures
 
     def _stop_outputs(self, held: list[BaseException]) -> list[str]:
+        failures = self._stop_writes(held)
+        verified = self._read_back(held)
+        return failures + [f for f in verified if f not in failures]
+
+    def _stop_writes(self, held: list[BaseException]) -> list[str]:
+        """The stop's writes (brakes, DACs at 0 V, PWM off, enables low, the watchdog line low), each
+        made whatever the others do; what failed, one line each."""
         failures: list[str] = []
 
         def step(what: str, action: Callable[[], object]) -> None:
@@ -1036,7 +986,7 @@ class JointIO:
 
         def brake_low(i: int, board: str, net: str) -> None:
             self.pio[board].set_line(net, False)
-            self.brake_released[i] = False
+            self.brake_released[self._joint_slot[i]] = False
 
         self._release_pending = False
         for i, board, net in self._holding_brakes:  # first: the brakes start engaging at once
@@ -1051,15 +1001,16 @@ class JointIO:
         step("watchdog line", self._stop_watchdog)
         self.last_dac_volts[:] = 0.0
         self.last_current_a[:] = 0.0
-        verified: list[str] = []
-        for _ in range(self.STOP_STEP_ATTEMPTS):  # an interrupted read-back is read again
+        return failures
+
+    def _read_back(self, held: list[BaseException]) -> list[str]:
+        """:meth:`verify_stopped`, read again when a signal interrupts it."""
+        for _ in range(self.STOP_STEP_ATTEMPTS):
             try:
-                verified = self.verify_stopped()
-                break
+                return self.verify_stopped()
             except INTERRUPTS as e:
                 held.append(e)
-                verified = ["the read-back was interrupted"]
-        return failures + [f for f in verified if f not in failures]
+        return ["the read-back was interrupted"]
 
     def verify_stopped(self) -> list[str]:
         """Read back every actuator output: what is not provably safe, one line each.
