@@ -64,3 +64,40 @@ def kernel_inputs(prev: Any, cmd: Any, noise: Mapping[str, Any], n: int) -> tupl
     draws[1] = noise["tach"].draw()
     draws[2] = noise["imon"].draw()
     return cmd_f, cmd_b, draws
+
+
+def kernel_sensors(sensors_type: Any, O: np.ndarray, B: np.ndarray, events: Any, time_s: float, n: int,
+                   enabled: np.ndarray, amp_cause: np.ndarray, watchdog: Any, brake_engaged: np.ndarray) -> Any:
+    """The sensors (``sensors_type``: the plant's PlantSensors) of a period from the kernel's outputs
+    ``O``/``B`` for ``n`` joints: the sensor volts, fault lines, encoder ``events`` and switching, and
+    the truth the reports read (``enabled``: the enables the amplifiers obeyed, before their faults)."""
+    fault = B[B_FAULT]
+    truth = {
+        "time_s": np.full(n, time_s),
+        "theta_joint": O[O_THETA_J],
+        "omega_joint": O[O_OMEGA_J],
+        "theta_motor": O[O_THETA_M],
+        "omega_motor": O[O_OMEGA_M],
+        "current_a": O[O_CURRENT],
+        "motor_torque_nm": O[O_TORQUE],
+        "friction_torque_nm": O[O_FRICTION],
+        "stuck": B[B_STUCK],
+        "at_stop": B[B_AT_STOP].copy(),
+        "amp_thermal": O[O_THERMAL],
+        "amp_fault_cause": amp_cause.copy(),
+        "amp_enabled": enabled & ~fault,
+        "amp_watchdog_cause": watchdog.cause.copy(),
+        "amp_watchdog_tripped": watchdog.latched,
+        "encoder_x4": O[O_X4],
+        "brake_engaged": brake_engaged.copy(),
+    }
+    return sensors_type(
+        pot_v=O[O_POT],
+        tach_v=O[O_TACH],
+        imon_v=O[O_IMON],
+        amp_fault=fault,
+        encoder=events,
+        switching=B[B_SWITCHING],
+        switching_noise_v=O[O_SW_NOISE],
+        truth=truth,
+    )

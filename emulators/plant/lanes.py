@@ -253,36 +253,8 @@ class LaneStepper:
                 offsets = tuple(tuple(idx[b * n + j, :kb].tolist()) if kb > 0 else () for b, kb in enumerate(ks))
             events.append(QuadratureEvents(counts=counts[j], illegal=illegal[j], index_offsets=offsets,
                                            phase=phase[j]))
-        fault = Bo[_k.B_FAULT]
-        truth = {
-            "time_s": np.full(N, p.time_s),
-            "theta_joint": O[_k.O_THETA_J],
-            "omega_joint": O[_k.O_OMEGA_J],
-            "theta_motor": O[_k.O_THETA_M],
-            "omega_motor": O[_k.O_OMEGA_M],
-            "current_a": O[_k.O_CURRENT],
-            "motor_torque_nm": O[_k.O_TORQUE],
-            "friction_torque_nm": O[_k.O_FRICTION],
-            "stuck": Bo[_k.B_STUCK],
-            "at_stop": Bo[_k.B_AT_STOP].copy(),
-            "amp_thermal": O[_k.O_THERMAL],
-            "amp_fault_cause": st.cause.copy(),
-            "amp_enabled": wd.effective(new_enable) & ~fault,
-            "amp_watchdog_cause": wd.cause.copy(),
-            "amp_watchdog_tripped": wd.latched,
-            "encoder_x4": O[_k.O_X4],
-            "brake_engaged": brakes.engaged.copy(),
-        }
-        return self.sensors_type(
-            pot_v=O[_k.O_POT],
-            tach_v=O[_k.O_TACH],
-            imon_v=O[_k.O_IMON],
-            amp_fault=fault,
-            encoder=events,
-            switching=Bo[_k.B_SWITCHING],
-            switching_noise_v=O[_k.O_SW_NOISE],
-            truth=truth,
-        )
+        return _k.kernel_sensors(self.sensors_type, O, Bo, events, p.time_s, N, wd.effective(new_enable), st.cause, wd,
+                                 brakes.engaged)
 
     def _flag_keys(self, c: LaneKernelConsts) -> list[int]:
         """Per lane the index of its flag group."""

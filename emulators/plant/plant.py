@@ -931,37 +931,8 @@ class Plant(FaultInjectable):
                     cache.clear()
                 ev = cache[key] = QuadratureEvents(counts=key[0], illegal=key[1], phase=key[2])
             events.append(ev)
-        fault = B[_k.B_FAULT]
-        switching = B[_k.B_SWITCHING]
-        truth = {
-            "time_s": np.full(n, self.time_s),
-            "theta_joint": O[_k.O_THETA_J],
-            "omega_joint": O[_k.O_OMEGA_J],
-            "theta_motor": O[_k.O_THETA_M],
-            "omega_motor": O[_k.O_OMEGA_M],
-            "current_a": O[_k.O_CURRENT],
-            "motor_torque_nm": O[_k.O_TORQUE],
-            "friction_torque_nm": O[_k.O_FRICTION],
-            "stuck": B[_k.B_STUCK],
-            "at_stop": B[_k.B_AT_STOP].copy(),
-            "amp_thermal": O[_k.O_THERMAL],
-            "amp_fault_cause": st.cause.copy(),
-            "amp_enabled": wd.effective(new_enable) & ~fault,
-            "amp_watchdog_cause": wd.cause.copy(),
-            "amp_watchdog_tripped": wd.latched,
-            "encoder_x4": O[_k.O_X4],
-            "brake_engaged": brakes.engaged.copy(),
-        }
-        return PlantSensors(
-            pot_v=O[_k.O_POT],
-            tach_v=O[_k.O_TACH],
-            imon_v=O[_k.O_IMON],
-            amp_fault=fault,
-            encoder=events,
-            switching=switching,
-            switching_noise_v=O[_k.O_SW_NOISE],
-            truth=truth,
-        )
+        return _k.kernel_sensors(PlantSensors, O, B, events, self.time_s, n, wd.effective(new_enable), st.cause, wd,
+                                 brakes.engaged)
 
     def _drive(self, cmd: PlantCommand) -> AmpDrive:
         """The drive of ``cmd`` as the output stages obey it (watchdog-latched amplifiers off)."""
