@@ -183,7 +183,7 @@ class Recorder:
         if self.count <= self.rows:
             return {k: v[: self.count] for k, v in data.items()}
         start = self.count % self.rows
-        return {k: np.concatenate((v[start:], v[:start])) for k, v in self.data.items()}
+        return {k: np.concatenate((v[start:], v[:start])) for k, v in data.items()}
 
 
 class ServoLoop:

@@ -240,21 +240,14 @@ class DacDriver:
         # write_many in lanes: codes per lane (a lane a scalar driver would refuse is ejected,
         # the others written); ``clamped`` lists the channels clamped in some live lane, and
         # clamp_events counts per lane
-        codes: dict[int, Any] = {}
-        clamped: list[int] = []
-        events: Any = 0
-        for ch, v in commands.items():
-            codes[ch], c = self.code_for(ch, v)
-            events = events + c
-            if self._lanes.any(c):
-                clamped.append(ch)
+        codes, clamped, events = lane_codes(self.code_for, commands, self._lanes)
         data = _DATA_REGS
         for ch, code in codes.items():
             self.win.write(data[ch], code)
         if update and codes:
             self.update(codes)
         self.clamp_events = self.clamp_events + events
-        return DacWriteResult(codes, tuple(clamped), update and bool(codes))
+        return DacWriteResult(codes, clamped, update and bool(codes))
 
     def _lane_write_counts(self, channel: int, code: LaneValue, update: bool = True) -> None:
         self._check_channel(channel)
@@ -269,3 +262,19 @@ class DacDriver:
 
     def _lane_read_settling(self) -> LaneValue:
         return self.win.read_field("CSR", "SETTLING") != 0
+
+
+def lane_codes(code_for: Any, commands: Mapping[int, LaneValue],
+               lanes: LaneSet) -> tuple[dict[int, Any], tuple[int, ...], Any]:
+    """A DAC driver's ``write_many`` conversions in lanes: per channel the codes of
+    ``code_for(channel, volts)`` (which ejects the lanes a scalar driver would refuse), the channels
+    clamped in some live lane, and the clamps per lane (every DAC driver of lanes uses it)."""
+    codes: dict[int, Any] = {}
+    clamped: list[int] = []
+    events: Any = 0
+    for ch, v in commands.items():
+        codes[ch], c = code_for(ch, v)
+        events = events + c
+        if lanes.any(c):
+            clamped.append(ch)
+    return codes, tuple(clamped), events

@@ -37,7 +37,7 @@ from typing import Any, Literal
 import numpy as np
 
 from hal.adc_dac.calibration import Calibration
-from hal.adc_dac.dac import DacRangeError, DacWriteResult
+from hal.adc_dac.dac import DacRangeError, DacWriteResult, lane_codes
 from hal.adc_dac.vmivme4116_regs import VMI4116_CHANNELS, VMI4116_REGMAP
 from hal.board_types import ProbeReading
 from hal.lanes import LaneSet, LaneValue, stack
@@ -338,20 +338,13 @@ class VmiVme4116Driver:
         # write_many in lanes: codes per lane (a lane a scalar driver would refuse is ejected, the
         # others written); ``clamped`` lists the channels clamped in some live lane, and
         # clamp_events counts per lane
-        codes: dict[int, Any] = {}
-        clamped: list[int] = []
-        events: Any = 0
-        for ch, v in commands.items():
-            codes[ch], c = self.code_for(ch, v)
-            events = events + c
-            if self._lanes.any(c):
-                clamped.append(ch)
+        codes, clamped, events = lane_codes(self.code_for, commands, self._lanes)
         for ch, code in codes.items():
             self._load(ch, code)
         if update and codes:
             self.update()
         self.clamp_events = self.clamp_events + events
-        return DacWriteResult(codes, tuple(clamped), update and bool(codes))
+        return DacWriteResult(codes, clamped, update and bool(codes))
 
     def _lane_write_counts(self, channel: int, code: LaneValue, update: bool = True) -> None:
         self._check_channel(channel)
